@@ -1,0 +1,18 @@
+//! zmotor-msgs: what travels on the wire and what every other crate agrees on: the field
+//! catalogue (the single source of truth, like motorRecord.dbd), values and menus, status bits,
+//! CBOR/JSON/text codecs, the key layout and JSON schemas.
+
+pub mod bits;
+pub mod catalogue;
+pub mod codec;
+pub mod keys;
+pub mod menus;
+pub mod schema;
+pub mod value;
+pub mod wire;
+
+pub use catalogue::{Access, Field, FieldDef, Fields, Kind, FIELDS};
+pub use codec::{decode_write, encode_cbor, CodecError, PayloadEncoding};
+pub use keys::KeyLayout;
+pub use value::Value;
+pub use wire::{DriverCommand, DriverTrace, Gain, SimState, StateMarker};

@@ -1,0 +1,64 @@
+//! JSON Schemas of every message type, generated from the Rust types, and the field catalogue
+//! as a JSON document (both written by `zmotor schema DIR`).
+
+use crate::catalogue::{Kind, FIELDS};
+use crate::value::Value;
+use crate::wire::{DriverTrace, SimState, StateMarker};
+
+/// (file name, schema) for every message type on the wire.
+pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
+    fn json<T: schemars::JsonSchema>() -> serde_json::Value {
+        serde_json::to_value(schemars::schema_for!(T)).expect("schemas serialize")
+    }
+    vec![
+        ("field-value.schema.json", json::<Value>()),
+        ("state-marker.schema.json", json::<StateMarker>()),
+        ("driver-command.schema.json", json::<DriverTrace>()),
+        ("sim-state.schema.json", json::<SimState>()),
+    ]
+}
+
+/// The catalogue as JSON: name, type, default, menu choices, access, prompt, unit of each field.
+pub fn catalogue_json() -> serde_json::Value {
+    let fields: Vec<serde_json::Value> = FIELDS
+        .iter()
+        .map(|d| {
+            let mut entry = serde_json::json!({
+                "name": d.name,
+                "type": d.kind.type_name(),
+                "default": d.default_value(),
+                "access": d.access.label(),
+                "prompt": d.prompt,
+                "unit": d.unit,
+            });
+            match d.kind {
+                Kind::Menu(menu) => {
+                    entry["menu"] = menu.name.into();
+                    entry["choices"] = menu.choices.into();
+                }
+                Kind::Str(max) => entry["max_length"] = (max - 1).into(),
+                _ => {}
+            }
+            entry
+        })
+        .collect();
+    serde_json::json!({ "fields": fields, "msta_bits": crate::bits::MSTA_BITS, "mip_bits": crate::bits::MIP_BITS })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn schemas_describe_the_wire_types() {
+        let schemas = message_schemas();
+        let trace = &schemas.iter().find(|(n, _)| *n == "driver-command.schema.json").unwrap().1;
+        let text = trace.to_string();
+        assert!(text.contains("move_velocity") && text.contains("set_position"), "{text}");
+        let catalogue = catalogue_json();
+        let spmg = catalogue["fields"].as_array().unwrap().iter().find(|f| f["name"] == "SPMG").unwrap();
+        assert_eq!(spmg["choices"][3], "Go");
+        assert_eq!(spmg["access"], "R/W*");
+        assert_eq!(spmg["default"], 3);
+    }
+}

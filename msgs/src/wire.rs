@@ -1,0 +1,125 @@
+//! Structured messages of the wire contract besides field values: the state marker attached to
+//! every publication, the driver-command trace, and the simulator's state report.
+
+use schemars::JsonSchema;
+use serde::{Deserialize, Serialize};
+
+/// Attachment of every publication a node makes. Its presence marks a sample as state, never a
+/// command, so nodes, bridges and UIs can share one key space without echo loops.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct StateMarker {
+    /// Always "state".
+    pub kind: String,
+    /// Per-axis publication sequence number.
+    pub seq: u64,
+    /// Alarm status (menuAlarmStat index) when the value was published.
+    pub stat: u16,
+    /// Alarm severity (menuAlarmSevr index) when the value was published.
+    pub sevr: u16,
+}
+
+impl StateMarker {
+    pub const KIND: &'static str = "state";
+
+    pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
+        Self { kind: Self::KIND.to_string(), seq, stat, sevr }
+    }
+
+    pub fn encode(&self) -> Vec<u8> {
+        crate::codec::encode_cbor(self)
+    }
+
+    /// The marker carried by an attachment, if it is one.
+    pub fn decode(attachment: &[u8]) -> Option<Self> {
+        ciborium::from_reader::<Self, _>(attachment).ok().filter(|m| m.kind == Self::KIND)
+    }
+}
+
+/// Which PID gain a `set_gain` command sets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Gain {
+    Proportional,
+    Integral,
+    Derivative,
+}
+
+/// One command to a driver, in raw units (steps, steps/s, steps/s²), as published on
+/// `<prefix>/<axis>/@driver/cmd`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(tag = "cmd", rename_all = "snake_case")]
+pub enum DriverCommand {
+    /// Absolute target, or distance when `relative`.
+    Move { position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64 },
+    /// Constant-velocity motion (jog); `max_velocity` is signed.
+    MoveVelocity { min_velocity: f64, max_velocity: f64, acceleration: f64 },
+    Home { forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64 },
+    Stop { acceleration: f64 },
+    /// Redefine the current position without moving.
+    SetPosition { position: f64 },
+    /// Amplifier / closed loop on or off.
+    Enable { on: bool },
+    /// Encoder counts per motor step ratio (MRES/ERES).
+    SetEncoderRatio { ratio: f64 },
+    SetHighLimit { position: f64 },
+    SetLowLimit { position: f64 },
+    SetGain { gain: Gain, value: f64 },
+    /// Request a fresh status report (the record's GET_INFO).
+    Poll,
+    /// A command primitive (INIT/PREM/POST text).
+    Raw { text: String },
+}
+
+/// A traced driver command with the engine's clock and a sequence number.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct DriverTrace {
+    #[serde(flatten)]
+    pub command: DriverCommand,
+    /// Seconds on the engine's clock.
+    pub t: f64,
+    pub seq: u64,
+}
+
+/// The simulator's physical state, published on `sim/<axis>/state`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct SimState {
+    /// True position in steps.
+    pub position: f64,
+    /// Encoder reading in counts (None without an encoder).
+    pub encoder: Option<f64>,
+    /// Signed velocity, steps/s.
+    pub velocity: f64,
+    pub moving: bool,
+    pub high_limit: bool,
+    pub low_limit: bool,
+    pub at_home: bool,
+    pub homed: bool,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn state_marker_round_trips_and_plain_payloads_are_not_markers() {
+        let m = StateMarker::new(7, 4, 2);
+        assert_eq!(StateMarker::decode(&m.encode()), Some(m));
+        assert_eq!(StateMarker::decode(b"hello"), None);
+        assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);
+    }
+
+    #[test]
+    fn driver_trace_is_a_flat_map_with_cmd() {
+        let t = DriverTrace {
+            command: DriverCommand::Move { position: 100.0, relative: false, min_velocity: 0.0, max_velocity: 100.0, acceleration: 200.0 },
+            t: 1.5,
+            seq: 3,
+        };
+        let json = serde_json::to_value(&t).unwrap();
+        assert_eq!(json["cmd"], "move");
+        assert_eq!(json["position"], 100.0);
+        assert_eq!(json["seq"], 3);
+        let back: DriverTrace = ciborium::from_reader(&crate::codec::encode_cbor(&t)[..]).unwrap();
+        assert_eq!(back, t);
+    }
+}
