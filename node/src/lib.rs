@@ -1,1 +1,3 @@
-pub fn x(){}
+//! zmotor-node: the motor record engine, device support and drivers, and the Zenoh adapter.
+
+pub mod engine;

@@ -1,0 +1,1728 @@
+//! The motor record as a pure state machine. Section numbers (§) refer to
+//! ../shared/spec/motor-record-behaviour.md, which this file follows step by step:
+//! `process` is §8, `do_work` §9, `post_process` §10, `maybe_retry` §11, `alarm` §12,
+//! `monitor` §13; helpers are §5, initialisation §6 and field writes §7.
+//!
+//! Inputs: `write` (a field put), `callback` (fresh device status), `delay_expired` (DLY timer).
+//! Outputs: `Output`s (monitor posts, device transactions, timer requests, completion), drained
+//! by the caller. The engine never reads a clock and performs no I/O.
+
+use super::commands::{DeviceStatus, MotorCommand, Output, WriteError};
+use super::marks::Marks;
+use super::maths::{nint, MoveMaths};
+use zmotor_msgs::bits::{mip, msta};
+use zmotor_msgs::menus::{choice, severity, status};
+use zmotor_msgs::{Access, Field, Fields, Value};
+
+/// Record version reported in VERS.
+const VERSION: f32 = 7.4;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Reason {
+    NothingDone,
+    Callback,
+}
+
+/// Where §8 continues after the callback part.
+enum Flow {
+    DoWork,
+    Exit,
+}
+
+/// One motor record.
+#[derive(Clone, Debug)]
+pub struct MotorRecord {
+    f: Fields,
+    marks: Marks,
+    outputs: Vec<Output>,
+    /// Device data delivered by `callback`, consumed by the next `update_values`.
+    pending_status: Option<DeviceStatus>,
+    /// Why the last move request was refused, reported to the writer.
+    refusal: Option<String>,
+}
+
+impl MotorRecord {
+    /// A record with the given configured field values; `check_speed_and_resolution` and
+    /// `enforce_min_rdbd` (§6.2 steps 3–4) run here. Call `restore_commands` and `init` next.
+    pub fn new(mut fields: Fields) -> Self {
+        fields.vers = VERSION;
+        let mut record = Self { f: fields, marks: Marks::default(), outputs: Vec::new(), pending_status: None, refusal: None };
+        record.check_speed_and_resolution();
+        record.enforce_min_rdbd();
+        record.outputs.clear();
+        record
+    }
+
+    pub fn fields(&self) -> &Fields {
+        &self.f
+    }
+
+    pub fn get(&self, field: Field) -> Value {
+        self.f.get(field)
+    }
+
+    /// Take everything the engine produced since the last call.
+    pub fn drain_outputs(&mut self) -> std::vec::Drain<'_, Output> {
+        self.outputs.drain(..)
+    }
+
+    // ------------------------------------------------------------------ §6 initialisation
+
+    /// §6.4 step 3–4: what device support writes before the record reads any status: the encoder
+    /// ratio, and the restored dial position if RSTM says so. `controller_steps` is the motor
+    /// position the controller reports at boot.
+    pub fn restore_commands(&self, controller_steps: f64) -> Vec<MotorCommand> {
+        let f = &self.f;
+        let mut cmds = vec![if f.eres == 0.0 { MotorCommand::SetEncRatio(1.0, 1.0) } else { MotorCommand::SetEncRatio(f.mres, f.eres) }];
+        let rdbd_eff = f.rdbd.abs().max(f.mres.abs());
+        let use_rel = f.rtry != 0 && f.rmod != choice::RMOD_IN_POSITION && (f.ueip != 0 || f.urip != 0);
+        let near_zero = f.dval.abs() > rdbd_eff && f.mres != 0.0 && (controller_steps * f.mres).abs() < rdbd_eff;
+        let load = match f.rstm {
+            1 => true,
+            2 => near_zero,
+            3 => near_zero || use_rel,
+            _ => false,
+        };
+        if load {
+            cmds.push(MotorCommand::LoadPos(f.dval / f.mres));
+        }
+        cmds
+    }
+
+    /// §6.2 steps 6–14, with the first status read from the device.
+    pub fn init(&mut self, status: DeviceStatus) {
+        self.f.udf = 0; // DOL is a constant link: the normal case
+        self.pending_status = Some(status);
+        self.update_values();
+        if self.f.eres == 0.0 {
+            self.f.eres = self.f.mres;
+        }
+        self.process_motor_info(true);
+        if self.f.omsl != choice::OMSL_CLOSED_LOOP {
+            self.f.val = self.f.rbv;
+            self.f.dval = self.f.drbv;
+            self.f.rval = nint(self.f.dval / self.f.mres);
+        }
+        self.set_dial_high_limit();
+        self.set_dial_low_limit();
+        let f = &mut self.f;
+        f.dmov = 1;
+        f.movn = 0;
+        f.spmg = choice::SPMG_GO;
+        f.lspg = choice::SPMG_GO;
+        f.diff = f.dval - f.drbv;
+        f.rdif = nint(f.diff / f.mres);
+        f.lval = f.val;
+        f.ldvl = f.dval;
+        f.lrvl = f.rval;
+        f.lvio = 0;
+        if !(f.dhlm == 0.0 && f.dllm == 0.0) && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm) {
+            f.lvio = 1;
+        }
+        self.mark(Field::MSTA);
+        for field in [Field::VAL, Field::DVAL, Field::RVAL, Field::DMOV, Field::LVIO, Field::DIFF, Field::RDIF] {
+            self.mark(field);
+        }
+        let alarm_changed = self.alarm();
+        self.monitor(alarm_changed);
+    }
+
+    /// §6.3
+    fn check_speed_and_resolution(&mut self) {
+        let f = &mut self.f;
+        if f.srev <= 0 {
+            f.srev = 200;
+        }
+        if f.urev != 0.0 {
+            f.mres = f.urev / f64::from(f.srev);
+        }
+        if f.mres == 0.0 {
+            f.mres = 1.0;
+        }
+        if f.urev != f.mres * f64::from(f.srev) {
+            f.urev = f.mres * f64::from(f.srev);
+        }
+        let u = f.urev.abs();
+        if f.smax > 0.0 {
+            f.vmax = f.smax * u;
+        } else if f.vmax > 0.0 {
+            f.smax = f.vmax / u;
+        } else {
+            f.smax = 0.0;
+            f.vmax = 0.0;
+        }
+        if f.sbas != 0.0 {
+            self.range_check(Field::SBAS, 0.0, self.f.smax);
+            self.f.vbas = self.f.sbas * u;
+        } else {
+            self.range_check(Field::VBAS, 0.0, self.f.vmax);
+            self.f.sbas = self.f.vbas / u;
+        }
+        if self.f.s != 0.0 {
+            self.range_check(Field::S, self.f.sbas, self.f.smax);
+            self.f.velo = self.f.s * u;
+        } else {
+            self.range_check(Field::VELO, self.f.vbas, self.f.vmax);
+            self.f.s = self.f.velo / u;
+        }
+        let f = &mut self.f;
+        if f.mres > 0.0 {
+            if f.rllm != 0.0 {
+                f.dllm = f.rllm * f.mres;
+            }
+            if f.rllm != f.dllm / f.mres {
+                f.rllm = f.dllm / f.mres;
+            }
+            if f.rhlm != 0.0 {
+                f.dhlm = f.rhlm * f.mres;
+            }
+            if f.rhlm != f.dhlm / f.mres {
+                f.rhlm = f.dhlm / f.mres;
+            }
+        } else {
+            let m = f.mres.abs();
+            if f.rllm != 0.0 {
+                f.dhlm = f.rllm * m;
+            }
+            if f.rllm != f.dhlm / m {
+                f.rllm = f.dhlm / m;
+            }
+            if f.rhlm != 0.0 {
+                f.dllm = f.rhlm * m;
+            }
+            if f.rhlm != f.dllm / m {
+                f.rhlm = f.dllm / m;
+            }
+        }
+        if self.f.sbak != 0.0 {
+            self.range_check(Field::SBAK, self.f.sbas, self.f.smax);
+            self.f.bvel = self.f.sbak * u;
+        } else {
+            self.range_check(Field::BVEL, self.f.vbas, self.f.vmax);
+            self.f.sbak = self.f.bvel / u;
+        }
+        if self.f.accs > 0.0 {
+            self.accl_from_accs();
+        } else {
+            if self.f.accl == 0.0 {
+                self.f.accl = 0.1;
+            }
+            self.accs_from_accl();
+        }
+        let f = &mut self.f;
+        if f.bacc == 0.0 {
+            f.bacc = 0.1;
+        }
+        if f.jvel == 0.0 {
+            f.jvel = f.velo;
+        } else {
+            self.range_check(Field::JVEL, self.f.vbas, self.f.vmax);
+        }
+        let f = &mut self.f;
+        if f.jar == 0.0 {
+            f.jar = f.velo / f.accl;
+        }
+        if f.hvel == 0.0 {
+            f.hvel = f.vbas;
+        } else {
+            self.range_check(Field::HVEL, self.f.vbas, self.f.vmax);
+        }
+    }
+
+    // ------------------------------------------------------------------ inputs
+
+    /// A put to a field (§0.1 and §7): refused when read-only or when special() says so,
+    /// otherwise stored, handled, posted and (for process-passive fields) processed.
+    pub fn write(&mut self, field: Field, value: &Value) -> Result<(), WriteError> {
+        let access = field.def().access;
+        if access == Access::RO {
+            return Err(WriteError::ReadOnly(field));
+        }
+        self.special_before(field)?;
+        self.f.set(field, value);
+        if field == Field::VAL {
+            self.f.udf = 0;
+        }
+        if let Err(e) = self.special_after(field) {
+            // Stored, but no post and no processing (§0.1 step 5).
+            self.flush_posts();
+            return Err(e);
+        }
+        if field != Field::VAL {
+            self.post(field);
+        }
+        self.refusal = None;
+        if access == Access::PP {
+            self.process();
+        } else {
+            self.flush_posts();
+        }
+        match self.refusal.take() {
+            Some(reason) => Err(WriteError::LimitViolation(reason)),
+            None => Ok(()),
+        }
+    }
+
+    /// Fresh status from the device: a callback processing.
+    pub fn callback(&mut self, status: DeviceStatus) {
+        self.pending_status = Some(status);
+        self.process();
+    }
+
+    /// The DLY timer fired (§5.11).
+    pub fn delay_expired(&mut self) {
+        if self.f.mip & mip::DELAY_REQ != 0 {
+            self.f.mip = (self.f.mip & !mip::DELAY_REQ) | mip::DELAY_ACK;
+            self.process();
+        }
+    }
+
+    // ------------------------------------------------------------------ §7 special()
+
+    fn special_before(&mut self, field: Field) -> Result<(), WriteError> {
+        use Field::*;
+        match field {
+            VAL | DVAL | RVAL | RLV | TWF | TWR => {
+                if self.f.dmov == 1 {
+                    self.f.dmov = 0;
+                    self.post(DMOV);
+                }
+            }
+            HOMF | HOMR if self.f.mip & mip::HOME_GROUP != 0 => {
+                return Err(WriteError::Refused { field, reason: "a home is in progress".into() });
+            }
+            STUP if self.f.stup != choice::STUP_OFF => {
+                return Err(WriteError::Refused { field, reason: "a status update is in progress".into() });
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn special_after(&mut self, field: Field) -> Result<(), WriteError> {
+        use Field::*;
+        let u = self.f.urev.abs();
+        match field {
+            VBAS | SBAS => {
+                if field == VBAS {
+                    self.clamp_negative(VBAS);
+                    if self.f.urev != 0.0 && self.f.sbas != self.f.vbas / u {
+                        self.f.sbas = self.f.vbas / u;
+                        self.post(SBAS);
+                    }
+                } else {
+                    self.clamp_negative(SBAS);
+                    if self.f.vbas != u * self.f.sbas {
+                        self.f.vbas = u * self.f.sbas;
+                        self.post(VBAS);
+                    }
+                }
+                self.acc_pair_from_velo();
+                if self.f.vmax != 0.0 && self.f.vbas > self.f.vmax {
+                    self.f.vmax = self.f.vbas;
+                    self.post(VMAX);
+                    self.f.smax = self.f.sbas;
+                    self.post(SMAX);
+                }
+                self.recheck_velocities();
+            }
+            VMAX | SMAX => {
+                if field == VMAX {
+                    self.clamp_negative(VMAX);
+                    if self.f.urev != 0.0 && self.f.smax != self.f.vmax / u {
+                        self.f.smax = self.f.vmax / u;
+                        self.post(SMAX);
+                    }
+                } else {
+                    self.clamp_negative(SMAX);
+                    if self.f.vmax != u * self.f.smax {
+                        self.f.vmax = u * self.f.smax;
+                        self.post(VMAX);
+                    }
+                }
+                if self.f.vmax != 0.0 && self.f.vmax < self.f.vbas {
+                    self.f.vbas = self.f.vmax;
+                    self.mark(VBAS);
+                    self.f.sbas = self.f.smax;
+                    self.mark(SBAS);
+                }
+                self.recheck_velocities();
+            }
+            VELO => {
+                self.range_check(VELO, self.f.vbas, self.f.vmax);
+                self.acc_pair_from_velo();
+                if self.f.urev != 0.0 && self.f.s != self.f.velo / u {
+                    self.f.s = self.f.velo / u;
+                    self.post(S);
+                }
+            }
+            S => {
+                self.range_check(S, self.f.sbas, self.f.smax);
+                if self.f.velo != u * self.f.s {
+                    self.f.velo = u * self.f.s;
+                    self.post(VELO);
+                }
+                self.acc_pair_from_velo();
+            }
+            BVEL => {
+                self.range_check(BVEL, self.f.vbas, self.f.vmax);
+                if self.f.urev != 0.0 && self.f.sbak != self.f.bvel / u {
+                    self.f.sbak = self.f.bvel / u;
+                    self.post(SBAK);
+                }
+            }
+            SBAK => {
+                self.range_check(SBAK, self.f.sbas, self.f.smax);
+                if self.f.bvel != u * self.f.sbak {
+                    self.f.bvel = u * self.f.sbak;
+                    self.post(BVEL);
+                }
+            }
+            ACCL => {
+                if self.f.accl <= 0.0 {
+                    self.f.accl = 0.1;
+                    self.post(ACCL);
+                }
+                self.accs_from_accl();
+            }
+            ACCS => {
+                if self.f.accs <= 0.0 {
+                    self.accs_from_accl();
+                }
+                self.accl_from_accs();
+            }
+            BACC => {
+                if self.f.bacc <= 0.0 {
+                    self.f.bacc = 0.1;
+                    self.post(BACC);
+                }
+            }
+            RDBD | BDST => self.enforce_min_rdbd(),
+            DIR => {
+                let dirsign = self.dirsign();
+                if self.f.foff == choice::FOFF_FROZEN {
+                    self.f.val = self.f.dval * dirsign + self.f.off;
+                    self.mark(VAL);
+                } else {
+                    self.f.off = self.f.val - self.f.dval * dirsign;
+                    self.mark(OFF);
+                }
+                self.f.rbv = self.f.drbv * dirsign + self.f.off;
+                self.mark(RBV);
+                self.set_userlimits();
+            }
+            OFF => {
+                let dirsign = self.dirsign();
+                self.f.val = self.f.dval * dirsign + self.f.off;
+                self.f.lval = self.f.ldvl * dirsign + self.f.off;
+                self.f.rbv = self.f.drbv * dirsign + self.f.off;
+                self.mark(VAL);
+                self.mark(RBV);
+                self.set_userlimits();
+            }
+            HLM => self.set_user_limit(true),
+            LLM => self.set_user_limit(false),
+            DHLM => self.set_dial_high_limit(),
+            DLLM => self.set_dial_low_limit(),
+            FRAC => {
+                let clamped = self.f.frac.clamp(0.1, 1.5);
+                if clamped != self.f.frac {
+                    self.f.frac = clamped;
+                    self.post(FRAC);
+                }
+            }
+            MRES => {
+                self.mark(MRES);
+                let urev = self.f.mres * f64::from(self.f.srev);
+                if self.f.urev != urev {
+                    self.f.urev = urev;
+                    self.mark(UREV);
+                }
+                self.rescale_for_resolution();
+            }
+            UREV => {
+                let mres = self.f.urev / f64::from(self.f.srev);
+                if self.f.mres != mres {
+                    self.f.mres = mres;
+                    self.mark(MRES);
+                }
+                self.rescale_for_resolution();
+            }
+            SREV => {
+                if self.f.srev <= 0 {
+                    self.f.srev = 200;
+                    self.mark(SREV);
+                }
+                let mres = self.f.urev / f64::from(self.f.srev);
+                if self.f.mres != mres {
+                    self.f.mres = mres;
+                    self.mark(MRES);
+                }
+            }
+            ERES => {
+                if self.f.eres == 0.0 {
+                    self.f.eres = self.f.mres;
+                }
+                self.mark(ERES);
+            }
+            UEIP => {
+                if self.f.ueip == choice::YES {
+                    if self.f.msta & msta::PRESENT != 0 {
+                        if self.f.urip == choice::YES {
+                            self.f.urip = choice::NO;
+                            self.post(URIP);
+                        }
+                    } else {
+                        self.f.ueip = choice::NO;
+                        self.mark(UEIP);
+                    }
+                }
+            }
+            URIP => {
+                if self.f.urip == choice::YES && self.f.ueip == choice::YES {
+                    self.f.ueip = choice::NO;
+                    self.mark(UEIP);
+                }
+            }
+            SSET | SUSE => {
+                self.f.set = u16::from(field == SSET);
+                self.post(SET);
+            }
+            FOF | VOF => {
+                self.f.foff = if field == FOF { choice::FOFF_FROZEN } else { choice::FOFF_VARIABLE };
+                self.post(FOFF);
+            }
+            PCOF | ICOF | DCOF => {
+                if self.f.msta & msta::GAIN_SUPPORT != 0 {
+                    let value = self.f.get(field).as_f64().unwrap_or(0.0);
+                    let clamped = value.clamp(0.0, 1.0);
+                    self.f.set(field, &Value::Float(clamped));
+                    let cmd = match field {
+                        PCOF => MotorCommand::SetPGain(clamped),
+                        ICOF => MotorCommand::SetIGain(clamped),
+                        _ => MotorCommand::SetDGain(clamped),
+                    };
+                    self.send(vec![cmd]);
+                    if clamped != value {
+                        self.post(field);
+                    }
+                }
+            }
+            CNEN => {
+                if self.f.msta & msta::GAIN_SUPPORT != 0 {
+                    let cmd = if self.f.cnen != 0 { MotorCommand::EnableTorque } else { MotorCommand::DisableTorque };
+                    self.send(vec![cmd]);
+                }
+            }
+            JOGF | JOGR => {
+                let (pressed, blocked) = if field == JOGF { (self.f.jogf, self.f.hls) } else { (self.f.jogr, self.f.lls) };
+                if pressed == 0 {
+                    self.f.mip &= !mip::JOG_REQ;
+                } else if self.f.mip == mip::DONE && blocked == 0 {
+                    self.f.mip |= mip::JOG_REQ;
+                }
+            }
+            JVEL => {
+                self.range_check(JVEL, self.f.vbas, self.f.vmax);
+                if self.f.mip & (mip::JOGF | mip::JOGR) != 0 {
+                    let maths = MoveMaths::new(&self.f);
+                    let mut jogv = self.f.jvel * self.dirsign() / self.f.mres;
+                    if self.f.jogr != 0 {
+                        jogv = -jogv;
+                    }
+                    self.send(vec![MotorCommand::SetAccel(maths.jacc), MotorCommand::JogVelocity(jogv)]);
+                }
+            }
+            JAR => {
+                if self.f.jar <= 0.0 {
+                    self.f.jar = self.f.jvel / 0.1;
+                }
+            }
+            HVEL => self.range_check(HVEL, self.f.vbas, self.f.vmax),
+            STUP => {
+                if self.f.stup != choice::STUP_ON {
+                    self.f.stup = choice::STUP_OFF;
+                    self.post(STUP);
+                    return Err(WriteError::Adjusted { field, reason: "only ON may be written; STUP stays OFF".into() });
+                }
+            }
+            NTMF => {
+                if self.f.ntmf < 2 {
+                    self.f.ntmf = 2;
+                    self.post(NTMF);
+                    return Err(WriteError::Adjusted { field, reason: "NTMF must be at least 2; set to 2".into() });
+                }
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn clamp_negative(&mut self, field: Field) {
+        if self.f.get(field).as_f64().unwrap_or(0.0) < 0.0 {
+            self.f.set(field, &Value::Float(0.0));
+            self.post(field);
+        }
+    }
+
+    /// RV of §7.2, the part shared by the base and maximum speed writes.
+    fn recheck_velocities(&mut self) {
+        let u = self.f.urev.abs();
+        self.range_check(Field::VELO, self.f.vbas, self.f.vmax);
+        if self.f.urev != 0.0 && self.f.s != self.f.velo / u {
+            self.f.s = self.f.velo / u;
+            self.post(Field::S);
+        }
+        self.range_check(Field::BVEL, self.f.vbas, self.f.vmax);
+        if self.f.urev != 0.0 && self.f.sbak != self.f.bvel / u {
+            self.f.sbak = self.f.bvel / u;
+            self.post(Field::SBAK);
+        }
+        self.range_check(Field::JVEL, self.f.vbas, self.f.vmax);
+        self.range_check(Field::HVEL, self.f.vbas, self.f.vmax);
+    }
+
+    /// The velocity/limit rescale after an MRES or UREV write (§7.2): raw limits are kept.
+    fn rescale_for_resolution(&mut self) {
+        let u = self.f.urev.abs();
+        let velo = u * self.f.s;
+        if velo != self.f.velo {
+            self.f.velo = velo;
+            self.mark(Field::VELO);
+        }
+        self.f.vbas = u * self.f.sbas;
+        self.mark(Field::VBAS);
+        self.f.bvel = u * self.f.sbak;
+        self.post(Field::BVEL);
+        self.f.vmax = u * self.f.smax;
+        self.post(Field::VMAX);
+        let (dhlm, dllm) = if self.f.mres > 0.0 {
+            (self.f.rhlm * self.f.mres, self.f.rllm * self.f.mres)
+        } else {
+            (self.f.rllm * self.f.mres, self.f.rhlm * self.f.mres)
+        };
+        if dhlm != self.f.dhlm {
+            self.f.dhlm = dhlm;
+            self.post(Field::DHLM);
+        }
+        if dllm != self.f.dllm {
+            self.f.dllm = dllm;
+            self.post(Field::DLLM);
+        }
+        self.set_userlimits();
+        self.post(Field::HLM);
+        self.post(Field::LLM);
+    }
+
+    // ------------------------------------------------------------------ §8 process()
+
+    fn process(&mut self) {
+        let lvio_at_entry = self.f.lvio;
+        let msta_at_entry = self.f.msta;
+        let mut reason = self.update_values();
+        if self.f.msta != msta_at_entry {
+            self.mark(Field::MSTA);
+        }
+        let mut flow = Flow::DoWork;
+        if reason == Reason::Callback || self.f.mip & mip::DELAY_ACK != 0 {
+            reason = Reason::Callback;
+            flow = self.callback_phase();
+        }
+        if let Flow::DoWork = flow {
+            self.enter_do_work(reason, lvio_at_entry);
+        }
+        // EXIT
+        if reason == Reason::Callback && self.f.stup == choice::STUP_BUSY {
+            self.f.stup = choice::STUP_OFF;
+            self.mark(Field::STUP);
+        }
+        let alarm_changed = self.alarm();
+        self.monitor(alarm_changed);
+        if self.f.dmov != 0 {
+            self.outputs.push(Output::Done);
+        }
+    }
+
+    /// §15.3 update_values: copy the device's pending status into the record.
+    fn update_values(&mut self) -> Reason {
+        let Some(status) = self.pending_status.take() else {
+            return Reason::NothingDone;
+        };
+        let rmp = (status.position + 0.5).floor() as i32;
+        let rep = (status.encoder_position + 0.5).floor() as i32;
+        let rvel = status.velocity.floor() as i32;
+        for (field, old, new) in [(Field::RMP, self.f.rmp, rmp), (Field::REP, self.f.rep, rep), (Field::RVEL, self.f.rvel, rvel)] {
+            if old != new {
+                self.f.set(field, &Value::Int(new.into()));
+                self.post(field);
+            }
+        }
+        self.f.msta = status.msta;
+        Reason::Callback
+    }
+
+    fn callback_phase(&mut self) -> Flow {
+        self.process_motor_info(false);
+        if self.f.movn != 0 {
+            let sign_rdif = i16::from(self.f.rdif >= 0);
+            let ntm_deadband = f64::from(self.f.ntmf) * (self.f.bdst.abs() + self.f.rdbd);
+            if self.f.dmov != 0 {
+                self.f.dmov = 0;
+                self.mark(Field::DMOV);
+                self.f.mip |= mip::EXTERNAL;
+                self.mark(Field::MIP);
+                self.f.pp = 1;
+            }
+            if self.f.ntm == choice::YES
+                && sign_rdif != self.f.cdir
+                && self.f.diff.abs() > ntm_deadband
+                && self.f.mip & (mip::MOVE | mip::RETRY) != 0
+                && self.f.mip & mip::STOP == 0
+            {
+                tracing::debug!(tdir = self.f.tdir, "new target behind the motor: stopping");
+                self.send(vec![MotorCommand::StopAxis]);
+                self.f.mip |= mip::STOP;
+                self.mark(Field::MIP);
+                self.f.pp = 0;
+            }
+            return Flow::DoWork;
+        }
+        if self.f.stup == choice::STUP_BUSY {
+            return Flow::DoWork;
+        }
+        if self.f.dmov == 0 {
+            self.f.dmov = 1;
+            self.mark(Field::DMOV);
+            if self.f.mip == mip::JOGF || self.f.mip == mip::JOGR {
+                self.set_mip(mip::DONE);
+                self.clear_buttons();
+                self.f.pp = 1;
+            }
+        }
+        if self.f.mip != mip::DONE && self.limit_switch_hit() {
+            self.f.dmov = 0;
+            self.marks.clear(Field::DMOV);
+            self.send(vec![MotorCommand::GetInfo]);
+            self.f.pp = 1;
+            self.set_mip(mip::DONE);
+            return Flow::Exit;
+        }
+        if self.f.pp != 0 {
+            if self.f.val != self.f.lval && self.f.mip & mip::STOP == 0 && self.f.mip & mip::JOG_STOP == 0 {
+                // A new target arrived while the previous sequence was running.
+                if self.f.mip == mip::HOMF || self.f.mip == mip::HOMR {
+                    self.clear_buttons();
+                }
+                self.f.mip = mip::DONE;
+                return Flow::DoWork;
+            }
+            self.post_process();
+        }
+        if self.limit_switch_hit() || self.f.mip == mip::LOAD_P {
+            self.set_mip(mip::DONE);
+        } else if self.f.dmov != 0 {
+            let dmov_just_set = self.marks.contains(Field::DMOV);
+            if self.f.mip & mip::DELAY_ACK != 0 || self.f.dly <= 0.0 {
+                if self.f.mip & mip::DELAY_ACK != 0 && self.f.mip & mip::DELAY_REQ == 0 {
+                    self.f.mip |= mip::DELAY_REQ | mip::DELAY_ACK;
+                    self.send(vec![MotorCommand::GetInfo]);
+                    self.f.dmov = 0;
+                    self.marks.clear(Field::DMOV);
+                    return Flow::Exit;
+                } else if self.f.stup != choice::STUP_ON && self.f.mip != mip::DONE {
+                    self.set_mip(self.f.mip & !mip::DELAY_GROUP);
+                    self.maybe_retry();
+                    if self.f.mip == mip::RETRY && self.f.rmod == choice::RMOD_IN_POSITION {
+                        self.set_mip(self.f.mip | mip::DELAY_REQ);
+                        self.outputs.push(Output::StartDelay(self.f.dly));
+                    }
+                }
+            } else if dmov_just_set {
+                if self.f.mip & mip::DELAY_REQ == 0 {
+                    self.set_mip(self.f.mip | mip::DELAY_REQ);
+                    self.outputs.push(Output::StartDelay(self.f.dly));
+                }
+                self.f.dmov = 0;
+                self.marks.clear(Field::DMOV);
+                return Flow::Exit;
+            }
+        }
+        Flow::DoWork
+    }
+
+    fn enter_do_work(&mut self, reason: Reason, lvio_at_entry: i16) {
+        let f = &self.f;
+        if f.dhlm == 0.0 && f.dllm == 0.0 {
+            self.f.lvio = 0;
+        } else if f.mip & mip::JOG_GROUP != 0 {
+            let lvio = (f.jogf != 0 && f.rbv > f.hlm - f.jvel) || (f.jogr != 0 && f.rbv < f.llm + f.jvel) || f.dllm > f.dhlm;
+            self.f.lvio = i16::from(lvio);
+        } else if f.mip & mip::HOME_GROUP != 0 {
+            self.f.lvio = 0;
+        }
+        if self.f.lvio != lvio_at_entry {
+            self.mark(Field::LVIO);
+            if self.f.lvio != 0 && self.f.set == 0 && self.f.igset == 0 {
+                self.f.stop = 1;
+                self.mark(Field::STOP);
+                self.clear_buttons();
+            }
+        }
+        let f = &self.f;
+        if f.stop != 0
+            || f.spmg == choice::SPMG_STOP
+            || f.spmg == choice::SPMG_PAUSE
+            || reason != Reason::Callback
+            || f.dmov != 0
+            || f.mip & mip::RETRY != 0
+        {
+            self.do_work(reason);
+        }
+    }
+
+    // ------------------------------------------------------------------ §9 do_work()
+
+    fn do_work(&mut self, reason: Reason) {
+        use Field::*;
+        let stop_or_pause = self.f.spmg == choice::SPMG_STOP || self.f.spmg == choice::SPMG_PAUSE;
+        let lvio_at_entry = self.f.lvio;
+
+        // §9.1 explicit status update and the STOP / SPMG switch
+        if self.f.stup == choice::STUP_ON {
+            self.f.stup = choice::STUP_BUSY;
+            self.mark(STUP);
+            self.send(vec![MotorCommand::GetInfo]);
+        }
+        if self.f.spmg != self.f.lspg || self.f.stop != 0 {
+            let stop_req = self.f.stop != 0;
+            if self.f.spmg != self.f.lspg {
+                self.f.lspg = self.f.spmg;
+            } else {
+                self.f.stop = 0;
+                self.mark(STOP);
+            }
+            if stop_or_pause || stop_req {
+                if self.f.spmg == choice::SPMG_STOP || stop_req {
+                    let m = self.f.mip;
+                    if m == mip::DONE || m & mip::STOP != 0 || m & mip::RETRY != 0 {
+                        if m & mip::RETRY != 0 {
+                            self.set_mip(mip::DONE);
+                            self.f.dmov = 1;
+                            self.mark(DMOV);
+                        }
+                        self.send(vec![MotorCommand::StopAxis]);
+                        return;
+                    } else if self.f.movn != 0 {
+                        self.f.pp = 1;
+                        self.clear_buttons();
+                    } else {
+                        self.sync_target_position();
+                    }
+                }
+                if self.f.mip & mip::HOME_GROUP != 0 {
+                    self.clear_buttons();
+                }
+                if self.f.mip & mip::DELAY_REQ == 0 {
+                    self.set_mip(mip::STOP);
+                }
+                self.send(vec![MotorCommand::StopAxis]);
+                return;
+            } else if self.f.spmg == choice::SPMG_GO {
+                if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
+                    self.set_mip(mip::JOG_REQ);
+                } else if self.f.mip == mip::STOP {
+                    self.set_mip(mip::DONE);
+                }
+            } else {
+                self.set_mip(mip::DONE);
+                self.f.rcnt = 0;
+                self.mark(RCNT);
+            }
+        }
+
+        // §9.2 resolution / encoder changes
+        if self.marks.contains(MRES) || self.marks.contains(ERES) || self.marks.contains(UEIP) {
+            let mut ratio = None;
+            if self.f.msta & msta::PRESENT != 0 {
+                if self.f.mres.abs() < 1e-9 {
+                    self.f.mres = 1.0;
+                    self.mark(MRES);
+                }
+                if self.f.eres == 0.0 {
+                    self.f.eres = self.f.mres;
+                    self.mark(ERES);
+                }
+                let mut m: i64 = 10_000_000;
+                while m > 1 && ((m as f64 / self.f.eres).abs() > 1e6 || (m as f64 / self.f.mres).abs() > 1e6) {
+                    m /= 10;
+                }
+                ratio = Some((m as f64 / self.f.eres, m as f64 / self.f.mres));
+            }
+            self.enforce_min_rdbd();
+            if let Some((enc, mot)) = ratio {
+                self.send(vec![MotorCommand::SetEncRatio(enc, mot)]);
+            }
+            if self.set_mode() {
+                self.f.pp = 1;
+                self.send(vec![MotorCommand::GetInfo]);
+            } else if self.f.mip & mip::LOAD_P == 0 {
+                self.load_pos();
+            }
+            return;
+        }
+
+        // §9.3 home, jog and button requests
+        let dir_pos = self.f.dir == choice::DIR_POS;
+        let fwd_blocked = if dir_pos { self.f.hls } else { self.f.lls } != 0;
+        let rev_blocked = if dir_pos { self.f.lls } else { self.f.hls } != 0;
+        if (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
+            || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked)
+        {
+            if stop_or_pause {
+                self.f.dmov = 0;
+                self.mark(DMOV);
+                return;
+            }
+            self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
+            self.f.pp = 1;
+            if self.f.movn != 0 {
+                self.set_mip(self.f.mip | mip::STOP);
+                self.send(vec![MotorCommand::StopAxis]);
+            } else {
+                if self.f.eres == 0.0 {
+                    self.f.eres = self.f.mres;
+                    self.mark(ERES);
+                }
+                self.start_home();
+            }
+            return;
+        }
+
+        if self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0 {
+            let f = &self.f;
+            if !(f.dhlm == 0.0 && f.dllm == 0.0)
+                && ((f.jogf != 0 && f.val > f.hlm - f.jvel) || (f.jogr != 0 && f.val < f.llm + f.jvel) || f.dllm > f.dhlm)
+            {
+                self.f.lvio = 1;
+                self.mark(LVIO);
+                if self.f.jogf != 0 {
+                    self.f.jogf = 0;
+                    self.mark(JOGF);
+                }
+                if self.f.jogr != 0 {
+                    self.f.jogr = 0;
+                    self.mark(JOGR);
+                }
+                return;
+            }
+            self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
+            if self.f.movn != 0 {
+                self.f.pp = 1;
+                self.set_mip(self.f.mip | mip::STOP);
+                self.send(vec![MotorCommand::StopAxis]);
+            } else {
+                self.f.dmov = 0;
+                self.mark(DMOV);
+                self.f.pp = 1;
+                let maths = MoveMaths::new(&self.f);
+                let mut jogv = self.f.jvel * self.dirsign() / self.f.mres;
+                let mut cdir = 1;
+                if self.f.jogf == 0 {
+                    cdir = 0;
+                    jogv = -jogv;
+                }
+                if self.f.mres < 0.0 {
+                    cdir = 1 - cdir;
+                }
+                if !dir_pos {
+                    cdir = 1 - cdir;
+                }
+                self.f.cdir = cdir;
+                self.send(vec![MotorCommand::SetVelBase(maths.vbase), MotorCommand::SetAccel(maths.jacc), MotorCommand::Jog(jogv)]);
+            }
+            return;
+        }
+
+        if self.f.mip & mip::JOG_REQ == 0 && self.f.mip & (mip::JOGF | mip::JOGR) != 0 {
+            // Any do_work during a jog stops it (Q7); MIP is not marked here.
+            self.f.pp = 1;
+            self.f.mip = (self.f.mip | mip::JOG_STOP) & !(mip::JOGF | mip::JOGR);
+            self.send(vec![MotorCommand::StopAxis]);
+            return;
+        } else if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
+            return;
+        }
+
+        if self.f.twf != 0 || self.f.twr != 0 {
+            self.f.val += self.f.twv * if self.f.twf != 0 { 1.0 } else { -1.0 };
+            if self.f.twf != 0 {
+                self.f.twf = 0;
+                self.post(TWF);
+            }
+            if self.f.twr != 0 {
+                self.f.twr = 0;
+                self.post(TWR);
+            }
+        }
+        if self.f.rlv != self.f.lrlv {
+            self.f.val += self.f.rlv;
+            self.f.rlv = 0.0;
+            self.mark(RLV);
+            self.f.lrlv = 0.0;
+        }
+        if self.f.rval != self.f.lrvl {
+            self.f.dval = f64::from(self.f.rval) * self.f.mres;
+        }
+
+        // §9.4 VAL → DVAL, and the Set-mode offset redefinition
+        if self.f.val != self.f.lval {
+            self.mark(VAL);
+            if self.set_mode() && self.f.foff == choice::FOFF_VARIABLE {
+                let dirsign = self.dirsign();
+                self.f.off = self.f.val - self.f.dval * dirsign;
+                self.f.rbv = self.f.drbv * dirsign + self.f.off;
+                self.mark(OFF);
+                self.mark(RBV);
+                self.set_userlimits();
+                self.f.lval = self.f.val;
+                self.set_mip(mip::DONE);
+                self.f.dmov = 1;
+                self.mark(DMOV);
+                return;
+            }
+            self.f.dval = (self.f.val - self.f.off) / self.dirsign();
+        }
+        if stop_or_pause {
+            return;
+        }
+
+        // §9.5 move evaluation
+        if self.f.dval != self.f.ldvl || self.f.dmov == 0 {
+            self.evaluate_move(lvio_at_entry);
+        } else if self.f.sync != 0 && self.f.mip == mip::DONE {
+            // §9.6
+            self.sync_target_position();
+            self.f.sync = 0;
+            self.post(SYNC);
+        } else if reason == Reason::NothingDone && self.f.stup == choice::STUP_OFF {
+            self.f.stup = choice::STUP_BUSY;
+            self.mark(STUP);
+            self.send(vec![MotorCommand::GetInfo]);
+        }
+    }
+
+    /// §9.5
+    fn evaluate_move(&mut self, lvio_at_entry: i16) {
+        use Field::*;
+        if self.f.dval != self.f.ldvl {
+            self.mark(DVAL);
+        }
+        let diff = self.f.dval - self.f.drbv;
+        if diff != self.f.diff {
+            self.f.diff = diff;
+            self.mark(DIFF);
+        }
+        self.f.rdif = nint(self.f.diff / self.f.mres);
+        self.mark(RDIF);
+        if self.set_mode() {
+            if self.f.mip & mip::LOAD_P == 0 {
+                self.load_pos();
+            }
+            return;
+        }
+        let mut m = MoveMaths::new(&self.f);
+        let use_rel = self.use_relative();
+        self.f.val = self.f.dval * self.dirsign() + self.f.off;
+        if self.f.val != self.f.lval {
+            self.mark(VAL);
+        }
+        self.f.rval = nint(self.f.dval / self.f.mres);
+        if self.f.rval != self.f.lrvl {
+            self.mark(RVAL);
+        }
+
+        let (rpos, npos) = (nint(m.rbvpos), nint(m.newpos));
+        let steps_away = (i64::from(npos) - i64::from(rpos)).abs();
+        let retrying = self.f.mip & mip::RETRY != 0;
+        let too_small = if !retrying {
+            let spdb = self.f.spdb;
+            steps_away < 1 || (spdb > 0.0 && (self.f.dval - spdb) < self.f.drbv && self.f.drbv < (self.f.dval + spdb))
+        } else {
+            steps_away < i64::from(m.rdbdpos)
+        };
+        if too_small {
+            if self.f.dmov == 0 && (self.f.mip == mip::DONE || self.f.mip == mip::RETRY) {
+                self.f.dmov = 1;
+                self.mark(DMOV);
+                if self.f.mip != mip::DONE {
+                    self.set_mip(mip::DONE);
+                }
+            }
+            self.f.ldvl = self.f.dval;
+            self.f.lval = self.f.val;
+            self.f.lrvl = self.f.rval;
+            return;
+        }
+
+        if !retrying {
+            if self.f.rcnt != 0 {
+                self.mark(RCNT);
+            }
+            self.f.rcnt = 0;
+        } else {
+            let factor = match self.f.rmod {
+                choice::RMOD_ARITHMETIC => Some((f64::from(self.f.rtry) - f64::from(self.f.rcnt) + 1.0) / f64::from(self.f.rtry)),
+                choice::RMOD_GEOMETRIC => Some(1.0 / 2f64.powi(i32::from(self.f.rcnt) - 1)),
+                choice::RMOD_IN_POSITION => return,
+                _ => None,
+            };
+            if let Some(factor) = factor {
+                m.relpos = at_least_one_step(m.relpos * factor);
+                m.relbpos = at_least_one_step(m.relbpos * factor);
+            }
+        }
+
+        let f = &self.f;
+        let preferred = if use_rel { (f.diff > 0.0) == (f.bdst > 0.0) } else { (f.dval > f.ldvl) == (f.bdst > 0.0) };
+        let lvio = if f.dhlm == 0.0 && f.dllm == 0.0 {
+            false
+        } else if f.dllm > f.dhlm {
+            true
+        } else if (f.dval > f.dhlm && f.dval < f.ldvl) || (f.dval < f.dllm && f.dval > f.ldvl) {
+            false
+        } else if preferred {
+            f.dval > f.dhlm || f.dval < f.dllm
+        } else {
+            (f.dval - f.bdst) > f.dhlm || (f.dval - f.bdst) < f.dllm
+        };
+        self.f.lvio = i16::from(lvio);
+        if self.f.lvio != lvio_at_entry {
+            self.mark(LVIO);
+        }
+        if lvio {
+            self.refusal = Some(format!(
+                "dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
+                self.f.dval, self.f.dllm, self.f.dhlm
+            ));
+            self.f.val = self.f.lval;
+            self.f.dval = self.f.ldvl;
+            self.f.rval = self.f.lrvl;
+            self.mark(VAL);
+            self.mark(DVAL);
+            self.mark(RVAL);
+            if self.f.mip & mip::RETRY != 0 {
+                self.set_mip(mip::DONE);
+            }
+            if self.f.mip == mip::DONE && self.f.dmov == 0 {
+                self.f.dmov = 1;
+                self.mark(DMOV);
+            }
+            return;
+        }
+
+        if self.f.mip == mip::DONE || self.f.mip == mip::RETRY {
+            self.set_mip(self.f.mip | mip::MOVE);
+            if self.f.dmov != 0 {
+                self.f.dmov = 0;
+                self.mark(DMOV);
+            }
+            self.f.ldvl = self.f.dval;
+            self.f.lval = self.f.val;
+            self.f.lrvl = self.f.rval;
+            let f = &self.f;
+            let frac = f64::from(f.frac);
+            let fractional_target = if use_rel { m.relpos * frac } else { m.currpos + frac * (m.newpos - m.currpos) };
+            let backlash_off = f.bdst.abs() < f.mres.abs() || (preferred && f.bvel == f.velo && f.bacc == f.accl);
+            let within_backlash = preferred
+                && ((use_rel && ((f.bdst >= 0.0 && m.relbpos <= 1.0) || (f.bdst < 0.0 && m.relbpos >= 1.0)))
+                    || (!use_rel && (m.newpos - m.currpos).abs() <= m.rbdst1));
+            let (velocity, accel, position) = if backlash_off {
+                (m.vel, m.acc, fractional_target)
+            } else if within_backlash {
+                (m.bvel, m.bacc, fractional_target)
+            } else {
+                self.f.pp = 1;
+                (m.vel, m.acc, if use_rel { m.relbpos } else { m.bpos })
+            };
+            self.f.cdir = i16::from(self.f.rdif >= 0);
+            let mut txn = vec![MotorCommand::SetVelocity(velocity), MotorCommand::SetVelBase(m.vbase)];
+            if accel > 0.0 {
+                txn.push(MotorCommand::SetAccel(accel));
+            }
+            txn.push(if use_rel { MotorCommand::MoveRel(position) } else { MotorCommand::MoveAbs(position) });
+            txn.push(MotorCommand::Go);
+            self.send(txn);
+        }
+    }
+
+    // ------------------------------------------------------------------ §10 postProcess()
+
+    fn post_process(&mut self) {
+        use Field::*;
+        self.f.pp = 0;
+        if self.f.omsl != choice::OMSL_CLOSED_LOOP && self.f.mip & (mip::MOVE | mip::MOVE_BL | mip::JOG_BL1 | mip::JOG_BL2) == 0 {
+            self.f.val = self.f.rbv;
+            self.f.dval = self.f.drbv;
+            self.f.rval = nint(self.f.dval / self.f.mres);
+            self.f.diff = 0.0;
+            self.f.rdif = 0;
+            for field in [VAL, DVAL, RVAL, DIFF, RDIF] {
+                self.mark(field);
+            }
+        }
+        let use_rel = self.use_relative();
+        let frac = f64::from(self.f.frac);
+        if self.f.mip & mip::LOAD_P != 0 {
+            self.f.mip = mip::DONE;
+        } else if self.f.mip & mip::HOME_GROUP != 0 {
+            if self.f.mip & mip::STOP != 0 {
+                self.f.mip &= !mip::STOP;
+                self.start_home();
+                self.f.pp = 1;
+            } else if self.f.mip & mip::HOMF != 0 {
+                self.f.mip &= !mip::HOMF;
+                self.f.homf = 0;
+                self.mark(HOMF);
+            } else {
+                self.f.mip &= !mip::HOMR;
+                self.f.homr = 0;
+                self.mark(HOMR);
+            }
+        } else if self.f.mip & (mip::JOG_STOP | mip::MOVE) != 0 {
+            if self.backlash_enabled() {
+                let m = MoveMaths::new(&self.f);
+                self.f.dmov = 0;
+                self.marks.clear(DMOV);
+                if self.f.mip & mip::JOG_STOP != 0 {
+                    let vel = if m.vel <= m.vbase { m.vbase + 1.0 } else { m.vel };
+                    let mut txn = vec![MotorCommand::SetVelocity(vel), MotorCommand::SetVelBase(m.vbase)];
+                    if m.acc > 0.0 {
+                        txn.push(MotorCommand::SetAccel(m.acc));
+                    }
+                    txn.push(if use_rel { MotorCommand::MoveRel(m.relbpos) } else { MotorCommand::MoveAbs(m.bpos) });
+                    txn.push(MotorCommand::Go);
+                    self.send(txn);
+                    self.f.mip = mip::JOG_BL1;
+                } else {
+                    let position = if use_rel {
+                        m.relpos * frac
+                    } else {
+                        let p = m.bpos + frac * (m.newpos - m.bpos);
+                        self.f.rval = nint(p);
+                        p
+                    };
+                    self.send_backlash_leg(&m, position, use_rel);
+                    self.f.mip = mip::MOVE_BL;
+                }
+                self.f.cdir = i16::from(m.relpos >= 0.0);
+                self.f.pp = 1;
+            }
+            self.f.mip &= !(mip::JOG_STOP | mip::MOVE);
+        } else if self.f.mip & mip::JOG_BL1 != 0 {
+            let m = MoveMaths::new(&self.f);
+            let position = if use_rel {
+                (m.relpos - m.relbpos) * frac
+            } else {
+                let p = m.bpos + frac * (m.newpos - m.bpos);
+                self.f.rval = nint(p);
+                p
+            };
+            self.f.dmov = 0;
+            self.marks.clear(DMOV);
+            self.send_backlash_leg(&m, position, use_rel);
+            let direction = if use_rel { position } else { self.f.diff };
+            self.f.cdir = i16::from(direction >= 0.0);
+            self.f.mip = mip::JOG_BL2;
+            self.f.pp = 1;
+        }
+        self.f.lval = self.f.val;
+        self.f.ldvl = self.f.dval;
+        self.f.lrvl = self.f.rval;
+        self.set_mip(self.f.mip & !mip::STOP);
+    }
+
+    /// T2/T4: the final backlash approach; no SET_VEL_BASE, so the driver keeps the last one.
+    fn send_backlash_leg(&mut self, m: &MoveMaths, position: f64, use_rel: bool) {
+        let bvel = if m.bvel <= m.vbase { m.vbase + 1.0 } else { m.bvel };
+        let mut txn = vec![MotorCommand::SetVelocity(bvel)];
+        if m.bacc > 0.0 {
+            txn.push(MotorCommand::SetAccel(m.bacc));
+        }
+        txn.push(if use_rel { MotorCommand::MoveRel(position) } else { MotorCommand::MoveAbs(position) });
+        txn.push(MotorCommand::Go);
+        self.send(txn);
+    }
+
+    /// T5 plus the bookkeeping shared by §9.3 and §10.
+    fn start_home(&mut self) {
+        let m = MoveMaths::new(&self.f);
+        let forward = (self.f.homf != 0 && self.f.mres > 0.0) || (self.f.homr != 0 && self.f.mres < 0.0);
+        let mut txn = vec![MotorCommand::SetVelocity(m.hvel), MotorCommand::SetVelBase(m.vbase)];
+        if m.hacc > 0.0 {
+            txn.push(MotorCommand::SetAccel(m.hacc));
+        }
+        txn.push(if forward { MotorCommand::HomeFor } else { MotorCommand::HomeRev });
+        txn.push(MotorCommand::Go);
+        self.send(txn);
+        self.f.dmov = 0;
+        self.mark(Field::DMOV);
+        self.f.rcnt = 0;
+        self.mark(Field::RCNT);
+        let cdir = i16::from(self.f.homf != 0);
+        self.f.cdir = if self.f.mres < 0.0 { 1 - cdir } else { cdir };
+    }
+
+    // ------------------------------------------------------------------ §11 maybe_retry()
+
+    fn maybe_retry(&mut self) {
+        let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
+        let user_cdir = if same_sense { self.f.cdir } else { 1 - self.f.cdir };
+        let stopped_by_switch = (self.f.hls != 0 && user_cdir == 1) || (self.f.lls != 0 && user_cdir == 0);
+        if self.f.diff.abs() >= self.f.rdbd && !stopped_by_switch {
+            if self.f.rtry == 0 {
+                self.f.mip &= mip::JOG_REQ;
+            } else {
+                self.f.rcnt += 1;
+                if self.f.rcnt > self.f.rtry {
+                    self.f.mip = mip::DONE;
+                    if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
+                        self.f.mip |= mip::JOG_REQ;
+                    }
+                    self.f.lval = self.f.val;
+                    self.f.ldvl = self.f.dval;
+                    self.f.lrvl = self.f.rval;
+                    self.f.miss = 1;
+                    self.mark(Field::MISS);
+                } else {
+                    self.f.dmov = 0;
+                    self.marks.clear(Field::DMOV);
+                    self.f.mip = mip::RETRY;
+                }
+                self.mark(Field::RCNT);
+            }
+        } else {
+            self.f.mip &= mip::JOG_REQ;
+            if self.f.miss != 0 {
+                self.f.miss = 0;
+                self.mark(Field::MISS);
+            }
+            if self.f.spmg == choice::SPMG_MOVE {
+                self.f.spmg = choice::SPMG_PAUSE;
+                self.mark(Field::SPMG);
+            }
+        }
+        self.mark(Field::MIP);
+    }
+
+    // ------------------------------------------------------------------ §12 alarms, §13 monitors
+
+    /// Compute STAT/SEVR; true if either changed.
+    fn alarm(&mut self) -> bool {
+        let f = &self.f;
+        let (mut nsta, mut nsev) = (status::NO_ALARM, severity::NO_ALARM);
+        let mut comm_error = false;
+        if f.udf != 0 {
+            (nsta, nsev) = (status::UDF, severity::INVALID);
+        } else if f.hlsv != severity::NO_ALARM && (f.hls != 0 || f.dval > f.dhlm) {
+            (nsta, nsev) = (status::HIGH, f.hlsv);
+        } else if f.hlsv != severity::NO_ALARM && (f.lls != 0 || f.dval < f.dllm) {
+            (nsta, nsev) = (status::LOW, f.hlsv);
+        } else {
+            if f.msta & msta::COMM_ERR != 0 {
+                comm_error = true;
+                (nsta, nsev) = (status::COMM, severity::INVALID);
+            }
+            if f.msta & (msta::SLIP_STALL | msta::PROBLEM) != 0 && nsev < severity::MAJOR {
+                (nsta, nsev) = (status::STATE, severity::MAJOR);
+            }
+        }
+        if comm_error {
+            self.f.msta &= !msta::COMM_ERR;
+            self.mark(Field::MSTA);
+        }
+        let changed = nsta != self.f.stat || nsev != self.f.sevr;
+        self.f.stat = nsta;
+        self.f.sevr = nsev;
+        changed
+    }
+
+    fn monitor(&mut self, alarm_changed: bool) {
+        use Field::*;
+        let rbv_marked = self.marks.contains(RBV);
+        self.marks.clear(RBV);
+        let rbv = self.f.rbv;
+        let rbv_due = if self.f.mdel == 0.0 && self.f.adel == 0.0 {
+            rbv_marked || alarm_changed
+        } else if rbv_marked {
+            let mut due = alarm_changed;
+            if self.f.mdel == 0.0 || (self.f.mlst - rbv).abs() > self.f.mdel {
+                due = true;
+                self.f.mlst = rbv;
+            }
+            if self.f.adel == 0.0 || (self.f.alst - rbv).abs() > self.f.adel {
+                self.f.alst = rbv;
+            }
+            due
+        } else {
+            false
+        };
+        if rbv_due {
+            self.post(RBV);
+        }
+        for field in [RRBV, DRBV, DIFF, RDIF, MSTA] {
+            if self.marks.contains(field) || alarm_changed {
+                self.marks.clear(field);
+                self.post(field);
+                if field == MSTA && self.f.msta & msta::GAIN_SUPPORT != 0 {
+                    let cnen = u16::from(self.f.msta & msta::POSITION != 0);
+                    if cnen != self.f.cnen {
+                        self.f.cnen = cnen;
+                        self.post(CNEN);
+                    }
+                }
+            }
+        }
+        if alarm_changed {
+            self.post(STAT);
+            self.post(SEVR);
+        }
+        self.flush_posts();
+    }
+
+    /// Post every field still marked, then clear the marks.
+    fn flush_posts(&mut self) {
+        for field in self.marks.take() {
+            self.post(field);
+        }
+    }
+
+    // ------------------------------------------------------------------ §5 helpers
+
+    /// §5.10 process_motor_info
+    fn process_motor_info(&mut self, initcall: bool) {
+        use Field::*;
+        let old = (self.f.drbv, self.f.rbv, self.f.rrbv, self.f.tdir, self.f.movn, self.f.hls, self.f.lls, self.f.athm);
+        if self.f.ueip == choice::YES && self.f.msta & msta::PRESENT == 0 {
+            self.f.ueip = choice::NO;
+            self.post(UEIP);
+        }
+        if self.f.ueip == choice::YES {
+            self.f.rrbv = self.f.rep;
+            self.f.drbv = f64::from(self.f.rrbv) * self.f.eres;
+        } else if self.f.urip == choice::YES && !initcall {
+            // The RDBL readback link belongs to the Soft Channel issue; until then the
+            // step count stands in for it.
+            self.f.rrbv = self.f.rmp;
+            self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+        } else {
+            self.f.rrbv = self.f.rmp;
+            self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+        }
+        if self.f.rrbv != old.2 {
+            self.mark(RRBV);
+        }
+        if self.f.drbv != old.0 {
+            self.mark(DRBV);
+        }
+        self.f.rbv = self.dirsign() * self.f.drbv + self.f.off;
+        if self.f.rbv != old.1 {
+            self.mark(RBV);
+        }
+        self.f.tdir = i16::from(self.f.msta & msta::DIRECTION != 0);
+        if self.f.tdir != old.3 {
+            self.mark(TDIR);
+        }
+        self.f.rhls = i16::from(self.f.msta & msta::PLUS_LS != 0);
+        self.f.rlls = i16::from(self.f.msta & msta::MINUS_LS != 0);
+        let ls_active = self.limit_switch_hit();
+        let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
+        (self.f.hls, self.f.lls) = if same_sense { (self.f.rhls, self.f.rlls) } else { (self.f.rlls, self.f.rhls) };
+        if self.f.hls != old.5 {
+            self.mark(HLS);
+        }
+        if self.f.lls != old.6 {
+            self.mark(LLS);
+        }
+        if ls_active || self.f.msta & (msta::DONE | msta::PROBLEM) != 0 {
+            self.f.movn = 0;
+            if ls_active || self.f.msta & msta::PROBLEM != 0 {
+                self.clear_buttons();
+            }
+        } else {
+            self.f.movn = 1;
+        }
+        if self.f.movn != old.4 {
+            self.mark(MOVN);
+        }
+        self.f.athm = i16::from(self.f.msta & if self.f.ueip == choice::YES { msta::ENCODER_HOME } else { msta::HOME } != 0);
+        if self.f.athm != old.7 {
+            self.mark(ATHM);
+        }
+        self.f.diff = self.f.dval - self.f.drbv;
+        self.mark(DIFF);
+        self.f.rdif = nint(self.f.diff / self.f.mres);
+        self.mark(RDIF);
+    }
+
+    /// A raw limit switch active in the commanded raw direction.
+    fn limit_switch_hit(&self) -> bool {
+        (self.f.rhls != 0 && self.f.cdir == 1) || (self.f.rlls != 0 && self.f.cdir == 0)
+    }
+
+    /// §5.7
+    fn sync_target_position(&mut self) {
+        use Field::*;
+        if self.f.ueip == choice::YES {
+            self.f.rrbv = self.f.rep;
+            self.f.drbv = f64::from(self.f.rrbv) * self.f.eres;
+        } else {
+            self.f.rrbv = self.f.rmp;
+            self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+        }
+        self.mark(RRBV);
+        self.mark(DRBV);
+        self.f.rbv = self.f.drbv * self.dirsign() + self.f.off;
+        self.mark(RBV);
+        self.f.val = self.f.rbv;
+        self.f.lval = self.f.rbv;
+        self.f.dval = self.f.drbv;
+        self.f.ldvl = self.f.drbv;
+        self.f.rval = nint(self.f.dval / self.f.mres);
+        self.f.lrvl = self.f.rval;
+        for field in [VAL, DVAL, RVAL] {
+            self.mark(field);
+        }
+    }
+
+    /// §5.8
+    fn load_pos(&mut self) {
+        use Field::*;
+        let newpos = self.f.dval / self.f.mres;
+        self.f.ldvl = self.f.dval;
+        self.f.lval = self.f.val;
+        if self.f.rval != nint(newpos) {
+            self.mark(RVAL);
+        }
+        self.f.rval = nint(newpos);
+        self.f.lrvl = self.f.rval;
+        let pos = self.f.dir == choice::DIR_POS;
+        if self.f.foff == choice::FOFF_FROZEN {
+            self.f.val = if pos { self.f.off + self.f.dval } else { self.f.off - self.f.dval };
+            self.mark(VAL);
+            self.f.lval = self.f.val;
+        } else {
+            self.f.off = if pos { self.f.val - self.f.dval } else { self.f.val + self.f.dval };
+            self.mark(OFF);
+            self.set_userlimits();
+        }
+        self.set_mip(mip::LOAD_P);
+        if self.f.dmov != 0 {
+            self.f.dmov = 0;
+            self.mark(DMOV);
+        }
+        self.send(vec![MotorCommand::LoadPos(newpos)]);
+        self.send(vec![MotorCommand::GetInfo]);
+    }
+
+    /// §5.1
+    fn enforce_min_rdbd(&mut self) {
+        if self.f.rdbd < self.f.mres.abs() {
+            self.f.rdbd = self.f.mres.abs();
+            self.post(Field::RDBD);
+        }
+    }
+
+    /// §5.2: clamp to min, and to max unless max is 0 ("no maximum"); post if changed.
+    fn range_check(&mut self, field: Field, min: f64, max: f64) {
+        let value = self.f.get(field).as_f64().unwrap_or(0.0);
+        let mut clamped = value;
+        if clamped < min {
+            clamped = min;
+        }
+        if max != 0.0 && clamped > max {
+            clamped = max;
+        }
+        if clamped != value {
+            self.f.set(field, &Value::Float(clamped));
+            self.post(field);
+        }
+    }
+
+    /// §5.3
+    fn clear_buttons(&mut self) {
+        use Field::*;
+        for field in [JOGF, JOGR, HOMF, HOMR] {
+            if self.f.get(field) != Value::Int(0) {
+                self.f.set(field, &Value::Int(0));
+                self.mark(field);
+            }
+        }
+    }
+
+    /// §5.4
+    fn set_userlimits(&mut self) {
+        let f = &mut self.f;
+        if f.dir == choice::DIR_POS {
+            f.hlm = f.dhlm + f.off;
+            f.llm = f.dllm + f.off;
+        } else {
+            f.hlm = -f.dllm + f.off;
+            f.llm = -f.dhlm + f.off;
+        }
+        self.mark(Field::HLM);
+        self.mark(Field::LLM);
+    }
+
+    /// §5.5 set_dial_high_limit
+    fn set_dial_high_limit(&mut self) {
+        let raw = self.f.dhlm / self.f.mres;
+        let to_high = self.f.mres >= 0.0;
+        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        if self.f.dir == choice::DIR_POS {
+            self.f.hlm = self.f.dhlm + self.f.off;
+            self.mark(Field::HLM);
+        } else {
+            self.f.llm = -self.f.dhlm + self.f.off;
+            self.mark(Field::LLM);
+        }
+        self.store_raw_limit(to_high, raw);
+        self.mark(Field::DHLM);
+    }
+
+    /// §5.5 set_dial_low_limit
+    fn set_dial_low_limit(&mut self) {
+        let raw = self.f.dllm / self.f.mres;
+        let to_high = self.f.mres < 0.0;
+        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        if self.f.dir == choice::DIR_POS {
+            self.f.llm = self.f.dllm + self.f.off;
+            self.mark(Field::LLM);
+        } else {
+            self.f.hlm = -self.f.dllm + self.f.off;
+            self.mark(Field::HLM);
+        }
+        self.store_raw_limit(to_high, raw);
+        self.mark(Field::DLLM);
+    }
+
+    /// §5.6 set_user_high_limit / set_user_low_limit (the controller always accepts limits here).
+    fn set_user_limit(&mut self, high: bool) {
+        let pos = self.f.dir == choice::DIR_POS;
+        let user = if high { self.f.hlm } else { self.f.llm };
+        let dial = if pos { user - self.f.off } else { -user + self.f.off };
+        // A user high limit is a dial high limit when DIR is Pos.
+        let dial_high = high == pos;
+        let to_high = dial_high == (self.f.mres >= 0.0);
+        let raw = dial / self.f.mres;
+        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        if dial_high {
+            self.f.dhlm = dial;
+            self.mark(Field::DHLM);
+        } else {
+            self.f.dllm = dial;
+            self.mark(Field::DLLM);
+        }
+        self.store_raw_limit(to_high, raw);
+        self.mark(if high { Field::HLM } else { Field::LLM });
+    }
+
+    fn store_raw_limit(&mut self, high: bool, raw: f64) {
+        if high {
+            self.f.rhlm = raw;
+            self.mark(Field::RHLM);
+        } else {
+            self.f.rllm = raw;
+            self.mark(Field::RLLM);
+        }
+    }
+
+    /// §5.9
+    fn accs_from_accl(&mut self) {
+        let accs = self.velocity_above_base() / self.f.accl;
+        if accs != self.f.accs {
+            self.f.accs = accs;
+            self.post(Field::ACCS);
+        }
+    }
+
+    fn accl_from_accs(&mut self) {
+        if self.f.accs > 0.0 {
+            let accl = self.velocity_above_base() / self.f.accs;
+            if accl != self.f.accl {
+                self.f.accl = accl;
+                self.post(Field::ACCL);
+            }
+        }
+    }
+
+    fn acc_pair_from_velo(&mut self) {
+        if self.f.accu == choice::ACCU_USE_ACCS {
+            self.accl_from_accs();
+        } else {
+            self.accs_from_accl();
+        }
+    }
+
+    fn velocity_above_base(&self) -> f64 {
+        if self.f.velo > self.f.vbas {
+            self.f.velo - self.f.vbas
+        } else {
+            self.f.velo
+        }
+    }
+
+    // ------------------------------------------------------------------ small pieces
+
+    fn dirsign(&self) -> f64 {
+        if self.f.dir == choice::DIR_POS {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
+    /// Effective Set mode: SET = Set and IGSET = 0.
+    fn set_mode(&self) -> bool {
+        self.f.set == 1 && self.f.igset == 0
+    }
+
+    fn backlash_enabled(&self) -> bool {
+        self.f.bdst.abs() >= self.f.mres.abs()
+    }
+
+    /// Relative moves: retries enabled, not In-Position, and a readback other than the step count.
+    fn use_relative(&self) -> bool {
+        self.f.rtry != 0 && self.f.rmod != choice::RMOD_IN_POSITION && (self.f.ueip == choice::YES || self.f.urip == choice::YES)
+    }
+
+    fn set_mip(&mut self, value: u16) {
+        self.f.mip = value;
+        self.mark(Field::MIP);
+    }
+
+    fn mark(&mut self, field: Field) {
+        self.marks.insert(field);
+    }
+
+    /// Post a field now, with its current value.
+    fn post(&mut self, field: Field) {
+        self.outputs.push(Output::Post(field, self.f.get(field)));
+    }
+
+    fn send(&mut self, transaction: Vec<MotorCommand>) {
+        self.outputs.push(Output::Transaction(transaction));
+    }
+}
+
+/// Scaled retry distances keep a magnitude of at least one step (sign(0) counts as negative).
+fn at_least_one_step(steps: f64) -> f64 {
+    if steps.abs() < 1.0 {
+        if steps > 0.0 {
+            1.0
+        } else {
+            -1.0
+        }
+    } else {
+        steps
+    }
+}
