@@ -1,3 +1,7 @@
-//! zmotor-node: the motor record engine, device support and drivers, and the Zenoh adapter.
+//! zmotor-node: the motor record engine (sans-IO), device support, drivers, the sans-IO axis
+//! that composes them on an injected clock, and the Zenoh adapter around it.
 
+pub mod axis;
+pub mod device;
+pub mod driver;
 pub mod engine;
