@@ -57,26 +57,27 @@ pub fn decode_cbor_value(bytes: &[u8]) -> Result<Value, String> {
 
 /// Decode and validate a write to the field described by `def`.
 pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, CodecError> {
-    let malformed = |encoding: &'static str, detail: String| CodecError::Malformed {
-        field: def.name,
-        encoding,
-        detail,
-    };
-    let raw = match encoding {
+    let raw = decode_scalar(bytes, encoding).map_err(|(encoding, detail)| CodecError::Malformed { field: def.name, encoding, detail })?;
+    validate(def, raw)
+}
+
+/// Decode one scalar (number or text) in any accepted encoding; on failure, the encoding's
+/// name and what was wrong.
+pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, (&'static str, String)> {
+    match encoding {
         PayloadEncoding::Cbor => {
-            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| malformed("CBOR", e.to_string()))?;
-            from_cbor(v).map_err(|e| malformed("CBOR", e))?
+            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| ("CBOR", e.to_string()))?;
+            from_cbor(v).map_err(|e| ("CBOR", e))
         }
         PayloadEncoding::Json => {
-            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| malformed("JSON", e.to_string()))?;
-            from_json(v).map_err(|e| malformed("JSON", e))?
+            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| ("JSON", e.to_string()))?;
+            from_json(v).map_err(|e| ("JSON", e))
         }
         PayloadEncoding::Text => {
-            let text = std::str::from_utf8(bytes).map_err(|e| malformed("text", e.to_string()))?;
-            from_text(text)
+            let text = std::str::from_utf8(bytes).map_err(|e| ("text", e.to_string()))?;
+            Ok(from_text(text))
         }
-    };
-    coerce(def, raw)
+    }
 }
 
 fn from_cbor(v: ciborium::Value) -> Result<Value, String> {
@@ -132,7 +133,9 @@ fn from_text(text: &str) -> Value {
     Value::Text(unquoted.to_string())
 }
 
-fn coerce(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
+/// Check a value against the field's kind and range, converting where the meaning is exact
+/// (an integer to a double, a menu choice name to its index).
+pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
     let field = def.name;
     match def.kind {
         Kind::Double | Kind::Float => {

@@ -12,7 +12,7 @@ pub mod value;
 pub mod wire;
 
 pub use catalogue::{Access, Field, FieldDef, Fields, Kind, FIELDS};
-pub use codec::{decode_write, encode_cbor, CodecError, PayloadEncoding};
+pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, PayloadEncoding};
 pub use keys::KeyLayout;
 pub use value::Value;
 pub use wire::{DriverCommand, DriverTrace, Gain, SimState, StateMarker};

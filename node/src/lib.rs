@@ -5,3 +5,5 @@ pub mod axis;
 pub mod device;
 pub mod driver;
 pub mod engine;
+pub mod launch;
+pub mod net;

@@ -6,7 +6,7 @@ pub mod sim;
 use crate::engine::DeviceStatus;
 use zmotor_msgs::{DriverCommand, Gain};
 
-pub trait Driver: Send {
+pub trait Driver: Send + Sync {
     /// The clock advanced to `now` seconds; a physical model integrates up to it.
     fn advance(&mut self, now: f64);
     /// Absolute move to `position`, or relative move by `position` steps.

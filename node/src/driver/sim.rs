@@ -118,9 +118,10 @@ impl SimAxis {
         !self.profile.is_empty()
     }
 
-    /// Move the carriage by hand (an external motion): the controller did not command it.
-    pub fn push_to(&mut self, physical: f64, velocity: f64) {
-        self.start_motion(physical, velocity.abs().max(1.0), velocity.abs().max(1.0), 0.0, Arrival::Nothing);
+    /// Put the carriage somewhere else by hand, at once; any motion in progress is abandoned.
+    pub fn teleport(&mut self, physical: f64) {
+        self.halt();
+        self.physical = physical;
     }
 
     pub fn set_high_limit_switch(&mut self, position: Option<f64>) {

@@ -1,0 +1,357 @@
+//! The Zenoh adapter: one task per axis, a thin loop around the sans-IO `Axis`. It turns
+//! samples and queries into writes, the wall clock into ticks, and `AxisEvent`s into
+//! publications, trace samples and replies, as ../shared/spec/zenoh-api.md requires.
+
+use crate::axis::{Axis, AxisEvent};
+use crate::driver::sim::SimAxis;
+use crate::engine::WriteError;
+use crate::launch::{AxisPlan, ZenohSection};
+use std::time::Duration;
+use tokio::time::Instant;
+use zenoh::bytes::{Encoding, ZBytes};
+use zenoh::key_expr::KeyExpr;
+use zenoh::query::Query;
+use zenoh::sample::Sample;
+use zenoh::Session;
+use zmotor_msgs::{decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value, FIELDS};
+
+pub type Error = Box<dyn std::error::Error + Send + Sync>;
+
+/// Zenoh configuration for a node or a client from the launch file's `[zenoh]` section.
+pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config, Error> {
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", &serde_json::to_string(&section.mode)?)?;
+    config.insert_json5("listen/endpoints", &serde_json::to_string(&section.listen)?)?;
+    config.insert_json5("connect/endpoints", &serde_json::to_string(&section.connect)?)?;
+    config.insert_json5("scouting/multicast/enabled", &section.multicast_scouting.to_string())?;
+    Ok(config)
+}
+
+/// A running node: its axes' tasks, stopped when dropped or on `shutdown`.
+pub struct Node {
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    stop: tokio::sync::watch::Sender<bool>,
+}
+
+impl Node {
+    /// Start one task per axis on `session`.
+    pub async fn start(session: Session, layout: KeyLayout, plans: Vec<AxisPlan>) -> Result<Self, Error> {
+        let (stop, stopped) = tokio::sync::watch::channel(false);
+        let mut tasks = Vec::new();
+        for plan in plans {
+            let io = AxisIo::declare(&session, &layout, &plan.name).await?;
+            let clock = Instant::now();
+            let axis = Axis::new(plan.fields, Box::new(SimAxis::new(plan.sim)), plan.rates, 0.0);
+            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new() };
+            let stopped = stopped.clone();
+            tasks.push(tokio::spawn(async move { task.run(stopped).await }));
+        }
+        Ok(Self { tasks, stop })
+    }
+
+    pub async fn shutdown(mut self) {
+        let _ = self.stop.send(true);
+        for task in std::mem::take(&mut self.tasks) {
+            let _ = task.await;
+        }
+    }
+}
+
+impl Drop for Node {
+    fn drop(&mut self) {
+        let _ = self.stop.send(true);
+    }
+}
+
+/// The Zenoh entities of one axis.
+struct AxisIo {
+    session: Session,
+    layout: KeyLayout,
+    name: String,
+    writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
+    queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    sim_writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
+    sim_queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    trace: zenoh::pubsub::Publisher<'static>,
+    field_keys: Vec<KeyExpr<'static>>,
+    _token: zenoh::liveliness::LivelinessToken,
+}
+
+impl AxisIo {
+    async fn declare(session: &Session, layout: &KeyLayout, name: &str) -> Result<Self, Error> {
+        let field_keys = FIELDS
+            .iter()
+            .map(|d| KeyExpr::try_from(layout.field(name, d.field)))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Self {
+            writes: session.declare_subscriber(layout.axis_fields(name)).await?,
+            queries: session.declare_queryable(layout.axis_all(name)).await?,
+            sim_writes: session.declare_subscriber(keys::sim_key(name, "*")).await?,
+            sim_queries: session.declare_queryable(keys::sim_key(name, "**")).await?,
+            trace: session.declare_publisher(layout.driver_cmd(name)).encoding(Encoding::APPLICATION_CBOR).await?,
+            _token: session.liveliness().declare_token(layout.axis(name)).await?,
+            field_keys,
+            session: session.clone(),
+            layout: layout.clone(),
+            name: name.to_string(),
+        })
+    }
+}
+
+/// A confirmed write with `?wait`, answered when the motion has finished.
+struct Waiter {
+    query: Query,
+    field: Field,
+}
+
+struct AxisTask {
+    io: AxisIo,
+    axis: Axis,
+    clock: Instant,
+    seq: u64,
+    waiting: Vec<Waiter>,
+}
+
+impl AxisTask {
+    fn now(&self) -> f64 {
+        self.clock.elapsed().as_secs_f64()
+    }
+
+    async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+        self.publish_events().await;
+        loop {
+            let wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup());
+            tokio::select! {
+                sample = self.io.writes.recv_async() => match sample {
+                    Ok(sample) => self.on_write_sample(sample).await,
+                    Err(_) => break,
+                },
+                query = self.io.queries.recv_async() => match query {
+                    Ok(query) => self.on_query(query).await,
+                    Err(_) => break,
+                },
+                sample = self.io.sim_writes.recv_async() => match sample {
+                    Ok(sample) => self.on_sim_write(sample).await,
+                    Err(_) => break,
+                },
+                query = self.io.sim_queries.recv_async() => match query {
+                    Ok(query) => self.on_sim_query(query).await,
+                    Err(_) => break,
+                },
+                _ = tokio::time::sleep_until(wake) => {
+                    let now = self.now();
+                    self.axis.tick(now, false);
+                }
+                _ = stopped.changed() => break,
+            }
+            self.publish_events().await;
+        }
+    }
+
+    /// A plain put: a write unless it carries the state marker.
+    async fn on_write_sample(&mut self, sample: Sample) {
+        if sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some()) {
+            return;
+        }
+        let key = sample.key_expr().as_str().to_string();
+        let Some(name) = self.io.layout.field_name(&self.io.name, &key) else { return };
+        let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+        if let Err(message) = self.apply_write(name, &sample.payload().to_bytes(), encoding) {
+            tracing::warn!(axis = %self.io.name, key, "write refused: {message}");
+            self.publish_error(&message).await;
+        }
+    }
+
+    /// Decode and apply one write; Err is the plain-words reason it was refused.
+    fn apply_write(&mut self, name: &str, payload: &[u8], encoding: PayloadEncoding) -> Result<Field, String> {
+        let field = Field::from_name(name).ok_or_else(|| format!("{name}: unknown field"))?;
+        let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
+        let now = self.now();
+        self.axis.write(now, field, &value).map(|()| field).map_err(|e: WriteError| e.to_string())
+    }
+
+    async fn on_query(&mut self, query: Query) {
+        let key = query.key_expr().as_str().to_string();
+        match (self.io.layout.field_name(&self.io.name, &key), query.payload().map(|p| p.to_bytes().into_owned())) {
+            (Some(name), Some(payload)) => {
+                let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
+                match self.apply_write(name, &payload, encoding) {
+                    Err(message) => {
+                        tracing::warn!(axis = %self.io.name, key, "confirmed write refused: {message}");
+                        self.publish_error(&message).await;
+                        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).await;
+                    }
+                    Ok(field) if query.parameters().contains_key("wait") && self.axis.fields().dmov == 0 => {
+                        self.waiting.push(Waiter { query, field });
+                    }
+                    Ok(field) if query.parameters().contains_key("wait") => self.reply_completion(&query, field).await,
+                    Ok(field) => self.reply_field(&query, field).await,
+                }
+            }
+            (Some(name), None) if !name.contains('*') && Field::from_name(name).is_none() => {
+                let _ = query.reply_err(format!("{name}: unknown field")).encoding(Encoding::TEXT_PLAIN).await;
+            }
+            _ => {
+                // A read of one field or of a key expression covering several.
+                let selected = query.key_expr().clone();
+                for field in zmotor_msgs::Field::all() {
+                    if selected.intersects(&self.io.field_keys[field as usize]) {
+                        self.reply_field(&query, field).await;
+                    }
+                }
+            }
+        }
+    }
+
+    async fn reply_field(&self, query: &Query, field: Field) {
+        let value = self.axis.record().get(field);
+        let _ = query
+            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&value))
+            .encoding(Encoding::APPLICATION_CBOR)
+            .await;
+    }
+
+    /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
+    async fn reply_completion(&self, query: &Query, field: Field) {
+        let f = self.axis.fields();
+        let reached = f.miss == 0 && f.lvio == 0 && f.sevr < zmotor_msgs::menus::severity::MAJOR;
+        let outcome = std::collections::BTreeMap::from([
+            (field.name(), self.axis.record().get(field)),
+            ("RBV", Value::Float(f.rbv)),
+            ("DMOV", Value::Int(f.dmov.into())),
+            ("MISS", Value::Int(f.miss.into())),
+            ("LVIO", Value::Int(f.lvio.into())),
+            ("STAT", Value::Int(f.stat.into())),
+            ("SEVR", Value::Int(f.sevr.into())),
+            ("reached", Value::Int(reached.into())),
+        ]);
+        let _ = query
+            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&outcome))
+            .encoding(Encoding::APPLICATION_CBOR)
+            .await;
+    }
+
+    async fn on_sim_write(&mut self, sample: Sample) {
+        if sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some()) {
+            return;
+        }
+        let key = sample.key_expr().as_str().to_string();
+        let name = key.rsplit('/').next().unwrap_or_default().to_string();
+        let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+        let value = decode_scalar(&sample.payload().to_bytes(), encoding).map_err(|(enc, e)| format!("{key}: malformed {enc}: {e}"));
+        let now = self.now();
+        self.axis.tick(now, false);
+        let result = value.and_then(|v| match self.axis.simulation() {
+            Some(sim) => apply_sim_setting(sim, &name, &v).map_err(|e| format!("{key}: {e}")),
+            None => Err(format!("{key}: this axis is not simulated")),
+        });
+        match result {
+            Ok(()) => self.axis.tick(now, true),
+            Err(message) => {
+                tracing::warn!(axis = %self.io.name, "{message}");
+                self.publish_error(&message).await;
+            }
+        }
+    }
+
+    async fn on_sim_query(&mut self, query: Query) {
+        let now = self.now();
+        self.axis.tick(now, false);
+        let Some(sim) = self.axis.simulation() else { return };
+        let state = sim.state();
+        let config = sim.config().clone();
+        let mut entries: Vec<(&str, Vec<u8>)> = vec![("state", encode_cbor(&state))];
+        let optional = |x: Option<f64>| Value::Float(x.unwrap_or(f64::NAN));
+        for (name, value) in [
+            ("position", Value::Float(state.position)),
+            ("high_limit", optional(config.high_limit_switch)),
+            ("low_limit", optional(config.low_limit_switch)),
+            ("home", Value::Float(config.home_switch)),
+            ("encoder", Value::Float(config.encoder_counts_per_step.unwrap_or(0.0))),
+            ("stall", Value::Int(sim.stalled.into())),
+            ("comm_lost", Value::Int(sim.comm_lost.into())),
+            ("problem", Value::Int(sim.problem.into())),
+            ("fraction", Value::Float(sim.fraction)),
+        ] {
+            entries.push((name, encode_cbor(&value)));
+        }
+        for (name, payload) in entries {
+            let Ok(key) = KeyExpr::try_from(keys::sim_key(&self.io.name, name)) else { continue };
+            if query.key_expr().intersects(&key) {
+                let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).await;
+            }
+        }
+    }
+
+    async fn publish_events(&mut self) {
+        let events: Vec<AxisEvent> = self.axis.drain_events().collect();
+        let mut traced = None;
+        for event in events {
+            match event {
+                AxisEvent::Post(field, value) => self.publish(field, &value).await,
+                AxisEvent::Driver { command, t } => {
+                    let listening = match traced {
+                        Some(listening) => listening,
+                        None => *traced.insert(self.io.trace.matching_status().await.map(|m| m.matching()).unwrap_or(false)),
+                    };
+                    if listening {
+                        self.seq += 1;
+                        let trace = DriverTrace { command, t, seq: self.seq };
+                        let _ = self.io.trace.put(encode_cbor(&trace)).await;
+                    }
+                }
+                AxisEvent::Done => {
+                    for waiter in std::mem::take(&mut self.waiting) {
+                        self.reply_completion(&waiter.query, waiter.field).await;
+                    }
+                }
+            }
+        }
+    }
+
+    fn marker(&mut self) -> ZBytes {
+        self.seq += 1;
+        let f = self.axis.fields();
+        ZBytes::from(StateMarker::new(self.seq, f.stat, f.sevr).encode())
+    }
+
+    async fn publish(&mut self, field: Field, value: &Value) {
+        let attachment = self.marker();
+        let key = self.io.field_keys[field as usize].clone();
+        let _ = self.io.session.put(key, encode_cbor(value)).encoding(Encoding::APPLICATION_CBOR).attachment(attachment).await;
+    }
+
+    async fn publish_error(&mut self, message: &str) {
+        let attachment = self.marker();
+        let key = self.io.layout.err(&self.io.name);
+        let _ = self.io.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).await;
+    }
+}
+
+/// The simulator's keys under `sim/<axis>/`: positions in steps, flags as 0/1.
+fn apply_sim_setting(sim: &mut SimAxis, name: &str, value: &Value) -> Result<(), String> {
+    let number = || value.as_f64().filter(|x| x.is_finite()).ok_or_else(|| format!("a finite number is required, got '{value}'"));
+    let switch_position = || match value {
+        Value::Text(t) if t.eq_ignore_ascii_case("none") => Ok(None),
+        _ => number().map(Some),
+    };
+    match name {
+        "position" => sim.teleport(number()?),
+        "high_limit" => sim.set_high_limit_switch(switch_position()?),
+        "low_limit" => sim.set_low_limit_switch(switch_position()?),
+        "home" => sim.set_home_switch(number()?),
+        "encoder" => sim.set_encoder(Some(number()?).filter(|r| *r != 0.0)),
+        "stall" => sim.stalled = number()? != 0.0,
+        "comm_lost" => sim.comm_lost = number()? != 0.0,
+        "problem" => sim.problem = number()? != 0.0,
+        "fraction" => {
+            let f = number()?;
+            if !(0.0..=2.0).contains(&f) {
+                return Err(format!("fraction {f} is outside [0, 2]"));
+            }
+            sim.fraction = f;
+        }
+        other => return Err(format!("unknown simulator key '{other}'")),
+    }
+    Ok(())
+}
