@@ -146,7 +146,11 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     let layout = KeyLayout::new(&client.prefix);
     // One field by name, or a pattern such as D* or the whole axis.
     let (key, single) = match field {
-        Some(f) if f.contains('*') => (format!("{}/{axis}/{f}", layout.prefix()), false),
+        // Zenoh spells a wildcard inside a chunk `$*`.
+        Some(f) if f.contains('*') => {
+            let pattern = if f == "*" || f == "**" { f.to_string() } else { f.replace('*', "$*") };
+            (format!("{}/{axis}/{pattern}", layout.prefix()), false)
+        }
         Some(f) => (format!("{}/{axis}/{}", layout.prefix(), field_name(f)?), true),
         None => (layout.axis_all(axis), false),
     };
