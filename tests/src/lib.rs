@@ -1,1 +1,159 @@
+//! Helpers for end-to-end tests: a node on a free 127.0.0.1 port with multicast scouting off,
+//! client sessions connected to it, and a recorder of published fields.
 
+use std::time::Duration;
+use zenoh::bytes::Encoding;
+use zenoh::Session;
+use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
+use zmotor_node::axis::PollRates;
+use zmotor_node::driver::sim::SimConfig;
+use zmotor_node::launch::{AxisPlan, ZenohSection};
+use zmotor_node::net::{zenoh_config, Node};
+
+/// Longest any single expectation waits before the test fails.
+pub const PATIENCE: Duration = Duration::from_secs(10);
+
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+}
+
+/// A fast simulated stage: MRES 0.001 mm, VELO 100 mm/s, ACCL 0.05 s, soft limits ±100 mm,
+/// limit switches at ±105 mm, readback at 50 Hz.
+pub fn fast_axis(name: &str) -> AxisPlan {
+    AxisPlan {
+        name: name.to_string(),
+        fields: Fields { name: name.into(), mres: 0.001, velo: 100.0, accl: 0.05, dhlm: 100.0, dllm: -100.0, egu: "mm".into(), ..Fields::default() },
+        sim: SimConfig { high_limit_switch: Some(105_000.0), low_limit_switch: Some(-105_000.0), ..SimConfig::default() },
+        rates: PollRates { moving: 0.02, idle: 1.0 },
+    }
+}
+
+/// A running node and the endpoint clients connect to.
+pub struct TestNode {
+    pub node: Option<Node>,
+    pub session: Session,
+    pub endpoint: String,
+    pub layout: KeyLayout,
+}
+
+impl TestNode {
+    pub async fn start(plans: Vec<AxisPlan>) -> Self {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
+        let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
+        let layout = KeyLayout::default();
+        let node = Node::start(session.clone(), layout.clone(), plans).await.unwrap();
+        Self { node: Some(node), session, endpoint, layout }
+    }
+
+    /// A client session connected to this node.
+    pub async fn client(&self) -> Session {
+        let section = ZenohSection { mode: "client".into(), listen: vec![], connect: vec![self.endpoint.clone()], ..ZenohSection::default() };
+        zenoh::open(zenoh_config(&section).unwrap()).await.unwrap()
+    }
+
+    pub fn key(&self, axis: &str, field: Field) -> String {
+        self.layout.field(axis, field)
+    }
+}
+
+/// A plain (fire-and-forget) put of text, as a stock tool would send it.
+pub async fn put_text(session: &Session, key: &str, text: &str) {
+    session.put(key, text.to_string()).encoding(Encoding::TEXT_PLAIN).await.unwrap();
+}
+
+/// A confirmed write: Ok(reply payload) or Err(the node's error text).
+pub async fn confirmed_write(session: &Session, selector: &str, text: &str, timeout: Duration) -> Result<Vec<u8>, String> {
+    let replies = session.get(selector).payload(text.to_string()).encoding(Encoding::TEXT_PLAIN).timeout(timeout).await.unwrap();
+    let reply = replies.recv_async().await.map_err(|_| "no reply".to_string())?;
+    match reply.result() {
+        Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
+        Err(err) => Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned()),
+    }
+}
+
+/// Read one field with a get.
+pub async fn get_value(session: &Session, key: &str) -> Value {
+    let replies = session.get(key).timeout(PATIENCE).await.unwrap();
+    let reply = replies.recv_async().await.expect("a reply");
+    decode_cbor_value(&reply.result().expect("a value").payload().to_bytes()).unwrap()
+}
+
+pub async fn get_f64(session: &Session, key: &str) -> f64 {
+    get_value(session, key).await.as_f64().expect("a number")
+}
+
+/// One publication seen by a `Recorder`.
+#[derive(Clone, Debug)]
+pub struct Seen {
+    pub key: String,
+    pub value: Value,
+    pub marker: StateMarker,
+}
+
+/// Records every state publication under a key expression, in arrival order; samples without
+/// the state marker (clients' writes) are only counted.
+pub struct Recorder {
+    subscriber: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    pub seen: Vec<Seen>,
+    pub unmarked: usize,
+}
+
+impl Recorder {
+    pub async fn new(session: &Session, key_expr: &str) -> Self {
+        let subscriber = session.declare_subscriber(key_expr.to_string()).await.unwrap();
+        // Let the subscription reach the node before anything is written.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        Self { subscriber, seen: Vec::new(), unmarked: 0 }
+    }
+
+    fn record(&mut self, sample: zenoh::sample::Sample) -> Option<Seen> {
+        let Some(marker) = sample.attachment().and_then(|a| StateMarker::decode(&a.to_bytes())) else {
+            self.unmarked += 1;
+            return None;
+        };
+        let payload = sample.payload().to_bytes();
+        let value = if *sample.encoding() == Encoding::APPLICATION_CBOR {
+            decode_cbor_value(&payload).expect("CBOR publication")
+        } else {
+            Value::Text(String::from_utf8_lossy(&payload).into_owned())
+        };
+        let seen = Seen { key: sample.key_expr().as_str().to_string(), value, marker };
+        self.seen.push(seen.clone());
+        Some(seen)
+    }
+
+    /// Wait until a publication on a key ending in `/<suffix>` satisfies `accept`; panics after PATIENCE.
+    pub async fn wait_for(&mut self, suffix: &str, accept: impl Fn(&Value) -> bool) -> Value {
+        let deadline = tokio::time::Instant::now() + PATIENCE;
+        loop {
+            let sample = tokio::time::timeout_at(deadline, self.subscriber.recv_async())
+                .await
+                .unwrap_or_else(|_| panic!("no publication of {suffix} as expected within {PATIENCE:?}; seen {:?}", self.values(suffix)))
+                .unwrap();
+            let Some(seen) = self.record(sample) else { continue };
+            if seen.key.ends_with(&format!("/{suffix}")) && accept(&seen.value) {
+                return seen.value;
+            }
+        }
+    }
+
+    /// Record whatever arrives during `quiet`.
+    pub async fn drain_for(&mut self, quiet: Duration) {
+        let deadline = tokio::time::Instant::now() + quiet;
+        while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, self.subscriber.recv_async()).await {
+            self.record(sample);
+        }
+    }
+
+    /// Values published so far on keys ending in `/<suffix>`.
+    pub fn values(&self, suffix: &str) -> Vec<Value> {
+        let tail = format!("/{suffix}");
+        self.seen.iter().filter(|s| s.key.ends_with(&tail)).map(|s| s.value.clone()).collect()
+    }
+}
+
+pub fn int(v: i64) -> Value {
+    Value::Int(v)
+}
