@@ -99,28 +99,58 @@ impl FieldDef {
 }
 
 macro_rules! storage {
-    (Double) => { f64 };
-    (Float) => { f32 };
-    (Long) => { i32 };
-    (ULong) => { u32 };
-    (Short) => { i16 };
-    (UShort) => { u16 };
-    (Menu($m:ident)) => { u16 };
-    (Str($n:literal)) => { String };
-    (Link) => { String };
+    (Double) => {
+        f64
+    };
+    (Float) => {
+        f32
+    };
+    (Long) => {
+        i32
+    };
+    (ULong) => {
+        u32
+    };
+    (Short) => {
+        i16
+    };
+    (UShort) => {
+        u16
+    };
+    (Menu($m:ident)) => {
+        u16
+    };
+    (Str($n:literal)) => {
+        String
+    };
+    (Link) => {
+        String
+    };
 }
 
 /// A default written in the table, as the storage type (text defaults become Strings).
 macro_rules! default_value {
-    (Str($n:literal), $d:expr) => { String::from($d) };
-    (Link, $d:expr) => { String::from($d) };
-    ($k:ident $(($a:tt))?, $d:expr) => { $d };
+    (Str($n:literal), $d:expr) => {
+        String::from($d)
+    };
+    (Link, $d:expr) => {
+        String::from($d)
+    };
+    ($k:ident $(($a:tt))?, $d:expr) => {
+        $d
+    };
 }
 
 macro_rules! kind {
-    (Menu($m:ident)) => { Kind::Menu(&menus::$m) };
-    (Str($n:literal)) => { Kind::Str($n) };
-    ($k:ident) => { Kind::$k };
+    (Menu($m:ident)) => {
+        Kind::Menu(&menus::$m)
+    };
+    (Str($n:literal)) => {
+        Kind::Str($n)
+    };
+    ($k:ident) => {
+        Kind::$k
+    };
 }
 
 macro_rules! catalogue {
@@ -375,7 +405,10 @@ mod tests {
             RLV RMOD RMP RRBV RRES RSTM RTRY RVAL RVEL S SBAK SBAS SET SMAX SPDB SPMG SREV SSET STOO \
             STOP STUP SUSE SYNC TDIR TWF TWR TWV UEIP UREV URIP VAL VBAS VELO VERS VMAX VOF";
         for name in manual.split_whitespace() {
-            assert!(Field::from_name(name).is_some(), "{name} missing from the catalogue");
+            assert!(
+                Field::from_name(name).is_some(),
+                "{name} missing from the catalogue"
+            );
         }
     }
 

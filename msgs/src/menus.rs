@@ -24,13 +24,34 @@ impl Menu {
     }
 }
 
-pub const MOTOR_DIR: Menu = Menu { name: "motorDIR", choices: &["Pos", "Neg"] };
-pub const MOTOR_SET: Menu = Menu { name: "motorSET", choices: &["Use", "Set"] };
-pub const MOTOR_UEIP: Menu = Menu { name: "motorUEIP", choices: &["No", "Yes"] };
-pub const MOTOR_SPMG: Menu = Menu { name: "motorSPMG", choices: &["Stop", "Pause", "Move", "Go"] };
-pub const MOTOR_FOFF: Menu = Menu { name: "motorFOFF", choices: &["Variable", "Frozen"] };
-pub const MOTOR_TORQ: Menu = Menu { name: "motorTORQ", choices: &["Disable", "Enable"] };
-pub const MOTOR_STUP: Menu = Menu { name: "motorSTUP", choices: &["OFF", "ON", "BUSY"] };
+pub const MOTOR_DIR: Menu = Menu {
+    name: "motorDIR",
+    choices: &["Pos", "Neg"],
+};
+pub const MOTOR_SET: Menu = Menu {
+    name: "motorSET",
+    choices: &["Use", "Set"],
+};
+pub const MOTOR_UEIP: Menu = Menu {
+    name: "motorUEIP",
+    choices: &["No", "Yes"],
+};
+pub const MOTOR_SPMG: Menu = Menu {
+    name: "motorSPMG",
+    choices: &["Stop", "Pause", "Move", "Go"],
+};
+pub const MOTOR_FOFF: Menu = Menu {
+    name: "motorFOFF",
+    choices: &["Variable", "Frozen"],
+};
+pub const MOTOR_TORQ: Menu = Menu {
+    name: "motorTORQ",
+    choices: &["Disable", "Enable"],
+};
+pub const MOTOR_STUP: Menu = Menu {
+    name: "motorSTUP",
+    choices: &["OFF", "ON", "BUSY"],
+};
 pub const MOTOR_RMOD: Menu = Menu {
     name: "motorRMOD",
     choices: &["Default", "Arithmetic", "Geometric", "In-Position"],
@@ -39,9 +60,18 @@ pub const MOTOR_RSTM: Menu = Menu {
     name: "motorRSTM",
     choices: &["Never", "Always", "NearZero", "Conditional"],
 };
-pub const MOTOR_ACCU: Menu = Menu { name: "motorACCU", choices: &["Use ACCL", "Use ACCS"] };
-pub const MENU_OMSL: Menu = Menu { name: "menuOmsl", choices: &["supervisory", "closed_loop"] };
-pub const MENU_YES_NO: Menu = Menu { name: "menuYesNo", choices: &["NO", "YES"] };
+pub const MOTOR_ACCU: Menu = Menu {
+    name: "motorACCU",
+    choices: &["Use ACCL", "Use ACCS"],
+};
+pub const MENU_OMSL: Menu = Menu {
+    name: "menuOmsl",
+    choices: &["supervisory", "closed_loop"],
+};
+pub const MENU_YES_NO: Menu = Menu {
+    name: "menuYesNo",
+    choices: &["NO", "YES"],
+};
 pub const MENU_ALARM_SEVR: Menu = Menu {
     name: "menuAlarmSevr",
     choices: &["NO_ALARM", "MINOR", "MAJOR", "INVALID"],
@@ -49,16 +79,46 @@ pub const MENU_ALARM_SEVR: Menu = Menu {
 pub const MENU_ALARM_STAT: Menu = Menu {
     name: "menuAlarmStat",
     choices: &[
-        "NO_ALARM", "READ", "WRITE", "HIHI", "HIGH", "LOLO", "LOW", "STATE", "COS", "COMM",
-        "TIMEOUT", "HWLIMIT", "CALC", "SCAN", "LINK", "SOFT", "BAD_SUB", "UDF", "DISABLE", "SIMM",
-        "READ_ACCESS", "WRITE_ACCESS",
+        "NO_ALARM",
+        "READ",
+        "WRITE",
+        "HIHI",
+        "HIGH",
+        "LOLO",
+        "LOW",
+        "STATE",
+        "COS",
+        "COMM",
+        "TIMEOUT",
+        "HWLIMIT",
+        "CALC",
+        "SCAN",
+        "LINK",
+        "SOFT",
+        "BAD_SUB",
+        "UDF",
+        "DISABLE",
+        "SIMM",
+        "READ_ACCESS",
+        "WRITE_ACCESS",
     ],
 };
 
 /// Every menu, for documentation and schema generation.
 pub const ALL_MENUS: &[&Menu] = &[
-    &MOTOR_DIR, &MOTOR_SET, &MOTOR_UEIP, &MOTOR_SPMG, &MOTOR_FOFF, &MOTOR_TORQ, &MOTOR_STUP,
-    &MOTOR_RMOD, &MOTOR_RSTM, &MOTOR_ACCU, &MENU_OMSL, &MENU_YES_NO, &MENU_ALARM_SEVR,
+    &MOTOR_DIR,
+    &MOTOR_SET,
+    &MOTOR_UEIP,
+    &MOTOR_SPMG,
+    &MOTOR_FOFF,
+    &MOTOR_TORQ,
+    &MOTOR_STUP,
+    &MOTOR_RMOD,
+    &MOTOR_RSTM,
+    &MOTOR_ACCU,
+    &MENU_OMSL,
+    &MENU_YES_NO,
+    &MENU_ALARM_SEVR,
     &MENU_ALARM_STAT,
 ];
 

@@ -22,7 +22,12 @@ impl StateMarker {
     pub const KIND: &'static str = "state";
 
     pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
-        Self { kind: Self::KIND.to_string(), seq, stat, sevr }
+        Self {
+            kind: Self::KIND.to_string(),
+            seq,
+            stat,
+            sevr,
+        }
     }
 
     pub fn encode(&self) -> Vec<u8> {
@@ -31,7 +36,9 @@ impl StateMarker {
 
     /// The marker carried by an attachment, if it is one.
     pub fn decode(attachment: &[u8]) -> Option<Self> {
-        ciborium::from_reader::<Self, _>(attachment).ok().filter(|m| m.kind == Self::KIND)
+        ciborium::from_reader::<Self, _>(attachment)
+            .ok()
+            .filter(|m| m.kind == Self::KIND)
     }
 }
 
@@ -50,24 +57,56 @@ pub enum Gain {
 #[serde(tag = "cmd", rename_all = "snake_case")]
 pub enum DriverCommand {
     /// Absolute target, or distance when `relative`.
-    Move { position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64 },
+    Move {
+        position: f64,
+        relative: bool,
+        min_velocity: f64,
+        max_velocity: f64,
+        acceleration: f64,
+    },
     /// Constant-velocity motion (jog); `max_velocity` is signed.
-    MoveVelocity { min_velocity: f64, max_velocity: f64, acceleration: f64 },
-    Home { forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64 },
-    Stop { acceleration: f64 },
+    MoveVelocity {
+        min_velocity: f64,
+        max_velocity: f64,
+        acceleration: f64,
+    },
+    Home {
+        forward: bool,
+        min_velocity: f64,
+        max_velocity: f64,
+        acceleration: f64,
+    },
+    Stop {
+        acceleration: f64,
+    },
     /// Redefine the current position without moving.
-    SetPosition { position: f64 },
+    SetPosition {
+        position: f64,
+    },
     /// Amplifier / closed loop on or off.
-    Enable { on: bool },
+    Enable {
+        on: bool,
+    },
     /// Encoder counts per motor step ratio (MRES/ERES).
-    SetEncoderRatio { ratio: f64 },
-    SetHighLimit { position: f64 },
-    SetLowLimit { position: f64 },
-    SetGain { gain: Gain, value: f64 },
+    SetEncoderRatio {
+        ratio: f64,
+    },
+    SetHighLimit {
+        position: f64,
+    },
+    SetLowLimit {
+        position: f64,
+    },
+    SetGain {
+        gain: Gain,
+        value: f64,
+    },
     /// Request a fresh status report (the record's GET_INFO).
     Poll,
     /// A command primitive (INIT/PREM/POST text).
-    Raw { text: String },
+    Raw {
+        text: String,
+    },
 }
 
 /// A traced driver command with the engine's clock and a sequence number.
@@ -111,7 +150,13 @@ mod tests {
     #[test]
     fn driver_trace_is_a_flat_map_with_cmd() {
         let t = DriverTrace {
-            command: DriverCommand::Move { position: 100.0, relative: false, min_velocity: 0.0, max_velocity: 100.0, acceleration: 200.0 },
+            command: DriverCommand::Move {
+                position: 100.0,
+                relative: false,
+                min_velocity: 0.0,
+                max_velocity: 100.0,
+                acceleration: 200.0,
+            },
             t: 1.5,
             seq: 3,
         };

@@ -33,7 +33,10 @@ pub struct PollRates {
 
 impl Default for PollRates {
     fn default() -> Self {
-        Self { moving: 0.1, idle: 1.0 }
+        Self {
+            moving: 0.1,
+            idle: 1.0,
+        }
     }
 }
 
@@ -148,7 +151,8 @@ impl Axis {
     }
 
     fn schedule_poll(&mut self) {
-        let period = if self.is_busy() || self.last_status.msta & zmotor_msgs::bits::msta::DONE == 0 {
+        let period = if self.is_busy() || self.last_status.msta & zmotor_msgs::bits::msta::DONE == 0
+        {
             self.rates.moving
         } else {
             self.rates.idle
@@ -160,7 +164,10 @@ impl Axis {
         let translation = self.device.translate(transaction);
         for command in translation.commands {
             execute(self.driver.as_mut(), &command);
-            self.events.push(AxisEvent::Driver { command, t: self.now });
+            self.events.push(AxisEvent::Driver {
+                command,
+                t: self.now,
+            });
         }
         translation.wants_callback
     }
@@ -174,7 +181,9 @@ impl Axis {
             for output in outputs {
                 match output {
                     Output::Post(field, value) => self.events.push(AxisEvent::Post(field, value)),
-                    Output::Transaction(transaction) => wants_callback |= self.deliver(&transaction),
+                    Output::Transaction(transaction) => {
+                        wants_callback |= self.deliver(&transaction)
+                    }
                     Output::StartDelay(seconds) => self.delay_deadline = Some(self.now + seconds),
                     Output::Done => self.events.push(AxisEvent::Done),
                 }
@@ -195,12 +204,23 @@ mod tests {
     use crate::driver::sim::{SimAxis, SimConfig};
 
     fn sim_axis(fields: Fields) -> Axis {
-        let sim = SimAxis::new(SimConfig { high_limit_switch: Some(110_000.0), low_limit_switch: Some(-110_000.0), ..SimConfig::default() });
+        let sim = SimAxis::new(SimConfig {
+            high_limit_switch: Some(110_000.0),
+            low_limit_switch: Some(-110_000.0),
+            ..SimConfig::default()
+        });
         Axis::new(fields, Box::new(sim), PollRates::default(), 0.0)
     }
 
     fn demo_fields() -> Fields {
-        Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() }
+        Fields {
+            mres: 0.001,
+            velo: 10.0,
+            accl: 0.2,
+            dhlm: 100.0,
+            dllm: -100.0,
+            ..Fields::default()
+        }
     }
 
     /// Run virtual time until the axis is idle or `limit` seconds pass; return the DMOV posts.
@@ -229,7 +249,10 @@ mod tests {
         let dmov = run(&mut axis, 100.0);
         assert_eq!(dmov, vec![Value::Int(0), Value::Int(1)]);
         let f = axis.fields();
-        assert_eq!((f.rbv, f.drbv, f.rrbv, f.dmov, f.movn), (10.0, 10.0, 10_000, 1, 0));
+        assert_eq!(
+            (f.rbv, f.drbv, f.rrbv, f.dmov, f.movn),
+            (10.0, 10.0, 10_000, 1, 0)
+        );
         // 10 mm at 10 mm/s with 0.2 s ramps: 1.2 s, reported when the sim finishes, not at a poll.
         assert!((axis.now() - 1.2).abs() < 1e-9, "{}", axis.now());
     }
@@ -243,7 +266,10 @@ mod tests {
         for _ in 0..1000 {
             let t = axis.next_wakeup();
             axis.tick(t, false);
-            rbv_posts += axis.drain_events().filter(|e| matches!(e, AxisEvent::Post(Field::RBV, _))).count();
+            rbv_posts += axis
+                .drain_events()
+                .filter(|e| matches!(e, AxisEvent::Post(Field::RBV, _)))
+                .count();
             if !axis.is_busy() {
                 break;
             }
@@ -254,7 +280,12 @@ mod tests {
 
     #[test]
     fn jog_stops_on_the_hard_limit_switch() {
-        let mut axis = sim_axis(Fields { jvel: 50.0, dhlm: 0.0, dllm: 0.0, ..demo_fields() });
+        let mut axis = sim_axis(Fields {
+            jvel: 50.0,
+            dhlm: 0.0,
+            dllm: 0.0,
+            ..demo_fields()
+        });
         axis.write(0.0, Field::JOGF, &Value::Int(1)).unwrap();
         run(&mut axis, 10.0);
         let f = axis.fields();
@@ -263,7 +294,10 @@ mod tests {
 
     #[test]
     fn settling_delay_runs_on_virtual_time() {
-        let mut axis = sim_axis(Fields { dly: 0.5, ..demo_fields() });
+        let mut axis = sim_axis(Fields {
+            dly: 0.5,
+            ..demo_fields()
+        });
         axis.write(0.0, Field::VAL, &Value::Float(1.0)).unwrap();
         run(&mut axis, 10.0);
         assert_eq!(axis.fields().dmov, 1);
@@ -273,12 +307,20 @@ mod tests {
 
     #[test]
     fn an_inch_worm_sim_is_retried_until_within_the_deadband() {
-        let mut axis = sim_axis(Fields { rdbd: 0.01, ..demo_fields() });
+        let mut axis = sim_axis(Fields {
+            rdbd: 0.01,
+            ..demo_fields()
+        });
         axis.simulation().unwrap().fraction = 0.9;
         axis.write(0.0, Field::VAL, &Value::Float(10.0)).unwrap();
         run(&mut axis, 60.0);
         let f = axis.fields();
         assert_eq!((f.dmov, f.miss), (1, 0));
-        assert!(f.rcnt >= 2 && (f.drbv - 10.0).abs() < 0.01, "rcnt {} drbv {}", f.rcnt, f.drbv);
+        assert!(
+            f.rcnt >= 2 && (f.drbv - 10.0).abs() < 0.01,
+            "rcnt {} drbv {}",
+            f.rcnt,
+            f.drbv
+        );
     }
 }

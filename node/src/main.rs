@@ -10,7 +10,11 @@ use zmotor_node::launch::{Launch, ZenohSection};
 use zmotor_node::net::{zenoh_config, Error, Node};
 
 #[derive(Parser)]
-#[command(name = "zmotor", version, about = "EPICS motor record axes on a Zenoh network")]
+#[command(
+    name = "zmotor",
+    version,
+    about = "EPICS motor record axes on a Zenoh network"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -68,7 +72,10 @@ enum Command {
 #[tokio::main]
 async fn main() -> ExitCode {
     tracing_subscriber::fmt()
-        .with_env_filter(tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()))
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| "info,zenoh=warn".into()),
+        )
         .with_writer(std::io::stderr)
         .init();
     match run(Cli::parse().command).await {
@@ -83,13 +90,35 @@ async fn main() -> ExitCode {
 async fn run(command: Command) -> Result<ExitCode, Error> {
     match command {
         Command::Launch { file } => launch(&file).await,
-        Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
-        Command::Put { axis, field, value, wait, timeout, client } => put(&client, &axis, &field, &value, wait, timeout).await,
-        Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
+        Command::Get {
+            axis,
+            field,
+            client,
+        } => get(&client, &axis, field.as_deref()).await,
+        Command::Put {
+            axis,
+            field,
+            value,
+            wait,
+            timeout,
+            client,
+        } => put(&client, &axis, &field, &value, wait, timeout).await,
+        Command::Monitor {
+            axis,
+            fields,
+            client,
+        } => monitor(&client, &axis, &fields).await,
         Command::Schema { dir } => schema(&dir),
         Command::Fields => {
             print_lines(FIELDS.iter().map(|d| {
-                format!("{:<6} {:<7} {:<5} {:<10} {}", d.name, d.kind.type_name(), d.access.label(), d.default_value().to_string(), d.prompt)
+                format!(
+                    "{:<6} {:<7} {:<5} {:<10} {}",
+                    d.name,
+                    d.kind.type_name(),
+                    d.access.label(),
+                    d.default_value().to_string(),
+                    d.prompt
+                )
             }));
             Ok(ExitCode::SUCCESS)
         }
@@ -111,12 +140,19 @@ async fn launch(file: &std::path::Path) -> Result<ExitCode, Error> {
 }
 
 async fn client_session(client: &ClientArgs) -> Result<zenoh::Session, Error> {
-    let section = ZenohSection { mode: "client".into(), listen: vec![], connect: vec![client.connect.clone()], ..ZenohSection::default() };
+    let section = ZenohSection {
+        mode: "client".into(),
+        listen: vec![],
+        connect: vec![client.connect.clone()],
+        ..ZenohSection::default()
+    };
     zenoh::open(zenoh_config(&section)?).await
 }
 
 fn field_name(name: &str) -> Result<&'static str, Error> {
-    Field::from_name(name).map(Field::name).ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
+    Field::from_name(name)
+        .map(Field::name)
+        .ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
 }
 
 /// Print lines until the reader goes away (e.g. `| head`).
@@ -135,8 +171,14 @@ fn show(payload: &[u8]) -> String {
     if let Ok(value) = decode_cbor_value(payload) {
         return value.to_string();
     }
-    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(payload) {
-        Ok(map) => map.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" "),
+    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(
+        payload,
+    ) {
+        Ok(map) => map
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(" "),
         Err(_) => String::from_utf8_lossy(payload).into_owned(),
     }
 }
@@ -148,10 +190,17 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     let (key, single) = match field {
         // Zenoh spells a wildcard inside a chunk `$*`.
         Some(f) if f.contains('*') => {
-            let pattern = if f == "*" || f == "**" { f.to_string() } else { f.replace('*', "$*") };
+            let pattern = if f == "*" || f == "**" {
+                f.to_string()
+            } else {
+                f.replace('*', "$*")
+            };
             (format!("{}/{axis}/{pattern}", layout.prefix()), false)
         }
-        Some(f) => (format!("{}/{axis}/{}", layout.prefix(), field_name(f)?), true),
+        Some(f) => (
+            format!("{}/{axis}/{}", layout.prefix(), field_name(f)?),
+            true,
+        ),
         None => (layout.axis_all(axis), false),
     };
     let replies = session.get(&key).timeout(Duration::from_secs(5)).await?;
@@ -159,28 +208,65 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
             Ok(sample) => {
-                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
-                values.push((Field::from_name(&name), name, show(&sample.payload().to_bytes())));
+                let name = sample
+                    .key_expr()
+                    .as_str()
+                    .rsplit('/')
+                    .next()
+                    .unwrap_or_default()
+                    .to_string();
+                values.push((
+                    Field::from_name(&name),
+                    name,
+                    show(&sample.payload().to_bytes()),
+                ));
             }
-            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
+            Err(err) => eprintln!(
+                "zmotor: {}",
+                String::from_utf8_lossy(&err.payload().to_bytes())
+            ),
         }
     }
     values.sort_by_key(|(field, ..)| *field);
-    let lines = values.iter().map(|(_, name, value)| if single { value.clone() } else { format!("{name:<6} {value}") });
+    let lines = values.iter().map(|(_, name, value)| {
+        if single {
+            value.clone()
+        } else {
+            format!("{name:<6} {value}")
+        }
+    });
     print_lines(lines);
-    let code = if values.is_empty() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
+    let code = if values.is_empty() {
+        ExitCode::FAILURE
+    } else {
+        ExitCode::SUCCESS
+    };
     if values.is_empty() {
-        eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect);
+        eprintln!(
+            "zmotor: no answer for {key} (is the axis running, and is {} reachable?)",
+            client.connect
+        );
     }
     session.close().await?;
     Ok(code)
 }
 
-async fn put(client: &ClientArgs, axis: &str, field: &str, value: &str, wait: bool, timeout: f64) -> Result<ExitCode, Error> {
+async fn put(
+    client: &ClientArgs,
+    axis: &str,
+    field: &str,
+    value: &str,
+    wait: bool,
+    timeout: f64,
+) -> Result<ExitCode, Error> {
     let session = client_session(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let key = format!("{}/{axis}/{}", layout.prefix(), field_name(field)?);
-    let selector = if wait { format!("{key}?wait") } else { key.clone() };
+    let selector = if wait {
+        format!("{key}?wait")
+    } else {
+        key.clone()
+    };
     let replies = session
         .get(&selector)
         .payload(value.to_string())
@@ -194,9 +280,15 @@ async fn put(client: &ClientArgs, axis: &str, field: &str, value: &str, wait: bo
                 println!("{}", show(&sample.payload().to_bytes()));
                 code = ExitCode::SUCCESS;
             }
-            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
+            Err(err) => eprintln!(
+                "zmotor: {}",
+                String::from_utf8_lossy(&err.payload().to_bytes())
+            ),
         },
-        Err(_) => eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect),
+        Err(_) => eprintln!(
+            "zmotor: no answer for {key} (is the axis running, and is {} reachable?)",
+            client.connect
+        ),
     }
     session.close().await?;
     Ok(code)
@@ -205,8 +297,13 @@ async fn put(client: &ClientArgs, axis: &str, field: &str, value: &str, wait: bo
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
     let session = client_session(client).await?;
     let layout = KeyLayout::new(&client.prefix);
-    let wanted: Vec<&str> = fields.iter().map(|f| field_name(f)).collect::<Result<_, _>>()?;
-    let subscriber = session.declare_subscriber(format!("{}/{axis}/*", layout.prefix())).await?;
+    let wanted: Vec<&str> = fields
+        .iter()
+        .map(|f| field_name(f))
+        .collect::<Result<_, _>>()?;
+    let subscriber = session
+        .declare_subscriber(format!("{}/{axis}/*", layout.prefix()))
+        .await?;
     loop {
         tokio::select! {
             sample = subscriber.recv_async() => {
@@ -228,9 +325,15 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<E
 fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
     std::fs::create_dir_all(dir)?;
     for (name, schema) in zmotor_msgs::schema::message_schemas() {
-        std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
+        std::fs::write(
+            dir.join(name),
+            serde_json::to_string_pretty(&schema)? + "\n",
+        )?;
     }
-    std::fs::write(dir.join("fields.json"), serde_json::to_string_pretty(&zmotor_msgs::schema::catalogue_json())? + "\n")?;
+    std::fs::write(
+        dir.join("fields.json"),
+        serde_json::to_string_pretty(&zmotor_msgs::schema::catalogue_json())? + "\n",
+    )?;
     println!("wrote the schemas and fields.json to {}", dir.display());
     Ok(ExitCode::SUCCESS)
 }

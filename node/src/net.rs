@@ -13,7 +13,10 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::Session;
-use zmotor_msgs::{decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value, FIELDS};
+use zmotor_msgs::{
+    decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker,
+    Value, FIELDS,
+};
 
 pub type Error = Box<dyn std::error::Error + Send + Sync>;
 
@@ -22,8 +25,14 @@ pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config, Error> {
     let mut config = zenoh::Config::default();
     config.insert_json5("mode", &serde_json::to_string(&section.mode)?)?;
     config.insert_json5("listen/endpoints", &serde_json::to_string(&section.listen)?)?;
-    config.insert_json5("connect/endpoints", &serde_json::to_string(&section.connect)?)?;
-    config.insert_json5("scouting/multicast/enabled", &section.multicast_scouting.to_string())?;
+    config.insert_json5(
+        "connect/endpoints",
+        &serde_json::to_string(&section.connect)?,
+    )?;
+    config.insert_json5(
+        "scouting/multicast/enabled",
+        &section.multicast_scouting.to_string(),
+    )?;
     Ok(config)
 }
 
@@ -35,14 +44,29 @@ pub struct Node {
 
 impl Node {
     /// Start one task per axis on `session`.
-    pub async fn start(session: Session, layout: KeyLayout, plans: Vec<AxisPlan>) -> Result<Self, Error> {
+    pub async fn start(
+        session: Session,
+        layout: KeyLayout,
+        plans: Vec<AxisPlan>,
+    ) -> Result<Self, Error> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();
         for plan in plans {
             let io = AxisIo::declare(&session, &layout, &plan.name).await?;
             let clock = Instant::now();
-            let axis = Axis::new(plan.fields, Box::new(SimAxis::new(plan.sim)), plan.rates, 0.0);
-            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new() };
+            let axis = Axis::new(
+                plan.fields,
+                Box::new(SimAxis::new(plan.sim)),
+                plan.rates,
+                0.0,
+            );
+            let mut task = AxisTask {
+                io,
+                axis,
+                clock,
+                seq: 0,
+                waiting: Vec::new(),
+            };
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
@@ -88,8 +112,14 @@ impl AxisIo {
             queries: session.declare_queryable(layout.axis_all(name)).await?,
             sim_writes: session.declare_subscriber(keys::sim_key(name, "*")).await?,
             sim_queries: session.declare_queryable(keys::sim_key(name, "**")).await?,
-            trace: session.declare_publisher(layout.driver_cmd(name)).encoding(Encoding::APPLICATION_CBOR).await?,
-            _token: session.liveliness().declare_token(layout.axis(name)).await?,
+            trace: session
+                .declare_publisher(layout.driver_cmd(name))
+                .encoding(Encoding::APPLICATION_CBOR)
+                .await?,
+            _token: session
+                .liveliness()
+                .declare_token(layout.axis(name))
+                .await?,
             field_keys,
             session: session.clone(),
             layout: layout.clone(),
@@ -150,11 +180,16 @@ impl AxisTask {
 
     /// A plain put: a write unless it carries the state marker.
     async fn on_write_sample(&mut self, sample: Sample) {
-        if sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some()) {
+        if sample
+            .attachment()
+            .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
+        {
             return;
         }
         let key = sample.key_expr().as_str().to_string();
-        let Some(name) = self.io.layout.field_name(&self.io.name, &key) else { return };
+        let Some(name) = self.io.layout.field_name(&self.io.name, &key) else {
+            return;
+        };
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         if let Err(message) = self.apply_write(name, &sample.payload().to_bytes(), encoding) {
             tracing::warn!(axis = %self.io.name, key, "write refused: {message}");
@@ -163,33 +198,58 @@ impl AxisTask {
     }
 
     /// Decode and apply one write; Err is the plain-words reason it was refused.
-    fn apply_write(&mut self, name: &str, payload: &[u8], encoding: PayloadEncoding) -> Result<Field, String> {
+    fn apply_write(
+        &mut self,
+        name: &str,
+        payload: &[u8],
+        encoding: PayloadEncoding,
+    ) -> Result<Field, String> {
         let field = Field::from_name(name).ok_or_else(|| format!("{name}: unknown field"))?;
-        let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
+        let value =
+            zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
         let now = self.now();
-        self.axis.write(now, field, &value).map(|()| field).map_err(|e: WriteError| e.to_string())
+        self.axis
+            .write(now, field, &value)
+            .map(|()| field)
+            .map_err(|e: WriteError| e.to_string())
     }
 
     async fn on_query(&mut self, query: Query) {
         let key = query.key_expr().as_str().to_string();
-        match (self.io.layout.field_name(&self.io.name, &key), query.payload().map(|p| p.to_bytes().into_owned())) {
+        match (
+            self.io.layout.field_name(&self.io.name, &key),
+            query.payload().map(|p| p.to_bytes().into_owned()),
+        ) {
             (Some(name), Some(payload)) => {
-                let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
+                let encoding = PayloadEncoding::from_mime(
+                    &query.encoding().map(|e| e.to_string()).unwrap_or_default(),
+                );
                 match self.apply_write(name, &payload, encoding) {
                     Err(message) => {
                         tracing::warn!(axis = %self.io.name, key, "confirmed write refused: {message}");
                         self.publish_error(&message).await;
-                        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).await;
+                        let _ = query
+                            .reply_err(message)
+                            .encoding(Encoding::TEXT_PLAIN)
+                            .await;
                     }
-                    Ok(field) if query.parameters().contains_key("wait") && self.axis.fields().dmov == 0 => {
+                    Ok(field)
+                        if query.parameters().contains_key("wait")
+                            && self.axis.fields().dmov == 0 =>
+                    {
                         self.waiting.push(Waiter { query, field });
                     }
-                    Ok(field) if query.parameters().contains_key("wait") => self.reply_completion(&query, field).await,
+                    Ok(field) if query.parameters().contains_key("wait") => {
+                        self.reply_completion(&query, field).await
+                    }
                     Ok(field) => self.reply_field(&query, field).await,
                 }
             }
             (Some(name), None) if !name.contains('*') && Field::from_name(name).is_none() => {
-                let _ = query.reply_err(format!("{name}: unknown field")).encoding(Encoding::TEXT_PLAIN).await;
+                let _ = query
+                    .reply_err(format!("{name}: unknown field"))
+                    .encoding(Encoding::TEXT_PLAIN)
+                    .await;
             }
             _ => {
                 // A read of one field or of a key expression covering several.
@@ -206,7 +266,10 @@ impl AxisTask {
     async fn reply_field(&self, query: &Query, field: Field) {
         let value = self.axis.record().get(field);
         let _ = query
-            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&value))
+            .reply(
+                self.io.field_keys[field as usize].clone(),
+                encode_cbor(&value),
+            )
             .encoding(Encoding::APPLICATION_CBOR)
             .await;
     }
@@ -226,19 +289,26 @@ impl AxisTask {
             ("reached", Value::Int(reached.into())),
         ]);
         let _ = query
-            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&outcome))
+            .reply(
+                self.io.field_keys[field as usize].clone(),
+                encode_cbor(&outcome),
+            )
             .encoding(Encoding::APPLICATION_CBOR)
             .await;
     }
 
     async fn on_sim_write(&mut self, sample: Sample) {
-        if sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some()) {
+        if sample
+            .attachment()
+            .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
+        {
             return;
         }
         let key = sample.key_expr().as_str().to_string();
         let name = key.rsplit('/').next().unwrap_or_default().to_string();
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-        let value = decode_scalar(&sample.payload().to_bytes(), encoding).map_err(|(enc, e)| format!("{key}: malformed {enc}: {e}"));
+        let value = decode_scalar(&sample.payload().to_bytes(), encoding)
+            .map_err(|(enc, e)| format!("{key}: malformed {enc}: {e}"));
         let now = self.now();
         self.axis.tick(now, false);
         let result = value.and_then(|v| match self.axis.simulation() {
@@ -257,7 +327,9 @@ impl AxisTask {
     async fn on_sim_query(&mut self, query: Query) {
         let now = self.now();
         self.axis.tick(now, false);
-        let Some(sim) = self.axis.simulation() else { return };
+        let Some(sim) = self.axis.simulation() else {
+            return;
+        };
         let state = sim.state();
         let config = sim.config().clone();
         let mut entries: Vec<(&str, Vec<u8>)> = vec![("state", encode_cbor(&state))];
@@ -267,7 +339,10 @@ impl AxisTask {
             ("high_limit", optional(config.high_limit_switch)),
             ("low_limit", optional(config.low_limit_switch)),
             ("home", Value::Float(config.home_switch)),
-            ("encoder", Value::Float(config.encoder_counts_per_step.unwrap_or(0.0))),
+            (
+                "encoder",
+                Value::Float(config.encoder_counts_per_step.unwrap_or(0.0)),
+            ),
             ("stall", Value::Int(sim.stalled.into())),
             ("comm_lost", Value::Int(sim.comm_lost.into())),
             ("problem", Value::Int(sim.problem.into())),
@@ -276,9 +351,14 @@ impl AxisTask {
             entries.push((name, encode_cbor(&value)));
         }
         for (name, payload) in entries {
-            let Ok(key) = KeyExpr::try_from(keys::sim_key(&self.io.name, name)) else { continue };
+            let Ok(key) = KeyExpr::try_from(keys::sim_key(&self.io.name, name)) else {
+                continue;
+            };
             if query.key_expr().intersects(&key) {
-                let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).await;
+                let _ = query
+                    .reply(key, payload)
+                    .encoding(Encoding::APPLICATION_CBOR)
+                    .await;
             }
         }
     }
@@ -292,11 +372,22 @@ impl AxisTask {
                 AxisEvent::Driver { command, t } => {
                     let listening = match traced {
                         Some(listening) => listening,
-                        None => *traced.insert(self.io.trace.matching_status().await.map(|m| m.matching()).unwrap_or(false)),
+                        None => *traced.insert(
+                            self.io
+                                .trace
+                                .matching_status()
+                                .await
+                                .map(|m| m.matching())
+                                .unwrap_or(false),
+                        ),
                     };
                     if listening {
                         self.seq += 1;
-                        let trace = DriverTrace { command, t, seq: self.seq };
+                        let trace = DriverTrace {
+                            command,
+                            t,
+                            seq: self.seq,
+                        };
                         let _ = self.io.trace.put(encode_cbor(&trace)).await;
                     }
                 }
@@ -318,19 +409,36 @@ impl AxisTask {
     async fn publish(&mut self, field: Field, value: &Value) {
         let attachment = self.marker();
         let key = self.io.field_keys[field as usize].clone();
-        let _ = self.io.session.put(key, encode_cbor(value)).encoding(Encoding::APPLICATION_CBOR).attachment(attachment).await;
+        let _ = self
+            .io
+            .session
+            .put(key, encode_cbor(value))
+            .encoding(Encoding::APPLICATION_CBOR)
+            .attachment(attachment)
+            .await;
     }
 
     async fn publish_error(&mut self, message: &str) {
         let attachment = self.marker();
         let key = self.io.layout.err(&self.io.name);
-        let _ = self.io.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).await;
+        let _ = self
+            .io
+            .session
+            .put(key, message.to_string())
+            .encoding(Encoding::TEXT_PLAIN)
+            .attachment(attachment)
+            .await;
     }
 }
 
 /// The simulator's keys under `sim/<axis>/`: positions in steps, flags as 0/1.
 fn apply_sim_setting(sim: &mut SimAxis, name: &str, value: &Value) -> Result<(), String> {
-    let number = || value.as_f64().filter(|x| x.is_finite()).ok_or_else(|| format!("a finite number is required, got '{value}'"));
+    let number = || {
+        value
+            .as_f64()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("a finite number is required, got '{value}'"))
+    };
     let switch_position = || match value {
         Value::Text(t) if t.eq_ignore_ascii_case("none") => Ok(None),
         _ => number().map(Some),

@@ -15,7 +15,11 @@ use zmotor_node::net::{zenoh_config, Node};
 pub const PATIENCE: Duration = Duration::from_secs(10);
 
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
 }
 
 /// A fast simulated stage: MRES 0.001 mm, VELO 100 mm/s, ACCL 0.05 s, soft limits ±100 mm,
@@ -23,9 +27,25 @@ pub fn free_port() -> u16 {
 pub fn fast_axis(name: &str) -> AxisPlan {
     AxisPlan {
         name: name.to_string(),
-        fields: Fields { name: name.into(), mres: 0.001, velo: 100.0, accl: 0.05, dhlm: 100.0, dllm: -100.0, egu: "mm".into(), ..Fields::default() },
-        sim: SimConfig { high_limit_switch: Some(105_000.0), low_limit_switch: Some(-105_000.0), ..SimConfig::default() },
-        rates: PollRates { moving: 0.02, idle: 1.0 },
+        fields: Fields {
+            name: name.into(),
+            mres: 0.001,
+            velo: 100.0,
+            accl: 0.05,
+            dhlm: 100.0,
+            dllm: -100.0,
+            egu: "mm".into(),
+            ..Fields::default()
+        },
+        sim: SimConfig {
+            high_limit_switch: Some(105_000.0),
+            low_limit_switch: Some(-105_000.0),
+            ..SimConfig::default()
+        },
+        rates: PollRates {
+            moving: 0.02,
+            idle: 1.0,
+        },
     }
 }
 
@@ -40,16 +60,32 @@ pub struct TestNode {
 impl TestNode {
     pub async fn start(plans: Vec<AxisPlan>) -> Self {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-        let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
+        let section = ZenohSection {
+            mode: "peer".into(),
+            listen: vec![endpoint.clone()],
+            ..ZenohSection::default()
+        };
         let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
         let layout = KeyLayout::default();
-        let node = Node::start(session.clone(), layout.clone(), plans).await.unwrap();
-        Self { node: Some(node), session, endpoint, layout }
+        let node = Node::start(session.clone(), layout.clone(), plans)
+            .await
+            .unwrap();
+        Self {
+            node: Some(node),
+            session,
+            endpoint,
+            layout,
+        }
     }
 
     /// A client session connected to this node.
     pub async fn client(&self) -> Session {
-        let section = ZenohSection { mode: "client".into(), listen: vec![], connect: vec![self.endpoint.clone()], ..ZenohSection::default() };
+        let section = ZenohSection {
+            mode: "client".into(),
+            listen: vec![],
+            connect: vec![self.endpoint.clone()],
+            ..ZenohSection::default()
+        };
         zenoh::open(zenoh_config(&section).unwrap()).await.unwrap()
     }
 
@@ -60,13 +96,31 @@ impl TestNode {
 
 /// A plain (fire-and-forget) put of text, as a stock tool would send it.
 pub async fn put_text(session: &Session, key: &str, text: &str) {
-    session.put(key, text.to_string()).encoding(Encoding::TEXT_PLAIN).await.unwrap();
+    session
+        .put(key, text.to_string())
+        .encoding(Encoding::TEXT_PLAIN)
+        .await
+        .unwrap();
 }
 
 /// A confirmed write: Ok(reply payload) or Err(the node's error text).
-pub async fn confirmed_write(session: &Session, selector: &str, text: &str, timeout: Duration) -> Result<Vec<u8>, String> {
-    let replies = session.get(selector).payload(text.to_string()).encoding(Encoding::TEXT_PLAIN).timeout(timeout).await.unwrap();
-    let reply = replies.recv_async().await.map_err(|_| "no reply".to_string())?;
+pub async fn confirmed_write(
+    session: &Session,
+    selector: &str,
+    text: &str,
+    timeout: Duration,
+) -> Result<Vec<u8>, String> {
+    let replies = session
+        .get(selector)
+        .payload(text.to_string())
+        .encoding(Encoding::TEXT_PLAIN)
+        .timeout(timeout)
+        .await
+        .unwrap();
+    let reply = replies
+        .recv_async()
+        .await
+        .map_err(|_| "no reply".to_string())?;
     match reply.result() {
         Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
         Err(err) => Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned()),
@@ -95,21 +149,32 @@ pub struct Seen {
 /// Records every state publication under a key expression, in arrival order; samples without
 /// the state marker (clients' writes) are only counted.
 pub struct Recorder {
-    subscriber: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    subscriber:
+        zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
     pub seen: Vec<Seen>,
     pub unmarked: usize,
 }
 
 impl Recorder {
     pub async fn new(session: &Session, key_expr: &str) -> Self {
-        let subscriber = session.declare_subscriber(key_expr.to_string()).await.unwrap();
+        let subscriber = session
+            .declare_subscriber(key_expr.to_string())
+            .await
+            .unwrap();
         // Let the subscription reach the node before anything is written.
         tokio::time::sleep(Duration::from_millis(200)).await;
-        Self { subscriber, seen: Vec::new(), unmarked: 0 }
+        Self {
+            subscriber,
+            seen: Vec::new(),
+            unmarked: 0,
+        }
     }
 
     fn record(&mut self, sample: zenoh::sample::Sample) -> Option<Seen> {
-        let Some(marker) = sample.attachment().and_then(|a| StateMarker::decode(&a.to_bytes())) else {
+        let Some(marker) = sample
+            .attachment()
+            .and_then(|a| StateMarker::decode(&a.to_bytes()))
+        else {
             self.unmarked += 1;
             return None;
         };
@@ -119,7 +184,11 @@ impl Recorder {
         } else {
             Value::Text(String::from_utf8_lossy(&payload).into_owned())
         };
-        let seen = Seen { key: sample.key_expr().as_str().to_string(), value, marker };
+        let seen = Seen {
+            key: sample.key_expr().as_str().to_string(),
+            value,
+            marker,
+        };
         self.seen.push(seen.clone());
         Some(seen)
     }
@@ -130,9 +199,16 @@ impl Recorder {
         loop {
             let sample = tokio::time::timeout_at(deadline, self.subscriber.recv_async())
                 .await
-                .unwrap_or_else(|_| panic!("no publication of {suffix} as expected within {PATIENCE:?}; seen {:?}", self.values(suffix)))
+                .unwrap_or_else(|_| {
+                    panic!(
+                        "no publication of {suffix} as expected within {PATIENCE:?}; seen {:?}",
+                        self.values(suffix)
+                    )
+                })
                 .unwrap();
-            let Some(seen) = self.record(sample) else { continue };
+            let Some(seen) = self.record(sample) else {
+                continue;
+            };
             if seen.key.ends_with(&format!("/{suffix}")) && accept(&seen.value) {
                 return seen.value;
             }
@@ -142,7 +218,9 @@ impl Recorder {
     /// Record whatever arrives during `quiet`.
     pub async fn drain_for(&mut self, quiet: Duration) {
         let deadline = tokio::time::Instant::now() + quiet;
-        while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, self.subscriber.recv_async()).await {
+        while let Ok(Ok(sample)) =
+            tokio::time::timeout_at(deadline, self.subscriber.recv_async()).await
+        {
             self.record(sample);
         }
     }
@@ -150,7 +228,11 @@ impl Recorder {
     /// Values published so far on keys ending in `/<suffix>`.
     pub fn values(&self, suffix: &str) -> Vec<Value> {
         let tail = format!("/{suffix}");
-        self.seen.iter().filter(|s| s.key.ends_with(&tail)).map(|s| s.value.clone()).collect()
+        self.seen
+            .iter()
+            .filter(|s| s.key.ends_with(&tail))
+            .map(|s| s.value.clone())
+            .collect()
     }
 }
 

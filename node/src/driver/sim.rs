@@ -31,7 +31,13 @@ pub struct SimConfig {
 
 impl Default for SimConfig {
     fn default() -> Self {
-        Self { position: 0.0, high_limit_switch: None, low_limit_switch: None, home_switch: 0.0, encoder_counts_per_step: None }
+        Self {
+            position: 0.0,
+            high_limit_switch: None,
+            low_limit_switch: None,
+            home_switch: 0.0,
+            encoder_counts_per_step: None,
+        }
     }
 }
 
@@ -52,7 +58,10 @@ impl Segment {
 
     fn at(&self, t: f64) -> (f64, f64) {
         let dt = (t - self.start).clamp(0.0, self.duration);
-        (self.position + self.velocity * dt + 0.5 * self.acceleration * dt * dt, self.velocity + self.acceleration * dt)
+        (
+            self.position + self.velocity * dt + 0.5 * self.acceleration * dt * dt,
+            self.velocity + self.acceleration * dt,
+        )
     }
 }
 
@@ -154,15 +163,21 @@ impl SimAxis {
     }
 
     fn encoder_reading(&self) -> Option<f64> {
-        self.config.encoder_counts_per_step.map(|ratio| self.physical * ratio)
+        self.config
+            .encoder_counts_per_step
+            .map(|ratio| self.physical * ratio)
     }
 
     fn at_high_limit(&self) -> bool {
-        self.config.high_limit_switch.is_some_and(|s| self.physical >= s)
+        self.config
+            .high_limit_switch
+            .is_some_and(|s| self.physical >= s)
     }
 
     fn at_low_limit(&self) -> bool {
-        self.config.low_limit_switch.is_some_and(|s| self.physical <= s)
+        self.config
+            .low_limit_switch
+            .is_some_and(|s| self.physical <= s)
     }
 
     fn at_home(&self) -> bool {
@@ -175,7 +190,14 @@ impl SimAxis {
     }
 
     /// Plan a trapezoidal motion from the current physical position to `target`.
-    fn start_motion(&mut self, target: f64, min_velocity: f64, max_velocity: f64, acceleration: f64, arrival: Arrival) {
+    fn start_motion(
+        &mut self,
+        target: f64,
+        min_velocity: f64,
+        max_velocity: f64,
+        acceleration: f64,
+        arrival: Arrival,
+    ) {
         self.profile.clear();
         self.velocity = 0.0;
         self.arrival = arrival;
@@ -198,9 +220,20 @@ impl SimAxis {
         }
         let mut t = self.now;
         let mut p = self.physical;
-        let push = |duration: f64, v0: f64, a: f64, t: &mut f64, p: &mut f64, profile: &mut Vec<Segment>| {
+        let push = |duration: f64,
+                    v0: f64,
+                    a: f64,
+                    t: &mut f64,
+                    p: &mut f64,
+                    profile: &mut Vec<Segment>| {
             if duration > 0.0 {
-                profile.push(Segment { start: *t, duration, position: *p, velocity: sign * v0, acceleration: sign * a });
+                profile.push(Segment {
+                    start: *t,
+                    duration,
+                    position: *p,
+                    velocity: sign * v0,
+                    acceleration: sign * a,
+                });
                 *t += duration;
                 *p += sign * (v0 * duration + 0.5 * a * duration * duration);
             }
@@ -216,9 +249,30 @@ impl SimAxis {
                 push(half, vb, acceleration, &mut t, &mut p, &mut self.profile);
                 push(half, peak, -acceleration, &mut t, &mut p, &mut self.profile);
             } else {
-                push(ramp_time, vb, acceleration, &mut t, &mut p, &mut self.profile);
-                push((distance - 2.0 * ramp_distance) / vm, vm, 0.0, &mut t, &mut p, &mut self.profile);
-                push(ramp_time, vm, -acceleration, &mut t, &mut p, &mut self.profile);
+                push(
+                    ramp_time,
+                    vb,
+                    acceleration,
+                    &mut t,
+                    &mut p,
+                    &mut self.profile,
+                );
+                push(
+                    (distance - 2.0 * ramp_distance) / vm,
+                    vm,
+                    0.0,
+                    &mut t,
+                    &mut p,
+                    &mut self.profile,
+                );
+                push(
+                    ramp_time,
+                    vm,
+                    -acceleration,
+                    &mut t,
+                    &mut p,
+                    &mut self.profile,
+                );
             }
         }
         // Rounding aside, the last segment ends exactly on the target.
@@ -260,7 +314,12 @@ impl Driver for SimAxis {
             return;
         }
         let end = self.profile.last().map(Segment::end).unwrap_or(now);
-        let segment = self.profile.iter().find(|s| now < s.end()).or(self.profile.last()).copied();
+        let segment = self
+            .profile
+            .iter()
+            .find(|s| now < s.end())
+            .or(self.profile.last())
+            .copied();
         if let Some(segment) = segment {
             let (p, v) = segment.at(now);
             self.physical = p;
@@ -286,13 +345,30 @@ impl Driver for SimAxis {
         }
     }
 
-    fn move_to(&mut self, position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64) {
+    fn move_to(
+        &mut self,
+        position: f64,
+        relative: bool,
+        min_velocity: f64,
+        max_velocity: f64,
+        acceleration: f64,
+    ) {
         if !self.accepts_commands() {
             return;
         }
-        let commanded = if relative { self.physical + position } else { position - self.counter_offset };
+        let commanded = if relative {
+            self.physical + position
+        } else {
+            position - self.counter_offset
+        };
         let target = self.physical + self.fraction * (commanded - self.physical);
-        self.start_motion(target, min_velocity, max_velocity, acceleration, Arrival::Nothing);
+        self.start_motion(
+            target,
+            min_velocity,
+            max_velocity,
+            acceleration,
+            Arrival::Nothing,
+        );
     }
 
     fn move_velocity(&mut self, min_velocity: f64, velocity: f64, acceleration: f64) {
@@ -301,14 +377,26 @@ impl Driver for SimAxis {
         }
         // A jog runs until stopped or a switch is hit: plan a very long move that way.
         let far = self.physical + velocity.signum() * 1e15;
-        self.start_motion(far, min_velocity, velocity.abs(), acceleration, Arrival::Nothing);
+        self.start_motion(
+            far,
+            min_velocity,
+            velocity.abs(),
+            acceleration,
+            Arrival::Nothing,
+        );
     }
 
     /// The simulated home search always finds the switch, whichever side it is on; a real
     /// controller would reverse at a limit switch to find it.
     fn home(&mut self, _forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64) {
         if self.accepts_commands() {
-            self.start_motion(self.config.home_switch, min_velocity, max_velocity, acceleration, Arrival::Homed);
+            self.start_motion(
+                self.config.home_switch,
+                min_velocity,
+                max_velocity,
+                acceleration,
+                Arrival::Homed,
+            );
         }
     }
 
@@ -382,7 +470,10 @@ impl Driver for SimAxis {
     }
 
     fn next_event(&self) -> Option<f64> {
-        self.profile.last().map(Segment::end).filter(|end| end.is_finite())
+        self.profile
+            .last()
+            .map(Segment::end)
+            .filter(|end| end.is_finite())
     }
 
     fn simulation(&mut self) -> Option<&mut SimAxis> {
@@ -395,7 +486,11 @@ mod tests {
     use super::*;
 
     fn sim() -> SimAxis {
-        SimAxis::new(SimConfig { high_limit_switch: Some(1000.0), low_limit_switch: Some(-1000.0), ..SimConfig::default() })
+        SimAxis::new(SimConfig {
+            high_limit_switch: Some(1000.0),
+            low_limit_switch: Some(-1000.0),
+            ..SimConfig::default()
+        })
     }
 
     #[test]
@@ -452,7 +547,12 @@ mod tests {
 
     #[test]
     fn set_position_home_and_faults() {
-        let mut s = SimAxis::new(SimConfig { position: 300.0, home_switch: 120.0, encoder_counts_per_step: Some(2.0), ..SimConfig::default() });
+        let mut s = SimAxis::new(SimConfig {
+            position: 300.0,
+            home_switch: 120.0,
+            encoder_counts_per_step: Some(2.0),
+            ..SimConfig::default()
+        });
         s.set_position(0.0);
         assert_eq!(s.status().position, 0.0);
         assert_eq!(s.status().encoder_position, 600.0);

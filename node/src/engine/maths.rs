@@ -46,7 +46,13 @@ impl MoveMaths {
         } else {
             f.velo.abs() / f.accl
         };
-        let above_base = |v: f64, time: f64| if v - vbase > 0.0 { (v - vbase) / time } else { v / time };
+        let above_base = |v: f64, time: f64| {
+            if v - vbase > 0.0 {
+                (v - vbase) / time
+            } else {
+                v / time
+            }
+        };
         Self {
             rbvpos: f.drbv / f.mres,
             currpos: f.ldvl / f.mres,
@@ -74,6 +80,9 @@ mod tests {
 
     #[test]
     fn nint_rounds_half_away_from_zero() {
-        assert_eq!((nint(2.5), nint(-2.5), nint(2.4999), nint(-0.4)), (3, -3, 2, 0));
+        assert_eq!(
+            (nint(2.5), nint(-2.5), nint(2.4999), nint(-0.4)),
+            (3, -3, 2, 0)
+        );
     }
 }

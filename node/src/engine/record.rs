@@ -46,7 +46,13 @@ impl MotorRecord {
     /// `enforce_min_rdbd` (§6.2 steps 3–4) run here. Call `restore_commands` and `init` next.
     pub fn new(mut fields: Fields) -> Self {
         fields.vers = VERSION;
-        let mut record = Self { f: fields, marks: Marks::default(), outputs: Vec::new(), pending_status: None, refusal: None };
+        let mut record = Self {
+            f: fields,
+            marks: Marks::default(),
+            outputs: Vec::new(),
+            pending_status: None,
+            refusal: None,
+        };
         record.check_speed_and_resolution();
         record.enforce_min_rdbd();
         record.outputs.clear();
@@ -73,10 +79,17 @@ impl MotorRecord {
     /// position the controller reports at boot.
     pub fn restore_commands(&self, controller_steps: f64) -> Vec<MotorCommand> {
         let f = &self.f;
-        let mut cmds = vec![if f.eres == 0.0 { MotorCommand::SetEncRatio(1.0, 1.0) } else { MotorCommand::SetEncRatio(f.mres, f.eres) }];
+        let mut cmds = vec![if f.eres == 0.0 {
+            MotorCommand::SetEncRatio(1.0, 1.0)
+        } else {
+            MotorCommand::SetEncRatio(f.mres, f.eres)
+        }];
         let rdbd_eff = f.rdbd.abs().max(f.mres.abs());
-        let use_rel = f.rtry != 0 && f.rmod != choice::RMOD_IN_POSITION && (f.ueip != 0 || f.urip != 0);
-        let near_zero = f.dval.abs() > rdbd_eff && f.mres != 0.0 && (controller_steps * f.mres).abs() < rdbd_eff;
+        let use_rel =
+            f.rtry != 0 && f.rmod != choice::RMOD_IN_POSITION && (f.ueip != 0 || f.urip != 0);
+        let near_zero = f.dval.abs() > rdbd_eff
+            && f.mres != 0.0
+            && (controller_steps * f.mres).abs() < rdbd_eff;
         let load = match f.rstm {
             1 => true,
             2 => near_zero,
@@ -116,11 +129,21 @@ impl MotorRecord {
         f.ldvl = f.dval;
         f.lrvl = f.rval;
         f.lvio = 0;
-        if !(f.dhlm == 0.0 && f.dllm == 0.0) && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm) {
+        if !(f.dhlm == 0.0 && f.dllm == 0.0)
+            && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
+        {
             f.lvio = 1;
         }
         self.mark(Field::MSTA);
-        for field in [Field::VAL, Field::DVAL, Field::RVAL, Field::DMOV, Field::LVIO, Field::DIFF, Field::RDIF] {
+        for field in [
+            Field::VAL,
+            Field::DVAL,
+            Field::RVAL,
+            Field::DMOV,
+            Field::LVIO,
+            Field::DIFF,
+            Field::RDIF,
+        ] {
             self.mark(field);
         }
         let alarm_changed = self.alarm();
@@ -279,6 +302,8 @@ impl MotorRecord {
 
     // ------------------------------------------------------------------ §7 special()
 
+    // One arm per field, as the table of §7 reads; guards folded into patterns would hide it.
+    #[allow(clippy::collapsible_match)]
     fn special_before(&mut self, field: Field) -> Result<(), WriteError> {
         use Field::*;
         match field {
@@ -289,16 +314,23 @@ impl MotorRecord {
                 }
             }
             HOMF | HOMR if self.f.mip & mip::HOME_GROUP != 0 => {
-                return Err(WriteError::Refused { field, reason: "a home is in progress".into() });
+                return Err(WriteError::Refused {
+                    field,
+                    reason: "a home is in progress".into(),
+                });
             }
             STUP if self.f.stup != choice::STUP_OFF => {
-                return Err(WriteError::Refused { field, reason: "a status update is in progress".into() });
+                return Err(WriteError::Refused {
+                    field,
+                    reason: "a status update is in progress".into(),
+                });
             }
             _ => {}
         }
         Ok(())
     }
 
+    #[allow(clippy::collapsible_match)]
     fn special_after(&mut self, field: Field) -> Result<(), WriteError> {
         use Field::*;
         let u = self.f.urev.abs();
@@ -489,7 +521,11 @@ impl MotorRecord {
                 self.post(SET);
             }
             FOF | VOF => {
-                self.f.foff = if field == FOF { choice::FOFF_FROZEN } else { choice::FOFF_VARIABLE };
+                self.f.foff = if field == FOF {
+                    choice::FOFF_FROZEN
+                } else {
+                    choice::FOFF_VARIABLE
+                };
                 self.post(FOFF);
             }
             PCOF | ICOF | DCOF => {
@@ -510,12 +546,20 @@ impl MotorRecord {
             }
             CNEN => {
                 if self.f.msta & msta::GAIN_SUPPORT != 0 {
-                    let cmd = if self.f.cnen != 0 { MotorCommand::EnableTorque } else { MotorCommand::DisableTorque };
+                    let cmd = if self.f.cnen != 0 {
+                        MotorCommand::EnableTorque
+                    } else {
+                        MotorCommand::DisableTorque
+                    };
                     self.send(vec![cmd]);
                 }
             }
             JOGF | JOGR => {
-                let (pressed, blocked) = if field == JOGF { (self.f.jogf, self.f.hls) } else { (self.f.jogr, self.f.lls) };
+                let (pressed, blocked) = if field == JOGF {
+                    (self.f.jogf, self.f.hls)
+                } else {
+                    (self.f.jogr, self.f.lls)
+                };
                 if pressed == 0 {
                     self.f.mip &= !mip::JOG_REQ;
                 } else if self.f.mip == mip::DONE && blocked == 0 {
@@ -530,7 +574,10 @@ impl MotorRecord {
                     if self.f.jogr != 0 {
                         jogv = -jogv;
                     }
-                    self.send(vec![MotorCommand::SetAccel(maths.jacc), MotorCommand::JogVelocity(jogv)]);
+                    self.send(vec![
+                        MotorCommand::SetAccel(maths.jacc),
+                        MotorCommand::JogVelocity(jogv),
+                    ]);
                 }
             }
             JAR => {
@@ -543,14 +590,20 @@ impl MotorRecord {
                 if self.f.stup != choice::STUP_ON {
                     self.f.stup = choice::STUP_OFF;
                     self.post(STUP);
-                    return Err(WriteError::Adjusted { field, reason: "only ON may be written; STUP stays OFF".into() });
+                    return Err(WriteError::Adjusted {
+                        field,
+                        reason: "only ON may be written; STUP stays OFF".into(),
+                    });
                 }
             }
             NTMF => {
                 if self.f.ntmf < 2 {
                     self.f.ntmf = 2;
                     self.post(NTMF);
-                    return Err(WriteError::Adjusted { field, reason: "NTMF must be at least 2; set to 2".into() });
+                    return Err(WriteError::Adjusted {
+                        field,
+                        reason: "NTMF must be at least 2; set to 2".into(),
+                    });
                 }
             }
             _ => {}
@@ -651,7 +704,11 @@ impl MotorRecord {
         let rmp = (status.position + 0.5).floor() as i32;
         let rep = (status.encoder_position + 0.5).floor() as i32;
         let rvel = status.velocity.floor() as i32;
-        for (field, old, new) in [(Field::RMP, self.f.rmp, rmp), (Field::REP, self.f.rep, rep), (Field::RVEL, self.f.rvel, rvel)] {
+        for (field, old, new) in [
+            (Field::RMP, self.f.rmp, rmp),
+            (Field::REP, self.f.rep, rep),
+            (Field::RVEL, self.f.rvel, rvel),
+        ] {
             if old != new {
                 self.f.set(field, &Value::Int(new.into()));
                 self.post(field);
@@ -708,7 +765,10 @@ impl MotorRecord {
             return Flow::Exit;
         }
         if self.f.pp != 0 {
-            if self.f.val != self.f.lval && self.f.mip & mip::STOP == 0 && self.f.mip & mip::JOG_STOP == 0 {
+            if self.f.val != self.f.lval
+                && self.f.mip & mip::STOP == 0
+                && self.f.mip & mip::JOG_STOP == 0
+            {
                 // A new target arrived while the previous sequence was running.
                 if self.f.mip == mip::HOMF || self.f.mip == mip::HOMR {
                     self.clear_buttons();
@@ -755,7 +815,9 @@ impl MotorRecord {
         if f.dhlm == 0.0 && f.dllm == 0.0 {
             self.f.lvio = 0;
         } else if f.mip & mip::JOG_GROUP != 0 {
-            let lvio = (f.jogf != 0 && f.rbv > f.hlm - f.jvel) || (f.jogr != 0 && f.rbv < f.llm + f.jvel) || f.dllm > f.dhlm;
+            let lvio = (f.jogf != 0 && f.rbv > f.hlm - f.jvel)
+                || (f.jogr != 0 && f.rbv < f.llm + f.jvel)
+                || f.dllm > f.dhlm;
             self.f.lvio = i16::from(lvio);
         } else if f.mip & mip::HOME_GROUP != 0 {
             self.f.lvio = 0;
@@ -853,7 +915,10 @@ impl MotorRecord {
                     self.mark(ERES);
                 }
                 let mut m: i64 = 10_000_000;
-                while m > 1 && ((m as f64 / self.f.eres).abs() > 1e6 || (m as f64 / self.f.mres).abs() > 1e6) {
+                while m > 1
+                    && ((m as f64 / self.f.eres).abs() > 1e6
+                        || (m as f64 / self.f.mres).abs() > 1e6)
+                {
                     m /= 10;
                 }
                 ratio = Some((m as f64 / self.f.eres, m as f64 / self.f.mres));
@@ -883,7 +948,11 @@ impl MotorRecord {
                 self.mark(DMOV);
                 return;
             }
-            self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
+            self.set_mip(if self.f.homf != 0 {
+                mip::HOMF
+            } else {
+                mip::HOMR
+            });
             self.f.pp = 1;
             if self.f.movn != 0 {
                 self.set_mip(self.f.mip | mip::STOP);
@@ -901,7 +970,9 @@ impl MotorRecord {
         if self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0 {
             let f = &self.f;
             if !(f.dhlm == 0.0 && f.dllm == 0.0)
-                && ((f.jogf != 0 && f.val > f.hlm - f.jvel) || (f.jogr != 0 && f.val < f.llm + f.jvel) || f.dllm > f.dhlm)
+                && ((f.jogf != 0 && f.val > f.hlm - f.jvel)
+                    || (f.jogr != 0 && f.val < f.llm + f.jvel)
+                    || f.dllm > f.dhlm)
             {
                 self.f.lvio = 1;
                 self.mark(LVIO);
@@ -915,7 +986,11 @@ impl MotorRecord {
                 }
                 return;
             }
-            self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
+            self.set_mip(if self.f.jogf != 0 {
+                mip::JOGF
+            } else {
+                mip::JOGR
+            });
             if self.f.movn != 0 {
                 self.f.pp = 1;
                 self.set_mip(self.f.mip | mip::STOP);
@@ -938,7 +1013,11 @@ impl MotorRecord {
                     cdir = 1 - cdir;
                 }
                 self.f.cdir = cdir;
-                self.send(vec![MotorCommand::SetVelBase(maths.vbase), MotorCommand::SetAccel(maths.jacc), MotorCommand::Jog(jogv)]);
+                self.send(vec![
+                    MotorCommand::SetVelBase(maths.vbase),
+                    MotorCommand::SetAccel(maths.jacc),
+                    MotorCommand::Jog(jogv),
+                ]);
             }
             return;
         }
@@ -1046,7 +1125,10 @@ impl MotorRecord {
         let retrying = self.f.mip & mip::RETRY != 0;
         let too_small = if !retrying {
             let spdb = self.f.spdb;
-            steps_away < 1 || (spdb > 0.0 && (self.f.dval - spdb) < self.f.drbv && self.f.drbv < (self.f.dval + spdb))
+            steps_away < 1
+                || (spdb > 0.0
+                    && (self.f.dval - spdb) < self.f.drbv
+                    && self.f.drbv < (self.f.dval + spdb))
         } else {
             steps_away < i64::from(m.rdbdpos)
         };
@@ -1071,7 +1153,10 @@ impl MotorRecord {
             self.f.rcnt = 0;
         } else {
             let factor = match self.f.rmod {
-                choice::RMOD_ARITHMETIC => Some((f64::from(self.f.rtry) - f64::from(self.f.rcnt) + 1.0) / f64::from(self.f.rtry)),
+                choice::RMOD_ARITHMETIC => Some(
+                    (f64::from(self.f.rtry) - f64::from(self.f.rcnt) + 1.0)
+                        / f64::from(self.f.rtry),
+                ),
                 choice::RMOD_GEOMETRIC => Some(1.0 / 2f64.powi(i32::from(self.f.rcnt) - 1)),
                 choice::RMOD_IN_POSITION => return,
                 _ => None,
@@ -1083,7 +1168,11 @@ impl MotorRecord {
         }
 
         let f = &self.f;
-        let preferred = if use_rel { (f.diff > 0.0) == (f.bdst > 0.0) } else { (f.dval > f.ldvl) == (f.bdst > 0.0) };
+        let preferred = if use_rel {
+            (f.diff > 0.0) == (f.bdst > 0.0)
+        } else {
+            (f.dval > f.ldvl) == (f.bdst > 0.0)
+        };
         let lvio = if f.dhlm == 0.0 && f.dllm == 0.0 {
             false
         } else if f.dllm > f.dhlm {
@@ -1131,10 +1220,17 @@ impl MotorRecord {
             self.f.lrvl = self.f.rval;
             let f = &self.f;
             let frac = f64::from(f.frac);
-            let fractional_target = if use_rel { m.relpos * frac } else { m.currpos + frac * (m.newpos - m.currpos) };
-            let backlash_off = f.bdst.abs() < f.mres.abs() || (preferred && f.bvel == f.velo && f.bacc == f.accl);
+            let fractional_target = if use_rel {
+                m.relpos * frac
+            } else {
+                m.currpos + frac * (m.newpos - m.currpos)
+            };
+            let backlash_off =
+                f.bdst.abs() < f.mres.abs() || (preferred && f.bvel == f.velo && f.bacc == f.accl);
             let within_backlash = preferred
-                && ((use_rel && ((f.bdst >= 0.0 && m.relbpos <= 1.0) || (f.bdst < 0.0 && m.relbpos >= 1.0)))
+                && ((use_rel
+                    && ((f.bdst >= 0.0 && m.relbpos <= 1.0)
+                        || (f.bdst < 0.0 && m.relbpos >= 1.0)))
                     || (!use_rel && (m.newpos - m.currpos).abs() <= m.rbdst1));
             let (velocity, accel, position) = if backlash_off {
                 (m.vel, m.acc, fractional_target)
@@ -1145,11 +1241,18 @@ impl MotorRecord {
                 (m.vel, m.acc, if use_rel { m.relbpos } else { m.bpos })
             };
             self.f.cdir = i16::from(self.f.rdif >= 0);
-            let mut txn = vec![MotorCommand::SetVelocity(velocity), MotorCommand::SetVelBase(m.vbase)];
+            let mut txn = vec![
+                MotorCommand::SetVelocity(velocity),
+                MotorCommand::SetVelBase(m.vbase),
+            ];
             if accel > 0.0 {
                 txn.push(MotorCommand::SetAccel(accel));
             }
-            txn.push(if use_rel { MotorCommand::MoveRel(position) } else { MotorCommand::MoveAbs(position) });
+            txn.push(if use_rel {
+                MotorCommand::MoveRel(position)
+            } else {
+                MotorCommand::MoveAbs(position)
+            });
             txn.push(MotorCommand::Go);
             self.send(txn);
         }
@@ -1160,7 +1263,9 @@ impl MotorRecord {
     fn post_process(&mut self) {
         use Field::*;
         self.f.pp = 0;
-        if self.f.omsl != choice::OMSL_CLOSED_LOOP && self.f.mip & (mip::MOVE | mip::MOVE_BL | mip::JOG_BL1 | mip::JOG_BL2) == 0 {
+        if self.f.omsl != choice::OMSL_CLOSED_LOOP
+            && self.f.mip & (mip::MOVE | mip::MOVE_BL | mip::JOG_BL1 | mip::JOG_BL2) == 0
+        {
             self.f.val = self.f.rbv;
             self.f.dval = self.f.drbv;
             self.f.rval = nint(self.f.dval / self.f.mres);
@@ -1194,12 +1299,23 @@ impl MotorRecord {
                 self.f.dmov = 0;
                 self.marks.clear(DMOV);
                 if self.f.mip & mip::JOG_STOP != 0 {
-                    let vel = if m.vel <= m.vbase { m.vbase + 1.0 } else { m.vel };
-                    let mut txn = vec![MotorCommand::SetVelocity(vel), MotorCommand::SetVelBase(m.vbase)];
+                    let vel = if m.vel <= m.vbase {
+                        m.vbase + 1.0
+                    } else {
+                        m.vel
+                    };
+                    let mut txn = vec![
+                        MotorCommand::SetVelocity(vel),
+                        MotorCommand::SetVelBase(m.vbase),
+                    ];
                     if m.acc > 0.0 {
                         txn.push(MotorCommand::SetAccel(m.acc));
                     }
-                    txn.push(if use_rel { MotorCommand::MoveRel(m.relbpos) } else { MotorCommand::MoveAbs(m.bpos) });
+                    txn.push(if use_rel {
+                        MotorCommand::MoveRel(m.relbpos)
+                    } else {
+                        MotorCommand::MoveAbs(m.bpos)
+                    });
                     txn.push(MotorCommand::Go);
                     self.send(txn);
                     self.f.mip = mip::JOG_BL1;
@@ -1243,12 +1359,20 @@ impl MotorRecord {
 
     /// T2/T4: the final backlash approach; no SET_VEL_BASE, so the driver keeps the last one.
     fn send_backlash_leg(&mut self, m: &MoveMaths, position: f64, use_rel: bool) {
-        let bvel = if m.bvel <= m.vbase { m.vbase + 1.0 } else { m.bvel };
+        let bvel = if m.bvel <= m.vbase {
+            m.vbase + 1.0
+        } else {
+            m.bvel
+        };
         let mut txn = vec![MotorCommand::SetVelocity(bvel)];
         if m.bacc > 0.0 {
             txn.push(MotorCommand::SetAccel(m.bacc));
         }
-        txn.push(if use_rel { MotorCommand::MoveRel(position) } else { MotorCommand::MoveAbs(position) });
+        txn.push(if use_rel {
+            MotorCommand::MoveRel(position)
+        } else {
+            MotorCommand::MoveAbs(position)
+        });
         txn.push(MotorCommand::Go);
         self.send(txn);
     }
@@ -1256,12 +1380,20 @@ impl MotorRecord {
     /// T5 plus the bookkeeping shared by §9.3 and §10.
     fn start_home(&mut self) {
         let m = MoveMaths::new(&self.f);
-        let forward = (self.f.homf != 0 && self.f.mres > 0.0) || (self.f.homr != 0 && self.f.mres < 0.0);
-        let mut txn = vec![MotorCommand::SetVelocity(m.hvel), MotorCommand::SetVelBase(m.vbase)];
+        let forward =
+            (self.f.homf != 0 && self.f.mres > 0.0) || (self.f.homr != 0 && self.f.mres < 0.0);
+        let mut txn = vec![
+            MotorCommand::SetVelocity(m.hvel),
+            MotorCommand::SetVelBase(m.vbase),
+        ];
         if m.hacc > 0.0 {
             txn.push(MotorCommand::SetAccel(m.hacc));
         }
-        txn.push(if forward { MotorCommand::HomeFor } else { MotorCommand::HomeRev });
+        txn.push(if forward {
+            MotorCommand::HomeFor
+        } else {
+            MotorCommand::HomeRev
+        });
         txn.push(MotorCommand::Go);
         self.send(txn);
         self.f.dmov = 0;
@@ -1276,8 +1408,13 @@ impl MotorRecord {
 
     fn maybe_retry(&mut self) {
         let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
-        let user_cdir = if same_sense { self.f.cdir } else { 1 - self.f.cdir };
-        let stopped_by_switch = (self.f.hls != 0 && user_cdir == 1) || (self.f.lls != 0 && user_cdir == 0);
+        let user_cdir = if same_sense {
+            self.f.cdir
+        } else {
+            1 - self.f.cdir
+        };
+        let stopped_by_switch =
+            (self.f.hls != 0 && user_cdir == 1) || (self.f.lls != 0 && user_cdir == 0);
         if self.f.diff.abs() >= self.f.rdbd && !stopped_by_switch {
             if self.f.rtry == 0 {
                 self.f.mip &= mip::JOG_REQ;
@@ -1285,7 +1422,9 @@ impl MotorRecord {
                 self.f.rcnt += 1;
                 if self.f.rcnt > self.f.rtry {
                     self.f.mip = mip::DONE;
-                    if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
+                    if (self.f.jogf != 0 && self.f.hls == 0)
+                        || (self.f.jogr != 0 && self.f.lls == 0)
+                    {
                         self.f.mip |= mip::JOG_REQ;
                     }
                     self.f.lval = self.f.val;
@@ -1401,7 +1540,16 @@ impl MotorRecord {
     /// §5.10 process_motor_info
     fn process_motor_info(&mut self, initcall: bool) {
         use Field::*;
-        let old = (self.f.drbv, self.f.rbv, self.f.rrbv, self.f.tdir, self.f.movn, self.f.hls, self.f.lls, self.f.athm);
+        let old = (
+            self.f.drbv,
+            self.f.rbv,
+            self.f.rrbv,
+            self.f.tdir,
+            self.f.movn,
+            self.f.hls,
+            self.f.lls,
+            self.f.athm,
+        );
         if self.f.ueip == choice::YES && self.f.msta & msta::PRESENT == 0 {
             self.f.ueip = choice::NO;
             self.post(UEIP);
@@ -1436,7 +1584,11 @@ impl MotorRecord {
         self.f.rlls = i16::from(self.f.msta & msta::MINUS_LS != 0);
         let ls_active = self.limit_switch_hit();
         let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
-        (self.f.hls, self.f.lls) = if same_sense { (self.f.rhls, self.f.rlls) } else { (self.f.rlls, self.f.rhls) };
+        (self.f.hls, self.f.lls) = if same_sense {
+            (self.f.rhls, self.f.rlls)
+        } else {
+            (self.f.rlls, self.f.rhls)
+        };
         if self.f.hls != old.5 {
             self.mark(HLS);
         }
@@ -1454,7 +1606,15 @@ impl MotorRecord {
         if self.f.movn != old.4 {
             self.mark(MOVN);
         }
-        self.f.athm = i16::from(self.f.msta & if self.f.ueip == choice::YES { msta::ENCODER_HOME } else { msta::HOME } != 0);
+        self.f.athm = i16::from(
+            self.f.msta
+                & if self.f.ueip == choice::YES {
+                    msta::ENCODER_HOME
+                } else {
+                    msta::HOME
+                }
+                != 0,
+        );
         if self.f.athm != old.7 {
             self.mark(ATHM);
         }
@@ -1507,11 +1667,19 @@ impl MotorRecord {
         self.f.lrvl = self.f.rval;
         let pos = self.f.dir == choice::DIR_POS;
         if self.f.foff == choice::FOFF_FROZEN {
-            self.f.val = if pos { self.f.off + self.f.dval } else { self.f.off - self.f.dval };
+            self.f.val = if pos {
+                self.f.off + self.f.dval
+            } else {
+                self.f.off - self.f.dval
+            };
             self.mark(VAL);
             self.f.lval = self.f.val;
         } else {
-            self.f.off = if pos { self.f.val - self.f.dval } else { self.f.val + self.f.dval };
+            self.f.off = if pos {
+                self.f.val - self.f.dval
+            } else {
+                self.f.val + self.f.dval
+            };
             self.mark(OFF);
             self.set_userlimits();
         }
@@ -1577,7 +1745,11 @@ impl MotorRecord {
     fn set_dial_high_limit(&mut self) {
         let raw = self.f.dhlm / self.f.mres;
         let to_high = self.f.mres >= 0.0;
-        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        self.send(vec![if to_high {
+            MotorCommand::SetHighLimit(raw)
+        } else {
+            MotorCommand::SetLowLimit(raw)
+        }]);
         if self.f.dir == choice::DIR_POS {
             self.f.hlm = self.f.dhlm + self.f.off;
             self.mark(Field::HLM);
@@ -1593,7 +1765,11 @@ impl MotorRecord {
     fn set_dial_low_limit(&mut self) {
         let raw = self.f.dllm / self.f.mres;
         let to_high = self.f.mres < 0.0;
-        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        self.send(vec![if to_high {
+            MotorCommand::SetHighLimit(raw)
+        } else {
+            MotorCommand::SetLowLimit(raw)
+        }]);
         if self.f.dir == choice::DIR_POS {
             self.f.llm = self.f.dllm + self.f.off;
             self.mark(Field::LLM);
@@ -1609,12 +1785,20 @@ impl MotorRecord {
     fn set_user_limit(&mut self, high: bool) {
         let pos = self.f.dir == choice::DIR_POS;
         let user = if high { self.f.hlm } else { self.f.llm };
-        let dial = if pos { user - self.f.off } else { -user + self.f.off };
+        let dial = if pos {
+            user - self.f.off
+        } else {
+            -user + self.f.off
+        };
         // A user high limit is a dial high limit when DIR is Pos.
         let dial_high = high == pos;
         let to_high = dial_high == (self.f.mres >= 0.0);
         let raw = dial / self.f.mres;
-        self.send(vec![if to_high { MotorCommand::SetHighLimit(raw) } else { MotorCommand::SetLowLimit(raw) }]);
+        self.send(vec![if to_high {
+            MotorCommand::SetHighLimit(raw)
+        } else {
+            MotorCommand::SetLowLimit(raw)
+        }]);
         if dial_high {
             self.f.dhlm = dial;
             self.mark(Field::DHLM);
@@ -1692,7 +1876,9 @@ impl MotorRecord {
 
     /// Relative moves: retries enabled, not In-Position, and a readback other than the step count.
     fn use_relative(&self) -> bool {
-        self.f.rtry != 0 && self.f.rmod != choice::RMOD_IN_POSITION && (self.f.ueip == choice::YES || self.f.urip == choice::YES)
+        self.f.rtry != 0
+            && self.f.rmod != choice::RMOD_IN_POSITION
+            && (self.f.ueip == choice::YES || self.f.urip == choice::YES)
     }
 
     fn set_mip(&mut self, value: u16) {

@@ -1,0 +1,61 @@
+"""A stock eclipse-zenoh Python client drives a zmotor axis with no zmotor code at all.
+
+Usage: python3 interop.py tcp/127.0.0.1:7447   (axis m1 must be running there)
+Exits non-zero with a message on the first broken expectation.
+"""
+import json
+import queue
+import sys
+import time
+
+import cbor2
+import zenoh
+
+endpoint = sys.argv[1] if len(sys.argv) > 1 else "tcp/127.0.0.1:7447"
+conf = zenoh.Config()
+conf.insert_json5("mode", '"client"')
+conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+conf.insert_json5("scouting/multicast/enabled", "false")
+
+
+def value(sample):
+    return cbor2.loads(sample.payload.to_bytes())
+
+
+def expect(condition, what):
+    if not condition:
+        sys.exit(f"python interop: {what}")
+
+
+with zenoh.open(conf) as session:
+    # Read a field.
+    replies = list(session.get("motor/m1/RBV", timeout=5.0))
+    expect(len(replies) == 1 and replies[0].ok is not None, f"get RBV: {replies}")
+    start = value(replies[0].ok)
+
+    # Watch DMOV, then move with a plain put of text.
+    dmov = queue.Queue()
+    sub = session.declare_subscriber("motor/m1/DMOV", lambda s: dmov.put(value(s)))
+    time.sleep(0.3)  # let the subscription reach the node
+    session.put("motor/m1/VAL", str(start + 2))
+    seen = [dmov.get(timeout=10), dmov.get(timeout=10)]
+    expect(seen == [0, 1], f"DMOV pulse {seen}")
+    rbv = value(list(session.get("motor/m1/RBV", timeout=5.0))[0].ok)
+    expect(abs(rbv - (start + 2)) < 1e-6, f"RBV {rbv} after the move")
+
+    # Put with completion: the reply comes when the motion is over and says how it ended.
+    reply = list(session.get("motor/m1/VAL?wait", payload="1.5", timeout=30.0))[0]
+    outcome = cbor2.loads(reply.ok.payload.to_bytes())
+    expect(outcome["DMOV"] == 1 and outcome["reached"] == 1 and abs(outcome["RBV"] - 1.5) < 1e-6, f"{outcome}")
+
+    # A refused write answers with an error in plain words.
+    reply = list(session.get("motor/m1/RBV", payload="3", timeout=5.0))[0]
+    expect(reply.err is not None, "a write to RBV was accepted")
+    expect(reply.err.payload.to_string() == "RBV is read-only", reply.err.payload.to_string())
+
+    # Menu fields take choice names.
+    reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]
+    expect(value(reply.ok) == 1, "SPMG Pause")
+    sub.undeclare()
+
+print("python interop: ok")
