@@ -180,10 +180,7 @@ impl AxisTask {
 
     /// A plain put: a write unless it carries the state marker.
     async fn on_write_sample(&mut self, sample: Sample) {
-        if sample
-            .attachment()
-            .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
-        {
+        if is_state(&sample) {
             return;
         }
         let key = sample.key_expr().as_str().to_string();
@@ -298,10 +295,7 @@ impl AxisTask {
     }
 
     async fn on_sim_write(&mut self, sample: Sample) {
-        if sample
-            .attachment()
-            .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
-        {
+        if is_state(&sample) {
             return;
         }
         let key = sample.key_expr().as_str().to_string();
@@ -429,6 +423,13 @@ impl AxisTask {
             .attachment(attachment)
             .await;
     }
+}
+
+/// A publication of some node (it carries the state marker), never a write.
+fn is_state(sample: &Sample) -> bool {
+    sample
+        .attachment()
+        .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
 }
 
 /// The simulator's keys under `sim/<axis>/`: positions in steps, flags as 0/1.

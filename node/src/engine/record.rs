@@ -116,8 +116,8 @@ impl MotorRecord {
             self.f.dval = self.f.drbv;
             self.f.rval = nint(self.f.dval / self.f.mres);
         }
-        self.set_dial_high_limit();
-        self.set_dial_low_limit();
+        self.set_dial_limit(true);
+        self.set_dial_limit(false);
         let f = &mut self.f;
         f.dmov = 1;
         f.movn = 0;
@@ -454,8 +454,8 @@ impl MotorRecord {
             }
             HLM => self.set_user_limit(true),
             LLM => self.set_user_limit(false),
-            DHLM => self.set_dial_high_limit(),
-            DLLM => self.set_dial_low_limit(),
+            DHLM => self.set_dial_limit(true),
+            DLLM => self.set_dial_limit(false),
             FRAC => {
                 let clamped = self.f.frac.clamp(0.1, 1.5);
                 if clamped != self.f.frac {
@@ -1741,44 +1741,21 @@ impl MotorRecord {
         self.mark(Field::LLM);
     }
 
-    /// §5.5 set_dial_high_limit
-    fn set_dial_high_limit(&mut self) {
-        let raw = self.f.dhlm / self.f.mres;
-        let to_high = self.f.mres >= 0.0;
-        self.send(vec![if to_high {
-            MotorCommand::SetHighLimit(raw)
+    /// §5.5 set_dial_high_limit / set_dial_low_limit: send the dial limit to the controller in
+    /// raw units (high and low swap when MRES < 0) and derive the user limit it bounds.
+    fn set_dial_limit(&mut self, high: bool) {
+        let dial = if high { self.f.dhlm } else { self.f.dllm };
+        self.send_raw_limit(high == (self.f.mres >= 0.0), dial / self.f.mres);
+        let user = self.dirsign() * dial + self.f.off;
+        // With DIR Neg the dial high limit bounds the user low limit.
+        let user_field = if high == (self.f.dir == choice::DIR_POS) {
+            Field::HLM
         } else {
-            MotorCommand::SetLowLimit(raw)
-        }]);
-        if self.f.dir == choice::DIR_POS {
-            self.f.hlm = self.f.dhlm + self.f.off;
-            self.mark(Field::HLM);
-        } else {
-            self.f.llm = -self.f.dhlm + self.f.off;
-            self.mark(Field::LLM);
-        }
-        self.store_raw_limit(to_high, raw);
-        self.mark(Field::DHLM);
-    }
-
-    /// §5.5 set_dial_low_limit
-    fn set_dial_low_limit(&mut self) {
-        let raw = self.f.dllm / self.f.mres;
-        let to_high = self.f.mres < 0.0;
-        self.send(vec![if to_high {
-            MotorCommand::SetHighLimit(raw)
-        } else {
-            MotorCommand::SetLowLimit(raw)
-        }]);
-        if self.f.dir == choice::DIR_POS {
-            self.f.llm = self.f.dllm + self.f.off;
-            self.mark(Field::LLM);
-        } else {
-            self.f.hlm = -self.f.dllm + self.f.off;
-            self.mark(Field::HLM);
-        }
-        self.store_raw_limit(to_high, raw);
-        self.mark(Field::DLLM);
+            Field::LLM
+        };
+        self.f.set(user_field, &Value::Float(user));
+        self.mark(user_field);
+        self.mark(if high { Field::DHLM } else { Field::DLLM });
     }
 
     /// §5.6 set_user_high_limit / set_user_low_limit (the controller always accepts limits here).
@@ -1792,13 +1769,7 @@ impl MotorRecord {
         };
         // A user high limit is a dial high limit when DIR is Pos.
         let dial_high = high == pos;
-        let to_high = dial_high == (self.f.mres >= 0.0);
-        let raw = dial / self.f.mres;
-        self.send(vec![if to_high {
-            MotorCommand::SetHighLimit(raw)
-        } else {
-            MotorCommand::SetLowLimit(raw)
-        }]);
+        self.send_raw_limit(dial_high == (self.f.mres >= 0.0), dial / self.f.mres);
         if dial_high {
             self.f.dhlm = dial;
             self.mark(Field::DHLM);
@@ -1806,15 +1777,17 @@ impl MotorRecord {
             self.f.dllm = dial;
             self.mark(Field::DLLM);
         }
-        self.store_raw_limit(to_high, raw);
         self.mark(if high { Field::HLM } else { Field::LLM });
     }
 
-    fn store_raw_limit(&mut self, high: bool, raw: f64) {
+    /// SET_HIGH_LIMIT or SET_LOW_LIMIT, remembered in RHLM or RLLM.
+    fn send_raw_limit(&mut self, high: bool, raw: f64) {
         if high {
+            self.send(vec![MotorCommand::SetHighLimit(raw)]);
             self.f.rhlm = raw;
             self.mark(Field::RHLM);
         } else {
+            self.send(vec![MotorCommand::SetLowLimit(raw)]);
             self.f.rllm = raw;
             self.mark(Field::RLLM);
         }
