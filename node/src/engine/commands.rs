@@ -64,6 +64,8 @@ pub enum WriteError {
     Refused { field: Field, reason: String },
     #[error("{field} adjusted: {reason}")]
     Adjusted { field: Field, reason: String },
-    #[error("limit violation: {0}")]
-    LimitViolation(String),
+    /// Accepted and processed, but the record would not act on it (a soft-limit violation,
+    /// a home against an active switch, ...); the drive fields went back.
+    #[error("{0}")]
+    NotActedUpon(String),
 }

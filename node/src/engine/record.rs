@@ -39,6 +39,8 @@ pub struct MotorRecord {
     pending_status: Option<DeviceStatus>,
     /// Why the last move request was refused, reported to the writer.
     refusal: Option<String>,
+    /// Departure Z9: a move was paused; its target is held and resumed by Go or Move.
+    resume_on_go: bool,
 }
 
 impl MotorRecord {
@@ -52,6 +54,7 @@ impl MotorRecord {
             outputs: Vec::new(),
             pending_status: None,
             refusal: None,
+            resume_on_go: false,
         };
         record.check_speed_and_resolution();
         record.enforce_min_rdbd();
@@ -128,12 +131,7 @@ impl MotorRecord {
         f.lval = f.val;
         f.ldvl = f.dval;
         f.lrvl = f.rval;
-        f.lvio = 0;
-        if !(f.dhlm == 0.0 && f.dllm == 0.0)
-            && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
-        {
-            f.lvio = 1;
-        }
+        self.f.lvio = i16::from(self.readback_violates_limits());
         self.mark(Field::MSTA);
         for field in [
             Field::VAL,
@@ -188,35 +186,25 @@ impl MotorRecord {
             self.range_check(Field::VELO, self.f.vbas, self.f.vmax);
             self.f.s = self.f.velo / u;
         }
+        // Raw limits win at boot. Departure Z3: with MRES < 0 the raw low limit is the dial high
+        // limit with its sign (the reference drops the sign, Q3).
         let f = &mut self.f;
-        if f.mres > 0.0 {
-            if f.rllm != 0.0 {
-                f.dllm = f.rllm * f.mres;
-            }
-            if f.rllm != f.dllm / f.mres {
-                f.rllm = f.dllm / f.mres;
-            }
-            if f.rhlm != 0.0 {
-                f.dhlm = f.rhlm * f.mres;
-            }
-            if f.rhlm != f.dhlm / f.mres {
-                f.rhlm = f.dhlm / f.mres;
-            }
+        let (raw_for_high, raw_for_low) = if f.mres > 0.0 {
+            (f.rhlm, f.rllm)
         } else {
-            let m = f.mres.abs();
-            if f.rllm != 0.0 {
-                f.dhlm = f.rllm * m;
-            }
-            if f.rllm != f.dhlm / m {
-                f.rllm = f.dhlm / m;
-            }
-            if f.rhlm != 0.0 {
-                f.dllm = f.rhlm * m;
-            }
-            if f.rhlm != f.dllm / m {
-                f.rhlm = f.dllm / m;
-            }
+            (f.rllm, f.rhlm)
+        };
+        if raw_for_high != 0.0 {
+            f.dhlm = raw_for_high * f.mres;
         }
+        if raw_for_low != 0.0 {
+            f.dllm = raw_for_low * f.mres;
+        }
+        (f.rhlm, f.rllm) = if f.mres > 0.0 {
+            (f.dhlm / f.mres, f.dllm / f.mres)
+        } else {
+            (f.dllm / f.mres, f.dhlm / f.mres)
+        };
         if self.f.sbak != 0.0 {
             self.range_check(Field::SBAK, self.f.sbas, self.f.smax);
             self.f.bvel = self.f.sbak * u;
@@ -281,7 +269,7 @@ impl MotorRecord {
             self.flush_posts();
         }
         match self.refusal.take() {
-            Some(reason) => Err(WriteError::LimitViolation(reason)),
+            Some(reason) => Err(WriteError::NotActedUpon(reason)),
             None => Ok(()),
         }
     }
@@ -452,10 +440,20 @@ impl MotorRecord {
                 self.mark(RBV);
                 self.set_userlimits();
             }
-            HLM => self.set_user_limit(true),
-            LLM => self.set_user_limit(false),
-            DHLM => self.set_dial_limit(true),
-            DLLM => self.set_dial_limit(false),
+            HLM | LLM | DHLM | DLLM => {
+                match field {
+                    HLM => self.set_user_limit(true),
+                    LLM => self.set_user_limit(false),
+                    DHLM => self.set_dial_limit(true),
+                    _ => self.set_dial_limit(false),
+                }
+                // Departure Z8: LVIO follows the new limits (the reference waits for a move, D8).
+                let lvio = i16::from(self.readback_violates_limits());
+                if lvio != self.f.lvio {
+                    self.f.lvio = lvio;
+                    self.mark(LVIO);
+                }
+            }
             FRAC => {
                 let clamped = self.f.frac.clamp(0.1, 1.5);
                 if clamped != self.f.frac {
@@ -560,9 +558,12 @@ impl MotorRecord {
                 } else {
                     (self.f.jogr, self.f.lls)
                 };
+                // Departure Z5: also accepted while a move runs (the reference needs MIP = DONE);
+                // not while jogging or homing.
+                let busy = mip::JOG_GROUP | mip::JOG_STOP | mip::JOG_REQ | mip::HOME_GROUP;
                 if pressed == 0 {
                     self.f.mip &= !mip::JOG_REQ;
-                } else if self.f.mip == mip::DONE && blocked == 0 {
+                } else if self.f.mip & busy == 0 && blocked == 0 {
                     self.f.mip |= mip::JOG_REQ;
                 }
             }
@@ -756,6 +757,13 @@ impl MotorRecord {
                 self.f.pp = 1;
             }
         }
+        if self.resume_on_go && self.f.mip == mip::STOP {
+            // Paused mid-move (Z9): the target stays, DMOV stays 0 until Go.
+            self.set_mip(mip::DONE);
+            self.f.dmov = 0;
+            self.marks.clear(Field::DMOV);
+            return Flow::Exit;
+        }
         if self.f.mip != mip::DONE && self.limit_switch_hit() {
             self.f.dmov = 0;
             self.marks.clear(Field::DMOV);
@@ -824,7 +832,8 @@ impl MotorRecord {
         }
         if self.f.lvio != lvio_at_entry {
             self.mark(Field::LVIO);
-            if self.f.lvio != 0 && self.f.set == 0 && self.f.igset == 0 {
+            // Departure Z2: IGSET means "behave as Use", so it keeps the stop (the reference drops it, Q2).
+            if self.f.lvio != 0 && !self.set_mode() {
                 self.f.stop = 1;
                 self.mark(Field::STOP);
                 self.clear_buttons();
@@ -867,6 +876,12 @@ impl MotorRecord {
                 if self.f.spmg == choice::SPMG_STOP || stop_req {
                     let m = self.f.mip;
                     if m == mip::DONE || m & mip::STOP != 0 || m & mip::RETRY != 0 {
+                        if std::mem::take(&mut self.resume_on_go) {
+                            self.sync_target_position();
+                            self.set_mip(mip::DONE);
+                            self.f.dmov = 1;
+                            self.mark(DMOV);
+                        }
                         if m & mip::RETRY != 0 {
                             self.set_mip(mip::DONE);
                             self.f.dmov = 1;
@@ -884,18 +899,27 @@ impl MotorRecord {
                 if self.f.mip & mip::HOME_GROUP != 0 {
                     self.clear_buttons();
                 }
+                let moving_to_target = self.f.mip & (mip::MOVE | mip::MOVE_BL | mip::RETRY) != 0
+                    && self.f.mip & (mip::JOG_GROUP | mip::HOME_GROUP) == 0;
+                if self.f.spmg == choice::SPMG_PAUSE && !stop_req && moving_to_target {
+                    // Departure Z9: hold the target instead of ending the motion off-target (Q11).
+                    self.resume_on_go = true;
+                    self.f.pp = 0;
+                }
                 if self.f.mip & mip::DELAY_REQ == 0 {
                     self.set_mip(mip::STOP);
                 }
                 self.send(vec![MotorCommand::StopAxis]);
                 return;
             } else if self.f.spmg == choice::SPMG_GO {
+                self.resume_on_go = false;
                 if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
                     self.set_mip(mip::JOG_REQ);
                 } else if self.f.mip == mip::STOP {
                     self.set_mip(mip::DONE);
                 }
             } else {
+                self.resume_on_go = false;
                 self.set_mip(mip::DONE);
                 self.f.rcnt = 0;
                 self.mark(RCNT);
@@ -940,6 +964,17 @@ impl MotorRecord {
         let dir_pos = self.f.dir == choice::DIR_POS;
         let fwd_blocked = if dir_pos { self.f.hls } else { self.f.lls } != 0;
         let rev_blocked = if dir_pos { self.f.lls } else { self.f.hls } != 0;
+        // Departure Z6: a home refused by an active switch is reset and reported, never
+        // started later (the reference latches it, Q25).
+        for (button, blocked, switch) in [(HOMF, fwd_blocked, "high"), (HOMR, rev_blocked, "low")] {
+            if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
+                self.f.set(button, &Value::Int(0));
+                self.mark(button);
+                self.refusal = Some(format!(
+                    "{button} refused: the {switch} limit switch is active"
+                ));
+            }
+        }
         if (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
             || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked)
         {
@@ -984,6 +1019,12 @@ impl MotorRecord {
                     self.f.jogr = 0;
                     self.mark(JOGR);
                 }
+                // Departure Z1: no request is left behind (the reference keeps JOG_REQ, Q1).
+                self.set_mip(self.f.mip & !mip::JOG_REQ);
+                self.refusal = Some(
+                    "limit violation: jog refused within one second of travel of a soft limit"
+                        .into(),
+                );
                 return;
             }
             self.set_mip(if self.f.jogf != 0 {
@@ -996,28 +1037,7 @@ impl MotorRecord {
                 self.set_mip(self.f.mip | mip::STOP);
                 self.send(vec![MotorCommand::StopAxis]);
             } else {
-                self.f.dmov = 0;
-                self.mark(DMOV);
-                self.f.pp = 1;
-                let maths = MoveMaths::new(&self.f);
-                let mut jogv = self.f.jvel * self.dirsign() / self.f.mres;
-                let mut cdir = 1;
-                if self.f.jogf == 0 {
-                    cdir = 0;
-                    jogv = -jogv;
-                }
-                if self.f.mres < 0.0 {
-                    cdir = 1 - cdir;
-                }
-                if !dir_pos {
-                    cdir = 1 - cdir;
-                }
-                self.f.cdir = cdir;
-                self.send(vec![
-                    MotorCommand::SetVelBase(maths.vbase),
-                    MotorCommand::SetAccel(maths.jacc),
-                    MotorCommand::Jog(jogv),
-                ]);
+                self.start_jog();
             }
             return;
         }
@@ -1190,7 +1210,7 @@ impl MotorRecord {
         }
         if lvio {
             self.refusal = Some(format!(
-                "dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
+                "limit violation: dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
                 self.f.dval, self.f.dllm, self.f.dhlm
             ));
             self.f.val = self.f.lval;
@@ -1240,21 +1260,13 @@ impl MotorRecord {
                 self.f.pp = 1;
                 (m.vel, m.acc, if use_rel { m.relbpos } else { m.bpos })
             };
-            self.f.cdir = i16::from(self.f.rdif >= 0);
-            let mut txn = vec![
-                MotorCommand::SetVelocity(velocity),
-                MotorCommand::SetVelBase(m.vbase),
-            ];
-            if accel > 0.0 {
-                txn.push(MotorCommand::SetAccel(accel));
-            }
-            txn.push(if use_rel {
-                MotorCommand::MoveRel(position)
-            } else {
-                MotorCommand::MoveAbs(position)
+            self.send_leg(Leg {
+                velocity,
+                base: Some(m.vbase),
+                accel,
+                position,
+                relative: use_rel,
             });
-            txn.push(MotorCommand::Go);
-            self.send(txn);
         }
     }
 
@@ -1299,38 +1311,30 @@ impl MotorRecord {
                 self.f.dmov = 0;
                 self.marks.clear(DMOV);
                 if self.f.mip & mip::JOG_STOP != 0 {
-                    let vel = if m.vel <= m.vbase {
+                    // T3: to the backlash start at the slew speed.
+                    let velocity = if m.vel <= m.vbase {
                         m.vbase + 1.0
                     } else {
                         m.vel
                     };
-                    let mut txn = vec![
-                        MotorCommand::SetVelocity(vel),
-                        MotorCommand::SetVelBase(m.vbase),
-                    ];
-                    if m.acc > 0.0 {
-                        txn.push(MotorCommand::SetAccel(m.acc));
-                    }
-                    txn.push(if use_rel {
-                        MotorCommand::MoveRel(m.relbpos)
-                    } else {
-                        MotorCommand::MoveAbs(m.bpos)
+                    let position = if use_rel { m.relbpos } else { m.bpos };
+                    self.send_leg(Leg {
+                        velocity,
+                        base: Some(m.vbase),
+                        accel: m.acc,
+                        position,
+                        relative: use_rel,
                     });
-                    txn.push(MotorCommand::Go);
-                    self.send(txn);
                     self.f.mip = mip::JOG_BL1;
                 } else {
                     let position = if use_rel {
                         m.relpos * frac
                     } else {
-                        let p = m.bpos + frac * (m.newpos - m.bpos);
-                        self.f.rval = nint(p);
-                        p
+                        self.fractional_backlash_target(&m)
                     };
-                    self.send_backlash_leg(&m, position, use_rel);
+                    self.send_leg(Leg::backlash(&m, position, use_rel));
                     self.f.mip = mip::MOVE_BL;
                 }
-                self.f.cdir = i16::from(m.relpos >= 0.0);
                 self.f.pp = 1;
             }
             self.f.mip &= !(mip::JOG_STOP | mip::MOVE);
@@ -1339,17 +1343,16 @@ impl MotorRecord {
             let position = if use_rel {
                 (m.relpos - m.relbpos) * frac
             } else {
-                let p = m.bpos + frac * (m.newpos - m.bpos);
-                self.f.rval = nint(p);
-                p
+                self.fractional_backlash_target(&m)
             };
             self.f.dmov = 0;
             self.marks.clear(DMOV);
-            self.send_backlash_leg(&m, position, use_rel);
-            let direction = if use_rel { position } else { self.f.diff };
-            self.f.cdir = i16::from(direction >= 0.0);
+            self.send_leg(Leg::backlash(&m, position, use_rel));
             self.f.mip = mip::JOG_BL2;
             self.f.pp = 1;
+        } else if self.f.mip & (mip::JOGF | mip::JOGR) != 0 && self.f.mip & mip::STOP != 0 {
+            // Departure Z5: the move that was running when the jog was asked for has stopped; jog now.
+            self.start_jog();
         }
         self.f.lval = self.f.val;
         self.f.ldvl = self.f.dval;
@@ -1357,24 +1360,77 @@ impl MotorRecord {
         self.set_mip(self.f.mip & !mip::STOP);
     }
 
-    /// T2/T4: the final backlash approach; no SET_VEL_BASE, so the driver keeps the last one.
-    fn send_backlash_leg(&mut self, m: &MoveMaths, position: f64, use_rel: bool) {
-        let bvel = if m.bvel <= m.vbase {
-            m.vbase + 1.0
+    /// The absolute final approach: FRAC of the way from the backlash start to the target.
+    /// RVAL follows the intermediate raw position, unposted (Q20).
+    fn fractional_backlash_target(&mut self, m: &MoveMaths) -> f64 {
+        let p = m.bpos + f64::from(self.f.frac) * (m.newpos - m.bpos);
+        self.f.rval = nint(p);
+        p
+    }
+
+    /// Send one move leg (T1–T4). Departure Z7: CDIR is the direction this leg actually
+    /// travels (the reference uses the direction to the final target, Q15). Departure Z10:
+    /// a leg that starts within the soft limits never ends beyond them (FRAC > 1).
+    fn send_leg(&mut self, leg: Leg) {
+        let position = self.keep_within_soft_limits(leg.position, leg.relative);
+        let here = self.f.drbv / self.f.mres;
+        let upwards = if leg.relative {
+            position >= 0.0
         } else {
-            m.bvel
+            position >= here
         };
-        let mut txn = vec![MotorCommand::SetVelocity(bvel)];
-        if m.bacc > 0.0 {
-            txn.push(MotorCommand::SetAccel(m.bacc));
+        self.f.cdir = i16::from(upwards);
+        let mut txn = vec![MotorCommand::SetVelocity(leg.velocity)];
+        txn.extend(leg.base.map(MotorCommand::SetVelBase));
+        if leg.accel > 0.0 {
+            txn.push(MotorCommand::SetAccel(leg.accel));
         }
-        txn.push(if use_rel {
+        txn.push(if leg.relative {
             MotorCommand::MoveRel(position)
         } else {
             MotorCommand::MoveAbs(position)
         });
         txn.push(MotorCommand::Go);
         self.send(txn);
+    }
+
+    fn keep_within_soft_limits(&self, position: f64, relative: bool) -> f64 {
+        let f = &self.f;
+        if f.dhlm == 0.0 && f.dllm == 0.0 {
+            return position;
+        }
+        let here = f.drbv / f.mres;
+        let (a, b) = (f.dllm / f.mres, f.dhlm / f.mres);
+        // Moving back towards the valid range from outside stays allowed.
+        let (lo, hi) = (a.min(b).min(here), a.max(b).max(here));
+        let target = if relative { here + position } else { position };
+        if (lo..=hi).contains(&target) {
+            return position;
+        }
+        let kept = target.clamp(lo, hi);
+        if relative {
+            kept - here
+        } else {
+            kept
+        }
+    }
+
+    /// T6: start jogging in the direction of the pressed button.
+    fn start_jog(&mut self) {
+        self.f.dmov = 0;
+        self.mark(Field::DMOV);
+        self.f.pp = 1;
+        let maths = MoveMaths::new(&self.f);
+        let mut jogv = self.f.jvel * self.dirsign() / self.f.mres;
+        if self.f.jogf == 0 {
+            jogv = -jogv;
+        }
+        self.f.cdir = i16::from(jogv >= 0.0);
+        self.send(vec![
+            MotorCommand::SetVelBase(maths.vbase),
+            MotorCommand::SetAccel(maths.jacc),
+            MotorCommand::Jog(jogv),
+        ]);
     }
 
     /// T5 plus the bookkeeping shared by §9.3 and §10.
@@ -1459,12 +1515,14 @@ impl MotorRecord {
     fn alarm(&mut self) -> bool {
         let f = &self.f;
         let (mut nsta, mut nsev) = (status::NO_ALARM, severity::NO_ALARM);
+        let limits_on = !(f.dhlm == 0.0 && f.dllm == 0.0);
         let mut comm_error = false;
         if f.udf != 0 {
             (nsta, nsev) = (status::UDF, severity::INVALID);
-        } else if f.hlsv != severity::NO_ALARM && (f.hls != 0 || f.dval > f.dhlm) {
+        // Departure Z4: the target is compared with the soft limits only while they are on (Q8).
+        } else if f.hlsv != severity::NO_ALARM && (f.hls != 0 || (limits_on && f.dval > f.dhlm)) {
             (nsta, nsev) = (status::HIGH, f.hlsv);
-        } else if f.hlsv != severity::NO_ALARM && (f.lls != 0 || f.dval < f.dllm) {
+        } else if f.hlsv != severity::NO_ALARM && (f.lls != 0 || (limits_on && f.dval < f.dllm)) {
             (nsta, nsev) = (status::LOW, f.hlsv);
         } else {
             if f.msta & msta::COMM_ERR != 0 {
@@ -1692,6 +1750,14 @@ impl MotorRecord {
         self.send(vec![MotorCommand::GetInfo]);
     }
 
+    /// §6.2 step 13: the readback lies more than one step outside the soft limits, or the limits
+    /// are inverted (signed MRES as in the reference, Q19); never while limits are off.
+    fn readback_violates_limits(&self) -> bool {
+        let f = &self.f;
+        !(f.dhlm == 0.0 && f.dllm == 0.0)
+            && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
+    }
+
     /// §5.1
     fn enforce_min_rdbd(&mut self) {
         if self.f.rdbd < self.f.mres.abs() {
@@ -1883,5 +1949,33 @@ fn at_least_one_step(steps: f64) -> f64 {
         }
     } else {
         steps
+    }
+}
+
+/// One move leg for the device: speeds in steps/s, acceleration in steps/s², position in steps.
+struct Leg {
+    velocity: f64,
+    /// SET_VEL_BASE, or None to keep the driver's last base velocity (T2/T4).
+    base: Option<f64>,
+    accel: f64,
+    position: f64,
+    relative: bool,
+}
+
+impl Leg {
+    /// T2/T4: the final backlash approach at BVEL/BACC (VBAS + 1 step/s if BVEL ≤ VBAS, Q29).
+    fn backlash(m: &MoveMaths, position: f64, relative: bool) -> Self {
+        let velocity = if m.bvel <= m.vbase {
+            m.vbase + 1.0
+        } else {
+            m.bvel
+        };
+        Self {
+            velocity,
+            base: None,
+            accel: m.bacc,
+            position,
+            relative,
+        }
     }
 }
