@@ -30,81 +30,21 @@ pub mod msta {
 }
 
 pub const MSTA_BITS: &[BitDef] = &[
-    BitDef {
-        mask: msta::DIRECTION,
-        name: "RA_DIRECTION",
-        meaning: "last raw direction of travel (1 = positive)",
-    },
-    BitDef {
-        mask: msta::DONE,
-        name: "RA_DONE",
-        meaning: "motion is complete",
-    },
-    BitDef {
-        mask: msta::PLUS_LS,
-        name: "RA_PLUS_LS",
-        meaning: "plus (raw positive) limit switch active",
-    },
-    BitDef {
-        mask: msta::HOME,
-        name: "RA_HOME",
-        meaning: "home switch active",
-    },
-    BitDef {
-        mask: msta::SLIP,
-        name: "EA_SLIP",
-        meaning: "encoder slip detection enabled",
-    },
-    BitDef {
-        mask: msta::POSITION,
-        name: "EA_POSITION",
-        meaning: "position maintenance (closed loop) enabled",
-    },
-    BitDef {
-        mask: msta::SLIP_STALL,
-        name: "EA_SLIP_STALL",
-        meaning: "slip or stall detected (following error)",
-    },
-    BitDef {
-        mask: msta::ENCODER_HOME,
-        name: "EA_HOME",
-        meaning: "encoder home signal active",
-    },
-    BitDef {
-        mask: msta::PRESENT,
-        name: "EA_PRESENT",
-        meaning: "an encoder is present",
-    },
-    BitDef {
-        mask: msta::PROBLEM,
-        name: "RA_PROBLEM",
-        meaning: "driver or hardware problem",
-    },
-    BitDef {
-        mask: msta::MOVING,
-        name: "RA_MOVING",
-        meaning: "non-zero velocity present",
-    },
-    BitDef {
-        mask: msta::GAIN_SUPPORT,
-        name: "GAIN_SUPPORT",
-        meaning: "closed-loop position control supported",
-    },
-    BitDef {
-        mask: msta::COMM_ERR,
-        name: "CNTRL_COMM_ERR",
-        meaning: "controller communication error",
-    },
-    BitDef {
-        mask: msta::MINUS_LS,
-        name: "RA_MINUS_LS",
-        meaning: "minus (raw negative) limit switch active",
-    },
-    BitDef {
-        mask: msta::HOMED,
-        name: "RA_HOMED",
-        meaning: "the axis has been homed",
-    },
+    BitDef { mask: msta::DIRECTION, name: "RA_DIRECTION", meaning: "last raw direction of travel (1 = positive)" },
+    BitDef { mask: msta::DONE, name: "RA_DONE", meaning: "motion is complete" },
+    BitDef { mask: msta::PLUS_LS, name: "RA_PLUS_LS", meaning: "plus (raw positive) limit switch active" },
+    BitDef { mask: msta::HOME, name: "RA_HOME", meaning: "home switch active" },
+    BitDef { mask: msta::SLIP, name: "EA_SLIP", meaning: "encoder slip detection enabled" },
+    BitDef { mask: msta::POSITION, name: "EA_POSITION", meaning: "position maintenance (closed loop) enabled" },
+    BitDef { mask: msta::SLIP_STALL, name: "EA_SLIP_STALL", meaning: "slip or stall detected (following error)" },
+    BitDef { mask: msta::ENCODER_HOME, name: "EA_HOME", meaning: "encoder home signal active" },
+    BitDef { mask: msta::PRESENT, name: "EA_PRESENT", meaning: "an encoder is present" },
+    BitDef { mask: msta::PROBLEM, name: "RA_PROBLEM", meaning: "driver or hardware problem" },
+    BitDef { mask: msta::MOVING, name: "RA_MOVING", meaning: "non-zero velocity present" },
+    BitDef { mask: msta::GAIN_SUPPORT, name: "GAIN_SUPPORT", meaning: "closed-loop position control supported" },
+    BitDef { mask: msta::COMM_ERR, name: "CNTRL_COMM_ERR", meaning: "controller communication error" },
+    BitDef { mask: msta::MINUS_LS, name: "RA_MINUS_LS", meaning: "minus (raw negative) limit switch active" },
+    BitDef { mask: msta::HOMED, name: "RA_HOMED", meaning: "the axis has been homed" },
 ];
 
 /// MIP bits: which phase of a motion sequence is in progress.
@@ -133,84 +73,20 @@ pub mod mip {
 }
 
 pub const MIP_BITS: &[BitDef] = &[
-    BitDef {
-        mask: mip::JOGF as u32,
-        name: "JOGF",
-        meaning: "jogging forward",
-    },
-    BitDef {
-        mask: mip::JOGR as u32,
-        name: "JOGR",
-        meaning: "jogging reverse",
-    },
-    BitDef {
-        mask: mip::JOG_BL1 as u32,
-        name: "JOG_BL1",
-        meaning: "after a jog: first backlash leg",
-    },
-    BitDef {
-        mask: mip::HOMF as u32,
-        name: "HOMF",
-        meaning: "homing forward",
-    },
-    BitDef {
-        mask: mip::HOMR as u32,
-        name: "HOMR",
-        meaning: "homing reverse",
-    },
-    BitDef {
-        mask: mip::MOVE as u32,
-        name: "MOVE",
-        meaning: "a move (also set on retries)",
-    },
-    BitDef {
-        mask: mip::RETRY as u32,
-        name: "RETRY",
-        meaning: "a retry is pending or in progress",
-    },
-    BitDef {
-        mask: mip::LOAD_P as u32,
-        name: "LOAD_P",
-        meaning: "set-position in progress",
-    },
-    BitDef {
-        mask: mip::MOVE_BL as u32,
-        name: "MOVE_BL",
-        meaning: "final backlash leg of a move",
-    },
-    BitDef {
-        mask: mip::STOP as u32,
-        name: "STOP",
-        meaning: "stop sent, waiting for the motor to stop",
-    },
-    BitDef {
-        mask: mip::DELAY_REQ as u32,
-        name: "DELAY_REQ",
-        meaning: "settling delay (DLY) running",
-    },
-    BitDef {
-        mask: mip::DELAY_ACK as u32,
-        name: "DELAY_ACK",
-        meaning: "settling delay expired",
-    },
-    BitDef {
-        mask: mip::JOG_REQ as u32,
-        name: "JOG_REQ",
-        meaning: "jog requested, not started",
-    },
-    BitDef {
-        mask: mip::JOG_STOP as u32,
-        name: "JOG_STOP",
-        meaning: "jog released, waiting for the stop",
-    },
-    BitDef {
-        mask: mip::JOG_BL2 as u32,
-        name: "JOG_BL2",
-        meaning: "after a jog: final backlash leg",
-    },
-    BitDef {
-        mask: mip::EXTERNAL as u32,
-        name: "EXTERNAL",
-        meaning: "motion the record did not command",
-    },
+    BitDef { mask: mip::JOGF as u32, name: "JOGF", meaning: "jogging forward" },
+    BitDef { mask: mip::JOGR as u32, name: "JOGR", meaning: "jogging reverse" },
+    BitDef { mask: mip::JOG_BL1 as u32, name: "JOG_BL1", meaning: "after a jog: first backlash leg" },
+    BitDef { mask: mip::HOMF as u32, name: "HOMF", meaning: "homing forward" },
+    BitDef { mask: mip::HOMR as u32, name: "HOMR", meaning: "homing reverse" },
+    BitDef { mask: mip::MOVE as u32, name: "MOVE", meaning: "a move (also set on retries)" },
+    BitDef { mask: mip::RETRY as u32, name: "RETRY", meaning: "a retry is pending or in progress" },
+    BitDef { mask: mip::LOAD_P as u32, name: "LOAD_P", meaning: "set-position in progress" },
+    BitDef { mask: mip::MOVE_BL as u32, name: "MOVE_BL", meaning: "final backlash leg of a move" },
+    BitDef { mask: mip::STOP as u32, name: "STOP", meaning: "stop sent, waiting for the motor to stop" },
+    BitDef { mask: mip::DELAY_REQ as u32, name: "DELAY_REQ", meaning: "settling delay (DLY) running" },
+    BitDef { mask: mip::DELAY_ACK as u32, name: "DELAY_ACK", meaning: "settling delay expired" },
+    BitDef { mask: mip::JOG_REQ as u32, name: "JOG_REQ", meaning: "jog requested, not started" },
+    BitDef { mask: mip::JOG_STOP as u32, name: "JOG_STOP", meaning: "jog released, waiting for the stop" },
+    BitDef { mask: mip::JOG_BL2 as u32, name: "JOG_BL2", meaning: "after a jog: final backlash leg" },
+    BitDef { mask: mip::EXTERNAL as u32, name: "EXTERNAL", meaning: "motion the record did not command" },
 ];

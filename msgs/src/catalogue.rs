@@ -356,10 +356,7 @@ impl Field {
 
     /// Look a field up by its EPICS name (case-insensitive, as users type it).
     pub fn from_name(name: &str) -> Option<Field> {
-        FIELDS
-            .iter()
-            .find(|d| d.name.eq_ignore_ascii_case(name))
-            .map(|d| d.field)
+        FIELDS.iter().find(|d| d.name.eq_ignore_ascii_case(name)).map(|d| d.field)
     }
 
     pub fn all() -> impl Iterator<Item = Field> {
@@ -405,10 +402,7 @@ mod tests {
             RLV RMOD RMP RRBV RRES RSTM RTRY RVAL RVEL S SBAK SBAS SET SMAX SPDB SPMG SREV SSET STOO \
             STOP STUP SUSE SYNC TDIR TWF TWR TWV UEIP UREV URIP VAL VBAS VELO VERS VMAX VOF";
         for name in manual.split_whitespace() {
-            assert!(
-                Field::from_name(name).is_some(),
-                "{name} missing from the catalogue"
-            );
+            assert!(Field::from_name(name).is_some(), "{name} missing from the catalogue");
         }
     }
 

@@ -29,39 +29,17 @@ impl PayloadEncoding {
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CodecError {
     #[error("{field}: malformed {encoding} payload: {detail}")]
-    Malformed {
-        field: &'static str,
-        encoding: &'static str,
-        detail: String,
-    },
+    Malformed { field: &'static str, encoding: &'static str, detail: String },
     #[error("{field}: wrong type: expected {expected}, got {got}")]
-    WrongType {
-        field: &'static str,
-        expected: String,
-        got: String,
-    },
+    WrongType { field: &'static str, expected: String, got: String },
     #[error("{field}: not a number ({value}); a finite value is required")]
     NotFinite { field: &'static str, value: String },
     #[error("{field}: {value} is out of range [{min}, {max}]")]
-    OutOfRange {
-        field: &'static str,
-        value: String,
-        min: i64,
-        max: i64,
-    },
+    OutOfRange { field: &'static str, value: String, min: i64, max: i64 },
     #[error("{field}: '{value}' is not a choice of {menu} ({choices})")]
-    NotAChoice {
-        field: &'static str,
-        value: String,
-        menu: &'static str,
-        choices: String,
-    },
+    NotAChoice { field: &'static str, value: String, menu: &'static str, choices: String },
     #[error("{field}: text of {len} bytes is longer than the field's {max}")]
-    TooLong {
-        field: &'static str,
-        len: usize,
-        max: usize,
-    },
+    TooLong { field: &'static str, len: usize, max: usize },
 }
 
 /// Encode a published value as CBOR.
@@ -78,35 +56,25 @@ pub fn decode_cbor_value(bytes: &[u8]) -> Result<Value, String> {
 }
 
 /// Decode and validate a write to the field described by `def`.
-pub fn decode_write(
-    def: &FieldDef,
-    bytes: &[u8],
-    encoding: PayloadEncoding,
-) -> Result<Value, CodecError> {
-    let raw =
-        decode_scalar(bytes, encoding).map_err(|(encoding, detail)| CodecError::Malformed {
-            field: def.name,
-            encoding,
-            detail,
-        })?;
+pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, CodecError> {
+    let raw = decode_scalar(bytes, encoding).map_err(|(encoding, detail)| CodecError::Malformed {
+        field: def.name,
+        encoding,
+        detail,
+    })?;
     validate(def, raw)
 }
 
 /// Decode one scalar (number or text) in any accepted encoding; on failure, the encoding's
 /// name and what was wrong.
-pub fn decode_scalar(
-    bytes: &[u8],
-    encoding: PayloadEncoding,
-) -> Result<Value, (&'static str, String)> {
+pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, (&'static str, String)> {
     match encoding {
         PayloadEncoding::Cbor => {
-            let v: ciborium::Value =
-                ciborium::from_reader(bytes).map_err(|e| ("CBOR", e.to_string()))?;
+            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| ("CBOR", e.to_string()))?;
             from_cbor(v).map_err(|e| ("CBOR", e))
         }
         PayloadEncoding::Json => {
-            let v: serde_json::Value =
-                serde_json::from_slice(bytes).map_err(|e| ("JSON", e.to_string()))?;
+            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| ("JSON", e.to_string()))?;
             from_json(v).map_err(|e| ("JSON", e))
         }
         PayloadEncoding::Text => {
@@ -118,16 +86,13 @@ pub fn decode_scalar(
 
 fn from_cbor(v: ciborium::Value) -> Result<Value, String> {
     match v {
-        ciborium::Value::Integer(i) => i64::try_from(i128::from(i))
-            .map(Value::Int)
-            .map_err(|_| "integer does not fit in 64 bits".to_string()),
+        ciborium::Value::Integer(i) => {
+            i64::try_from(i128::from(i)).map(Value::Int).map_err(|_| "integer does not fit in 64 bits".to_string())
+        }
         ciborium::Value::Float(f) => Ok(Value::Float(f)),
         ciborium::Value::Text(s) => Ok(Value::Text(s)),
         ciborium::Value::Bool(b) => Ok(Value::Int(i64::from(b))),
-        other => Err(format!(
-            "a single number or text is required, got {}",
-            cbor_kind(&other)
-        )),
+        other => Err(format!("a single number or text is required, got {}", cbor_kind(&other))),
     }
 }
 
@@ -146,18 +111,13 @@ fn from_json(v: serde_json::Value) -> Result<Value, String> {
     match v {
         serde_json::Value::Number(n) => match n.as_i64() {
             Some(i) => Ok(Value::Int(i)),
-            None => n
-                .as_f64()
-                .map(Value::Float)
-                .ok_or_else(|| format!("unrepresentable number {n}")),
+            None => n.as_f64().map(Value::Float).ok_or_else(|| format!("unrepresentable number {n}")),
         },
         serde_json::Value::String(s) => Ok(Value::Text(s)),
         serde_json::Value::Bool(b) => Ok(Value::Int(i64::from(b))),
         serde_json::Value::Null => Err("a number or a string is required, got null".into()),
         serde_json::Value::Array(_) => Err("a number or a string is required, got an array".into()),
-        serde_json::Value::Object(_) => {
-            Err("a number or a string is required, got an object".into())
-        }
+        serde_json::Value::Object(_) => Err("a number or a string is required, got an object".into()),
     }
 }
 
@@ -170,10 +130,7 @@ fn from_text(text: &str) -> Value {
     if let Ok(f) = t.parse::<f64>() {
         return Value::Float(f);
     }
-    let unquoted = t
-        .strip_prefix('"')
-        .and_then(|s| s.strip_suffix('"'))
-        .unwrap_or(t);
+    let unquoted = t.strip_prefix('"').and_then(|s| s.strip_suffix('"')).unwrap_or(t);
     Value::Text(unquoted.to_string())
 }
 
@@ -195,16 +152,10 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
                 }
             };
             if !x.is_finite() {
-                return Err(CodecError::NotFinite {
-                    field,
-                    value: x.to_string(),
-                });
+                return Err(CodecError::NotFinite { field, value: x.to_string() });
             }
             if def.kind == Kind::Float && x.abs() > f64::from(f32::MAX) {
-                return Err(CodecError::NotFinite {
-                    field,
-                    value: x.to_string(),
-                });
+                return Err(CodecError::NotFinite { field, value: x.to_string() });
             }
             Ok(Value::Float(x))
         }
@@ -242,11 +193,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
             let s = raw.to_string();
             // One byte is kept for the terminator, as in an EPICS DBF_STRING.
             if s.len() >= max {
-                return Err(CodecError::TooLong {
-                    field,
-                    len: s.len(),
-                    max: max - 1,
-                });
+                return Err(CodecError::TooLong { field, len: s.len(), max: max - 1 });
             }
             Ok(Value::Text(s))
         }
@@ -257,28 +204,16 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
 fn integral(field: &'static str, raw: &Value) -> Result<i64, CodecError> {
     match raw {
         Value::Int(i) => Ok(*i),
-        Value::Float(f) if !f.is_finite() => Err(CodecError::NotFinite {
-            field,
-            value: f.to_string(),
-        }),
+        Value::Float(f) if !f.is_finite() => Err(CodecError::NotFinite { field, value: f.to_string() }),
         Value::Float(f) if f.fract() == 0.0 && f.abs() < 9.0e18 => Ok(*f as i64),
-        other => Err(CodecError::WrongType {
-            field,
-            expected: "an integer".into(),
-            got: other.to_string(),
-        }),
+        other => Err(CodecError::WrongType { field, expected: "an integer".into(), got: other.to_string() }),
     }
 }
 
 fn check_range(def: &FieldDef, i: i64) -> Result<Value, CodecError> {
     let (min, max) = def.kind.int_range().expect("integer kinds have a range");
     if i < min || i > max {
-        return Err(CodecError::OutOfRange {
-            field: def.name,
-            value: i.to_string(),
-            min,
-            max,
-        });
+        return Err(CodecError::OutOfRange { field: def.name, value: i.to_string(), min, max });
     }
     Ok(Value::Int(i))
 }
@@ -300,120 +235,54 @@ mod tests {
     fn text_numbers_and_menu_names() {
         use PayloadEncoding::Text;
         assert_eq!(write(Field::VAL, b"5", Text), Ok(Value::Float(5.0)));
-        assert_eq!(
-            write(Field::VAL, b" -2.5e-3\n", Text),
-            Ok(Value::Float(-2.5e-3))
-        );
+        assert_eq!(write(Field::VAL, b" -2.5e-3\n", Text), Ok(Value::Float(-2.5e-3)));
         assert_eq!(write(Field::STOP, b"1", Text), Ok(Value::Int(1)));
         assert_eq!(write(Field::SPMG, b"Go", Text), Ok(Value::Int(3)));
         assert_eq!(write(Field::SPMG, b"\"pause\"", Text), Ok(Value::Int(1)));
         assert_eq!(write(Field::SPMG, b"2", Text), Ok(Value::Int(2)));
         assert_eq!(write(Field::RMOD, b"in-position", Text), Ok(Value::Int(3)));
-        assert_eq!(
-            write(Field::DESC, b"slit blade", Text),
-            Ok(Value::Text("slit blade".into()))
-        );
+        assert_eq!(write(Field::DESC, b"slit blade", Text), Ok(Value::Text("slit blade".into())));
         assert_eq!(write(Field::STOP, b"1.0", Text), Ok(Value::Int(1)));
     }
 
     #[test]
     fn cbor_and_json_values() {
-        assert_eq!(
-            write(Field::VAL, &cbor(10.5), PayloadEncoding::Cbor),
-            Ok(Value::Float(10.5))
-        );
-        assert_eq!(
-            write(Field::VAL, &cbor(3), PayloadEncoding::Cbor),
-            Ok(Value::Float(3.0))
-        );
-        assert_eq!(
-            write(Field::DIR, &cbor("Neg"), PayloadEncoding::Cbor),
-            Ok(Value::Int(1))
-        );
-        assert_eq!(
-            write(Field::JOGF, &cbor(true), PayloadEncoding::Cbor),
-            Ok(Value::Int(1))
-        );
-        assert_eq!(
-            write(Field::VAL, b"7.25", PayloadEncoding::Json),
-            Ok(Value::Float(7.25))
-        );
-        assert_eq!(
-            write(Field::SPMG, b"\"Stop\"", PayloadEncoding::Json),
-            Ok(Value::Int(0))
-        );
-        assert_eq!(
-            write(Field::SPMG, b"1", PayloadEncoding::Json),
-            Ok(Value::Int(1))
-        );
+        assert_eq!(write(Field::VAL, &cbor(10.5), PayloadEncoding::Cbor), Ok(Value::Float(10.5)));
+        assert_eq!(write(Field::VAL, &cbor(3), PayloadEncoding::Cbor), Ok(Value::Float(3.0)));
+        assert_eq!(write(Field::DIR, &cbor("Neg"), PayloadEncoding::Cbor), Ok(Value::Int(1)));
+        assert_eq!(write(Field::JOGF, &cbor(true), PayloadEncoding::Cbor), Ok(Value::Int(1)));
+        assert_eq!(write(Field::VAL, b"7.25", PayloadEncoding::Json), Ok(Value::Float(7.25)));
+        assert_eq!(write(Field::SPMG, b"\"Stop\"", PayloadEncoding::Json), Ok(Value::Int(0)));
+        assert_eq!(write(Field::SPMG, b"1", PayloadEncoding::Json), Ok(Value::Int(1)));
     }
 
     #[test]
     fn rejections_name_the_field_and_the_fault() {
         use PayloadEncoding::*;
         let e = write(Field::VAL, b"abc", Text).unwrap_err();
-        assert!(
-            matches!(e, CodecError::WrongType { field: "VAL", .. }),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::WrongType { field: "VAL", .. }), "{e}");
         let e = write(Field::VAL, b"NaN", Text).unwrap_err();
-        assert!(
-            matches!(e, CodecError::NotFinite { field: "VAL", .. }),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::NotFinite { field: "VAL", .. }), "{e}");
         let e = write(Field::VAL, b"inf", Text).unwrap_err();
         assert!(matches!(e, CodecError::NotFinite { .. }), "{e}");
         let e = write(Field::VAL, &cbor(f64::NAN), Cbor).unwrap_err();
         assert!(matches!(e, CodecError::NotFinite { .. }), "{e}");
         let e = write(Field::VAL, &[0xff, 0x00, 0x13], Cbor).unwrap_err();
-        assert!(
-            matches!(
-                e,
-                CodecError::Malformed {
-                    encoding: "CBOR",
-                    ..
-                }
-            ),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::Malformed { encoding: "CBOR", .. }), "{e}");
         let e = write(Field::VAL, &cbor(vec![1, 2]), Cbor).unwrap_err();
         assert!(e.to_string().contains("an array"), "{e}");
         let e = write(Field::VAL, b"{\"a\":1}", Json).unwrap_err();
         assert!(e.to_string().contains("an object"), "{e}");
         let e = write(Field::VAL, b"{nope", Json).unwrap_err();
-        assert!(
-            matches!(
-                e,
-                CodecError::Malformed {
-                    encoding: "JSON",
-                    ..
-                }
-            ),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::Malformed { encoding: "JSON", .. }), "{e}");
         let e = write(Field::VAL, &[0xc3, 0x28], Text).unwrap_err();
-        assert!(
-            matches!(
-                e,
-                CodecError::Malformed {
-                    encoding: "text",
-                    ..
-                }
-            ),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::Malformed { encoding: "text", .. }), "{e}");
         let e = write(Field::SPMG, b"Run", Text).unwrap_err();
-        assert_eq!(
-            e.to_string(),
-            "SPMG: 'Run' is not a choice of motorSPMG (Stop, Pause, Move, Go)"
-        );
+        assert_eq!(e.to_string(), "SPMG: 'Run' is not a choice of motorSPMG (Stop, Pause, Move, Go)");
         let e = write(Field::SPMG, b"4", Text).unwrap_err();
         assert!(matches!(e, CodecError::OutOfRange { max: 3, .. }), "{e}");
         let e = write(Field::STOP, b"70000", Text).unwrap_err();
-        assert!(
-            matches!(e, CodecError::OutOfRange { field: "STOP", .. }),
-            "{e}"
-        );
+        assert!(matches!(e, CodecError::OutOfRange { field: "STOP", .. }), "{e}");
         let e = write(Field::STOP, b"1.5", Text).unwrap_err();
         assert!(matches!(e, CodecError::WrongType { .. }), "{e}");
         let e = write(Field::NTMF, b"-1", Text).unwrap_err();
@@ -424,22 +293,10 @@ mod tests {
 
     #[test]
     fn encodings_from_zenoh_mime_strings() {
-        assert_eq!(
-            PayloadEncoding::from_mime("application/cbor"),
-            PayloadEncoding::Cbor
-        );
-        assert_eq!(
-            PayloadEncoding::from_mime("application/json;x"),
-            PayloadEncoding::Json
-        );
-        assert_eq!(
-            PayloadEncoding::from_mime("text/plain;charset=utf-8"),
-            PayloadEncoding::Text
-        );
-        assert_eq!(
-            PayloadEncoding::from_mime("zenoh/bytes"),
-            PayloadEncoding::Text
-        );
+        assert_eq!(PayloadEncoding::from_mime("application/cbor"), PayloadEncoding::Cbor);
+        assert_eq!(PayloadEncoding::from_mime("application/json;x"), PayloadEncoding::Json);
+        assert_eq!(PayloadEncoding::from_mime("text/plain;charset=utf-8"), PayloadEncoding::Text);
+        assert_eq!(PayloadEncoding::from_mime("zenoh/bytes"), PayloadEncoding::Text);
         assert_eq!(PayloadEncoding::from_mime(""), PayloadEncoding::Text);
     }
 

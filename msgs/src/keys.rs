@@ -25,9 +25,7 @@ impl Default for KeyLayout {
 
 impl KeyLayout {
     pub fn new(prefix: &str) -> Self {
-        Self {
-            prefix: prefix.trim_matches('/').to_string(),
-        }
+        Self { prefix: prefix.trim_matches('/').to_string() }
     }
 
     pub fn prefix(&self) -> &str {
@@ -85,13 +83,8 @@ pub fn validate_axis_name(name: &str) -> Result<(), String> {
     if name.is_empty() {
         return Err("an axis name must not be empty".into());
     }
-    if let Some(c) = name
-        .chars()
-        .find(|c| matches!(c, '/' | '*' | '$' | '?' | '#' | '@') || c.is_whitespace())
-    {
-        return Err(format!(
-            "axis name '{name}' contains '{c}', which cannot stand in a key chunk"
-        ));
+    if let Some(c) = name.chars().find(|c| matches!(c, '/' | '*' | '$' | '?' | '#' | '@') || c.is_whitespace()) {
+        return Err(format!("axis name '{name}' contains '{c}', which cannot stand in a key chunk"));
     }
     Ok(())
 }
@@ -107,10 +100,7 @@ mod tests {
         assert_eq!(k.axis("m1"), "motor/m1");
         assert_eq!(k.axis_all("m1"), "motor/m1/**");
         assert_eq!(k.driver_cmd("m1"), "motor/m1/@driver/cmd");
-        assert_eq!(
-            KeyLayout::new("lab/motor/").field("x", Field::DMOV),
-            "lab/motor/x/DMOV"
-        );
+        assert_eq!(KeyLayout::new("lab/motor/").field("x", Field::DMOV), "lab/motor/x/DMOV");
         assert_eq!(sim_key("m1", "position"), "sim/m1/position");
     }
 

@@ -13,10 +13,7 @@ impl Menu {
     /// Index of a choice by name, case-insensitive.
     pub fn index_of(&self, choice: &str) -> Option<u16> {
         let choice = choice.trim();
-        self.choices
-            .iter()
-            .position(|c| c.eq_ignore_ascii_case(choice))
-            .map(|i| i as u16)
+        self.choices.iter().position(|c| c.eq_ignore_ascii_case(choice)).map(|i| i as u16)
     }
 
     pub fn choice(&self, index: u16) -> Option<&'static str> {
@@ -24,58 +21,20 @@ impl Menu {
     }
 }
 
-pub const MOTOR_DIR: Menu = Menu {
-    name: "motorDIR",
-    choices: &["Pos", "Neg"],
-};
-pub const MOTOR_SET: Menu = Menu {
-    name: "motorSET",
-    choices: &["Use", "Set"],
-};
-pub const MOTOR_UEIP: Menu = Menu {
-    name: "motorUEIP",
-    choices: &["No", "Yes"],
-};
-pub const MOTOR_SPMG: Menu = Menu {
-    name: "motorSPMG",
-    choices: &["Stop", "Pause", "Move", "Go"],
-};
-pub const MOTOR_FOFF: Menu = Menu {
-    name: "motorFOFF",
-    choices: &["Variable", "Frozen"],
-};
-pub const MOTOR_TORQ: Menu = Menu {
-    name: "motorTORQ",
-    choices: &["Disable", "Enable"],
-};
-pub const MOTOR_STUP: Menu = Menu {
-    name: "motorSTUP",
-    choices: &["OFF", "ON", "BUSY"],
-};
-pub const MOTOR_RMOD: Menu = Menu {
-    name: "motorRMOD",
-    choices: &["Default", "Arithmetic", "Geometric", "In-Position"],
-};
-pub const MOTOR_RSTM: Menu = Menu {
-    name: "motorRSTM",
-    choices: &["Never", "Always", "NearZero", "Conditional"],
-};
-pub const MOTOR_ACCU: Menu = Menu {
-    name: "motorACCU",
-    choices: &["Use ACCL", "Use ACCS"],
-};
-pub const MENU_OMSL: Menu = Menu {
-    name: "menuOmsl",
-    choices: &["supervisory", "closed_loop"],
-};
-pub const MENU_YES_NO: Menu = Menu {
-    name: "menuYesNo",
-    choices: &["NO", "YES"],
-};
-pub const MENU_ALARM_SEVR: Menu = Menu {
-    name: "menuAlarmSevr",
-    choices: &["NO_ALARM", "MINOR", "MAJOR", "INVALID"],
-};
+pub const MOTOR_DIR: Menu = Menu { name: "motorDIR", choices: &["Pos", "Neg"] };
+pub const MOTOR_SET: Menu = Menu { name: "motorSET", choices: &["Use", "Set"] };
+pub const MOTOR_UEIP: Menu = Menu { name: "motorUEIP", choices: &["No", "Yes"] };
+pub const MOTOR_SPMG: Menu = Menu { name: "motorSPMG", choices: &["Stop", "Pause", "Move", "Go"] };
+pub const MOTOR_FOFF: Menu = Menu { name: "motorFOFF", choices: &["Variable", "Frozen"] };
+pub const MOTOR_TORQ: Menu = Menu { name: "motorTORQ", choices: &["Disable", "Enable"] };
+pub const MOTOR_STUP: Menu = Menu { name: "motorSTUP", choices: &["OFF", "ON", "BUSY"] };
+pub const MOTOR_RMOD: Menu =
+    Menu { name: "motorRMOD", choices: &["Default", "Arithmetic", "Geometric", "In-Position"] };
+pub const MOTOR_RSTM: Menu = Menu { name: "motorRSTM", choices: &["Never", "Always", "NearZero", "Conditional"] };
+pub const MOTOR_ACCU: Menu = Menu { name: "motorACCU", choices: &["Use ACCL", "Use ACCS"] };
+pub const MENU_OMSL: Menu = Menu { name: "menuOmsl", choices: &["supervisory", "closed_loop"] };
+pub const MENU_YES_NO: Menu = Menu { name: "menuYesNo", choices: &["NO", "YES"] };
+pub const MENU_ALARM_SEVR: Menu = Menu { name: "menuAlarmSevr", choices: &["NO_ALARM", "MINOR", "MAJOR", "INVALID"] };
 pub const MENU_ALARM_STAT: Menu = Menu {
     name: "menuAlarmStat",
     choices: &[

@@ -52,23 +52,11 @@ mod tests {
     #[test]
     fn schemas_describe_the_wire_types() {
         let schemas = message_schemas();
-        let trace = &schemas
-            .iter()
-            .find(|(n, _)| *n == "driver-command.schema.json")
-            .unwrap()
-            .1;
+        let trace = &schemas.iter().find(|(n, _)| *n == "driver-command.schema.json").unwrap().1;
         let text = trace.to_string();
-        assert!(
-            text.contains("move_velocity") && text.contains("set_position"),
-            "{text}"
-        );
+        assert!(text.contains("move_velocity") && text.contains("set_position"), "{text}");
         let catalogue = catalogue_json();
-        let spmg = catalogue["fields"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .find(|f| f["name"] == "SPMG")
-            .unwrap();
+        let spmg = catalogue["fields"].as_array().unwrap().iter().find(|f| f["name"] == "SPMG").unwrap();
         assert_eq!(spmg["choices"][3], "Go");
         assert_eq!(spmg["access"], "R/W*");
         assert_eq!(spmg["default"], 3);
@@ -85,13 +73,9 @@ mod shipped {
         let mut expected = super::message_schemas();
         expected.push(("fields.json", super::catalogue_json()));
         for (name, schema) in expected {
-            let shipped = std::fs::read_to_string(dir.join(name))
-                .unwrap_or_else(|e| panic!("schemas/{name}: {e}"));
+            let shipped = std::fs::read_to_string(dir.join(name)).unwrap_or_else(|e| panic!("schemas/{name}: {e}"));
             let shipped: serde_json::Value = serde_json::from_str(&shipped).unwrap();
-            assert_eq!(
-                shipped, schema,
-                "schemas/{name} is stale: run `zmotor schema schemas`"
-            );
+            assert_eq!(shipped, schema, "schemas/{name} is stale: run `zmotor schema schemas`");
         }
     }
 }

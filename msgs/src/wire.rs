@@ -22,12 +22,7 @@ impl StateMarker {
     pub const KIND: &'static str = "state";
 
     pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
-        Self {
-            kind: Self::KIND.to_string(),
-            seq,
-            stat,
-            sevr,
-        }
+        Self { kind: Self::KIND.to_string(), seq, stat, sevr }
     }
 
     pub fn encode(&self) -> Vec<u8> {
@@ -36,9 +31,7 @@ impl StateMarker {
 
     /// The marker carried by an attachment, if it is one.
     pub fn decode(attachment: &[u8]) -> Option<Self> {
-        ciborium::from_reader::<Self, _>(attachment)
-            .ok()
-            .filter(|m| m.kind == Self::KIND)
+        ciborium::from_reader::<Self, _>(attachment).ok().filter(|m| m.kind == Self::KIND)
     }
 }
 

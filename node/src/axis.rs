@@ -20,6 +20,15 @@ pub enum AxisEvent {
     Driver { command: DriverCommand, t: f64 },
     /// A processing ended with DMOV = 1 (forward link, put-with-completion).
     Done,
+    /// A device directive's put (`@PUT(key, value)@` in PREM or POST): a plain write to `key`.
+    Put { key: String, value: String },
+}
+
+/// Motion commands waiting for a PREM delay to pass.
+struct HeldMotion {
+    due: f64,
+    commands: Vec<DriverCommand>,
+    wants_callback: bool,
 }
 
 /// Polling rates of the status loop.
@@ -33,10 +42,7 @@ pub struct PollRates {
 
 impl Default for PollRates {
     fn default() -> Self {
-        Self {
-            moving: 0.1,
-            idle: 1.0,
-        }
+        Self { moving: 0.1, idle: 1.0 }
     }
 }
 
@@ -50,6 +56,7 @@ pub struct Axis {
     next_poll: f64,
     rates: PollRates,
     events: Vec<AxisEvent>,
+    held: Option<HeldMotion>,
 }
 
 impl Axis {
@@ -67,7 +74,10 @@ impl Axis {
             next_poll: now,
             rates,
             events: Vec::new(),
+            held: None,
         };
+        let init = axis.record.fields().init.clone();
+        axis.run_primitive(&init);
         let restore = axis.record.restore_commands(axis.driver.status().position);
         axis.deliver(&restore);
         axis.last_status = axis.driver.status();
@@ -101,6 +111,15 @@ impl Axis {
     /// Time passed: fire the DLY timer if due, and poll the driver if a poll is due or `force`.
     pub fn tick(&mut self, now: f64, force_poll: bool) {
         self.advance(now);
+        if self.held.as_ref().is_some_and(|h| now >= h.due) {
+            let held = self.held.take().expect("checked above");
+            self.execute_all(held.commands);
+            if held.wants_callback {
+                self.last_status = self.driver.status();
+                self.record.callback(self.last_status);
+            }
+            self.pump();
+        }
         if self.delay_deadline.is_some_and(|d| now >= d) {
             self.delay_deadline = None;
             self.record.delay_expired();
@@ -127,6 +146,9 @@ impl Axis {
         if let Some(e) = self.driver.next_event() {
             t = t.min(e);
         }
+        if let Some(held) = &self.held {
+            t = t.min(held.due);
+        }
         t.max(self.now)
     }
 
@@ -151,8 +173,7 @@ impl Axis {
     }
 
     fn schedule_poll(&mut self) {
-        let period = if self.is_busy() || self.last_status.msta & zmotor_msgs::bits::msta::DONE == 0
-        {
+        let period = if self.is_busy() || self.last_status.msta & zmotor_msgs::bits::msta::DONE == 0 {
             self.rates.moving
         } else {
             self.rates.idle
@@ -160,16 +181,53 @@ impl Axis {
         self.next_poll = self.now + period;
     }
 
+    /// Deliver one transaction; true if the record must now be processed with fresh status.
+    /// PREM runs before anything that starts motion, and its PUT delay holds the motion back.
     fn deliver(&mut self, transaction: &[crate::engine::MotorCommand]) -> bool {
         let translation = self.device.translate(transaction);
-        for command in translation.commands {
-            execute(self.driver.as_mut(), &command);
-            self.events.push(AxisEvent::Driver {
-                command,
-                t: self.now,
-            });
+        let starts_motion = translation.commands.iter().any(|c| {
+            matches!(c, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. })
+        });
+        if translation.commands.iter().any(|c| matches!(c, DriverCommand::Stop { .. })) {
+            self.held = None;
         }
+        if starts_motion {
+            let prem = self.record.fields().prem.clone();
+            let delay = self.run_primitive(&prem);
+            if delay > 0.0 {
+                self.held = Some(HeldMotion {
+                    due: self.now + delay,
+                    commands: translation.commands,
+                    wants_callback: translation.wants_callback,
+                });
+                return false;
+            }
+        }
+        self.execute_all(translation.commands);
         translation.wants_callback
+    }
+
+    fn execute_all(&mut self, commands: Vec<DriverCommand>) {
+        for command in commands {
+            execute(self.driver.as_mut(), &command);
+            self.events.push(AxisEvent::Driver { command, t: self.now });
+        }
+    }
+
+    /// Carry out an INIT/PREM/POST string: its puts as events, its text to the driver.
+    /// Returns the longest PUT delay.
+    fn run_primitive(&mut self, source: &str) -> f64 {
+        if source.is_empty() {
+            return 0.0;
+        }
+        let primitive = crate::primitives::parse(source);
+        for put in &primitive.puts {
+            self.events.push(AxisEvent::Put { key: put.key.clone(), value: put.value.clone() });
+        }
+        if let Some(text) = primitive.text.clone() {
+            self.execute_all(vec![DriverCommand::Raw { text }]);
+        }
+        primitive.delay()
     }
 
     /// Carry out the record's outputs; a transaction that asks for fresh status gets a
@@ -180,10 +238,16 @@ impl Axis {
             let mut wants_callback = false;
             for output in outputs {
                 match output {
-                    Output::Post(field, value) => self.events.push(AxisEvent::Post(field, value)),
-                    Output::Transaction(transaction) => {
-                        wants_callback |= self.deliver(&transaction)
+                    Output::Post(field, value) => {
+                        // POST runs when a motion has finished or a limit switch is met.
+                        let finished = matches!(field, Field::DMOV | Field::HLS | Field::LLS) && value == Value::Int(1);
+                        self.events.push(AxisEvent::Post(field, value));
+                        if finished {
+                            let post = self.record.fields().post.clone();
+                            self.run_primitive(&post);
+                        }
                     }
+                    Output::Transaction(transaction) => wants_callback |= self.deliver(&transaction),
                     Output::StartDelay(seconds) => self.delay_deadline = Some(self.now + seconds),
                     Output::Done => self.events.push(AxisEvent::Done),
                 }
@@ -213,14 +277,7 @@ mod tests {
     }
 
     fn demo_fields() -> Fields {
-        Fields {
-            mres: 0.001,
-            velo: 10.0,
-            accl: 0.2,
-            dhlm: 100.0,
-            dllm: -100.0,
-            ..Fields::default()
-        }
+        Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() }
     }
 
     /// Run virtual time until the axis is idle or `limit` seconds pass; return the DMOV posts.
@@ -249,10 +306,7 @@ mod tests {
         let dmov = run(&mut axis, 100.0);
         assert_eq!(dmov, vec![Value::Int(0), Value::Int(1)]);
         let f = axis.fields();
-        assert_eq!(
-            (f.rbv, f.drbv, f.rrbv, f.dmov, f.movn),
-            (10.0, 10.0, 10_000, 1, 0)
-        );
+        assert_eq!((f.rbv, f.drbv, f.rrbv, f.dmov, f.movn), (10.0, 10.0, 10_000, 1, 0));
         // 10 mm at 10 mm/s with 0.2 s ramps: 1.2 s, reported when the sim finishes, not at a poll.
         assert!((axis.now() - 1.2).abs() < 1e-9, "{}", axis.now());
     }
@@ -266,10 +320,7 @@ mod tests {
         for _ in 0..1000 {
             let t = axis.next_wakeup();
             axis.tick(t, false);
-            rbv_posts += axis
-                .drain_events()
-                .filter(|e| matches!(e, AxisEvent::Post(Field::RBV, _)))
-                .count();
+            rbv_posts += axis.drain_events().filter(|e| matches!(e, AxisEvent::Post(Field::RBV, _))).count();
             if !axis.is_busy() {
                 break;
             }
@@ -280,12 +331,7 @@ mod tests {
 
     #[test]
     fn jog_stops_on_the_hard_limit_switch() {
-        let mut axis = sim_axis(Fields {
-            jvel: 50.0,
-            dhlm: 0.0,
-            dllm: 0.0,
-            ..demo_fields()
-        });
+        let mut axis = sim_axis(Fields { jvel: 50.0, dhlm: 0.0, dllm: 0.0, ..demo_fields() });
         axis.write(0.0, Field::JOGF, &Value::Int(1)).unwrap();
         run(&mut axis, 10.0);
         let f = axis.fields();
@@ -294,10 +340,7 @@ mod tests {
 
     #[test]
     fn settling_delay_runs_on_virtual_time() {
-        let mut axis = sim_axis(Fields {
-            dly: 0.5,
-            ..demo_fields()
-        });
+        let mut axis = sim_axis(Fields { dly: 0.5, ..demo_fields() });
         axis.write(0.0, Field::VAL, &Value::Float(1.0)).unwrap();
         run(&mut axis, 10.0);
         assert_eq!(axis.fields().dmov, 1);
@@ -306,21 +349,63 @@ mod tests {
     }
 
     #[test]
-    fn an_inch_worm_sim_is_retried_until_within_the_deadband() {
-        let mut axis = sim_axis(Fields {
-            rdbd: 0.01,
+    fn command_primitives_and_directives_run_around_each_motion() {
+        let fields = Fields {
+            init: "@DPM_ON@ HE".into(),
+            prem: "@PUT(lab/shutter/VAL, 1, 0.25)@ PRE".into(),
+            post: "@PUT(lab/shutter/VAL, 0)@ AFTER".into(),
             ..demo_fields()
-        });
+        };
+        let mut axis = sim_axis(fields);
+        axis.drain_events().count();
+        axis.write(0.0, Field::VAL, &Value::Float(1.0)).unwrap();
+        let events: Vec<AxisEvent> = axis.drain_events().collect();
+        assert!(events.contains(&AxisEvent::Put { key: "lab/shutter/VAL".into(), value: "1".into() }));
+        let is_move = |e: &AxisEvent| matches!(e, AxisEvent::Driver { command: DriverCommand::Move { .. }, .. });
+        assert!(!events.iter().any(is_move), "held by the PREM delay");
+        axis.tick(0.2, false);
+        assert!(!axis.drain_events().any(|e| is_move(&e)), "still held at 0.2 s");
+        axis.tick(0.25, false);
+        assert!(axis.drain_events().any(|e| is_move(&e)));
+        let mut puts = Vec::new();
+        for _ in 0..1000 {
+            let t = axis.next_wakeup();
+            axis.tick(t, false);
+            puts.extend(axis.drain_events().filter(|e| matches!(e, AxisEvent::Put { .. })));
+            if !axis.is_busy() {
+                break;
+            }
+        }
+        assert_eq!(puts, vec![AxisEvent::Put { key: "lab/shutter/VAL".into(), value: "0".into() }]);
+        assert_eq!(axis.simulation().unwrap().raw_commands, vec!["HE", "PRE", "AFTER"]);
+        assert_eq!(axis.fields().rbv, 1.0);
+    }
+
+    #[test]
+    fn a_disabled_servo_refuses_and_an_enabled_one_moves() {
+        let sim = SimAxis::new(SimConfig { servo: true, ..SimConfig::default() });
+        let mut axis = Axis::new(demo_fields(), Box::new(sim), PollRates::default(), 0.0);
+        assert_eq!(axis.fields().cnen, 1);
+        axis.write(0.0, Field::PCOF, &Value::Float(0.3)).unwrap();
+        assert_eq!(axis.simulation().unwrap().gains, [0.3, 0.0, 0.0]);
+        axis.write(0.0, Field::CNEN, &Value::Int(0)).unwrap();
+        assert_eq!(axis.fields().cnen, 0);
+        let err = axis.write(0.1, Field::VAL, &Value::Float(1.0)).unwrap_err();
+        assert!(err.to_string().starts_with("motor disabled"), "{err}");
+        axis.write(0.2, Field::CNEN, &Value::Int(1)).unwrap();
+        axis.write(0.3, Field::VAL, &Value::Float(1.0)).unwrap();
+        run(&mut axis, 10.0);
+        assert_eq!(axis.fields().rbv, 1.0);
+    }
+
+    #[test]
+    fn an_inch_worm_sim_is_retried_until_within_the_deadband() {
+        let mut axis = sim_axis(Fields { rdbd: 0.01, ..demo_fields() });
         axis.simulation().unwrap().fraction = 0.9;
         axis.write(0.0, Field::VAL, &Value::Float(10.0)).unwrap();
         run(&mut axis, 60.0);
         let f = axis.fields();
         assert_eq!((f.dmov, f.miss), (1, 0));
-        assert!(
-            f.rcnt >= 2 && (f.drbv - 10.0).abs() < 0.01,
-            "rcnt {} drbv {}",
-            f.rcnt,
-            f.drbv
-        );
+        assert!(f.rcnt >= 2 && (f.drbv - 10.0).abs() < 0.01, "rcnt {} drbv {}", f.rcnt, f.drbv);
     }
 }

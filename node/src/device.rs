@@ -48,23 +48,15 @@ impl DeviceSupport {
                     None
                 }
                 MotorCommand::MoveAbs(position) => {
-                    self.staged = Some(Staged::Move {
-                        position,
-                        relative: false,
-                    });
+                    self.staged = Some(Staged::Move { position, relative: false });
                     None
                 }
                 MotorCommand::MoveRel(position) => {
-                    self.staged = Some(Staged::Move {
-                        position,
-                        relative: true,
-                    });
+                    self.staged = Some(Staged::Move { position, relative: true });
                     None
                 }
                 MotorCommand::HomeFor | MotorCommand::HomeRev => {
-                    self.staged = Some(Staged::Home {
-                        forward: *command == MotorCommand::HomeFor,
-                    });
+                    self.staged = Some(Staged::Home { forward: *command == MotorCommand::HomeFor });
                     None
                 }
                 MotorCommand::Go => {
@@ -93,9 +85,7 @@ impl DeviceSupport {
                         acceleration: self.accel,
                     })
                 }
-                MotorCommand::StopAxis => Some(DriverCommand::Stop {
-                    acceleration: self.accel,
-                }),
+                MotorCommand::StopAxis => Some(DriverCommand::Stop { acceleration: self.accel }),
                 MotorCommand::LoadPos(position) => {
                     out.wants_callback = true;
                     Some(DriverCommand::SetPosition { position })
@@ -104,29 +94,16 @@ impl DeviceSupport {
                     out.wants_callback = true;
                     Some(DriverCommand::Poll)
                 }
-                MotorCommand::SetEncRatio(encoder, motor) => Some(DriverCommand::SetEncoderRatio {
-                    ratio: encoder / motor,
-                }),
-                MotorCommand::SetPGain(value) => Some(DriverCommand::SetGain {
-                    gain: Gain::Proportional,
-                    value,
-                }),
-                MotorCommand::SetIGain(value) => Some(DriverCommand::SetGain {
-                    gain: Gain::Integral,
-                    value,
-                }),
-                MotorCommand::SetDGain(value) => Some(DriverCommand::SetGain {
-                    gain: Gain::Derivative,
-                    value,
-                }),
+                MotorCommand::SetEncRatio(encoder, motor) => {
+                    Some(DriverCommand::SetEncoderRatio { ratio: encoder / motor })
+                }
+                MotorCommand::SetPGain(value) => Some(DriverCommand::SetGain { gain: Gain::Proportional, value }),
+                MotorCommand::SetIGain(value) => Some(DriverCommand::SetGain { gain: Gain::Integral, value }),
+                MotorCommand::SetDGain(value) => Some(DriverCommand::SetGain { gain: Gain::Derivative, value }),
                 MotorCommand::EnableTorque => Some(DriverCommand::Enable { on: true }),
                 MotorCommand::DisableTorque => Some(DriverCommand::Enable { on: false }),
-                MotorCommand::SetHighLimit(position) => {
-                    Some(DriverCommand::SetHighLimit { position })
-                }
-                MotorCommand::SetLowLimit(position) => {
-                    Some(DriverCommand::SetLowLimit { position })
-                }
+                MotorCommand::SetHighLimit(position) => Some(DriverCommand::SetHighLimit { position }),
+                MotorCommand::SetLowLimit(position) => Some(DriverCommand::SetLowLimit { position }),
             };
             out.commands.extend(driver_command);
         }
@@ -142,13 +119,7 @@ mod tests {
     #[test]
     fn a_move_is_staged_until_go_with_the_stored_speeds() {
         let mut dev = DeviceSupport::default();
-        let t = dev.translate(&[
-            SetVelocity(100.0),
-            SetVelBase(10.0),
-            SetAccel(200.0),
-            MoveAbs(150.0),
-            Go,
-        ]);
+        let t = dev.translate(&[SetVelocity(100.0), SetVelBase(10.0), SetAccel(200.0), MoveAbs(150.0), Go]);
         assert!(t.wants_callback);
         assert_eq!(
             t.commands,
@@ -180,50 +151,21 @@ mod tests {
         let t = dev.translate(&[SetVelBase(0.0), SetAccel(400.0), Jog(-200.0)]);
         assert_eq!(
             t.commands,
-            vec![DriverCommand::MoveVelocity {
-                min_velocity: 0.0,
-                max_velocity: -200.0,
-                acceleration: 400.0
-            }]
+            vec![DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -200.0, acceleration: 400.0 }]
         );
         let t = dev.translate(&[StopAxis]);
-        assert_eq!(
-            (t.commands, t.wants_callback),
-            (
-                vec![DriverCommand::Stop {
-                    acceleration: 400.0
-                }],
-                false
-            )
-        );
-        let t = dev.translate(&[
-            SetVelocity(50.0),
-            SetVelBase(10.0),
-            SetAccel(80.0),
-            HomeRev,
-            Go,
-        ]);
+        assert_eq!((t.commands, t.wants_callback), (vec![DriverCommand::Stop { acceleration: 400.0 }], false));
+        let t = dev.translate(&[SetVelocity(50.0), SetVelBase(10.0), SetAccel(80.0), HomeRev, Go]);
         assert_eq!(
             t.commands,
-            vec![DriverCommand::Home {
-                forward: false,
-                min_velocity: 10.0,
-                max_velocity: 50.0,
-                acceleration: 80.0
-            }]
+            vec![DriverCommand::Home { forward: false, min_velocity: 10.0, max_velocity: 50.0, acceleration: 80.0 }]
         );
         let t = dev.translate(&[LoadPos(1250.0)]);
-        assert_eq!(
-            (t.commands, t.wants_callback),
-            (vec![DriverCommand::SetPosition { position: 1250.0 }], true)
-        );
+        assert_eq!((t.commands, t.wants_callback), (vec![DriverCommand::SetPosition { position: 1250.0 }], true));
         let t = dev.translate(&[SetEncRatio(1.0, 1.0), SetHighLimit(1000.0)]);
         assert_eq!(
             t.commands,
-            vec![
-                DriverCommand::SetEncoderRatio { ratio: 1.0 },
-                DriverCommand::SetHighLimit { position: 1000.0 }
-            ]
+            vec![DriverCommand::SetEncoderRatio { ratio: 1.0 }, DriverCommand::SetHighLimit { position: 1000.0 }]
         );
     }
 }

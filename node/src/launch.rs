@@ -14,10 +14,7 @@ pub const MAX_READBACK_RATE: f64 = 1000.0;
 #[derive(Debug, thiserror::Error)]
 pub enum LaunchError {
     #[error("{file}: cannot read: {source}")]
-    Io {
-        file: String,
-        source: std::io::Error,
-    },
+    Io { file: String, source: std::io::Error },
     #[error("{file}: {message}")]
     Invalid { file: String, message: String },
 }
@@ -92,20 +89,14 @@ pub struct AxisPlan {
 impl Launch {
     pub fn load(path: &Path) -> Result<Self, LaunchError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|source| LaunchError::Io {
-            file: file.clone(),
-            source,
-        })?;
+        let text = std::fs::read_to_string(path).map_err(|source| LaunchError::Io { file: file.clone(), source })?;
         Self::parse(&text).map_err(|message| LaunchError::Invalid { file, message })
     }
 
     pub fn parse(text: &str) -> Result<Self, String> {
         let launch: Launch = toml::from_str(text).map_err(|e| e.to_string())?;
         if !matches!(launch.zenoh.mode.as_str(), "peer" | "client" | "router") {
-            return Err(format!(
-                "zenoh.mode: '{}' is not one of peer, client, router",
-                launch.zenoh.mode
-            ));
+            return Err(format!("zenoh.mode: '{}' is not one of peer, client, router", launch.zenoh.mode));
         }
         let mut seen = std::collections::BTreeSet::new();
         for axis in &launch.axes {
@@ -128,25 +119,12 @@ impl AxisSection {
         let at = |key: &str, message: String| format!("axis '{}': {key}: {message}", self.name);
         keys::validate_axis_name(&self.name).map_err(|e| at("name", e))?;
         if self.driver != "sim" {
-            return Err(at(
-                "driver",
-                format!("'{}' is not a known driver (known: sim)", self.driver),
-            ));
+            return Err(at("driver", format!("'{}' is not a known driver (known: sim)", self.driver)));
         }
         if !(self.readback_rate > 0.0 && self.readback_rate <= MAX_READBACK_RATE) {
-            return Err(at(
-                "readback_rate",
-                format!(
-                    "{} Hz is outside (0, {MAX_READBACK_RATE}]",
-                    self.readback_rate
-                ),
-            ));
+            return Err(at("readback_rate", format!("{} Hz is outside (0, {MAX_READBACK_RATE}]", self.readback_rate)));
         }
-        let mut fields = Fields {
-            name: self.name.clone(),
-            dtyp: "Sim Motor".into(),
-            ..Fields::default()
-        };
+        let mut fields = Fields { name: self.name.clone(), dtyp: "Sim Motor".into(), ..Fields::default() };
         for (name, raw) in &self.fields {
             let key = format!("fields.{name}");
             let field = Field::from_name(name).ok_or_else(|| at(&key, "no such field".into()))?;
@@ -159,27 +137,13 @@ impl AxisSection {
                 toml::Value::Float(x) => Value::Float(*x),
                 toml::Value::String(s) => Value::Text(s.clone()),
                 toml::Value::Boolean(b) => Value::Int(i64::from(*b)),
-                other => {
-                    return Err(at(
-                        &key,
-                        format!("a number or a string is required, got {}", other.type_str()),
-                    ))
-                }
+                other => return Err(at(&key, format!("a number or a string is required, got {}", other.type_str()))),
             };
-            let value =
-                zmotor_msgs::validate(field.def(), value).map_err(|e| at(&key, e.to_string()))?;
+            let value = zmotor_msgs::validate(field.def(), value).map_err(|e| at(&key, e.to_string()))?;
             fields.set(field, &value);
         }
-        let rates = PollRates {
-            moving: 1.0 / self.readback_rate,
-            ..PollRates::default()
-        };
-        Ok(AxisPlan {
-            name: self.name.clone(),
-            fields,
-            sim: self.sim.clone(),
-            rates,
-        })
+        let rates = PollRates { moving: 1.0 / self.readback_rate, ..PollRates::default() };
+        Ok(AxisPlan { name: self.name.clone(), fields, sim: self.sim.clone(), rates })
     }
 }
 
@@ -209,10 +173,7 @@ mod tests {
         assert!(!launch.zenoh.multicast_scouting);
         let plans = launch.plans().unwrap();
         let f = &plans[0].fields;
-        assert_eq!(
-            (f.mres, f.velo, f.dir, f.egu.as_str(), f.name.as_str()),
-            (0.001, 10.0, 1, "mm", "m1")
-        );
+        assert_eq!((f.mres, f.velo, f.dir, f.egu.as_str(), f.name.as_str()), (0.001, 10.0, 1, "mm", "m1"));
         assert_eq!(plans[0].sim.high_limit_switch, Some(105000.0));
         assert_eq!(plans[0].rates.moving, 0.02);
     }
@@ -220,16 +181,12 @@ mod tests {
     #[test]
     fn errors_name_the_axis_and_key() {
         let bad = |text: &str| Launch::parse(text).unwrap_err();
-        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nNOPE = 1")
-            .contains("axis 'm1': fields.NOPE: no such field"));
-        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nRBV = 1")
-            .contains("fields.RBV: read-only"));
-        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nDIR = \"Up\"")
-            .contains("'Up' is not a choice"));
         assert!(
-            bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nVELO = \"fast\"")
-                .contains("VELO: wrong type")
+            bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nNOPE = 1").contains("axis 'm1': fields.NOPE: no such field")
         );
+        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nRBV = 1").contains("fields.RBV: read-only"));
+        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nDIR = \"Up\"").contains("'Up' is not a choice"));
+        assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nVELO = \"fast\"").contains("VELO: wrong type"));
         assert!(bad("[[axis]]\nname = \"m/1\"").contains("axis 'm/1': name"));
         assert!(bad("[[axis]]\nname = \"m1\"\ndriver = \"xps\"").contains("not a known driver"));
         assert!(bad("[[axis]]\nname = \"m1\"\nreadback_rate = 5000").contains("readback_rate"));

@@ -7,3 +7,4 @@ pub mod driver;
 pub mod engine;
 pub mod launch;
 pub mod net;
+pub mod primitives;

@@ -10,11 +10,7 @@ use zmotor_node::launch::{Launch, ZenohSection};
 use zmotor_node::net::{zenoh_config, Error, Node};
 
 #[derive(Parser)]
-#[command(
-    name = "zmotor",
-    version,
-    about = "EPICS motor record axes on a Zenoh network"
-)]
+#[command(name = "zmotor", version, about = "EPICS motor record axes on a Zenoh network")]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -73,8 +69,7 @@ enum Command {
 async fn main() -> ExitCode {
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| "info,zenoh=warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
         )
         .with_writer(std::io::stderr)
         .init();
@@ -90,24 +85,11 @@ async fn main() -> ExitCode {
 async fn run(command: Command) -> Result<ExitCode, Error> {
     match command {
         Command::Launch { file } => launch(&file).await,
-        Command::Get {
-            axis,
-            field,
-            client,
-        } => get(&client, &axis, field.as_deref()).await,
-        Command::Put {
-            axis,
-            field,
-            value,
-            wait,
-            timeout,
-            client,
-        } => put(&client, &axis, &field, &value, wait, timeout).await,
-        Command::Monitor {
-            axis,
-            fields,
-            client,
-        } => monitor(&client, &axis, &fields).await,
+        Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
+        Command::Put { axis, field, value, wait, timeout, client } => {
+            put(&client, &axis, &field, &value, wait, timeout).await
+        }
+        Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
         Command::Schema { dir } => schema(&dir),
         Command::Fields => {
             print_lines(FIELDS.iter().map(|d| {
@@ -171,14 +153,8 @@ fn show(payload: &[u8]) -> String {
     if let Ok(value) = decode_cbor_value(payload) {
         return value.to_string();
     }
-    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(
-        payload,
-    ) {
-        Ok(map) => map
-            .iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect::<Vec<_>>()
-            .join(" "),
+    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(payload) {
+        Ok(map) => map.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" "),
         Err(_) => String::from_utf8_lossy(payload).into_owned(),
     }
 }
@@ -190,17 +166,10 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     let (key, single) = match field {
         // Zenoh spells a wildcard inside a chunk `$*`.
         Some(f) if f.contains('*') => {
-            let pattern = if f == "*" || f == "**" {
-                f.to_string()
-            } else {
-                f.replace('*', "$*")
-            };
+            let pattern = if f == "*" || f == "**" { f.to_string() } else { f.replace('*', "$*") };
             (format!("{}/{axis}/{pattern}", layout.prefix()), false)
         }
-        Some(f) => (
-            format!("{}/{axis}/{}", layout.prefix(), field_name(f)?),
-            true,
-        ),
+        Some(f) => (format!("{}/{axis}/{}", layout.prefix(), field_name(f)?), true),
         None => (layout.axis_all(axis), false),
     };
     let replies = session.get(&key).timeout(Duration::from_secs(5)).await?;
@@ -208,44 +177,18 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
             Ok(sample) => {
-                let name = sample
-                    .key_expr()
-                    .as_str()
-                    .rsplit('/')
-                    .next()
-                    .unwrap_or_default()
-                    .to_string();
-                values.push((
-                    Field::from_name(&name),
-                    name,
-                    show(&sample.payload().to_bytes()),
-                ));
+                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
+                values.push((Field::from_name(&name), name, show(&sample.payload().to_bytes())));
             }
-            Err(err) => eprintln!(
-                "zmotor: {}",
-                String::from_utf8_lossy(&err.payload().to_bytes())
-            ),
+            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
         }
     }
     values.sort_by_key(|(field, ..)| *field);
-    let lines = values.iter().map(|(_, name, value)| {
-        if single {
-            value.clone()
-        } else {
-            format!("{name:<6} {value}")
-        }
-    });
+    let lines = values.iter().map(|(_, name, value)| if single { value.clone() } else { format!("{name:<6} {value}") });
     print_lines(lines);
-    let code = if values.is_empty() {
-        ExitCode::FAILURE
-    } else {
-        ExitCode::SUCCESS
-    };
+    let code = if values.is_empty() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
     if values.is_empty() {
-        eprintln!(
-            "zmotor: no answer for {key} (is the axis running, and is {} reachable?)",
-            client.connect
-        );
+        eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect);
     }
     session.close().await?;
     Ok(code)
@@ -262,11 +205,7 @@ async fn put(
     let session = client_session(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let key = format!("{}/{axis}/{}", layout.prefix(), field_name(field)?);
-    let selector = if wait {
-        format!("{key}?wait")
-    } else {
-        key.clone()
-    };
+    let selector = if wait { format!("{key}?wait") } else { key.clone() };
     let replies = session
         .get(&selector)
         .payload(value.to_string())
@@ -280,15 +219,9 @@ async fn put(
                 println!("{}", show(&sample.payload().to_bytes()));
                 code = ExitCode::SUCCESS;
             }
-            Err(err) => eprintln!(
-                "zmotor: {}",
-                String::from_utf8_lossy(&err.payload().to_bytes())
-            ),
+            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
         },
-        Err(_) => eprintln!(
-            "zmotor: no answer for {key} (is the axis running, and is {} reachable?)",
-            client.connect
-        ),
+        Err(_) => eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect),
     }
     session.close().await?;
     Ok(code)
@@ -297,13 +230,8 @@ async fn put(
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
     let session = client_session(client).await?;
     let layout = KeyLayout::new(&client.prefix);
-    let wanted: Vec<&str> = fields
-        .iter()
-        .map(|f| field_name(f))
-        .collect::<Result<_, _>>()?;
-    let subscriber = session
-        .declare_subscriber(format!("{}/{axis}/*", layout.prefix()))
-        .await?;
+    let wanted: Vec<&str> = fields.iter().map(|f| field_name(f)).collect::<Result<_, _>>()?;
+    let subscriber = session.declare_subscriber(format!("{}/{axis}/*", layout.prefix())).await?;
     loop {
         tokio::select! {
             sample = subscriber.recv_async() => {
@@ -325,10 +253,7 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<E
 fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
     std::fs::create_dir_all(dir)?;
     for (name, schema) in zmotor_msgs::schema::message_schemas() {
-        std::fs::write(
-            dir.join(name),
-            serde_json::to_string_pretty(&schema)? + "\n",
-        )?;
+        std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
     }
     std::fs::write(
         dir.join("fields.json"),

@@ -14,8 +14,7 @@ use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::Session;
 use zmotor_msgs::{
-    decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker,
-    Value, FIELDS,
+    decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value, FIELDS,
 };
 
 pub type Error = Box<dyn std::error::Error + Send + Sync>;
@@ -25,14 +24,8 @@ pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config, Error> {
     let mut config = zenoh::Config::default();
     config.insert_json5("mode", &serde_json::to_string(&section.mode)?)?;
     config.insert_json5("listen/endpoints", &serde_json::to_string(&section.listen)?)?;
-    config.insert_json5(
-        "connect/endpoints",
-        &serde_json::to_string(&section.connect)?,
-    )?;
-    config.insert_json5(
-        "scouting/multicast/enabled",
-        &section.multicast_scouting.to_string(),
-    )?;
+    config.insert_json5("connect/endpoints", &serde_json::to_string(&section.connect)?)?;
+    config.insert_json5("scouting/multicast/enabled", &section.multicast_scouting.to_string())?;
     Ok(config)
 }
 
@@ -44,29 +37,14 @@ pub struct Node {
 
 impl Node {
     /// Start one task per axis on `session`.
-    pub async fn start(
-        session: Session,
-        layout: KeyLayout,
-        plans: Vec<AxisPlan>,
-    ) -> Result<Self, Error> {
+    pub async fn start(session: Session, layout: KeyLayout, plans: Vec<AxisPlan>) -> Result<Self, Error> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();
         for plan in plans {
             let io = AxisIo::declare(&session, &layout, &plan.name).await?;
             let clock = Instant::now();
-            let axis = Axis::new(
-                plan.fields,
-                Box::new(SimAxis::new(plan.sim)),
-                plan.rates,
-                0.0,
-            );
-            let mut task = AxisTask {
-                io,
-                axis,
-                clock,
-                seq: 0,
-                waiting: Vec::new(),
-            };
+            let axis = Axis::new(plan.fields, Box::new(SimAxis::new(plan.sim)), plan.rates, 0.0);
+            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new() };
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
@@ -103,23 +81,15 @@ struct AxisIo {
 
 impl AxisIo {
     async fn declare(session: &Session, layout: &KeyLayout, name: &str) -> Result<Self, Error> {
-        let field_keys = FIELDS
-            .iter()
-            .map(|d| KeyExpr::try_from(layout.field(name, d.field)))
-            .collect::<Result<Vec<_>, _>>()?;
+        let field_keys =
+            FIELDS.iter().map(|d| KeyExpr::try_from(layout.field(name, d.field))).collect::<Result<Vec<_>, _>>()?;
         Ok(Self {
             writes: session.declare_subscriber(layout.axis_fields(name)).await?,
             queries: session.declare_queryable(layout.axis_all(name)).await?,
             sim_writes: session.declare_subscriber(keys::sim_key(name, "*")).await?,
             sim_queries: session.declare_queryable(keys::sim_key(name, "**")).await?,
-            trace: session
-                .declare_publisher(layout.driver_cmd(name))
-                .encoding(Encoding::APPLICATION_CBOR)
-                .await?,
-            _token: session
-                .liveliness()
-                .declare_token(layout.axis(name))
-                .await?,
+            trace: session.declare_publisher(layout.driver_cmd(name)).encoding(Encoding::APPLICATION_CBOR).await?,
+            _token: session.liveliness().declare_token(layout.axis(name)).await?,
             field_keys,
             session: session.clone(),
             layout: layout.clone(),
@@ -195,58 +165,33 @@ impl AxisTask {
     }
 
     /// Decode and apply one write; Err is the plain-words reason it was refused.
-    fn apply_write(
-        &mut self,
-        name: &str,
-        payload: &[u8],
-        encoding: PayloadEncoding,
-    ) -> Result<Field, String> {
+    fn apply_write(&mut self, name: &str, payload: &[u8], encoding: PayloadEncoding) -> Result<Field, String> {
         let field = Field::from_name(name).ok_or_else(|| format!("{name}: unknown field"))?;
-        let value =
-            zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
+        let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
         let now = self.now();
-        self.axis
-            .write(now, field, &value)
-            .map(|()| field)
-            .map_err(|e: WriteError| e.to_string())
+        self.axis.write(now, field, &value).map(|()| field).map_err(|e: WriteError| e.to_string())
     }
 
     async fn on_query(&mut self, query: Query) {
         let key = query.key_expr().as_str().to_string();
-        match (
-            self.io.layout.field_name(&self.io.name, &key),
-            query.payload().map(|p| p.to_bytes().into_owned()),
-        ) {
+        match (self.io.layout.field_name(&self.io.name, &key), query.payload().map(|p| p.to_bytes().into_owned())) {
             (Some(name), Some(payload)) => {
-                let encoding = PayloadEncoding::from_mime(
-                    &query.encoding().map(|e| e.to_string()).unwrap_or_default(),
-                );
+                let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
                 match self.apply_write(name, &payload, encoding) {
                     Err(message) => {
                         tracing::warn!(axis = %self.io.name, key, "confirmed write refused: {message}");
                         self.publish_error(&message).await;
-                        let _ = query
-                            .reply_err(message)
-                            .encoding(Encoding::TEXT_PLAIN)
-                            .await;
+                        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).await;
                     }
-                    Ok(field)
-                        if query.parameters().contains_key("wait")
-                            && self.axis.fields().dmov == 0 =>
-                    {
+                    Ok(field) if query.parameters().contains_key("wait") && self.axis.fields().dmov == 0 => {
                         self.waiting.push(Waiter { query, field });
                     }
-                    Ok(field) if query.parameters().contains_key("wait") => {
-                        self.reply_completion(&query, field).await
-                    }
+                    Ok(field) if query.parameters().contains_key("wait") => self.reply_completion(&query, field).await,
                     Ok(field) => self.reply_field(&query, field).await,
                 }
             }
             (Some(name), None) if !name.contains('*') && Field::from_name(name).is_none() => {
-                let _ = query
-                    .reply_err(format!("{name}: unknown field"))
-                    .encoding(Encoding::TEXT_PLAIN)
-                    .await;
+                let _ = query.reply_err(format!("{name}: unknown field")).encoding(Encoding::TEXT_PLAIN).await;
             }
             _ => {
                 // A read of one field or of a key expression covering several.
@@ -263,10 +208,7 @@ impl AxisTask {
     async fn reply_field(&self, query: &Query, field: Field) {
         let value = self.axis.record().get(field);
         let _ = query
-            .reply(
-                self.io.field_keys[field as usize].clone(),
-                encode_cbor(&value),
-            )
+            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&value))
             .encoding(Encoding::APPLICATION_CBOR)
             .await;
     }
@@ -286,10 +228,7 @@ impl AxisTask {
             ("reached", Value::Int(reached.into())),
         ]);
         let _ = query
-            .reply(
-                self.io.field_keys[field as usize].clone(),
-                encode_cbor(&outcome),
-            )
+            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&outcome))
             .encoding(Encoding::APPLICATION_CBOR)
             .await;
     }
@@ -333,10 +272,7 @@ impl AxisTask {
             ("high_limit", optional(config.high_limit_switch)),
             ("low_limit", optional(config.low_limit_switch)),
             ("home", Value::Float(config.home_switch)),
-            (
-                "encoder",
-                Value::Float(config.encoder_counts_per_step.unwrap_or(0.0)),
-            ),
+            ("encoder", Value::Float(config.encoder_counts_per_step.unwrap_or(0.0))),
             ("stall", Value::Int(sim.stalled.into())),
             ("comm_lost", Value::Int(sim.comm_lost.into())),
             ("problem", Value::Int(sim.problem.into())),
@@ -349,10 +285,7 @@ impl AxisTask {
                 continue;
             };
             if query.key_expr().intersects(&key) {
-                let _ = query
-                    .reply(key, payload)
-                    .encoding(Encoding::APPLICATION_CBOR)
-                    .await;
+                let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).await;
             }
         }
     }
@@ -366,23 +299,20 @@ impl AxisTask {
                 AxisEvent::Driver { command, t } => {
                     let listening = match traced {
                         Some(listening) => listening,
-                        None => *traced.insert(
-                            self.io
-                                .trace
-                                .matching_status()
-                                .await
-                                .map(|m| m.matching())
-                                .unwrap_or(false),
-                        ),
+                        None => {
+                            *traced.insert(self.io.trace.matching_status().await.map(|m| m.matching()).unwrap_or(false))
+                        }
                     };
                     if listening {
                         self.seq += 1;
-                        let trace = DriverTrace {
-                            command,
-                            t,
-                            seq: self.seq,
-                        };
+                        let trace = DriverTrace { command, t, seq: self.seq };
                         let _ = self.io.trace.put(encode_cbor(&trace)).await;
+                    }
+                }
+                AxisEvent::Put { key, value } => {
+                    // A directive's put is a command to another node: a plain write, no marker.
+                    if let Err(e) = self.io.session.put(&key, value).encoding(Encoding::TEXT_PLAIN).await {
+                        tracing::warn!(axis = %self.io.name, key, "directive put failed: {e}");
                     }
                 }
                 AxisEvent::Done => {
@@ -415,30 +345,20 @@ impl AxisTask {
     async fn publish_error(&mut self, message: &str) {
         let attachment = self.marker();
         let key = self.io.layout.err(&self.io.name);
-        let _ = self
-            .io
-            .session
-            .put(key, message.to_string())
-            .encoding(Encoding::TEXT_PLAIN)
-            .attachment(attachment)
-            .await;
+        let _ =
+            self.io.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).await;
     }
 }
 
 /// A publication of some node (it carries the state marker), never a write.
 fn is_state(sample: &Sample) -> bool {
-    sample
-        .attachment()
-        .is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
+    sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
 }
 
 /// The simulator's keys under `sim/<axis>/`: positions in steps, flags as 0/1.
 fn apply_sim_setting(sim: &mut SimAxis, name: &str, value: &Value) -> Result<(), String> {
     let number = || {
-        value
-            .as_f64()
-            .filter(|x| x.is_finite())
-            .ok_or_else(|| format!("a finite number is required, got '{value}'"))
+        value.as_f64().filter(|x| x.is_finite()).ok_or_else(|| format!("a finite number is required, got '{value}'"))
     };
     let switch_position = || match value {
         Value::Text(t) if t.eq_ignore_ascii_case("none") => Ok(None),

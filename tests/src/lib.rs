@@ -15,11 +15,7 @@ use zmotor_node::net::{zenoh_config, Node};
 pub const PATIENCE: Duration = Duration::from_secs(10);
 
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
+    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
 }
 
 /// A fast simulated stage: MRES 0.001 mm, VELO 100 mm/s, ACCL 0.05 s, soft limits ±100 mm,
@@ -42,10 +38,7 @@ pub fn fast_axis(name: &str) -> AxisPlan {
             low_limit_switch: Some(-105_000.0),
             ..SimConfig::default()
         },
-        rates: PollRates {
-            moving: 0.02,
-            idle: 1.0,
-        },
+        rates: PollRates { moving: 0.02, idle: 1.0 },
     }
 }
 
@@ -60,22 +53,11 @@ pub struct TestNode {
 impl TestNode {
     pub async fn start(plans: Vec<AxisPlan>) -> Self {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-        let section = ZenohSection {
-            mode: "peer".into(),
-            listen: vec![endpoint.clone()],
-            ..ZenohSection::default()
-        };
+        let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
         let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
         let layout = KeyLayout::default();
-        let node = Node::start(session.clone(), layout.clone(), plans)
-            .await
-            .unwrap();
-        Self {
-            node: Some(node),
-            session,
-            endpoint,
-            layout,
-        }
+        let node = Node::start(session.clone(), layout.clone(), plans).await.unwrap();
+        Self { node: Some(node), session, endpoint, layout }
     }
 
     /// A client session connected to this node.
@@ -96,11 +78,7 @@ impl TestNode {
 
 /// A plain (fire-and-forget) put of text, as a stock tool would send it.
 pub async fn put_text(session: &Session, key: &str, text: &str) {
-    session
-        .put(key, text.to_string())
-        .encoding(Encoding::TEXT_PLAIN)
-        .await
-        .unwrap();
+    session.put(key, text.to_string()).encoding(Encoding::TEXT_PLAIN).await.unwrap();
 }
 
 /// A confirmed write: Ok(reply payload) or Err(the node's error text).
@@ -110,17 +88,9 @@ pub async fn confirmed_write(
     text: &str,
     timeout: Duration,
 ) -> Result<Vec<u8>, String> {
-    let replies = session
-        .get(selector)
-        .payload(text.to_string())
-        .encoding(Encoding::TEXT_PLAIN)
-        .timeout(timeout)
-        .await
-        .unwrap();
-    let reply = replies
-        .recv_async()
-        .await
-        .map_err(|_| "no reply".to_string())?;
+    let replies =
+        session.get(selector).payload(text.to_string()).encoding(Encoding::TEXT_PLAIN).timeout(timeout).await.unwrap();
+    let reply = replies.recv_async().await.map_err(|_| "no reply".to_string())?;
     match reply.result() {
         Ok(sample) => Ok(sample.payload().to_bytes().into_owned()),
         Err(err) => Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned()),
@@ -149,32 +119,21 @@ pub struct Seen {
 /// Records every state publication under a key expression, in arrival order; samples without
 /// the state marker (clients' writes) are only counted.
 pub struct Recorder {
-    subscriber:
-        zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    subscriber: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
     pub seen: Vec<Seen>,
     pub unmarked: usize,
 }
 
 impl Recorder {
     pub async fn new(session: &Session, key_expr: &str) -> Self {
-        let subscriber = session
-            .declare_subscriber(key_expr.to_string())
-            .await
-            .unwrap();
+        let subscriber = session.declare_subscriber(key_expr.to_string()).await.unwrap();
         // Let the subscription reach the node before anything is written.
         tokio::time::sleep(Duration::from_millis(200)).await;
-        Self {
-            subscriber,
-            seen: Vec::new(),
-            unmarked: 0,
-        }
+        Self { subscriber, seen: Vec::new(), unmarked: 0 }
     }
 
     fn record(&mut self, sample: zenoh::sample::Sample) -> Option<Seen> {
-        let Some(marker) = sample
-            .attachment()
-            .and_then(|a| StateMarker::decode(&a.to_bytes()))
-        else {
+        let Some(marker) = sample.attachment().and_then(|a| StateMarker::decode(&a.to_bytes())) else {
             self.unmarked += 1;
             return None;
         };
@@ -184,11 +143,7 @@ impl Recorder {
         } else {
             Value::Text(String::from_utf8_lossy(&payload).into_owned())
         };
-        let seen = Seen {
-            key: sample.key_expr().as_str().to_string(),
-            value,
-            marker,
-        };
+        let seen = Seen { key: sample.key_expr().as_str().to_string(), value, marker };
         self.seen.push(seen.clone());
         Some(seen)
     }
@@ -200,10 +155,7 @@ impl Recorder {
             let sample = tokio::time::timeout_at(deadline, self.subscriber.recv_async())
                 .await
                 .unwrap_or_else(|_| {
-                    panic!(
-                        "no publication of {suffix} as expected within {PATIENCE:?}; seen {:?}",
-                        self.values(suffix)
-                    )
+                    panic!("no publication of {suffix} as expected within {PATIENCE:?}; seen {:?}", self.values(suffix))
                 })
                 .unwrap();
             let Some(seen) = self.record(sample) else {
@@ -218,9 +170,7 @@ impl Recorder {
     /// Record whatever arrives during `quiet`.
     pub async fn drain_for(&mut self, quiet: Duration) {
         let deadline = tokio::time::Instant::now() + quiet;
-        while let Ok(Ok(sample)) =
-            tokio::time::timeout_at(deadline, self.subscriber.recv_async()).await
-        {
+        while let Ok(Ok(sample)) = tokio::time::timeout_at(deadline, self.subscriber.recv_async()).await {
             self.record(sample);
         }
     }
@@ -228,11 +178,7 @@ impl Recorder {
     /// Values published so far on keys ending in `/<suffix>`.
     pub fn values(&self, suffix: &str) -> Vec<Value> {
         let tail = format!("/{suffix}");
-        self.seen
-            .iter()
-            .filter(|s| s.key.ends_with(&tail))
-            .map(|s| s.value.clone())
-            .collect()
+        self.seen.iter().filter(|s| s.key.ends_with(&tail)).map(|s| s.value.clone()).collect()
     }
 }
 

@@ -21,10 +21,7 @@ async fn a_move_pulses_dmov_and_publishes_the_readback() {
     let rbv = rec.values("RBV");
     assert!(rbv.len() >= 3, "readback published while moving: {rbv:?}");
     assert!(near(rbv.last().unwrap(), 5.0), "{rbv:?}");
-    assert!(near(
-        &get_value(&client, &node.key("m1", Field::RBV)).await,
-        5.0
-    ));
+    assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 5.0));
     // Every publication of the node carries the state marker, with a growing sequence number;
     // the only unmarked sample is the client's own write.
     assert_eq!(rec.unmarked, 1);
@@ -47,22 +44,12 @@ async fn a_read_only_write_is_refused_with_an_error_reply() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&client, "motor/m1/ERR").await;
-    let err = confirmed_write(&client, &node.key("m1", Field::RBV), "3", PATIENCE)
-        .await
-        .unwrap_err();
+    let err = confirmed_write(&client, &node.key("m1", Field::RBV), "3", PATIENCE).await.unwrap_err();
     assert_eq!(err, "RBV is read-only");
-    assert_eq!(
-        rec.wait_for("ERR", |_| true).await,
-        Value::Text("RBV is read-only".into())
-    );
-    let err = confirmed_write(&client, "motor/m1/NOPE", "3", PATIENCE)
-        .await
-        .unwrap_err();
+    assert_eq!(rec.wait_for("ERR", |_| true).await, Value::Text("RBV is read-only".into()));
+    let err = confirmed_write(&client, "motor/m1/NOPE", "3", PATIENCE).await.unwrap_err();
     assert_eq!(err, "NOPE: unknown field");
-    assert!(near(
-        &get_value(&client, &node.key("m1", Field::RBV)).await,
-        0.0
-    ));
+    assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 0.0));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -71,39 +58,21 @@ async fn garbage_is_refused_and_the_node_keeps_working() {
     let client = node.client().await;
     let key = node.key("m1", Field::VAL);
     let mut rec = Recorder::new(&client, "motor/m1/*").await;
-    client
-        .put(&key, vec![0xff_u8, 0x13, 0x00])
-        .encoding(Encoding::APPLICATION_CBOR)
-        .await
-        .unwrap();
+    client.put(&key, vec![0xff_u8, 0x13, 0x00]).encoding(Encoding::APPLICATION_CBOR).await.unwrap();
     let err = rec.wait_for("ERR", |_| true).await;
-    assert!(
-        matches!(&err, Value::Text(t) if t.starts_with("VAL: malformed CBOR payload")),
-        "{err:?}"
-    );
+    assert!(matches!(&err, Value::Text(t) if t.starts_with("VAL: malformed CBOR payload")), "{err:?}");
     for bad in ["NaN", "ten", "1e999"] {
-        let err = confirmed_write(&client, &key, bad, PATIENCE)
-            .await
-            .unwrap_err();
+        let err = confirmed_write(&client, &key, bad, PATIENCE).await.unwrap_err();
         assert!(err.starts_with("VAL: "), "{bad}: {err}");
     }
-    let err = confirmed_write(&client, &node.key("m1", Field::SPMG), "Run", PATIENCE)
-        .await
-        .unwrap_err();
+    let err = confirmed_write(&client, &node.key("m1", Field::SPMG), "Run", PATIENCE).await.unwrap_err();
     assert!(err.contains("not a choice of motorSPMG"), "{err}");
     assert!(near(&get_value(&client, &key).await, 0.0), "VAL unchanged");
     assert!(rec.values("DMOV").is_empty(), "nothing moved");
     // Still alive: JSON and menu names by text work.
-    client
-        .put(&key, "2.5")
-        .encoding(Encoding::APPLICATION_JSON)
-        .await
-        .unwrap();
+    client.put(&key, "2.5").encoding(Encoding::APPLICATION_JSON).await.unwrap();
     rec.wait_for("DMOV", |v| *v == int(1)).await;
-    assert!(near(
-        &get_value(&client, &node.key("m1", Field::RBV)).await,
-        2.5
-    ));
+    assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 2.5));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -121,10 +90,7 @@ async fn stop_mid_move_leaves_val_at_the_readback() {
     let rbv = get_f64(&client, &node.key("m1", Field::RBV)).await;
     assert!(val > 2.0 && val < 50.0, "stopped midway: {val}");
     assert!((val - rbv).abs() < 1e-9, "VAL {val} = RBV {rbv}");
-    assert_eq!(
-        get_value(&client, &node.key("m1", Field::STOP)).await,
-        int(0)
-    );
+    assert_eq!(get_value(&client, &node.key("m1", Field::STOP)).await, int(0));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -144,10 +110,7 @@ async fn pause_holds_the_motion_and_go_resumes_it() {
     assert!(paused_at < 10.0);
     put_text(&client, &node.key("m1", Field::SPMG), "Go").await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
-    assert!(near(
-        &get_value(&client, &node.key("m1", Field::RBV)).await,
-        10.0
-    ));
+    assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 10.0));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -155,18 +118,10 @@ async fn a_limit_violation_moves_nothing_and_says_why() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&client, "motor/m1/*").await;
-    let err = confirmed_write(&client, &node.key("m1", Field::VAL), "150", PATIENCE)
-        .await
-        .unwrap_err();
+    let err = confirmed_write(&client, &node.key("m1", Field::VAL), "150", PATIENCE).await.unwrap_err();
     assert!(err.starts_with("limit violation"), "{err}");
-    assert_eq!(
-        get_value(&client, &node.key("m1", Field::LVIO)).await,
-        int(1)
-    );
-    assert!(near(
-        &get_value(&client, &node.key("m1", Field::VAL)).await,
-        0.0
-    ));
+    assert_eq!(get_value(&client, &node.key("m1", Field::LVIO)).await, int(1));
+    assert!(near(&get_value(&client, &node.key("m1", Field::VAL)).await, 0.0));
     rec.drain_for(Duration::from_millis(100)).await;
     assert_eq!(rec.values("DMOV"), vec![int(0), int(1)]);
     assert!(rec.values("RBV").is_empty(), "nothing moved");
@@ -181,32 +136,17 @@ async fn put_with_wait_replies_only_when_motion_has_ended() {
     let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
     let started = Instant::now();
     // 10 mm at 20 mm/s with 50 ms ramps: about 0.55 s.
-    let reply = confirmed_write(&client, "motor/m1/VAL?wait", "10", PATIENCE)
-        .await
-        .unwrap();
+    let reply = confirmed_write(&client, "motor/m1/VAL?wait", "10", PATIENCE).await.unwrap();
     let elapsed = started.elapsed();
-    assert!(
-        elapsed >= Duration::from_millis(500),
-        "replied after {elapsed:?}"
-    );
+    assert!(elapsed >= Duration::from_millis(500), "replied after {elapsed:?}");
     rec.drain_for(Duration::from_millis(100)).await;
-    assert_eq!(
-        rec.values("DMOV"),
-        vec![int(0), int(1)],
-        "DMOV 1 was published by the time of the reply"
-    );
-    let outcome: std::collections::BTreeMap<String, Value> =
-        ciborium::from_reader(&reply[..]).unwrap();
+    assert_eq!(rec.values("DMOV"), vec![int(0), int(1)], "DMOV 1 was published by the time of the reply");
+    let outcome: std::collections::BTreeMap<String, Value> = ciborium::from_reader(&reply[..]).unwrap();
     assert_eq!(outcome["DMOV"], int(1));
     assert_eq!(outcome["reached"], int(1));
-    assert!(
-        near(&outcome["RBV"], 10.0) && near(&outcome["VAL"], 10.0),
-        "{outcome:?}"
-    );
+    assert!(near(&outcome["RBV"], 10.0) && near(&outcome["VAL"], 10.0), "{outcome:?}");
     // Without wait the reply is the field's new value, at once.
-    let reply = confirmed_write(&client, "motor/m1/VELO", "30", PATIENCE)
-        .await
-        .unwrap();
+    let reply = confirmed_write(&client, "motor/m1/VELO", "30", PATIENCE).await.unwrap();
     assert_eq!(decode_cbor_value(&reply).unwrap(), Value::Float(30.0));
 }
 
@@ -221,28 +161,14 @@ async fn two_axes_in_one_process_have_no_cross_talk_and_no_echo() {
     rec.drain_for(Duration::from_millis(500)).await;
     assert_eq!(rec.values("m1/DMOV"), vec![int(0), int(1)]);
     assert_eq!(rec.values("m1/VAL"), vec![Value::Float(3.0)]);
-    assert!(
-        rec.seen.iter().all(|s| !s.key.starts_with("motor/m10/")),
-        "m10 untouched"
-    );
-    assert!(near(
-        &get_value(&client, &node.key("m10", Field::RBV)).await,
-        0.0
-    ));
+    assert!(rec.seen.iter().all(|s| !s.key.starts_with("motor/m10/")), "m10 untouched");
+    assert!(near(&get_value(&client, &node.key("m10", Field::RBV)).await, 0.0));
     // A node's own state publications on a shared session are never taken as writes: a put
     // carrying the state marker is ignored.
     let marker = zmotor_msgs::StateMarker::new(1, 0, 0).encode();
-    client
-        .put(node.key("m10", Field::VAL), "7")
-        .encoding(Encoding::TEXT_PLAIN)
-        .attachment(marker)
-        .await
-        .unwrap();
+    client.put(node.key("m10", Field::VAL), "7").encoding(Encoding::TEXT_PLAIN).attachment(marker).await.unwrap();
     rec.drain_for(Duration::from_millis(300)).await;
-    assert!(near(
-        &get_value(&client, &node.key("m10", Field::VAL)).await,
-        0.0
-    ));
+    assert!(near(&get_value(&client, &node.key("m10", Field::VAL)).await, 0.0));
     // Both axes announce themselves with liveliness tokens.
     let replies = client.liveliness().get("motor/*").await.unwrap();
     let mut alive = Vec::new();
@@ -257,16 +183,10 @@ async fn two_axes_in_one_process_have_no_cross_talk_and_no_echo() {
 async fn driver_commands_are_traced_in_raw_units() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let trace = client
-        .declare_subscriber("motor/m1/@driver/cmd")
-        .await
-        .unwrap();
+    let trace = client.declare_subscriber("motor/m1/@driver/cmd").await.unwrap();
     tokio::time::sleep(Duration::from_millis(200)).await;
     put_text(&client, &node.key("m1", Field::VAL), "2").await;
-    let sample = tokio::time::timeout(PATIENCE, trace.recv_async())
-        .await
-        .unwrap()
-        .unwrap();
+    let sample = tokio::time::timeout(PATIENCE, trace.recv_async()).await.unwrap().unwrap();
     let cmd: serde_json::Value = ciborium::from_reader(&sample.payload().to_bytes()[..]).unwrap();
     assert_eq!(cmd["cmd"], "move");
     assert_eq!(cmd["position"], 2000.0);
@@ -282,10 +202,7 @@ async fn simulator_faults_are_reachable_under_sim_keys() {
     let mut rec = Recorder::new(&client, "motor/m1/*").await;
     put_text(&client, "sim/m1/problem", "1").await;
     rec.wait_for("SEVR", |v| *v == int(2)).await;
-    assert_eq!(
-        get_value(&client, &node.key("m1", Field::STAT)).await,
-        int(7)
-    );
+    assert_eq!(get_value(&client, &node.key("m1", Field::STAT)).await, int(7));
     put_text(&client, "sim/m1/problem", "0").await;
     rec.wait_for("SEVR", |v| *v == int(0)).await;
     // An external push of the carriage shows up in the readback.
@@ -294,8 +211,5 @@ async fn simulator_faults_are_reachable_under_sim_keys() {
     assert!(near(&get_value(&client, "sim/m1/position").await, 1500.0));
     put_text(&client, "sim/m1/fraction", "7").await;
     let err = rec.wait_for("ERR", |_| true).await;
-    assert!(
-        matches!(&err, Value::Text(t) if t.contains("fraction 7")),
-        "{err:?}"
-    );
+    assert!(matches!(&err, Value::Text(t) if t.contains("fraction 7")), "{err:?}");
 }

@@ -10,14 +10,7 @@ pub trait Driver: Send + Sync {
     /// The clock advanced to `now` seconds; a physical model integrates up to it.
     fn advance(&mut self, now: f64);
     /// Absolute move to `position`, or relative move by `position` steps.
-    fn move_to(
-        &mut self,
-        position: f64,
-        relative: bool,
-        min_velocity: f64,
-        max_velocity: f64,
-        acceleration: f64,
-    );
+    fn move_to(&mut self, position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64);
     /// Constant-velocity motion; `velocity` is signed.
     fn move_velocity(&mut self, min_velocity: f64, velocity: f64, acceleration: f64);
     fn home(&mut self, forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64);
@@ -45,30 +38,15 @@ pub trait Driver: Send + Sync {
 /// Deliver one command to a driver.
 pub fn execute(driver: &mut dyn Driver, command: &DriverCommand) {
     match command {
-        DriverCommand::Move {
-            position,
-            relative,
-            min_velocity,
-            max_velocity,
-            acceleration,
-        } => driver.move_to(
-            *position,
-            *relative,
-            *min_velocity,
-            *max_velocity,
-            *acceleration,
-        ),
-        DriverCommand::MoveVelocity {
-            min_velocity,
-            max_velocity,
-            acceleration,
-        } => driver.move_velocity(*min_velocity, *max_velocity, *acceleration),
-        DriverCommand::Home {
-            forward,
-            min_velocity,
-            max_velocity,
-            acceleration,
-        } => driver.home(*forward, *min_velocity, *max_velocity, *acceleration),
+        DriverCommand::Move { position, relative, min_velocity, max_velocity, acceleration } => {
+            driver.move_to(*position, *relative, *min_velocity, *max_velocity, *acceleration)
+        }
+        DriverCommand::MoveVelocity { min_velocity, max_velocity, acceleration } => {
+            driver.move_velocity(*min_velocity, *max_velocity, *acceleration)
+        }
+        DriverCommand::Home { forward, min_velocity, max_velocity, acceleration } => {
+            driver.home(*forward, *min_velocity, *max_velocity, *acceleration)
+        }
         DriverCommand::Stop { acceleration } => driver.stop(*acceleration),
         DriverCommand::SetPosition { position } => driver.set_position(*position),
         DriverCommand::Enable { on } => driver.enable(*on),

@@ -27,6 +27,8 @@ pub struct SimConfig {
     pub home_switch: f64,
     /// Encoder counts per motor step; None = no encoder.
     pub encoder_counts_per_step: Option<f64>,
+    /// A servo: closed-loop control that can be enabled and tuned (MSTA GAIN_SUPPORT).
+    pub servo: bool,
 }
 
 impl Default for SimConfig {
@@ -37,6 +39,7 @@ impl Default for SimConfig {
             low_limit_switch: None,
             home_switch: 0.0,
             encoder_counts_per_step: None,
+            servo: false,
         }
     }
 }
@@ -58,10 +61,7 @@ impl Segment {
 
     fn at(&self, t: f64) -> (f64, f64) {
         let dt = (t - self.start).clamp(0.0, self.duration);
-        (
-            self.position + self.velocity * dt + 0.5 * self.acceleration * dt * dt,
-            self.velocity + self.acceleration * dt,
-        )
+        (self.position + self.velocity * dt + 0.5 * self.acceleration * dt * dt, self.velocity + self.acceleration * dt)
     }
 }
 
@@ -92,6 +92,8 @@ pub struct SimAxis {
     pub problem: bool,
     /// Command primitives received, for inspection.
     pub raw_commands: Vec<String>,
+    /// PID gains last set (proportional, integral, derivative).
+    pub gains: [f64; 3],
 }
 
 impl SimAxis {
@@ -112,6 +114,7 @@ impl SimAxis {
             comm_lost: false,
             problem: false,
             raw_commands: Vec::new(),
+            gains: [0.0; 3],
         }
     }
 
@@ -163,21 +166,15 @@ impl SimAxis {
     }
 
     fn encoder_reading(&self) -> Option<f64> {
-        self.config
-            .encoder_counts_per_step
-            .map(|ratio| self.physical * ratio)
+        self.config.encoder_counts_per_step.map(|ratio| self.physical * ratio)
     }
 
     fn at_high_limit(&self) -> bool {
-        self.config
-            .high_limit_switch
-            .is_some_and(|s| self.physical >= s)
+        self.config.high_limit_switch.is_some_and(|s| self.physical >= s)
     }
 
     fn at_low_limit(&self) -> bool {
-        self.config
-            .low_limit_switch
-            .is_some_and(|s| self.physical <= s)
+        self.config.low_limit_switch.is_some_and(|s| self.physical <= s)
     }
 
     fn at_home(&self) -> bool {
@@ -189,15 +186,13 @@ impl SimAxis {
         !self.comm_lost
     }
 
+    /// A disabled servo does not move.
+    fn can_move(&self) -> bool {
+        self.accepts_commands() && (self.enabled || !self.config.servo)
+    }
+
     /// Plan a trapezoidal motion from the current physical position to `target`.
-    fn start_motion(
-        &mut self,
-        target: f64,
-        min_velocity: f64,
-        max_velocity: f64,
-        acceleration: f64,
-        arrival: Arrival,
-    ) {
+    fn start_motion(&mut self, target: f64, min_velocity: f64, max_velocity: f64, acceleration: f64, arrival: Arrival) {
         self.profile.clear();
         self.velocity = 0.0;
         self.arrival = arrival;
@@ -220,12 +215,7 @@ impl SimAxis {
         }
         let mut t = self.now;
         let mut p = self.physical;
-        let push = |duration: f64,
-                    v0: f64,
-                    a: f64,
-                    t: &mut f64,
-                    p: &mut f64,
-                    profile: &mut Vec<Segment>| {
+        let push = |duration: f64, v0: f64, a: f64, t: &mut f64, p: &mut f64, profile: &mut Vec<Segment>| {
             if duration > 0.0 {
                 profile.push(Segment {
                     start: *t,
@@ -249,30 +239,9 @@ impl SimAxis {
                 push(half, vb, acceleration, &mut t, &mut p, &mut self.profile);
                 push(half, peak, -acceleration, &mut t, &mut p, &mut self.profile);
             } else {
-                push(
-                    ramp_time,
-                    vb,
-                    acceleration,
-                    &mut t,
-                    &mut p,
-                    &mut self.profile,
-                );
-                push(
-                    (distance - 2.0 * ramp_distance) / vm,
-                    vm,
-                    0.0,
-                    &mut t,
-                    &mut p,
-                    &mut self.profile,
-                );
-                push(
-                    ramp_time,
-                    vm,
-                    -acceleration,
-                    &mut t,
-                    &mut p,
-                    &mut self.profile,
-                );
+                push(ramp_time, vb, acceleration, &mut t, &mut p, &mut self.profile);
+                push((distance - 2.0 * ramp_distance) / vm, vm, 0.0, &mut t, &mut p, &mut self.profile);
+                push(ramp_time, vm, -acceleration, &mut t, &mut p, &mut self.profile);
             }
         }
         // Rounding aside, the last segment ends exactly on the target.
@@ -314,12 +283,7 @@ impl Driver for SimAxis {
             return;
         }
         let end = self.profile.last().map(Segment::end).unwrap_or(now);
-        let segment = self
-            .profile
-            .iter()
-            .find(|s| now < s.end())
-            .or(self.profile.last())
-            .copied();
+        let segment = self.profile.iter().find(|s| now < s.end()).or(self.profile.last()).copied();
         if let Some(segment) = segment {
             let (p, v) = segment.at(now);
             self.physical = p;
@@ -345,58 +309,29 @@ impl Driver for SimAxis {
         }
     }
 
-    fn move_to(
-        &mut self,
-        position: f64,
-        relative: bool,
-        min_velocity: f64,
-        max_velocity: f64,
-        acceleration: f64,
-    ) {
-        if !self.accepts_commands() {
+    fn move_to(&mut self, position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64) {
+        if !self.can_move() {
             return;
         }
-        let commanded = if relative {
-            self.physical + position
-        } else {
-            position - self.counter_offset
-        };
+        let commanded = if relative { self.physical + position } else { position - self.counter_offset };
         let target = self.physical + self.fraction * (commanded - self.physical);
-        self.start_motion(
-            target,
-            min_velocity,
-            max_velocity,
-            acceleration,
-            Arrival::Nothing,
-        );
+        self.start_motion(target, min_velocity, max_velocity, acceleration, Arrival::Nothing);
     }
 
     fn move_velocity(&mut self, min_velocity: f64, velocity: f64, acceleration: f64) {
-        if !self.accepts_commands() {
+        if !self.can_move() {
             return;
         }
         // A jog runs until stopped or a switch is hit: plan a very long move that way.
         let far = self.physical + velocity.signum() * 1e15;
-        self.start_motion(
-            far,
-            min_velocity,
-            velocity.abs(),
-            acceleration,
-            Arrival::Nothing,
-        );
+        self.start_motion(far, min_velocity, velocity.abs(), acceleration, Arrival::Nothing);
     }
 
     /// The simulated home search always finds the switch, whichever side it is on; a real
     /// controller would reverse at a limit switch to find it.
     fn home(&mut self, _forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64) {
-        if self.accepts_commands() {
-            self.start_motion(
-                self.config.home_switch,
-                min_velocity,
-                max_velocity,
-                acceleration,
-                Arrival::Homed,
-            );
+        if self.can_move() {
+            self.start_motion(self.config.home_switch, min_velocity, max_velocity, acceleration, Arrival::Homed);
         }
     }
 
@@ -428,6 +363,9 @@ impl Driver for SimAxis {
 
     fn enable(&mut self, on: bool) {
         self.enabled = on;
+        if !on && self.config.servo {
+            self.halt();
+        }
     }
 
     fn set_encoder_ratio(&mut self, _ratio: f64) {}
@@ -436,7 +374,14 @@ impl Driver for SimAxis {
 
     fn set_low_limit(&mut self, _position: f64) {}
 
-    fn set_gain(&mut self, _gain: Gain, _value: f64) {}
+    fn set_gain(&mut self, gain: Gain, value: f64) {
+        let index = match gain {
+            Gain::Proportional => 0,
+            Gain::Integral => 1,
+            Gain::Derivative => 2,
+        };
+        self.gains[index] = value;
+    }
 
     fn raw(&mut self, text: &str) {
         self.raw_commands.push(text.to_string());
@@ -455,6 +400,7 @@ impl Driver for SimAxis {
         set(self.at_low_limit(), msta::MINUS_LS);
         set(self.at_home(), msta::HOME);
         set(self.enabled, msta::POSITION);
+        set(self.config.servo, msta::GAIN_SUPPORT);
         set(self.stalled, msta::SLIP_STALL);
         set(self.config.encoder_counts_per_step.is_some(), msta::PRESENT);
         set(self.problem, msta::PROBLEM);
@@ -470,10 +416,7 @@ impl Driver for SimAxis {
     }
 
     fn next_event(&self) -> Option<f64> {
-        self.profile
-            .last()
-            .map(Segment::end)
-            .filter(|end| end.is_finite())
+        self.profile.last().map(Segment::end).filter(|end| end.is_finite())
     }
 
     fn simulation(&mut self) -> Option<&mut SimAxis> {

@@ -80,9 +80,6 @@ mod tests {
 
     #[test]
     fn nint_rounds_half_away_from_zero() {
-        assert_eq!(
-            (nint(2.5), nint(-2.5), nint(2.4999), nint(-0.4)),
-            (3, -3, 2, 0)
-        );
+        assert_eq!((nint(2.5), nint(-2.5), nint(2.4999), nint(-0.4)), (3, -3, 2, 0));
     }
 }

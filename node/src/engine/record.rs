@@ -88,11 +88,8 @@ impl MotorRecord {
             MotorCommand::SetEncRatio(f.mres, f.eres)
         }];
         let rdbd_eff = f.rdbd.abs().max(f.mres.abs());
-        let use_rel =
-            f.rtry != 0 && f.rmod != choice::RMOD_IN_POSITION && (f.ueip != 0 || f.urip != 0);
-        let near_zero = f.dval.abs() > rdbd_eff
-            && f.mres != 0.0
-            && (controller_steps * f.mres).abs() < rdbd_eff;
+        let use_rel = f.rtry != 0 && f.rmod != choice::RMOD_IN_POSITION && (f.ueip != 0 || f.urip != 0);
+        let near_zero = f.dval.abs() > rdbd_eff && f.mres != 0.0 && (controller_steps * f.mres).abs() < rdbd_eff;
         let load = match f.rstm {
             1 => true,
             2 => near_zero,
@@ -133,15 +130,7 @@ impl MotorRecord {
         f.lrvl = f.rval;
         self.f.lvio = i16::from(self.readback_violates_limits());
         self.mark(Field::MSTA);
-        for field in [
-            Field::VAL,
-            Field::DVAL,
-            Field::RVAL,
-            Field::DMOV,
-            Field::LVIO,
-            Field::DIFF,
-            Field::RDIF,
-        ] {
+        for field in [Field::VAL, Field::DVAL, Field::RVAL, Field::DMOV, Field::LVIO, Field::DIFF, Field::RDIF] {
             self.mark(field);
         }
         let alarm_changed = self.alarm();
@@ -189,22 +178,15 @@ impl MotorRecord {
         // Raw limits win at boot. Departure Z3: with MRES < 0 the raw low limit is the dial high
         // limit with its sign (the reference drops the sign, Q3).
         let f = &mut self.f;
-        let (raw_for_high, raw_for_low) = if f.mres > 0.0 {
-            (f.rhlm, f.rllm)
-        } else {
-            (f.rllm, f.rhlm)
-        };
+        let (raw_for_high, raw_for_low) = if f.mres > 0.0 { (f.rhlm, f.rllm) } else { (f.rllm, f.rhlm) };
         if raw_for_high != 0.0 {
             f.dhlm = raw_for_high * f.mres;
         }
         if raw_for_low != 0.0 {
             f.dllm = raw_for_low * f.mres;
         }
-        (f.rhlm, f.rllm) = if f.mres > 0.0 {
-            (f.dhlm / f.mres, f.dllm / f.mres)
-        } else {
-            (f.dllm / f.mres, f.dhlm / f.mres)
-        };
+        (f.rhlm, f.rllm) =
+            if f.mres > 0.0 { (f.dhlm / f.mres, f.dllm / f.mres) } else { (f.dllm / f.mres, f.dhlm / f.mres) };
         if self.f.sbak != 0.0 {
             self.range_check(Field::SBAK, self.f.sbas, self.f.smax);
             self.f.bvel = self.f.sbak * u;
@@ -302,16 +284,10 @@ impl MotorRecord {
                 }
             }
             HOMF | HOMR if self.f.mip & mip::HOME_GROUP != 0 => {
-                return Err(WriteError::Refused {
-                    field,
-                    reason: "a home is in progress".into(),
-                });
+                return Err(WriteError::Refused { field, reason: "a home is in progress".into() });
             }
             STUP if self.f.stup != choice::STUP_OFF => {
-                return Err(WriteError::Refused {
-                    field,
-                    reason: "a status update is in progress".into(),
-                });
+                return Err(WriteError::Refused { field, reason: "a status update is in progress".into() });
             }
             _ => {}
         }
@@ -519,11 +495,7 @@ impl MotorRecord {
                 self.post(SET);
             }
             FOF | VOF => {
-                self.f.foff = if field == FOF {
-                    choice::FOFF_FROZEN
-                } else {
-                    choice::FOFF_VARIABLE
-                };
+                self.f.foff = if field == FOF { choice::FOFF_FROZEN } else { choice::FOFF_VARIABLE };
                 self.post(FOFF);
             }
             PCOF | ICOF | DCOF => {
@@ -544,20 +516,13 @@ impl MotorRecord {
             }
             CNEN => {
                 if self.f.msta & msta::GAIN_SUPPORT != 0 {
-                    let cmd = if self.f.cnen != 0 {
-                        MotorCommand::EnableTorque
-                    } else {
-                        MotorCommand::DisableTorque
-                    };
+                    let cmd = if self.f.cnen != 0 { MotorCommand::EnableTorque } else { MotorCommand::DisableTorque };
                     self.send(vec![cmd]);
                 }
             }
             JOGF | JOGR => {
-                let (pressed, blocked) = if field == JOGF {
-                    (self.f.jogf, self.f.hls)
-                } else {
-                    (self.f.jogr, self.f.lls)
-                };
+                let (pressed, blocked) =
+                    if field == JOGF { (self.f.jogf, self.f.hls) } else { (self.f.jogr, self.f.lls) };
                 // Departure Z5: also accepted while a move runs (the reference needs MIP = DONE);
                 // not while jogging or homing.
                 let busy = mip::JOG_GROUP | mip::JOG_STOP | mip::JOG_REQ | mip::HOME_GROUP;
@@ -575,10 +540,7 @@ impl MotorRecord {
                     if self.f.jogr != 0 {
                         jogv = -jogv;
                     }
-                    self.send(vec![
-                        MotorCommand::SetAccel(maths.jacc),
-                        MotorCommand::JogVelocity(jogv),
-                    ]);
+                    self.send(vec![MotorCommand::SetAccel(maths.jacc), MotorCommand::JogVelocity(jogv)]);
                 }
             }
             JAR => {
@@ -601,10 +563,7 @@ impl MotorRecord {
                 if self.f.ntmf < 2 {
                     self.f.ntmf = 2;
                     self.post(NTMF);
-                    return Err(WriteError::Adjusted {
-                        field,
-                        reason: "NTMF must be at least 2; set to 2".into(),
-                    });
+                    return Err(WriteError::Adjusted { field, reason: "NTMF must be at least 2; set to 2".into() });
                 }
             }
             _ => {}
@@ -705,11 +664,9 @@ impl MotorRecord {
         let rmp = (status.position + 0.5).floor() as i32;
         let rep = (status.encoder_position + 0.5).floor() as i32;
         let rvel = status.velocity.floor() as i32;
-        for (field, old, new) in [
-            (Field::RMP, self.f.rmp, rmp),
-            (Field::REP, self.f.rep, rep),
-            (Field::RVEL, self.f.rvel, rvel),
-        ] {
+        for (field, old, new) in
+            [(Field::RMP, self.f.rmp, rmp), (Field::REP, self.f.rep, rep), (Field::RVEL, self.f.rvel, rvel)]
+        {
             if old != new {
                 self.f.set(field, &Value::Int(new.into()));
                 self.post(field);
@@ -773,10 +730,7 @@ impl MotorRecord {
             return Flow::Exit;
         }
         if self.f.pp != 0 {
-            if self.f.val != self.f.lval
-                && self.f.mip & mip::STOP == 0
-                && self.f.mip & mip::JOG_STOP == 0
-            {
+            if self.f.val != self.f.lval && self.f.mip & mip::STOP == 0 && self.f.mip & mip::JOG_STOP == 0 {
                 // A new target arrived while the previous sequence was running.
                 if self.f.mip == mip::HOMF || self.f.mip == mip::HOMR {
                     self.clear_buttons();
@@ -823,9 +777,8 @@ impl MotorRecord {
         if f.dhlm == 0.0 && f.dllm == 0.0 {
             self.f.lvio = 0;
         } else if f.mip & mip::JOG_GROUP != 0 {
-            let lvio = (f.jogf != 0 && f.rbv > f.hlm - f.jvel)
-                || (f.jogr != 0 && f.rbv < f.llm + f.jvel)
-                || f.dllm > f.dhlm;
+            let lvio =
+                (f.jogf != 0 && f.rbv > f.hlm - f.jvel) || (f.jogr != 0 && f.rbv < f.llm + f.jvel) || f.dllm > f.dhlm;
             self.f.lvio = i16::from(lvio);
         } else if f.mip & mip::HOME_GROUP != 0 {
             self.f.lvio = 0;
@@ -939,10 +892,7 @@ impl MotorRecord {
                     self.mark(ERES);
                 }
                 let mut m: i64 = 10_000_000;
-                while m > 1
-                    && ((m as f64 / self.f.eres).abs() > 1e6
-                        || (m as f64 / self.f.mres).abs() > 1e6)
-                {
+                while m > 1 && ((m as f64 / self.f.eres).abs() > 1e6 || (m as f64 / self.f.mres).abs() > 1e6) {
                     m /= 10;
                 }
                 ratio = Some((m as f64 / self.f.eres, m as f64 / self.f.mres));
@@ -970,24 +920,27 @@ impl MotorRecord {
             if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
                 self.f.set(button, &Value::Int(0));
                 self.mark(button);
-                self.refusal = Some(format!(
-                    "{button} refused: the {switch} limit switch is active"
-                ));
+                self.refusal = Some(format!("{button} refused: the {switch} limit switch is active"));
             }
         }
-        if (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
-            || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked)
-        {
+        let home_requested = (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
+            || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked);
+        let jog_requested = self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0;
+        if home_requested || jog_requested {
+            if let Some(reason) = self.disabled_refusal() {
+                self.refusal = Some(reason);
+                self.set_mip(self.f.mip & !mip::JOG_REQ);
+                self.clear_buttons();
+                return;
+            }
+        }
+        if home_requested {
             if stop_or_pause {
                 self.f.dmov = 0;
                 self.mark(DMOV);
                 return;
             }
-            self.set_mip(if self.f.homf != 0 {
-                mip::HOMF
-            } else {
-                mip::HOMR
-            });
+            self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
             self.f.pp = 1;
             if self.f.movn != 0 {
                 self.set_mip(self.f.mip | mip::STOP);
@@ -1002,7 +955,7 @@ impl MotorRecord {
             return;
         }
 
-        if self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0 {
+        if jog_requested {
             let f = &self.f;
             if !(f.dhlm == 0.0 && f.dllm == 0.0)
                 && ((f.jogf != 0 && f.val > f.hlm - f.jvel)
@@ -1021,17 +974,10 @@ impl MotorRecord {
                 }
                 // Departure Z1: no request is left behind (the reference keeps JOG_REQ, Q1).
                 self.set_mip(self.f.mip & !mip::JOG_REQ);
-                self.refusal = Some(
-                    "limit violation: jog refused within one second of travel of a soft limit"
-                        .into(),
-                );
+                self.refusal = Some("limit violation: jog refused within one second of travel of a soft limit".into());
                 return;
             }
-            self.set_mip(if self.f.jogf != 0 {
-                mip::JOGF
-            } else {
-                mip::JOGR
-            });
+            self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
             if self.f.movn != 0 {
                 self.f.pp = 1;
                 self.set_mip(self.f.mip | mip::STOP);
@@ -1145,10 +1091,7 @@ impl MotorRecord {
         let retrying = self.f.mip & mip::RETRY != 0;
         let too_small = if !retrying {
             let spdb = self.f.spdb;
-            steps_away < 1
-                || (spdb > 0.0
-                    && (self.f.dval - spdb) < self.f.drbv
-                    && self.f.drbv < (self.f.dval + spdb))
+            steps_away < 1 || (spdb > 0.0 && (self.f.dval - spdb) < self.f.drbv && self.f.drbv < (self.f.dval + spdb))
         } else {
             steps_away < i64::from(m.rdbdpos)
         };
@@ -1173,10 +1116,9 @@ impl MotorRecord {
             self.f.rcnt = 0;
         } else {
             let factor = match self.f.rmod {
-                choice::RMOD_ARITHMETIC => Some(
-                    (f64::from(self.f.rtry) - f64::from(self.f.rcnt) + 1.0)
-                        / f64::from(self.f.rtry),
-                ),
+                choice::RMOD_ARITHMETIC => {
+                    Some((f64::from(self.f.rtry) - f64::from(self.f.rcnt) + 1.0) / f64::from(self.f.rtry))
+                }
                 choice::RMOD_GEOMETRIC => Some(1.0 / 2f64.powi(i32::from(self.f.rcnt) - 1)),
                 choice::RMOD_IN_POSITION => return,
                 _ => None,
@@ -1188,11 +1130,7 @@ impl MotorRecord {
         }
 
         let f = &self.f;
-        let preferred = if use_rel {
-            (f.diff > 0.0) == (f.bdst > 0.0)
-        } else {
-            (f.dval > f.ldvl) == (f.bdst > 0.0)
-        };
+        let preferred = if use_rel { (f.diff > 0.0) == (f.bdst > 0.0) } else { (f.dval > f.ldvl) == (f.bdst > 0.0) };
         let lvio = if f.dhlm == 0.0 && f.dllm == 0.0 {
             false
         } else if f.dllm > f.dhlm {
@@ -1208,11 +1146,16 @@ impl MotorRecord {
         if self.f.lvio != lvio_at_entry {
             self.mark(LVIO);
         }
-        if lvio {
-            self.refusal = Some(format!(
+        let refusal = if lvio {
+            Some(format!(
                 "limit violation: dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
                 self.f.dval, self.f.dllm, self.f.dhlm
-            ));
+            ))
+        } else {
+            self.disabled_refusal()
+        };
+        if let Some(reason) = refusal {
+            self.refusal = Some(reason);
             self.f.val = self.f.lval;
             self.f.dval = self.f.ldvl;
             self.f.rval = self.f.lrvl;
@@ -1240,17 +1183,10 @@ impl MotorRecord {
             self.f.lrvl = self.f.rval;
             let f = &self.f;
             let frac = f64::from(f.frac);
-            let fractional_target = if use_rel {
-                m.relpos * frac
-            } else {
-                m.currpos + frac * (m.newpos - m.currpos)
-            };
-            let backlash_off =
-                f.bdst.abs() < f.mres.abs() || (preferred && f.bvel == f.velo && f.bacc == f.accl);
+            let fractional_target = if use_rel { m.relpos * frac } else { m.currpos + frac * (m.newpos - m.currpos) };
+            let backlash_off = f.bdst.abs() < f.mres.abs() || (preferred && f.bvel == f.velo && f.bacc == f.accl);
             let within_backlash = preferred
-                && ((use_rel
-                    && ((f.bdst >= 0.0 && m.relbpos <= 1.0)
-                        || (f.bdst < 0.0 && m.relbpos >= 1.0)))
+                && ((use_rel && ((f.bdst >= 0.0 && m.relbpos <= 1.0) || (f.bdst < 0.0 && m.relbpos >= 1.0)))
                     || (!use_rel && (m.newpos - m.currpos).abs() <= m.rbdst1));
             let (velocity, accel, position) = if backlash_off {
                 (m.vel, m.acc, fractional_target)
@@ -1260,13 +1196,7 @@ impl MotorRecord {
                 self.f.pp = 1;
                 (m.vel, m.acc, if use_rel { m.relbpos } else { m.bpos })
             };
-            self.send_leg(Leg {
-                velocity,
-                base: Some(m.vbase),
-                accel,
-                position,
-                relative: use_rel,
-            });
+            self.send_leg(Leg { velocity, base: Some(m.vbase), accel, position, relative: use_rel });
         }
     }
 
@@ -1312,26 +1242,12 @@ impl MotorRecord {
                 self.marks.clear(DMOV);
                 if self.f.mip & mip::JOG_STOP != 0 {
                     // T3: to the backlash start at the slew speed.
-                    let velocity = if m.vel <= m.vbase {
-                        m.vbase + 1.0
-                    } else {
-                        m.vel
-                    };
+                    let velocity = if m.vel <= m.vbase { m.vbase + 1.0 } else { m.vel };
                     let position = if use_rel { m.relbpos } else { m.bpos };
-                    self.send_leg(Leg {
-                        velocity,
-                        base: Some(m.vbase),
-                        accel: m.acc,
-                        position,
-                        relative: use_rel,
-                    });
+                    self.send_leg(Leg { velocity, base: Some(m.vbase), accel: m.acc, position, relative: use_rel });
                     self.f.mip = mip::JOG_BL1;
                 } else {
-                    let position = if use_rel {
-                        m.relpos * frac
-                    } else {
-                        self.fractional_backlash_target(&m)
-                    };
+                    let position = if use_rel { m.relpos * frac } else { self.fractional_backlash_target(&m) };
                     self.send_leg(Leg::backlash(&m, position, use_rel));
                     self.f.mip = mip::MOVE_BL;
                 }
@@ -1340,11 +1256,7 @@ impl MotorRecord {
             self.f.mip &= !(mip::JOG_STOP | mip::MOVE);
         } else if self.f.mip & mip::JOG_BL1 != 0 {
             let m = MoveMaths::new(&self.f);
-            let position = if use_rel {
-                (m.relpos - m.relbpos) * frac
-            } else {
-                self.fractional_backlash_target(&m)
-            };
+            let position = if use_rel { (m.relpos - m.relbpos) * frac } else { self.fractional_backlash_target(&m) };
             self.f.dmov = 0;
             self.marks.clear(DMOV);
             self.send_leg(Leg::backlash(&m, position, use_rel));
@@ -1374,22 +1286,14 @@ impl MotorRecord {
     fn send_leg(&mut self, leg: Leg) {
         let position = self.keep_within_soft_limits(leg.position, leg.relative);
         let here = self.f.drbv / self.f.mres;
-        let upwards = if leg.relative {
-            position >= 0.0
-        } else {
-            position >= here
-        };
+        let upwards = if leg.relative { position >= 0.0 } else { position >= here };
         self.f.cdir = i16::from(upwards);
         let mut txn = vec![MotorCommand::SetVelocity(leg.velocity)];
         txn.extend(leg.base.map(MotorCommand::SetVelBase));
         if leg.accel > 0.0 {
             txn.push(MotorCommand::SetAccel(leg.accel));
         }
-        txn.push(if leg.relative {
-            MotorCommand::MoveRel(position)
-        } else {
-            MotorCommand::MoveAbs(position)
-        });
+        txn.push(if leg.relative { MotorCommand::MoveRel(position) } else { MotorCommand::MoveAbs(position) });
         txn.push(MotorCommand::Go);
         self.send(txn);
     }
@@ -1436,20 +1340,12 @@ impl MotorRecord {
     /// T5 plus the bookkeeping shared by §9.3 and §10.
     fn start_home(&mut self) {
         let m = MoveMaths::new(&self.f);
-        let forward =
-            (self.f.homf != 0 && self.f.mres > 0.0) || (self.f.homr != 0 && self.f.mres < 0.0);
-        let mut txn = vec![
-            MotorCommand::SetVelocity(m.hvel),
-            MotorCommand::SetVelBase(m.vbase),
-        ];
+        let forward = (self.f.homf != 0 && self.f.mres > 0.0) || (self.f.homr != 0 && self.f.mres < 0.0);
+        let mut txn = vec![MotorCommand::SetVelocity(m.hvel), MotorCommand::SetVelBase(m.vbase)];
         if m.hacc > 0.0 {
             txn.push(MotorCommand::SetAccel(m.hacc));
         }
-        txn.push(if forward {
-            MotorCommand::HomeFor
-        } else {
-            MotorCommand::HomeRev
-        });
+        txn.push(if forward { MotorCommand::HomeFor } else { MotorCommand::HomeRev });
         txn.push(MotorCommand::Go);
         self.send(txn);
         self.f.dmov = 0;
@@ -1464,13 +1360,8 @@ impl MotorRecord {
 
     fn maybe_retry(&mut self) {
         let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
-        let user_cdir = if same_sense {
-            self.f.cdir
-        } else {
-            1 - self.f.cdir
-        };
-        let stopped_by_switch =
-            (self.f.hls != 0 && user_cdir == 1) || (self.f.lls != 0 && user_cdir == 0);
+        let user_cdir = if same_sense { self.f.cdir } else { 1 - self.f.cdir };
+        let stopped_by_switch = (self.f.hls != 0 && user_cdir == 1) || (self.f.lls != 0 && user_cdir == 0);
         if self.f.diff.abs() >= self.f.rdbd && !stopped_by_switch {
             if self.f.rtry == 0 {
                 self.f.mip &= mip::JOG_REQ;
@@ -1478,9 +1369,7 @@ impl MotorRecord {
                 self.f.rcnt += 1;
                 if self.f.rcnt > self.f.rtry {
                     self.f.mip = mip::DONE;
-                    if (self.f.jogf != 0 && self.f.hls == 0)
-                        || (self.f.jogr != 0 && self.f.lls == 0)
-                    {
+                    if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
                         self.f.mip |= mip::JOG_REQ;
                     }
                     self.f.lval = self.f.val;
@@ -1598,16 +1487,7 @@ impl MotorRecord {
     /// §5.10 process_motor_info
     fn process_motor_info(&mut self, initcall: bool) {
         use Field::*;
-        let old = (
-            self.f.drbv,
-            self.f.rbv,
-            self.f.rrbv,
-            self.f.tdir,
-            self.f.movn,
-            self.f.hls,
-            self.f.lls,
-            self.f.athm,
-        );
+        let old = (self.f.drbv, self.f.rbv, self.f.rrbv, self.f.tdir, self.f.movn, self.f.hls, self.f.lls, self.f.athm);
         if self.f.ueip == choice::YES && self.f.msta & msta::PRESENT == 0 {
             self.f.ueip = choice::NO;
             self.post(UEIP);
@@ -1642,11 +1522,7 @@ impl MotorRecord {
         self.f.rlls = i16::from(self.f.msta & msta::MINUS_LS != 0);
         let ls_active = self.limit_switch_hit();
         let same_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
-        (self.f.hls, self.f.lls) = if same_sense {
-            (self.f.rhls, self.f.rlls)
-        } else {
-            (self.f.rlls, self.f.rhls)
-        };
+        (self.f.hls, self.f.lls) = if same_sense { (self.f.rhls, self.f.rlls) } else { (self.f.rlls, self.f.rhls) };
         if self.f.hls != old.5 {
             self.mark(HLS);
         }
@@ -1664,15 +1540,8 @@ impl MotorRecord {
         if self.f.movn != old.4 {
             self.mark(MOVN);
         }
-        self.f.athm = i16::from(
-            self.f.msta
-                & if self.f.ueip == choice::YES {
-                    msta::ENCODER_HOME
-                } else {
-                    msta::HOME
-                }
-                != 0,
-        );
+        self.f.athm =
+            i16::from(self.f.msta & if self.f.ueip == choice::YES { msta::ENCODER_HOME } else { msta::HOME } != 0);
         if self.f.athm != old.7 {
             self.mark(ATHM);
         }
@@ -1725,19 +1594,11 @@ impl MotorRecord {
         self.f.lrvl = self.f.rval;
         let pos = self.f.dir == choice::DIR_POS;
         if self.f.foff == choice::FOFF_FROZEN {
-            self.f.val = if pos {
-                self.f.off + self.f.dval
-            } else {
-                self.f.off - self.f.dval
-            };
+            self.f.val = if pos { self.f.off + self.f.dval } else { self.f.off - self.f.dval };
             self.mark(VAL);
             self.f.lval = self.f.val;
         } else {
-            self.f.off = if pos {
-                self.f.val - self.f.dval
-            } else {
-                self.f.val + self.f.dval
-            };
+            self.f.off = if pos { self.f.val - self.f.dval } else { self.f.val + self.f.dval };
             self.mark(OFF);
             self.set_userlimits();
         }
@@ -1754,8 +1615,7 @@ impl MotorRecord {
     /// are inverted (signed MRES as in the reference, Q19); never while limits are off.
     fn readback_violates_limits(&self) -> bool {
         let f = &self.f;
-        !(f.dhlm == 0.0 && f.dllm == 0.0)
-            && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
+        !(f.dhlm == 0.0 && f.dllm == 0.0) && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
     }
 
     /// §5.1
@@ -1814,11 +1674,7 @@ impl MotorRecord {
         self.send_raw_limit(high == (self.f.mres >= 0.0), dial / self.f.mres);
         let user = self.dirsign() * dial + self.f.off;
         // With DIR Neg the dial high limit bounds the user low limit.
-        let user_field = if high == (self.f.dir == choice::DIR_POS) {
-            Field::HLM
-        } else {
-            Field::LLM
-        };
+        let user_field = if high == (self.f.dir == choice::DIR_POS) { Field::HLM } else { Field::LLM };
         self.f.set(user_field, &Value::Float(user));
         self.mark(user_field);
         self.mark(if high { Field::DHLM } else { Field::DLLM });
@@ -1828,11 +1684,7 @@ impl MotorRecord {
     fn set_user_limit(&mut self, high: bool) {
         let pos = self.f.dir == choice::DIR_POS;
         let user = if high { self.f.hlm } else { self.f.llm };
-        let dial = if pos {
-            user - self.f.off
-        } else {
-            -user + self.f.off
-        };
+        let dial = if pos { user - self.f.off } else { -user + self.f.off };
         // A user high limit is a dial high limit when DIR is Pos.
         let dial_high = high == pos;
         self.send_raw_limit(dial_high == (self.f.mres >= 0.0), dial / self.f.mres);
@@ -1904,6 +1756,13 @@ impl MotorRecord {
         }
     }
 
+    /// Departure Z11: a servo whose control is disabled (CNEN = Disable) is not asked to move;
+    /// the reference sends the move to a dead amplifier.
+    fn disabled_refusal(&self) -> Option<String> {
+        (self.f.msta & msta::GAIN_SUPPORT != 0 && self.f.cnen == 0)
+            .then(|| "motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first".to_string())
+    }
+
     /// Effective Set mode: SET = Set and IGSET = 0.
     fn set_mode(&self) -> bool {
         self.f.set == 1 && self.f.igset == 0
@@ -1965,17 +1824,7 @@ struct Leg {
 impl Leg {
     /// T2/T4: the final backlash approach at BVEL/BACC (VBAS + 1 step/s if BVEL ≤ VBAS, Q29).
     fn backlash(m: &MoveMaths, position: f64, relative: bool) -> Self {
-        let velocity = if m.bvel <= m.vbase {
-            m.vbase + 1.0
-        } else {
-            m.bvel
-        };
-        Self {
-            velocity,
-            base: None,
-            accel: m.bacc,
-            position,
-            relative,
-        }
+        let velocity = if m.bvel <= m.vbase { m.vbase + 1.0 } else { m.bvel };
+        Self { velocity, base: None, accel: m.bacc, position, relative }
     }
 }

@@ -4,13 +4,7 @@
 use super::*;
 
 fn jog_fields() -> Fields {
-    Fields {
-        jvel: 2.0,
-        jar: 4.0,
-        dhlm: 10.0,
-        dllm: -10.0,
-        ..baseline_b()
-    }
+    Fields { jvel: 2.0, jar: 4.0, dhlm: 10.0, dllm: -10.0, ..baseline_b() }
 }
 
 #[test]
@@ -27,18 +21,9 @@ fn z1_a_refused_jog_leaves_no_request_behind() {
 
 #[test]
 fn z2_igset_keeps_the_soft_limit_stop_of_a_jog() {
-    let mut rig = Rig::boot(
-        Fields {
-            igset: 1,
-            ..jog_fields()
-        },
-        0.0,
-    );
+    let mut rig = Rig::boot(Fields { igset: 1, ..jog_fields() }, 0.0);
     rig.put(Field::JOGF, 1.0).unwrap();
-    assert_eq!(
-        rig.take(),
-        vec![SetVelBase(0.0), SetAccel(400.0), Jog(200.0)]
-    );
+    assert_eq!(rig.take(), vec![SetVelBase(0.0), SetAccel(400.0), Jog(200.0)]);
     rig.cb_moving(801.0);
     assert_eq!(rig.take(), vec![StopAxis]);
     assert_eq!((rig.f().lvio, rig.f().jogf, rig.f().mip), (1, 0, mip::STOP));
@@ -46,70 +31,36 @@ fn z2_igset_keeps_the_soft_limit_stop_of_a_jog() {
 
 #[test]
 fn z3_restored_raw_limits_keep_their_sign_with_negative_mres() {
-    let fields = Fields {
-        mres: -0.01,
-        dhlm: 10.0,
-        dllm: -5.0,
-        rllm: -1000.0,
-        rhlm: 500.0,
-        ..Fields::default()
-    };
+    let fields = Fields { mres: -0.01, dhlm: 10.0, dllm: -5.0, rllm: -1000.0, rhlm: 500.0, ..Fields::default() };
     let rig = Rig::boot(fields, 0.0);
     let f = rig.f();
-    assert!(
-        approx(f.dhlm, 10.0) && approx(f.dllm, -5.0),
-        "{} {}",
-        f.dhlm,
-        f.dllm
-    );
+    assert!(approx(f.dhlm, 10.0) && approx(f.dllm, -5.0), "{} {}", f.dhlm, f.dllm);
     assert!(approx(f.rllm, -1000.0) && approx(f.rhlm, 500.0));
     assert_eq!(f.lvio, 0);
 }
 
 #[test]
 fn z4_no_limit_alarm_while_soft_limits_are_off() {
-    let mut rig = Rig::boot(
-        Fields {
-            hlsv: 2,
-            ..baseline_b()
-        },
-        0.0,
-    );
+    let mut rig = Rig::boot(Fields { hlsv: 2, ..baseline_b() }, 0.0);
     rig.put(Field::VAL, 1.0).unwrap();
     rig.cb(100.0);
     assert_eq!((rig.f().stat, rig.f().sevr), (0, 0));
     // The switch itself still raises the alarm.
-    rig.status(DeviceStatus {
-        msta: msta::DONE | msta::PLUS_LS,
-        ..idle(100.0)
-    });
+    rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(100.0) });
     assert_eq!((rig.f().stat, rig.f().sevr), (4, 2));
 }
 
 #[test]
 fn z5_a_jog_requested_during_a_move_stops_then_jogs() {
-    let mut rig = Rig::boot(
-        Fields {
-            jvel: 2.0,
-            jar: 4.0,
-            ..baseline_b()
-        },
-        0.0,
-    );
+    let mut rig = Rig::boot(Fields { jvel: 2.0, jar: 4.0, ..baseline_b() }, 0.0);
     rig.put(Field::VAL, 5.0).unwrap();
     rig.cb_moving(100.0);
     rig.put(Field::JOGF, 1.0).unwrap();
     assert_eq!(rig.take(), vec![StopAxis]);
     assert_eq!(rig.f().mip, mip::JOGF | mip::STOP);
     rig.cb(120.0);
-    assert_eq!(
-        rig.take(),
-        vec![SetVelBase(0.0), SetAccel(400.0), Jog(200.0)]
-    );
-    assert_eq!(
-        (rig.f().mip, rig.f().dmov, rig.f().val),
-        (mip::JOGF, 0, 1.2)
-    );
+    assert_eq!(rig.take(), vec![SetVelBase(0.0), SetAccel(400.0), Jog(200.0)]);
+    assert_eq!((rig.f().mip, rig.f().dmov, rig.f().val), (mip::JOGF, 0, 1.2));
     rig.cb_moving(300.0);
     rig.put(Field::JOGF, 0.0).unwrap();
     assert_eq!(rig.take(), vec![StopAxis]);
@@ -119,27 +70,15 @@ fn z5_a_jog_requested_during_a_move_stops_then_jogs() {
 
 #[test]
 fn z6_a_home_refused_at_a_limit_switch_is_reset_and_never_starts_later() {
-    let mut rig = Rig::boot(
-        Fields {
-            hvel: 0.5,
-            ..baseline_b()
-        },
-        0.0,
-    );
-    rig.status(DeviceStatus {
-        msta: msta::DONE | msta::PLUS_LS,
-        ..idle(0.0)
-    });
+    let mut rig = Rig::boot(Fields { hvel: 0.5, ..baseline_b() }, 0.0);
+    rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) });
     let err = rig.put(Field::HOMF, 1.0).unwrap_err();
-    assert_eq!(
-        err.to_string(),
-        "HOMF refused: the high limit switch is active"
-    );
+    assert_eq!(err.to_string(), "HOMF refused: the high limit switch is active");
     assert_eq!(rig.f().homf, 0);
     assert_eq!(rig.posted(Field::HOMF).last(), Some(&Value::Int(0)));
     assert!(!rig.take().iter().any(|c| matches!(c, HomeFor | HomeRev)));
     rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) }); // the status refresh
-    // Off the switch, the next move ends without a home (the reference homes then, Q25).
+                                                                                // Off the switch, the next move ends without a home (the reference homes then, Q25).
     rig.put(Field::VAL, -1.0).unwrap();
     rig.cb(-100.0);
     assert!(rig.take().is_empty());
@@ -153,29 +92,16 @@ fn z7_cdir_follows_the_leg_actually_travelled() {
     rig.put(Field::VAL, 60.0).unwrap();
     rig.cb(55.0);
     assert_eq!(rig.take(), move_abs(10.0, 0.0, 10.0, 36.0));
-    assert_eq!(
-        (rig.f().cdir, rig.f().mip, rig.f().rcnt),
-        (0, mip::RETRY | mip::MOVE, 1)
-    );
+    assert_eq!((rig.f().cdir, rig.f().mip, rig.f().rcnt), (0, mip::RETRY | mip::MOVE, 1));
     // So a minus switch met on the way down is recognised as a switch in the direction of motion.
-    rig.status(DeviceStatus {
-        msta: msta::MINUS_LS,
-        ..moving(40.0)
-    });
+    rig.status(DeviceStatus { msta: msta::MINUS_LS, ..moving(40.0) });
     assert_eq!(rig.take(), vec![GetInfo]);
     assert_eq!((rig.f().movn, rig.f().mip), (0, mip::DONE));
 }
 
 #[test]
 fn z8_lvio_follows_limit_writes() {
-    let mut rig = Rig::boot(
-        Fields {
-            dhlm: 10.0,
-            dllm: -10.0,
-            ..baseline_b()
-        },
-        500.0,
-    );
+    let mut rig = Rig::boot(Fields { dhlm: 10.0, dllm: -10.0, ..baseline_b() }, 500.0);
     assert_eq!(rig.f().lvio, 0);
     rig.put(Field::DHLM, 4.0).unwrap();
     assert_eq!(rig.f().lvio, 1);
@@ -187,31 +113,17 @@ fn z8_lvio_follows_limit_writes() {
 #[test]
 fn z9_pause_then_go_resumes_to_the_target() {
     for rtry in [10, 0] {
-        let mut rig = Rig::boot(
-            Fields {
-                rtry,
-                ..baseline_b()
-            },
-            0.0,
-        );
+        let mut rig = Rig::boot(Fields { rtry, ..baseline_b() }, 0.0);
         rig.put(Field::VAL, 5.0).unwrap();
         rig.cb_moving(100.0);
         rig.put(Field::SPMG, 1.0).unwrap();
         assert_eq!(rig.take(), vec![StopAxis]);
         rig.cb(130.0);
         assert!(rig.take().is_empty());
-        assert_eq!(
-            (rig.f().dmov, rig.f().val, rig.f().dval, rig.f().rcnt),
-            (0, 5.0, 5.0, 0),
-            "rtry {rtry}"
-        );
+        assert_eq!((rig.f().dmov, rig.f().val, rig.f().dval, rig.f().rcnt), (0, 5.0, 5.0, 0), "rtry {rtry}");
         assert!(rig.posted(Field::DMOV).is_empty());
         rig.put(Field::SPMG, 3.0).unwrap();
-        assert_eq!(
-            rig.take(),
-            move_abs(100.0, 0.0, 200.0, 500.0),
-            "rtry {rtry}"
-        );
+        assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0), "rtry {rtry}");
         rig.cb(500.0);
         assert_eq!((rig.f().dmov, rig.f().rcnt, rig.f().rbv), (1, 0, 5.0));
     }
@@ -229,10 +141,7 @@ fn z9_a_paused_backlash_move_resumes_with_its_backlash_takeout() {
     rig.put(Field::SPMG, 3.0).unwrap();
     assert_eq!(rig.take(), move_abs(10.0, 0.0, 10.0, 72.0));
     rig.cb(72.0);
-    assert_cmds_close(
-        &rig.take(),
-        &[SetVelocity(2.0), SetAccel(4.0 / 3.0), MoveAbs(96.0), Go],
-    );
+    assert_cmds_close(&rig.take(), &[SetVelocity(2.0), SetAccel(4.0 / 3.0), MoveAbs(96.0), Go]);
     rig.cb(96.0);
     assert_eq!(rig.f().dmov, 1);
 }
@@ -253,27 +162,39 @@ fn z9_stop_while_paused_ends_the_motion_where_it_is() {
 
 #[test]
 fn z10_a_fractional_leg_never_ends_beyond_the_soft_limits() {
-    let mut rig = Rig::boot(
-        Fields {
-            frac: 1.5,
-            dhlm: 10.0,
-            dllm: -10.0,
-            ..baseline_b()
-        },
-        0.0,
-    );
+    let mut rig = Rig::boot(Fields { frac: 1.5, dhlm: 10.0, dllm: -10.0, ..baseline_b() }, 0.0);
     rig.put(Field::VAL, 9.0).unwrap();
     // 0 + 1.5·(900 − 0) = 1350 steps would pass DHLM (1000 steps).
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 1000.0));
     // Moving back towards the range from outside is still allowed (W15).
-    let mut rig = Rig::boot(
-        Fields {
-            dhlm: 10.0,
-            dllm: -10.0,
-            ..baseline_b()
-        },
-        1200.0,
-    );
+    let mut rig = Rig::boot(Fields { dhlm: 10.0, dllm: -10.0, ..baseline_b() }, 1200.0);
     rig.put(Field::VAL, 11.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 1100.0));
+}
+
+#[test]
+fn z11_a_disabled_servo_refuses_moves_with_a_clear_error() {
+    let servo = |on: bool| DeviceStatus {
+        msta: msta::DONE | msta::GAIN_SUPPORT | if on { msta::POSITION } else { 0 },
+        ..idle(0.0)
+    };
+    let mut rig = Rig::boot_with(Fields { hvel: 0.5, ..baseline_b() }, servo(true));
+    assert_eq!(rig.f().cnen, 1);
+    rig.put(Field::CNEN, 0.0).unwrap();
+    assert_eq!(rig.take(), vec![DisableTorque, GetInfo]);
+    rig.status(servo(false));
+    assert_eq!(rig.f().cnen, 0);
+    let err = rig.put(Field::VAL, 1.0).unwrap_err();
+    assert!(err.to_string().starts_with("motor disabled"), "{err}");
+    assert!(rig.take().is_empty());
+    assert_eq!((rig.f().val, rig.f().dmov, rig.f().lvio), (0.0, 1, 0));
+    assert!(rig.put(Field::JOGF, 1.0).unwrap_err().to_string().starts_with("motor disabled"));
+    assert_eq!((rig.f().jogf, rig.f().mip), (0, 0));
+    assert!(rig.put(Field::HOMR, 1.0).is_err());
+    assert_eq!(rig.f().homr, 0);
+    rig.put(Field::CNEN, 1.0).unwrap();
+    assert_eq!(rig.take()[0], EnableTorque);
+    rig.status(servo(true));
+    rig.put(Field::VAL, 1.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 100.0));
 }

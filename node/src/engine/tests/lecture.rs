@@ -15,13 +15,7 @@ fn approach(p: f64) -> Vec<MotorCommand> {
 }
 
 fn single_approach(p: f64) -> Vec<MotorCommand> {
-    vec![
-        SetVelocity(2.0),
-        SetVelBase(0.0),
-        SetAccel(BACC_STEPS),
-        MoveAbs(p),
-        Go,
-    ]
+    vec![SetVelocity(2.0), SetVelBase(0.0), SetAccel(BACC_STEPS), MoveAbs(p), Go]
 }
 
 fn rel(velocity: f64, base: bool, p: f64) -> Vec<MotorCommand> {
@@ -35,11 +29,7 @@ fn rel(velocity: f64, base: bool, p: f64) -> Vec<MotorCommand> {
 }
 
 fn encoder_k() -> Fields {
-    Fields {
-        ueip: 1,
-        eres: 1.0,
-        ..baseline_k()
-    }
+    Fields { ueip: 1, eres: 1.0, ..baseline_k() }
 }
 
 #[test]
@@ -81,23 +71,12 @@ fn a_long_forward_move_goes_to_the_backlash_start_first() {
 
 #[test]
 fn frac_on_an_absolute_backlash_move_never_converges_and_runs_out_of_retries() {
-    let mut rig = Rig::boot(
-        Fields {
-            frac: 0.5,
-            rtry: 2,
-            ..baseline_k()
-        },
-        48.0,
-    );
+    let mut rig = Rig::boot(Fields { frac: 0.5, rtry: 2, ..baseline_k() }, 48.0);
     rig.put(Field::VAL, 96.0).unwrap();
     assert_eq!(rig.take(), slew(72.0));
     for rcnt in 0..=2 {
         if rcnt > 0 {
-            assert_eq!(
-                rig.take(),
-                slew(72.0),
-                "retry {rcnt} repeats the backlash start"
-            );
+            assert_eq!(rig.take(), slew(72.0), "retry {rcnt} repeats the backlash start");
         }
         rig.cb(72.0);
         assert_cmds_close(&rig.take(), &approach(84.0));
@@ -110,14 +89,7 @@ fn frac_on_an_absolute_backlash_move_never_converges_and_runs_out_of_retries() {
 
 #[test]
 fn frac_on_a_reverse_move_shortens_the_final_approach() {
-    let mut rig = Rig::boot(
-        Fields {
-            frac: 0.5,
-            rtry: 0,
-            ..baseline_k()
-        },
-        96.0,
-    );
+    let mut rig = Rig::boot(Fields { frac: 0.5, rtry: 0, ..baseline_k() }, 96.0);
     rig.put(Field::VAL, 48.0).unwrap();
     assert_eq!(rig.take(), slew(24.0));
     rig.cb(24.0);
@@ -146,14 +118,7 @@ fn relative_moves_forward_and_reverse() {
 
 #[test]
 fn relative_moves_with_frac_converge_by_retries() {
-    let mut rig = Rig::boot_encoder(
-        Fields {
-            frac: 0.5,
-            ..encoder_k()
-        },
-        48.0,
-        48.0,
-    );
+    let mut rig = Rig::boot_encoder(Fields { frac: 0.5, ..encoder_k() }, 48.0, 48.0);
     rig.put(Field::VAL, 96.0).unwrap();
     assert_cmds_close(&rig.take(), &rel(10.0, true, 24.0));
     rig.cb_encoder(72.0, 72.0);
@@ -177,10 +142,7 @@ fn jog_forward_with_backlash() {
     assert_eq!(rig.take(), vec![StopAxis]);
     rig.cb(60.0);
     assert_eq!(rig.take(), slew(36.0));
-    assert_eq!(
-        (rig.f().val, rig.f().mip, rig.f().cdir),
-        (60.0, mip::JOG_BL1, 0)
-    );
+    assert_eq!((rig.f().val, rig.f().mip, rig.f().cdir), (60.0, mip::JOG_BL1, 0));
     rig.cb(36.0);
     assert_cmds_close(&rig.take(), &approach(60.0));
     assert_eq!(rig.f().mip, mip::JOG_BL2);
@@ -192,10 +154,7 @@ fn jog_forward_with_backlash() {
 fn jog_reverse_with_backlash_approaches_from_below() {
     let mut rig = Rig::boot(baseline_k(), 96.0);
     rig.put(Field::JOGR, 1.0).unwrap();
-    assert_eq!(
-        rig.take(),
-        vec![SetVelBase(0.0), SetAccel(10.0), Jog(-10.0)]
-    );
+    assert_eq!(rig.take(), vec![SetVelBase(0.0), SetAccel(10.0), Jog(-10.0)]);
     rig.put(Field::JOGR, 0.0).unwrap();
     assert_eq!(rig.take(), vec![StopAxis]);
     rig.cb(30.0);
@@ -209,13 +168,7 @@ fn jog_reverse_with_backlash_approaches_from_below() {
 #[test]
 fn absolute_retries_ignore_rmod_scaling() {
     for rmod in [0, 1, 2] {
-        let mut rig = Rig::boot(
-            Fields {
-                rmod,
-                ..baseline_k()
-            },
-            48.0,
-        );
+        let mut rig = Rig::boot(Fields { rmod, ..baseline_k() }, 48.0);
         rig.put(Field::VAL, 60.0).unwrap();
         assert_cmds_close(&rig.take(), &single_approach(60.0));
         rig.cb(55.0);
@@ -229,14 +182,7 @@ fn absolute_retries_ignore_rmod_scaling() {
 
 #[test]
 fn in_position_retries_wait_for_the_readback() {
-    let mut rig = Rig::boot(
-        Fields {
-            rmod: 3,
-            dly: 0.1,
-            ..baseline_k()
-        },
-        48.0,
-    );
+    let mut rig = Rig::boot(Fields { rmod: 3, dly: 0.1, ..baseline_k() }, 48.0);
     rig.put(Field::VAL, 60.0).unwrap();
     rig.take();
     rig.cb(55.0);
@@ -244,10 +190,7 @@ fn in_position_retries_wait_for_the_readback() {
     assert_eq!(rig.take(), vec![GetInfo]);
     rig.cb(55.0);
     assert!(rig.take().is_empty(), "In-Position retries send nothing");
-    assert_eq!(
-        (rig.f().rcnt, rig.f().mip),
-        (1, mip::RETRY | mip::DELAY_REQ)
-    );
+    assert_eq!((rig.f().rcnt, rig.f().mip), (1, mip::RETRY | mip::DELAY_REQ));
     rig.timer();
     rig.cb(60.0);
     assert_eq!((rig.f().dmov, rig.f().rcnt), (1, 1));
@@ -256,15 +199,7 @@ fn in_position_retries_wait_for_the_readback() {
 #[test]
 fn relative_retries_scale_with_rmod() {
     for (rmod, distances) in [(0, [8.0, 8.0]), (1, [8.0, 6.0]), (2, [8.0, 4.0])] {
-        let mut rig = Rig::boot_encoder(
-            Fields {
-                rmod,
-                rtry: 4,
-                ..encoder_k()
-            },
-            48.0,
-            48.0,
-        );
+        let mut rig = Rig::boot_encoder(Fields { rmod, rtry: 4, ..encoder_k() }, 48.0, 48.0);
         rig.put(Field::VAL, 60.0).unwrap();
         assert_cmds_close(&rig.take(), &rel(2.0, true, 12.0));
         for d in distances {
