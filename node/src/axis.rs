@@ -57,6 +57,8 @@ pub struct Axis {
     rates: PollRates,
     events: Vec<AxisEvent>,
     held: Option<HeldMotion>,
+    /// DMOV 0 has been posted and DMOV 1 not yet: a motion is under way.
+    motion_posted: bool,
 }
 
 impl Axis {
@@ -75,6 +77,7 @@ impl Axis {
             rates,
             events: Vec::new(),
             held: None,
+            motion_posted: false,
         };
         let init = axis.record.fields().init.clone();
         axis.run_primitive(&init);
@@ -239,8 +242,15 @@ impl Axis {
             for output in outputs {
                 match output {
                     Output::Post(field, value) => {
-                        // POST runs when a motion has finished or a limit switch is met.
-                        let finished = matches!(field, Field::DMOV | Field::HLS | Field::LLS) && value == Value::Int(1);
+                        // POST runs when a motion has finished (DMOV 0 → 1) or meets a limit switch.
+                        let finished = match field {
+                            Field::DMOV => value == Value::Int(1) && std::mem::replace(&mut self.motion_posted, false),
+                            Field::HLS | Field::LLS => value == Value::Int(1) && self.motion_posted,
+                            _ => false,
+                        };
+                        if field == Field::DMOV && value == Value::Int(0) {
+                            self.motion_posted = true;
+                        }
                         self.events.push(AxisEvent::Post(field, value));
                         if finished {
                             let post = self.record.fields().post.clone();
