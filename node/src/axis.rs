@@ -105,6 +105,14 @@ impl Axis {
     /// A field write at time `now`.
     pub fn write(&mut self, now: f64, field: Field, value: &Value) -> Result<(), WriteError> {
         self.advance(now);
+        // The record acts on a write with the readback as it is now, not as of the last poll:
+        // a relative move computed from a stale readback would miss by the distance since.
+        let status = self.driver.status();
+        if self.held.is_none() && status != self.last_status {
+            self.last_status = status;
+            self.record.callback(status);
+            self.pump();
+        }
         let result = self.record.write(field, value);
         self.pump();
         self.schedule_poll();
@@ -129,9 +137,13 @@ impl Axis {
             self.pump();
         }
         let motion_event_due = self.driver.next_event().is_some_and(|t| now >= t);
-        if force_poll || now >= self.next_poll || motion_event_due {
+        // While a PREM delay holds a motion back, status would only look stale "done".
+        if self.held.is_none() && (force_poll || now >= self.next_poll || motion_event_due) {
             let status = self.driver.status();
-            if status != self.last_status || force_poll {
+            // While a motion sequence is open (DMOV 0) every poll is a callback, as a
+            // controller's poller would report: an end of motion that arrived while the record
+            // ignored it (STUP BUSY) is then still seen.
+            if status != self.last_status || force_poll || self.record.fields().dmov == 0 {
                 self.last_status = status;
                 self.record.callback(status);
                 self.pump();

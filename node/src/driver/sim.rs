@@ -166,7 +166,8 @@ impl SimAxis {
     }
 
     fn encoder_reading(&self) -> Option<f64> {
-        self.config.encoder_counts_per_step.map(|ratio| self.physical * ratio)
+        // The encoder is read through the controller, so a set-position redefines it too.
+        self.config.encoder_counts_per_step.map(|ratio| (self.physical + self.counter_offset) * ratio)
     }
 
     fn at_high_limit(&self) -> bool {
@@ -197,7 +198,8 @@ impl SimAxis {
         self.velocity = 0.0;
         self.arrival = arrival;
         let distance = (target - self.physical).abs();
-        if distance == 0.0 {
+        // Below a nanostep there is nothing to travel (and no time would pass doing it).
+        if distance < 1e-9 {
             self.finish_motion();
             return;
         }
@@ -271,9 +273,8 @@ impl SimAxis {
 
 impl Driver for SimAxis {
     fn advance(&mut self, now: f64) {
-        if now <= self.now {
-            return;
-        }
+        // Time never runs back; a motion due at this very instant still ends.
+        let now = now.max(self.now);
         self.now = now;
         if self.profile.is_empty() {
             return;
@@ -498,7 +499,7 @@ mod tests {
         });
         s.set_position(0.0);
         assert_eq!(s.status().position, 0.0);
-        assert_eq!(s.status().encoder_position, 600.0);
+        assert_eq!(s.status().encoder_position, 0.0);
         s.home(false, 0.0, 100.0, 0.0);
         s.advance(10.0);
         let st = s.status();

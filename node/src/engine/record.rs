@@ -278,6 +278,14 @@ impl MotorRecord {
         use Field::*;
         match field {
             VAL | DVAL | RVAL | RLV | TWF | TWR => {
+                // Departure Z12: the reference accepts a target during the backlash takeout after
+                // a jog and then forgets it, leaving VAL away from the position; refuse it instead.
+                if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
+                    return Err(WriteError::Refused {
+                        field,
+                        reason: "a jog is finishing its backlash takeout; write the target once DMOV is 1".into(),
+                    });
+                }
                 if self.f.dmov == 1 {
                     self.f.dmov = 0;
                     self.post(DMOV);
@@ -706,6 +714,9 @@ impl MotorRecord {
             return Flow::DoWork;
         }
         if self.f.dmov == 0 {
+            if self.request_held() {
+                return Flow::DoWork;
+            }
             self.f.dmov = 1;
             self.mark(Field::DMOV);
             if self.f.mip == mip::JOGF || self.f.mip == mip::JOGR {
@@ -938,6 +949,7 @@ impl MotorRecord {
             if stop_or_pause {
                 self.f.dmov = 0;
                 self.mark(DMOV);
+                self.keep_held_target_consistent();
                 return;
             }
             self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
@@ -1038,6 +1050,7 @@ impl MotorRecord {
             self.f.dval = (self.f.val - self.f.off) / self.dirsign();
         }
         if stop_or_pause {
+            self.keep_held_target_consistent();
             return;
         }
 
@@ -1156,7 +1169,9 @@ impl MotorRecord {
         };
         if let Some(reason) = refusal {
             self.refusal = Some(reason);
-            self.f.val = self.f.lval;
+            // Departure Z13: VAL is restored from the restored dial target; the reference restores
+            // LVAL, which is stale after a DIR change or a Set-mode calibration.
+            self.f.val = self.f.ldvl * self.dirsign() + self.f.off;
             self.f.dval = self.f.ldvl;
             self.f.rval = self.f.lrvl;
             self.mark(VAL);
@@ -1761,6 +1776,35 @@ impl MotorRecord {
     fn disabled_refusal(&self) -> Option<String> {
         (self.f.msta & msta::GAIN_SUPPORT != 0 && self.f.cnen == 0)
             .then(|| "motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first".to_string())
+    }
+
+    /// Departure Z12: a target held by SPMG Stop/Pause (or behind a held home) shows in VAL,
+    /// DVAL and RVAL alike while it waits; the reference converts only the field written.
+    fn keep_held_target_consistent(&mut self) {
+        if self.set_mode() {
+            return;
+        }
+        if self.f.val != self.f.lval {
+            self.f.dval = (self.f.val - self.f.off) / self.dirsign();
+        } else if self.f.rval != self.f.lrvl {
+            self.f.dval = f64::from(self.f.rval) * self.f.mres;
+        }
+        let (val, rval) = (self.f.dval * self.dirsign() + self.f.off, nint(self.f.dval / self.f.mres));
+        for (field, changed) in [(Field::VAL, val != self.f.val), (Field::RVAL, rval != self.f.rval), (Field::DVAL, true)] {
+            if changed {
+                self.mark(field);
+            }
+        }
+        (self.f.val, self.f.rval) = (val, rval);
+    }
+
+    /// Departure Z14: a request held by SPMG Stop/Pause keeps DMOV 0 until it runs, whatever
+    /// status arrives meanwhile (the manual's DMOV; the reference lets a callback set DMOV 1).
+    fn request_held(&self) -> bool {
+        let f = &self.f;
+        (f.spmg == choice::SPMG_STOP || f.spmg == choice::SPMG_PAUSE)
+            && f.mip & !(mip::JOG_REQ | mip::STOP) == mip::DONE
+            && (f.dval != f.ldvl || self.resume_on_go || f.homf != 0 || f.homr != 0 || f.mip & mip::JOG_REQ != 0)
     }
 
     /// Effective Set mode: SET = Set and IGSET = 0.
