@@ -352,6 +352,17 @@ mod tests {
     }
 
     #[test]
+    fn a_write_acts_on_the_readback_of_that_moment() {
+        let mut axis = sim_axis(demo_fields());
+        axis.write(0.0, Field::VAL, &Value::Float(10.0)).unwrap();
+        // No poll since the start: the write itself brings the readback up to date.
+        axis.write(0.55, Field::DESC, &Value::Text("x".into())).unwrap();
+        let physical = axis.simulation().unwrap().physical_position();
+        assert!((axis.fields().drbv - physical * 0.001).abs() < 0.001, "{} vs {physical}", axis.fields().drbv);
+        assert!(axis.fields().drbv > 4.0);
+    }
+
+    #[test]
     fn jog_stops_on_the_hard_limit_switch() {
         let mut axis = sim_axis(Fields { jvel: 50.0, dhlm: 0.0, dllm: 0.0, ..demo_fields() });
         axis.write(0.0, Field::JOGF, &Value::Int(1)).unwrap();

@@ -945,13 +945,12 @@ impl MotorRecord {
                 return;
             }
         }
-        if home_requested {
-            if stop_or_pause {
-                self.f.dmov = 0;
-                self.mark(DMOV);
-                self.keep_held_target_consistent();
-                return;
-            }
+        if home_requested && stop_or_pause {
+            // Held until Go; the rest of the request is still taken in (Z12: the reference
+            // returns here and leaves a target written meanwhile half converted).
+            self.f.dmov = 0;
+            self.mark(DMOV);
+        } else if home_requested {
             self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
             self.f.pp = 1;
             if self.f.movn != 0 {
@@ -1050,7 +1049,12 @@ impl MotorRecord {
             self.f.dval = (self.f.val - self.f.off) / self.dirsign();
         }
         if stop_or_pause {
-            self.keep_held_target_consistent();
+            if !self.set_mode() {
+                self.keep_held_target_consistent();
+            } else if self.f.dval != self.f.ldvl && self.f.mip & mip::LOAD_P == 0 {
+                // Departure Z12: a Set-mode calibration moves nothing, so SPMG does not hold it.
+                self.load_pos();
+            }
             return;
         }
 
@@ -1781,16 +1785,15 @@ impl MotorRecord {
     /// Departure Z12: a target held by SPMG Stop/Pause (or behind a held home) shows in VAL,
     /// DVAL and RVAL alike while it waits; the reference converts only the field written.
     fn keep_held_target_consistent(&mut self) {
-        if self.set_mode() {
-            return;
-        }
         if self.f.val != self.f.lval {
             self.f.dval = (self.f.val - self.f.off) / self.dirsign();
         } else if self.f.rval != self.f.lrvl {
             self.f.dval = f64::from(self.f.rval) * self.f.mres;
         }
         let (val, rval) = (self.f.dval * self.dirsign() + self.f.off, nint(self.f.dval / self.f.mres));
-        for (field, changed) in [(Field::VAL, val != self.f.val), (Field::RVAL, rval != self.f.rval), (Field::DVAL, true)] {
+        for (field, changed) in
+            [(Field::VAL, val != self.f.val), (Field::RVAL, rval != self.f.rval), (Field::DVAL, true)]
+        {
             if changed {
                 self.mark(field);
             }

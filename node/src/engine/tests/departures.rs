@@ -198,3 +198,69 @@ fn z11_a_disabled_servo_refuses_moves_with_a_clear_error() {
     rig.put(Field::VAL, 1.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 100.0));
 }
+
+#[test]
+fn z12_a_held_target_shows_in_val_dval_and_rval_alike() {
+    let mut rig = Rig::boot(Fields { off: 1.0, ..baseline_b() }, 0.0);
+    rig.put(Field::SPMG, 0.0).unwrap();
+    rig.put(Field::DVAL, 2.0).unwrap();
+    assert!(rig.take().is_empty());
+    assert_eq!((rig.f().val, rig.f().rval, rig.f().dmov), (3.0, 200, 0));
+    rig.put(Field::SPMG, 3.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 200.0));
+}
+
+#[test]
+fn z12_a_target_written_while_a_home_is_held_is_converted() {
+    let mut rig = Rig::boot(Fields { hvel: 0.5, ..baseline_b() }, 0.0);
+    rig.put(Field::SPMG, 0.0).unwrap();
+    rig.put(Field::HOMF, 1.0).unwrap();
+    rig.put(Field::VAL, 2.0).unwrap();
+    assert_eq!((rig.f().val, rig.f().dval, rig.f().dmov), (2.0, 2.0, 0));
+}
+
+#[test]
+fn z12_a_target_during_the_jog_backlash_takeout_is_refused() {
+    let mut rig = Rig::boot(Fields { jvel: 2.0, jar: 4.0, bdst: 0.5, ..baseline_b() }, 0.0);
+    rig.put(Field::JOGF, 1.0).unwrap();
+    rig.put(Field::JOGF, 0.0).unwrap();
+    rig.cb(310.0);
+    assert_eq!(rig.f().mip, mip::JOG_BL1);
+    assert!(matches!(rig.put(Field::VAL, 7.0), Err(WriteError::Refused { field: Field::VAL, .. })));
+    assert_eq!((rig.f().val, rig.f().dval), (3.1, 3.1));
+}
+
+#[test]
+fn z12_a_set_mode_calibration_is_not_held_by_spmg() {
+    let mut rig = Rig::boot(baseline_b(), 200.0);
+    rig.put(Field::SPMG, 0.0).unwrap();
+    rig.put(Field::SSET, 1.0).unwrap();
+    rig.put(Field::DVAL, 7.0).unwrap();
+    assert_eq!(rig.take(), vec![LoadPos(700.0), GetInfo]);
+    rig.cb(700.0);
+    assert_eq!((rig.f().dmov, rig.f().off, rig.f().val), (1, -5.0, 2.0));
+}
+
+#[test]
+fn z13_a_refused_move_restores_val_consistently_after_a_direction_change() {
+    let mut rig = Rig::boot(Fields { dhlm: 10.0, dllm: -10.0, ..baseline_b() }, 300.0);
+    rig.put(Field::DIR, 1.0).unwrap();
+    assert_eq!((rig.f().val, rig.f().off), (3.0, 6.0));
+    assert!(rig.put(Field::VAL, -20.0).is_err());
+    let f = rig.f();
+    assert_eq!((f.val, f.dval, f.dmov), (3.0, 3.0, 1));
+    assert_eq!(f.val, -f.dval + f.off);
+}
+
+#[test]
+fn z14_a_held_request_keeps_dmov_0_whatever_status_arrives() {
+    let mut rig = Rig::boot(baseline_b(), 0.0);
+    rig.put(Field::SPMG, 1.0).unwrap();
+    rig.put(Field::VAL, 2.0).unwrap();
+    rig.cb(0.0);
+    rig.cb(1.0);
+    assert_eq!(rig.f().dmov, 0);
+    assert!(rig.posted(Field::DMOV).is_empty());
+    rig.put(Field::SPMG, 3.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 200.0));
+}
