@@ -277,6 +277,8 @@ impl AxisTask {
             ("comm_lost", Value::Int(sim.comm_lost.into())),
             ("problem", Value::Int(sim.problem.into())),
             ("fraction", Value::Float(sim.fraction)),
+            ("slip", Value::Float(sim.slip)),
+            ("servo", Value::Int(config.servo.into())),
         ] {
             entries.push((name, encode_cbor(&value)));
         }
@@ -373,6 +375,13 @@ fn apply_sim_setting(sim: &mut SimAxis, name: &str, value: &Value) -> Result<(),
         "stall" => sim.stalled = number()? != 0.0,
         "comm_lost" => sim.comm_lost = number()? != 0.0,
         "problem" => sim.problem = number()? != 0.0,
+        "slip" => {
+            let f = number()?;
+            if !(0.0..=1.0).contains(&f) {
+                return Err(format!("slip {f} is outside [0, 1]"));
+            }
+            sim.slip = f;
+        }
         "fraction" => {
             let f = number()?;
             if !(0.0..=2.0).contains(&f) {

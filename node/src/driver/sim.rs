@@ -80,13 +80,19 @@ pub struct SimAxis {
     physical: f64,
     velocity: f64,
     counter_offset: f64,
+    encoder_offset: f64,
+    /// Steps the motor will count at the end of this motion without the carriage moving (slip).
+    pending_slip: f64,
     profile: Vec<Segment>,
     arrival: Arrival,
     last_direction_positive: bool,
     homed: bool,
     enabled: bool,
-    /// Fraction of each commanded distance actually travelled (inch-worm).
+    /// Fraction of each commanded distance actually travelled (inch-worm): the motor stops short.
     pub fraction: f64,
+    /// Fraction of each commanded distance the carriage misses although the motor counts it
+    /// (a slipping stepper): the step count reaches the target, the encoder does not.
+    pub slip: f64,
     pub stalled: bool,
     pub comm_lost: bool,
     pub problem: bool,
@@ -104,12 +110,15 @@ impl SimAxis {
             now: 0.0,
             velocity: 0.0,
             counter_offset: 0.0,
+            encoder_offset: 0.0,
+            pending_slip: 0.0,
             profile: Vec::new(),
             arrival: Arrival::Nothing,
             last_direction_positive: true,
             homed: false,
             enabled: true,
             fraction: 1.0,
+            slip: 0.0,
             stalled: false,
             comm_lost: false,
             problem: false,
@@ -167,7 +176,7 @@ impl SimAxis {
 
     fn encoder_reading(&self) -> Option<f64> {
         // The encoder is read through the controller, so a set-position redefines it too.
-        self.config.encoder_counts_per_step.map(|ratio| (self.physical + self.counter_offset) * ratio)
+        self.config.encoder_counts_per_step.map(|ratio| (self.physical + self.encoder_offset) * ratio)
     }
 
     fn at_high_limit(&self) -> bool {
@@ -256,8 +265,10 @@ impl SimAxis {
     fn finish_motion(&mut self) {
         self.profile.clear();
         self.velocity = 0.0;
+        self.counter_offset += std::mem::take(&mut self.pending_slip);
         if self.arrival == Arrival::Homed {
             self.counter_offset = -self.physical;
+            self.encoder_offset = -self.physical;
             self.homed = true;
         }
         self.arrival = Arrival::Nothing;
@@ -265,6 +276,7 @@ impl SimAxis {
 
     /// Halt at once where the carriage is (a limit switch or a stall).
     fn halt(&mut self) {
+        self.pending_slip = 0.0;
         self.profile.clear();
         self.velocity = 0.0;
         self.arrival = Arrival::Nothing;
@@ -315,8 +327,15 @@ impl Driver for SimAxis {
             return;
         }
         let commanded = if relative { self.physical + position } else { position - self.counter_offset };
-        let target = self.physical + self.fraction * (commanded - self.physical);
-        self.start_motion(target, min_velocity, max_velocity, acceleration, Arrival::Nothing);
+        let travel = self.fraction * (commanded - self.physical);
+        self.start_motion(
+            self.physical + (1.0 - self.slip) * travel,
+            min_velocity,
+            max_velocity,
+            acceleration,
+            Arrival::Nothing,
+        );
+        self.pending_slip = self.slip * travel;
     }
 
     fn move_velocity(&mut self, min_velocity: f64, velocity: f64, acceleration: f64) {
@@ -359,6 +378,7 @@ impl Driver for SimAxis {
     fn set_position(&mut self, position: f64) {
         if self.accepts_commands() {
             self.counter_offset = position - self.physical;
+            self.encoder_offset = self.counter_offset;
         }
     }
 
@@ -510,6 +530,17 @@ mod tests {
         s.move_to(100.0, false, 0.0, 100.0, 0.0);
         s.advance(20.0);
         assert_eq!(s.status().position, 50.0);
+        s.fraction = 1.0;
+        s.slip = 0.1;
+        s.move_to(150.0, false, 0.0, 100.0, 0.0);
+        s.advance(30.0);
+        let st = s.status();
+        assert_eq!(
+            (st.position, st.encoder_position),
+            (150.0, 2.0 * 145.0),
+            "the steps are counted, the carriage slips"
+        );
+        s.slip = 0.0;
         s.comm_lost = true;
         s.move_to(0.0, false, 0.0, 100.0, 0.0);
         assert!(!s.is_moving());

@@ -231,7 +231,7 @@ impl MotorRecord {
         if access == Access::RO {
             return Err(WriteError::ReadOnly(field));
         }
-        self.special_before(field)?;
+        self.special_before(field, value)?;
         self.f.set(field, value);
         if field == Field::VAL {
             self.f.udf = 0;
@@ -274,7 +274,7 @@ impl MotorRecord {
 
     // One arm per field, as the table of §7 reads; guards folded into patterns would hide it.
     #[allow(clippy::collapsible_match)]
-    fn special_before(&mut self, field: Field) -> Result<(), WriteError> {
+    fn special_before(&mut self, field: Field, value: &Value) -> Result<(), WriteError> {
         use Field::*;
         match field {
             VAL | DVAL | RVAL | RLV | TWF | TWR => {
@@ -293,6 +293,14 @@ impl MotorRecord {
             }
             HOMF | HOMR if self.f.mip & mip::HOME_GROUP != 0 => {
                 return Err(WriteError::Refused { field, reason: "a home is in progress".into() });
+            }
+            // Departure Z15: as the manual says, writing 0 is an error (the reference accepts
+            // it, D7); a home is aborted with STOP.
+            HOMF | HOMR if value.as_f64() == Some(0.0) => {
+                return Err(WriteError::Refused {
+                    field,
+                    reason: "writing 0 does not abort a home; write STOP 1".into(),
+                });
             }
             STUP if self.f.stup != choice::STUP_OFF => {
                 return Err(WriteError::Refused { field, reason: "a status update is in progress".into() });

@@ -264,3 +264,11 @@ fn z14_a_held_request_keeps_dmov_0_whatever_status_arrives() {
     rig.put(Field::SPMG, 3.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 200.0));
 }
+
+#[test]
+fn z15_writing_0_to_a_home_button_is_an_error() {
+    let mut rig = Rig::boot(baseline_b(), 0.0);
+    let err = rig.put(Field::HOMR, 0.0).unwrap_err();
+    assert_eq!(err.to_string(), "HOMR refused: writing 0 does not abort a home; write STOP 1");
+    assert!(rig.take().is_empty(), "no processing");
+}
