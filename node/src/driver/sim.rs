@@ -537,7 +537,7 @@ mod tests {
         let st = s.status();
         assert_eq!(
             (st.position, st.encoder_position),
-            (150.0, 2.0 * 145.0),
+            (150.0, 2.0 * 140.0),
             "the steps are counted, the carriage slips"
         );
         s.slip = 0.0;
