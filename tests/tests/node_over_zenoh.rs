@@ -213,3 +213,23 @@ async fn simulator_faults_are_reachable_under_sim_keys() {
     let err = rec.wait_for("ERR", |_| true).await;
     assert!(matches!(&err, Value::Text(t) if t.contains("fraction 7")), "{err:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn device_directives_become_zenoh_puts_around_a_move() {
+    let mut plan = fast_axis("m1");
+    plan.fields.prem = "@PUT(lab/shutter/OPEN, 1, 0.1)@".into();
+    plan.fields.post = "@PUT(lab/shutter/OPEN, 0)@".into();
+    let node = TestNode::start(vec![plan]).await;
+    let client = node.client().await;
+    let shutter = client.declare_subscriber("lab/shutter/OPEN").await.unwrap();
+    let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
+    put_text(&client, &node.key("m1", Field::VAL), "1").await;
+    let mut seen = Vec::new();
+    for _ in 0..2 {
+        let sample = tokio::time::timeout(PATIENCE, shutter.recv_async()).await.unwrap().unwrap();
+        seen.push(String::from_utf8_lossy(&sample.payload().to_bytes()).into_owned());
+    }
+    assert_eq!(seen, vec!["1", "0"]);
+    rec.wait_for("DMOV", |v| *v == int(1)).await;
+    assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 1.0));
+}
