@@ -1,10 +1,13 @@
-//! One axis as a sans-IO unit: the motor record, its device support and its driver, on one
-//! injected clock. The caller feeds writes and time, and takes `AxisEvent`s (field posts,
-//! driver commands for the trace, completions). The Zenoh adapter is a thin loop around this.
+//! One axis as a sans-IO unit: the motor record, its device support and its driver (or its
+//! Soft Channel links), on one injected clock. The caller feeds writes, link updates and time,
+//! and takes `AxisEvent`s (field posts, driver commands for the trace, puts to other keys,
+//! completions). The Zenoh adapter is a thin loop around this.
 
 use crate::device::DeviceSupport;
+use crate::driver::soft::{InputLink, Reaction, SoftChannel};
 use crate::driver::{execute, Driver};
 use crate::engine::{DeviceStatus, MotorRecord, Output, WriteError};
+use zmotor_msgs::menus::choice;
 use zmotor_msgs::{DriverCommand, Field, Fields, Value};
 
 /// Bound on callback rounds after one input: each round is a transaction that asked for fresh
@@ -20,7 +23,8 @@ pub enum AxisEvent {
     Driver { command: DriverCommand, t: f64 },
     /// A processing ended with DMOV = 1 (forward link, put-with-completion).
     Done,
-    /// A device directive's put (`@PUT(key, value)@` in PREM or POST): a plain write to `key`.
+    /// A plain write of `value` to another key: an output link (OUT, STOO, RLNK, FLNK) or a
+    /// device directive's put (`@PUT(key, value)@` in PREM or POST).
     Put { key: String, value: String },
 }
 
@@ -46,10 +50,20 @@ impl Default for PollRates {
     }
 }
 
+/// What stands behind the record.
+enum Device {
+    /// asyn-style device support in front of a driver (the simulator, hardware).
+    Driver { support: DeviceSupport, driver: Box<dyn Driver> },
+    /// Soft Channel device support: the axis drives other keys.
+    Soft(SoftChannel),
+}
+
 pub struct Axis {
     record: MotorRecord,
-    device: DeviceSupport,
-    driver: Box<dyn Driver>,
+    device: Device,
+    /// The latest RDBL value; None until the link has delivered one. An axis without RDBL
+    /// reads it as a constant 0, as EPICS reads a constant link.
+    readback_link: Option<f64>,
     now: f64,
     last_status: DeviceStatus,
     delay_deadline: Option<f64>,
@@ -62,14 +76,31 @@ pub struct Axis {
 }
 
 impl Axis {
-    /// Boot an axis (§6): restore decision, first status, record initialisation.
+    /// Boot an axis on a driver (§6): restore decision, first status, record initialisation.
     pub fn new(fields: Fields, mut driver: Box<dyn Driver>, rates: PollRates, now: f64) -> Self {
         driver.advance(now);
-        let record = MotorRecord::new(fields);
-        let mut axis = Self {
+        let device = Device::Driver { support: DeviceSupport::default(), driver };
+        let mut axis = Self::assemble(MotorRecord::new(fields), device, rates, now);
+        let init = axis.record.fields().init.clone();
+        axis.run_primitive(&init);
+        let restore = axis.record.restore_commands(axis.device_status().position);
+        axis.deliver(&restore);
+        axis.boot()
+    }
+
+    /// Boot a Soft Channel axis (§16.1): it drives its OUT key and reads RDBL/RINP/DINP.
+    pub fn new_soft(fields: Fields, rates: PollRates, now: f64) -> Self {
+        let soft = SoftChannel::new(&fields.out, &fields.stoo, &fields.dinp, fields.dmov);
+        let record = MotorRecord::new(fields).without_status_refresh();
+        Self::assemble(record, Device::Soft(soft), rates, now).boot()
+    }
+
+    fn assemble(record: MotorRecord, device: Device, rates: PollRates, now: f64) -> Self {
+        let readback_link = record.fields().rdbl.is_empty().then_some(0.0);
+        Self {
             record,
-            device: DeviceSupport::default(),
-            driver,
+            device,
+            readback_link,
             now,
             last_status: DeviceStatus::default(),
             delay_deadline: None,
@@ -78,16 +109,15 @@ impl Axis {
             events: Vec::new(),
             held: None,
             motion_posted: false,
-        };
-        let init = axis.record.fields().init.clone();
-        axis.run_primitive(&init);
-        let restore = axis.record.restore_commands(axis.driver.status().position);
-        axis.deliver(&restore);
-        axis.last_status = axis.driver.status();
-        axis.record.init(axis.last_status);
-        axis.pump();
-        axis.next_poll = now + rates.idle;
-        axis
+        }
+    }
+
+    fn boot(mut self) -> Self {
+        self.last_status = self.device_status();
+        self.record.init(self.last_status);
+        self.pump();
+        self.next_poll = self.now + self.rates.idle;
+        self
     }
 
     pub fn record(&self) -> &MotorRecord {
@@ -107,16 +137,44 @@ impl Axis {
         self.advance(now);
         // The record acts on a write with the readback as it is now, not as of the last poll:
         // a relative move computed from a stale readback would miss by the distance since.
-        let status = self.driver.status();
-        if self.held.is_none() && status != self.last_status {
-            self.last_status = status;
-            self.record.callback(status);
-            self.pump();
+        let status = self.device_status();
+        if self.polled() && self.held.is_none() && status != self.last_status {
+            self.callback(status);
         }
         let result = self.record.write(field, value);
         self.pump();
         self.schedule_poll();
         result
+    }
+
+    /// A new value on one of the record's input links (RDBL, RINP, DINP, DOL).
+    pub fn link_update(&mut self, now: f64, link: InputLink, value: f64) {
+        self.advance(now);
+        match link {
+            InputLink::Desired => {
+                self.record.desired_value(value);
+                self.pump();
+                return;
+            }
+            InputLink::Readback => self.readback_link = Some(value),
+            _ => {}
+        }
+        let f = self.record.fields();
+        let (dmov, locked, mres) = (f.dmov, f.lock == choice::YES, f.mres);
+        let reaction = match &mut self.device {
+            Device::Soft(soft) => soft.update(link, value, dmov, locked, mres),
+            // With a driver, the readback link is read at the next processing.
+            Device::Driver { .. } => Reaction::Nothing,
+        };
+        if matches!(reaction, Reaction::ExternalMotion | Reaction::ExternalMotionThenCallback) {
+            self.record.external_motion();
+        }
+        if matches!(reaction, Reaction::Callback | Reaction::ExternalMotionThenCallback) {
+            let status = self.device_status();
+            self.callback(status);
+        } else {
+            self.pump();
+        }
     }
 
     /// Time passed: fire the DLY timer if due, and poll the driver if a poll is due or `force`.
@@ -126,27 +184,24 @@ impl Axis {
             let held = self.held.take().expect("checked above");
             self.execute_all(held.commands);
             if held.wants_callback {
-                self.last_status = self.driver.status();
-                self.record.callback(self.last_status);
+                let status = self.device_status();
+                self.callback(status);
             }
-            self.pump();
         }
         if self.delay_deadline.is_some_and(|d| now >= d) {
             self.delay_deadline = None;
             self.record.delay_expired();
             self.pump();
         }
-        let motion_event_due = self.driver.next_event().is_some_and(|t| now >= t);
+        let motion_event_due = self.next_event().is_some_and(|t| now >= t);
         // While a PREM delay holds a motion back, status would only look stale "done".
-        if self.held.is_none() && (force_poll || now >= self.next_poll || motion_event_due) {
-            let status = self.driver.status();
+        if self.polled() && self.held.is_none() && (force_poll || now >= self.next_poll || motion_event_due) {
+            let status = self.device_status();
             // While a motion sequence is open (DMOV 0) every poll is a callback, as a
             // controller's poller would report: an end of motion that arrived while the record
             // ignored it (STUP BUSY) is then still seen.
             if status != self.last_status || force_poll || self.record.fields().dmov == 0 {
-                self.last_status = status;
-                self.record.callback(status);
-                self.pump();
+                self.callback(status);
             }
             self.schedule_poll();
         }
@@ -154,11 +209,11 @@ impl Axis {
 
     /// When `tick` should be called next.
     pub fn next_wakeup(&self) -> f64 {
-        let mut t = self.next_poll;
+        let mut t = if self.polled() { self.next_poll } else { f64::INFINITY };
         if let Some(d) = self.delay_deadline {
             t = t.min(d);
         }
-        if let Some(e) = self.driver.next_event() {
+        if let Some(e) = self.next_event() {
             t = t.min(e);
         }
         if let Some(held) = &self.held {
@@ -177,14 +232,39 @@ impl Axis {
 
     /// The simulator behind this axis, if it is simulated.
     pub fn simulation(&mut self) -> Option<&mut crate::driver::sim::SimAxis> {
-        self.driver.simulation()
+        match &mut self.device {
+            Device::Driver { driver, .. } => driver.simulation(),
+            Device::Soft(_) => None,
+        }
+    }
+
+    fn device_status(&self) -> DeviceStatus {
+        let status = match &self.device {
+            Device::Driver { driver, .. } => driver.status(),
+            Device::Soft(soft) => soft.status(),
+        };
+        DeviceStatus { readback: self.readback_link, ..status }
+    }
+
+    /// Status reaches a driver-backed record by polling; a Soft Channel record only hears its links.
+    fn polled(&self) -> bool {
+        matches!(self.device, Device::Driver { .. })
+    }
+
+    fn next_event(&self) -> Option<f64> {
+        match &self.device {
+            Device::Driver { driver, .. } => driver.next_event(),
+            Device::Soft(_) => None,
+        }
     }
 
     fn advance(&mut self, now: f64) {
         if now > self.now {
             self.now = now;
         }
-        self.driver.advance(self.now);
+        if let Device::Driver { driver, .. } = &mut self.device {
+            driver.advance(self.now);
+        }
     }
 
     fn schedule_poll(&mut self) {
@@ -196,10 +276,26 @@ impl Axis {
         self.next_poll = self.now + period;
     }
 
+    /// Process the record as a device callback with `status`, then carry out what it asks.
+    fn callback(&mut self, status: DeviceStatus) {
+        self.last_status = status;
+        self.record.callback(status);
+        self.pump();
+    }
+
     /// Deliver one transaction; true if the record must now be processed with fresh status.
     /// PREM runs before anything that starts motion, and its PUT delay holds the motion back.
     fn deliver(&mut self, transaction: &[crate::engine::MotorCommand]) -> bool {
-        let translation = self.device.translate(transaction);
+        let translation = match &mut self.device {
+            Device::Driver { support, .. } => support.translate(transaction),
+            Device::Soft(soft) => {
+                let (puts, wants_callback) = soft.translate(transaction, self.record.fields().dval);
+                for (key, value) in puts {
+                    self.events.push(AxisEvent::Put { key, value: value.to_string() });
+                }
+                return wants_callback;
+            }
+        };
         let starts_motion = translation.commands.iter().any(|c| {
             matches!(c, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. })
         });
@@ -223,8 +319,9 @@ impl Axis {
     }
 
     fn execute_all(&mut self, commands: Vec<DriverCommand>) {
+        let Device::Driver { driver, .. } = &mut self.device else { return };
         for command in commands {
-            execute(self.driver.as_mut(), &command);
+            execute(driver.as_mut(), &command);
             self.events.push(AxisEvent::Driver { command, t: self.now });
         }
     }
@@ -245,6 +342,16 @@ impl Axis {
         primitive.delay()
     }
 
+    /// A motion has finished (DMOV 0 → 1) or met a limit switch: POST, and FLNK on completion.
+    fn motion_finished(&mut self, completed: bool) {
+        let post = self.record.fields().post.clone();
+        self.run_primitive(&post);
+        let flnk = self.record.fields().flnk.clone();
+        if completed && !flnk.is_empty() {
+            self.events.push(AxisEvent::Put { key: flnk, value: "1".into() });
+        }
+    }
+
     /// Carry out the record's outputs; a transaction that asks for fresh status gets a
     /// callback processing, as asyn device support does when the driver write returns.
     fn pump(&mut self) {
@@ -254,30 +361,32 @@ impl Axis {
             for output in outputs {
                 match output {
                     Output::Post(field, value) => {
-                        // POST runs when a motion has finished (DMOV 0 → 1) or meets a limit switch.
-                        let finished = match field {
-                            Field::DMOV => value == Value::Int(1) && std::mem::replace(&mut self.motion_posted, false),
-                            Field::HLS | Field::LLS => value == Value::Int(1) && self.motion_posted,
-                            _ => false,
-                        };
+                        let completed = field == Field::DMOV
+                            && value == Value::Int(1)
+                            && std::mem::replace(&mut self.motion_posted, false);
+                        let switch_met =
+                            matches!(field, Field::HLS | Field::LLS) && value == Value::Int(1) && self.motion_posted;
                         if field == Field::DMOV && value == Value::Int(0) {
                             self.motion_posted = true;
                         }
                         self.events.push(AxisEvent::Post(field, value));
-                        if finished {
-                            let post = self.record.fields().post.clone();
-                            self.run_primitive(&post);
+                        if completed || switch_met {
+                            self.motion_finished(completed);
                         }
                     }
                     Output::Transaction(transaction) => wants_callback |= self.deliver(&transaction),
                     Output::StartDelay(seconds) => self.delay_deadline = Some(self.now + seconds),
                     Output::Done => self.events.push(AxisEvent::Done),
+                    Output::ReadbackLink(rbv) => {
+                        let key = self.record.fields().rlnk.clone();
+                        self.events.push(AxisEvent::Put { key, value: rbv.to_string() });
+                    }
                 }
             }
             if !wants_callback {
                 return;
             }
-            self.last_status = self.driver.status();
+            self.last_status = self.device_status();
             self.record.callback(self.last_status);
         }
         tracing::warn!("status callbacks kept asking for more status; stopped after {MAX_CALLBACK_ROUNDS} rounds");

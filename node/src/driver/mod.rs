@@ -2,6 +2,7 @@
 //! steps/s, steps/s²). Time is injected: a driver is told the clock advanced, never reads it.
 
 pub mod sim;
+pub mod soft;
 
 use crate::engine::DeviceStatus;
 use zmotor_msgs::{DriverCommand, Gain};

@@ -433,6 +433,7 @@ impl Driver for SimAxis {
             encoder_position: self.encoder_reading().unwrap_or(0.0),
             velocity: self.velocity,
             msta: bits,
+            readback: None,
         }
     }
 

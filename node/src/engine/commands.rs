@@ -40,6 +40,8 @@ pub struct DeviceStatus {
     pub velocity: f64,
     /// MSTA bits (see `zmotor_msgs::bits::msta`).
     pub msta: u32,
+    /// The value of the RDBL readback link, if the record has one and it can be read.
+    pub readback: Option<f64>,
 }
 
 /// Something the engine asks of the world, in the order it happened.
@@ -53,6 +55,8 @@ pub enum Output {
     StartDelay(f64),
     /// The processing ended with DMOV = 1: fire the forward link and complete waiting writes.
     Done,
+    /// RBV to be written to the RLNK link.
+    ReadbackLink(f64),
 }
 
 /// Why a write was refused or changed.

@@ -41,6 +41,12 @@ pub struct MotorRecord {
     refusal: Option<String>,
     /// Departure Z9: a move was paused; its target is held and resumed by Go or Move.
     resume_on_go: bool,
+    /// The latest value of the RDBL readback link (None: not readable).
+    readback_link: Option<f64>,
+    /// The latest value of the DOL desired-output link (None: not readable yet).
+    desired: Option<f64>,
+    /// Whether the device answers GET_INFO (Soft Channel does not).
+    status_refresh: bool,
 }
 
 impl MotorRecord {
@@ -55,11 +61,37 @@ impl MotorRecord {
             pending_status: None,
             refusal: None,
             resume_on_go: false,
+            readback_link: None,
+            desired: None,
+            status_refresh: true,
         };
         record.check_speed_and_resolution();
         record.enforce_min_rdbd();
         record.outputs.clear();
         record
+    }
+
+    /// Soft Channel device support refuses GET_INFO, so STUP snaps back to OFF.
+    pub fn without_status_refresh(mut self) -> Self {
+        self.status_refresh = false;
+        self
+    }
+
+    /// A new value of the DOL link: in closed-loop mode it becomes the target (a processing).
+    pub fn desired_value(&mut self, value: f64) {
+        self.desired = Some(value);
+        if self.f.omsl == choice::OMSL_CLOSED_LOOP {
+            self.process();
+        }
+    }
+
+    /// Soft Channel: the driven motor moved on its own (or the first readback arrived): the
+    /// target will be re-synchronised at the next completion (§16.2).
+    pub fn external_motion(&mut self) {
+        self.f.dmov = 0;
+        self.post(Field::DMOV);
+        self.f.pp = 1;
+        self.post(Field::PP);
     }
 
     pub fn fields(&self) -> &Fields {
@@ -689,6 +721,7 @@ impl MotorRecord {
             }
         }
         self.f.msta = status.msta;
+        self.readback_link = status.readback;
         Reason::Callback
     }
 
@@ -821,6 +854,9 @@ impl MotorRecord {
         {
             self.do_work(reason);
         }
+        if !self.f.rlnk.is_empty() {
+            self.outputs.push(Output::ReadbackLink(self.f.rbv));
+        }
     }
 
     // ------------------------------------------------------------------ §9 do_work()
@@ -832,9 +868,7 @@ impl MotorRecord {
 
         // §9.1 explicit status update and the STOP / SPMG switch
         if self.f.stup == choice::STUP_ON {
-            self.f.stup = choice::STUP_BUSY;
-            self.mark(STUP);
-            self.send(vec![MotorCommand::GetInfo]);
+            self.request_status_refresh();
         }
         if self.f.spmg != self.f.lspg || self.f.stop != 0 {
             let stop_req = self.f.stop != 0;
@@ -929,113 +963,20 @@ impl MotorRecord {
             return;
         }
 
-        // §9.3 home, jog and button requests
-        let dir_pos = self.f.dir == choice::DIR_POS;
-        let fwd_blocked = if dir_pos { self.f.hls } else { self.f.lls } != 0;
-        let rev_blocked = if dir_pos { self.f.lls } else { self.f.hls } != 0;
-        // Departure Z6: a home refused by an active switch is reset and reported, never
-        // started later (the reference latches it, Q25).
-        for (button, blocked, switch) in [(HOMF, fwd_blocked, "high"), (HOMR, rev_blocked, "low")] {
-            if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
-                self.f.set(button, &Value::Int(0));
-                self.mark(button);
-                self.refusal = Some(format!("{button} refused: the {switch} limit switch is active"));
-            }
-        }
-        let home_requested = (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
-            || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked);
-        let jog_requested = self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0;
-        if home_requested || jog_requested {
-            if let Some(reason) = self.disabled_refusal() {
-                self.refusal = Some(reason);
-                self.set_mip(self.f.mip & !mip::JOG_REQ);
-                self.clear_buttons();
-                return;
-            }
-        }
-        if home_requested && stop_or_pause {
-            // Held until Go; the rest of the request is still taken in (Z12: the reference
-            // returns here and leaves a target written meanwhile half converted).
-            self.f.dmov = 0;
-            self.mark(DMOV);
-        } else if home_requested {
-            self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
-            self.f.pp = 1;
-            if self.f.movn != 0 {
-                self.set_mip(self.f.mip | mip::STOP);
-                self.send(vec![MotorCommand::StopAxis]);
-            } else {
-                if self.f.eres == 0.0 {
-                    self.f.eres = self.f.mres;
-                    self.mark(ERES);
+        // §9.3 the source of the target: closed loop (DOL) or the buttons
+        if self.f.omsl == choice::OMSL_CLOSED_LOOP && !self.f.dol.is_empty() {
+            match self.desired {
+                Some(value) => {
+                    self.f.val = value;
+                    self.f.udf = 0;
                 }
-                self.start_home();
-            }
-            return;
-        }
-
-        if jog_requested {
-            let f = &self.f;
-            if !(f.dhlm == 0.0 && f.dllm == 0.0)
-                && ((f.jogf != 0 && f.val > f.hlm - f.jvel)
-                    || (f.jogr != 0 && f.val < f.llm + f.jvel)
-                    || f.dllm > f.dhlm)
-            {
-                self.f.lvio = 1;
-                self.mark(LVIO);
-                if self.f.jogf != 0 {
-                    self.f.jogf = 0;
-                    self.mark(JOGF);
+                None => {
+                    self.f.udf = 1;
+                    return;
                 }
-                if self.f.jogr != 0 {
-                    self.f.jogr = 0;
-                    self.mark(JOGR);
-                }
-                // Departure Z1: no request is left behind (the reference keeps JOG_REQ, Q1).
-                self.set_mip(self.f.mip & !mip::JOG_REQ);
-                self.refusal = Some("limit violation: jog refused within one second of travel of a soft limit".into());
-                return;
             }
-            self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
-            if self.f.movn != 0 {
-                self.f.pp = 1;
-                self.set_mip(self.f.mip | mip::STOP);
-                self.send(vec![MotorCommand::StopAxis]);
-            } else {
-                self.start_jog();
-            }
+        } else if self.handle_buttons(stop_or_pause) {
             return;
-        }
-
-        if self.f.mip & mip::JOG_REQ == 0 && self.f.mip & (mip::JOGF | mip::JOGR) != 0 {
-            // Any do_work during a jog stops it (Q7); MIP is not marked here.
-            self.f.pp = 1;
-            self.f.mip = (self.f.mip | mip::JOG_STOP) & !(mip::JOGF | mip::JOGR);
-            self.send(vec![MotorCommand::StopAxis]);
-            return;
-        } else if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
-            return;
-        }
-
-        if self.f.twf != 0 || self.f.twr != 0 {
-            self.f.val += self.f.twv * if self.f.twf != 0 { 1.0 } else { -1.0 };
-            if self.f.twf != 0 {
-                self.f.twf = 0;
-                self.post(TWF);
-            }
-            if self.f.twr != 0 {
-                self.f.twr = 0;
-                self.post(TWR);
-            }
-        }
-        if self.f.rlv != self.f.lrlv {
-            self.f.val += self.f.rlv;
-            self.f.rlv = 0.0;
-            self.mark(RLV);
-            self.f.lrlv = 0.0;
-        }
-        if self.f.rval != self.f.lrvl {
-            self.f.dval = f64::from(self.f.rval) * self.f.mres;
         }
 
         // §9.4 VAL → DVAL, and the Set-mode offset redefinition
@@ -1075,10 +1016,121 @@ impl MotorRecord {
             self.f.sync = 0;
             self.post(SYNC);
         } else if reason == Reason::NothingDone && self.f.stup == choice::STUP_OFF {
-            self.f.stup = choice::STUP_BUSY;
-            self.mark(STUP);
-            self.send(vec![MotorCommand::GetInfo]);
+            self.request_status_refresh();
         }
+    }
+
+    /// §9.3 home, jog, tweak, relative and raw requests; true when do_work is over.
+    fn handle_buttons(&mut self, stop_or_pause: bool) -> bool {
+        use Field::*;
+        let dir_pos = self.f.dir == choice::DIR_POS;
+        let fwd_blocked = if dir_pos { self.f.hls } else { self.f.lls } != 0;
+        let rev_blocked = if dir_pos { self.f.lls } else { self.f.hls } != 0;
+        // Departure Z6: a home refused by an active switch is reset and reported, never
+        // started later (the reference latches it, Q25).
+        for (button, blocked, switch) in [(HOMF, fwd_blocked, "high"), (HOMR, rev_blocked, "low")] {
+            if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
+                self.f.set(button, &Value::Int(0));
+                self.mark(button);
+                self.refusal = Some(format!("{button} refused: the {switch} limit switch is active"));
+            }
+        }
+        let home_requested = (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
+            || (self.f.homr != 0 && self.f.mip & mip::HOMR == 0 && !rev_blocked);
+        let jog_requested = self.f.mip & mip::JOG_GROUP == 0 && !stop_or_pause && self.f.mip & mip::JOG_REQ != 0;
+        if home_requested || jog_requested {
+            if let Some(reason) = self.disabled_refusal() {
+                self.refusal = Some(reason);
+                self.set_mip(self.f.mip & !mip::JOG_REQ);
+                self.clear_buttons();
+                return true;
+            }
+        }
+        if home_requested && stop_or_pause {
+            // Held until Go; the rest of the request is still taken in (Z12: the reference
+            // returns here and leaves a target written meanwhile half converted).
+            self.f.dmov = 0;
+            self.mark(DMOV);
+        } else if home_requested {
+            self.set_mip(if self.f.homf != 0 { mip::HOMF } else { mip::HOMR });
+            self.f.pp = 1;
+            if self.f.movn != 0 {
+                self.set_mip(self.f.mip | mip::STOP);
+                self.send(vec![MotorCommand::StopAxis]);
+            } else {
+                if self.f.eres == 0.0 {
+                    self.f.eres = self.f.mres;
+                    self.mark(ERES);
+                }
+                self.start_home();
+            }
+            return true;
+        }
+
+        if jog_requested {
+            let f = &self.f;
+            if !(f.dhlm == 0.0 && f.dllm == 0.0)
+                && ((f.jogf != 0 && f.val > f.hlm - f.jvel)
+                    || (f.jogr != 0 && f.val < f.llm + f.jvel)
+                    || f.dllm > f.dhlm)
+            {
+                self.f.lvio = 1;
+                self.mark(LVIO);
+                if self.f.jogf != 0 {
+                    self.f.jogf = 0;
+                    self.mark(JOGF);
+                }
+                if self.f.jogr != 0 {
+                    self.f.jogr = 0;
+                    self.mark(JOGR);
+                }
+                // Departure Z1: no request is left behind (the reference keeps JOG_REQ, Q1).
+                self.set_mip(self.f.mip & !mip::JOG_REQ);
+                self.refusal = Some("limit violation: jog refused within one second of travel of a soft limit".into());
+                return true;
+            }
+            self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
+            if self.f.movn != 0 {
+                self.f.pp = 1;
+                self.set_mip(self.f.mip | mip::STOP);
+                self.send(vec![MotorCommand::StopAxis]);
+            } else {
+                self.start_jog();
+            }
+            return true;
+        }
+
+        if self.f.mip & mip::JOG_REQ == 0 && self.f.mip & (mip::JOGF | mip::JOGR) != 0 {
+            // Any do_work during a jog stops it (Q7); MIP is not marked here.
+            self.f.pp = 1;
+            self.f.mip = (self.f.mip | mip::JOG_STOP) & !(mip::JOGF | mip::JOGR);
+            self.send(vec![MotorCommand::StopAxis]);
+            return true;
+        } else if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
+            return true;
+        }
+
+        if self.f.twf != 0 || self.f.twr != 0 {
+            self.f.val += self.f.twv * if self.f.twf != 0 { 1.0 } else { -1.0 };
+            if self.f.twf != 0 {
+                self.f.twf = 0;
+                self.post(TWF);
+            }
+            if self.f.twr != 0 {
+                self.f.twr = 0;
+                self.post(TWR);
+            }
+        }
+        if self.f.rlv != self.f.lrlv {
+            self.f.val += self.f.rlv;
+            self.f.rlv = 0.0;
+            self.mark(RLV);
+            self.f.lrlv = 0.0;
+        }
+        if self.f.rval != self.f.lrvl {
+            self.f.dval = f64::from(self.f.rval) * self.f.mres;
+        }
+        false
     }
 
     /// §9.5
@@ -1176,6 +1228,8 @@ impl MotorRecord {
                 "limit violation: dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
                 self.f.dval, self.f.dllm, self.f.dhlm
             ))
+        } else if self.f.urip == choice::YES && self.readback_link.is_none() {
+            Some(format!("the readback link RDBL ({}) cannot be read", self.f.rdbl))
         } else {
             self.disabled_refusal()
         };
@@ -1523,10 +1577,19 @@ impl MotorRecord {
             self.f.rrbv = self.f.rep;
             self.f.drbv = f64::from(self.f.rrbv) * self.f.eres;
         } else if self.f.urip == choice::YES && !initcall {
-            // The RDBL readback link belongs to the Soft Channel issue; until then the
-            // step count stands in for it.
-            self.f.rrbv = self.f.rmp;
-            self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+            match self.readback_link {
+                Some(value) => {
+                    self.f.rrbv = nint(value * self.f.rres / self.f.mres);
+                    self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+                }
+                // An unreadable readback freezes; a motion in progress is stopped.
+                None if self.f.mip != mip::DONE => {
+                    self.clear_buttons();
+                    self.f.stop = 1;
+                    self.mark(STOP);
+                }
+                None => {}
+            }
         } else {
             self.f.rrbv = self.f.rmp;
             self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
@@ -1589,6 +1652,11 @@ impl MotorRecord {
         if self.f.ueip == choice::YES {
             self.f.rrbv = self.f.rep;
             self.f.drbv = f64::from(self.f.rrbv) * self.f.eres;
+        } else if self.f.urip == choice::YES {
+            if let Some(value) = self.readback_link {
+                self.f.rrbv = nint(value * self.f.rres / self.f.mres);
+                self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
+            }
         } else {
             self.f.rrbv = self.f.rmp;
             self.f.drbv = f64::from(self.f.rrbv) * self.f.mres;
@@ -1643,6 +1711,17 @@ impl MotorRecord {
     fn readback_violates_limits(&self) -> bool {
         let f = &self.f;
         !(f.dhlm == 0.0 && f.dllm == 0.0) && (f.drbv > f.dhlm + f.mres || f.drbv < f.dllm - f.mres || f.dllm > f.dhlm)
+    }
+
+    /// STUP → BUSY and GET_INFO, or straight back to OFF when the device refuses GET_INFO.
+    fn request_status_refresh(&mut self) {
+        self.f.stup = choice::STUP_BUSY;
+        self.mark(Field::STUP);
+        if self.status_refresh {
+            self.send(vec![MotorCommand::GetInfo]);
+        } else {
+            self.f.stup = choice::STUP_OFF;
+        }
     }
 
     /// §5.1

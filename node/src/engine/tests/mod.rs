@@ -53,6 +53,7 @@ impl Rig {
                 Output::Transaction(t) => self.sent.extend(t),
                 Output::StartDelay(s) => self.delays.push(s),
                 Output::Done => self.done_count += 1,
+                Output::ReadbackLink(_) => {}
             }
         }
     }
@@ -126,11 +127,11 @@ impl Rig {
 }
 
 fn idle(p: f64) -> DeviceStatus {
-    DeviceStatus { position: p, encoder_position: 0.0, velocity: 0.0, msta: msta::DONE }
+    DeviceStatus { position: p, msta: msta::DONE, ..DeviceStatus::default() }
 }
 
 fn moving(p: f64) -> DeviceStatus {
-    DeviceStatus { position: p, encoder_position: 0.0, velocity: 100.0, msta: msta::DIRECTION }
+    DeviceStatus { position: p, velocity: 100.0, msta: msta::DIRECTION, ..DeviceStatus::default() }
 }
 
 /// Baseline B of §19.0.

@@ -1,0 +1,231 @@
+//! Calc links: calcout records over keys. Inputs A–L are bound to keys; a CP input recomputes
+//! and may write the output on each update, an NPP input only holds the latest value. The
+//! output is written to a key every time, or only when the result changes (OOPT).
+
+use crate::calc::{CalcError, Expression, INPUTS};
+
+/// How an input reacts to an update of its key.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputMode {
+    /// Recompute on each update (EPICS CP).
+    Process,
+    /// Keep the latest value without recomputing (EPICS NPP).
+    NoProcess,
+}
+
+/// When the result is written to the output key (calcout OOPT).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutputOption {
+    EveryTime,
+    OnChange,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct InputSpec {
+    /// 0 for A … 11 for L.
+    pub index: usize,
+    pub key: String,
+    pub mode: InputMode,
+}
+
+/// A calc link as configured.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CalcLinkSpec {
+    pub name: String,
+    pub expression: String,
+    pub inputs: Vec<InputSpec>,
+    /// Where the result is written.
+    pub output: String,
+    pub option: OutputOption,
+}
+
+#[derive(Debug, PartialEq, thiserror::Error)]
+pub enum LinkError {
+    #[error("calc '{name}': expression '{expression}': {error}")]
+    Expression { name: String, expression: String, error: CalcError },
+    #[error("calc '{name}': input {input} is bound twice")]
+    DuplicateInput { name: String, input: char },
+}
+
+/// The running state of one calc link.
+#[derive(Clone, Debug)]
+pub struct CalcLink {
+    spec: CalcLinkSpec,
+    expression: Expression,
+    values: [f64; INPUTS],
+    last_output: Option<f64>,
+}
+
+impl CalcLink {
+    pub fn new(spec: CalcLinkSpec) -> Result<Self, LinkError> {
+        let expression = Expression::parse(&spec.expression).map_err(|error| LinkError::Expression {
+            name: spec.name.clone(),
+            expression: spec.expression.clone(),
+            error,
+        })?;
+        let mut seen = 0u16;
+        for input in &spec.inputs {
+            if seen & (1 << input.index) != 0 {
+                return Err(LinkError::DuplicateInput { name: spec.name.clone(), input: input_name(input.index) });
+            }
+            seen |= 1 << input.index;
+        }
+        Ok(Self { spec, expression, values: [0.0; INPUTS], last_output: None })
+    }
+
+    pub fn spec(&self) -> &CalcLinkSpec {
+        &self.spec
+    }
+
+    /// A new value on `key`; the result to write to the output key, if one is due.
+    pub fn update(&mut self, key: &str, value: f64) -> Option<f64> {
+        let mut process = false;
+        for input in self.spec.inputs.iter().filter(|i| i.key == key) {
+            self.values[input.index] = value;
+            process |= input.mode == InputMode::Process;
+        }
+        if !process {
+            return None;
+        }
+        let mut values = self.values;
+        let result = self.expression.eval(&mut values);
+        self.values = values;
+        let changed = self.last_output.is_none_or(|last| last != result && !(last.is_nan() && result.is_nan()));
+        self.last_output = Some(result);
+        (self.spec.option == OutputOption::EveryTime || changed).then_some(result)
+    }
+
+    /// The keys this link listens to.
+    pub fn input_keys(&self) -> impl Iterator<Item = &str> {
+        self.spec.inputs.iter().map(|i| i.key.as_str())
+    }
+}
+
+pub fn input_name(index: usize) -> char {
+    (b'A' + index as u8) as char
+}
+
+/// Input index of a letter A–L (case-insensitive).
+pub fn input_index(letter: &str) -> Option<usize> {
+    match letter.as_bytes() {
+        [c] if c.to_ascii_uppercase() >= b'A' && c.to_ascii_uppercase() <= b'L' => {
+            Some(usize::from(c.to_ascii_uppercase() - b'A'))
+        }
+        _ => None,
+    }
+}
+
+/// Calc links in which a CP input is fed, directly or through other calc links, by the
+/// link's own output: such a loop would recompute forever.
+pub fn find_cycle(links: &[CalcLinkSpec]) -> Option<Vec<String>> {
+    let feeds = |from: &CalcLinkSpec, to: &CalcLinkSpec| {
+        to.inputs.iter().any(|i| i.mode == InputMode::Process && i.key == from.output)
+    };
+    fn visit(
+        at: usize,
+        links: &[CalcLinkSpec],
+        feeds: &dyn Fn(&CalcLinkSpec, &CalcLinkSpec) -> bool,
+        path: &mut Vec<usize>,
+        done: &mut Vec<bool>,
+    ) -> Option<Vec<String>> {
+        if let Some(start) = path.iter().position(|&p| p == at) {
+            let mut cycle: Vec<String> = path[start..].iter().map(|&i| links[i].name.clone()).collect();
+            cycle.push(links[at].name.clone());
+            return Some(cycle);
+        }
+        if done[at] {
+            return None;
+        }
+        path.push(at);
+        for next in 0..links.len() {
+            if feeds(&links[at], &links[next]) {
+                if let Some(cycle) = visit(next, links, feeds, path, done) {
+                    return Some(cycle);
+                }
+            }
+        }
+        path.pop();
+        done[at] = true;
+        None
+    }
+    let mut done = vec![false; links.len()];
+    (0..links.len()).find_map(|start| visit(start, links, &feeds, &mut Vec::new(), &mut done))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(
+        name: &str,
+        expression: &str,
+        inputs: &[(usize, &str, InputMode)],
+        output: &str,
+        option: OutputOption,
+    ) -> CalcLinkSpec {
+        CalcLinkSpec {
+            name: name.into(),
+            expression: expression.into(),
+            inputs: inputs
+                .iter()
+                .map(|(index, key, mode)| InputSpec { index: *index, key: (*key).into(), mode: *mode })
+                .collect(),
+            output: output.into(),
+            option,
+        }
+    }
+
+    #[test]
+    fn cp_inputs_recompute_and_npp_inputs_only_hold() {
+        let mut link = CalcLink::new(spec(
+            "sum",
+            "A+B",
+            &[(0, "x", InputMode::Process), (1, "y", InputMode::NoProcess)],
+            "out",
+            OutputOption::EveryTime,
+        ))
+        .unwrap();
+        assert_eq!(link.update("y", 10.0), None, "NPP: no recompute");
+        assert_eq!(link.update("x", 1.0), Some(11.0));
+        assert_eq!(link.update("x", 1.0), Some(11.0), "every time");
+        assert_eq!(link.update("other", 5.0), None);
+    }
+
+    #[test]
+    fn on_change_writes_only_new_results() {
+        let mut link =
+            CalcLink::new(spec("c", "A>0", &[(0, "x", InputMode::Process)], "out", OutputOption::OnChange)).unwrap();
+        assert_eq!(link.update("x", 1.0), Some(1.0));
+        assert_eq!(link.update("x", 2.0), None);
+        assert_eq!(link.update("x", -1.0), Some(0.0));
+    }
+
+    #[test]
+    fn bad_expressions_and_bindings_are_refused() {
+        let e = CalcLink::new(spec("c", "A+", &[], "out", OutputOption::EveryTime)).unwrap_err();
+        assert_eq!(e.to_string(), "calc 'c': expression 'A+': column 3: an operand is missing at the end");
+        let e = CalcLink::new(spec(
+            "c",
+            "A",
+            &[(0, "x", InputMode::Process), (0, "y", InputMode::Process)],
+            "o",
+            OutputOption::EveryTime,
+        ));
+        assert_eq!(e.unwrap_err().to_string(), "calc 'c': input A is bound twice");
+        assert_eq!(input_index("c"), Some(2));
+        assert_eq!(input_index("M"), None);
+    }
+
+    #[test]
+    fn cycles_through_cp_inputs_are_found() {
+        let a = spec("a", "A", &[(0, "kb", InputMode::Process)], "ka", OutputOption::EveryTime);
+        let b = spec("b", "A", &[(0, "ka", InputMode::Process)], "kb", OutputOption::EveryTime);
+        assert_eq!(find_cycle(&[a.clone(), b.clone()]), Some(vec!["a".into(), "b".into(), "a".into()]));
+        let npp = spec("b", "A", &[(0, "ka", InputMode::NoProcess)], "kb", OutputOption::EveryTime);
+        assert_eq!(find_cycle(&[a.clone(), npp]), None);
+        let own = spec("self", "A+1", &[(0, "k", InputMode::Process)], "k", OutputOption::EveryTime);
+        assert_eq!(find_cycle(&[own]), Some(vec!["self".into(), "self".into()]));
+        let chain = spec("c", "A", &[(0, "ka", InputMode::Process)], "kc", OutputOption::EveryTime);
+        assert_eq!(find_cycle(&[a, chain]), None);
+    }
+}
