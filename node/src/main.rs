@@ -112,9 +112,11 @@ async fn launch(file: &std::path::Path) -> Result<ExitCode, Error> {
     let session = zenoh::open(zenoh_config(&launch.zenoh)?).await?;
     let layout = KeyLayout::new(&launch.zenoh.prefix);
     let plans = launch.plans()?;
+    let calcs = launch.calc_links()?;
     let names: Vec<String> = plans.iter().map(|p| p.name.clone()).collect();
-    let node = Node::start(session.clone(), layout.clone(), plans).await?;
-    tracing::info!(axes = ?names, listen = ?launch.zenoh.listen, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
+    let calc_names: Vec<String> = calcs.iter().map(|c| c.name.clone()).collect();
+    let node = Node::start(session.clone(), layout.clone(), plans, calcs).await?;
+    tracing::info!(axes = ?names, calcs = ?calc_names, listen = ?launch.zenoh.listen, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
     tokio::signal::ctrl_c().await?;
     node.shutdown().await;
     session.close().await?;

@@ -4,8 +4,9 @@
 
 use crate::axis::{Axis, AxisEvent};
 use crate::driver::sim::SimAxis;
+use crate::driver::soft::InputLink;
 use crate::engine::WriteError;
-use crate::launch::{AxisPlan, ZenohSection};
+use crate::launch::{AxisPlan, DriverPlan, ZenohSection};
 use std::time::Duration;
 use tokio::time::Instant;
 use zenoh::bytes::{Encoding, ZBytes};
@@ -13,6 +14,7 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::Session;
+use zmotor_bridge::{CalcLink, CalcLinkSpec};
 use zmotor_msgs::{
     decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value, FIELDS,
 };
@@ -36,15 +38,42 @@ pub struct Node {
 }
 
 impl Node {
-    /// Start one task per axis on `session`.
-    pub async fn start(session: Session, layout: KeyLayout, plans: Vec<AxisPlan>) -> Result<Self, Error> {
+    /// Start one task per axis, then one per calc link, on `session`.
+    pub async fn start(
+        session: Session,
+        layout: KeyLayout,
+        plans: Vec<AxisPlan>,
+        calcs: Vec<CalcLinkSpec>,
+    ) -> Result<Self, Error> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();
         for plan in plans {
             let io = AxisIo::declare(&session, &layout, &plan.name).await?;
             let clock = Instant::now();
-            let axis = Axis::new(plan.fields, Box::new(SimAxis::new(plan.sim)), plan.rates, 0.0);
-            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new() };
+            let axis = match plan.driver {
+                DriverPlan::Sim(sim) => Axis::new(plan.fields, Box::new(SimAxis::new(sim)), plan.rates, 0.0),
+                DriverPlan::Soft => Axis::new_soft(plan.fields, plan.rates, 0.0),
+            };
+            let f = axis.fields();
+            let (kinds, keys): (Vec<InputLink>, Vec<String>) = [
+                (InputLink::Readback, &f.rdbl),
+                (InputLink::RawPosition, &f.rinp),
+                (InputLink::Done, &f.dinp),
+                (InputLink::Desired, &f.dol),
+            ]
+            .into_iter()
+            .filter(|(_, key)| !key.is_empty())
+            .map(|(kind, key)| (kind, key.clone()))
+            .unzip();
+            let links = KeyFollower::start(&session, keys).await?;
+            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds };
+            let stopped = stopped.clone();
+            tasks.push(tokio::spawn(async move { task.run(stopped).await }));
+        }
+        for spec in calcs {
+            let link = CalcLink::new(spec)?;
+            let inputs = KeyFollower::start(&session, link.input_keys().map(str::to_string).collect()).await?;
+            let mut task = CalcTask { session: session.clone(), link, inputs };
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
@@ -110,6 +139,9 @@ struct AxisTask {
     clock: Instant,
     seq: u64,
     waiting: Vec<Waiter>,
+    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `link_kinds` index.
+    links: KeyFollower,
+    link_kinds: Vec<InputLink>,
 }
 
 impl AxisTask {
@@ -120,8 +152,13 @@ impl AxisTask {
     async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
         self.publish_events().await;
         loop {
-            let wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup());
+            // A Soft Channel axis without a timer has nothing to wake for: look again in a minute.
+            let wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup().min(self.now() + 60.0));
             tokio::select! {
+                Some((index, value)) = self.links.values.recv() => {
+                    let now = self.now();
+                    self.axis.link_update(now, self.link_kinds[index], value);
+                }
                 sample = self.io.writes.recv_async() => match sample {
                     Ok(sample) => self.on_write_sample(sample).await,
                     Err(_) => break,
@@ -349,6 +386,76 @@ impl AxisTask {
         let key = self.io.layout.err(&self.io.name);
         let _ =
             self.io.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).await;
+    }
+}
+
+/// Follows keys as EPICS links follow PVs: every update, and the current value asked for once
+/// at the start (as a link does when it connects). Any sample is a reading, state or write.
+struct KeyFollower {
+    values: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
+    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+}
+
+impl KeyFollower {
+    async fn start(session: &Session, keys: Vec<String>) -> Result<Self, Error> {
+        let (tx, values) = tokio::sync::mpsc::unbounded_channel();
+        let mut subscribers = Vec::new();
+        for (index, key) in keys.iter().enumerate() {
+            let updates = tx.clone();
+            let subscriber = session
+                .declare_subscriber(key.clone())
+                .callback(move |sample| {
+                    if let Some(value) = sample_number(&sample) {
+                        let _ = updates.send((index, value));
+                    }
+                })
+                .await?;
+            subscribers.push(subscriber);
+            let replies = session.get(key.clone()).timeout(Duration::from_secs(5)).await?;
+            let tx = tx.clone();
+            tokio::spawn(async move {
+                while let Ok(reply) = replies.recv_async().await {
+                    if let Some(value) = reply.result().ok().and_then(sample_number) {
+                        let _ = tx.send((index, value));
+                    }
+                }
+            });
+        }
+        Ok(Self { values, _subscribers: subscribers })
+    }
+}
+
+/// The number a sample carries, whatever its encoding.
+fn sample_number(sample: &Sample) -> Option<f64> {
+    let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+    decode_scalar(&sample.payload().to_bytes(), encoding).ok()?.as_f64()
+}
+
+/// A calc link: recompute on its inputs, write the result to its output key.
+struct CalcTask {
+    session: Session,
+    link: CalcLink,
+    inputs: KeyFollower,
+}
+
+impl CalcTask {
+    async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+        let keys: Vec<String> = self.link.input_keys().map(str::to_string).collect();
+        loop {
+            tokio::select! {
+                update = self.inputs.values.recv() => {
+                    let Some((index, value)) = update else { break };
+                    if let Some(result) = self.link.update(&keys[index], value) {
+                        let output = &self.link.spec().output;
+                        // A write to the output key, like a calcout's OUT: plain, no state marker.
+                        if let Err(e) = self.session.put(output, result.to_string()).encoding(Encoding::TEXT_PLAIN).await {
+                            tracing::warn!(calc = %self.link.spec().name, output, "output put failed: {e}");
+                        }
+                    }
+                }
+                _ = stopped.changed() => break,
+            }
+        }
     }
 }
 

@@ -24,11 +24,17 @@ fn soft_fields() -> Fields {
 }
 
 fn puts(events: &[AxisEvent]) -> Vec<(String, String)> {
-    events.iter().filter_map(|e| if let AxisEvent::Put { key, value } = e { Some((key.clone(), value.clone())) } else { None }).collect()
+    events
+        .iter()
+        .filter_map(|e| if let AxisEvent::Put { key, value } = e { Some((key.clone(), value.clone())) } else { None })
+        .collect()
 }
 
 fn posts(events: &[AxisEvent], field: Field) -> Vec<Value> {
-    events.iter().filter_map(|e| if let AxisEvent::Post(f, v) = e { (*f == field).then(|| v.clone()) } else { None }).collect()
+    events
+        .iter()
+        .filter_map(|e| if let AxisEvent::Post(f, v) = e { (*f == field).then(|| v.clone()) } else { None })
+        .collect()
 }
 
 fn drain(axis: &mut Axis) -> Vec<AxisEvent> {
@@ -127,7 +133,8 @@ fn sim_axis(fields: Fields) -> Axis {
 
 #[test]
 fn w58_urip_reads_the_readback_link() {
-    let fields = Fields { mres: 0.01, velo: 1.0, urip: 1, rres: 1.0, rtry: 0, rdbl: "lab/encoder".into(), ..Fields::default() };
+    let fields =
+        Fields { mres: 0.01, velo: 1.0, urip: 1, rres: 1.0, rtry: 0, rdbl: "lab/encoder".into(), ..Fields::default() };
     let mut axis = sim_axis(fields.clone());
     // Not readable yet: a move is refused, nothing sent.
     let err = axis.write(0.0, Field::VAL, &Value::Float(1.0)).unwrap_err();
@@ -141,7 +148,8 @@ fn w58_urip_reads_the_readback_link() {
 
 #[test]
 fn rlnk_and_flnk_write_their_keys() {
-    let fields = Fields { mres: 0.01, velo: 100.0, rlnk: "lab/rbv".into(), flnk: "lab/next/PROC".into(), ..Fields::default() };
+    let fields =
+        Fields { mres: 0.01, velo: 100.0, rlnk: "lab/rbv".into(), flnk: "lab/next/PROC".into(), ..Fields::default() };
     let mut axis = sim_axis(fields);
     drain(&mut axis);
     axis.write(0.0, Field::VAL, &Value::Float(1.0)).unwrap();

@@ -8,7 +8,7 @@ use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
 use zmotor_node::axis::PollRates;
 use zmotor_node::driver::sim::SimConfig;
-use zmotor_node::launch::{AxisPlan, ZenohSection};
+use zmotor_node::launch::{AxisPlan, DriverPlan, Launch, ZenohSection};
 use zmotor_node::net::{zenoh_config, Node};
 
 /// Longest any single expectation waits before the test fails.
@@ -33,11 +33,11 @@ pub fn fast_axis(name: &str) -> AxisPlan {
             egu: "mm".into(),
             ..Fields::default()
         },
-        sim: SimConfig {
+        driver: DriverPlan::Sim(SimConfig {
             high_limit_switch: Some(105_000.0),
             low_limit_switch: Some(-105_000.0),
             ..SimConfig::default()
-        },
+        }),
         rates: PollRates { moving: 0.02, idle: 1.0 },
     }
 }
@@ -56,7 +56,20 @@ impl TestNode {
         let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
         let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
         let layout = KeyLayout::default();
-        let node = Node::start(session.clone(), layout.clone(), plans).await.unwrap();
+        let node = Node::start(session.clone(), layout.clone(), plans, vec![]).await.unwrap();
+        Self { node: Some(node), session, endpoint, layout }
+    }
+
+    /// Start the axes and calc links of a launch file's text, on a free port.
+    pub async fn launch(text: &str) -> Self {
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let launch = Launch::parse(text).unwrap();
+        let section = ZenohSection { listen: vec![endpoint.clone()], ..launch.zenoh.clone() };
+        let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
+        let layout = KeyLayout::new(&launch.zenoh.prefix);
+        let node = Node::start(session.clone(), layout.clone(), launch.plans().unwrap(), launch.calc_links().unwrap())
+            .await
+            .unwrap();
         Self { node: Some(node), session, endpoint, layout }
     }
 
