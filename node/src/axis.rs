@@ -10,6 +10,11 @@ use crate::engine::{DeviceStatus, MotorRecord, Output, WriteError};
 use zmotor_msgs::menus::choice;
 use zmotor_msgs::{DriverCommand, Field, Fields, Value};
 
+/// Seconds a Soft Channel axis waits after DINP reports "done" before acting on it, so that
+/// the readback, which often comes through a calc link (one hop more), arrives first. The
+/// reference gets the same order from task priorities (spec §20.8).
+pub const SOFT_DONE_SETTLE: f64 = 0.05;
+
 /// Bound on callback rounds after one input: each round is a transaction that asked for fresh
 /// status; the record never chains more than a few.
 const MAX_CALLBACK_ROUNDS: usize = 16;
@@ -73,6 +78,8 @@ pub struct Axis {
     held: Option<HeldMotion>,
     /// DMOV 0 has been posted and DMOV 1 not yet: a motion is under way.
     motion_posted: bool,
+    /// When a DINP "done" is to be acted upon (Soft Channel).
+    done_due: Option<f64>,
 }
 
 impl Axis {
@@ -109,6 +116,7 @@ impl Axis {
             events: Vec::new(),
             held: None,
             motion_posted: false,
+            done_due: None,
         }
     }
 
@@ -157,8 +165,19 @@ impl Axis {
                 return;
             }
             InputLink::Readback => self.readback_link = Some(value),
+            InputLink::Done if matches!(self.device, Device::Soft(_)) => {
+                if value != 0.0 {
+                    self.done_due = Some(self.now + SOFT_DONE_SETTLE);
+                    return;
+                }
+                self.done_due = None;
+            }
             _ => {}
         }
+        self.apply_link(link, value);
+    }
+
+    fn apply_link(&mut self, link: InputLink, value: f64) {
         let f = self.record.fields();
         let (dmov, locked, mres) = (f.dmov, f.lock == choice::YES, f.mres);
         let reaction = match &mut self.device {
@@ -187,6 +206,10 @@ impl Axis {
                 let status = self.device_status();
                 self.callback(status);
             }
+        }
+        if self.done_due.is_some_and(|d| now >= d) {
+            self.done_due = None;
+            self.apply_link(InputLink::Done, 1.0);
         }
         if self.delay_deadline.is_some_and(|d| now >= d) {
             self.delay_deadline = None;
@@ -218,6 +241,9 @@ impl Axis {
         }
         if let Some(held) = &self.held {
             t = t.min(held.due);
+        }
+        if let Some(done) = self.done_due {
+            t = t.min(done);
         }
         t.max(self.now)
     }

@@ -2,7 +2,7 @@
 //! (spec §16 and worked scenarios W58 and W62).
 
 use zmotor_msgs::{Field, Fields, Value};
-use zmotor_node::axis::{Axis, AxisEvent, PollRates};
+use zmotor_node::axis::{Axis, AxisEvent, PollRates, SOFT_DONE_SETTLE};
 use zmotor_node::driver::sim::{SimAxis, SimConfig};
 use zmotor_node::driver::soft::InputLink;
 
@@ -69,8 +69,11 @@ fn w62b_a_move_writes_dval_to_out_and_completes_with_dinp() {
     axis.link_update(1.1, InputLink::Done, 0.0);
     axis.link_update(1.2, InputLink::Readback, 0.7);
     assert_eq!((axis.fields().movn, axis.fields().rrbv, axis.fields().dmov), (1, 700, 0));
-    axis.link_update(1.3, InputLink::Readback, 1.0);
     axis.link_update(1.4, InputLink::Done, 1.0);
+    // "Done" waits a moment for the readback, which comes one link later.
+    axis.link_update(1.41, InputLink::Readback, 1.0);
+    assert_eq!(axis.fields().dmov, 0);
+    axis.tick(1.4 + SOFT_DONE_SETTLE, false);
     let f = axis.fields();
     assert_eq!((f.movn, f.dmov, f.rbv, f.val), (0, 1, 1.0, 1.0));
 }
@@ -84,6 +87,7 @@ fn w62c_an_external_move_of_the_driven_motor_resynchronises_unless_locked() {
     assert_eq!(posts(&events, Field::PP), vec![Value::Int(1)]);
     axis.link_update(1.1, InputLink::Readback, 0.8);
     axis.link_update(1.2, InputLink::Done, 1.0);
+    axis.tick(1.2 + SOFT_DONE_SETTLE, false);
     let f = axis.fields();
     assert_eq!((f.val, f.dval, f.dmov), (0.8, 0.8, 1));
 
@@ -94,6 +98,7 @@ fn w62c_an_external_move_of_the_driven_motor_resynchronises_unless_locked() {
     assert!(posts(&drain(&mut axis), Field::DMOV).is_empty());
     axis.link_update(1.1, InputLink::Readback, 0.8);
     axis.link_update(1.2, InputLink::Done, 1.0);
+    axis.tick(1.2 + SOFT_DONE_SETTLE, false);
     let f = axis.fields();
     assert_eq!((f.val, f.rbv, f.dmov), (0.5, 0.8, 1), "readback follows, the target does not");
 }
