@@ -110,26 +110,28 @@ async fn the_rotary_limits_refuse_fifty_degrees() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn restarting_the_bridge_moves_nothing() {
+    // The axes in one node, the calc links in a bridge of their own connected to it.
     let text = tangent_arm("");
-    let node = TestNode::launch(&text).await;
+    let (axes, calcs) = text.split_once("[[calc]]").unwrap();
+    let bridge_text =
+        |endpoint: &str| format!("[zenoh]\nmode = \"peer\"\nlisten = []\nconnect = [\"{endpoint}\"]\n[[calc]]{calcs}");
+    let node = TestNode::launch(axes).await;
     let client = node.client().await;
+    let bridge = TestNode::launch(&bridge_text(&node.endpoint)).await;
     ready(&node, &client).await;
     let _ = confirmed_write(&client, "motor/rotary/VAL?wait", "10", PATIENCE).await.unwrap();
-    let mut watch = Recorder::new(&client, "motor/*/DMOV").await;
-    // A second bridge, alone in its own process-like session, with the same calc links.
-    let bridge_only = text
-        .split("[[calc]]")
-        .enumerate()
-        .map(|(i, part)| if i == 0 { String::new() } else { format!("[[calc]]{part}") })
-        .collect::<String>();
-    let bridge = TestNode::launch(&format!(
-        "[zenoh]\nmode = \"peer\"\nconnect = [\"{}\"]\nlisten = []\n{bridge_only}",
-        node.endpoint
-    ))
-    .await;
-    watch.drain_for(Duration::from_millis(800)).await;
+    wait_until(&client, &node.key("rotary", Field::RBV), |v| near(v, 10.0, 0.002)).await;
+    let mut watch = Recorder::new(&client, "motor/*/*").await;
     drop(bridge);
     watch.drain_for(Duration::from_millis(300)).await;
-    assert!(watch.values("DMOV").is_empty(), "a restarted bridge moved something: {:?}", watch.seen);
+    let restarted = TestNode::launch(&bridge_text(&node.endpoint)).await;
+    watch.drain_for(Duration::from_millis(800)).await;
+    let moved: Vec<_> = watch.seen.iter().filter(|s| s.key.ends_with("/DMOV") || s.key.ends_with("/DVAL")).collect();
+    assert!(moved.is_empty(), "a restarted bridge moved something: {moved:?}");
     assert!(near(&get_value(&client, &node.key("rotary", Field::RBV)).await, 10.0, 0.002));
+    assert!(near(&get_value(&client, &node.key("rotary", Field::VAL)).await, 10.0, 0.002));
+    // And the restarted bridge works.
+    let _ = confirmed_write(&client, "motor/rotary/VAL?wait", "20", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("linear", Field::DVAL), |v| near(v, (20.0f64 / 57.296).tan() * 1000.0, 0.01)).await;
+    drop(restarted);
 }
