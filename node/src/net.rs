@@ -67,6 +67,8 @@ impl Node {
             .unzip();
             let links = KeyFollower::start(&session, keys).await?;
             let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds };
+            // The boot state is published before start returns, so nobody sees it late.
+            task.publish_events().await;
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
@@ -150,7 +152,6 @@ impl AxisTask {
     }
 
     async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
-        self.publish_events().await;
         loop {
             // A Soft Channel axis without a timer has nothing to wake for: look again in a minute.
             let wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup().min(self.now() + 60.0));
