@@ -2,6 +2,7 @@
 //! that composes them on an injected clock, and the Zenoh adapter around it.
 
 pub mod axis;
+pub mod bench;
 pub mod device;
 pub mod driver;
 pub mod engine;

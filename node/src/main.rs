@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zmotor_msgs::{codec::decode_cbor_value, Field, KeyLayout, FIELDS};
+use zmotor_node::bench;
 use zmotor_node::launch::{Launch, ZenohSection};
 use zmotor_node::net::{zenoh_config, Error, Node};
 
@@ -63,6 +64,26 @@ enum Command {
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
     Fields,
+    /// Measure latency, engine cost, scale and start-up, and print the figures.
+    Bench {
+        /// A run of seconds that only proves every part works.
+        #[arg(long)]
+        smoke: bool,
+        /// Moves for the latency figures (default 2000).
+        #[arg(long)]
+        moves: Option<usize>,
+        /// Axis counts for the scale figures, comma-separated (default 1,100,1000,10000).
+        #[arg(long, value_delimiter = ',')]
+        scales: Option<Vec<usize>>,
+    },
+    /// The benchmark's node process (started by `zmotor bench`).
+    #[command(hide = true)]
+    BenchServe {
+        #[arg(long)]
+        listen: String,
+        #[arg(long, default_value_t = 1)]
+        axes: usize,
+    },
 }
 
 #[tokio::main]
@@ -91,6 +112,17 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
         Command::Schema { dir } => schema(&dir),
+        Command::Bench { smoke, moves, scales } => {
+            let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
+            options.moves = moves.unwrap_or(options.moves);
+            options.scales = scales.unwrap_or(options.scales);
+            bench::run(&options).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::BenchServe { listen, axes } => {
+            bench::serve(&listen, axes, 100.0).await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Fields => {
             print_lines(FIELDS.iter().map(|d| {
                 format!(

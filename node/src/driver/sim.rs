@@ -29,6 +29,8 @@ pub struct SimConfig {
     pub encoder_counts_per_step: Option<f64>,
     /// A servo: closed-loop control that can be enabled and tuned (MSTA GAIN_SUPPORT).
     pub servo: bool,
+    /// Every motion arrives at once (no travel time), for latency benchmarks.
+    pub instant: bool,
 }
 
 impl Default for SimConfig {
@@ -40,6 +42,7 @@ impl Default for SimConfig {
             home_switch: 0.0,
             encoder_counts_per_step: None,
             servo: false,
+            instant: false,
         }
     }
 }
@@ -214,6 +217,11 @@ impl SimAxis {
         }
         let sign = (target - self.physical).signum();
         self.last_direction_positive = sign > 0.0;
+        if self.config.instant && !self.stalled {
+            self.physical = target;
+            self.finish_motion();
+            return;
+        }
         if self.stalled {
             return;
         }

@@ -1,0 +1,54 @@
+//! Engine cost per event (criterion): `cargo bench -p zmotor-node --bench engine`.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::{Field, Fields, Value};
+use zmotor_node::bench::instant_axis;
+use zmotor_node::engine::{DeviceStatus, MotorRecord};
+
+fn status(position: f64, done: bool) -> DeviceStatus {
+    DeviceStatus { position, msta: if done { msta::DONE } else { 0 }, ..DeviceStatus::default() }
+}
+
+fn booted() -> MotorRecord {
+    let mut record = MotorRecord::new(Fields { mres: 0.001, velo: 10.0, ..Fields::default() });
+    record.init(status(0.0, true));
+    record.drain_outputs().count();
+    record
+}
+
+fn engine(c: &mut Criterion) {
+    let mut record = booted();
+    let mut i = 0u64;
+    c.bench_function("status update (callback while idle)", |b| {
+        b.iter(|| {
+            i += 1;
+            record.callback(black_box(status((i % 100) as f64, true)));
+            record.drain_outputs().count()
+        })
+    });
+    let mut record = booted();
+    c.bench_function("move cycle (write VAL, moving callback, done callback)", |b| {
+        b.iter(|| {
+            i += 1;
+            let target = if i % 2 == 0 { 1.0 } else { 2.0 };
+            let _ = record.write(Field::VAL, &Value::Float(black_box(target)));
+            record.callback(status(target * 500.0, false));
+            record.callback(status(target * 1000.0, true));
+            record.drain_outputs().count()
+        })
+    });
+    let mut axis = instant_axis();
+    c.bench_function("axis move on the instant simulator (write VAL to DMOV 1)", |b| {
+        b.iter(|| {
+            i += 1;
+            let target = if i % 2 == 0 { 1.0 } else { 2.0 };
+            let _ = axis.write(0.0, Field::VAL, &Value::Float(black_box(target)));
+            axis.drain_events().count()
+        })
+    });
+}
+
+criterion_group!(benches, engine);
+criterion_main!(benches);

@@ -1,0 +1,20 @@
+//! `zmotor bench --smoke` runs every part of the benchmark in seconds. Not a timed test: it
+//! proves the harness works and prints what it measured.
+
+use std::process::Command;
+
+#[test]
+fn the_benchmark_runs_in_smoke_mode() {
+    let output = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["bench", "--smoke"])
+        .env("RUST_LOG", "error")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
+    for part in ["1. command latency", "Zenoh pub/sub round trip", "2. engine cost", "3. scale", "4. start-up"] {
+        assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
+    }
+    assert!(!stdout.contains("failed"), "{stdout}");
+    println!("{stdout}");
+}
