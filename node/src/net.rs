@@ -1,6 +1,9 @@
 //! The Zenoh adapter: one task per axis, a thin loop around the sans-IO `Axis`. It turns
 //! samples and queries into writes, the wall clock into ticks, and `AxisEvent`s into
 //! publications, trace samples and replies, as ../shared/spec/zenoh-api.md requires.
+//! One subscriber and one queryable per node (not per axis) take everything addressed to the
+//! node's axes and hand it to the axis by name: Zenoh's cost per declaration grows with the
+//! declarations already there, and thousands of axes would pay it squared.
 
 use crate::axis::{Axis, AxisEvent};
 use crate::driver::sim::SimAxis;
@@ -16,7 +19,7 @@ use zenoh::sample::Sample;
 use zenoh::Session;
 use zmotor_bridge::{CalcLink, CalcLinkSpec};
 use zmotor_msgs::{
-    decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value, FIELDS,
+    decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value,
 };
 
 pub type Error = Box<dyn std::error::Error + Send + Sync>;
@@ -47,8 +50,12 @@ impl Node {
     ) -> Result<Self, Error> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let mut tasks = Vec::new();
+        let mut routes = std::collections::HashMap::new();
+        let mut axis_tasks = Vec::new();
         for plan in plans {
-            let io = AxisIo::declare(&session, &layout, &plan.name).await?;
+            let (route, inputs) = tokio::sync::mpsc::unbounded_channel();
+            routes.insert(plan.name.clone(), route);
+            let io = AxisIo::declare(&session, &layout, &plan.name, inputs).await?;
             let clock = Instant::now();
             let axis = match plan.driver {
                 DriverPlan::Sim(sim) => Axis::new(plan.fields, Box::new(SimAxis::new(sim)), plan.rates, 0.0),
@@ -69,9 +76,15 @@ impl Node {
             let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds };
             // The boot state is published before start returns, so nobody sees it late.
             task.publish_events().await;
+            axis_tasks.push(task);
+        }
+        let router = Router::declare(&session, &layout, routes).await?;
+        for mut task in axis_tasks {
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
+        let stopped_router = stopped.clone();
+        tasks.push(tokio::spawn(async move { router.run(stopped_router).await }));
         for spec in calcs {
             let link = CalcLink::new(spec)?;
             let inputs = KeyFollower::start(&session, link.input_keys().map(str::to_string).collect()).await?;
@@ -96,36 +109,127 @@ impl Drop for Node {
     }
 }
 
-/// The Zenoh entities of one axis.
-struct AxisIo {
-    session: Session,
+/// What reaches one axis from the network.
+enum AxisInput {
+    Write(Sample),
+    Query(Query),
+    SimWrite(Sample),
+    SimQuery(Query),
+}
+
+/// The node's Zenoh entities for all its axes, and where each axis's input goes.
+struct Router {
     layout: KeyLayout,
-    name: String,
+    routes: std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>,
     writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
     queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
     sim_writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
     sim_queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
-    trace: zenoh::pubsub::Publisher<'static>,
-    field_keys: Vec<KeyExpr<'static>>,
+}
+
+impl Router {
+    async fn declare(
+        session: &Session,
+        layout: &KeyLayout,
+        routes: std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>,
+    ) -> Result<Self, Error> {
+        Ok(Self {
+            writes: session.declare_subscriber(format!("{}/*/*", layout.prefix())).await?,
+            queries: session.declare_queryable(format!("{}/**", layout.prefix())).await?,
+            sim_writes: session.declare_subscriber(keys::sim_key("*", "*")).await?,
+            sim_queries: session.declare_queryable(keys::sim_key("*", "**")).await?,
+            layout: layout.clone(),
+            routes,
+        })
+    }
+
+    async fn run(self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+        let prefix = format!("{}/", self.layout.prefix());
+        let sim_prefix = format!("{}/", keys::SIM_PREFIX);
+        loop {
+            tokio::select! {
+                sample = self.writes.recv_async() => match sample {
+                    // The node's own publications come back here too: drop them at once.
+                    Ok(sample) if !is_state(&sample) => self.route_sample(&prefix, sample, AxisInput::Write),
+                    Ok(_) => {}
+                    Err(_) => break,
+                },
+                query = self.queries.recv_async() => match query {
+                    Ok(query) => self.route_query(&prefix, query, AxisInput::Query),
+                    Err(_) => break,
+                },
+                sample = self.sim_writes.recv_async() => match sample {
+                    Ok(sample) if !is_state(&sample) => self.route_sample(&sim_prefix, sample, AxisInput::SimWrite),
+                    Ok(_) => {}
+                    Err(_) => break,
+                },
+                query = self.sim_queries.recv_async() => match query {
+                    Ok(query) => self.route_query(&sim_prefix, query, AxisInput::SimQuery),
+                    Err(_) => break,
+                },
+                _ = stopped.changed() => break,
+            }
+        }
+    }
+
+    /// `<prefix>/<axis>/...` goes to that axis, if it is one of ours.
+    fn route_sample(&self, prefix: &str, sample: Sample, wrap: fn(Sample) -> AxisInput) {
+        let axis =
+            sample.key_expr().as_str().strip_prefix(prefix).and_then(|rest| rest.split('/').next()).map(str::to_string);
+        if let Some(route) = axis.and_then(|axis| self.routes.get(&axis)) {
+            let _ = route.send(wrap(sample));
+        }
+    }
+
+    /// A query goes to every axis of ours it can concern (one, or all for a wildcard).
+    fn route_query(&self, prefix: &str, query: Query, wrap: fn(Query) -> AxisInput) {
+        let selected = query.key_expr().as_str().to_string();
+        let chunk = selected.strip_prefix(prefix).and_then(|rest| rest.split('/').next()).unwrap_or("");
+        if !chunk.contains(['*', '$']) && !chunk.is_empty() {
+            if let Some(route) = self.routes.get(chunk) {
+                let _ = route.send(wrap(query));
+            }
+            return;
+        }
+        for (axis, route) in &self.routes {
+            let Ok(all) = KeyExpr::try_from(format!("{prefix}{axis}/**")) else { continue };
+            if query.key_expr().intersects(&all) {
+                let _ = route.send(wrap(query.clone()));
+            }
+        }
+    }
+}
+
+/// The Zenoh side of one axis: where it publishes, and what the router hands it.
+struct AxisIo {
+    session: Session,
+    layout: KeyLayout,
+    name: String,
+    inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
+    /// Declared at the first driver command, so idle axes cost no publisher.
+    trace: Option<zenoh::pubsub::Publisher<'static>>,
     _token: zenoh::liveliness::LivelinessToken,
 }
 
 impl AxisIo {
-    async fn declare(session: &Session, layout: &KeyLayout, name: &str) -> Result<Self, Error> {
-        let field_keys =
-            FIELDS.iter().map(|d| KeyExpr::try_from(layout.field(name, d.field))).collect::<Result<Vec<_>, _>>()?;
+    async fn declare(
+        session: &Session,
+        layout: &KeyLayout,
+        name: &str,
+        inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
+    ) -> Result<Self, Error> {
         Ok(Self {
-            writes: session.declare_subscriber(layout.axis_fields(name)).await?,
-            queries: session.declare_queryable(layout.axis_all(name)).await?,
-            sim_writes: session.declare_subscriber(keys::sim_key(name, "*")).await?,
-            sim_queries: session.declare_queryable(keys::sim_key(name, "**")).await?,
-            trace: session.declare_publisher(layout.driver_cmd(name)).encoding(Encoding::APPLICATION_CBOR).await?,
             _token: session.liveliness().declare_token(layout.axis(name)).await?,
-            field_keys,
+            trace: None,
+            inputs,
             session: session.clone(),
             layout: layout.clone(),
             name: name.to_string(),
         })
+    }
+
+    fn field_key(&self, field: Field) -> KeyExpr<'static> {
+        KeyExpr::try_from(self.layout.field(&self.name, field)).expect("axis names are checked at launch")
     }
 }
 
@@ -160,21 +264,12 @@ impl AxisTask {
                     let now = self.now();
                     self.axis.link_update(now, self.link_kinds[index], value);
                 }
-                sample = self.io.writes.recv_async() => match sample {
-                    Ok(sample) => self.on_write_sample(sample).await,
-                    Err(_) => break,
-                },
-                query = self.io.queries.recv_async() => match query {
-                    Ok(query) => self.on_query(query).await,
-                    Err(_) => break,
-                },
-                sample = self.io.sim_writes.recv_async() => match sample {
-                    Ok(sample) => self.on_sim_write(sample).await,
-                    Err(_) => break,
-                },
-                query = self.io.sim_queries.recv_async() => match query {
-                    Ok(query) => self.on_sim_query(query).await,
-                    Err(_) => break,
+                input = self.io.inputs.recv() => match input {
+                    Some(AxisInput::Write(sample)) => self.on_write_sample(sample).await,
+                    Some(AxisInput::Query(query)) => self.on_query(query).await,
+                    Some(AxisInput::SimWrite(sample)) => self.on_sim_write(sample).await,
+                    Some(AxisInput::SimQuery(query)) => self.on_sim_query(query).await,
+                    None => break,
                 },
                 _ = tokio::time::sleep_until(wake) => {
                     let now = self.now();
@@ -186,11 +281,8 @@ impl AxisTask {
         }
     }
 
-    /// A plain put: a write unless it carries the state marker.
+    /// A plain put (the router has dropped state publications).
     async fn on_write_sample(&mut self, sample: Sample) {
-        if is_state(&sample) {
-            return;
-        }
         let key = sample.key_expr().as_str().to_string();
         let Some(name) = self.io.layout.field_name(&self.io.name, &key) else {
             return;
@@ -235,7 +327,7 @@ impl AxisTask {
                 // A read of one field or of a key expression covering several.
                 let selected = query.key_expr().clone();
                 for field in zmotor_msgs::Field::all() {
-                    if selected.intersects(&self.io.field_keys[field as usize]) {
+                    if selected.intersects(&self.io.field_key(field)) {
                         self.reply_field(&query, field).await;
                     }
                 }
@@ -245,10 +337,7 @@ impl AxisTask {
 
     async fn reply_field(&self, query: &Query, field: Field) {
         let value = self.axis.record().get(field);
-        let _ = query
-            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&value))
-            .encoding(Encoding::APPLICATION_CBOR)
-            .await;
+        let _ = query.reply(self.io.field_key(field), encode_cbor(&value)).encoding(Encoding::APPLICATION_CBOR).await;
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
@@ -265,16 +354,10 @@ impl AxisTask {
             ("SEVR", Value::Int(f.sevr.into())),
             ("reached", Value::Int(reached.into())),
         ]);
-        let _ = query
-            .reply(self.io.field_keys[field as usize].clone(), encode_cbor(&outcome))
-            .encoding(Encoding::APPLICATION_CBOR)
-            .await;
+        let _ = query.reply(self.io.field_key(field), encode_cbor(&outcome)).encoding(Encoding::APPLICATION_CBOR).await;
     }
 
     async fn on_sim_write(&mut self, sample: Sample) {
-        if is_state(&sample) {
-            return;
-        }
         let key = sample.key_expr().as_str().to_string();
         let name = key.rsplit('/').next().unwrap_or_default().to_string();
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
@@ -337,16 +420,21 @@ impl AxisTask {
             match event {
                 AxisEvent::Post(field, value) => self.publish(field, &value).await,
                 AxisEvent::Driver { command, t } => {
+                    if self.io.trace.is_none() {
+                        let key = self.io.layout.driver_cmd(&self.io.name);
+                        self.io.trace =
+                            self.io.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await.ok();
+                    }
+                    let Some(trace_publisher) = &self.io.trace else { continue };
                     let listening = match traced {
                         Some(listening) => listening,
-                        None => {
-                            *traced.insert(self.io.trace.matching_status().await.map(|m| m.matching()).unwrap_or(false))
-                        }
+                        None => *traced
+                            .insert(trace_publisher.matching_status().await.map(|m| m.matching()).unwrap_or(false)),
                     };
                     if listening {
                         self.seq += 1;
                         let trace = DriverTrace { command, t, seq: self.seq };
-                        let _ = self.io.trace.put(encode_cbor(&trace)).await;
+                        let _ = trace_publisher.put(encode_cbor(&trace)).await;
                     }
                 }
                 AxisEvent::Put { key, value } => {
@@ -372,7 +460,7 @@ impl AxisTask {
 
     async fn publish(&mut self, field: Field, value: &Value) {
         let attachment = self.marker();
-        let key = self.io.field_keys[field as usize].clone();
+        let key = self.io.field_key(field);
         let _ = self
             .io
             .session
