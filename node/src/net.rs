@@ -38,6 +38,7 @@ pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config, Error> {
 pub struct Node {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     stop: tokio::sync::watch::Sender<bool>,
+    _router: Router,
 }
 
 impl Node {
@@ -83,8 +84,6 @@ impl Node {
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
-        let stopped_router = stopped.clone();
-        tasks.push(tokio::spawn(async move { router.run(stopped_router).await }));
         for spec in calcs {
             let link = CalcLink::new(spec)?;
             let inputs = KeyFollower::start(&session, link.input_keys().map(str::to_string).collect()).await?;
@@ -92,7 +91,7 @@ impl Node {
             let stopped = stopped.clone();
             tasks.push(tokio::spawn(async move { task.run(stopped).await }));
         }
-        Ok(Self { tasks, stop })
+        Ok(Self { tasks, stop, _router: router })
     }
 
     pub async fn shutdown(mut self) {
@@ -117,85 +116,82 @@ enum AxisInput {
     SimQuery(Query),
 }
 
-/// The node's Zenoh entities for all its axes, and where each axis's input goes.
+type Routes = std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>;
+
+/// The node's Zenoh entities for all its axes. Their callbacks hand each sample or query to
+/// its axis at once and never block: the node's own publications pass through them too.
 struct Router {
-    layout: KeyLayout,
-    routes: std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>,
-    writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
-    queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
-    sim_writes: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
-    sim_queries: zenoh::query::Queryable<zenoh::handlers::FifoChannelHandler<Query>>,
+    _writes: zenoh::pubsub::Subscriber<()>,
+    _queries: zenoh::query::Queryable<()>,
+    _sim_writes: zenoh::pubsub::Subscriber<()>,
+    _sim_queries: zenoh::query::Queryable<()>,
 }
 
 impl Router {
-    async fn declare(
-        session: &Session,
-        layout: &KeyLayout,
-        routes: std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>,
-    ) -> Result<Self, Error> {
+    async fn declare(session: &Session, layout: &KeyLayout, routes: Routes) -> Result<Self, Error> {
+        let routes = std::sync::Arc::new(routes);
+        let prefix = format!("{}/", layout.prefix());
+        let sim_prefix = format!("{}/", keys::SIM_PREFIX);
+        let (r1, p1) = (routes.clone(), prefix.clone());
+        let (r2, p2) = (routes.clone(), prefix.clone());
+        let (r3, p3) = (routes.clone(), sim_prefix.clone());
+        let (r4, p4) = (routes, sim_prefix);
         Ok(Self {
-            writes: session.declare_subscriber(format!("{}/*/*", layout.prefix())).await?,
-            queries: session.declare_queryable(format!("{}/**", layout.prefix())).await?,
-            sim_writes: session.declare_subscriber(keys::sim_key("*", "*")).await?,
-            sim_queries: session.declare_queryable(keys::sim_key("*", "**")).await?,
-            layout: layout.clone(),
-            routes,
+            _writes: session
+                .declare_subscriber(format!("{prefix}*/*"))
+                .callback(move |sample| {
+                    if !is_state(&sample) {
+                        route_sample(&r1, &p1, sample, AxisInput::Write);
+                    }
+                })
+                .await?,
+            _queries: session
+                .declare_queryable(format!("{prefix}**"))
+                .callback(move |q| route_query(&r2, &p2, q, AxisInput::Query))
+                .await?,
+            _sim_writes: session
+                .declare_subscriber(keys::sim_key("*", "*"))
+                .callback(move |sample| {
+                    if !is_state(&sample) {
+                        route_sample(&r3, &p3, sample, AxisInput::SimWrite);
+                    }
+                })
+                .await?,
+            _sim_queries: session
+                .declare_queryable(keys::sim_key("*", "**"))
+                .callback(move |q| route_query(&r4, &p4, q, AxisInput::SimQuery))
+                .await?,
         })
     }
+}
 
-    async fn run(self, mut stopped: tokio::sync::watch::Receiver<bool>) {
-        let prefix = format!("{}/", self.layout.prefix());
-        let sim_prefix = format!("{}/", keys::SIM_PREFIX);
-        loop {
-            tokio::select! {
-                sample = self.writes.recv_async() => match sample {
-                    // The node's own publications come back here too: drop them at once.
-                    Ok(sample) if !is_state(&sample) => self.route_sample(&prefix, sample, AxisInput::Write),
-                    Ok(_) => {}
-                    Err(_) => break,
-                },
-                query = self.queries.recv_async() => match query {
-                    Ok(query) => self.route_query(&prefix, query, AxisInput::Query),
-                    Err(_) => break,
-                },
-                sample = self.sim_writes.recv_async() => match sample {
-                    Ok(sample) if !is_state(&sample) => self.route_sample(&sim_prefix, sample, AxisInput::SimWrite),
-                    Ok(_) => {}
-                    Err(_) => break,
-                },
-                query = self.sim_queries.recv_async() => match query {
-                    Ok(query) => self.route_query(&sim_prefix, query, AxisInput::SimQuery),
-                    Err(_) => break,
-                },
-                _ = stopped.changed() => break,
-            }
-        }
+/// `<prefix><axis>/...` goes to that axis, if it is one of ours.
+fn route_sample(routes: &Routes, prefix: &str, sample: Sample, wrap: fn(Sample) -> AxisInput) {
+    let axis = sample.key_expr().as_str().strip_prefix(prefix).and_then(|rest| rest.split('/').next());
+    if let Some(route) = axis.and_then(|axis| routes.get(axis)) {
+        let _ = route.send(wrap(sample));
     }
+}
 
-    /// `<prefix>/<axis>/...` goes to that axis, if it is one of ours.
-    fn route_sample(&self, prefix: &str, sample: Sample, wrap: fn(Sample) -> AxisInput) {
-        let axis =
-            sample.key_expr().as_str().strip_prefix(prefix).and_then(|rest| rest.split('/').next()).map(str::to_string);
-        if let Some(route) = axis.and_then(|axis| self.routes.get(&axis)) {
-            let _ = route.send(wrap(sample));
+/// A query goes to every axis of ours it can concern (one, or all for a wildcard).
+fn route_query(routes: &Routes, prefix: &str, query: Query, wrap: fn(Query) -> AxisInput) {
+    let chunk = query
+        .key_expr()
+        .as_str()
+        .strip_prefix(prefix)
+        .and_then(|rest| rest.split('/').next())
+        .unwrap_or("")
+        .to_string();
+    if !chunk.is_empty() && !chunk.contains(['*', '$']) {
+        if let Some(route) = routes.get(&chunk) {
+            let _ = route.send(wrap(query));
         }
+        return;
     }
-
-    /// A query goes to every axis of ours it can concern (one, or all for a wildcard).
-    fn route_query(&self, prefix: &str, query: Query, wrap: fn(Query) -> AxisInput) {
-        let selected = query.key_expr().as_str().to_string();
-        let chunk = selected.strip_prefix(prefix).and_then(|rest| rest.split('/').next()).unwrap_or("");
-        if !chunk.contains(['*', '$']) && !chunk.is_empty() {
-            if let Some(route) = self.routes.get(chunk) {
-                let _ = route.send(wrap(query));
-            }
-            return;
-        }
-        for (axis, route) in &self.routes {
-            let Ok(all) = KeyExpr::try_from(format!("{prefix}{axis}/**")) else { continue };
-            if query.key_expr().intersects(&all) {
-                let _ = route.send(wrap(query.clone()));
-            }
+    for (axis, route) in routes.iter() {
+        let Ok(all) = KeyExpr::try_from(format!("{prefix}{axis}/**")) else { continue };
+        if query.key_expr().intersects(&all) {
+            let _ = route.send(wrap(query.clone()));
         }
     }
 }
