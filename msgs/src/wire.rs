@@ -33,6 +33,14 @@ impl StateMarker {
     pub fn decode(attachment: &[u8]) -> Option<Self> {
         ciborium::from_reader::<Self, _>(attachment).ok().filter(|m| m.kind == Self::KIND)
     }
+
+    /// Whether an attachment is a state marker, without decoding it: every encoded marker
+    /// starts with the same bytes (a 4-entry map whose first entry is kind = "state"). This
+    /// runs for every sample a node sees, its own publications included.
+    pub fn is_marker(attachment: &[u8]) -> bool {
+        const PREFIX: &[u8] = &[0xa4, 0x64, b'k', b'i', b'n', b'd', 0x65, b's', b't', b'a', b't', b'e'];
+        attachment.starts_with(PREFIX)
+    }
 }
 
 /// Which PID gain a `set_gain` command sets.
@@ -135,6 +143,8 @@ mod tests {
     #[test]
     fn state_marker_round_trips_and_plain_payloads_are_not_markers() {
         let m = StateMarker::new(7, 4, 2);
+        assert!(StateMarker::is_marker(&m.encode()));
+        assert!(!StateMarker::is_marker(b"state"));
         assert_eq!(StateMarker::decode(&m.encode()), Some(m));
         assert_eq!(StateMarker::decode(b"hello"), None);
         assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);

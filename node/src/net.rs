@@ -546,7 +546,7 @@ impl CalcTask {
 
 /// A publication of some node (it carries the state marker), never a write.
 fn is_state(sample: &Sample) -> bool {
-    sample.attachment().is_some_and(|a| StateMarker::decode(&a.to_bytes()).is_some())
+    sample.attachment().is_some_and(|a| StateMarker::is_marker(&a.to_bytes()))
 }
 
 /// The simulator's keys under `sim/<axis>/`: positions in steps, flags as 0/1.
