@@ -32,7 +32,7 @@ fn engine(c: &mut Criterion) {
     c.bench_function("move cycle (write VAL, moving callback, done callback)", |b| {
         b.iter(|| {
             i += 1;
-            let target = if i % 2 == 0 { 1.0 } else { 2.0 };
+            let target = if i.is_multiple_of(2) { 1.0 } else { 2.0 };
             let _ = record.write(Field::VAL, &Value::Float(black_box(target)));
             record.callback(status(target * 500.0, false));
             record.callback(status(target * 1000.0, true));
@@ -43,7 +43,7 @@ fn engine(c: &mut Criterion) {
     c.bench_function("axis move on the instant simulator (write VAL to DMOV 1)", |b| {
         b.iter(|| {
             i += 1;
-            let target = if i % 2 == 0 { 1.0 } else { 2.0 };
+            let target = if i.is_multiple_of(2) { 1.0 } else { 2.0 };
             let _ = axis.write(0.0, Field::VAL, &Value::Float(black_box(target)));
             axis.drain_events().count()
         })
