@@ -178,6 +178,7 @@ async fn latency(moves: usize) -> Result<Latency, Error> {
     let ping = session.declare_publisher(PING).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (mut to_dmov0, mut to_dmov1, mut rtt) = (Vec::new(), Vec::new(), Vec::new());
+    // Moves and pings alternate, so both see the same conditions on a shared machine.
     for i in 0..moves + moves / 10 {
         let target = if i % 2 == 0 { "0.01" } else { "0.02" };
         let start = Instant::now();
@@ -191,17 +192,14 @@ async fn latency(moves: usize) -> Result<Latency, Error> {
                 _ => {}
             }
         }
-        // The first tenth warms up connections and caches.
-        if i >= moves / 10 {
-            to_dmov0.push(zero.expect("DMOV 0 came first"));
-            to_dmov1.push(start.elapsed());
-        }
-    }
-    for i in 0..moves + moves / 10 {
+        let moved = start.elapsed();
         let start = Instant::now();
         ping.put(vec![0u8; 8]).await?;
         tokio::time::timeout(Duration::from_secs(5), pong.recv_async()).await??;
+        // The first tenth warms up connections and caches.
         if i >= moves / 10 {
+            to_dmov0.push(zero.expect("DMOV 0 came first"));
+            to_dmov1.push(moved);
             rtt.push(start.elapsed());
         }
     }

@@ -75,8 +75,10 @@ impl Node {
             .unzip();
             let links = KeyFollower::start(&session, keys).await?;
             let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds };
-            // The boot state is published before start returns, so nobody sees it late.
-            task.publish_events().await;
+            // Initialisation posts no monitors, as in EPICS: clients read the initial state with a
+            // get once the liveliness token appears. (Publishing it would also cost Zenoh a new
+            // resource per field and axis, a start-up growing with the square of the axes.)
+            task.axis.drain_events().count();
             axis_tasks.push(task);
         }
         let router = Router::declare(&session, &layout, routes).await?;
