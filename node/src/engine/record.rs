@@ -345,22 +345,10 @@ impl MotorRecord {
     #[allow(clippy::collapsible_match)]
     fn special_after(&mut self, field: Field) -> Result<(), WriteError> {
         use Field::*;
-        let u = self.f.urev.abs();
         match field {
             VBAS | SBAS => {
-                if field == VBAS {
-                    self.clamp_negative(VBAS);
-                    if self.f.urev != 0.0 && self.f.sbas != self.f.vbas / u {
-                        self.f.sbas = self.f.vbas / u;
-                        self.post(SBAS);
-                    }
-                } else {
-                    self.clamp_negative(SBAS);
-                    if self.f.vbas != u * self.f.sbas {
-                        self.f.vbas = u * self.f.sbas;
-                        self.post(VBAS);
-                    }
-                }
+                self.clamp_negative(field);
+                self.follow_speed_pair(field, VBAS, SBAS);
                 self.acc_pair_from_velo();
                 if self.f.vmax != 0.0 && self.f.vbas > self.f.vmax {
                     self.f.vmax = self.f.vbas;
@@ -371,19 +359,8 @@ impl MotorRecord {
                 self.recheck_velocities();
             }
             VMAX | SMAX => {
-                if field == VMAX {
-                    self.clamp_negative(VMAX);
-                    if self.f.urev != 0.0 && self.f.smax != self.f.vmax / u {
-                        self.f.smax = self.f.vmax / u;
-                        self.post(SMAX);
-                    }
-                } else {
-                    self.clamp_negative(SMAX);
-                    if self.f.vmax != u * self.f.smax {
-                        self.f.vmax = u * self.f.smax;
-                        self.post(VMAX);
-                    }
-                }
+                self.clamp_negative(field);
+                self.follow_speed_pair(field, VMAX, SMAX);
                 if self.f.vmax != 0.0 && self.f.vmax < self.f.vbas {
                     self.f.vbas = self.f.vmax;
                     self.mark(VBAS);
@@ -395,32 +372,20 @@ impl MotorRecord {
             VELO => {
                 self.range_check(VELO, self.f.vbas, self.f.vmax);
                 self.acc_pair_from_velo();
-                if self.f.urev != 0.0 && self.f.s != self.f.velo / u {
-                    self.f.s = self.f.velo / u;
-                    self.post(S);
-                }
+                self.follow_speed_pair(VELO, VELO, S);
             }
             S => {
                 self.range_check(S, self.f.sbas, self.f.smax);
-                if self.f.velo != u * self.f.s {
-                    self.f.velo = u * self.f.s;
-                    self.post(VELO);
-                }
+                self.follow_speed_pair(S, VELO, S);
                 self.acc_pair_from_velo();
             }
             BVEL => {
                 self.range_check(BVEL, self.f.vbas, self.f.vmax);
-                if self.f.urev != 0.0 && self.f.sbak != self.f.bvel / u {
-                    self.f.sbak = self.f.bvel / u;
-                    self.post(SBAK);
-                }
+                self.follow_speed_pair(BVEL, BVEL, SBAK);
             }
             SBAK => {
                 self.range_check(SBAK, self.f.sbas, self.f.smax);
-                if self.f.bvel != u * self.f.sbak {
-                    self.f.bvel = u * self.f.sbak;
-                    self.post(BVEL);
-                }
+                self.follow_speed_pair(SBAK, BVEL, SBAK);
             }
             ACCL => {
                 if self.f.accl <= 0.0 {
@@ -626,19 +591,31 @@ impl MotorRecord {
         }
     }
 
+    /// §7.2: after a write to one member of a speed pair (EGU/s, rev/s), the other follows
+    /// with |UREV|; the rev/s member only when UREV is set, as in the reference.
+    fn follow_speed_pair(&mut self, written: Field, egu: Field, rev: Field) {
+        let u = self.f.urev.abs();
+        let value = |f: &Fields, field: Field| f.get(field).as_f64().unwrap_or(0.0);
+        let (target, follower) = if written == egu {
+            if self.f.urev == 0.0 {
+                return;
+            }
+            (value(&self.f, egu) / u, rev)
+        } else {
+            (u * value(&self.f, rev), egu)
+        };
+        if value(&self.f, follower) != target {
+            self.f.set(follower, &Value::Float(target));
+            self.post(follower);
+        }
+    }
+
     /// RV of §7.2, the part shared by the base and maximum speed writes.
     fn recheck_velocities(&mut self) {
-        let u = self.f.urev.abs();
         self.range_check(Field::VELO, self.f.vbas, self.f.vmax);
-        if self.f.urev != 0.0 && self.f.s != self.f.velo / u {
-            self.f.s = self.f.velo / u;
-            self.post(Field::S);
-        }
+        self.follow_speed_pair(Field::VELO, Field::VELO, Field::S);
         self.range_check(Field::BVEL, self.f.vbas, self.f.vmax);
-        if self.f.urev != 0.0 && self.f.sbak != self.f.bvel / u {
-            self.f.sbak = self.f.bvel / u;
-            self.post(Field::SBAK);
-        }
+        self.follow_speed_pair(Field::BVEL, Field::BVEL, Field::SBAK);
         self.range_check(Field::JVEL, self.f.vbas, self.f.vmax);
         self.range_check(Field::HVEL, self.f.vbas, self.f.vmax);
     }
