@@ -34,6 +34,8 @@ pub struct CalcLinkSpec {
     pub name: String,
     pub expression: String,
     pub inputs: Vec<InputSpec>,
+    /// Values of inputs before any update (EPICS fields A–L given in the database), by index.
+    pub constants: Vec<(usize, f64)>,
     /// Where the result is written.
     pub output: String,
     pub option: OutputOption,
@@ -70,7 +72,11 @@ impl CalcLink {
             }
             seen |= 1 << input.index;
         }
-        Ok(Self { spec, expression, values: [0.0; INPUTS], last_output: None })
+        let mut values = [0.0; INPUTS];
+        for &(index, value) in &spec.constants {
+            values[index] = value;
+        }
+        Ok(Self { spec, expression, values, last_output: None })
     }
 
     pub fn spec(&self) -> &CalcLinkSpec {
@@ -170,6 +176,7 @@ mod tests {
                 .iter()
                 .map(|(index, key, mode)| InputSpec { index: *index, key: (*key).into(), mode: *mode })
                 .collect(),
+            constants: Vec::new(),
             output: output.into(),
             option,
         }
@@ -189,6 +196,14 @@ mod tests {
         assert_eq!(link.update("x", 1.0), Some(11.0));
         assert_eq!(link.update("x", 1.0), Some(11.0), "every time");
         assert_eq!(link.update("other", 5.0), None);
+    }
+
+    #[test]
+    fn constants_hold_until_an_update() {
+        let mut spec = spec("scale", "A*B", &[(0, "x", InputMode::Process)], "out", OutputOption::EveryTime);
+        spec.constants = vec![(1, 1000.0)];
+        let mut link = CalcLink::new(spec).unwrap();
+        assert_eq!(link.update("x", 0.5), Some(500.0));
     }
 
     #[test]

@@ -366,6 +366,30 @@ impl Field {
     pub const COUNT: usize = FIELDS.len();
 }
 
+/// What autosave keeps of a field, as EPICS autosave's motor_positions.req and
+/// motor_settings.req do: the position (DVAL and OFF), and every setting a user configures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Autosave {
+    Position,
+    Setting,
+}
+
+impl Field {
+    /// Whether autosave keeps this field, and as what. Read-only fields, commands (a restart
+    /// must move nothing on its own) and values derived from others (VAL, RVAL, HLM, LLM) are not
+    /// kept: the record recomputes them at boot from what is.
+    pub fn autosave(self) -> Option<Autosave> {
+        use Field::*;
+        match self {
+            DVAL | OFF => Some(Autosave::Position),
+            VAL | RVAL | RLV | TWF | TWR | SYNC | SPMG | STOP | HOMF | HOMR | JOGF | JOGR | STUP | CNEN | PROC
+            | SET | SSET | SUSE | FOF | VOF | HLM | LLM => None,
+            _ if self.def().access == Access::RO => None,
+            _ => Some(Autosave::Setting),
+        }
+    }
+}
+
 impl std::fmt::Display for Field {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())
@@ -403,6 +427,16 @@ mod tests {
             STOP STUP SUSE SYNC TDIR TWF TWR TWV UEIP UREV URIP VAL VBAS VELO VERS VMAX VOF";
         for name in manual.split_whitespace() {
             assert!(Field::from_name(name).is_some(), "{name} missing from the catalogue");
+        }
+    }
+
+    #[test]
+    fn autosave_keeps_positions_and_settings_but_no_command() {
+        assert_eq!(Field::DVAL.autosave(), Some(Autosave::Position));
+        assert_eq!(Field::VELO.autosave(), Some(Autosave::Setting));
+        assert_eq!(Field::RSTM.autosave(), Some(Autosave::Setting));
+        for field in [Field::VAL, Field::HOMF, Field::SPMG, Field::RBV, Field::DMOV, Field::SET] {
+            assert_eq!(field.autosave(), None, "{field}");
         }
     }
 

@@ -6,6 +6,9 @@ use crate::catalogue::Field;
 pub const DEFAULT_PREFIX: &str = "motor";
 /// Prefix of the simulator's physical state and fault keys.
 pub const SIM_PREFIX: &str = "sim";
+/// Prefix of the keys of calc links and value holders imported from EPICS databases
+/// (`bridge/<record>/<FIELD>`), a convention launch files may follow.
+pub const BRIDGE_PREFIX: &str = "bridge";
 /// Field-like key on which refused writes are reported as text.
 pub const ERR_KEY: &str = "ERR";
 /// Key suffix of the driver-command trace.

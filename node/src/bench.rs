@@ -56,7 +56,8 @@ pub async fn serve(listen: &str, axes: usize, rate: f64) -> Result<(), Error> {
             });
         })
         .await?;
-    let node = Node::start(session.clone(), KeyLayout::default(), bench_axes(axes, true, rate), vec![]).await?;
+    let node =
+        Node::start(session.clone(), KeyLayout::default(), bench_axes(axes, true, rate), vec![], vec![], None).await?;
     tokio::signal::ctrl_c().await?;
     node.shutdown().await;
     Ok(())
@@ -282,7 +283,8 @@ async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
     let observer = client(&endpoint).await?;
     let rss_before = rss_kb();
     let start = Instant::now();
-    let node = Node::start(session.clone(), KeyLayout::default(), bench_axes(n, false, 100.0), vec![]).await?;
+    let node =
+        Node::start(session.clone(), KeyLayout::default(), bench_axes(n, false, 100.0), vec![], vec![], None).await?;
     let started = start.elapsed();
     tokio::time::sleep(Duration::from_millis(500)).await;
     let rss_per_axis_idle_kb = (rss_kb() - rss_before) / n as f64;

@@ -6,9 +6,10 @@ use std::process::ExitCode;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zmotor_msgs::{codec::decode_cbor_value, Field, KeyLayout, FIELDS};
+use zmotor_node::autosave::{state_dir, StateStore};
 use zmotor_node::bench;
-use zmotor_node::launch::{Launch, ZenohSection};
-use zmotor_node::net::{zenoh_config, Error, Node};
+use zmotor_node::launch::{import_db, Launch, Macros, ZenohSection};
+use zmotor_node::net::{zenoh_config, AutosaveConfig, Error, Node};
 
 #[derive(Parser)]
 #[command(name = "zmotor", version, about = "EPICS motor record axes on a Zenoh network")]
@@ -28,10 +29,67 @@ struct ClientArgs {
     prefix: String,
 }
 
+/// How a deployment's process joins the network, over what its launch file says.
+#[derive(clap::Args, Clone, Default)]
+struct NetworkOverrides {
+    /// Zenoh mode: peer, client or router.
+    #[arg(long)]
+    mode: Option<String>,
+    /// Endpoint to listen on (repeatable), instead of the launch file's.
+    #[arg(long)]
+    listen: Vec<String>,
+    /// Endpoint to connect to (repeatable), instead of the launch file's.
+    #[arg(long)]
+    connect: Vec<String>,
+}
+
+impl NetworkOverrides {
+    fn apply(&self, section: &mut ZenohSection) {
+        if let Some(mode) = &self.mode {
+            section.mode.clone_from(mode);
+        }
+        if !self.listen.is_empty() {
+            section.listen.clone_from(&self.listen);
+        }
+        if !self.connect.is_empty() {
+            section.connect.clone_from(&self.connect);
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
-    /// Start the axes of a launch file and serve them until interrupted.
-    Launch { file: PathBuf },
+    /// Start the axes of a launch file (TOML) or an EPICS database (.db) and serve them until
+    /// SIGINT/SIGTERM, which stops moving axes, saves their state and exits.
+    Launch {
+        file: PathBuf,
+        /// Start only this host's part of a multi-host launch file.
+        #[arg(long)]
+        host: Option<String>,
+        /// Macros of a .db file, name=value[,name=value] (repeatable), as for dbLoadRecords.
+        #[arg(short = 'm', long = "macros")]
+        macros: Vec<String>,
+        #[command(flatten)]
+        network: NetworkOverrides,
+    },
+    /// Convert an EPICS database (.db) into a launch file (TOML) on stdout.
+    Convert {
+        file: PathBuf,
+        #[arg(short = 'm', long = "macros")]
+        macros: Vec<String>,
+    },
+    /// A Zenoh router, so that peers and clients on other hosts reach each other's axes.
+    Router {
+        /// Endpoint to listen on (repeatable).
+        #[arg(long, default_values_t = ["tcp/0.0.0.0:7447".to_string()])]
+        listen: Vec<String>,
+        /// Another router to connect to (repeatable).
+        #[arg(long)]
+        connect: Vec<String>,
+        /// Answer multicast scouting (off by default: deployments name their endpoints).
+        #[arg(long)]
+        multicast_scouting: bool,
+    },
     /// Read a field (or every field when FIELD is omitted).
     Get {
         axis: String,
@@ -105,7 +163,22 @@ async fn main() -> ExitCode {
 
 async fn run(command: Command) -> Result<ExitCode, Error> {
     match command {
-        Command::Launch { file } => launch(&file).await,
+        Command::Launch { file, host, macros, network } => launch(&file, host.as_deref(), &macros, &network).await,
+        Command::Convert { file, macros } => {
+            let (launch, warnings) = load(&file, &macros)?;
+            let notes: String = warnings.iter().map(|w| format!("# warning: {w}\n")).collect();
+            print!("# converted by zmotor convert from {}\n{notes}\n{}\n", file.display(), launch.to_toml().trim_end());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Router { listen, connect, multicast_scouting } => {
+            let section =
+                ZenohSection { mode: "router".into(), listen, connect, multicast_scouting, ..Default::default() };
+            let session = zenoh::open(zenoh_config(&section)?).await?;
+            tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
+            interrupted().await?;
+            session.close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
         Command::Put { axis, field, value, wait, timeout, client } => {
             put(&client, &axis, &field, &value, wait, timeout).await
@@ -139,19 +212,63 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
     }
 }
 
-async fn launch(file: &std::path::Path) -> Result<ExitCode, Error> {
-    let launch = Launch::load(file)?;
-    let session = zenoh::open(zenoh_config(&launch.zenoh)?).await?;
-    let layout = KeyLayout::new(&launch.zenoh.prefix);
-    let plans = launch.plans()?;
-    let calcs = launch.calc_links()?;
-    let names: Vec<String> = plans.iter().map(|p| p.name.clone()).collect();
-    let calc_names: Vec<String> = calcs.iter().map(|c| c.name.clone()).collect();
-    let node = Node::start(session.clone(), layout.clone(), plans, calcs).await?;
-    tracing::info!(axes = ?names, calcs = ?calc_names, listen = ?launch.zenoh.listen, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
-    tokio::signal::ctrl_c().await?;
+/// A launch file, or an EPICS database converted into one (with what the conversion warns of).
+fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String>), Error> {
+    if file.extension().is_some_and(|e| e == "db") {
+        let (converted, warnings) = import_db(file, &Macros::parse(macros)?)?;
+        let name = format!("{} (as converted by zmotor convert)", file.display());
+        Ok((Launch::from_file(&name, converted)?, warnings))
+    } else if !macros.is_empty() {
+        Err("-m applies to .db files only".into())
+    } else {
+        Ok((Launch::load(file)?, Vec::new()))
+    }
+}
+
+/// SIGINT (Ctrl-C) or SIGTERM.
+async fn interrupted() -> Result<(), Error> {
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        result = tokio::signal::ctrl_c() => result?,
+        _ = terminate.recv() => {}
+    }
+    Ok(())
+}
+
+async fn launch(
+    file: &std::path::Path,
+    host: Option<&str>,
+    macros: &[String],
+    network: &NetworkOverrides,
+) -> Result<ExitCode, Error> {
+    let (launch, warnings) = load(file, macros)?;
+    for warning in &warnings {
+        tracing::warn!("{}: {warning}", file.display());
+    }
+    let mut deployment = launch.deployment(host)?;
+    network.apply(&mut deployment.zenoh);
+    let layout = KeyLayout::new(&deployment.zenoh.prefix);
+    let autosave = if deployment.autosave.enabled && !deployment.plans.is_empty() {
+        let dir = state_dir(deployment.state_dir.as_deref())?;
+        let store = StateStore::open(&dir, layout.prefix())?;
+        tracing::info!(dir = %store.dir().display(), "autosave on");
+        Some(AutosaveConfig { store, delay: Duration::from_secs_f64(deployment.autosave.delay) })
+    } else {
+        None
+    };
+    let session = zenoh::open(zenoh_config(&deployment.zenoh)?).await?;
+    let names: Vec<String> = deployment.plans.iter().map(|p| p.name.clone()).collect();
+    let calc_names: Vec<String> = deployment.calcs.iter().map(|c| c.name.clone()).collect();
+    let node =
+        Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, autosave)
+            .await?;
+    tracing::info!(axes = ?names, calcs = ?calc_names, mode = deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
+        connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
+    interrupted().await?;
+    tracing::info!("stopping: moving axes stop, state is saved");
     node.shutdown().await;
     session.close().await?;
+    tracing::info!("stopped");
     Ok(ExitCode::SUCCESS)
 }
 

@@ -5,11 +5,12 @@
 //! node's axes and hand it to the axis by name: Zenoh's cost per declaration grows with the
 //! declarations already there, and thousands of axes would pay it squared.
 
+use crate::autosave::{SavedAxis, StateStore};
 use crate::axis::{Axis, AxisEvent};
 use crate::driver::sim::SimAxis;
 use crate::driver::soft::InputLink;
 use crate::engine::WriteError;
-use crate::launch::{AxisPlan, DriverPlan, ZenohSection};
+use crate::launch::{AxisPlan, DriverPlan, ValueSpec, ZenohSection};
 use std::time::Duration;
 use tokio::time::Instant;
 use zenoh::bytes::{Encoding, ZBytes};
@@ -34,26 +35,45 @@ pub fn zenoh_config(section: &ZenohSection) -> Result<zenoh::Config, Error> {
     Ok(config)
 }
 
-/// A running node: its axes' tasks, stopped when dropped or on `shutdown`.
+/// Autosave of a node's axes: where state is kept, and how long a change may wait before it
+/// is written (changes within that time are written together).
+#[derive(Clone, Debug)]
+pub struct AutosaveConfig {
+    pub store: StateStore,
+    pub delay: Duration,
+}
+
+/// How long a shutdown waits for moving axes to stop before saving anyway.
+const STOP_GRACE: Duration = Duration::from_secs(5);
+
+/// A running node: its axes' and calc links' tasks, stopped when dropped or on `shutdown`.
 pub struct Node {
-    tasks: Vec<tokio::task::JoinHandle<()>>,
+    axis_tasks: Vec<tokio::task::JoinHandle<()>>,
+    calc_tasks: Vec<tokio::task::JoinHandle<()>>,
     stop: tokio::sync::watch::Sender<bool>,
     _router: Router,
+    _values: Vec<ValueHolder>,
 }
 
 impl Node {
-    /// Start one task per axis, then one per calc link, on `session`.
+    /// Start one task per axis, then one per calc link, on `session`. With autosave, each axis
+    /// boots from its saved state (RSTM deciding about the position) and saves its changes.
     pub async fn start(
         session: Session,
         layout: KeyLayout,
         plans: Vec<AxisPlan>,
         calcs: Vec<CalcLinkSpec>,
+        values: Vec<ValueSpec>,
+        autosave: Option<AutosaveConfig>,
     ) -> Result<Self, Error> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
-        let mut tasks = Vec::new();
         let mut routes = std::collections::HashMap::new();
         let mut axis_tasks = Vec::new();
-        for plan in plans {
+        for mut plan in plans {
+            let saver = match &autosave {
+                Some(config) => Some(Saver::restore(config, &mut plan)?),
+                None => None,
+            };
             let (route, inputs) = tokio::sync::mpsc::unbounded_channel();
             routes.insert(plan.name.clone(), route);
             let io = AxisIo::declare(&session, &layout, &plan.name, inputs).await?;
@@ -74,32 +94,49 @@ impl Node {
             .map(|(kind, key)| (kind, key.clone()))
             .unzip();
             let links = KeyFollower::start(&session, keys).await?;
-            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds };
+            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds, saver };
             // Initialisation posts no monitors, as in EPICS: clients read the initial state with a
             // get once the liveliness token appears. (Publishing it would also cost Zenoh a new
             // resource per field and axis, a start-up growing with the square of the axes.)
             task.axis.drain_events().count();
+            // Boot may have changed the position (RSTM): the file follows what is.
+            if let Some(saver) = &mut task.saver {
+                saver.changed(task.clock);
+            }
             axis_tasks.push(task);
         }
         let router = Router::declare(&session, &layout, routes).await?;
-        for mut task in axis_tasks {
-            let stopped = stopped.clone();
-            tasks.push(tokio::spawn(async move { task.run(stopped).await }));
+        let mut holders = Vec::new();
+        for spec in values {
+            holders.push(ValueHolder::declare(&session, spec).await?);
         }
+        let axis_tasks = axis_tasks
+            .into_iter()
+            .map(|mut task| {
+                let stopped = stopped.clone();
+                tokio::spawn(async move { task.run(stopped).await })
+            })
+            .collect();
+        let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
             let inputs = KeyFollower::start(&session, link.input_keys().map(str::to_string).collect()).await?;
             let mut task = CalcTask { session: session.clone(), link, inputs };
-            let stopped = stopped.clone();
-            tasks.push(tokio::spawn(async move { task.run(stopped).await }));
+            calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
-        Ok(Self { tasks, stop, _router: router })
+        Ok(Self { axis_tasks, calc_tasks, stop, _router: router, _values: holders })
     }
 
+    /// Stop every moving axis, wait (at most `STOP_GRACE`) until they are done, save their
+    /// state, withdraw their liveliness tokens; then end the calc links, which may carry the
+    /// soft axes' stops and readbacks until then.
     pub async fn shutdown(mut self) {
         let _ = self.stop.send(true);
-        for task in std::mem::take(&mut self.tasks) {
+        for task in std::mem::take(&mut self.axis_tasks) {
             let _ = task.await;
+        }
+        for task in std::mem::take(&mut self.calc_tasks) {
+            task.abort();
         }
     }
 }
@@ -107,6 +144,9 @@ impl Node {
 impl Drop for Node {
     fn drop(&mut self) {
         let _ = self.stop.send(true);
+        for task in &self.calc_tasks {
+            task.abort();
+        }
     }
 }
 
@@ -206,7 +246,7 @@ struct AxisIo {
     inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
     /// Declared at the first driver command, so idle axes cost no publisher.
     trace: Option<zenoh::pubsub::Publisher<'static>>,
-    _token: zenoh::liveliness::LivelinessToken,
+    token: Option<zenoh::liveliness::LivelinessToken>,
 }
 
 impl AxisIo {
@@ -217,7 +257,7 @@ impl AxisIo {
         inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
     ) -> Result<Self, Error> {
         Ok(Self {
-            _token: session.liveliness().declare_token(layout.axis(name)).await?,
+            token: Some(session.liveliness().declare_token(layout.axis(name)).await?),
             trace: None,
             inputs,
             session: session.clone(),
@@ -246,6 +286,7 @@ struct AxisTask {
     /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `link_kinds` index.
     links: KeyFollower,
     link_kinds: Vec<InputLink>,
+    saver: Option<Saver>,
 }
 
 impl AxisTask {
@@ -253,10 +294,15 @@ impl AxisTask {
         self.clock.elapsed().as_secs_f64()
     }
 
+    /// Serve until the node stops; then stop the motion, save and withdraw the liveliness token.
     async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+        let mut stopping: Option<Instant> = None;
         loop {
             // A Soft Channel axis without a timer has nothing to wake for: look again in a minute.
-            let wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup().min(self.now() + 60.0));
+            let mut wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup().min(self.now() + 60.0));
+            for deadline in [stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten() {
+                wake = wake.min(deadline);
+            }
             tokio::select! {
                 Some((index, value)) = self.links.values.recv() => {
                     let now = self.now();
@@ -273,9 +319,32 @@ impl AxisTask {
                     let now = self.now();
                     self.axis.tick(now, false);
                 }
-                _ = stopped.changed() => break,
+                _ = stopped.changed(), if stopping.is_none() => {
+                    stopping = Some(Instant::now() + STOP_GRACE);
+                    if self.axis.fields().dmov == 0 {
+                        let now = self.now();
+                        if let Err(e) = self.axis.write(now, Field::STOP, &Value::Int(1)) {
+                            tracing::warn!(axis = %self.io.name, "stop at shutdown refused: {e}");
+                        }
+                    }
+                }
             }
             self.publish_events().await;
+            if let Some(saver) = &mut self.saver {
+                saver.flush_if_due(&self.io.name, self.axis.fields()).await;
+            }
+            if stopping.is_some_and(|limit| self.axis.fields().dmov == 1 || Instant::now() >= limit) {
+                break;
+            }
+        }
+        if self.axis.fields().dmov == 0 {
+            tracing::warn!(axis = %self.io.name, "still moving {STOP_GRACE:?} after the stop; saving anyway");
+        }
+        if let Some(saver) = &mut self.saver {
+            saver.flush(&self.io.name, self.axis.fields()).await;
+        }
+        if let Some(token) = self.io.token.take() {
+            let _ = token.undeclare().await;
         }
     }
 
@@ -297,7 +366,11 @@ impl AxisTask {
         let field = Field::from_name(name).ok_or_else(|| format!("{name}: unknown field"))?;
         let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
         let now = self.now();
-        self.axis.write(now, field, &value).map(|()| field).map_err(|e: WriteError| e.to_string())
+        self.axis.write(now, field, &value).map_err(|e: WriteError| e.to_string())?;
+        if let (Some(saver), Some(_)) = (&mut self.saver, field.autosave()) {
+            saver.changed(Instant::now());
+        }
+        Ok(field)
     }
 
     async fn on_query(&mut self, query: Query) {
@@ -416,7 +489,12 @@ impl AxisTask {
         let mut traced = None;
         for event in events {
             match event {
-                AxisEvent::Post(field, value) => self.publish(field, &value).await,
+                AxisEvent::Post(field, value) => {
+                    if let (Some(saver), Some(_)) = (&mut self.saver, field.autosave()) {
+                        saver.changed(Instant::now());
+                    }
+                    self.publish(field, &value).await
+                }
                 AxisEvent::Driver { command, t } => {
                     if self.io.trace.is_none() {
                         let key = self.io.layout.driver_cmd(&self.io.name);
@@ -476,6 +554,57 @@ impl AxisTask {
     }
 }
 
+/// The autosave of one axis: a change arms a deadline `delay` ahead; at the deadline the
+/// saved fields are written if they differ from what the file holds. Writes run off the
+/// runtime's threads; the axis waits for each (a few milliseconds, at most once per `delay`).
+struct Saver {
+    store: StateStore,
+    delay: Duration,
+    /// What the file holds.
+    written: SavedAxis,
+    due: Option<Instant>,
+}
+
+impl Saver {
+    /// Lay the saved state over the plan's fields, and be ready to save the axis.
+    fn restore(config: &AutosaveConfig, plan: &mut AxisPlan) -> Result<Self, Error> {
+        let saved = config.store.load(&plan.name)?;
+        if let Some(saved) = &saved {
+            let path = config.store.path(&plan.name);
+            saved.restore_into(&mut plan.fields).map_err(|e| format!("{}: {e}", path.display()))?;
+            tracing::info!(axis = %plan.name, file = %path.display(), "restored saved state");
+        }
+        Ok(Self { store: config.store.clone(), delay: config.delay, written: saved.unwrap_or_default(), due: None })
+    }
+
+    fn changed(&mut self, now: Instant) {
+        self.due.get_or_insert(now + self.delay);
+    }
+
+    async fn flush_if_due(&mut self, axis: &str, fields: &zmotor_msgs::Fields) {
+        if self.due.is_some_and(|due| Instant::now() >= due) {
+            self.flush(axis, fields).await;
+        }
+    }
+
+    /// Write the current state now if it differs from the file, and wait until it is written.
+    async fn flush(&mut self, axis: &str, fields: &zmotor_msgs::Fields) {
+        self.due = None;
+        let saved = SavedAxis::of(fields);
+        if saved == self.written {
+            return;
+        }
+        self.written = saved.clone();
+        let (store, axis) = (self.store.clone(), axis.to_string());
+        let write = tokio::task::spawn_blocking(move || {
+            if let Err(e) = store.save(&axis, &saved) {
+                tracing::error!(axis, file = %store.path(&axis).display(), "autosave failed: {e}");
+            }
+        });
+        let _ = write.await;
+    }
+}
+
 /// Follows keys as EPICS links follow PVs: every update, and the current value asked for once
 /// at the start (as a link does when it connects). Any sample is a reading, state or write.
 struct KeyFollower {
@@ -526,23 +655,48 @@ struct CalcTask {
 }
 
 impl CalcTask {
-    async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+    async fn run(&mut self) {
         let keys: Vec<String> = self.link.input_keys().map(str::to_string).collect();
-        loop {
-            tokio::select! {
-                update = self.inputs.values.recv() => {
-                    let Some((index, value)) = update else { break };
-                    if let Some(result) = self.link.update(&keys[index], value) {
-                        let output = &self.link.spec().output;
-                        // A write to the output key, like a calcout's OUT: plain, no state marker.
-                        if let Err(e) = self.session.put(output, result.to_string()).encoding(Encoding::TEXT_PLAIN).await {
-                            tracing::warn!(calc = %self.link.spec().name, output, "output put failed: {e}");
-                        }
-                    }
+        while let Some((index, value)) = self.inputs.values.recv().await {
+            if let Some(result) = self.link.update(&keys[index], value) {
+                let output = &self.link.spec().output;
+                // A write to the output key, like a calcout's OUT: plain, no state marker.
+                if let Err(e) = self.session.put(output, result.to_string()).encoding(Encoding::TEXT_PLAIN).await {
+                    tracing::warn!(calc = %self.link.spec().name, output, "output put failed: {e}");
                 }
-                _ = stopped.changed() => break,
             }
         }
+    }
+}
+
+/// A value holder (an ao/ai record that only holds a value): keeps the latest number put on
+/// its key and answers reads of it.
+struct ValueHolder {
+    _updates: zenoh::pubsub::Subscriber<()>,
+    _reads: zenoh::query::Queryable<()>,
+}
+
+impl ValueHolder {
+    async fn declare(session: &Session, spec: ValueSpec) -> Result<Self, Error> {
+        let value = std::sync::Arc::new(std::sync::Mutex::new(spec.initial));
+        let latest = value.clone();
+        let updates = session
+            .declare_subscriber(spec.key.clone())
+            .callback(move |sample| match sample_number(&sample) {
+                Some(x) => *latest.lock().unwrap_or_else(|e| e.into_inner()) = x,
+                None => tracing::warn!(key = %sample.key_expr(), "value holder: not a number; ignored"),
+            })
+            .await?;
+        let reads = session
+            .declare_queryable(spec.key.clone())
+            .callback(move |query| {
+                let x = *value.lock().unwrap_or_else(|e| e.into_inner());
+                let reply = query.reply(query.key_expr().clone(), encode_cbor(&Value::Float(x)));
+                // Replies of a callback are sent without waiting: callbacks must not block.
+                let _ = zenoh::Wait::wait(reply.encoding(Encoding::APPLICATION_CBOR));
+            })
+            .await?;
+        Ok(Self { _updates: updates, _reads: reads })
     }
 }
 

@@ -56,20 +56,21 @@ impl TestNode {
         let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
         let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
         let layout = KeyLayout::default();
-        let node = Node::start(session.clone(), layout.clone(), plans, vec![]).await.unwrap();
+        let node = Node::start(session.clone(), layout.clone(), plans, vec![], vec![], None).await.unwrap();
         Self { node: Some(node), session, endpoint, layout }
     }
 
     /// Start the axes and calc links of a launch file's text, on a free port.
     pub async fn launch(text: &str) -> Self {
         let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-        let launch = Launch::parse(text).unwrap();
-        let section = ZenohSection { listen: vec![endpoint.clone()], ..launch.zenoh.clone() };
+        let deployment = Launch::parse(text).unwrap().deployment(None).unwrap();
+        let section = ZenohSection { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
         let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
-        let layout = KeyLayout::new(&launch.zenoh.prefix);
-        let node = Node::start(session.clone(), layout.clone(), launch.plans().unwrap(), launch.calc_links().unwrap())
-            .await
-            .unwrap();
+        let layout = KeyLayout::new(&deployment.zenoh.prefix);
+        let node =
+            Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, None)
+                .await
+                .unwrap();
         Self { node: Some(node), session, endpoint, layout }
     }
 

@@ -1,0 +1,194 @@
+//! Autosave and restore, as EPICS autosave does for motor records: each axis's position (DVAL,
+//! OFF) and settings are kept in one small TOML file per axis, written atomically (a temporary
+//! file, fsync, rename, fsync of the directory), so a node killed at any instant leaves either
+//! the previous file or the new one. At boot the saved values are laid over the launch file's
+//! before the record initialises; RSTM then decides whether the saved DVAL is loaded into the
+//! driver (`MotorRecord::restore_commands`).
+
+use std::collections::BTreeMap;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use zmotor_msgs::{Autosave, Field, Fields, Value};
+
+/// The environment variable that overrides the launch file's `state_dir`.
+pub const STATE_DIR_ENV: &str = "ZMOTOR_STATE_DIR";
+
+/// Where state is kept: `ZMOTOR_STATE_DIR`, else the launch file's `state_dir`, else the
+/// per-user state directory (`$XDG_STATE_HOME/zmotor`, `~/.local/state/zmotor`). Never the
+/// current directory by surprise.
+pub fn state_dir(configured: Option<&Path>) -> Result<PathBuf, String> {
+    let env = |name: &str| std::env::var_os(name).filter(|v| !v.is_empty()).map(PathBuf::from);
+    if let Some(dir) = env(STATE_DIR_ENV) {
+        return Ok(dir);
+    }
+    if let Some(dir) = configured {
+        return Ok(dir.to_path_buf());
+    }
+    if let Some(state_home) = env("XDG_STATE_HOME").filter(|d| d.is_absolute()) {
+        return Ok(state_home.join("zmotor"));
+    }
+    env("HOME")
+        .map(|home| home.join(".local/state/zmotor"))
+        .ok_or_else(|| format!("no state directory: set state_dir in the launch file or {STATE_DIR_ENV}"))
+}
+
+/// The saved fields of one axis, by EPICS name.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SavedAxis {
+    #[serde(default)]
+    pub position: BTreeMap<String, toml::Value>,
+    #[serde(default)]
+    pub settings: BTreeMap<String, toml::Value>,
+}
+
+impl SavedAxis {
+    /// What autosave keeps of these fields.
+    pub fn of(fields: &Fields) -> Self {
+        let mut saved = Self::default();
+        for field in Field::all() {
+            let section = match field.autosave() {
+                Some(Autosave::Position) => &mut saved.position,
+                Some(Autosave::Setting) => &mut saved.settings,
+                None => continue,
+            };
+            let value = match fields.get(field) {
+                Value::Int(i) => toml::Value::Integer(i),
+                Value::Float(x) => toml::Value::Float(x),
+                Value::Text(t) => toml::Value::String(t),
+            };
+            section.insert(field.name().to_string(), value);
+        }
+        saved
+    }
+
+    /// Lay the saved values over `fields`; Err names an entry that cannot be restored (the file
+    /// was edited by hand or comes from another version), and nothing is changed then.
+    pub fn restore_into(&self, fields: &mut Fields) -> Result<(), String> {
+        let mut restored = fields.clone();
+        for (name, raw) in self.position.iter().chain(&self.settings) {
+            let field = Field::from_name(name)
+                .filter(|f| f.autosave().is_some())
+                .ok_or_else(|| format!("{name}: not a field autosave keeps"))?;
+            let value = match raw {
+                toml::Value::Integer(i) => Value::Int(*i),
+                toml::Value::Float(x) => Value::Float(*x),
+                toml::Value::String(s) => Value::Text(s.clone()),
+                other => return Err(format!("{name}: a {} cannot be a field value", other.type_str())),
+            };
+            let value = zmotor_msgs::validate(field.def(), value).map_err(|e| e.to_string())?;
+            restored.set(field, &value);
+        }
+        // The saved dial limits win over raw limits given in the launch file (the boot
+        // reconciliation otherwise prefers non-zero raw limits).
+        if self.settings.contains_key("DHLM") || self.settings.contains_key("DLLM") {
+            restored.rhlm = 0.0;
+            restored.rllm = 0.0;
+        }
+        *fields = restored;
+        Ok(())
+    }
+}
+
+/// One directory of per-axis state files: `<state_dir>/<prefix>/<axis>.toml`.
+#[derive(Clone, Debug)]
+pub struct StateStore {
+    dir: PathBuf,
+}
+
+impl StateStore {
+    pub fn open(state_dir: &Path, prefix: &str) -> Result<Self, String> {
+        let dir = state_dir.join(prefix);
+        std::fs::create_dir_all(&dir).map_err(|e| format!("state directory {}: {e}", dir.display()))?;
+        Ok(Self { dir })
+    }
+
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    pub fn path(&self, axis: &str) -> PathBuf {
+        self.dir.join(format!("{axis}.toml"))
+    }
+
+    /// The saved state of an axis; None when nothing was saved yet.
+    pub fn load(&self, axis: &str) -> Result<Option<SavedAxis>, String> {
+        let path = self.path(axis);
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(format!("{}: {e}", path.display())),
+        };
+        toml::from_str(&text).map(Some).map_err(|e| format!("{}: {e}", path.display()))
+    }
+
+    /// Write an axis's state atomically and durably.
+    pub fn save(&self, axis: &str, saved: &SavedAxis) -> std::io::Result<()> {
+        let text = toml::to_string(saved).map_err(std::io::Error::other)?;
+        let path = self.path(axis);
+        let temporary = self.dir.join(format!(".{axis}.toml.tmp"));
+        let mut file = std::fs::File::create(&temporary)?;
+        writeln!(file, "# zmotor autosave of axis '{axis}': written by the node; edit only while it is stopped.")?;
+        file.write_all(text.as_bytes())?;
+        file.sync_all()?;
+        drop(file);
+        std::fs::rename(&temporary, &path)?;
+        // The rename itself must reach the disk before the save counts as done.
+        std::fs::File::open(&self.dir)?.sync_all()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn configured() -> Fields {
+        Fields { dval: 12.5, off: -1.0, velo: 3.0, egu: "mm".into(), rstm: 1, homf: 1, ..Fields::default() }
+    }
+
+    #[test]
+    fn positions_and_settings_survive_a_round_trip_through_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = StateStore::open(dir.path(), "motor").unwrap();
+        assert_eq!(store.load("m1").unwrap(), None);
+        store.save("m1", &SavedAxis::of(&configured())).unwrap();
+        let mut restored = Fields::default();
+        store.load("m1").unwrap().unwrap().restore_into(&mut restored).unwrap();
+        assert_eq!((restored.dval, restored.off, restored.velo), (12.5, -1.0, 3.0));
+        assert_eq!((restored.egu.as_str(), restored.rstm), ("mm", 1));
+        assert_eq!(restored.homf, 0, "a command is never saved, so a restart moves nothing");
+        let leftovers: Vec<_> = std::fs::read_dir(store.dir()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(leftovers, vec![std::ffi::OsString::from("m1.toml")], "no temporary file is left behind");
+    }
+
+    #[test]
+    fn a_hand_edited_file_with_a_bad_entry_changes_nothing() {
+        let mut saved = SavedAxis::of(&configured());
+        saved.settings.insert("DIR".into(), toml::Value::String("Sideways".into()));
+        let mut fields = Fields::default();
+        assert!(saved.restore_into(&mut fields).unwrap_err().contains("'Sideways' is not a choice"));
+        assert_eq!(fields, Fields::default());
+        saved.settings.remove("DIR");
+        saved.settings.insert("RBV".into(), toml::Value::Float(1.0));
+        assert_eq!(saved.restore_into(&mut fields).unwrap_err(), "RBV: not a field autosave keeps");
+    }
+
+    #[test]
+    fn saved_dial_limits_win_over_raw_limits_of_the_launch_file() {
+        let saved = SavedAxis::of(&Fields { dhlm: 7.0, ..Fields::default() });
+        let mut fields = Fields { rhlm: 500.0, ..Fields::default() };
+        saved.restore_into(&mut fields).unwrap();
+        assert_eq!((fields.dhlm, fields.rhlm), (7.0, 0.0));
+    }
+
+    #[test]
+    fn the_environment_overrides_the_launch_file() {
+        // One test owns the variable: tests in this binary run in parallel.
+        std::env::set_var(STATE_DIR_ENV, "/from/env");
+        assert_eq!(state_dir(Some(Path::new("/from/file"))).unwrap(), PathBuf::from("/from/env"));
+        std::env::remove_var(STATE_DIR_ENV);
+        assert_eq!(state_dir(Some(Path::new("/from/file"))).unwrap(), PathBuf::from("/from/file"));
+        let default = state_dir(None).unwrap();
+        assert!(default.ends_with("zmotor") && default.is_absolute(), "{default:?}");
+    }
+}
