@@ -256,7 +256,14 @@ async fn launch(
     } else {
         None
     };
-    let session = zenoh::open(zenoh_config(&deployment.zenoh)?).await?;
+    let mut config = zenoh_config(&deployment.zenoh)?;
+    // A node may start before the router or peers it connects to: it keeps trying (clients
+    // otherwise give up at once) and serves from the first connection.
+    config.insert_json5("connect/timeout_ms", "-1")?;
+    if !deployment.zenoh.connect.is_empty() {
+        tracing::info!(connect = ?deployment.zenoh.connect, "connecting");
+    }
+    let session = zenoh::open(config).await?;
     let names: Vec<String> = deployment.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.calcs.iter().map(|c| c.name.clone()).collect();
     let node =
