@@ -840,6 +840,29 @@ mod tests {
     }
 
     #[test]
+    fn every_shipped_launch_file_loads() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../launch");
+        let mut loaded = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "toml") {
+                let launch = Launch::load(&path).unwrap_or_else(|e| panic!("{e}"));
+                for host in launch.hosts().map(str::to_string).collect::<Vec<_>>() {
+                    launch.deployment(Some(&host)).unwrap();
+                }
+                loaded += 1;
+            }
+        }
+        assert!(loaded >= 4, "{loaded} launch files in {}", dir.display());
+        let reference = Launch::load(&dir.join("reference.toml")).unwrap();
+        let optics = reference.deployment(Some("optics")).unwrap();
+        let names: Vec<&str> = optics.plans.iter().map(|p| p.name.as_str()).collect();
+        assert_eq!(names, ["m1", "slit_top", "slit_bottom"], "the included slits run on the optics host");
+        let user = reference.deployment(Some("user")).unwrap();
+        assert_eq!((user.calcs.len(), user.values.len(), user.zenoh.mode.as_str()), (1, 1, "client"));
+    }
+
+    #[test]
     fn state_dir_is_relative_to_the_launch_file() {
         let dir = tempfile::tempdir().unwrap();
         std::fs::write(dir.path().join("l.toml"), "state_dir = \"state\"\n[autosave]\ndelay = 0.2\n").unwrap();
