@@ -285,11 +285,16 @@ impl Launch {
             message: format!("cannot read: {e}"),
         })?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
-        Self::from_text(&name, &text, &base)
+        Self::build(&name, &text, &base, std::fs::canonicalize(path).ok())
     }
 
     /// Check a launch file's text; includes are resolved against `base`.
     pub fn from_text(name: &str, text: &str, base: &Path) -> Result<Self, LaunchError> {
+        Self::build(name, text, base, None)
+    }
+
+    /// `canonical`: the main file's own path, so that including it is found out.
+    fn build(name: &str, text: &str, base: &Path, canonical: Option<PathBuf>) -> Result<Self, LaunchError> {
         let mut launch = Self { file: LaunchFile::default(), base: base.to_path_buf(), sources: Vec::new() };
         let main = launch.read_source(name, text)?;
         if let Some(zenoh) = main.zenoh.clone() {
@@ -297,7 +302,7 @@ impl Launch {
         }
         launch.file.state_dir = main.state_dir.clone();
         launch.file.autosave = main.autosave.clone();
-        let mut visited = BTreeSet::from([std::fs::canonicalize(base.join(name)).unwrap_or_else(|_| name.into())]);
+        let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
         launch.merge(main, base, &mut visited)?;
         launch.check().map_err(|p| launch.error(p))?;
         Ok(launch)
@@ -833,7 +838,8 @@ mod tests {
         let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
         assert_eq!((error.line, error.message.as_str()), (Some(1), "zenoh may only be set in the main launch file"));
         write("hutch/more.toml", "include = [\"../main.toml\"]\n");
-        assert!(Launch::load(&dir.path().join("main.toml")).unwrap_err().message.contains("included twice"));
+        let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+        assert!(error.file.ends_with("more.toml") && error.message.contains("main.toml is included twice"), "{error}");
         write("hutch/more.toml", "include = [\"missing.toml\"]\n");
         let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
         assert!(error.file.ends_with("more.toml") && error.message.contains("missing.toml"), "{error}");
