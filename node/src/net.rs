@@ -17,7 +17,7 @@ use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::Sample;
-use zenoh::Session;
+use zenoh::{Session, Wait};
 use zmotor_bridge::{CalcLink, CalcLinkSpec};
 use zmotor_msgs::{
     decode_scalar, encode_cbor, keys, DriverTrace, Field, KeyLayout, PayloadEncoding, StateMarker, Value,
@@ -74,16 +74,12 @@ impl Node {
                 Some(config) => Some(Saver::restore(config, &mut plan)?),
                 None => None,
             };
-            let (route, inputs) = tokio::sync::mpsc::unbounded_channel();
-            routes.insert(plan.name.clone(), route);
-            let io = AxisIo::declare(&session, &layout, &plan.name, inputs).await?;
-            let clock = Instant::now();
             let axis = match plan.driver {
                 DriverPlan::Sim(sim) => Axis::new(plan.fields, Box::new(SimAxis::new(sim)), plan.rates, 0.0),
                 DriverPlan::Soft => Axis::new_soft(plan.fields, plan.rates, 0.0),
             };
             let f = axis.fields();
-            let (kinds, keys): (Vec<InputLink>, Vec<String>) = [
+            let (link_kinds, keys): (Vec<InputLink>, Vec<String>) = [
                 (InputLink::Readback, &f.rdbl),
                 (InputLink::RawPosition, &f.rinp),
                 (InputLink::Done, &f.dinp),
@@ -94,16 +90,41 @@ impl Node {
             .map(|(kind, key)| (kind, key.clone()))
             .unzip();
             let links = KeyFollower::start(&session, keys).await?;
-            let mut task = AxisTask { io, axis, clock, seq: 0, waiting: Vec::new(), links, link_kinds: kinds, saver };
+            let mut core = AxisCore {
+                session: session.clone(),
+                layout: layout.clone(),
+                name: plan.name.clone(),
+                axis,
+                clock: Instant::now(),
+                seq: 0,
+                waiting: Vec::new(),
+                trace: None,
+                // Boot may have changed the position (RSTM): the file follows what is.
+                changed: true,
+            };
             // Initialisation posts no monitors, as in EPICS: clients read the initial state with a
             // get once the liveliness token appears. (Publishing it would also cost Zenoh a new
             // resource per field and axis, a start-up growing with the square of the axes.)
-            task.axis.drain_events().count();
-            // Boot may have changed the position (RSTM): the file follows what is.
-            if let Some(saver) = &mut task.saver {
-                saver.changed(task.clock);
-            }
-            axis_tasks.push(task);
+            core.axis.drain_events().count();
+            let (queue_in, queue) = tokio::sync::mpsc::unbounded_channel();
+            let handle = AxisHandle {
+                core: std::sync::Arc::new(std::sync::Mutex::new(core)),
+                queue: queue_in,
+                queued: Default::default(),
+                rearm: Default::default(),
+            };
+            routes.insert(plan.name.clone(), handle.clone());
+            axis_tasks.push(AxisTask {
+                core: handle.core,
+                queue,
+                queued: handle.queued,
+                rearm: handle.rearm,
+                links,
+                link_kinds,
+                saver,
+                token: Some(session.liveliness().declare_token(layout.axis(&plan.name)).await?),
+                name: plan.name,
+            });
         }
         let router = Router::declare(&session, &layout, routes).await?;
         let mut holders = Vec::new();
@@ -158,7 +179,46 @@ enum AxisInput {
     SimQuery(Query),
 }
 
-type Routes = std::collections::HashMap<String, tokio::sync::mpsc::UnboundedSender<AxisInput>>;
+/// How the router reaches one axis. A write is handled at once on the Zenoh thread that
+/// received it (no hop to another thread before DMOV 0 goes out) when the axis is free and
+/// nothing is queued before it; otherwise it is queued for the axis's task, in order. Callbacks
+/// never wait for a lock, so an axis writing to itself or two axes writing to each other cannot
+/// deadlock.
+#[derive(Clone)]
+struct AxisHandle {
+    core: std::sync::Arc<std::sync::Mutex<AxisCore>>,
+    queue: tokio::sync::mpsc::UnboundedSender<AxisInput>,
+    queued: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    /// Tells the task that its next wake-up may have moved.
+    rearm: std::sync::Arc<tokio::sync::Notify>,
+}
+
+impl AxisHandle {
+    fn deliver(&self, input: AxisInput) {
+        use std::sync::atomic::Ordering;
+        if self.queued.load(Ordering::Acquire) == 0 {
+            let core = match self.core.try_lock() {
+                Ok(core) => Some(core),
+                Err(std::sync::TryLockError::Poisoned(poisoned)) => Some(poisoned.into_inner()),
+                Err(std::sync::TryLockError::WouldBlock) => None,
+            };
+            if let Some(mut core) = core {
+                core.handle(input);
+                drop(core);
+                self.rearm.notify_one();
+                return;
+            }
+        }
+        self.queued.fetch_add(1, Ordering::AcqRel);
+        let _ = self.queue.send(input);
+    }
+}
+
+fn lock(core: &std::sync::Mutex<AxisCore>) -> std::sync::MutexGuard<'_, AxisCore> {
+    core.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+type Routes = std::collections::HashMap<String, AxisHandle>;
 
 /// The node's Zenoh entities for all its axes. Their callbacks hand each sample or query to
 /// its axis at once and never block: the node's own publications pass through them too.
@@ -210,8 +270,8 @@ impl Router {
 /// `<prefix><axis>/...` goes to that axis, if it is one of ours.
 fn route_sample(routes: &Routes, prefix: &str, sample: Sample, wrap: fn(Sample) -> AxisInput) {
     let axis = sample.key_expr().as_str().strip_prefix(prefix).and_then(|rest| rest.split('/').next());
-    if let Some(route) = axis.and_then(|axis| routes.get(axis)) {
-        let _ = route.send(wrap(sample));
+    if let Some(handle) = axis.and_then(|axis| routes.get(axis)) {
+        handle.deliver(wrap(sample));
     }
 }
 
@@ -225,49 +285,16 @@ fn route_query(routes: &Routes, prefix: &str, query: Query, wrap: fn(Query) -> A
         .unwrap_or("")
         .to_string();
     if !chunk.is_empty() && !chunk.contains(['*', '$']) {
-        if let Some(route) = routes.get(&chunk) {
-            let _ = route.send(wrap(query));
+        if let Some(handle) = routes.get(&chunk) {
+            handle.deliver(wrap(query));
         }
         return;
     }
-    for (axis, route) in routes.iter() {
+    for (axis, handle) in routes.iter() {
         let Ok(all) = KeyExpr::try_from(format!("{prefix}{axis}/**")) else { continue };
         if query.key_expr().intersects(&all) {
-            let _ = route.send(wrap(query.clone()));
+            handle.deliver(wrap(query.clone()));
         }
-    }
-}
-
-/// The Zenoh side of one axis: where it publishes, and what the router hands it.
-struct AxisIo {
-    session: Session,
-    layout: KeyLayout,
-    name: String,
-    inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
-    /// Declared at the first driver command, so idle axes cost no publisher.
-    trace: Option<zenoh::pubsub::Publisher<'static>>,
-    token: Option<zenoh::liveliness::LivelinessToken>,
-}
-
-impl AxisIo {
-    async fn declare(
-        session: &Session,
-        layout: &KeyLayout,
-        name: &str,
-        inputs: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
-    ) -> Result<Self, Error> {
-        Ok(Self {
-            token: Some(session.liveliness().declare_token(layout.axis(name)).await?),
-            trace: None,
-            inputs,
-            session: session.clone(),
-            layout: layout.clone(),
-            name: name.to_string(),
-        })
-    }
-
-    fn field_key(&self, field: Field) -> KeyExpr<'static> {
-        KeyExpr::try_from(self.layout.field(&self.name, field)).expect("axis names are checked at launch")
     }
 }
 
@@ -277,87 +304,75 @@ struct Waiter {
     field: Field,
 }
 
-struct AxisTask {
-    io: AxisIo,
+/// One axis and its Zenoh side, under one lock: whatever reaches the axis (a write, a query, a
+/// link update, a tick) is applied and its events published before the lock is released.
+/// Publications and replies are sent without awaiting (`wait`), so a Zenoh callback can run this.
+struct AxisCore {
+    session: Session,
+    layout: KeyLayout,
+    name: String,
     axis: Axis,
     clock: Instant,
     seq: u64,
     waiting: Vec<Waiter>,
-    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `link_kinds` index.
-    links: KeyFollower,
-    link_kinds: Vec<InputLink>,
-    saver: Option<Saver>,
+    /// Declared at the first driver command, so idle axes cost no publisher.
+    trace: Option<zenoh::pubsub::Publisher<'static>>,
+    /// A saved field changed since the task last looked (autosave).
+    changed: bool,
 }
 
-impl AxisTask {
+impl AxisCore {
     fn now(&self) -> f64 {
         self.clock.elapsed().as_secs_f64()
     }
 
-    /// Serve until the node stops; then stop the motion, save and withdraw the liveliness token.
-    async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
-        let mut stopping: Option<Instant> = None;
-        loop {
-            // A Soft Channel axis without a timer has nothing to wake for: look again in a minute.
-            let mut wake = self.clock + Duration::from_secs_f64(self.axis.next_wakeup().min(self.now() + 60.0));
-            for deadline in [stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten() {
-                wake = wake.min(deadline);
-            }
-            tokio::select! {
-                Some((index, value)) = self.links.values.recv() => {
-                    let now = self.now();
-                    self.axis.link_update(now, self.link_kinds[index], value);
-                }
-                input = self.io.inputs.recv() => match input {
-                    Some(AxisInput::Write(sample)) => self.on_write_sample(sample).await,
-                    Some(AxisInput::Query(query)) => self.on_query(query).await,
-                    Some(AxisInput::SimWrite(sample)) => self.on_sim_write(sample).await,
-                    Some(AxisInput::SimQuery(query)) => self.on_sim_query(query).await,
-                    None => break,
-                },
-                _ = tokio::time::sleep_until(wake) => {
-                    let now = self.now();
-                    self.axis.tick(now, false);
-                }
-                _ = stopped.changed(), if stopping.is_none() => {
-                    stopping = Some(Instant::now() + STOP_GRACE);
-                    if self.axis.fields().dmov == 0 {
-                        let now = self.now();
-                        if let Err(e) = self.axis.write(now, Field::STOP, &Value::Int(1)) {
-                            tracing::warn!(axis = %self.io.name, "stop at shutdown refused: {e}");
-                        }
-                    }
-                }
-            }
-            self.publish_events().await;
-            if let Some(saver) = &mut self.saver {
-                saver.flush_if_due(&self.io.name, self.axis.fields()).await;
-            }
-            if stopping.is_some_and(|limit| self.axis.fields().dmov == 1 || Instant::now() >= limit) {
-                break;
-            }
+    fn field_key(&self, field: Field) -> KeyExpr<'static> {
+        KeyExpr::try_from(self.layout.field(&self.name, field)).expect("axis names are checked at launch")
+    }
+
+    fn handle(&mut self, input: AxisInput) {
+        match input {
+            AxisInput::Write(sample) => self.on_write_sample(sample),
+            AxisInput::Query(query) => self.on_query(query),
+            AxisInput::SimWrite(sample) => self.on_sim_write(sample),
+            AxisInput::SimQuery(query) => self.on_sim_query(query),
         }
+        self.publish_events();
+    }
+
+    fn tick(&mut self) {
+        let now = self.now();
+        self.axis.tick(now, false);
+        self.publish_events();
+    }
+
+    fn link_update(&mut self, link: InputLink, value: f64) {
+        let now = self.now();
+        self.axis.link_update(now, link, value);
+        self.publish_events();
+    }
+
+    /// The start of a shutdown: a moving axis is told to stop.
+    fn stop_motion(&mut self) {
         if self.axis.fields().dmov == 0 {
-            tracing::warn!(axis = %self.io.name, "still moving {STOP_GRACE:?} after the stop; saving anyway");
-        }
-        if let Some(saver) = &mut self.saver {
-            saver.flush(&self.io.name, self.axis.fields()).await;
-        }
-        if let Some(token) = self.io.token.take() {
-            let _ = token.undeclare().await;
+            let now = self.now();
+            if let Err(e) = self.axis.write(now, Field::STOP, &Value::Int(1)) {
+                tracing::warn!(axis = %self.name, "stop at shutdown refused: {e}");
+            }
+            self.publish_events();
         }
     }
 
     /// A plain put (the router has dropped state publications).
-    async fn on_write_sample(&mut self, sample: Sample) {
+    fn on_write_sample(&mut self, sample: Sample) {
         let key = sample.key_expr().as_str().to_string();
-        let Some(name) = self.io.layout.field_name(&self.io.name, &key) else {
+        let Some(name) = self.layout.field_name(&self.name, &key) else {
             return;
         };
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         if let Err(message) = self.apply_write(name, &sample.payload().to_bytes(), encoding) {
-            tracing::warn!(axis = %self.io.name, key, "write refused: {message}");
-            self.publish_error(&message).await;
+            tracing::warn!(axis = %self.name, key, "write refused: {message}");
+            self.publish_error(&message);
         }
     }
 
@@ -367,52 +382,50 @@ impl AxisTask {
         let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
         let now = self.now();
         self.axis.write(now, field, &value).map_err(|e: WriteError| e.to_string())?;
-        if let (Some(saver), Some(_)) = (&mut self.saver, field.autosave()) {
-            saver.changed(Instant::now());
-        }
+        self.changed |= field.autosave().is_some();
         Ok(field)
     }
 
-    async fn on_query(&mut self, query: Query) {
+    fn on_query(&mut self, query: Query) {
         let key = query.key_expr().as_str().to_string();
-        match (self.io.layout.field_name(&self.io.name, &key), query.payload().map(|p| p.to_bytes().into_owned())) {
+        match (self.layout.field_name(&self.name, &key), query.payload().map(|p| p.to_bytes().into_owned())) {
             (Some(name), Some(payload)) => {
                 let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
                 match self.apply_write(name, &payload, encoding) {
                     Err(message) => {
-                        tracing::warn!(axis = %self.io.name, key, "confirmed write refused: {message}");
-                        self.publish_error(&message).await;
-                        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).await;
+                        tracing::warn!(axis = %self.name, key, "confirmed write refused: {message}");
+                        self.publish_error(&message);
+                        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).wait();
                     }
                     Ok(field) if query.parameters().contains_key("wait") && self.axis.fields().dmov == 0 => {
                         self.waiting.push(Waiter { query, field });
                     }
-                    Ok(field) if query.parameters().contains_key("wait") => self.reply_completion(&query, field).await,
-                    Ok(field) => self.reply_field(&query, field).await,
+                    Ok(field) if query.parameters().contains_key("wait") => self.reply_completion(&query, field),
+                    Ok(field) => self.reply_field(&query, field),
                 }
             }
             (Some(name), None) if !name.contains('*') && Field::from_name(name).is_none() => {
-                let _ = query.reply_err(format!("{name}: unknown field")).encoding(Encoding::TEXT_PLAIN).await;
+                let _ = query.reply_err(format!("{name}: unknown field")).encoding(Encoding::TEXT_PLAIN).wait();
             }
             _ => {
                 // A read of one field or of a key expression covering several.
                 let selected = query.key_expr().clone();
                 for field in zmotor_msgs::Field::all() {
-                    if selected.intersects(&self.io.field_key(field)) {
-                        self.reply_field(&query, field).await;
+                    if selected.intersects(&self.field_key(field)) {
+                        self.reply_field(&query, field);
                     }
                 }
             }
         }
     }
 
-    async fn reply_field(&self, query: &Query, field: Field) {
+    fn reply_field(&self, query: &Query, field: Field) {
         let value = self.axis.record().get(field);
-        let _ = query.reply(self.io.field_key(field), encode_cbor(&value)).encoding(Encoding::APPLICATION_CBOR).await;
+        let _ = query.reply(self.field_key(field), encode_cbor(&value)).encoding(Encoding::APPLICATION_CBOR).wait();
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
-    async fn reply_completion(&self, query: &Query, field: Field) {
+    fn reply_completion(&self, query: &Query, field: Field) {
         let f = self.axis.fields();
         let reached = f.miss == 0 && f.lvio == 0 && f.sevr < zmotor_msgs::menus::severity::MAJOR;
         let outcome = std::collections::BTreeMap::from([
@@ -425,10 +438,10 @@ impl AxisTask {
             ("SEVR", Value::Int(f.sevr.into())),
             ("reached", Value::Int(reached.into())),
         ]);
-        let _ = query.reply(self.io.field_key(field), encode_cbor(&outcome)).encoding(Encoding::APPLICATION_CBOR).await;
+        let _ = query.reply(self.field_key(field), encode_cbor(&outcome)).encoding(Encoding::APPLICATION_CBOR).wait();
     }
 
-    async fn on_sim_write(&mut self, sample: Sample) {
+    fn on_sim_write(&mut self, sample: Sample) {
         let key = sample.key_expr().as_str().to_string();
         let name = key.rsplit('/').next().unwrap_or_default().to_string();
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
@@ -443,13 +456,13 @@ impl AxisTask {
         match result {
             Ok(()) => self.axis.tick(now, true),
             Err(message) => {
-                tracing::warn!(axis = %self.io.name, "{message}");
-                self.publish_error(&message).await;
+                tracing::warn!(axis = %self.name, "{message}");
+                self.publish_error(&message);
             }
         }
     }
 
-    async fn on_sim_query(&mut self, query: Query) {
+    fn on_sim_query(&mut self, query: Query) {
         let now = self.now();
         self.axis.tick(now, false);
         let Some(sim) = self.axis.simulation() else {
@@ -475,53 +488,48 @@ impl AxisTask {
             entries.push((name, encode_cbor(&value)));
         }
         for (name, payload) in entries {
-            let Ok(key) = KeyExpr::try_from(keys::sim_key(&self.io.name, name)) else {
+            let Ok(key) = KeyExpr::try_from(keys::sim_key(&self.name, name)) else {
                 continue;
             };
             if query.key_expr().intersects(&key) {
-                let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).await;
+                let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).wait();
             }
         }
     }
 
-    async fn publish_events(&mut self) {
+    fn publish_events(&mut self) {
         let events: Vec<AxisEvent> = self.axis.drain_events().collect();
         let mut traced = None;
         for event in events {
             match event {
                 AxisEvent::Post(field, value) => {
-                    if let (Some(saver), Some(_)) = (&mut self.saver, field.autosave()) {
-                        saver.changed(Instant::now());
-                    }
-                    self.publish(field, &value).await
+                    self.changed |= field.autosave().is_some();
+                    self.publish(field, &value)
                 }
                 AxisEvent::Driver { command, t } => {
-                    if self.io.trace.is_none() {
-                        let key = self.io.layout.driver_cmd(&self.io.name);
-                        self.io.trace =
-                            self.io.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await.ok();
+                    if self.trace.is_none() {
+                        let key = self.layout.driver_cmd(&self.name);
+                        self.trace =
+                            self.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).wait().ok();
                     }
-                    let Some(trace_publisher) = &self.io.trace else { continue };
-                    let listening = match traced {
-                        Some(listening) => listening,
-                        None => *traced
-                            .insert(trace_publisher.matching_status().await.map(|m| m.matching()).unwrap_or(false)),
-                    };
+                    let Some(trace_publisher) = &self.trace else { continue };
+                    let listening = *traced
+                        .get_or_insert_with(|| trace_publisher.matching_status().wait().is_ok_and(|m| m.matching()));
                     if listening {
                         self.seq += 1;
                         let trace = DriverTrace { command, t, seq: self.seq };
-                        let _ = trace_publisher.put(encode_cbor(&trace)).await;
+                        let _ = trace_publisher.put(encode_cbor(&trace)).wait();
                     }
                 }
                 AxisEvent::Put { key, value } => {
                     // A directive's put is a command to another node: a plain write, no marker.
-                    if let Err(e) = self.io.session.put(&key, value).encoding(Encoding::TEXT_PLAIN).await {
-                        tracing::warn!(axis = %self.io.name, key, "directive put failed: {e}");
+                    if let Err(e) = self.session.put(&key, value).encoding(Encoding::TEXT_PLAIN).wait() {
+                        tracing::warn!(axis = %self.name, key, "directive put failed: {e}");
                     }
                 }
                 AxisEvent::Done => {
                     for waiter in std::mem::take(&mut self.waiting) {
-                        self.reply_completion(&waiter.query, waiter.field).await;
+                        self.reply_completion(&waiter.query, waiter.field);
                     }
                 }
             }
@@ -534,23 +542,95 @@ impl AxisTask {
         ZBytes::from(StateMarker::new(self.seq, f.stat, f.sevr).encode())
     }
 
-    async fn publish(&mut self, field: Field, value: &Value) {
+    fn publish(&mut self, field: Field, value: &Value) {
         let attachment = self.marker();
-        let key = self.io.field_key(field);
+        let key = self.field_key(field);
         let _ = self
-            .io
             .session
             .put(key, encode_cbor(value))
             .encoding(Encoding::APPLICATION_CBOR)
             .attachment(attachment)
-            .await;
+            .wait();
     }
 
-    async fn publish_error(&mut self, message: &str) {
+    fn publish_error(&mut self, message: &str) {
         let attachment = self.marker();
-        let key = self.io.layout.err(&self.io.name);
-        let _ =
-            self.io.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).await;
+        let key = self.layout.err(&self.name);
+        let _ = self.session.put(key, message.to_string()).encoding(Encoding::TEXT_PLAIN).attachment(attachment).wait();
+    }
+}
+
+/// The task of one axis: the wall clock, link updates, queued inputs, autosave and shutdown.
+struct AxisTask {
+    core: std::sync::Arc<std::sync::Mutex<AxisCore>>,
+    queue: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
+    queued: std::sync::Arc<std::sync::atomic::AtomicUsize>,
+    rearm: std::sync::Arc<tokio::sync::Notify>,
+    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `link_kinds` index.
+    links: KeyFollower,
+    link_kinds: Vec<InputLink>,
+    saver: Option<Saver>,
+    token: Option<zenoh::liveliness::LivelinessToken>,
+    name: String,
+}
+
+impl AxisTask {
+    /// Serve until the node stops; then stop the motion, save and withdraw the liveliness token.
+    async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
+        let mut stopping: Option<Instant> = None;
+        let clock = lock(&self.core).clock;
+        loop {
+            let next = {
+                let core = lock(&self.core);
+                // A Soft Channel axis without a timer has nothing to wake for: look again in a minute.
+                core.axis.next_wakeup().min(core.now() + 60.0)
+            };
+            let mut wake = clock + Duration::from_secs_f64(next);
+            for deadline in [stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten() {
+                wake = wake.min(deadline);
+            }
+            tokio::select! {
+                Some((index, value)) = self.links.values.recv() => {
+                    lock(&self.core).link_update(self.link_kinds[index], value);
+                }
+                Some(input) = self.queue.recv() => {
+                    self.queued.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+                    lock(&self.core).handle(input);
+                }
+                _ = tokio::time::sleep_until(wake) => lock(&self.core).tick(),
+                _ = self.rearm.notified() => {}
+                _ = stopped.changed(), if stopping.is_none() => {
+                    stopping = Some(Instant::now() + STOP_GRACE);
+                    lock(&self.core).stop_motion();
+                }
+            }
+            self.autosave(false).await;
+            if stopping.is_some_and(|limit| lock(&self.core).axis.fields().dmov == 1 || Instant::now() >= limit) {
+                break;
+            }
+        }
+        if lock(&self.core).axis.fields().dmov == 0 {
+            tracing::warn!(axis = %self.name, "still moving {STOP_GRACE:?} after the stop; saving anyway");
+        }
+        self.autosave(true).await;
+        if let Some(token) = self.token.take() {
+            let _ = token.undeclare().await;
+        }
+    }
+
+    /// Note changes of saved fields, and write the file when due (or now, with `finally`).
+    async fn autosave(&mut self, finally: bool) {
+        let Some(saver) = &mut self.saver else { return };
+        let snapshot = {
+            let mut core = lock(&self.core);
+            if std::mem::take(&mut core.changed) {
+                saver.changed(Instant::now());
+            }
+            (finally || saver.due.is_some_and(|due| Instant::now() >= due)).then(|| SavedAxis::of(core.axis.fields()))
+        };
+        if let Some(saved) = snapshot {
+            saver.flush(&self.name, saved).await;
+        }
     }
 }
 
@@ -581,16 +661,9 @@ impl Saver {
         self.due.get_or_insert(now + self.delay);
     }
 
-    async fn flush_if_due(&mut self, axis: &str, fields: &zmotor_msgs::Fields) {
-        if self.due.is_some_and(|due| Instant::now() >= due) {
-            self.flush(axis, fields).await;
-        }
-    }
-
-    /// Write the current state now if it differs from the file, and wait until it is written.
-    async fn flush(&mut self, axis: &str, fields: &zmotor_msgs::Fields) {
+    /// Write `saved` now if it differs from the file, and wait until it is written.
+    async fn flush(&mut self, axis: &str, saved: SavedAxis) {
         self.due = None;
-        let saved = SavedAxis::of(fields);
         if saved == self.written {
             return;
         }
