@@ -69,6 +69,7 @@ impl Node {
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let mut routes = std::collections::HashMap::new();
         let mut axis_tasks = Vec::new();
+        let budget = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(PUBLISHER_BUDGET));
         for mut plan in plans {
             let saver = match &autosave {
                 Some(config) => Some(Saver::restore(config, &mut plan)?),
@@ -99,6 +100,8 @@ impl Node {
                 seq: 0,
                 waiting: Vec::new(),
                 trace: None,
+                hot: Vec::new(),
+                budget: budget.clone(),
                 // Boot may have changed the position (RSTM): the file follows what is.
                 changed: true,
             };
@@ -319,7 +322,18 @@ struct AxisCore {
     trace: Option<zenoh::pubsub::Publisher<'static>>,
     /// A saved field changed since the task last looked (autosave).
     changed: bool,
+    /// Publishers of the fields this axis has posted, declared at their first post: a declared
+    /// publisher's put costs a fraction of a session put (the key is resolved once).
+    hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
+    /// Declarations the node may still make (`PUBLISHER_BUDGET`), shared by its axes.
+    budget: std::sync::Arc<std::sync::atomic::AtomicUsize>,
 }
+
+/// Field publishers one node declares at most. Zenoh numbers a session's declarations with 16
+/// bits and remaps them beyond (logging "Remapping unsupported"); the budget leaves room for the
+/// axes' liveliness tokens and trace publishers. Past it, fields are published with session
+/// puts: slower, always correct.
+const PUBLISHER_BUDGET: usize = 30_000;
 
 impl AxisCore {
     fn now(&self) -> f64 {
@@ -544,13 +558,34 @@ impl AxisCore {
 
     fn publish(&mut self, field: Field, value: &Value) {
         let attachment = self.marker();
-        let key = self.field_key(field);
-        let _ = self
-            .session
-            .put(key, encode_cbor(value))
-            .encoding(Encoding::APPLICATION_CBOR)
-            .attachment(attachment)
-            .wait();
+        use std::sync::atomic::Ordering;
+        let payload = encode_cbor(value);
+        let declared = match self.hot.iter().position(|(f, _)| *f == field) {
+            Some(index) => Some(index),
+            None if self.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok() => {
+                match self.session.declare_publisher(self.field_key(field)).encoding(Encoding::APPLICATION_CBOR).wait()
+                {
+                    Ok(publisher) => {
+                        self.hot.push((field, publisher));
+                        Some(self.hot.len() - 1)
+                    }
+                    Err(e) => {
+                        tracing::warn!(axis = %self.name, %field, "cannot declare a publisher: {e}");
+                        None
+                    }
+                }
+            }
+            None => None,
+        };
+        let _ = match declared {
+            Some(index) => self.hot[index].1.put(payload).attachment(attachment).wait(),
+            None => self
+                .session
+                .put(self.field_key(field), payload)
+                .encoding(Encoding::APPLICATION_CBOR)
+                .attachment(attachment)
+                .wait(),
+        };
     }
 
     fn publish_error(&mut self, message: &str) {

@@ -233,3 +233,32 @@ async fn device_directives_become_zenoh_puts_around_a_move() {
     rec.wait_for("DMOV", |v| *v == int(1)).await;
     assert!(near(&get_value(&client, &node.key("m1", Field::RBV)).await, 1.0));
 }
+
+/// An axis writing to its own fields, and two axes writing to each other while both move,
+/// through their RLNK readback links: the node handles a write at once only when the axis is
+/// free and queues it otherwise, so neither deadlocks and every write lands.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn axes_writing_to_themselves_and_to_each_other_do_not_deadlock() {
+    let mut own = fast_axis("m1");
+    own.fields.rlnk = "motor/m1/TWV".into();
+    let mut a = fast_axis("a");
+    a.fields.rlnk = "motor/b/TWV".into();
+    let mut b = fast_axis("b");
+    b.fields.rlnk = "motor/a/TWV".into();
+    let node = TestNode::start(vec![own, a, b]).await;
+    let client = node.client().await;
+    let waited = |axis: &str| format!("{}?wait", node.key(axis, Field::VAL));
+    let (m1, to_a, to_b) = (waited("m1"), waited("a"), waited("b"));
+    let (r1, ra, rb) = tokio::join!(
+        confirmed_write(&client, &m1, "2", PATIENCE),
+        confirmed_write(&client, &to_a, "3", PATIENCE),
+        confirmed_write(&client, &to_b, "-4", PATIENCE),
+    );
+    for reply in [r1, ra, rb] {
+        reply.expect("every move completes");
+    }
+    // The last readback each axis wrote landed where its RLNK points.
+    assert!(near(&get_value(&client, &node.key("m1", Field::TWV)).await, 2.0));
+    assert!(near(&get_value(&client, &node.key("b", Field::TWV)).await, 3.0));
+    assert!(near(&get_value(&client, &node.key("a", Field::TWV)).await, -4.0));
+}
