@@ -11,6 +11,7 @@ use crate::driver::sim::SimAxis;
 use crate::driver::soft::InputLink;
 use crate::engine::WriteError;
 use crate::launch::{AxisPlan, DriverPlan, ValueSpec, ZenohSection};
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 use tokio::time::Instant;
 use zenoh::bytes::{Encoding, ZBytes};
@@ -101,6 +102,7 @@ impl Node {
                 waiting: Vec::new(),
                 trace: None,
                 hot: Vec::new(),
+                posted_once: Vec::new(),
                 budget: budget.clone(),
                 // Boot may have changed the position (RSTM): the file follows what is.
                 changed: true,
@@ -198,7 +200,6 @@ struct AxisHandle {
 
 impl AxisHandle {
     fn deliver(&self, input: AxisInput) {
-        use std::sync::atomic::Ordering;
         if self.queued.load(Ordering::Acquire) == 0 {
             let core = match self.core.try_lock() {
                 Ok(core) => Some(core),
@@ -322,18 +323,21 @@ struct AxisCore {
     trace: Option<zenoh::pubsub::Publisher<'static>>,
     /// A saved field changed since the task last looked (autosave).
     changed: bool,
-    /// Publishers of the fields this axis has posted, declared at their first post: a declared
-    /// publisher's put costs a fraction of a session put (the key is resolved once).
+    /// Publishers of the fields this axis posts again and again, declared at their second post:
+    /// a declared publisher's put costs a fraction of a session put (the key is resolved once).
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
+    /// Fields posted once so far (with a session put).
+    posted_once: Vec<Field>,
     /// Declarations the node may still make (`PUBLISHER_BUDGET`), shared by its axes.
     budget: std::sync::Arc<std::sync::atomic::AtomicUsize>,
 }
 
-/// Field publishers one node declares at most. Zenoh numbers a session's declarations with 16
-/// bits and remaps them beyond (logging "Remapping unsupported"); the budget leaves room for the
-/// axes' liveliness tokens and trace publishers. Past it, fields are published with session
-/// puts: slower, always correct.
-const PUBLISHER_BUDGET: usize = 30_000;
+/// Publishers one node declares at most (fields and traces). Zenoh numbers a session's
+/// declarations with 16 bits and remaps them beyond (logging "Remapping unsupported"); 10,000
+/// moving axes with 30,000 field publishers went past it, so the budget is kept well inside,
+/// with room for every axis's liveliness token and trace. Past it, fields are published with
+/// session puts: slower, always correct. (1,000 moving axes declare about 16,000.)
+const PUBLISHER_BUDGET: usize = 20_000;
 
 impl AxisCore {
     fn now(&self) -> f64 {
@@ -525,6 +529,8 @@ impl AxisCore {
                         let key = self.layout.driver_cmd(&self.name);
                         self.trace =
                             self.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).wait().ok();
+                        // The trace must exist whatever the budget; it counts against it all the same.
+                        let _ = self.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1));
                     }
                     let Some(trace_publisher) = &self.trace else { continue };
                     let listening = *traced
@@ -558,10 +564,13 @@ impl AxisCore {
 
     fn publish(&mut self, field: Field, value: &Value) {
         let attachment = self.marker();
-        use std::sync::atomic::Ordering;
         let payload = encode_cbor(value);
         let declared = match self.hot.iter().position(|(f, _)| *f == field) {
             Some(index) => Some(index),
+            None if !self.posted_once.contains(&field) => {
+                self.posted_once.push(field);
+                None
+            }
             None if self.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok() => {
                 match self.session.declare_publisher(self.field_key(field)).encoding(Encoding::APPLICATION_CBOR).wait()
                 {
@@ -629,7 +638,7 @@ impl AxisTask {
                     lock(&self.core).link_update(self.link_kinds[index], value);
                 }
                 Some(input) = self.queue.recv() => {
-                    self.queued.fetch_sub(1, std::sync::atomic::Ordering::AcqRel);
+                    self.queued.fetch_sub(1, Ordering::AcqRel);
                     lock(&self.core).handle(input);
                 }
                 _ = tokio::time::sleep_until(wake) => lock(&self.core).tick(),
