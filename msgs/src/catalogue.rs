@@ -390,6 +390,20 @@ impl Field {
     }
 }
 
+impl Field {
+    /// A link the record writes through (OUT, STOO, RLNK, FLNK); its other links are read.
+    pub fn is_output_link(self) -> bool {
+        matches!(self, Field::OUT | Field::STOO | Field::RLNK | Field::FLNK)
+    }
+}
+
+/// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
+/// disabling, tracing, security. A database may set them; importing it ignores them.
+pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
+    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "DISP", "ASG",
+    "ACKT", "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",
+];
+
 impl std::fmt::Display for Field {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(self.name())

@@ -11,7 +11,7 @@ pub mod schema;
 pub mod value;
 pub mod wire;
 
-pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS};
+pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS, UNMODELLED_COMMON_FIELDS};
 pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, PayloadEncoding};
 pub use keys::KeyLayout;
 pub use value::Value;

@@ -5,10 +5,11 @@
 //! before the record initialises; RSTM then decides whether the saved DVAL is loaded into the
 //! driver (`MotorRecord::restore_commands`).
 
+use crate::toml_value::{field_value, to_toml};
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use zmotor_msgs::{Autosave, Field, Fields, Value};
+use zmotor_msgs::{Autosave, Field, Fields};
 
 /// The environment variable that overrides the launch file's `state_dir`.
 pub const STATE_DIR_ENV: &str = "ZMOTOR_STATE_DIR";
@@ -52,12 +53,7 @@ impl SavedAxis {
                 Some(Autosave::Setting) => &mut saved.settings,
                 None => continue,
             };
-            let value = match fields.get(field) {
-                Value::Int(i) => toml::Value::Integer(i),
-                Value::Float(x) => toml::Value::Float(x),
-                Value::Text(t) => toml::Value::String(t),
-            };
-            section.insert(field.name().to_string(), value);
+            section.insert(field.name().to_string(), to_toml(fields.get(field)));
         }
         saved
     }
@@ -70,14 +66,7 @@ impl SavedAxis {
             let field = Field::from_name(name)
                 .filter(|f| f.autosave().is_some())
                 .ok_or_else(|| format!("{name}: not a field autosave keeps"))?;
-            let value = match raw {
-                toml::Value::Integer(i) => Value::Int(*i),
-                toml::Value::Float(x) => Value::Float(*x),
-                toml::Value::String(s) => Value::Text(s.clone()),
-                other => return Err(format!("{name}: a {} cannot be a field value", other.type_str())),
-            };
-            let value = zmotor_msgs::validate(field.def(), value).map_err(|e| e.to_string())?;
-            restored.set(field, &value);
+            restored.set(field, &field_value(field, raw)?);
         }
         // The saved dial limits win over raw limits given in the launch file (the boot
         // reconciliation otherwise prefers non-zero raw limits).

@@ -10,3 +10,4 @@ pub mod engine;
 pub mod launch;
 pub mod net;
 pub mod primitives;
+pub mod toml_value;

@@ -8,9 +8,10 @@
 //! recomputes a calc link. Motors with a hardware DTYP become simulated axes, with a warning.
 
 use super::{AxisSection, CalcInput, CalcSection, LaunchError, LaunchFile, ValueSection};
+use crate::toml_value::to_toml;
 use std::collections::BTreeMap;
 use std::path::Path;
-use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, Value};
+use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -85,12 +86,6 @@ pub(super) fn import_text(text: &str, macros: &Macros) -> Result<(LaunchFile, Ve
     }
     Ok((launch, warnings))
 }
-
-/// dbCommon fields zmotor has no use for: accepted and ignored.
-const COMMON_IGNORED: &[&str] = &[
-    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "DISP", "ASG",
-    "ACKT", "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",
-];
 
 /// Link modifiers of EPICS database links.
 const MODIFIERS: &[&str] = &["PP", "NPP", "CP", "CPP", "MS", "NMS", "MSS", "MSI", "CA"];
@@ -174,7 +169,7 @@ fn motor(
     let mut fields = BTreeMap::new();
     for (name, text, line) in &record.fields {
         let at = |message: String| (*line, format!("motor '{}': field {name}: {message}", record.name));
-        if name == "DTYP" || COMMON_IGNORED.contains(&name.as_str()) {
+        if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
             continue;
         }
         let field = Field::from_name(name)
@@ -186,7 +181,7 @@ fn motor(
                 Link::Hardware if !soft => continue,
                 Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
                 Link::Key { key, record: target, field: target_field, process, .. } => {
-                    if matches!(field, Field::OUT | Field::STOO | Field::RLNK | Field::FLNK) {
+                    if field.is_output_link() {
                         note_calc_write(linker, &target, &target_field, process, written_inputs);
                     }
                     toml::Value::String(key)
@@ -194,11 +189,7 @@ fn motor(
             },
             Kind::Str(_) => toml::Value::String(text.clone()),
             _ if text.trim().is_empty() => continue,
-            _ => match decode_scalar(text.as_bytes(), PayloadEncoding::Text).map_err(|(_, e)| at(e))? {
-                Value::Int(i) => toml::Value::Integer(i),
-                Value::Float(x) => toml::Value::Float(x),
-                Value::Text(t) => toml::Value::String(t),
-            },
+            _ => to_toml(decode_scalar(text.as_bytes(), PayloadEncoding::Text).map_err(|(_, e)| at(e))?),
         };
         fields.insert(name.clone(), value);
     }
@@ -292,7 +283,7 @@ fn calc(
                 section.constants.insert(name.clone(), x);
             }
             "DESC" | "PREC" | "EGU" | "HOPR" | "LOPR" | "DOPT" => {}
-            _ if COMMON_IGNORED.contains(&name.as_str()) => {}
+            _ if UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) => {}
             _ => warnings.push(format!(
                 "line {line}: {} '{}': field {name} is not used by zmotor and was ignored",
                 record.kind, record.name
@@ -308,16 +299,14 @@ fn calc(
 fn value_holder(record: &Record, warnings: &mut Vec<String>) -> Result<ValueSection, Failure> {
     let mut value = 0.0;
     for (name, text, line) in &record.fields {
+        let number = text.trim().parse::<f64>();
         match name.as_str() {
             "VAL" => {
-                value = text
-                    .trim()
-                    .parse()
+                value = number
                     .map_err(|_| (*line, format!("{} '{}': VAL '{text}' is not a number", record.kind, record.name)))?;
             }
-            "DOL" | "OUT" | "INP" if text.trim().parse::<f64>().is_ok() && name != "OUT" => {
-                value = text.trim().parse().unwrap_or(value);
-            }
+            // A constant input link is the record's value, as EPICS reads it at initialisation.
+            "DOL" | "INP" if number.is_ok() => value = number.unwrap_or(value),
             "DOL" | "OUT" | "INP" if !text.trim().is_empty() => warnings.push(format!(
                 "line {line}: {} '{}': {name} '{text}' is ignored; the record only holds a value",
                 record.kind, record.name

@@ -10,12 +10,13 @@ pub use db::{import_db, Macros};
 
 use crate::axis::PollRates;
 use crate::driver::sim::SimConfig;
+use crate::toml_value::field_value;
 use locate::{line_of, Seg};
 use serde::{Deserialize, Serialize};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
-use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Value};
+use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, Value};
 
 /// Highest readback rate while moving, Hz.
 pub const MAX_READBACK_RATE: f64 = 1000.0;
@@ -513,15 +514,7 @@ impl AxisSection {
             if field.def().access == Access::RO && !matches!(field, Field::RHLM | Field::RLLM) {
                 return Err(at(&inner, "read-only, cannot be configured".into()));
             }
-            let value = match raw {
-                toml::Value::Integer(i) => Value::Int(*i),
-                toml::Value::Float(x) => Value::Float(*x),
-                toml::Value::String(s) => Value::Text(s.clone()),
-                toml::Value::Boolean(b) => Value::Int(i64::from(*b)),
-                other => return Err(at(&inner, format!("a number or a string is required, got {}", other.type_str()))),
-            };
-            let value = zmotor_msgs::validate(field.def(), value).map_err(|e| at(&inner, e.to_string()))?;
-            fields.set(field, &value);
+            fields.set(field, &field_value(field, raw).map_err(|e| at(&inner, e))?);
         }
         let rates = PollRates { moving: 1.0 / self.readback_rate, ..PollRates::default() };
         Ok(AxisPlan { name: self.name.clone(), fields, driver, rates })
@@ -602,32 +595,23 @@ fn check_wiring(
         return Err(Problem::in_item("calc", calc_origins[first], &[], message));
     }
     // (table, origin, who, key, writes)
-    let mut links: Vec<(&str, Origin, String, &str, bool)> = Vec::new();
+    let mut links: Vec<(&str, Origin, String, String, bool)> = Vec::new();
     for (calc, origin) in calcs.iter().zip(calc_origins) {
         for input in &calc.inputs {
             let letter = zmotor_bridge::link::input_name(input.index);
-            links.push(("calc", *origin, format!("calc '{}' input {letter}", calc.name), &input.key, false));
+            links.push(("calc", *origin, format!("calc '{}' input {letter}", calc.name), input.key.clone(), false));
         }
-        links.push(("calc", *origin, format!("calc '{}' output", calc.name), &calc.output, true));
+        links.push(("calc", *origin, format!("calc '{}' output", calc.name), calc.output.clone(), true));
     }
     for (axis, origin) in axes.iter().zip(axis_origins) {
-        let f = &axis.fields;
-        for (field, key, writes) in [
-            (Field::OUT, &f.out, true),
-            (Field::STOO, &f.stoo, true),
-            (Field::RLNK, &f.rlnk, true),
-            (Field::FLNK, &f.flnk, true),
-            (Field::RDBL, &f.rdbl, false),
-            (Field::RINP, &f.rinp, false),
-            (Field::DINP, &f.dinp, false),
-            (Field::DOL, &f.dol, false),
-        ] {
+        for field in Field::all().filter(|f| f.def().kind == Kind::Link) {
+            let Value::Text(key) = axis.fields.get(field) else { continue };
             if !key.is_empty() {
                 let inner = ["fields", field.name()];
-                zenoh_key(key).map_err(|e| {
+                zenoh_key(&key).map_err(|e| {
                     Problem::in_item("axis", *origin, &inner, format!("axis '{}': fields.{field}: {e}", axis.name))
                 })?;
-                links.push(("axis", *origin, format!("axis '{}' {field}", axis.name), key, writes));
+                links.push(("axis", *origin, format!("axis '{}' {field}", axis.name), key, field.is_output_link()));
             }
         }
     }
