@@ -299,7 +299,10 @@ impl Axis {
         } else {
             self.rates.idle
         };
-        self.next_poll = self.now + period;
+        // A poller keeps its cadence: a poll that ran a little late does not delay the next ones.
+        let on_cadence = self.next_poll + period;
+        self.next_poll =
+            if self.now >= self.next_poll && on_cadence > self.now { on_cadence } else { self.now + period };
     }
 
     /// Process the record as a device callback with `status`, then carry out what it asks.
@@ -484,6 +487,23 @@ mod tests {
         }
         // 1.2 s at 10 Hz: 12 polls while moving, the last one at the end of motion.
         assert!((11..=13).contains(&rbv_posts), "{rbv_posts}");
+    }
+
+    #[test]
+    fn late_ticks_do_not_slow_the_poll_rate() {
+        let sim = Box::new(SimAxis::new(SimConfig::default()));
+        let mut axis = Axis::new(demo_fields(), sim, PollRates { moving: 0.01, idle: 1.0 }, 0.0);
+        axis.write(0.0, Field::VAL, &Value::Float(50.0)).unwrap();
+        axis.drain_events().count();
+        let mut rbv_posts = 0;
+        // A timer that always fires 4 ms late (a loaded host) for one second of a long move.
+        while axis.now() < 1.0 {
+            let t = axis.next_wakeup() + 0.004;
+            axis.tick(t, false);
+            rbv_posts += axis.drain_events().filter(|e| matches!(e, AxisEvent::Post(Field::RBV, _))).count();
+        }
+        // 100 Hz kept: ~100 polls, not the 71 of a 14 ms period.
+        assert!((98..=101).contains(&rbv_posts), "{rbv_posts}");
     }
 
     #[test]
