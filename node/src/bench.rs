@@ -10,9 +10,11 @@ use crate::net::{zenoh_config, Error, Node};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use zenoh::bytes::Encoding;
-use zenoh::Session;
+use zenoh::{Session, Wait};
 use zmotor_msgs::bits::msta;
-use zmotor_msgs::{codec::decode_cbor_value, Field, Fields, KeyLayout, Value};
+use zmotor_msgs::codec::{decode_cbor_value, encode_cbor};
+use zmotor_msgs::wire::StateMarker;
+use zmotor_msgs::{Field, Fields, KeyLayout, Value};
 
 /// What a run measures.
 #[derive(Clone, Debug)]
@@ -41,8 +43,19 @@ impl BenchOptions {
 const PING: &str = "bench/ping";
 const PONG: &str = "bench/pong";
 
-/// The benchmark server: `n` instant simulated axes and a ping echo on one session.
-pub async fn serve(listen: &str, axes: usize, rate: f64) -> Result<(), Error> {
+/// What a `zmotor bench-serve` process runs besides its ping echo.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Serve {
+    /// Simulated axes that finish every move at once (the latency figures).
+    Instant,
+    /// Simulated axes whose moves take real time, readback at 100 Hz (the scale figures).
+    Moving,
+    /// No axes: Zenoh alone publishing what as many moving axes publish, at the same rate.
+    Zenoh,
+}
+
+/// The benchmark server: `n` axes as `serve` says, and a ping echo, on one session.
+pub async fn serve(listen: &str, axes: usize, serve: Serve) -> Result<(), Error> {
     let section = ZenohSection { mode: "peer".into(), listen: vec![listen.into()], ..ZenohSection::default() };
     let session = zenoh::open(zenoh_config(&section)?).await?;
     let echo_session = session.clone();
@@ -56,11 +69,48 @@ pub async fn serve(listen: &str, axes: usize, rate: f64) -> Result<(), Error> {
             });
         })
         .await?;
-    let node =
-        Node::start(session.clone(), KeyLayout::default(), bench_axes(axes, true, rate), vec![], vec![], None).await?;
-    tokio::signal::ctrl_c().await?;
-    node.shutdown().await;
+    let node = match serve {
+        Serve::Zenoh => None,
+        Serve::Instant | Serve::Moving => {
+            let plans = bench_axes(axes, serve == Serve::Instant, MOVING_READBACK_HZ);
+            Some(Node::start(session.clone(), KeyLayout::default(), plans, vec![], vec![], None).await?)
+        }
+    };
+    tokio::select! {
+        stopped = tokio::signal::ctrl_c() => stopped?,
+        published = publish_like_moving_axes(&session, axes, MOVING_READBACK_HZ), if node.is_none() => published?,
+    }
+    if let Some(node) = node {
+        node.shutdown().await;
+    }
     Ok(())
+}
+
+/// What a moving axis publishes at each readback poll.
+const READBACK_FIELDS: [Field; 6] = [Field::RBV, Field::DRBV, Field::RRBV, Field::RMP, Field::DIFF, Field::RDIF];
+
+/// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second from one task:
+/// each field of `READBACK_FIELDS` through a declared publisher, a CBOR number with a state
+/// marker, as the node sends it. The floor under the node's own figure.
+async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
+    let layout = KeyLayout::default();
+    let mut publishers = Vec::with_capacity(n * READBACK_FIELDS.len());
+    for i in 0..n {
+        for field in READBACK_FIELDS {
+            let key = layout.field(&format!("b{i}"), field);
+            publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
+        }
+    }
+    let mut polls = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
+    let mut seq = 0;
+    loop {
+        polls.tick().await;
+        for publisher in &publishers {
+            seq += 1;
+            let value = Value::Float(seq as f64 * 1e-3);
+            publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+        }
+    }
 }
 
 /// `n` simulated axes named b0, b1, …; `instant` ones finish every move at once.
@@ -84,10 +134,11 @@ fn free_endpoint() -> Result<String, Error> {
 struct Server(Child);
 
 impl Server {
-    fn spawn(endpoint: &str, axes: usize) -> Result<Self, Error> {
+    fn spawn(endpoint: &str, axes: usize, serve: Serve) -> Result<Self, Error> {
         let exe = std::env::current_exe()?;
+        let serve = clap::ValueEnum::to_possible_value(&serve).expect("every kind has a name");
         let child = Command::new(exe)
-            .args(["bench-serve", "--listen", endpoint, "--axes", &axes.to_string()])
+            .args(["bench-serve", "--listen", endpoint, "--axes", &axes.to_string(), "--serve", serve.get_name()])
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()?;
@@ -170,7 +221,7 @@ pub struct Latency {
 /// Put VAL and time DMOV 0 and DMOV 1 at the client; then Zenoh's own ping-pong.
 async fn latency(moves: usize) -> Result<Latency, Error> {
     let endpoint = free_endpoint()?;
-    let _server = Server::spawn(&endpoint, 1)?;
+    let _server = Server::spawn(&endpoint, 1, Serve::Instant)?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     wait_for_axes(&session, 1, Duration::from_secs(20)).await?;
     let dmov = session.declare_subscriber("motor/b0/DMOV").await?;
@@ -255,57 +306,111 @@ pub struct Scale {
     pub axes: usize,
     pub start: Duration,
     pub rss_per_axis_idle_kb: f64,
-    /// CPU (fraction of one core) and publications per second with every axis moving; None
-    /// above `MOVING_MEASURED_UP_TO` axes.
-    pub moving: Option<(f64, f64)>,
+    /// The node with every axis moving; None above `MOVING_MEASURED_UP_TO` axes.
+    pub moving: Option<Publishing>,
+    /// Zenoh alone publishing the same samples at the same rate (`Serve::Zenoh`).
+    pub zenoh_alone: Option<Publishing>,
 }
 
-/// Most axes set moving together for the scale figures. Beyond, the first publications on the
-/// axes' keys take minutes (Zenoh's cost of a new key grows with the keys already there), so
-/// only start and idle memory are measured.
-const MOVING_MEASURED_UP_TO: usize = 2000;
+/// A server process publishing readbacks at 100 Hz for every axis, seen by one subscriber of
+/// `motor/**` in another process.
+pub struct Publishing {
+    /// The server process's CPU, as a fraction of one core.
+    pub cpu: f64,
+    /// Samples per second the subscriber received.
+    pub publications_per_s: f64,
+    /// RBV samples per axis per second the subscriber received (100 when every poll arrives).
+    pub rbv_per_axis_per_s: f64,
+}
 
-fn rss_kb() -> f64 {
-    let statm = std::fs::read_to_string("/proc/self/statm").unwrap_or_default();
+/// Most axes set moving together for the scale figures; beyond, only start and idle memory
+/// are measured.
+const MOVING_MEASURED_UP_TO: usize = 2000;
+/// Readback rate of the moving axes, Hz.
+const MOVING_READBACK_HZ: f64 = 100.0;
+/// Longest wait for the readbacks of all axes to flow before the CPU window opens.
+const SETTLE_LIMIT: Duration = Duration::from_secs(30);
+
+/// Resident memory of a process (`self` or a pid), KB.
+fn rss_kb(process: &str) -> f64 {
+    let statm = std::fs::read_to_string(format!("/proc/{process}/statm")).unwrap_or_default();
     let pages: f64 = statm.split_whitespace().nth(1).and_then(|p| p.parse().ok()).unwrap_or(0.0);
     pages * 4.0
 }
 
-/// CPU seconds this process has used (user + system).
-fn cpu_seconds() -> f64 {
-    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+/// CPU seconds a process (`self` or a pid) has used (user + system).
+fn cpu_seconds(process: &str) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{process}/stat")).unwrap_or_default();
     let after_name = stat.rsplit(')').next().unwrap_or("");
     let fields: Vec<&str> = after_name.split_whitespace().collect();
     let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
     (ticks(11) + ticks(12)) / 100.0
 }
 
-/// `n` axes in this process: memory when idle, CPU and publications while all move with
-/// readback at 100 Hz.
+/// `n` axes in this process: the time they take to start and their memory when idle; then,
+/// up to `MOVING_MEASURED_UP_TO` axes, the same axes moving in a node process of their own.
 async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
-    let endpoint = free_endpoint()?;
-    let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
+    let section = ZenohSection { mode: "peer".into(), listen: vec![free_endpoint()?], ..ZenohSection::default() };
     let session = zenoh::open(zenoh_config(&section)?).await?;
-    let observer = client(&endpoint).await?;
-    let rss_before = rss_kb();
+    let rss_before = rss_kb("self");
     let start = Instant::now();
-    let node =
-        Node::start(session.clone(), KeyLayout::default(), bench_axes(n, false, 100.0), vec![], vec![], None).await?;
+    let node = Node::start(
+        session.clone(),
+        KeyLayout::default(),
+        bench_axes(n, false, MOVING_READBACK_HZ),
+        vec![],
+        vec![],
+        None,
+    )
+    .await?;
     let started = start.elapsed();
     tokio::time::sleep(Duration::from_millis(500)).await;
-    let rss_per_axis_idle_kb = (rss_kb() - rss_before) / n as f64;
+    let rss_per_axis_idle_kb = (rss_kb("self") - rss_before) / n as f64;
+    node.shutdown().await;
+    session.close().await?;
     if n > MOVING_MEASURED_UP_TO {
-        node.shutdown().await;
-        session.close().await?;
-        observer.close().await?;
-        return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: None });
+        return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: None, zenoh_alone: None });
     }
-    let counter = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-    let count = counter.clone();
-    let _all = observer
+    let moving = Some(publishing(n, window, Serve::Moving).await?);
+    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh).await?);
+    Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, zenoh_alone })
+}
+
+/// Samples a subscriber of `motor/**` received: all of them, and RBV alone.
+#[derive(Default)]
+struct Received {
+    all: std::sync::atomic::AtomicU64,
+    rbv: std::sync::atomic::AtomicU64,
+}
+
+impl Received {
+    fn read(&self) -> (u64, u64) {
+        use std::sync::atomic::Ordering::Relaxed;
+        (self.all.load(Relaxed), self.rbv.load(Relaxed))
+    }
+}
+
+/// A server process of `n` axes all moving (or Zenoh alone publishing as much): its CPU and
+/// what one subscriber receives, over `window` seconds once every axis's readback flows (or
+/// `SETTLE_LIMIT` has passed).
+async fn publishing(n: usize, window: f64, serve: Serve) -> Result<Publishing, Error> {
+    use std::sync::atomic::Ordering::Relaxed;
+    let endpoint = free_endpoint()?;
+    let server = Server::spawn(&endpoint, n, serve)?;
+    let pid = server.0.id().to_string();
+    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    if serve != Serve::Zenoh {
+        wait_for_axes(&session, n, Duration::from_secs(120)).await?;
+    }
+    let received = std::sync::Arc::new(Received::default());
+    let counter = received.clone();
+    let _all = session
         .declare_subscriber("motor/**")
-        .callback(move |_| {
-            count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        .callback(move |sample| {
+            counter.all.fetch_add(1, Relaxed);
+            if sample.key_expr().as_str().ends_with("/RBV") {
+                counter.rbv.fetch_add(1, Relaxed);
+            }
         })
         .await?;
     tokio::time::sleep(Duration::from_millis(200)).await;
@@ -313,23 +418,33 @@ async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
     for i in 0..n {
         session.put(format!("motor/b{i}/VAL"), "1000").encoding(Encoding::TEXT_PLAIN).await?;
     }
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    let (cpu0, pubs0, t0) = (cpu_seconds(), counter.load(std::sync::atomic::Ordering::Relaxed), Instant::now());
+    let expected_rbv_per_s = n as f64 * MOVING_READBACK_HZ;
+    let settling = Instant::now();
+    while settling.elapsed() < SETTLE_LIMIT {
+        let (_, rbv0) = received.read();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        if (received.read().1 - rbv0) as f64 / 0.5 >= 0.9 * expected_rbv_per_s {
+            break;
+        }
+    }
+    let (cpu0, (all0, rbv0), t0) = (cpu_seconds(&pid), received.read(), Instant::now());
     tokio::time::sleep(Duration::from_secs_f64(window)).await;
     let elapsed = t0.elapsed().as_secs_f64();
-    let cpu_moving = (cpu_seconds() - cpu0) / elapsed;
-    let publications_per_s = (counter.load(std::sync::atomic::Ordering::Relaxed) - pubs0) as f64 / elapsed;
-    node.shutdown().await;
+    let cpu = (cpu_seconds(&pid) - cpu0) / elapsed;
+    let (all1, rbv1) = received.read();
     session.close().await?;
-    observer.close().await?;
-    Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: Some((cpu_moving, publications_per_s)) })
+    Ok(Publishing {
+        cpu,
+        publications_per_s: (all1 - all0) as f64 / elapsed,
+        rbv_per_axis_per_s: (rbv1 - rbv0) as f64 / elapsed / n as f64,
+    })
 }
 
 /// From spawning a node process with `n` axes to all of them answering a get.
 async fn startup(n: usize) -> Result<Duration, Error> {
     let endpoint = free_endpoint()?;
     let start = Instant::now();
-    let _server = Server::spawn(&endpoint, n)?;
+    let _server = Server::spawn(&endpoint, n, Serve::Instant)?;
     let session = client_when_ready(&endpoint, start).await?;
     wait_for_axes(&session, n, Duration::from_secs(120)).await?;
     Ok(start.elapsed())
@@ -364,28 +479,48 @@ pub async fn run(options: &BenchOptions) -> Result<(), Error> {
         e.write_ns, e.status_ns, e.move_cycle_ns
     );
 
-    println!("\n3. scale: axes in one process, readback at 100 Hz while moving");
     println!(
-        "   {:>7} {:>12} {:>16} {:>15} {:>18}",
-        "axes", "start (s)", "RSS/axis idle KB", "CPU moving (%)", "publications/s"
+        "\n3. scale: axes in one process; then every axis moving, readback at {MOVING_READBACK_HZ} Hz, the node in a"
+    );
+    println!("   process of its own and one subscriber of motor/** in another; then Zenoh alone publishing");
+    println!("   the same samples at the same rate (no record): CPU of the publishing process");
+    println!(
+        "   {:>6} {:>9} {:>12} {:>10} {:>15} {:>11} {:>12} {:>15}",
+        "axes", "start (s)", "RSS/axis KB", "node CPU", "publications/s", "RBV/axis/s", "Zenoh CPU", "publications/s"
     );
     for &n in &options.scales {
         match scale(n, options.window).await {
             Ok(s) => {
-                let (cpu, publications) = match s.moving {
-                    Some((cpu, publications)) => (format!("{:.0}", cpu * 100.0), format!("{publications:.0}")),
-                    None => ("not measured".into(), format!("(> {MOVING_MEASURED_UP_TO} axes)")),
+                let [node_cpu, node_publications, rbv, zenoh_cpu, zenoh_publications] = match (s.moving, s.zenoh_alone)
+                {
+                    (Some(node), Some(zenoh)) => [
+                        format!("{:.0} %", node.cpu * 100.0),
+                        format!("{:.0}", node.publications_per_s),
+                        format!("{:.1}", node.rbv_per_axis_per_s),
+                        format!("{:.0} %", zenoh.cpu * 100.0),
+                        format!("{:.0}", zenoh.publications_per_s),
+                    ],
+                    _ => [
+                        "not measured".into(),
+                        format!("(> {MOVING_MEASURED_UP_TO} axes)"),
+                        "".into(),
+                        "".into(),
+                        "".into(),
+                    ],
                 };
                 println!(
-                    "   {:>7} {:>12.2} {:>16.1} {:>15} {:>18}",
+                    "   {:>6} {:>9.2} {:>12.1} {:>10} {:>15} {:>11} {:>12} {:>15}",
                     s.axes,
                     s.start.as_secs_f64(),
                     s.rss_per_axis_idle_kb,
-                    cpu,
-                    publications
+                    node_cpu,
+                    node_publications,
+                    rbv,
+                    zenoh_cpu,
+                    zenoh_publications
                 )
             }
-            Err(e) => println!("   {n:>7} failed: {e}"),
+            Err(e) => println!("   {n:>6} failed: {e}"),
         }
     }
 

@@ -141,6 +141,8 @@ enum Command {
         listen: String,
         #[arg(long, default_value_t = 1)]
         axes: usize,
+        #[arg(long, value_enum, default_value_t = bench::Serve::Instant)]
+        serve: bench::Serve,
     },
 }
 
@@ -192,8 +194,8 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             bench::run(&options).await?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::BenchServe { listen, axes } => {
-            bench::serve(&listen, axes, 100.0).await?;
+        Command::BenchServe { listen, axes, serve } => {
+            bench::serve(&listen, axes, serve).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Fields => {
