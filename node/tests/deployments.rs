@@ -56,6 +56,12 @@ impl Host {
         String::from_utf8_lossy(&output.stdout).trim().parse().ok()
     }
 
+    /// A field's value: the first answer (a loaded host may need a second get); panics after
+    /// PATIENCE.
+    fn answer(&self, endpoint: &str, axis: &str, field: &str) -> f64 {
+        self.wait_for(endpoint, axis, field, |_| true)
+    }
+
     /// Poll a field until `accept` holds; panics after PATIENCE.
     fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
         let deadline = Instant::now() + PATIENCE;
@@ -137,7 +143,7 @@ fn the_seed_database_is_launched_moved_and_shut_down_cleanly() {
     here.wait_for(&endpoint, "db:rotary", "DMOV", |v| v == 1.0);
     let answer = here.put(&endpoint, "db:rotary", "VAL", "10", true).unwrap();
     assert!(answer.contains("reached=1"), "{answer}");
-    let linear = here.get(&endpoint, "db:linear", "RBV").unwrap();
+    let linear = here.answer(&endpoint, "db:linear", "RBV");
     assert!((linear - 176.327).abs() < 0.01, "TAN(10°)·1000 mm, got {linear}");
     let (status, log) = node.terminate();
     assert!(status.success(), "{status}: {log}");
@@ -173,7 +179,7 @@ fn a_clean_shutdown_stops_a_moving_axis_and_saves_where_it_stopped() {
 }
 
 /// Kill a node mid-move, restart it, and report (RBV, VELO) after the restart.
-fn kill_mid_move_and_restart(rstm: &str) -> (f64, f64, f64) {
+fn kill_mid_move_and_restart(rstm: &str) -> (f64, f64) {
     let dir = tempfile::tempdir().unwrap();
     let file = dir.path().join("slow.toml");
     std::fs::write(&file, slow_stage(rstm, 0.1)).unwrap();
@@ -194,15 +200,15 @@ fn kill_mid_move_and_restart(rstm: &str) -> (f64, f64, f64) {
     node.kill();
     let node = here.spawn(&args, dir.path());
     here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
-    let rbv = here.get(&endpoint, "m1", "RBV").unwrap();
-    let velo = here.get(&endpoint, "m1", "VELO").unwrap();
+    let rbv = here.answer(&endpoint, "m1", "RBV");
+    let velo = here.answer(&endpoint, "m1", "VELO");
     // It moves nothing on its own.
     std::thread::sleep(Duration::from_millis(500));
-    let later = here.get(&endpoint, "m1", "RBV").unwrap();
+    let later = here.answer(&endpoint, "m1", "RBV");
     assert_eq!(later, rbv, "RSTM {rstm}: the axis moved after the restart");
-    assert_eq!(here.get(&endpoint, "m1", "DMOV"), Some(1.0));
+    assert_eq!(here.answer(&endpoint, "m1", "DMOV"), 1.0);
     drop(node);
-    (rbv, velo, here.get(&endpoint, "m1", "RBV").unwrap_or(f64::NAN))
+    (rbv, velo)
 }
 
 #[test]
@@ -212,7 +218,7 @@ fn a_node_killed_mid_move_restarts_from_its_saved_state_under_each_restore_mode(
         let runs: Vec<_> = modes.iter().map(|mode| scope.spawn(move || kill_mid_move_and_restart(mode))).collect();
         runs.into_iter().map(|run| run.join().unwrap()).collect()
     });
-    for (mode, (rbv, velo, _)) in modes.iter().zip(outcomes) {
+    for (mode, (rbv, velo)) in modes.iter().zip(outcomes) {
         assert_eq!(velo, 2.0, "RSTM {mode}: the VELO setting survives");
         // The simulated controller lives in the node's process, so it powers up at 0 like a
         // motorSim controller after an IOC restart; RSTM decides whether the saved DVAL (the
@@ -315,14 +321,19 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     let seen = String::from_utf8_lossy(&seen.stdout);
     assert!(seen.contains("DMOV   0") && seen.contains("DMOV   1"), "monitor saw: {seen}");
 
-    // The composite motor across hosts: rotary (host b) drives linear (host a). First its
-    // readback settles on the linear move just made (ATAN(5/1000) = 0.2865°): a readback still
-    // in flight when the rotary starts would end its move at once, as it would in EPICS.
+    // The composite motor across hosts: rotary (host b) drives linear (host a). First it has
+    // followed the linear move just made to its end (ATAN(5/1000) = 0.2865°, done): a readback
+    // still in flight when the rotary starts would end its move at once, as it would in EPICS.
     client.wait_for(router_endpoint, "rotary", "RBV", |v| (v - 0.2865).abs() < 0.001);
+    client.wait_for(router_endpoint, "rotary", "DMOV", |v| v == 1.0);
     let answer = client.put(router_endpoint, "rotary", "VAL", "20", true).unwrap();
     assert!(answer.contains("reached=1"), "{answer}");
-    let linear = client.get(router_endpoint, "linear", "RBV").unwrap();
-    assert!((linear - 363.970).abs() < 0.01, "TAN(20°)·1000 mm, got {linear}");
+    let linear = client.answer(router_endpoint, "linear", "RBV");
+    assert!(
+        (linear - 363.970).abs() < 0.01,
+        "TAN(20°)·1000 mm, got {linear}; linear DVAL {:?}, rotary {answer}",
+        client.get(router_endpoint, "linear", "DVAL")
+    );
     let rotary = client.wait_for(router_endpoint, "rotary", "RBV", |v| (v - 20.0).abs() < 0.01);
     assert!((rotary - 20.0).abs() < 0.01);
 }
