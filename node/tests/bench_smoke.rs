@@ -12,7 +12,9 @@ fn the_benchmark_runs_in_smoke_mode() {
         .unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
-    for part in ["1. command latency", "Zenoh pub/sub round trip", "2. engine cost", "3. scale", "4. start-up"] {
+    for part in
+        ["1. command latency", "Zenoh pub/sub round trip", "2. engine cost", "3. scale", "Zenoh alone", "4. start-up"]
+    {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
     assert!(!stdout.contains("failed"), "{stdout}");
