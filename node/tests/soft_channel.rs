@@ -188,3 +188,27 @@ fn dol_drives_the_target_in_closed_loop() {
     }
     assert_eq!(axis.fields().rbv, 0.5);
 }
+
+#[test]
+fn a_move_commanded_while_the_driven_motor_settles_waits_for_its_own_motion() {
+    let mut axis = booted_soft();
+    // The driven motor moved on its own and has just reported done; that "done" is settling.
+    axis.link_update(1.0, InputLink::Done, 0.0);
+    axis.link_update(1.1, InputLink::Readback, 0.8);
+    axis.link_update(1.2, InputLink::Done, 1.0);
+    assert_eq!(posts(&drain(&mut axis), Field::DMOV), vec![Value::Int(0)]);
+    // A move commanded now comes after that completion (the reference processes the DINP
+    // callback before a later put): the old "done" must not end the new move.
+    axis.write(1.21, Field::VAL, &Value::Float(2.0)).unwrap();
+    let events = drain(&mut axis);
+    assert_eq!(puts(&events), vec![("calc/drive/A".to_string(), "2".to_string())]);
+    assert_eq!(posts(&events, Field::DMOV), vec![Value::Int(1), Value::Int(0)]);
+    axis.tick(1.2 + SOFT_DONE_SETTLE, false);
+    assert_eq!(axis.fields().dmov, 0, "the new move is still waiting for the driven motor");
+    axis.link_update(1.3, InputLink::Done, 0.0);
+    axis.link_update(1.5, InputLink::Readback, 2.0);
+    axis.link_update(1.6, InputLink::Done, 1.0);
+    axis.tick(1.6 + SOFT_DONE_SETTLE, false);
+    let f = axis.fields();
+    assert_eq!((f.dmov, f.rbv, f.val), (1, 2.0, 2.0));
+}
