@@ -140,15 +140,21 @@ impl Axis {
         self.now
     }
 
-    /// A field write at time `now`.
-    pub fn write(&mut self, now: f64, field: Field, value: &Value) -> Result<(), WriteError> {
+    /// Act on what belongs before an input arriving at `now`: a Soft Channel "done" still
+    /// settling is the end of the motion before it, as the reference processes the DINP
+    /// callback before a later put. (Left pending, it would end the motion a write starts.)
+    /// `write` does this itself; a caller that must tell the events before a write from the
+    /// write's own calls it first and drains the events.
+    pub fn settle(&mut self, now: f64) {
         self.advance(now);
-        // A Soft Channel "done" still settling belongs to the motion before this write: act on
-        // it first, as the reference processes the DINP callback before a later put. (Left
-        // pending, it would end the motion this write starts.)
         if self.done_due.take().is_some() {
             self.apply_link(InputLink::Done, 1.0);
         }
+    }
+
+    /// A field write at time `now`.
+    pub fn write(&mut self, now: f64, field: Field, value: &Value) -> Result<(), WriteError> {
+        self.settle(now);
         // The record acts on a write with the readback as it is now, not as of the last poll:
         // a relative move computed from a stale readback would miss by the distance since.
         let status = self.device_status();

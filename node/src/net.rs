@@ -399,6 +399,10 @@ impl AxisCore {
         let field = Field::from_name(name).ok_or_else(|| format!("{name}: unknown field"))?;
         let value = zmotor_msgs::decode_write(field.def(), payload, encoding).map_err(|e| e.to_string())?;
         let now = self.now();
+        // What was due before this write goes out first, with the completions it answers, so a
+        // `?wait` on this write is answered by the end of its own motion only.
+        self.axis.settle(now);
+        self.publish_events();
         self.axis.write(now, field, &value).map_err(|e: WriteError| e.to_string())?;
         self.changed |= field.autosave().is_some();
         Ok(field)

@@ -135,3 +135,18 @@ async fn restarting_the_bridge_moves_nothing() {
     wait_until(&client, &node.key("linear", Field::DVAL), |v| near(v, (20.0f64 / 57.296).tan() * 1000.0, 0.01)).await;
     drop(restarted);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_completion_wait_on_the_rotary_right_after_a_linear_move_waits_for_the_rotary_move() {
+    let node = TestNode::launch(&tangent_arm("")).await;
+    let client = node.client().await;
+    ready(&node, &client).await;
+    let _ = confirmed_write(&client, "motor/linear/VAL?wait", "100", PATIENCE).await.unwrap();
+    // At once, while the rotary is still following that move (its "done" settles for 50 ms):
+    // the answer must come when the rotary's own move has ended, not with the end of the last.
+    let reply = confirmed_write(&client, "motor/rotary/VAL?wait", "20", PATIENCE).await.unwrap();
+    let outcome: std::collections::BTreeMap<String, Value> = ciborium::from_reader(&reply[..]).unwrap();
+    assert_eq!(outcome["DMOV"], int(1), "{outcome:?}");
+    let linear = get_value(&client, &node.key("linear", Field::RBV)).await;
+    assert!(near(&linear, 363.97, 0.01), "TAN(20°)·1000 mm when the rotary is done, got {linear:?}");
+}
