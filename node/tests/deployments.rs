@@ -321,11 +321,8 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     let seen = String::from_utf8_lossy(&seen.stdout);
     assert!(seen.contains("DMOV   0") && seen.contains("DMOV   1"), "monitor saw: {seen}");
 
-    // The composite motor across hosts: rotary (host b) drives linear (host a). First it has
-    // followed the linear move just made to its end (ATAN(5/1000) = 0.2865°, done): a readback
-    // still in flight when the rotary starts would end its move at once, as it would in EPICS.
-    client.wait_for(router_endpoint, "rotary", "RBV", |v| (v - 0.2865).abs() < 0.001);
-    client.wait_for(router_endpoint, "rotary", "DMOV", |v| v == 1.0);
+    // The composite motor across hosts: rotary (host b) drives linear (host a), commanded
+    // right after the linear's own move, while the rotary may still be following it.
     let answer = client.put(router_endpoint, "rotary", "VAL", "20", true).unwrap();
     assert!(answer.contains("reached=1"), "{answer}");
     let linear = client.answer(router_endpoint, "linear", "RBV");
