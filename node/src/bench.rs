@@ -2,7 +2,7 @@
 //! separate processes over TCP on 127.0.0.1), the engine's cost per event, the cost of many
 //! axes in one process, and start-up time. It prints its figures; it asserts nothing.
 
-use crate::axis::{Axis, PollRates};
+use crate::axis::{Axis, AxisEvent, PollRates};
 use crate::driver::sim::{SimAxis, SimConfig};
 use crate::engine::{DeviceStatus, MotorRecord};
 use crate::launch::{AxisPlan, DriverPlan, ZenohSection};
@@ -86,17 +86,30 @@ pub async fn serve(listen: &str, axes: usize, serve: Serve) -> Result<(), Error>
     Ok(())
 }
 
-/// What a moving axis publishes at each readback poll.
-const READBACK_FIELDS: [Field; 6] = [Field::RBV, Field::DRBV, Field::RRBV, Field::RMP, Field::DIFF, Field::RDIF];
+/// The fields a moving axis posts at one readback poll (RBV, DRBV, RRBV, RMP, DIFF, RDIF), as
+/// the engine says: a bench axis half a second into a long move, at its next poll.
+fn fields_posted_per_poll() -> Vec<Field> {
+    let plan = bench_axes(1, false, MOVING_READBACK_HZ).remove(0);
+    let DriverPlan::Sim(sim) = plan.driver else { unreachable!("bench axes are simulated") };
+    let mut axis = Axis::new(plan.fields, Box::new(SimAxis::new(sim)), plan.rates, 0.0);
+    axis.write(0.0, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
+    while axis.now() < 0.5 {
+        axis.drain_events().count();
+        let t = axis.next_wakeup();
+        axis.tick(t, false);
+    }
+    axis.drain_events().filter_map(|e| if let AxisEvent::Post(field, _) = e { Some(field) } else { None }).collect()
+}
 
 /// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second from one task:
-/// each field of `READBACK_FIELDS` through a declared publisher, a CBOR number with a state
+/// each field of `fields_posted_per_poll` through a declared publisher, a CBOR number with a state
 /// marker, as the node sends it. The floor under the node's own figure.
 async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
     let layout = KeyLayout::default();
-    let mut publishers = Vec::with_capacity(n * READBACK_FIELDS.len());
+    let fields = fields_posted_per_poll();
+    let mut publishers = Vec::with_capacity(n * fields.len());
     for i in 0..n {
-        for field in READBACK_FIELDS {
+        for &field in &fields {
             let key = layout.field(&format!("b{i}"), field);
             publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
         }
@@ -534,4 +547,16 @@ pub async fn run(options: &BenchOptions) -> Result<(), Error> {
 pub fn instant_axis() -> Axis {
     let sim = SimAxis::new(SimConfig { instant: true, ..SimConfig::default() });
     Axis::new(Fields { mres: 0.001, velo: 10.0, ..Fields::default() }, Box::new(sim), PollRates::default(), 0.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moving_axis_posts_its_six_readback_fields_per_poll() {
+        let mut fields = fields_posted_per_poll();
+        fields.sort_by_key(|f| f.name());
+        assert_eq!(fields, [Field::DIFF, Field::DRBV, Field::RBV, Field::RDIF, Field::RMP, Field::RRBV]);
+    }
 }

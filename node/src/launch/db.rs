@@ -32,12 +32,8 @@ impl Macros {
 
 /// Import a database file; the warnings say what was simulated or ignored.
 pub fn import_db(path: &Path, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
+    let text = super::read_text(path)?;
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| LaunchError {
-        file: file.clone(),
-        line: None,
-        message: format!("cannot read: {e}"),
-    })?;
     import_text(&text, macros).map_err(|(line, message)| LaunchError { file, line: Some(line), message })
 }
 

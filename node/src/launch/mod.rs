@@ -30,6 +30,15 @@ pub struct LaunchError {
     pub message: String,
 }
 
+/// The text of a launch or database file; an error names the file.
+fn read_text(path: &Path) -> Result<String, LaunchError> {
+    std::fs::read_to_string(path).map_err(|e| LaunchError {
+        file: path.display().to_string(),
+        line: None,
+        message: format!("cannot read: {e}"),
+    })
+}
+
 /// One launch file as written. Only the main file may configure the Zenoh side, the state
 /// directory and autosave; included files add hosts, axes, calc links and value holders.
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
@@ -280,11 +289,7 @@ impl Launch {
     /// Read and check a launch file and everything it includes.
     pub fn load(path: &Path) -> Result<Self, LaunchError> {
         let name = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| LaunchError {
-            file: name.clone(),
-            line: None,
-            message: format!("cannot read: {e}"),
-        })?;
+        let text = read_text(path)?;
         let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
         Self::build(&name, &text, &base, std::fs::canonicalize(path).ok())
     }
