@@ -27,16 +27,27 @@ pub struct BenchOptions {
     pub startup_axes: usize,
     /// Seconds each CPU/publication measurement lasts.
     pub window: f64,
+    /// Most axes set moving for the scale figures; beyond, start and idle memory only.
+    pub moving_up_to: usize,
+    /// Axes under the load of the EPICS figure (`Load::ShortMoves`).
+    pub epics_load_axes: usize,
 }
 
 impl BenchOptions {
     pub fn full() -> Self {
-        Self { moves: 2000, scales: vec![1, 100, 1000, 10_000], startup_axes: 1000, window: 3.0 }
+        Self {
+            moves: 2000,
+            scales: vec![1, 100, 1000, 10_000],
+            startup_axes: 1000,
+            window: 3.0,
+            moving_up_to: 2000,
+            epics_load_axes: 1000,
+        }
     }
 
     /// A run of a few seconds that only proves every part works.
     pub fn smoke() -> Self {
-        Self { moves: 50, scales: vec![1, 10], startup_axes: 10, window: 0.5 }
+        Self { moves: 50, scales: vec![1, 10], startup_axes: 10, window: 0.5, moving_up_to: 10, epics_load_axes: 10 }
     }
 }
 
@@ -54,8 +65,9 @@ pub enum Serve {
     Zenoh,
 }
 
-/// The benchmark server: `n` axes as `serve` says, and a ping echo, on one session.
-pub async fn serve(listen: &str, axes: usize, serve: Serve) -> Result<(), Error> {
+/// The benchmark server: `n` axes as `serve` says, polled `readback_hz` times a second while
+/// moving, and a ping echo, on one session.
+pub async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: f64) -> Result<(), Error> {
     let section = ZenohSection { mode: "peer".into(), listen: vec![listen.into()], ..ZenohSection::default() };
     let session = zenoh::open(zenoh_config(&section)?).await?;
     let echo_session = session.clone();
@@ -72,13 +84,13 @@ pub async fn serve(listen: &str, axes: usize, serve: Serve) -> Result<(), Error>
     let node = match serve {
         Serve::Zenoh => None,
         Serve::Instant | Serve::Moving => {
-            let plans = bench_axes(axes, serve == Serve::Instant, MOVING_READBACK_HZ);
+            let plans = bench_axes(axes, serve == Serve::Instant, readback_hz);
             Some(Node::start(session.clone(), KeyLayout::default(), plans, vec![], vec![], None).await?)
         }
     };
     tokio::select! {
         stopped = tokio::signal::ctrl_c() => stopped?,
-        published = publish_like_moving_axes(&session, axes, MOVING_READBACK_HZ), if node.is_none() => published?,
+        published = publish_like_moving_axes(&session, axes, readback_hz), if node.is_none() => published?,
     }
     if let Some(node) = node {
         node.shutdown().await;
@@ -89,7 +101,7 @@ pub async fn serve(listen: &str, axes: usize, serve: Serve) -> Result<(), Error>
 /// The fields a moving axis posts at one readback poll (RBV, DRBV, RRBV, RMP, DIFF, RDIF), as
 /// the engine says: a bench axis half a second into a long move, at its next poll.
 fn fields_posted_per_poll() -> Vec<Field> {
-    let plan = bench_axes(1, false, MOVING_READBACK_HZ).remove(0);
+    let plan = bench_axes(1, false, Load::LongMoves.readback_hz()).remove(0);
     let DriverPlan::Sim(sim) = plan.driver else { unreachable!("bench axes are simulated") };
     let mut axis = Axis::new(plan.fields, Box::new(SimAxis::new(sim)), plan.rates, 0.0);
     axis.write(0.0, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
@@ -147,11 +159,12 @@ fn free_endpoint() -> Result<String, Error> {
 struct Server(Child);
 
 impl Server {
-    fn spawn(endpoint: &str, axes: usize, serve: Serve) -> Result<Self, Error> {
+    fn spawn(endpoint: &str, axes: usize, serve: Serve, readback_hz: f64) -> Result<Self, Error> {
         let exe = std::env::current_exe()?;
         let serve = clap::ValueEnum::to_possible_value(&serve).expect("every kind has a name");
         let child = Command::new(exe)
             .args(["bench-serve", "--listen", endpoint, "--axes", &axes.to_string(), "--serve", serve.get_name()])
+            .args(["--readback-hz", &readback_hz.to_string()])
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .spawn()?;
@@ -234,7 +247,7 @@ pub struct Latency {
 /// Put VAL and time DMOV 0 and DMOV 1 at the client; then Zenoh's own ping-pong.
 async fn latency(moves: usize) -> Result<Latency, Error> {
     let endpoint = free_endpoint()?;
-    let _server = Server::spawn(&endpoint, 1, Serve::Instant)?;
+    let _server = Server::spawn(&endpoint, 1, Serve::Instant, Load::LongMoves.readback_hz())?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     wait_for_axes(&session, 1, Duration::from_secs(20)).await?;
     let dmov = session.declare_subscriber("motor/b0/DMOV").await?;
@@ -319,30 +332,53 @@ pub struct Scale {
     pub axes: usize,
     pub start: Duration,
     pub rss_per_axis_idle_kb: f64,
-    /// The node with every axis moving; None above `MOVING_MEASURED_UP_TO` axes.
+    /// The node with every axis moving; None above `BenchOptions::moving_up_to` axes.
     pub moving: Option<Publishing>,
     /// Zenoh alone publishing the same samples at the same rate (`Serve::Zenoh`).
     pub zenoh_alone: Option<Publishing>,
 }
 
-/// A server process publishing readbacks at 100 Hz for every axis, seen by one subscriber of
-/// `motor/**` in another process.
+/// A server process publishing readbacks for every axis, seen by one subscriber of `motor/**`
+/// in another process.
 pub struct Publishing {
     /// The server process's CPU, as a fraction of one core.
     pub cpu: f64,
     /// Samples per second the subscriber received.
     pub publications_per_s: f64,
-    /// RBV samples per axis per second the subscriber received (100 when every poll arrives).
+    /// RBV samples per axis per second the subscriber received (the readback rate when every
+    /// poll arrives).
     pub rbv_per_axis_per_s: f64,
+    /// Moves per second the subscriber saw end (DMOV 1).
+    pub moves_per_s: f64,
+    /// From the first command to the measurement window: until the readbacks (long moves) or
+    /// the ends of moves (short moves) arrived at 90 % of their rate. None when `SETTLE_LIMIT`
+    /// passed first.
+    pub settled_after: Option<Duration>,
 }
 
-/// Most axes set moving together for the scale figures; beyond, only start and idle memory
-/// are measured.
-const MOVING_MEASURED_UP_TO: usize = 2000;
-/// Readback rate of the moving axes, Hz.
-const MOVING_READBACK_HZ: f64 = 100.0;
-/// Longest wait for the readbacks of all axes to flow before the CPU window opens.
-const SETTLE_LIMIT: Duration = Duration::from_secs(30);
+/// How the axes of a publishing measurement move.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Load {
+    /// One long move each (10 mm/s for 1000 mm), readback at 100 Hz: the scale figures.
+    LongMoves,
+    /// The load of the EPICS figure: 4 mm moves (0.5 s, so ~5 readbacks each) commanded to the axes in turn,
+    /// `moves_per_s` in all, readback at 10 Hz.
+    ShortMoves { moves_per_s: f64 },
+}
+
+impl Load {
+    fn readback_hz(self) -> f64 {
+        match self {
+            Load::LongMoves => 100.0,
+            Load::ShortMoves { .. } => 10.0,
+        }
+    }
+}
+
+/// Moves per second and axis in the EPICS figure (1,600 moves/s on 1,000 axes).
+const EPICS_MOVES_PER_AXIS_PER_S: f64 = 1.6;
+/// Longest wait for the load to settle before the CPU window opens.
+const SETTLE_LIMIT: Duration = Duration::from_secs(45);
 
 /// Resident memory of a process (`self` or a pid), KB.
 fn rss_kb(process: &str) -> f64 {
@@ -361,8 +397,8 @@ fn cpu_seconds(process: &str) -> f64 {
 }
 
 /// `n` axes in this process: the time they take to start and their memory when idle; then,
-/// up to `MOVING_MEASURED_UP_TO` axes, the same axes moving in a node process of their own.
-async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
+/// up to `moving_up_to` axes, the same axes moving in a node process of their own.
+async fn scale(n: usize, window: f64, moving_up_to: usize) -> Result<Scale, Error> {
     let section = ZenohSection { mode: "peer".into(), listen: vec![free_endpoint()?], ..ZenohSection::default() };
     let session = zenoh::open(zenoh_config(&section)?).await?;
     let rss_before = rss_kb("self");
@@ -370,7 +406,7 @@ async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
     let node = Node::start(
         session.clone(),
         KeyLayout::default(),
-        bench_axes(n, false, MOVING_READBACK_HZ),
+        bench_axes(n, false, Load::LongMoves.readback_hz()),
         vec![],
         vec![],
         None,
@@ -381,35 +417,64 @@ async fn scale(n: usize, window: f64) -> Result<Scale, Error> {
     let rss_per_axis_idle_kb = (rss_kb("self") - rss_before) / n as f64;
     node.shutdown().await;
     session.close().await?;
-    if n > MOVING_MEASURED_UP_TO {
+    if n > moving_up_to {
         return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: None, zenoh_alone: None });
     }
-    let moving = Some(publishing(n, window, Serve::Moving).await?);
-    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh).await?);
+    let moving = Some(publishing(n, window, Serve::Moving, Load::LongMoves).await?);
+    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh, Load::LongMoves).await?);
     Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, zenoh_alone })
 }
 
-/// Samples a subscriber of `motor/**` received: all of them, and RBV alone.
+/// Samples a subscriber of `motor/**` received: all of them, RBV alone, DMOV 1 alone.
 #[derive(Default)]
 struct Received {
     all: std::sync::atomic::AtomicU64,
     rbv: std::sync::atomic::AtomicU64,
+    done: std::sync::atomic::AtomicU64,
 }
 
 impl Received {
-    fn read(&self) -> (u64, u64) {
+    fn read(&self) -> [u64; 3] {
         use std::sync::atomic::Ordering::Relaxed;
-        (self.all.load(Relaxed), self.rbv.load(Relaxed))
+        [self.all.load(Relaxed), self.rbv.load(Relaxed), self.done.load(Relaxed)]
+    }
+
+    fn count(&self, sample: &zenoh::sample::Sample) {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.all.fetch_add(1, Relaxed);
+        let key = sample.key_expr().as_str();
+        if key.ends_with("/RBV") {
+            self.rbv.fetch_add(1, Relaxed);
+        } else if key.ends_with("/DMOV") && decode_cbor_value(&sample.payload().to_bytes()) == Ok(Value::Int(1)) {
+            self.done.fetch_add(1, Relaxed);
+        }
     }
 }
 
-/// A server process of `n` axes all moving (or Zenoh alone publishing as much): its CPU and
-/// what one subscriber receives, over `window` seconds once every axis's readback flows (or
+/// Command 4 mm moves to axes b0 … b(n-1) in turn, back and forth, `moves_per_s` in all.
+async fn command_short_moves(session: Session, n: usize, moves_per_s: f64) -> Result<(), Error> {
+    const PERIOD: Duration = Duration::from_millis(10);
+    let mut ticks = tokio::time::interval(PERIOD);
+    let (mut due, mut next) = (0.0, 0usize);
+    loop {
+        ticks.tick().await;
+        due += moves_per_s * PERIOD.as_secs_f64();
+        while due >= 1.0 {
+            due -= 1.0;
+            let (axis, outward) = (next % n, (next / n).is_multiple_of(2));
+            next += 1;
+            let target = if outward { "4" } else { "0" };
+            session.put(format!("motor/b{axis}/VAL"), target).encoding(Encoding::TEXT_PLAIN).await?;
+        }
+    }
+}
+
+/// A server process of `n` axes moving under `load` (or Zenoh alone publishing as much): its
+/// CPU and what one subscriber receives, over `window` seconds once the load has settled (or
 /// `SETTLE_LIMIT` has passed).
-async fn publishing(n: usize, window: f64, serve: Serve) -> Result<Publishing, Error> {
-    use std::sync::atomic::Ordering::Relaxed;
+async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<Publishing, Error> {
     let endpoint = free_endpoint()?;
-    let server = Server::spawn(&endpoint, n, serve)?;
+    let server = Server::spawn(&endpoint, n, serve, load.readback_hz())?;
     let pid = server.0.id().to_string();
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     if serve != Serve::Zenoh {
@@ -417,39 +482,52 @@ async fn publishing(n: usize, window: f64, serve: Serve) -> Result<Publishing, E
     }
     let received = std::sync::Arc::new(Received::default());
     let counter = received.clone();
-    let _all = session
-        .declare_subscriber("motor/**")
-        .callback(move |sample| {
-            counter.all.fetch_add(1, Relaxed);
-            if sample.key_expr().as_str().ends_with("/RBV") {
-                counter.rbv.fetch_add(1, Relaxed);
-            }
-        })
-        .await?;
+    let _all = session.declare_subscriber("motor/**").callback(move |sample| counter.count(&sample)).await?;
     tokio::time::sleep(Duration::from_millis(200)).await;
-    // Long moves (10 mm/s for 1000 mm) keep every axis moving through the window.
-    for i in 0..n {
-        session.put(format!("motor/b{i}/VAL"), "1000").encoding(Encoding::TEXT_PLAIN).await?;
-    }
-    let expected_rbv_per_s = n as f64 * MOVING_READBACK_HZ;
     let settling = Instant::now();
-    while settling.elapsed() < SETTLE_LIMIT {
-        let (_, rbv0) = received.read();
+    let commander = match load {
+        Load::LongMoves => {
+            for i in 0..n {
+                session.put(format!("motor/b{i}/VAL"), "1000").encoding(Encoding::TEXT_PLAIN).await?;
+            }
+            None
+        }
+        Load::ShortMoves { moves_per_s } => Some(tokio::spawn(command_short_moves(session.clone(), n, moves_per_s))),
+    };
+    // Readbacks (long moves) or ends of moves (short moves) arrive at 90 % of their rate.
+    let settled = |before: [u64; 3], after: [u64; 3]| match load {
+        Load::LongMoves => (after[1] - before[1]) as f64 / 0.5 >= 0.9 * n as f64 * load.readback_hz(),
+        Load::ShortMoves { moves_per_s } => (after[2] - before[2]) as f64 / 0.5 >= 0.9 * moves_per_s,
+    };
+    // Two half-seconds in a row, so a burst in the middle of the ramp does not pass for it.
+    let (mut settled_after, mut in_a_row) = (None, 0);
+    while settled_after.is_none() && settling.elapsed() < SETTLE_LIMIT {
+        let before = received.read();
         tokio::time::sleep(Duration::from_millis(500)).await;
-        if (received.read().1 - rbv0) as f64 / 0.5 >= 0.9 * expected_rbv_per_s {
-            break;
+        in_a_row = if settled(before, received.read()) { in_a_row + 1 } else { 0 };
+        if in_a_row == 2 {
+            settled_after = Some(settling.elapsed());
         }
     }
-    let (cpu0, (all0, rbv0), t0) = (cpu_seconds(&pid), received.read(), Instant::now());
+    let (cpu0, [all0, rbv0, done0], t0) = (cpu_seconds(&pid), received.read(), Instant::now());
     tokio::time::sleep(Duration::from_secs_f64(window)).await;
     let elapsed = t0.elapsed().as_secs_f64();
     let cpu = (cpu_seconds(&pid) - cpu0) / elapsed;
-    let (all1, rbv1) = received.read();
+    let [all1, rbv1, done1] = received.read();
+    if let Some(commander) = commander {
+        commander.abort();
+        // Finished before the abort: it met an error.
+        if let Ok(Err(e)) = commander.await {
+            return Err(e);
+        }
+    }
     session.close().await?;
     Ok(Publishing {
         cpu,
         publications_per_s: (all1 - all0) as f64 / elapsed,
         rbv_per_axis_per_s: (rbv1 - rbv0) as f64 / elapsed / n as f64,
+        moves_per_s: (done1 - done0) as f64 / elapsed,
+        settled_after,
     })
 }
 
@@ -457,7 +535,7 @@ async fn publishing(n: usize, window: f64, serve: Serve) -> Result<Publishing, E
 async fn startup(n: usize) -> Result<Duration, Error> {
     let endpoint = free_endpoint()?;
     let start = Instant::now();
-    let _server = Server::spawn(&endpoint, n, Serve::Instant)?;
+    let _server = Server::spawn(&endpoint, n, Serve::Instant, Load::LongMoves.readback_hz())?;
     let session = client_when_ready(&endpoint, start).await?;
     wait_for_axes(&session, n, Duration::from_secs(120)).await?;
     Ok(start.elapsed())
@@ -493,42 +571,48 @@ pub async fn run(options: &BenchOptions) -> Result<(), Error> {
     );
 
     println!(
-        "\n3. scale: axes in one process; then every axis moving, readback at {MOVING_READBACK_HZ} Hz, the node in a"
+        "\n3. scale: axes in one process; then, up to {} axes, every axis moving, readback at {} Hz, the node",
+        options.moving_up_to,
+        Load::LongMoves.readback_hz()
     );
-    println!("   process of its own and one subscriber of motor/** in another; then Zenoh alone publishing");
-    println!("   the same samples at the same rate (no record): CPU of the publishing process");
+    println!("   in a process of its own and one subscriber of motor/** in another (settled: from the commands to");
+    println!("   all readbacks flowing); then Zenoh alone publishing the same samples at the same rate (no record)");
     println!(
-        "   {:>6} {:>9} {:>12} {:>10} {:>15} {:>11} {:>12} {:>15}",
-        "axes", "start (s)", "RSS/axis KB", "node CPU", "publications/s", "RBV/axis/s", "Zenoh CPU", "publications/s"
+        "   {:>6} {:>9} {:>12} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
+        "axes",
+        "start (s)",
+        "RSS/axis KB",
+        "node CPU",
+        "publications/s",
+        "RBV/axis/s",
+        "settled (s)",
+        "Zenoh CPU",
+        "publications/s"
     );
     for &n in &options.scales {
-        match scale(n, options.window).await {
+        match scale(n, options.window, options.moving_up_to).await {
             Ok(s) => {
-                let [node_cpu, node_publications, rbv, zenoh_cpu, zenoh_publications] = match (s.moving, s.zenoh_alone)
-                {
-                    (Some(node), Some(zenoh)) => [
-                        format!("{:.0} %", node.cpu * 100.0),
-                        format!("{:.0}", node.publications_per_s),
-                        format!("{:.1}", node.rbv_per_axis_per_s),
-                        format!("{:.0} %", zenoh.cpu * 100.0),
-                        format!("{:.0}", zenoh.publications_per_s),
-                    ],
-                    _ => [
-                        "not measured".into(),
-                        format!("(> {MOVING_MEASURED_UP_TO} axes)"),
-                        "".into(),
-                        "".into(),
-                        "".into(),
-                    ],
-                };
+                let [node_cpu, node_publications, rbv, settled, zenoh_cpu, zenoh_publications] =
+                    match (s.moving, s.zenoh_alone) {
+                        (Some(node), Some(zenoh)) => [
+                            percent(node.cpu),
+                            format!("{:.0}", node.publications_per_s),
+                            format!("{:.1}", node.rbv_per_axis_per_s),
+                            seconds(node.settled_after),
+                            percent(zenoh.cpu),
+                            format!("{:.0}", zenoh.publications_per_s),
+                        ],
+                        _ => ["not".into(), "measured".into(), "".into(), "".into(), "".into(), "".into()],
+                    };
                 println!(
-                    "   {:>6} {:>9.2} {:>12.1} {:>10} {:>15} {:>11} {:>12} {:>15}",
+                    "   {:>6} {:>9.2} {:>12.1} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
                     s.axes,
                     s.start.as_secs_f64(),
                     s.rss_per_axis_idle_kb,
                     node_cpu,
                     node_publications,
                     rbv,
+                    settled,
                     zenoh_cpu,
                     zenoh_publications
                 )
@@ -537,10 +621,36 @@ pub async fn run(options: &BenchOptions) -> Result<(), Error> {
         }
     }
 
-    println!("\n4. start-up: process start → all {} axes answer get", options.startup_axes);
+    let n = options.epics_load_axes;
+    let load = Load::ShortMoves { moves_per_s: n as f64 * EPICS_MOVES_PER_AXIS_PER_S };
+    println!(
+        "\n4. the load of the EPICS figure: {n} axes, readback {} Hz, 4 mm moves commanded at {:.0}/s in all",
+        load.readback_hz(),
+        n as f64 * EPICS_MOVES_PER_AXIS_PER_S
+    );
+    println!("   (the given IOC: 45 % CPU for 1,600 moves/s and 8,300 RBV events/s on 1,000 axes)");
+    let p = publishing(n, options.window, Serve::Moving, load).await?;
+    println!(
+        "   node CPU {}   moves/s ended {:.0}   RBV/s {:.0}   publications/s {:.0}   settled after {} s",
+        percent(p.cpu),
+        p.moves_per_s,
+        p.rbv_per_axis_per_s * n as f64,
+        p.publications_per_s,
+        seconds(p.settled_after)
+    );
+
+    println!("\n5. start-up: process start → all {} axes answer get", options.startup_axes);
     let t = startup(options.startup_axes).await?;
     println!("   {:.2} s", t.as_secs_f64());
     Ok(())
+}
+
+fn percent(fraction: f64) -> String {
+    format!("{:.0} %", fraction * 100.0)
+}
+
+fn seconds(settled: Option<Duration>) -> String {
+    settled.map_or_else(|| format!("> {}", SETTLE_LIMIT.as_secs()), |d| format!("{:.1}", d.as_secs_f64()))
 }
 
 /// An axis under the same clock as the engine cost figures, for the criterion benches.

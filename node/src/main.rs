@@ -133,6 +133,10 @@ enum Command {
         /// Axis counts for the scale figures, comma-separated (default 1,100,1000,10000).
         #[arg(long, value_delimiter = ',')]
         scales: Option<Vec<usize>>,
+        /// Most axes set moving for the scale figures (default 2000; beyond, start and idle
+        /// memory only).
+        #[arg(long)]
+        moving_up_to: Option<usize>,
     },
     /// The benchmark's node process (started by `zmotor bench`).
     #[command(hide = true)]
@@ -143,6 +147,8 @@ enum Command {
         axes: usize,
         #[arg(long, value_enum, default_value_t = bench::Serve::Instant)]
         serve: bench::Serve,
+        #[arg(long, default_value_t = 100.0)]
+        readback_hz: f64,
     },
 }
 
@@ -187,15 +193,16 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
         Command::Schema { dir } => schema(&dir),
-        Command::Bench { smoke, moves, scales } => {
+        Command::Bench { smoke, moves, scales, moving_up_to } => {
             let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
             options.moves = moves.unwrap_or(options.moves);
             options.scales = scales.unwrap_or(options.scales);
+            options.moving_up_to = moving_up_to.unwrap_or(options.moving_up_to);
             bench::run(&options).await?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::BenchServe { listen, axes, serve } => {
-            bench::serve(&listen, axes, serve).await?;
+        Command::BenchServe { listen, axes, serve, readback_hz } => {
+            bench::serve(&listen, axes, serve, readback_hz).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Fields => {

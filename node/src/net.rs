@@ -336,7 +336,7 @@ struct AxisCore {
 /// declarations with 16 bits and remaps them beyond (logging "Remapping unsupported"); 10,000
 /// moving axes with 30,000 field publishers went past it, so the budget is kept well inside,
 /// with room for every axis's liveliness token and trace. Past it, fields are published with
-/// session puts: slower, always correct. (1,000 moving axes declare about 16,000.)
+/// session puts: slower, always correct. (1,000 axes moving back and forth declare about 17,000.)
 const PUBLISHER_BUDGET: usize = 20_000;
 
 impl AxisCore {
