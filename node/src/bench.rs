@@ -117,13 +117,11 @@ fn fields_posted_per_poll() -> Vec<Field> {
 /// each field of `fields_posted_per_poll` through a declared publisher, a CBOR number with a state
 /// marker, as the node sends it. The floor under the node's own figure.
 async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
-    let layout = KeyLayout::default();
     let fields = fields_posted_per_poll();
     let mut publishers = Vec::with_capacity(n * fields.len());
     for i in 0..n {
         for &field in &fields {
-            let key = layout.field(&format!("b{i}"), field);
-            publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
+            publishers.push(session.declare_publisher(bench_key(i, field)).encoding(Encoding::APPLICATION_CBOR).await?);
         }
     }
     let mut polls = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
@@ -138,11 +136,21 @@ async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Res
     }
 }
 
+/// The name of bench axis `i`.
+fn bench_axis(i: usize) -> String {
+    format!("b{i}")
+}
+
+/// The key of `field` on bench axis `i`.
+fn bench_key(i: usize, field: Field) -> String {
+    KeyLayout::default().field(&bench_axis(i), field)
+}
+
 /// `n` simulated axes named b0, b1, …; `instant` ones finish every move at once.
 fn bench_axes(n: usize, instant: bool, rate: f64) -> Vec<AxisPlan> {
     (0..n)
         .map(|i| AxisPlan {
-            name: format!("b{i}"),
+            name: bench_axis(i),
             fields: Fields { mres: 0.001, velo: 10.0, accl: 0.1, ..Fields::default() },
             driver: DriverPlan::Sim(SimConfig { instant, ..SimConfig::default() }),
             rates: PollRates { moving: 1.0 / rate, idle: 1.0 },
@@ -204,7 +212,7 @@ async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Er
 
 /// How many axes answer a get of their DMOV.
 async fn answering(session: &Session) -> Result<usize, Error> {
-    let replies = session.get("motor/*/DMOV").timeout(Duration::from_secs(10)).await?;
+    let replies = session.get(KeyLayout::default().field("*", Field::DMOV)).timeout(Duration::from_secs(10)).await?;
     let mut n = 0;
     while let Ok(reply) = replies.recv_async().await {
         n += usize::from(reply.result().is_ok());
@@ -250,9 +258,9 @@ async fn latency(moves: usize) -> Result<Latency, Error> {
     let _server = Server::spawn(&endpoint, 1, Serve::Instant, Load::LongMoves.readback_hz())?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     wait_for_axes(&session, 1, Duration::from_secs(20)).await?;
-    let dmov = session.declare_subscriber("motor/b0/DMOV").await?;
+    let dmov = session.declare_subscriber(bench_key(0, Field::DMOV)).await?;
     let pong = session.declare_subscriber(PONG).await?;
-    let val = session.declare_publisher("motor/b0/VAL").encoding(Encoding::TEXT_PLAIN).await?;
+    let val = session.declare_publisher(bench_key(0, Field::VAL)).encoding(Encoding::TEXT_PLAIN).await?;
     let ping = session.declare_publisher(PING).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (mut to_dmov0, mut to_dmov1, mut rtt) = (Vec::new(), Vec::new(), Vec::new());
@@ -442,11 +450,14 @@ impl Received {
     fn count(&self, sample: &zenoh::sample::Sample) {
         use std::sync::atomic::Ordering::Relaxed;
         self.all.fetch_add(1, Relaxed);
-        let key = sample.key_expr().as_str();
-        if key.ends_with("/RBV") {
-            self.rbv.fetch_add(1, Relaxed);
-        } else if key.ends_with("/DMOV") && decode_cbor_value(&sample.payload().to_bytes()) == Ok(Value::Int(1)) {
-            self.done.fetch_add(1, Relaxed);
+        match sample.key_expr().as_str().rsplit('/').next().and_then(Field::from_name) {
+            Some(Field::RBV) => {
+                self.rbv.fetch_add(1, Relaxed);
+            }
+            Some(Field::DMOV) if decode_cbor_value(&sample.payload().to_bytes()) == Ok(Value::Int(1)) => {
+                self.done.fetch_add(1, Relaxed);
+            }
+            _ => {}
         }
     }
 }
@@ -464,7 +475,7 @@ async fn command_short_moves(session: Session, n: usize, moves_per_s: f64) -> Re
             let (axis, outward) = (next % n, (next / n).is_multiple_of(2));
             next += 1;
             let target = if outward { "4" } else { "0" };
-            session.put(format!("motor/b{axis}/VAL"), target).encoding(Encoding::TEXT_PLAIN).await?;
+            session.put(bench_key(axis, Field::VAL), target).encoding(Encoding::TEXT_PLAIN).await?;
         }
     }
 }
@@ -488,7 +499,7 @@ async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<P
     let commander = match load {
         Load::LongMoves => {
             for i in 0..n {
-                session.put(format!("motor/b{i}/VAL"), "1000").encoding(Encoding::TEXT_PLAIN).await?;
+                session.put(bench_key(i, Field::VAL), "1000").encoding(Encoding::TEXT_PLAIN).await?;
             }
             None
         }
