@@ -354,8 +354,15 @@ impl Field {
         self.def().name
     }
 
-    /// Look a field up by its EPICS name (case-insensitive, as users type it).
+    /// Look a field up by its EPICS name, exactly as the catalogue spells it (keys are
+    /// case-sensitive: `motor/m1/val` is not `motor/m1/VAL`).
     pub fn from_name(name: &str) -> Option<Field> {
+        FIELDS.iter().find(|d| d.name == name).map(|d| d.field)
+    }
+
+    /// Look a field up ignoring case: for a command line, and to name the field a mistyped
+    /// key meant.
+    pub fn from_name_any_case(name: &str) -> Option<Field> {
         FIELDS.iter().find(|d| d.name.eq_ignore_ascii_case(name)).map(|d| d.field)
     }
 
@@ -422,10 +429,12 @@ mod tests {
     }
 
     #[test]
-    fn names_are_unique_and_found_case_insensitively() {
+    fn names_are_unique_and_exact_with_a_case_insensitive_lookup_on_request() {
         for def in FIELDS {
-            assert_eq!(Field::from_name(&def.name.to_lowercase()), Some(def.field));
+            assert_eq!(Field::from_name(def.name), Some(def.field));
+            assert_eq!(Field::from_name_any_case(&def.name.to_lowercase()), Some(def.field));
         }
+        assert_eq!(Field::from_name("val"), None);
         assert_eq!(Field::from_name("NOPE"), None);
     }
 

@@ -8,12 +8,24 @@ use crate::value::Value;
 /// How a write's payload is encoded (from the Zenoh encoding of the sample or query).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PayloadEncoding {
+    /// `application/cbor`
     Cbor,
+    /// `application/json` (or `text/json`)
     Json,
+    /// UTF-8 text: `text/plain`, no encoding, or anything else.
     Text,
 }
 
 impl PayloadEncoding {
+    /// The encoding's name in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            PayloadEncoding::Cbor => "CBOR",
+            PayloadEncoding::Json => "JSON",
+            PayloadEncoding::Text => "text",
+        }
+    }
+
     /// Map a Zenoh encoding string ("application/cbor", "text/plain;charset=utf-8", ...).
     /// Anything that is neither CBOR nor JSON (text/plain, no encoding, zenoh/bytes) is text.
     pub fn from_mime(mime: &str) -> Self {
@@ -26,8 +38,20 @@ impl PayloadEncoding {
     }
 }
 
-#[derive(Debug, thiserror::Error, PartialEq)]
+/// A payload that is not one well-formed scalar (number or text) in its encoding.
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
+#[error("malformed {} payload: {detail}", encoding.name())]
+pub struct MalformedPayload {
+    /// The encoding the payload claimed.
+    pub encoding: PayloadEncoding,
+    /// What was wrong with it.
+    pub detail: String,
+}
+
+/// Why a write's payload was refused for its field; every message names the field.
+#[derive(Clone, Debug, thiserror::Error, PartialEq)]
 pub enum CodecError {
+    /// The payload does not decode in its encoding.
     #[error("{field}: malformed {encoding} payload: {detail}")]
     Malformed { field: &'static str, encoding: &'static str, detail: String },
     #[error("{field}: wrong type: expected {expected}, got {got}")]
@@ -50,35 +74,34 @@ pub fn encode_cbor<T: serde::Serialize>(value: &T) -> Vec<u8> {
 }
 
 /// Decode a published (CBOR) value.
-pub fn decode_cbor_value(bytes: &[u8]) -> Result<Value, String> {
-    let raw: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| e.to_string())?;
-    from_cbor(raw)
+pub fn decode_cbor_value(bytes: &[u8]) -> Result<Value, MalformedPayload> {
+    decode_scalar(bytes, PayloadEncoding::Cbor)
 }
 
 /// Decode and validate a write to the field described by `def`.
 pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, CodecError> {
-    let raw = decode_scalar(bytes, encoding).map_err(|(encoding, detail)| CodecError::Malformed {
+    let raw = decode_scalar(bytes, encoding).map_err(|e| CodecError::Malformed {
         field: def.name,
-        encoding,
-        detail,
+        encoding: e.encoding.name(),
+        detail: e.detail,
     })?;
     validate(def, raw)
 }
 
-/// Decode one scalar (number or text) in any accepted encoding; on failure, the encoding's
-/// name and what was wrong.
-pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, (&'static str, String)> {
+/// Decode one scalar (number or text) in any accepted encoding.
+pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, MalformedPayload> {
+    let malformed = |detail: String| MalformedPayload { encoding, detail };
     match encoding {
         PayloadEncoding::Cbor => {
-            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| ("CBOR", e.to_string()))?;
-            from_cbor(v).map_err(|e| ("CBOR", e))
+            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| malformed(e.to_string()))?;
+            from_cbor(v).map_err(malformed)
         }
         PayloadEncoding::Json => {
-            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| ("JSON", e.to_string()))?;
-            from_json(v).map_err(|e| ("JSON", e))
+            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
+            from_json(v).map_err(malformed)
         }
         PayloadEncoding::Text => {
-            let text = std::str::from_utf8(bytes).map_err(|e| ("text", e.to_string()))?;
+            let text = std::str::from_utf8(bytes).map_err(|e| malformed(e.to_string()))?;
             Ok(from_text(text))
         }
     }

@@ -6,6 +6,8 @@ use crate::catalogue::Field;
 pub const DEFAULT_PREFIX: &str = "motor";
 /// Prefix of the simulator's physical state and fault keys.
 pub const SIM_PREFIX: &str = "sim";
+/// The simulator's physical state report: `sim/<axis>/state`.
+pub const SIM_STATE_KEY: &str = "state";
 /// Prefix of the keys of calc links and value holders imported from EPICS databases
 /// (`bridge/<record>/<FIELD>`), a convention launch files may follow.
 pub const BRIDGE_PREFIX: &str = "bridge";
@@ -45,14 +47,24 @@ impl KeyLayout {
         format!("{}/{axis}", self.prefix)
     }
 
-    /// `<prefix>/<axis>/*`: every field key (writes are subscribed here).
+    /// `<prefix>/<axis>/*`: every field key of one axis (a monitor of all its fields).
     pub fn axis_fields(&self, axis: &str) -> String {
         format!("{}/{axis}/*", self.prefix)
     }
 
-    /// `<prefix>/<axis>/**`: everything of one axis (gets are answered here).
+    /// `<prefix>/<axis>/**`: everything of one axis (a read of all its fields).
     pub fn axis_all(&self, axis: &str) -> String {
         format!("{}/{axis}/**", self.prefix)
+    }
+
+    /// `<prefix>/*/*`: every field key of every axis (a node subscribes to writes here).
+    pub fn every_field(&self) -> String {
+        format!("{}/*/*", self.prefix)
+    }
+
+    /// `<prefix>/**`: everything under the prefix (a node answers queries here).
+    pub fn everything(&self) -> String {
+        format!("{}/**", self.prefix)
     }
 
     /// `<prefix>/*`: liveliness of every axis.
@@ -81,13 +93,61 @@ pub fn sim_key(axis: &str, name: &str) -> String {
     format!("{SIM_PREFIX}/{axis}/{name}")
 }
 
+/// Why a link's text is not a plain key (one key, no wildcards), as every link must be.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("'{key}' is not a plain key: {reason}")]
+pub struct PlainKeyError {
+    /// The text given.
+    pub key: String,
+    /// What is wrong with it.
+    pub reason: &'static str,
+}
+
+/// A link must name one key: chunks separated by single `/`, none empty, with none of the
+/// characters Zenoh gives a meaning in key expressions (`*`, `$`, `?`, `#`).
+pub fn validate_plain_key(key: &str) -> Result<(), PlainKeyError> {
+    let refuse = |reason| Err(PlainKeyError { key: key.to_string(), reason });
+    if key.is_empty() {
+        return refuse("it is empty");
+    }
+    if key.contains(['*', '$']) {
+        return refuse("wildcards select many keys");
+    }
+    if key.contains(['?', '#']) {
+        return refuse("'?' and '#' cannot stand in a key");
+    }
+    if key.split('/').any(str::is_empty) {
+        return refuse("it has an empty chunk (a leading, trailing or doubled '/')");
+    }
+    if key.chars().any(char::is_whitespace) {
+        return refuse("it holds white space");
+    }
+    Ok(())
+}
+
+/// Why a name cannot be an axis's key chunk.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum AxisNameError {
+    /// The name is empty.
+    #[error("an axis name must not be empty")]
+    Empty,
+    /// The name holds a character a plain key chunk cannot.
+    #[error("axis name '{name}' contains '{character}', which cannot stand in a key chunk")]
+    Forbidden {
+        /// The name given.
+        name: String,
+        /// The first character at fault.
+        character: char,
+    },
+}
+
 /// An axis name must be a single, plain key chunk.
-pub fn validate_axis_name(name: &str) -> Result<(), String> {
+pub fn validate_axis_name(name: &str) -> Result<(), AxisNameError> {
     if name.is_empty() {
-        return Err("an axis name must not be empty".into());
+        return Err(AxisNameError::Empty);
     }
     if let Some(c) = name.chars().find(|c| matches!(c, '/' | '*' | '$' | '?' | '#' | '@') || c.is_whitespace()) {
-        return Err(format!("axis name '{name}' contains '{c}', which cannot stand in a key chunk"));
+        return Err(AxisNameError::Forbidden { name: name.to_string(), character: c });
     }
     Ok(())
 }
@@ -114,6 +174,18 @@ mod tests {
         assert_eq!(k.field_name("m1", "motor/m10/VAL"), None);
         assert_eq!(k.field_name("m1", "motor/m1/@driver/cmd"), None);
         assert_eq!(k.field_name("m1", "motorx/m1/VAL"), None);
+    }
+
+    #[test]
+    fn plain_keys_are_checked() {
+        assert!(validate_plain_key("motor/lin/DVAL").is_ok());
+        for bad in ["", "a//b", "x/*y", "/a", "a/", "a/$*", "a?b", "a#", "a b"] {
+            assert!(validate_plain_key(bad).is_err(), "{bad}");
+        }
+        assert_eq!(
+            validate_plain_key("a//b").unwrap_err().to_string(),
+            "'a//b' is not a plain key: it has an empty chunk (a leading, trailing or doubled '/')"
+        );
     }
 
     #[test]

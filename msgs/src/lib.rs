@@ -8,11 +8,12 @@ pub mod codec;
 pub mod keys;
 pub mod menus;
 pub mod schema;
+pub mod toml_value;
 pub mod value;
 pub mod wire;
 
 pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS, UNMODELLED_COMMON_FIELDS};
-pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, PayloadEncoding};
+pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, MalformedPayload, PayloadEncoding};
 pub use keys::KeyLayout;
 pub use value::Value;
-pub use wire::{DriverCommand, DriverTrace, Gain, SimState, StateMarker};
+pub use wire::{Completion, DriverCommand, DriverTrace, Gain, SimState, StateMarker};

@@ -3,7 +3,7 @@
 
 use crate::catalogue::{Kind, FIELDS};
 use crate::value::Value;
-use crate::wire::{DriverTrace, SimState, StateMarker};
+use crate::wire::{Completion, DriverTrace, SimState, StateMarker};
 
 /// (file name, schema) for every message type on the wire.
 pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
@@ -15,6 +15,7 @@ pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
         ("state-marker.schema.json", json::<StateMarker>()),
         ("driver-command.schema.json", json::<DriverTrace>()),
         ("sim-state.schema.json", json::<SimState>()),
+        ("completion.schema.json", json::<Completion>()),
     ]
 }
 

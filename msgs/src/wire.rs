@@ -120,6 +120,36 @@ pub struct DriverTrace {
     pub seq: u64,
 }
 
+/// The answer to a put-with-completion (`<prefix>/<axis>/<FIELD>?wait`), sent when the motion
+/// the write started has finished (DMOV back to 1). A CBOR map: the written field by its name
+/// with its value now, the readback, the end-of-motion flags and whether the target was reached.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Completion {
+    /// The field written, by its name, with its value now (e.g. `{"VAL": 10.0}`).
+    #[serde(flatten)]
+    pub written: std::collections::BTreeMap<String, crate::Value>,
+    /// The user readback (RBV) when the motion ended.
+    #[serde(rename = "RBV")]
+    pub rbv: f64,
+    /// DMOV: 1 (the motion has finished).
+    #[serde(rename = "DMOV")]
+    pub dmov: i64,
+    /// MISS: 1 when retries ran out before the target was within the deadband.
+    #[serde(rename = "MISS")]
+    pub miss: i64,
+    /// LVIO: 1 when the target violated the soft limits.
+    #[serde(rename = "LVIO")]
+    pub lvio: i64,
+    /// Alarm status (menuAlarmStat index).
+    #[serde(rename = "STAT")]
+    pub stat: i64,
+    /// Alarm severity (menuAlarmSevr index).
+    #[serde(rename = "SEVR")]
+    pub sevr: i64,
+    /// 1 when the target was reached: MISS 0, LVIO 0 and no MAJOR or INVALID alarm.
+    pub reached: i64,
+}
+
 /// The simulator's physical state, published on `sim/<axis>/state`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SimState {
@@ -148,6 +178,27 @@ mod tests {
         assert_eq!(StateMarker::decode(&m.encode()), Some(m));
         assert_eq!(StateMarker::decode(b"hello"), None);
         assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);
+    }
+
+    #[test]
+    fn a_completion_is_one_flat_map_with_the_written_field_by_name() {
+        let completion = Completion {
+            written: [("VAL".to_string(), crate::Value::Float(10.0))].into(),
+            rbv: 10.0,
+            dmov: 1,
+            miss: 0,
+            lvio: 0,
+            stat: 0,
+            sevr: 0,
+            reached: 1,
+        };
+        let bytes = crate::codec::encode_cbor(&completion);
+        let map: std::collections::BTreeMap<String, crate::Value> = ciborium::from_reader(&bytes[..]).unwrap();
+        let keys: Vec<&str> = map.keys().map(String::as_str).collect();
+        assert_eq!(keys, ["DMOV", "LVIO", "MISS", "RBV", "SEVR", "STAT", "VAL", "reached"]);
+        assert_eq!((map["VAL"].clone(), map["DMOV"].clone()), (crate::Value::Float(10.0), crate::Value::Int(1)));
+        let back: Completion = ciborium::from_reader(&bytes[..]).unwrap();
+        assert_eq!(back, completion);
     }
 
     #[test]

@@ -4,19 +4,15 @@
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::Session;
+use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
+use zmotor_core::driver::sim::SimConfig;
+use zmotor_launch::Launch;
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
-use zmotor_node::axis::PollRates;
-use zmotor_node::driver::sim::SimConfig;
-use zmotor_node::launch::{AxisPlan, DriverPlan, Launch, ZenohSection};
-use zmotor_node::net::{zenoh_config, Node};
+use zmotor_zenoh::{free_local_endpoint, Node, ZenohConfig};
 
 /// Longest any single expectation waits before the test fails.
 pub const PATIENCE: Duration = Duration::from_secs(10);
-
-pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port()
-}
 
 /// A fast simulated stage: MRES 0.001 mm, VELO 100 mm/s, ACCL 0.05 s, soft limits ±100 mm,
 /// limit switches at ±105 mm, readback at 50 Hz.
@@ -38,7 +34,7 @@ pub fn fast_axis(name: &str) -> AxisPlan {
             low_limit_switch: Some(-105_000.0),
             ..SimConfig::default()
         }),
-        rates: PollRates { moving: 0.02, idle: 1.0 },
+        rates: PollRates { moving: Duration::from_millis(20), idle: Duration::from_secs(1) },
     }
 }
 
@@ -52,9 +48,9 @@ pub struct TestNode {
 
 impl TestNode {
     pub async fn start(plans: Vec<AxisPlan>) -> Self {
-        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
-        let section = ZenohSection { mode: "peer".into(), listen: vec![endpoint.clone()], ..ZenohSection::default() };
-        let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
+        let endpoint = free_local_endpoint().unwrap();
+        let config = ZenohConfig { listen: vec![endpoint.clone()], ..ZenohConfig::default() };
+        let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
         let layout = KeyLayout::default();
         let node = Node::start(session.clone(), layout.clone(), plans, vec![], vec![], None).await.unwrap();
         Self { node: Some(node), session, endpoint, layout }
@@ -62,10 +58,10 @@ impl TestNode {
 
     /// Start the axes and calc links of a launch file's text, on a free port.
     pub async fn launch(text: &str) -> Self {
-        let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+        let endpoint = free_local_endpoint().unwrap();
         let deployment = Launch::parse(text).unwrap().deployment(None).unwrap();
-        let section = ZenohSection { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
-        let session = zenoh::open(zenoh_config(&section).unwrap()).await.unwrap();
+        let config = ZenohConfig { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
+        let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
         let layout = KeyLayout::new(&deployment.zenoh.prefix);
         let node =
             Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, None)
@@ -76,13 +72,7 @@ impl TestNode {
 
     /// A client session connected to this node.
     pub async fn client(&self) -> Session {
-        let section = ZenohSection {
-            mode: "client".into(),
-            listen: vec![],
-            connect: vec![self.endpoint.clone()],
-            ..ZenohSection::default()
-        };
-        zenoh::open(zenoh_config(&section).unwrap()).await.unwrap()
+        zenoh::open(ZenohConfig::client(&self.endpoint).zenoh().unwrap()).await.unwrap()
     }
 
     pub fn key(&self, axis: &str, field: Field) -> String {

@@ -1,0 +1,615 @@
+//! `zmotor bench`: measures command latency against Zenoh's own round trip (client and node in
+//! separate processes over TCP on 127.0.0.1), the cost of many axes in one process, the load of
+//! the EPICS figure, and start-up time. It prints its figures; it asserts nothing. The engine's
+//! own cost per event is measured by criterion: `cargo bench -p zmotor-core --bench engine`.
+
+use crate::Error;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+use zenoh::bytes::Encoding;
+use zenoh::{Session, Wait};
+use zmotor_core::axis::{AxisEvent, AxisPlan, DriverPlan, PollRates};
+use zmotor_core::driver::sim::SimConfig;
+use zmotor_msgs::codec::{decode_cbor_value, encode_cbor};
+use zmotor_msgs::wire::StateMarker;
+use zmotor_msgs::{Field, Fields, KeyLayout, Value};
+use zmotor_zenoh::{free_local_endpoint, Node, ZenohConfig};
+
+/// What a run measures.
+#[derive(Clone, Debug)]
+pub(crate) struct BenchOptions {
+    /// Moves (and pings) for the latency figures.
+    pub(crate) moves: usize,
+    /// Axis counts for the scale figures.
+    pub(crate) scales: Vec<usize>,
+    /// Axes for the start-up figure.
+    pub(crate) startup_axes: usize,
+    /// Seconds each CPU/publication measurement lasts.
+    pub(crate) window: f64,
+    /// Most axes set moving for the scale figures; beyond, start and idle memory only.
+    pub(crate) moving_up_to: usize,
+    /// Axes under the load of the EPICS figure (`Load::ShortMoves`).
+    pub(crate) epics_load_axes: usize,
+}
+
+impl BenchOptions {
+    pub(crate) fn full() -> Self {
+        Self {
+            moves: 2000,
+            scales: vec![1, 100, 1000, 10_000],
+            startup_axes: 1000,
+            window: 3.0,
+            moving_up_to: 2000,
+            epics_load_axes: 1000,
+        }
+    }
+
+    /// A run of a few seconds that only proves every part works.
+    pub(crate) fn smoke() -> Self {
+        Self { moves: 50, scales: vec![1, 10], startup_axes: 10, window: 0.5, moving_up_to: 10, epics_load_axes: 10 }
+    }
+}
+
+const PING: &str = "bench/ping";
+const PONG: &str = "bench/pong";
+
+/// What a `zmotor bench-serve` process runs besides its ping echo.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Serve {
+    /// Simulated axes that finish every move at once (the latency figures).
+    Instant,
+    /// Simulated axes whose moves take real time, readback at 100 Hz (the scale figures).
+    Moving,
+    /// No axes: Zenoh alone publishing what as many moving axes publish, at the same rate.
+    Zenoh,
+}
+
+/// The benchmark server: `n` axes as `serve` says, polled `readback_hz` times a second while
+/// moving, and a ping echo, on one session.
+pub(crate) async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: f64) -> Result<(), Error> {
+    let config = ZenohConfig { listen: vec![listen.into()], ..ZenohConfig::default() };
+    let session = zenoh::open(config.zenoh()?).await?;
+    let echo_session = session.clone();
+    let _echo = session
+        .declare_subscriber(PING)
+        .callback(move |sample| {
+            let session = echo_session.clone();
+            let payload = sample.payload().clone();
+            tokio::spawn(async move {
+                let _ = session.put(PONG, payload).await;
+            });
+        })
+        .await?;
+    let node = match serve {
+        Serve::Zenoh => None,
+        Serve::Instant | Serve::Moving => {
+            let plans = bench_axes(axes, serve == Serve::Instant, readback_hz);
+            Some(Node::start(session.clone(), KeyLayout::default(), plans, vec![], vec![], None).await?)
+        }
+    };
+    tokio::select! {
+        stopped = tokio::signal::ctrl_c() => stopped?,
+        published = publish_like_moving_axes(&session, axes, readback_hz), if node.is_none() => published?,
+    }
+    if let Some(node) = node {
+        node.shutdown().await;
+    }
+    Ok(())
+}
+
+/// The fields a moving axis posts at one readback poll (RBV, DRBV, RRBV, RMP, DIFF, RDIF), as
+/// the engine says: a bench axis half a second into a long move, at its next poll.
+fn fields_posted_per_poll() -> Vec<Field> {
+    let start = zmotor_core::Instant::ZERO;
+    let mut axis = bench_axes(1, false, Load::LongMoves.readback_hz()).remove(0).build(start);
+    axis.write(start, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
+    while axis.now() < start + Duration::from_millis(500) {
+        axis.drain_events().count();
+        let t = axis.poll_timeout().expect("a simulated axis is polled");
+        axis.handle_timeout(t);
+    }
+    axis.drain_events().filter_map(|e| if let AxisEvent::Post(field, _) = e { Some(field) } else { None }).collect()
+}
+
+/// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second from one task:
+/// each field of `fields_posted_per_poll` through a declared publisher, a CBOR number with a state
+/// marker, as the node sends it. The floor under the node's own figure.
+async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
+    let fields = fields_posted_per_poll();
+    let mut publishers = Vec::with_capacity(n * fields.len());
+    for i in 0..n {
+        for &field in &fields {
+            publishers.push(session.declare_publisher(bench_key(i, field)).encoding(Encoding::APPLICATION_CBOR).await?);
+        }
+    }
+    let mut polls = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
+    let mut seq = 0;
+    loop {
+        polls.tick().await;
+        for publisher in &publishers {
+            seq += 1;
+            let value = Value::Float(seq as f64 * 1e-3);
+            publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+        }
+    }
+}
+
+/// The name of bench axis `i`.
+fn bench_axis(i: usize) -> String {
+    format!("b{i}")
+}
+
+/// The key of `field` on bench axis `i`.
+fn bench_key(i: usize, field: Field) -> String {
+    KeyLayout::default().field(&bench_axis(i), field)
+}
+
+/// `n` simulated axes named b0, b1, …; `instant` ones finish every move at once.
+fn bench_axes(n: usize, instant: bool, rate: f64) -> Vec<AxisPlan> {
+    (0..n)
+        .map(|i| AxisPlan {
+            name: bench_axis(i),
+            fields: Fields { mres: 0.001, velo: 10.0, accl: 0.1, ..Fields::default() },
+            driver: DriverPlan::Sim(SimConfig { instant, ..SimConfig::default() }),
+            rates: PollRates { moving: Duration::from_secs_f64(1.0 / rate), idle: Duration::from_secs(1) },
+        })
+        .collect()
+}
+
+/// A `zmotor bench-serve` child process; killed when dropped.
+struct Server(Child);
+
+impl Server {
+    fn spawn(endpoint: &str, axes: usize, serve: Serve, readback_hz: f64) -> Result<Self, Error> {
+        let exe = std::env::current_exe()?;
+        let serve = clap::ValueEnum::to_possible_value(&serve).expect("every kind has a name");
+        let child = Command::new(exe)
+            .args(["bench-serve", "--listen", endpoint, "--axes", &axes.to_string(), "--serve", serve.get_name()])
+            .args(["--readback-hz", &readback_hz.to_string()])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()?;
+        Ok(Self(child))
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+async fn client(endpoint: &str) -> Result<Session, Error> {
+    Ok(zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await?)
+}
+
+/// A client of a server process that may not listen yet.
+async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Error> {
+    loop {
+        if let Ok(session) = client(endpoint).await {
+            return Ok(session);
+        }
+        if since.elapsed() > Duration::from_secs(60) {
+            return Err("the benchmark server did not start".into());
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+/// How many axes answer a get of their DMOV.
+async fn answering(session: &Session) -> Result<usize, Error> {
+    let replies = session.get(KeyLayout::default().field("*", Field::DMOV)).timeout(Duration::from_secs(10)).await?;
+    let mut n = 0;
+    while let Ok(reply) = replies.recv_async().await {
+        n += usize::from(reply.result().is_ok());
+    }
+    Ok(n)
+}
+
+async fn wait_for_axes(session: &Session, n: usize, limit: Duration) -> Result<Duration, Error> {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if answering(session).await? >= n {
+            return Ok(start.elapsed());
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    Err(format!("{n} axes did not all answer within {limit:?}").into())
+}
+
+/// Percentiles of a set of durations, in microseconds.
+pub(crate) struct Percentiles {
+    pub p50: f64,
+    pub p90: f64,
+    pub p99: f64,
+}
+
+impl Percentiles {
+    fn of(mut samples: Vec<Duration>) -> Self {
+        samples.sort();
+        let at = |q: f64| samples[((samples.len() as f64 - 1.0) * q).round() as usize].as_secs_f64() * 1e6;
+        Self { p50: at(0.5), p90: at(0.9), p99: at(0.99) }
+    }
+}
+
+pub(crate) struct Latency {
+    pub dmov0: Percentiles,
+    pub dmov1: Percentiles,
+    pub rtt: Percentiles,
+}
+
+/// Put VAL and time DMOV 0 and DMOV 1 at the client; then Zenoh's own ping-pong.
+async fn latency(moves: usize) -> Result<Latency, Error> {
+    let endpoint = free_local_endpoint()?;
+    let _server = Server::spawn(&endpoint, 1, Serve::Instant, Load::LongMoves.readback_hz())?;
+    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    wait_for_axes(&session, 1, Duration::from_secs(20)).await?;
+    let dmov = session.declare_subscriber(bench_key(0, Field::DMOV)).await?;
+    let pong = session.declare_subscriber(PONG).await?;
+    let val = session.declare_publisher(bench_key(0, Field::VAL)).encoding(Encoding::TEXT_PLAIN).await?;
+    let ping = session.declare_publisher(PING).await?;
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (mut to_dmov0, mut to_dmov1, mut rtt) = (Vec::new(), Vec::new(), Vec::new());
+    // Moves and pings alternate, so both see the same conditions on a shared machine.
+    for i in 0..moves + moves / 10 {
+        let target = if i % 2 == 0 { "0.01" } else { "0.02" };
+        let start = Instant::now();
+        val.put(target).await?;
+        let mut zero = None;
+        loop {
+            let sample = tokio::time::timeout(Duration::from_secs(5), dmov.recv_async()).await??;
+            match decode_cbor_value(&sample.payload().to_bytes()) {
+                Ok(Value::Int(0)) => zero = Some(start.elapsed()),
+                Ok(Value::Int(1)) if zero.is_some() => break,
+                _ => {}
+            }
+        }
+        let moved = start.elapsed();
+        let start = Instant::now();
+        ping.put(vec![0u8; 8]).await?;
+        tokio::time::timeout(Duration::from_secs(5), pong.recv_async()).await??;
+        // The first tenth warms up connections and caches.
+        if i >= moves / 10 {
+            to_dmov0.push(zero.expect("DMOV 0 came first"));
+            to_dmov1.push(moved);
+            rtt.push(start.elapsed());
+        }
+    }
+    Ok(Latency { dmov0: Percentiles::of(to_dmov0), dmov1: Percentiles::of(to_dmov1), rtt: Percentiles::of(rtt) })
+}
+
+pub(crate) struct Scale {
+    pub axes: usize,
+    pub start: Duration,
+    pub rss_per_axis_idle_kb: f64,
+    /// The node with every axis moving; None above `BenchOptions::moving_up_to` axes.
+    pub moving: Option<Publishing>,
+    /// Zenoh alone publishing the same samples at the same rate (`Serve::Zenoh`).
+    pub zenoh_alone: Option<Publishing>,
+}
+
+/// A server process publishing readbacks for every axis, seen by one subscriber of `motor/**`
+/// in another process.
+pub(crate) struct Publishing {
+    /// The server process's CPU, as a fraction of one core.
+    pub cpu: f64,
+    /// Samples per second the subscriber received.
+    pub publications_per_s: f64,
+    /// RBV samples per axis per second the subscriber received (the readback rate when every
+    /// poll arrives).
+    pub rbv_per_axis_per_s: f64,
+    /// Moves per second the subscriber saw end (DMOV 1).
+    pub(crate) moves_per_s: f64,
+    /// From the first command to the measurement window: until the readbacks (long moves) or
+    /// the ends of moves (short moves) arrived at 90 % of their rate. None when `SETTLE_LIMIT`
+    /// passed first.
+    pub settled_after: Option<Duration>,
+}
+
+/// How the axes of a publishing measurement move.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Load {
+    /// One long move each (10 mm/s for 1000 mm), readback at 100 Hz: the scale figures.
+    LongMoves,
+    /// The load of the EPICS figure: 4 mm moves (0.5 s, so ~5 readbacks each) commanded to the axes in turn,
+    /// `moves_per_s` in all, readback at 10 Hz.
+    ShortMoves { moves_per_s: f64 },
+}
+
+impl Load {
+    fn readback_hz(self) -> f64 {
+        match self {
+            Load::LongMoves => 100.0,
+            Load::ShortMoves { .. } => 10.0,
+        }
+    }
+}
+
+/// Moves per second and axis in the EPICS figure (1,600 moves/s on 1,000 axes).
+const EPICS_MOVES_PER_AXIS_PER_S: f64 = 1.6;
+/// Longest wait for the load to settle before the CPU window opens.
+const SETTLE_LIMIT: Duration = Duration::from_secs(45);
+
+/// Resident memory of a process (`self` or a pid), KB.
+fn rss_kb(process: &str) -> f64 {
+    let statm = std::fs::read_to_string(format!("/proc/{process}/statm")).unwrap_or_default();
+    let pages: f64 = statm.split_whitespace().nth(1).and_then(|p| p.parse().ok()).unwrap_or(0.0);
+    pages * 4.0
+}
+
+/// CPU seconds a process (`self` or a pid) has used (user + system).
+fn cpu_seconds(process: &str) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{process}/stat")).unwrap_or_default();
+    let after_name = stat.rsplit(')').next().unwrap_or("");
+    let fields: Vec<&str> = after_name.split_whitespace().collect();
+    let ticks = |i: usize| fields.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// `n` axes in this process: the time they take to start and their memory when idle; then,
+/// up to `moving_up_to` axes, the same axes moving in a node process of their own.
+async fn scale(n: usize, window: f64, moving_up_to: usize) -> Result<Scale, Error> {
+    let config = ZenohConfig { listen: vec![free_local_endpoint()?], ..ZenohConfig::default() };
+    let session = zenoh::open(config.zenoh()?).await?;
+    let rss_before = rss_kb("self");
+    let start = Instant::now();
+    let node = Node::start(
+        session.clone(),
+        KeyLayout::default(),
+        bench_axes(n, false, Load::LongMoves.readback_hz()),
+        vec![],
+        vec![],
+        None,
+    )
+    .await?;
+    let started = start.elapsed();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let rss_per_axis_idle_kb = (rss_kb("self") - rss_before) / n as f64;
+    node.shutdown().await;
+    session.close().await?;
+    if n > moving_up_to {
+        return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: None, zenoh_alone: None });
+    }
+    let moving = Some(publishing(n, window, Serve::Moving, Load::LongMoves).await?);
+    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh, Load::LongMoves).await?);
+    Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, zenoh_alone })
+}
+
+/// Samples a subscriber of `motor/**` received: all of them, RBV alone, DMOV 1 alone.
+#[derive(Default)]
+struct Received {
+    all: std::sync::atomic::AtomicU64,
+    rbv: std::sync::atomic::AtomicU64,
+    done: std::sync::atomic::AtomicU64,
+}
+
+impl Received {
+    fn read(&self) -> [u64; 3] {
+        use std::sync::atomic::Ordering::Relaxed;
+        [self.all.load(Relaxed), self.rbv.load(Relaxed), self.done.load(Relaxed)]
+    }
+
+    fn count(&self, sample: &zenoh::sample::Sample) {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.all.fetch_add(1, Relaxed);
+        match sample.key_expr().as_str().rsplit('/').next().and_then(Field::from_name) {
+            Some(Field::RBV) => {
+                self.rbv.fetch_add(1, Relaxed);
+            }
+            Some(Field::DMOV) if decode_cbor_value(&sample.payload().to_bytes()) == Ok(Value::Int(1)) => {
+                self.done.fetch_add(1, Relaxed);
+            }
+            _ => {}
+        }
+    }
+}
+
+/// Command 4 mm moves to axes b0 … b(n-1) in turn, back and forth, `moves_per_s` in all.
+async fn command_short_moves(session: Session, n: usize, moves_per_s: f64) -> Result<(), Error> {
+    const PERIOD: Duration = Duration::from_millis(10);
+    let mut ticks = tokio::time::interval(PERIOD);
+    let (mut due, mut next) = (0.0, 0usize);
+    loop {
+        ticks.tick().await;
+        due += moves_per_s * PERIOD.as_secs_f64();
+        while due >= 1.0 {
+            due -= 1.0;
+            let (axis, outward) = (next % n, (next / n).is_multiple_of(2));
+            next += 1;
+            let target = if outward { "4" } else { "0" };
+            session.put(bench_key(axis, Field::VAL), target).encoding(Encoding::TEXT_PLAIN).await?;
+        }
+    }
+}
+
+/// A server process of `n` axes moving under `load` (or Zenoh alone publishing as much): its
+/// CPU and what one subscriber receives, over `window` seconds once the load has settled (or
+/// `SETTLE_LIMIT` has passed).
+async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<Publishing, Error> {
+    let endpoint = free_local_endpoint()?;
+    let server = Server::spawn(&endpoint, n, serve, load.readback_hz())?;
+    let pid = server.0.id().to_string();
+    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    if serve != Serve::Zenoh {
+        wait_for_axes(&session, n, Duration::from_secs(120)).await?;
+    }
+    let received = std::sync::Arc::new(Received::default());
+    let counter = received.clone();
+    let _all = session.declare_subscriber("motor/**").callback(move |sample| counter.count(&sample)).await?;
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let settling = Instant::now();
+    let commander = match load {
+        Load::LongMoves => {
+            for i in 0..n {
+                session.put(bench_key(i, Field::VAL), "1000").encoding(Encoding::TEXT_PLAIN).await?;
+            }
+            None
+        }
+        Load::ShortMoves { moves_per_s } => Some(tokio::spawn(command_short_moves(session.clone(), n, moves_per_s))),
+    };
+    // Readbacks (long moves) or ends of moves (short moves) arrive at 90 % of their rate.
+    let settled = |before: [u64; 3], after: [u64; 3]| match load {
+        Load::LongMoves => (after[1] - before[1]) as f64 / 0.5 >= 0.9 * n as f64 * load.readback_hz(),
+        Load::ShortMoves { moves_per_s } => (after[2] - before[2]) as f64 / 0.5 >= 0.9 * moves_per_s,
+    };
+    // Two half-seconds in a row, so a burst in the middle of the ramp does not pass for it.
+    let (mut settled_after, mut in_a_row) = (None, 0);
+    while settled_after.is_none() && settling.elapsed() < SETTLE_LIMIT {
+        let before = received.read();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        in_a_row = if settled(before, received.read()) { in_a_row + 1 } else { 0 };
+        if in_a_row == 2 {
+            settled_after = Some(settling.elapsed());
+        }
+    }
+    let (cpu0, [all0, rbv0, done0], t0) = (cpu_seconds(&pid), received.read(), Instant::now());
+    tokio::time::sleep(Duration::from_secs_f64(window)).await;
+    let elapsed = t0.elapsed().as_secs_f64();
+    let cpu = (cpu_seconds(&pid) - cpu0) / elapsed;
+    let [all1, rbv1, done1] = received.read();
+    if let Some(commander) = commander {
+        commander.abort();
+        // Finished before the abort: it met an error.
+        if let Ok(Err(e)) = commander.await {
+            return Err(e);
+        }
+    }
+    session.close().await?;
+    Ok(Publishing {
+        cpu,
+        publications_per_s: (all1 - all0) as f64 / elapsed,
+        rbv_per_axis_per_s: (rbv1 - rbv0) as f64 / elapsed / n as f64,
+        moves_per_s: (done1 - done0) as f64 / elapsed,
+        settled_after,
+    })
+}
+
+/// From spawning a node process with `n` axes to all of them answering a get.
+async fn startup(n: usize) -> Result<Duration, Error> {
+    let endpoint = free_local_endpoint()?;
+    let start = Instant::now();
+    let _server = Server::spawn(&endpoint, n, Serve::Instant, Load::LongMoves.readback_hz())?;
+    let session = client_when_ready(&endpoint, start).await?;
+    wait_for_axes(&session, n, Duration::from_secs(120)).await?;
+    Ok(start.elapsed())
+}
+
+/// Run every measurement and print the figures.
+pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
+    println!(
+        "zmotor bench: {} moves, scales {:?}, start-up of {} axes",
+        options.moves, options.scales, options.startup_axes
+    );
+    println!("\n1. command latency (client and node in separate processes, TCP on 127.0.0.1), µs");
+    let l = latency(options.moves).await?;
+    println!("   {:<34} {:>9} {:>9} {:>9}", "", "p50", "p90", "p99");
+    for (name, p) in [
+        ("put VAL → DMOV 0 at the client", &l.dmov0),
+        ("put VAL → DMOV 1 (instant sim)", &l.dmov1),
+        ("Zenoh pub/sub round trip", &l.rtt),
+    ] {
+        println!("   {name:<34} {:>9.1} {:>9.1} {:>9.1}", p.p50, p.p90, p.p99);
+    }
+    println!(
+        "   ratio DMOV 0 / Zenoh RTT (p50): {:.2}; DMOV 1 / RTT: {:.2}",
+        l.dmov0.p50 / l.rtt.p50,
+        l.dmov1.p50 / l.rtt.p50
+    );
+
+    println!("\n2. engine cost per event: measured by criterion, `cargo bench -p zmotor-core --bench engine`");
+
+    println!(
+        "\n3. scale: axes in one process; then, up to {} axes, every axis moving, readback at {} Hz, the node",
+        options.moving_up_to,
+        Load::LongMoves.readback_hz()
+    );
+    println!("   in a process of its own and one subscriber of motor/** in another (settled: from the commands to");
+    println!("   all readbacks flowing); then Zenoh alone publishing the same samples at the same rate (no record)");
+    println!(
+        "   {:>6} {:>9} {:>12} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
+        "axes",
+        "start (s)",
+        "RSS/axis KB",
+        "node CPU",
+        "publications/s",
+        "RBV/axis/s",
+        "settled (s)",
+        "Zenoh CPU",
+        "publications/s"
+    );
+    for &n in &options.scales {
+        match scale(n, options.window, options.moving_up_to).await {
+            Ok(s) => {
+                let [node_cpu, node_publications, rbv, settled, zenoh_cpu, zenoh_publications] =
+                    match (s.moving, s.zenoh_alone) {
+                        (Some(node), Some(zenoh)) => [
+                            percent(node.cpu),
+                            format!("{:.0}", node.publications_per_s),
+                            format!("{:.1}", node.rbv_per_axis_per_s),
+                            seconds(node.settled_after),
+                            percent(zenoh.cpu),
+                            format!("{:.0}", zenoh.publications_per_s),
+                        ],
+                        _ => ["not".into(), "measured".into(), "".into(), "".into(), "".into(), "".into()],
+                    };
+                println!(
+                    "   {:>6} {:>9.2} {:>12.1} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
+                    s.axes,
+                    s.start.as_secs_f64(),
+                    s.rss_per_axis_idle_kb,
+                    node_cpu,
+                    node_publications,
+                    rbv,
+                    settled,
+                    zenoh_cpu,
+                    zenoh_publications
+                )
+            }
+            Err(e) => println!("   {n:>6} failed: {e}"),
+        }
+    }
+
+    let n = options.epics_load_axes;
+    let load = Load::ShortMoves { moves_per_s: n as f64 * EPICS_MOVES_PER_AXIS_PER_S };
+    println!(
+        "\n4. the load of the EPICS figure: {n} axes, readback {} Hz, 4 mm moves commanded at {:.0}/s in all",
+        load.readback_hz(),
+        n as f64 * EPICS_MOVES_PER_AXIS_PER_S
+    );
+    println!("   (the given IOC: 45 % CPU for 1,600 moves/s and 8,300 RBV events/s on 1,000 axes)");
+    let p = publishing(n, options.window, Serve::Moving, load).await?;
+    println!(
+        "   node CPU {}   moves/s ended {:.0}   RBV/s {:.0}   publications/s {:.0}   settled after {} s",
+        percent(p.cpu),
+        p.moves_per_s,
+        p.rbv_per_axis_per_s * n as f64,
+        p.publications_per_s,
+        seconds(p.settled_after)
+    );
+
+    println!("\n5. start-up: process start → all {} axes answer get", options.startup_axes);
+    let t = startup(options.startup_axes).await?;
+    println!("   {:.2} s", t.as_secs_f64());
+    Ok(())
+}
+
+fn percent(fraction: f64) -> String {
+    format!("{:.0} %", fraction * 100.0)
+}
+
+fn seconds(settled: Option<Duration>) -> String {
+    settled.map_or_else(|| format!("> {}", SETTLE_LIMIT.as_secs()), |d| format!("{:.1}", d.as_secs_f64()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moving_axis_posts_its_six_readback_fields_per_poll() {
+        let mut fields = fields_posted_per_poll();
+        fields.sort_by_key(|f| f.name());
+        assert_eq!(fields, [Field::DIFF, Field::DRBV, Field::RBV, Field::RDIF, Field::RMP, Field::RRBV]);
+    }
+}

@@ -1,0 +1,430 @@
+//! `zmotor`: start deployments and talk to axes from the command line. This is the edge where
+//! errors become the plain words a user reads.
+
+mod bench;
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+use zenoh::bytes::Encoding;
+use zmotor_launch::{import_db, Launch, Macros};
+use zmotor_msgs::{codec::decode_cbor_value, Field, KeyLayout, FIELDS};
+use zmotor_zenoh::autosave::{state_dir, StateStore};
+use zmotor_zenoh::{AutosaveConfig, Mode, Node, ZenohConfig};
+
+/// Any failure, as the user will read it.
+type Error = Box<dyn std::error::Error + Send + Sync>;
+
+#[derive(Parser)]
+#[command(name = "zmotor", version, about = "EPICS motor record axes on a Zenoh network")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// How a client reaches the network.
+#[derive(clap::Args, Clone)]
+struct ClientArgs {
+    /// Zenoh endpoint of a node or router to connect to.
+    #[arg(long, default_value = "tcp/127.0.0.1:7447")]
+    connect: String,
+    /// Key prefix of the axes.
+    #[arg(long, default_value = zmotor_msgs::keys::DEFAULT_PREFIX)]
+    prefix: String,
+}
+
+/// How a deployment's process joins the network, over what its launch file says.
+#[derive(clap::Args, Clone, Default)]
+struct NetworkOverrides {
+    /// Zenoh mode: peer, client or router.
+    #[arg(long)]
+    mode: Option<Mode>,
+    /// Endpoint to listen on (repeatable), instead of the launch file's.
+    #[arg(long)]
+    listen: Vec<String>,
+    /// Endpoint to connect to (repeatable), instead of the launch file's.
+    #[arg(long)]
+    connect: Vec<String>,
+}
+
+impl NetworkOverrides {
+    fn apply(&self, section: &mut ZenohConfig) {
+        if let Some(mode) = self.mode {
+            section.mode = mode;
+        }
+        if !self.listen.is_empty() {
+            section.listen.clone_from(&self.listen);
+        }
+        if !self.connect.is_empty() {
+            section.connect.clone_from(&self.connect);
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Start the axes of a launch file (TOML) or an EPICS database (.db) and serve them until
+    /// SIGINT/SIGTERM, which stops moving axes, saves their state and exits.
+    Launch {
+        file: PathBuf,
+        /// Start only this host's part of a multi-host launch file.
+        #[arg(long)]
+        host: Option<String>,
+        /// Macros of a .db file, name=value[,name=value] (repeatable), as for dbLoadRecords.
+        #[arg(short = 'm', long = "macros")]
+        macros: Vec<String>,
+        #[command(flatten)]
+        network: NetworkOverrides,
+    },
+    /// Convert an EPICS database (.db) into a launch file (TOML) on stdout.
+    Convert {
+        file: PathBuf,
+        #[arg(short = 'm', long = "macros")]
+        macros: Vec<String>,
+    },
+    /// A Zenoh router, so that peers and clients on other hosts reach each other's axes.
+    Router {
+        /// Endpoint to listen on (repeatable).
+        #[arg(long, default_values_t = ["tcp/0.0.0.0:7447".to_string()])]
+        listen: Vec<String>,
+        /// Another router to connect to (repeatable).
+        #[arg(long)]
+        connect: Vec<String>,
+        /// Answer multicast scouting (off by default: deployments name their endpoints).
+        #[arg(long)]
+        multicast_scouting: bool,
+    },
+    /// Read a field (or every field when FIELD is omitted).
+    Get {
+        axis: String,
+        field: Option<String>,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
+    /// Write a field; the node confirms or says why it refused.
+    Put {
+        axis: String,
+        field: String,
+        value: String,
+        /// Answer only when the motion this write started has finished (DMOV back to 1).
+        #[arg(long)]
+        wait: bool,
+        /// Seconds to wait for the answer.
+        #[arg(long, default_value_t = 600.0)]
+        timeout: f64,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
+    /// Print field changes as they are published (all fields when none is named).
+    Monitor {
+        axis: String,
+        fields: Vec<String>,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
+    /// Write the JSON Schemas of every message type and the field catalogue into DIR.
+    Schema { dir: PathBuf },
+    /// List every field: name, type, access, default, prompt.
+    Fields,
+    /// Measure latency, engine cost, scale and start-up, and print the figures.
+    Bench {
+        /// A run of seconds that only proves every part works.
+        #[arg(long)]
+        smoke: bool,
+        /// Moves for the latency figures (default 2000).
+        #[arg(long)]
+        moves: Option<usize>,
+        /// Axis counts for the scale figures, comma-separated (default 1,100,1000,10000).
+        #[arg(long, value_delimiter = ',')]
+        scales: Option<Vec<usize>>,
+        /// Most axes set moving for the scale figures (default 2000; beyond, start and idle
+        /// memory only).
+        #[arg(long)]
+        moving_up_to: Option<usize>,
+    },
+    /// The benchmark's node process (started by `zmotor bench`).
+    #[command(hide = true)]
+    BenchServe {
+        #[arg(long)]
+        listen: String,
+        #[arg(long, default_value_t = 1)]
+        axes: usize,
+        #[arg(long, value_enum, default_value_t = bench::Serve::Instant)]
+        serve: bench::Serve,
+        #[arg(long, default_value_t = 100.0)]
+        readback_hz: f64,
+    },
+}
+
+#[tokio::main]
+async fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match run(Cli::parse().command).await {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("zmotor: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+async fn run(command: Command) -> Result<ExitCode, Error> {
+    match command {
+        Command::Launch { file, host, macros, network } => launch(&file, host.as_deref(), &macros, &network).await,
+        Command::Convert { file, macros } => {
+            let (launch, warnings) = load(&file, &macros)?;
+            let notes: String = warnings.iter().map(|w| format!("# warning: {w}\n")).collect();
+            print!("# converted by zmotor convert from {}\n{notes}\n{}\n", file.display(), launch.to_toml().trim_end());
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Router { listen, connect, multicast_scouting } => {
+            let section = ZenohConfig { mode: Mode::Router, listen, connect, multicast_scouting, ..Default::default() };
+            let session = zenoh::open(section.zenoh()?).await?;
+            tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
+            interrupted().await?;
+            session.close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
+        Command::Put { axis, field, value, wait, timeout, client } => {
+            put(&client, &axis, &field, &value, wait, timeout).await
+        }
+        Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
+        Command::Schema { dir } => schema(&dir),
+        Command::Bench { smoke, moves, scales, moving_up_to } => {
+            let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
+            options.moves = moves.unwrap_or(options.moves);
+            options.scales = scales.unwrap_or(options.scales);
+            options.moving_up_to = moving_up_to.unwrap_or(options.moving_up_to);
+            bench::run(&options).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::BenchServe { listen, axes, serve, readback_hz } => {
+            bench::serve(&listen, axes, serve, readback_hz).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Fields => {
+            print_lines(FIELDS.iter().map(|d| {
+                format!(
+                    "{:<6} {:<7} {:<5} {:<10} {}",
+                    d.name,
+                    d.kind.type_name(),
+                    d.access.label(),
+                    d.default_value().to_string(),
+                    d.prompt
+                )
+            }));
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+/// A launch file, or an EPICS database converted into one (with what the conversion warns of).
+fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String>), Error> {
+    if file.extension().is_some_and(|e| e == "db") {
+        let (converted, warnings) = import_db(file, &Macros::parse(macros)?)?;
+        let name = format!("{} (as converted by zmotor convert)", file.display());
+        Ok((Launch::from_file(&name, converted)?, warnings))
+    } else if !macros.is_empty() {
+        Err("-m applies to .db files only".into())
+    } else {
+        Ok((Launch::load(file)?, Vec::new()))
+    }
+}
+
+/// SIGINT (Ctrl-C) or SIGTERM.
+async fn interrupted() -> Result<(), Error> {
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        result = tokio::signal::ctrl_c() => result?,
+        _ = terminate.recv() => {}
+    }
+    Ok(())
+}
+
+async fn launch(
+    file: &std::path::Path,
+    host: Option<&str>,
+    macros: &[String],
+    network: &NetworkOverrides,
+) -> Result<ExitCode, Error> {
+    let (launch, warnings) = load(file, macros)?;
+    for warning in &warnings {
+        tracing::warn!("{}: {warning}", file.display());
+    }
+    let mut deployment = launch.deployment(host)?;
+    network.apply(&mut deployment.zenoh);
+    let layout = KeyLayout::new(&deployment.zenoh.prefix);
+    let autosave = if deployment.autosave.enabled && !deployment.plans.is_empty() {
+        let dir = state_dir(deployment.state_dir.as_deref())?;
+        let store = StateStore::open(&dir, layout.prefix())?;
+        tracing::info!(dir = %store.dir().display(), "autosave on");
+        Some(AutosaveConfig { store, delay: Duration::from_secs_f64(deployment.autosave.delay) })
+    } else {
+        None
+    };
+    let mut config = deployment.zenoh.zenoh()?;
+    // A node may start before the router or peers it connects to: it keeps trying (clients
+    // otherwise give up at once) and serves from the first connection.
+    config.insert_json5("connect/timeout_ms", "-1")?;
+    if !deployment.zenoh.connect.is_empty() {
+        tracing::info!(connect = ?deployment.zenoh.connect, "connecting");
+    }
+    let session = zenoh::open(config).await?;
+    let names: Vec<String> = deployment.plans.iter().map(|p| p.name.clone()).collect();
+    let calc_names: Vec<String> = deployment.calcs.iter().map(|c| c.name.clone()).collect();
+    let node =
+        Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, autosave)
+            .await?;
+    tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
+        connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
+    interrupted().await?;
+    tracing::info!("stopping: moving axes stop, state is saved");
+    node.shutdown().await;
+    session.close().await?;
+    tracing::info!("stopped");
+    Ok(ExitCode::SUCCESS)
+}
+
+async fn client_session(client: &ClientArgs) -> Result<zenoh::Session, Error> {
+    Ok(zenoh::open(ZenohConfig::client(&client.connect).zenoh()?).await?)
+}
+
+/// The catalogue's name of a field a user typed, in any case.
+fn field_name(name: &str) -> Result<&'static str, Error> {
+    Field::from_name_any_case(name)
+        .map(Field::name)
+        .ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
+}
+
+/// Print lines until the reader goes away (e.g. `| head`).
+fn print_lines(lines: impl IntoIterator<Item = String>) {
+    use std::io::Write;
+    let mut out = std::io::stdout().lock();
+    for line in lines {
+        if writeln!(out, "{line}").is_err() {
+            return;
+        }
+    }
+}
+
+/// A published value, or the outcome map of a `?wait` write as `NAME=value` pairs.
+fn show(payload: &[u8]) -> String {
+    if let Ok(value) = decode_cbor_value(payload) {
+        return value.to_string();
+    }
+    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(payload) {
+        Ok(map) => map.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" "),
+        Err(_) => String::from_utf8_lossy(payload).into_owned(),
+    }
+}
+
+async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<ExitCode, Error> {
+    let session = client_session(client).await?;
+    let layout = KeyLayout::new(&client.prefix);
+    // One field by name, or a pattern such as D* or the whole axis.
+    let (key, single) = match field {
+        // Zenoh spells a wildcard inside a chunk `$*`.
+        Some(f) if f.contains('*') => {
+            let pattern = if f == "*" || f == "**" { f.to_string() } else { f.replace('*', "$*") };
+            (format!("{}/{axis}/{pattern}", layout.prefix()), false)
+        }
+        Some(f) => (format!("{}/{axis}/{}", layout.prefix(), field_name(f)?), true),
+        None => (layout.axis_all(axis), false),
+    };
+    let replies = session.get(&key).timeout(Duration::from_secs(5)).await?;
+    let mut values = Vec::new();
+    while let Ok(reply) = replies.recv_async().await {
+        match reply.result() {
+            Ok(sample) => {
+                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
+                values.push((Field::from_name(&name), name, show(&sample.payload().to_bytes())));
+            }
+            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
+        }
+    }
+    values.sort_by_key(|(field, ..)| *field);
+    let lines = values.iter().map(|(_, name, value)| if single { value.clone() } else { format!("{name:<6} {value}") });
+    print_lines(lines);
+    let code = if values.is_empty() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
+    if values.is_empty() {
+        eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect);
+    }
+    session.close().await?;
+    Ok(code)
+}
+
+async fn put(
+    client: &ClientArgs,
+    axis: &str,
+    field: &str,
+    value: &str,
+    wait: bool,
+    timeout: f64,
+) -> Result<ExitCode, Error> {
+    let session = client_session(client).await?;
+    let layout = KeyLayout::new(&client.prefix);
+    let key = format!("{}/{axis}/{}", layout.prefix(), field_name(field)?);
+    let selector = if wait { format!("{key}?wait") } else { key.clone() };
+    let replies = session
+        .get(&selector)
+        .payload(value.to_string())
+        .encoding(Encoding::TEXT_PLAIN)
+        .timeout(Duration::from_secs_f64(timeout))
+        .await?;
+    let mut code = ExitCode::FAILURE;
+    match replies.recv_async().await {
+        Ok(reply) => match reply.result() {
+            Ok(sample) => {
+                println!("{}", show(&sample.payload().to_bytes()));
+                code = ExitCode::SUCCESS;
+            }
+            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
+        },
+        Err(_) => eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect),
+    }
+    session.close().await?;
+    Ok(code)
+}
+
+async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
+    let session = client_session(client).await?;
+    let layout = KeyLayout::new(&client.prefix);
+    let wanted: Vec<&str> = fields.iter().map(|f| field_name(f)).collect::<Result<_, _>>()?;
+    let subscriber = session.declare_subscriber(format!("{}/{axis}/*", layout.prefix())).await?;
+    loop {
+        tokio::select! {
+            sample = subscriber.recv_async() => {
+                let Ok(sample) = sample else { break };
+                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
+                if wanted.is_empty() || wanted.contains(&name.as_str()) {
+                    let payload = sample.payload().to_bytes();
+                    let value = if name == zmotor_msgs::keys::ERR_KEY { String::from_utf8_lossy(&payload).into_owned() } else { show(&payload) };
+                    print_lines([format!("{name:<6} {value}")]);
+                }
+            }
+            _ = tokio::signal::ctrl_c() => break,
+        }
+    }
+    session.close().await?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
+    std::fs::create_dir_all(dir)?;
+    for (name, schema) in zmotor_msgs::schema::message_schemas() {
+        std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
+    }
+    std::fs::write(
+        dir.join("fields.json"),
+        serde_json::to_string_pretty(&zmotor_msgs::schema::catalogue_json())? + "\n",
+    )?;
+    println!("wrote the schemas and fields.json to {}", dir.display());
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,35 @@
+//! `zmotor bench --smoke` runs every part of the benchmark in seconds. Not a timed test: it
+//! proves the harness works and prints what it measured.
+
+use std::process::Command;
+
+#[test]
+fn the_benchmark_runs_in_smoke_mode() {
+    let output = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["bench", "--smoke"])
+        .env("RUST_LOG", "error")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
+    for part in [
+        "1. command latency",
+        "Zenoh pub/sub round trip",
+        "3. scale",
+        "Zenoh alone",
+        "4. the load of the EPICS figure",
+        "5. start-up",
+    ] {
+        assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
+    }
+    assert!(!stdout.contains("failed"), "{stdout}");
+    // The EPICS load really moved the axes: the subscriber saw moves end.
+    let ended: f64 = stdout
+        .split("moves/s ended ")
+        .nth(1)
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no 'moves/s ended' figure in:\n{stdout}"));
+    assert!(ended > 0.0, "no move ended under the EPICS load:\n{stdout}");
+    println!("{stdout}");
+}

@@ -1,0 +1,246 @@
+//! The motor record as a pure state machine. Section numbers (§) refer to
+//! ../shared/spec/motor-record-behaviour.md, which this file follows step by step:
+//! `process` is §8, `do_work` §9, `post_process` §10, `maybe_retry` §11, `alarm` §12,
+//! `monitor` §13; helpers are §5, initialisation §6 and field writes §7.
+//!
+//! Inputs: `write` (a field put), `callback` (fresh device status), `delay_expired` (DLY timer).
+//! Outputs: `Output`s (monitor posts, device transactions, timer requests, completion), drained
+//! by the caller. The engine never reads a clock and performs no I/O.
+
+use super::commands::{DeviceStatus, MotorCommand, Output, WriteError};
+use super::marks::Marks;
+use super::maths::nint;
+use zmotor_msgs::bits::{mip, msta};
+use zmotor_msgs::menus::choice;
+use zmotor_msgs::{Access, Field, Fields, Value};
+
+mod do_work;
+mod helpers;
+mod init;
+mod legs;
+mod monitor;
+mod post_process;
+mod process;
+mod retry;
+mod special;
+
+/// Record version reported in VERS.
+const VERSION: f32 = 7.4;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Reason {
+    NothingDone,
+    Callback,
+}
+
+/// Where §8 continues after the callback part.
+enum Flow {
+    DoWork,
+    Exit,
+}
+
+/// One motor record.
+#[derive(Clone, Debug)]
+pub struct MotorRecord {
+    f: Fields,
+    marks: Marks,
+    outputs: Vec<Output>,
+    /// Device data delivered by `callback`, consumed by the next `update_values`.
+    pending_status: Option<DeviceStatus>,
+    /// Why the last move request was refused, reported to the writer.
+    refusal: Option<String>,
+    /// Departure Z9: a move was paused; its target is held and resumed by Go or Move.
+    resume_on_go: bool,
+    /// The latest value of the RDBL readback link (None: not readable).
+    readback_link: Option<f64>,
+    /// The latest value of the DOL desired-output link (None: not readable yet).
+    desired: Option<f64>,
+    /// Whether the device answers GET_INFO (Soft Channel does not).
+    status_refresh: bool,
+}
+
+impl MotorRecord {
+    /// A record with the given configured field values; `check_speed_and_resolution` and
+    /// `enforce_min_rdbd` (§6.2 steps 3–4) run here. Call `restore_commands` and `init` next.
+    pub fn new(mut fields: Fields) -> Self {
+        fields.vers = VERSION;
+        let mut record = Self {
+            f: fields,
+            marks: Marks::default(),
+            outputs: Vec::new(),
+            pending_status: None,
+            refusal: None,
+            resume_on_go: false,
+            readback_link: None,
+            desired: None,
+            status_refresh: true,
+        };
+        record.check_speed_and_resolution();
+        record.enforce_min_rdbd();
+        record.outputs.clear();
+        record
+    }
+
+    /// Soft Channel device support refuses GET_INFO, so STUP snaps back to OFF.
+    pub fn without_status_refresh(mut self) -> Self {
+        self.status_refresh = false;
+        self
+    }
+
+    /// A new value of the DOL link: in closed-loop mode it becomes the target (a processing).
+    pub fn desired_value(&mut self, value: f64) {
+        self.desired = Some(value);
+        if self.f.omsl == choice::OMSL_CLOSED_LOOP {
+            self.process();
+        }
+    }
+
+    /// Soft Channel: the driven motor moved on its own (or the first readback arrived): the
+    /// target will be re-synchronised at the next completion (§16.2).
+    pub fn external_motion(&mut self) {
+        self.f.dmov = 0;
+        self.post(Field::DMOV);
+        self.f.pp = 1;
+        self.post(Field::PP);
+    }
+
+    pub fn fields(&self) -> &Fields {
+        &self.f
+    }
+
+    pub fn get(&self, field: Field) -> Value {
+        self.f.get(field)
+    }
+
+    /// Take everything the engine produced since the last call.
+    pub fn drain_outputs(&mut self) -> std::vec::Drain<'_, Output> {
+        self.outputs.drain(..)
+    }
+
+    // ------------------------------------------------------------------ inputs
+
+    /// A put to a field (§0.1 and §7): refused when read-only or when special() says so,
+    /// otherwise stored, handled, posted and (for process-passive fields) processed.
+    pub fn write(&mut self, field: Field, value: &Value) -> Result<(), WriteError> {
+        let access = field.def().access;
+        if access == Access::RO {
+            return Err(WriteError::ReadOnly(field));
+        }
+        self.special_before(field, value)?;
+        self.f.set(field, value);
+        if field == Field::VAL {
+            self.f.udf = 0;
+        }
+        if let Err(e) = self.special_after(field) {
+            // Stored, but no post and no processing (§0.1 step 5).
+            self.flush_posts();
+            return Err(e);
+        }
+        if field != Field::VAL {
+            self.post(field);
+        }
+        self.refusal = None;
+        if access == Access::PP {
+            self.process();
+        } else {
+            self.flush_posts();
+        }
+        match self.refusal.take() {
+            Some(reason) => Err(WriteError::NotActedUpon(reason)),
+            None => Ok(()),
+        }
+    }
+
+    /// Fresh status from the device: a callback processing.
+    pub fn callback(&mut self, status: DeviceStatus) {
+        self.pending_status = Some(status);
+        self.process();
+    }
+
+    /// The DLY timer fired (§5.11).
+    pub fn delay_expired(&mut self) {
+        if self.f.mip & mip::DELAY_REQ != 0 {
+            self.f.mip = (self.f.mip & !mip::DELAY_REQ) | mip::DELAY_ACK;
+            self.process();
+        }
+    }
+
+    // ------------------------------------------------------------------ small pieces
+
+    fn dirsign(&self) -> f64 {
+        if self.f.dir == choice::DIR_POS {
+            1.0
+        } else {
+            -1.0
+        }
+    }
+
+    /// Departure Z11: a servo whose control is disabled (CNEN = Disable) is not asked to move;
+    /// the reference sends the move to a dead amplifier.
+    fn disabled_refusal(&self) -> Option<String> {
+        (self.f.msta & msta::GAIN_SUPPORT != 0 && self.f.cnen == 0)
+            .then(|| "motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first".to_string())
+    }
+
+    /// Departure Z12: a target held by SPMG Stop/Pause (or behind a held home) shows in VAL,
+    /// DVAL and RVAL alike while it waits; the reference converts only the field written.
+    fn keep_held_target_consistent(&mut self) {
+        if self.f.val != self.f.lval {
+            self.f.dval = (self.f.val - self.f.off) / self.dirsign();
+        } else if self.f.rval != self.f.lrvl {
+            self.f.dval = f64::from(self.f.rval) * self.f.mres;
+        }
+        let (val, rval) = (self.f.dval * self.dirsign() + self.f.off, nint(self.f.dval / self.f.mres));
+        for (field, changed) in
+            [(Field::VAL, val != self.f.val), (Field::RVAL, rval != self.f.rval), (Field::DVAL, true)]
+        {
+            if changed {
+                self.mark(field);
+            }
+        }
+        (self.f.val, self.f.rval) = (val, rval);
+    }
+
+    /// Departure Z14: a request held by SPMG Stop/Pause keeps DMOV 0 until it runs, whatever
+    /// status arrives meanwhile (the manual's DMOV; the reference lets a callback set DMOV 1).
+    fn request_held(&self) -> bool {
+        let f = &self.f;
+        (f.spmg == choice::SPMG_STOP || f.spmg == choice::SPMG_PAUSE)
+            && f.mip & !(mip::JOG_REQ | mip::STOP) == mip::DONE
+            && (f.dval != f.ldvl || self.resume_on_go || f.homf != 0 || f.homr != 0 || f.mip & mip::JOG_REQ != 0)
+    }
+
+    /// Effective Set mode: SET = Set and IGSET = 0.
+    fn set_mode(&self) -> bool {
+        self.f.set == 1 && self.f.igset == 0
+    }
+
+    fn backlash_enabled(&self) -> bool {
+        self.f.bdst.abs() >= self.f.mres.abs()
+    }
+
+    /// Relative moves: retries enabled, not In-Position, and a readback other than the step count.
+    fn use_relative(&self) -> bool {
+        self.f.rtry != 0
+            && self.f.rmod != choice::RMOD_IN_POSITION
+            && (self.f.ueip == choice::YES || self.f.urip == choice::YES)
+    }
+
+    fn set_mip(&mut self, value: u16) {
+        self.f.mip = value;
+        self.mark(Field::MIP);
+    }
+
+    fn mark(&mut self, field: Field) {
+        self.marks.insert(field);
+    }
+
+    /// Post a field now, with its current value.
+    fn post(&mut self, field: Field) {
+        self.outputs.push(Output::Post(field, self.f.get(field)));
+    }
+
+    fn send(&mut self, transaction: Vec<MotorCommand>) {
+        self.outputs.push(Output::Transaction(transaction));
+    }
+}

@@ -1,0 +1,90 @@
+//! §12 alarm_sub() and §13 monitor(): STAT/SEVR and what is posted at the end of a processing.
+
+use super::MotorRecord;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::menus::{severity, status};
+use zmotor_msgs::Field;
+
+impl MotorRecord {
+    /// Compute STAT/SEVR; true if either changed.
+    pub(super) fn alarm(&mut self) -> bool {
+        let f = &self.f;
+        let (mut nsta, mut nsev) = (status::NO_ALARM, severity::NO_ALARM);
+        let limits_on = !(f.dhlm == 0.0 && f.dllm == 0.0);
+        let mut comm_error = false;
+        if f.udf != 0 {
+            (nsta, nsev) = (status::UDF, severity::INVALID);
+        // Departure Z4: the target is compared with the soft limits only while they are on (Q8).
+        } else if f.hlsv != severity::NO_ALARM && (f.hls != 0 || (limits_on && f.dval > f.dhlm)) {
+            (nsta, nsev) = (status::HIGH, f.hlsv);
+        } else if f.hlsv != severity::NO_ALARM && (f.lls != 0 || (limits_on && f.dval < f.dllm)) {
+            (nsta, nsev) = (status::LOW, f.hlsv);
+        } else {
+            if f.msta & msta::COMM_ERR != 0 {
+                comm_error = true;
+                (nsta, nsev) = (status::COMM, severity::INVALID);
+            }
+            if f.msta & (msta::SLIP_STALL | msta::PROBLEM) != 0 && nsev < severity::MAJOR {
+                (nsta, nsev) = (status::STATE, severity::MAJOR);
+            }
+        }
+        if comm_error {
+            self.f.msta &= !msta::COMM_ERR;
+            self.mark(Field::MSTA);
+        }
+        let changed = nsta != self.f.stat || nsev != self.f.sevr;
+        self.f.stat = nsta;
+        self.f.sevr = nsev;
+        changed
+    }
+
+    pub(super) fn monitor(&mut self, alarm_changed: bool) {
+        use Field::*;
+        let rbv_marked = self.marks.contains(RBV);
+        self.marks.clear(RBV);
+        let rbv = self.f.rbv;
+        let rbv_due = if self.f.mdel == 0.0 && self.f.adel == 0.0 {
+            rbv_marked || alarm_changed
+        } else if rbv_marked {
+            let mut due = alarm_changed;
+            if self.f.mdel == 0.0 || (self.f.mlst - rbv).abs() > self.f.mdel {
+                due = true;
+                self.f.mlst = rbv;
+            }
+            if self.f.adel == 0.0 || (self.f.alst - rbv).abs() > self.f.adel {
+                self.f.alst = rbv;
+            }
+            due
+        } else {
+            false
+        };
+        if rbv_due {
+            self.post(RBV);
+        }
+        for field in [RRBV, DRBV, DIFF, RDIF, MSTA] {
+            if self.marks.contains(field) || alarm_changed {
+                self.marks.clear(field);
+                self.post(field);
+                if field == MSTA && self.f.msta & msta::GAIN_SUPPORT != 0 {
+                    let cnen = u16::from(self.f.msta & msta::POSITION != 0);
+                    if cnen != self.f.cnen {
+                        self.f.cnen = cnen;
+                        self.post(CNEN);
+                    }
+                }
+            }
+        }
+        if alarm_changed {
+            self.post(STAT);
+            self.post(SEVR);
+        }
+        self.flush_posts();
+    }
+
+    /// Post every field still marked, then clear the marks.
+    pub(super) fn flush_posts(&mut self) {
+        for field in self.marks.take() {
+            self.post(field);
+        }
+    }
+}

@@ -1,0 +1,596 @@
+//! The request semantics of the wire contract for one axis, with no network in sight: a plain
+//! put (a refusal is reported on ERR), a confirmed write (answered with the field's new value or
+//! the reason it was refused), a put-with-completion (`?wait`: answered when the motion the
+//! write started has finished), reads of one field or of a selection, and the simulator's keys.
+//! Every publication is stamped with the state marker here. The Zenoh adapter turns samples and
+//! queries into these calls and sends what `poll_output` hands back; `R` is its reply handle
+//! (a Zenoh query), a plain value in tests.
+
+use crate::axis::{Axis, AxisEvent, WriteAccepted};
+use crate::driver::sim::{SimSetting, SimSettingError};
+use crate::driver::soft::InputLink;
+use crate::engine::WriteError;
+use crate::time::Instant;
+use std::collections::VecDeque;
+use zmotor_msgs::menus::severity;
+use zmotor_msgs::{
+    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, MalformedPayload,
+    PayloadEncoding, SimState, StateMarker, Value,
+};
+
+/// Why a request was refused. The message says it in plain words and names the field.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum RequestError {
+    /// No field has this name.
+    #[error("{0}: unknown field")]
+    UnknownField(String),
+    /// The name is a field's in another case; keys are exact.
+    #[error("{given}: unknown field; field names are upper case: {field}")]
+    WrongCase {
+        /// The name as written.
+        given: String,
+        /// The field it resembles.
+        field: Field,
+    },
+    /// The payload does not hold a valid value for the field.
+    #[error(transparent)]
+    Payload(#[from] CodecError),
+    /// The record refused or did not act on the write.
+    #[error(transparent)]
+    Record(#[from] WriteError),
+    /// A simulator key was given a payload that does not decode.
+    #[error("{key}: {source}")]
+    SimPayload {
+        /// The simulator key written.
+        key: String,
+        /// What was wrong with the payload.
+        source: MalformedPayload,
+    },
+    /// A simulator setting was refused.
+    #[error("{key}: {source}")]
+    SimSetting {
+        /// The simulator key written.
+        key: String,
+        /// Why the setting was refused.
+        source: SimSettingError,
+    },
+    /// The axis has no simulator.
+    #[error("{0}: this axis is not simulated")]
+    NotSimulated(String),
+}
+
+/// The answer to a confirmed write or a read.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Reply {
+    /// A field's value: the result of a confirmed write, or one field of a read.
+    Value(Field, Value),
+    /// The end of the motion a `?wait` write started.
+    Completion(Field, Completion),
+    /// The request was refused; nothing changed.
+    Refused(RequestError),
+    /// The simulator's physical state (`sim/<axis>/state`).
+    SimState(SimState),
+    /// One simulator setting (`sim/<axis>/<setting>`).
+    SimSetting(SimSetting, Value),
+}
+
+/// What the adapter must send, in order.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ServiceOutput<R> {
+    /// Publish a field's new value on `<prefix>/<axis>/<FIELD>`, with its state marker.
+    Publish {
+        /// The field.
+        field: Field,
+        /// Its new value.
+        value: Value,
+        /// The attachment that marks the sample as state.
+        marker: StateMarker,
+    },
+    /// Publish why a write was refused on `<prefix>/<axis>/ERR`.
+    Refusal {
+        /// The reason, in plain words.
+        message: String,
+        /// The attachment that marks the sample as state.
+        marker: StateMarker,
+    },
+    /// Answer a request.
+    Reply {
+        /// The request's reply handle.
+        to: R,
+        /// The answer.
+        reply: Reply,
+    },
+    /// A command delivered to the driver: traced on `@driver/cmd` if anyone listens
+    /// (`AxisService::stamp_trace` numbers it).
+    DriverCommand {
+        /// The command, in raw units.
+        command: DriverCommand,
+        /// When it was delivered.
+        at: Instant,
+    },
+    /// A plain write of `value` (text) to another key: an output link or a directive.
+    Put {
+        /// The key written to.
+        key: String,
+        /// The value, as text.
+        value: String,
+    },
+}
+
+/// A `?wait` write waiting for the end of its motion.
+struct Waiter<R> {
+    to: R,
+    field: Field,
+    accepted: WriteAccepted,
+}
+
+/// One axis behind the wire contract (see the module documentation).
+pub struct AxisService<R> {
+    name: String,
+    axis: Axis,
+    /// Per-axis sequence number of publications and traces.
+    seq: u64,
+    waiting: Vec<Waiter<R>>,
+    outputs: VecDeque<ServiceOutput<R>>,
+    /// A field autosave keeps changed since `take_unsaved_change`.
+    unsaved: bool,
+}
+
+impl<R: Clone> AxisService<R> {
+    /// Serve `axis` under the name `name`. What its boot produced is not published:
+    /// initialisation posts no monitors, as in EPICS; clients read the initial state.
+    pub fn new(name: &str, mut axis: Axis) -> Self {
+        axis.drain_events().count();
+        // Boot may have changed the position (RSTM): the saved state follows what is.
+        Self { name: name.to_string(), axis, seq: 0, waiting: Vec::new(), outputs: VecDeque::new(), unsaved: true }
+    }
+
+    /// The axis's name (its key chunk).
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The record's fields.
+    pub fn fields(&self) -> &Fields {
+        self.axis.fields()
+    }
+
+    /// The next thing to send, if any.
+    pub fn poll_output(&mut self) -> Option<ServiceOutput<R>> {
+        self.outputs.pop_front()
+    }
+
+    /// When `handle_timeout` is due next; None while nothing is.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        self.axis.poll_timeout()
+    }
+
+    /// Time passed to `now`.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        self.axis.handle_timeout(now);
+        self.collect();
+    }
+
+    /// A new value on one of the record's input links.
+    pub fn link_update(&mut self, now: Instant, link: InputLink, value: f64) {
+        self.axis.link_update(now, link, value);
+        self.collect();
+    }
+
+    /// Whether a field autosave keeps has changed since the last call.
+    pub fn take_unsaved_change(&mut self) -> bool {
+        std::mem::take(&mut self.unsaved)
+    }
+
+    /// A plain put to the field named `name`: applied, or refused with the reason on ERR.
+    pub fn put(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding) {
+        if let Err(refusal) = self.apply(now, name, payload, encoding) {
+            tracing::warn!(axis = %self.name, field = name, "write refused: {refusal}");
+            self.refuse(&refusal);
+        }
+        self.collect();
+    }
+
+    /// A confirmed write to the field named `name`: answered with the field's new value, or,
+    /// with `wait`, with the `Completion` once the motion the write started has finished; a
+    /// refusal is answered (and reported on ERR) with the reason.
+    pub fn write(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding, wait: bool, to: R) {
+        match self.apply(now, name, payload, encoding) {
+            Err(refusal) => {
+                tracing::warn!(axis = %self.name, field = name, "confirmed write refused: {refusal}");
+                self.refuse(&refusal);
+                self.outputs.push_back(ServiceOutput::Reply { to, reply: Reply::Refused(refusal) });
+            }
+            Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
+                self.waiting.push(Waiter { to, field, accepted });
+            }
+            Ok((field, _)) if wait => {
+                let reply = Reply::Completion(field, self.completion(field));
+                self.outputs.push_back(ServiceOutput::Reply { to, reply });
+            }
+            Ok((field, _)) => {
+                let reply = Reply::Value(field, self.axis.record().get(field));
+                self.outputs.push_back(ServiceOutput::Reply { to, reply });
+            }
+        }
+        self.collect();
+    }
+
+    /// A read of the field named `name` (exactly as the catalogue spells it).
+    pub fn read(&mut self, name: &str, to: R) {
+        let reply = match field_named(name) {
+            Ok(field) => Reply::Value(field, self.axis.record().get(field)),
+            Err(unknown) => Reply::Refused(unknown),
+        };
+        self.outputs.push_back(ServiceOutput::Reply { to, reply });
+    }
+
+    /// A read of every field `selects` (a wildcard read): one reply per field.
+    pub fn read_selected(&mut self, selects: impl Fn(Field) -> bool, to: R) {
+        for field in Field::all().filter(|f| selects(*f)) {
+            let reply = Reply::Value(field, self.axis.record().get(field));
+            self.outputs.push_back(ServiceOutput::Reply { to: to.clone(), reply });
+        }
+    }
+
+    /// A put to the simulator key `sim/<axis>/<name>`; a refusal is reported on ERR.
+    pub fn sim_write(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding) {
+        let key = keys::sim_key(&self.name, name);
+        self.axis.handle_timeout(now);
+        let value =
+            decode_scalar(payload, encoding).map_err(|source| RequestError::SimPayload { key: key.clone(), source });
+        let result = value.and_then(|value| {
+            let sim = self.axis.simulation().ok_or_else(|| RequestError::NotSimulated(key.clone()))?;
+            let setting = SimSetting::from_name(name).ok_or_else(|| SimSettingError::Unknown(name.to_string()));
+            setting
+                .and_then(|setting| sim.apply(setting, &value))
+                .map_err(|source| RequestError::SimSetting { key: key.clone(), source })
+        });
+        match result {
+            Ok(()) => self.axis.refresh_status(now),
+            Err(refusal) => {
+                tracing::warn!(axis = %self.name, "{refusal}");
+                self.refuse(&refusal);
+            }
+        }
+        self.collect();
+    }
+
+    /// A read of the simulator's keys whose names `selects` (`state` and every setting).
+    pub fn sim_read(&mut self, now: Instant, selects: impl Fn(&str) -> bool, to: R) {
+        self.axis.handle_timeout(now);
+        self.collect();
+        let Some(sim) = self.axis.simulation() else { return };
+        let mut replies = Vec::new();
+        if selects(keys::SIM_STATE_KEY) {
+            replies.push(Reply::SimState(sim.state()));
+        }
+        for setting in SimSetting::ALL.into_iter().filter(|s| selects(s.name())) {
+            replies.push(Reply::SimSetting(setting, sim.setting(setting)));
+        }
+        for reply in replies {
+            self.outputs.push_back(ServiceOutput::Reply { to: to.clone(), reply });
+        }
+    }
+
+    /// The start of a shutdown: a moving axis is told to stop, as a STOP write would.
+    pub fn stop_motion(&mut self, now: Instant) {
+        if self.axis.fields().dmov == 0 {
+            if let Err(e) = self.axis.write(now, Field::STOP, &Value::Int(1)) {
+                tracing::warn!(axis = %self.name, "stop at shutdown refused: {e}");
+            }
+            self.collect();
+        }
+    }
+
+    /// Number a driver command for the trace (the adapter calls this only when it publishes).
+    pub fn stamp_trace(&mut self, command: DriverCommand, at: Instant) -> DriverTrace {
+        DriverTrace { command, t: at.as_secs_f64(), seq: self.next_seq() }
+    }
+
+    /// Decode and apply one write.
+    fn apply(
+        &mut self,
+        now: Instant,
+        name: &str,
+        payload: &[u8],
+        encoding: PayloadEncoding,
+    ) -> Result<(Field, WriteAccepted), RequestError> {
+        let field = field_named(name)?;
+        let value = zmotor_msgs::decode_write(field.def(), payload, encoding)?;
+        let accepted = self.axis.write(now, field, &value)?;
+        self.unsaved |= field.autosave().is_some();
+        Ok((field, accepted))
+    }
+
+    fn refuse(&mut self, refusal: &RequestError) {
+        let marker = self.marker();
+        self.outputs.push_back(ServiceOutput::Refusal { message: refusal.to_string(), marker });
+    }
+
+    fn next_seq(&mut self) -> u64 {
+        self.seq += 1;
+        self.seq
+    }
+
+    fn marker(&mut self) -> StateMarker {
+        let seq = self.next_seq();
+        let f = self.axis.fields();
+        StateMarker::new(seq, f.stat, f.sevr)
+    }
+
+    /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
+    fn completion(&self, field: Field) -> Completion {
+        let f = self.axis.fields();
+        let reached = f.miss == 0 && f.lvio == 0 && f.sevr < severity::MAJOR;
+        Completion {
+            written: [(field.name().to_string(), self.axis.record().get(field))].into(),
+            rbv: f.rbv,
+            dmov: f.dmov.into(),
+            miss: f.miss.into(),
+            lvio: f.lvio.into(),
+            stat: f.stat.into(),
+            sevr: f.sevr.into(),
+            reached: reached.into(),
+        }
+    }
+
+    /// Turn what the axis produced into outputs; a completion answers the writes it ends.
+    fn collect(&mut self) {
+        let events: Vec<AxisEvent> = self.axis.drain_events().collect();
+        for event in events {
+            match event {
+                AxisEvent::Post(field, value) => {
+                    self.unsaved |= field.autosave().is_some();
+                    let marker = self.marker();
+                    self.outputs.push_back(ServiceOutput::Publish { field, value, marker });
+                }
+                AxisEvent::Driver { command, at } => {
+                    self.outputs.push_back(ServiceOutput::DriverCommand { command, at })
+                }
+                AxisEvent::Put { key, value } => self.outputs.push_back(ServiceOutput::Put { key, value }),
+                AxisEvent::Done(done) => {
+                    let (ended, waiting) = std::mem::take(&mut self.waiting)
+                        .into_iter()
+                        .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
+                    self.waiting = waiting;
+                    for waiter in ended {
+                        let reply = Reply::Completion(waiter.field, self.completion(waiter.field));
+                        self.outputs.push_back(ServiceOutput::Reply { to: waiter.to, reply });
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The field a key chunk names, exactly; a name in the wrong case is refused naming the field.
+fn field_named(name: &str) -> Result<Field, RequestError> {
+    Field::from_name(name).ok_or_else(|| match Field::from_name_any_case(name) {
+        Some(field) => RequestError::WrongCase { given: name.to_string(), field },
+        None => RequestError::UnknownField(name.to_string()),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::axis::PollRates;
+    use crate::driver::sim::{SimAxis, SimConfig};
+    use PayloadEncoding::Text;
+
+    /// Requests in these tests are told apart by a number.
+    type Service = AxisService<u32>;
+
+    fn at(seconds: f64) -> Instant {
+        Instant::from_secs_f64(seconds)
+    }
+
+    fn service() -> Service {
+        let fields = Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() };
+        let axis = Axis::new(fields, Box::new(SimAxis::new(SimConfig::default())), PollRates::default(), Instant::ZERO);
+        AxisService::new("m1", axis)
+    }
+
+    fn drain(service: &mut Service) -> Vec<ServiceOutput<u32>> {
+        std::iter::from_fn(|| service.poll_output()).collect()
+    }
+
+    fn replies(outputs: &[ServiceOutput<u32>]) -> Vec<(u32, Reply)> {
+        outputs
+            .iter()
+            .filter_map(|o| match o {
+                ServiceOutput::Reply { to, reply } => Some((*to, reply.clone())),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn published(outputs: &[ServiceOutput<u32>], wanted: Field) -> Vec<Value> {
+        outputs
+            .iter()
+            .filter_map(|o| match o {
+                ServiceOutput::Publish { field, value, .. } if *field == wanted => Some(value.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn refusals(outputs: &[ServiceOutput<u32>]) -> Vec<String> {
+        outputs
+            .iter()
+            .filter_map(|o| match o {
+                ServiceOutput::Refusal { message, .. } => Some(message.clone()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Run virtual time until the axis is idle, collecting every output.
+    fn run_until_idle(service: &mut Service) -> Vec<ServiceOutput<u32>> {
+        let mut outputs = drain(service);
+        for _ in 0..10_000 {
+            if service.fields().dmov == 1 && service.fields().movn == 0 {
+                break;
+            }
+            let t = service.poll_timeout().expect("a simulated axis is polled");
+            service.handle_timeout(t);
+            outputs.extend(drain(service));
+        }
+        outputs
+    }
+
+    #[test]
+    fn a_confirmed_write_is_answered_with_the_value_it_left() {
+        let mut s = service();
+        s.write(at(0.0), "VELO", b"5", Text, false, 1);
+        assert_eq!(replies(&drain(&mut s)), vec![(1, Reply::Value(Field::VELO, Value::Float(5.0)))]);
+    }
+
+    #[test]
+    fn a_wait_write_is_answered_when_its_motion_ends_and_not_before() {
+        let mut s = service();
+        s.write(at(0.0), "VAL", b"1", Text, true, 7);
+        let first = drain(&mut s);
+        assert!(replies(&first).is_empty(), "answered before the motion: {first:?}");
+        assert_eq!(published(&first, Field::DMOV), vec![Value::Int(0)]);
+        let rest = run_until_idle(&mut s);
+        let answers = replies(&rest);
+        assert_eq!(answers.len(), 1, "{answers:?}");
+        let (to, Reply::Completion(field, completion)) = &answers[0] else { panic!("{answers:?}") };
+        assert_eq!((*to, *field), (7, Field::VAL));
+        assert_eq!((completion.rbv, completion.dmov, completion.reached), (1.0, 1, 1));
+        assert_eq!(completion.written["VAL"], Value::Float(1.0));
+        // The completion comes after the DMOV 1 it reports.
+        let dmov_at = rest.iter().position(|o| matches!(o, ServiceOutput::Publish { field: Field::DMOV, .. }));
+        let reply_at = rest.iter().position(|o| matches!(o, ServiceOutput::Reply { .. }));
+        assert!(dmov_at < reply_at, "{rest:?}");
+    }
+
+    #[test]
+    fn a_wait_write_that_moves_nothing_is_answered_at_once() {
+        let mut s = service();
+        s.write(at(0.0), "VELO", b"4", Text, true, 3);
+        let answers = replies(&drain(&mut s));
+        assert!(matches!(&answers[..], [(3, Reply::Completion(Field::VELO, c))] if c.dmov == 1), "{answers:?}");
+    }
+
+    #[test]
+    fn a_wait_is_not_answered_by_the_end_of_the_motion_before_it() {
+        let mut s = service();
+        s.write(at(0.0), "VAL", b"1", Text, false, 1);
+        drain(&mut s);
+        // Written when the first move has ended on the simulator but before any poll saw it:
+        // the processing that notices the end comes first and must not answer this write.
+        s.write(at(5.0), "VAL", b"2", Text, true, 2);
+        let outputs = drain(&mut s);
+        assert_eq!(published(&outputs, Field::DMOV), vec![Value::Int(1), Value::Int(0)]);
+        assert!(replies(&outputs).iter().all(|(to, _)| *to == 1), "{outputs:?}");
+        let answers = replies(&run_until_idle(&mut s));
+        assert!(matches!(&answers[..], [(2, Reply::Completion(_, c))] if c.rbv == 2.0), "{answers:?}");
+    }
+
+    #[test]
+    fn refusals_are_answered_and_reported_on_err_and_change_nothing() {
+        let mut s = service();
+        s.write(at(0.0), "RBV", b"3", Text, false, 1);
+        s.write(at(0.0), "NOPE", b"3", Text, false, 2);
+        s.write(at(0.0), "VAL", b"ten", Text, true, 3);
+        s.put(at(0.0), "VAL", b"NaN", Text);
+        let outputs = drain(&mut s);
+        let messages: Vec<String> = replies(&outputs)
+            .into_iter()
+            .map(|(_, r)| match r {
+                Reply::Refused(e) => e.to_string(),
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(messages[0], "RBV is read-only");
+        assert_eq!(messages[1], "NOPE: unknown field");
+        assert!(messages[2].starts_with("VAL: wrong type"), "{}", messages[2]);
+        assert_eq!(refusals(&outputs).len(), 4, "each refusal is reported on ERR");
+        assert!(published(&outputs, Field::DMOV).is_empty(), "nothing moved");
+        assert_eq!(s.fields().val, 0.0);
+    }
+
+    #[test]
+    fn a_limit_violation_is_a_refusal_of_the_write() {
+        let mut s = service();
+        s.write(at(0.0), "VAL", b"500", Text, true, 1);
+        let outputs = drain(&mut s);
+        let answers = replies(&outputs);
+        let [(1, Reply::Refused(RequestError::Record(WriteError::NotActedUpon(reason))))] = &answers[..] else {
+            panic!("{answers:?}")
+        };
+        assert!(reason.starts_with("limit violation"), "{reason}");
+        assert_eq!(published(&outputs, Field::DMOV), vec![Value::Int(0), Value::Int(1)]);
+    }
+
+    #[test]
+    fn field_names_are_exact_and_the_wrong_case_is_refused_naming_the_field() {
+        let mut s = service();
+        s.put(at(0.0), "val", b"5", Text);
+        s.write(at(0.0), "Val", b"5", Text, false, 1);
+        s.read("rbv", 2);
+        let outputs = drain(&mut s);
+        assert_eq!(
+            refusals(&outputs),
+            [
+                "val: unknown field; field names are upper case: VAL",
+                "Val: unknown field; field names are upper case: VAL"
+            ]
+        );
+        let answers = replies(&outputs);
+        assert!(matches!(&answers[1], (2, Reply::Refused(RequestError::WrongCase { field: Field::RBV, .. }))));
+        assert!(published(&outputs, Field::DMOV).is_empty(), "nothing moved");
+    }
+
+    #[test]
+    fn reads_answer_one_field_or_every_selected_one() {
+        let mut s = service();
+        s.read("VELO", 1);
+        s.read_selected(|f| f.name().starts_with("DR"), 2);
+        let answers = replies(&drain(&mut s));
+        assert_eq!(answers[0], (1, Reply::Value(Field::VELO, Value::Float(10.0))));
+        let selected: Vec<Field> = answers[1..]
+            .iter()
+            .map(|(to, r)| match r {
+                Reply::Value(f, _) if *to == 2 => *f,
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(selected, vec![Field::DRBV]);
+    }
+
+    #[test]
+    fn publications_carry_growing_sequence_numbers_and_the_alarm() {
+        let mut s = service();
+        s.put(at(0.0), "VAL", b"1", Text);
+        let seqs: Vec<u64> = drain(&mut s)
+            .iter()
+            .filter_map(|o| match o {
+                ServiceOutput::Publish { marker, .. } => Some(marker.seq),
+                _ => None,
+            })
+            .collect();
+        assert!(seqs.len() > 3 && seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
+    }
+
+    #[test]
+    fn simulator_keys_are_read_and_written_through_the_table() {
+        let mut s = service();
+        s.sim_write(at(0.0), "position", b"2500", Text);
+        assert!(refusals(&drain(&mut s)).is_empty());
+        assert_eq!(s.fields().rbv, 2.5, "the readback follows the carriage at once");
+        s.sim_write(at(0.0), "fraction", b"3", Text);
+        s.sim_write(at(0.0), "warp", b"1", Text);
+        assert_eq!(
+            refusals(&drain(&mut s)),
+            vec!["sim/m1/fraction: fraction 3 is outside [0, 2]", "sim/m1/warp: unknown simulator key 'warp'"]
+        );
+        s.sim_read(at(0.0), |name| name == "state" || name == "fraction", 9);
+        let answers = replies(&drain(&mut s));
+        assert!(matches!(&answers[0], (9, Reply::SimState(state)) if state.position == 2500.0), "{answers:?}");
+        assert_eq!(answers[1], (9, Reply::SimSetting(SimSetting::Fraction, Value::Float(1.0))));
+    }
+}

@@ -1,0 +1,686 @@
+//! EPICS database import: `record`/`grecord` of type motor, calcout (and calc), and ao/ai (and
+//! longout/longin) that only hold values, with `$(macro)` substitution and link modifiers.
+//! Records become launch items on the key layout:
+//!   motor `R`          → axis `R`, fields on `<prefix>/R/<FIELD>`
+//!   calcout/calc `R`   → calc link `R`; its fields are `bridge/R/<FIELD>` (`A`…`L`, `VAL`)
+//!   ao/ai `R`          → value holder on `bridge/R/VAL`
+//! A link `R.FIELD PP MS` becomes the key of R's field; PP/NPP/CP decide whether an update
+//! recomputes a calc link. Motors with a hardware DTYP become simulated axes, with a warning.
+
+use super::{
+    AxisSection, CalcInput, CalcOption, CalcSection, DriverKind, InputLinkMode, LaunchError, LaunchFile, ValueSection,
+};
+use std::collections::BTreeMap;
+use std::path::Path;
+use zmotor_msgs::toml_value::to_toml;
+use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
+
+/// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Macros(BTreeMap<String, String>);
+
+impl Macros {
+    /// Parse `name=value` pairs separated by commas; later definitions win.
+    pub fn parse(definitions: &[String]) -> Result<Self, MacroError> {
+        let mut macros = BTreeMap::new();
+        for pair in definitions.iter().flat_map(|d| d.split(',')).filter(|p| !p.trim().is_empty()) {
+            let (name, value) = pair.split_once('=').ok_or_else(|| MacroError(pair.to_string()))?;
+            macros.insert(name.trim().to_string(), value.trim().to_string());
+        }
+        Ok(Self(macros))
+    }
+}
+
+/// A macro definition that is not `name=value`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("macro definition '{0}' is not name=value")]
+pub struct MacroError(pub String);
+
+/// Import a database file; the warnings say what was simulated or ignored.
+pub fn import_db(path: &Path, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
+    let text = super::read_text(path)?;
+    let file = path.display().to_string();
+    import_text(&text, macros).map_err(|failure| LaunchError {
+        file,
+        line: Some(failure.line),
+        message: failure.message,
+    })
+}
+
+/// What is wrong in a database, and on which line.
+#[derive(Debug, PartialEq)]
+pub(super) struct Failure {
+    line: usize,
+    message: String,
+}
+
+impl Failure {
+    fn at(line: usize, message: impl Into<String>) -> Self {
+        Self { line, message: message.into() }
+    }
+}
+
+/// One record of the file (records of the same name are merged, as EPICS does).
+#[derive(Debug)]
+struct Record {
+    kind: String,
+    name: String,
+    line: usize,
+    /// (field, value, line), in file order.
+    fields: Vec<(String, String, usize)>,
+}
+
+impl Record {
+    fn field(&self, name: &str) -> Option<&(String, String, usize)> {
+        self.fields.iter().rev().find(|(f, ..)| f == name)
+    }
+}
+
+pub(super) fn import_text(text: &str, macros: &Macros) -> Result<(LaunchFile, Vec<String>), Failure> {
+    let mut warnings = Vec::new();
+    let records = parse(text, macros, &mut warnings)?;
+    let kinds: BTreeMap<&str, &str> = records.iter().map(|r| (r.name.as_str(), r.kind.as_str())).collect();
+    let linker = Linker { kinds: &kinds };
+    let mut launch = LaunchFile::default();
+    // Writes into calc inputs from other records' output links: (calc, letter) → mode.
+    let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
+    for record in &records {
+        match record.kind.as_str() {
+            "motor" => launch.axes.push(motor(record, &linker, &mut warnings, &mut written_inputs)?),
+            "calcout" | "calc" => launch.calcs.push(calc(record, &linker, &mut warnings, &mut written_inputs)?),
+            "ao" | "ai" | "longout" | "longin" => launch.values.push(value_holder(record, &mut warnings)?),
+            other => warnings.push(format!(
+                "line {}: record '{}' of type {other} is not supported and was skipped",
+                record.line, record.name
+            )),
+        }
+    }
+    for ((calc_name, letter), mode) in written_inputs {
+        if let Some(calc) = launch.calcs.iter_mut().find(|c| c.name == calc_name) {
+            let key = format!("{}/{calc_name}/{letter}", keys::BRIDGE_PREFIX);
+            calc.inputs.entry(letter).or_insert(CalcInput::Linked { key, mode });
+        }
+    }
+    Ok((launch, warnings))
+}
+
+/// Link modifiers of EPICS database links.
+const MODIFIERS: &[&str] = &["PP", "NPP", "CP", "CPP", "MS", "NMS", "MSS", "MSI", "CA"];
+
+/// What an EPICS link field holds.
+#[derive(Debug, PartialEq)]
+enum Link {
+    None,
+    Constant(f64),
+    /// A hardware address (`#C0 S0 @`, `@asyn(...)`): meaningless on a simulated axis.
+    Hardware,
+    Key {
+        key: String,
+        record: String,
+        field: String,
+        process: bool,
+        continuous: bool,
+    },
+}
+
+struct Linker<'a> {
+    kinds: &'a BTreeMap<&'a str, &'a str>,
+}
+
+impl Linker<'_> {
+    fn link(&self, text: &str, line: usize, warnings: &mut Vec<String>) -> Result<Link, Failure> {
+        let text = text.trim();
+        if text.is_empty() {
+            return Ok(Link::None);
+        }
+        if text.starts_with(['#', '@']) {
+            return Ok(Link::Hardware);
+        }
+        if let Ok(x) = text.parse::<f64>() {
+            return Ok(Link::Constant(x));
+        }
+        let mut words = text.split_whitespace();
+        let target = words.next().unwrap_or_default();
+        let modifiers: Vec<&str> = words.collect();
+        if let Some(bad) = modifiers.iter().find(|m| !MODIFIERS.contains(m)) {
+            return Err(Failure::at(
+                line,
+                format!("link '{text}': '{bad}' is not a link modifier (known: {})", MODIFIERS.join(" ")),
+            ));
+        }
+        let (record, field) = target.split_once('.').unwrap_or((target, "VAL"));
+        let prefix = match self.kinds.get(record) {
+            Some(&"motor") => keys::DEFAULT_PREFIX,
+            Some(_) => keys::BRIDGE_PREFIX,
+            None => {
+                warnings.push(format!(
+                    "line {line}: link '{text}': record '{record}' is not in this database; taken as an axis elsewhere"
+                ));
+                keys::DEFAULT_PREFIX
+            }
+        };
+        Ok(Link::Key {
+            key: format!("{prefix}/{record}/{field}"),
+            record: record.to_string(),
+            field: field.to_string(),
+            process: modifiers.iter().any(|m| matches!(*m, "PP" | "CP" | "CPP")),
+            continuous: modifiers.iter().any(|m| matches!(*m, "CP" | "CPP")),
+        })
+    }
+}
+
+fn motor(
+    record: &Record,
+    linker: &Linker,
+    warnings: &mut Vec<String>,
+    written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
+) -> Result<AxisSection, Failure> {
+    let dtyp = record.field("DTYP").map(|(_, v, _)| v.as_str()).unwrap_or("");
+    let soft = dtyp == "Soft Channel";
+    if !soft {
+        warnings.push(format!(
+            "line {}: motor '{}': DTYP '{dtyp}' is hardware zmotor cannot drive; it runs as a simulated axis",
+            record.line, record.name
+        ));
+    }
+    let mut fields = BTreeMap::new();
+    for (name, text, line) in &record.fields {
+        let at = |message: String| Failure::at(*line, format!("motor '{}': field {name}: {message}", record.name));
+        if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
+            continue;
+        }
+        let field = Field::from_name(name)
+            .filter(|f| f.name() == name)
+            .ok_or_else(|| at("not a field of the motor record".into()))?;
+        let value = match field.def().kind {
+            Kind::Link => match linker.link(text, *line, warnings)? {
+                Link::None | Link::Constant(_) => continue,
+                Link::Hardware if !soft => continue,
+                Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
+                Link::Key { key, record: target, field: target_field, process, .. } => {
+                    if field.is_output_link() {
+                        note_calc_write(linker, &target, &target_field, process, written_inputs);
+                    }
+                    toml::Value::String(key)
+                }
+            },
+            Kind::Str(_) => toml::Value::String(text.clone()),
+            _ if text.trim().is_empty() => continue,
+            _ => to_toml(decode_scalar(text.as_bytes(), PayloadEncoding::Text).map_err(|e| at(e.detail))?),
+        };
+        fields.insert(name.clone(), value);
+    }
+    Ok(AxisSection {
+        name: record.name.clone(),
+        host: None,
+        driver: if soft { DriverKind::Soft } else { DriverKind::Sim },
+        readback_rate: super::default_readback_rate(),
+        fields,
+        sim: Default::default(),
+        origin: Default::default(),
+    })
+}
+
+/// An output link into a calc record's input A–L feeds that input (PP: and recomputes it).
+fn note_calc_write(
+    linker: &Linker,
+    record: &str,
+    field: &str,
+    process: bool,
+    written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
+) {
+    let is_calc = matches!(linker.kinds.get(record), Some(&"calcout") | Some(&"calc"));
+    if is_calc && zmotor_bridge::link::input_index(field).is_some() {
+        written_inputs.insert(
+            (record.to_string(), field.to_string()),
+            if process { InputLinkMode::Cp } else { InputLinkMode::Npp },
+        );
+    }
+}
+
+fn calc(
+    record: &Record,
+    linker: &Linker,
+    warnings: &mut Vec<String>,
+    written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
+) -> Result<CalcSection, Failure> {
+    let mut section = CalcSection {
+        name: record.name.clone(),
+        host: None,
+        expression: String::new(),
+        inputs: BTreeMap::new(),
+        constants: BTreeMap::new(),
+        output: format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name),
+        option: super::default_option(),
+        origin: Default::default(),
+    };
+    for (name, text, line) in &record.fields {
+        let at =
+            |message: String| Failure::at(*line, format!("{} '{}': field {name}: {message}", record.kind, record.name));
+        let input = name.strip_prefix("INP").filter(|l| zmotor_bridge::link::input_index(l).is_some());
+        match name.as_str() {
+            "CALC" => section.expression = text.clone(),
+            "OUT" => match linker.link(text, *line, warnings)? {
+                Link::Key { key, record: target, field, process, .. } => {
+                    note_calc_write(linker, &target, &field, process, written_inputs);
+                    section.output = key;
+                }
+                Link::None => {}
+                _ => return Err(at(format!("'{text}' is not a link to a record"))),
+            },
+            "OOPT" => {
+                section.option = match text.as_str() {
+                    "Every Time" => CalcOption::Every,
+                    "On Change" => CalcOption::OnChange,
+                    other => {
+                        warnings.push(format!(
+                            "line {line}: {} '{}': OOPT '{other}' is not supported; writing every time",
+                            record.kind, record.name
+                        ));
+                        CalcOption::Every
+                    }
+                }
+            }
+            "DOPT" if text != "Use CALC" => warnings.push(format!(
+                "line {line}: {} '{}': DOPT '{text}' is not supported; the CALC result is written",
+                record.kind, record.name
+            )),
+            _ if input.is_some() => {
+                let letter = input.unwrap_or_default().to_string();
+                match linker.link(text, *line, warnings)? {
+                    Link::None => {}
+                    Link::Constant(x) => {
+                        section.constants.insert(letter, x);
+                    }
+                    Link::Key { key, continuous, .. } => {
+                        let mode = if continuous { InputLinkMode::Cp } else { InputLinkMode::Npp };
+                        section.inputs.insert(letter, CalcInput::Linked { key, mode });
+                    }
+                    Link::Hardware => return Err(at(format!("'{text}' is not a link to a record"))),
+                }
+            }
+            _ if zmotor_bridge::link::input_index(name).is_some() => {
+                let x = text.trim().parse::<f64>().map_err(|_| at(format!("'{text}' is not a number")))?;
+                section.constants.insert(name.clone(), x);
+            }
+            "DESC" | "PREC" | "EGU" | "HOPR" | "LOPR" | "DOPT" => {}
+            _ if UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) => {}
+            _ => warnings.push(format!(
+                "line {line}: {} '{}': field {name} is not used by zmotor and was ignored",
+                record.kind, record.name
+            )),
+        }
+    }
+    if section.expression.is_empty() {
+        return Err(Failure::at(record.line, format!("{} '{}': no CALC expression", record.kind, record.name)));
+    }
+    Ok(section)
+}
+
+fn value_holder(record: &Record, warnings: &mut Vec<String>) -> Result<ValueSection, Failure> {
+    let mut value = 0.0;
+    for (name, text, line) in &record.fields {
+        let number = text.trim().parse::<f64>();
+        match name.as_str() {
+            "VAL" => {
+                value = number.map_err(|_| {
+                    Failure::at(*line, format!("{} '{}': VAL '{text}' is not a number", record.kind, record.name))
+                })?;
+            }
+            // A constant input link is the record's value, as EPICS reads it at initialisation.
+            "DOL" | "INP" if number.is_ok() => value = number.unwrap_or(value),
+            "DOL" | "OUT" | "INP" if !text.trim().is_empty() => warnings.push(format!(
+                "line {line}: {} '{}': {name} '{text}' is ignored; the record only holds a value",
+                record.kind, record.name
+            )),
+            _ => {}
+        }
+    }
+    Ok(ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() })
+}
+
+// ---- the file itself ----
+
+/// Substitute `$(name)`, `${name}` and `$(name=default)`; an undefined macro is an error.
+fn expand(line_text: &str, line: usize, macros: &Macros) -> Result<String, Failure> {
+    let mut out = String::with_capacity(line_text.len());
+    let mut rest = line_text;
+    while let Some(start) = rest.find('$') {
+        out.push_str(&rest[..start]);
+        let after = &rest[start + 1..];
+        let close = match after.chars().next() {
+            Some('(') => ')',
+            Some('{') => '}',
+            _ => {
+                out.push('$');
+                rest = after;
+                continue;
+            }
+        };
+        let end = after
+            .find(close)
+            .ok_or_else(|| Failure::at(line, format!("unterminated macro in '{}'", line_text.trim())))?;
+        let body = &after[1..end];
+        let (name, default) = match body.split_once('=') {
+            Some((name, default)) => (name, Some(default)),
+            None => (body, None),
+        };
+        let value =
+            macros.0.get(name).map(String::as_str).or(default).ok_or_else(|| {
+                Failure::at(line, format!("macro $({name}) is not defined (give it with -m {name}=...)"))
+            })?;
+        out.push_str(value);
+        rest = &after[end + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+#[derive(Clone, Debug, PartialEq)]
+enum Token {
+    Word(String),
+    Quoted(String),
+    Punct(char),
+}
+
+fn tokenize(text: &str, macros: &Macros, warnings: &mut Vec<String>) -> Result<Vec<(Token, usize)>, Failure> {
+    let mut tokens = Vec::new();
+    for (index, raw) in text.lines().enumerate() {
+        let line = index + 1;
+        let expanded = expand(raw, line, macros)?;
+        let mut chars = expanded.chars().peekable();
+        while let Some(c) = chars.next() {
+            match c {
+                '#' => break,
+                c if c.is_whitespace() => {}
+                '(' | ')' | '{' | '}' | ',' => tokens.push((Token::Punct(c), line)),
+                // A table border left in a database copied from a document: not EPICS syntax.
+                '|' => warnings.push(format!("line {line}: stray '|' ignored")),
+                '"' => {
+                    let mut s = String::new();
+                    loop {
+                        match chars.next() {
+                            Some('"') => break,
+                            Some('\\') => s.extend(chars.next()),
+                            Some(c) => s.push(c),
+                            None => return Err(Failure::at(line, "a quoted string is not closed on its line")),
+                        }
+                    }
+                    tokens.push((Token::Quoted(s), line));
+                }
+                c if c.is_alphanumeric() || "_-+:.[]<>;".contains(c) => {
+                    let mut word = String::from(c);
+                    while let Some(&next) = chars.peek() {
+                        if next.is_alphanumeric() || "_-+:.[]<>;".contains(next) {
+                            word.push(next);
+                            chars.next();
+                        } else {
+                            break;
+                        }
+                    }
+                    tokens.push((Token::Word(word), line));
+                }
+                other => return Err(Failure::at(line, format!("unexpected character '{other}'"))),
+            }
+        }
+    }
+    Ok(tokens)
+}
+
+/// Parse the records of a database text.
+fn parse(text: &str, macros: &Macros, warnings: &mut Vec<String>) -> Result<Vec<Record>, Failure> {
+    let mut parser = Parser { tokens: tokenize(text, macros, warnings)?, at: 0 };
+    let mut records: Vec<Record> = Vec::new();
+    while let Some((token, line)) = parser.tokens.get(parser.at).cloned() {
+        parser.at += 1;
+        match token {
+            Token::Word(w) if w == "record" || w == "grecord" => {
+                let (kind, name) = parser.pair("record")?;
+                let fields = if parser.peek() == Some(&Token::Punct('{')) {
+                    parser.at += 1;
+                    parser.body()?
+                } else {
+                    Vec::new()
+                };
+                match records.iter_mut().find(|r| r.name == name) {
+                    Some(existing) if existing.kind == kind || kind == "*" => existing.fields.extend(fields),
+                    Some(existing) => {
+                        let message =
+                            format!("record '{name}' is already a {} and cannot become a {kind}", existing.kind);
+                        return Err(Failure::at(line, message));
+                    }
+                    None => records.push(Record { kind, name, line, fields }),
+                }
+            }
+            Token::Word(w) if w == "alias" => {
+                parser.pair("alias")?;
+                warnings.push(format!("line {line}: alias ignored"));
+            }
+            other => {
+                return Err(Failure::at(
+                    line,
+                    format!("expected record, grecord or alias, found {}", describe(&other)),
+                ));
+            }
+        }
+    }
+    Ok(records)
+}
+
+struct Parser {
+    tokens: Vec<(Token, usize)>,
+    at: usize,
+}
+
+impl Parser {
+    fn peek(&self) -> Option<&Token> {
+        self.tokens.get(self.at).map(|(t, _)| t)
+    }
+
+    fn next(&mut self, what: &str) -> Result<(Token, usize), Failure> {
+        let last_line = self.tokens.last().map_or(1, |(_, line)| *line);
+        let token = self
+            .tokens
+            .get(self.at)
+            .cloned()
+            .ok_or_else(|| Failure::at(last_line, format!("the file ends where {what} should be")))?;
+        self.at += 1;
+        Ok(token)
+    }
+
+    fn expect(&mut self, c: char, what: &str) -> Result<(), Failure> {
+        let (token, line) = self.next(&format!("'{c}'"))?;
+        if token == Token::Punct(c) {
+            Ok(())
+        } else {
+            Err(Failure::at(line, format!("{what}: expected '{c}', found {}", describe(&token))))
+        }
+    }
+
+    fn text(&mut self, what: &str) -> Result<String, Failure> {
+        match self.next("a name or a quoted string")? {
+            (Token::Word(w) | Token::Quoted(w), _) => Ok(w),
+            (other, line) => Err(Failure::at(
+                line,
+                format!("{what}: expected a name or a quoted string, found {}", describe(&other)),
+            )),
+        }
+    }
+
+    /// `( a , b )` as two strings.
+    fn pair(&mut self, what: &str) -> Result<(String, String), Failure> {
+        self.expect('(', what)?;
+        let a = self.text(what)?;
+        self.expect(',', what)?;
+        let b = self.text(what)?;
+        self.expect(')', what)?;
+        Ok((a, b))
+    }
+
+    /// The fields of a record body, up to its closing brace.
+    fn body(&mut self) -> Result<Vec<(String, String, usize)>, Failure> {
+        let mut fields = Vec::new();
+        loop {
+            let (token, line) = self.next("'field' or '}'")?;
+            match token {
+                Token::Punct('}') => return Ok(fields),
+                Token::Word(w) if w == "field" => {
+                    let (name, value) = self.pair("field")?;
+                    fields.push((name, value, line));
+                }
+                Token::Word(w) if w == "info" => {
+                    self.pair("info")?;
+                }
+                Token::Word(w) if w == "alias" => {
+                    self.expect('(', "alias")?;
+                    self.text("alias")?;
+                    self.expect(')', "alias")?;
+                }
+                other => {
+                    return Err(Failure::at(line, format!("expected 'field' or '}}', found {}", describe(&other))))
+                }
+            }
+        }
+    }
+}
+
+fn describe(token: &Token) -> String {
+    match token {
+        Token::Word(w) => format!("'{w}'"),
+        Token::Quoted(q) => format!("\"{q}\""),
+        Token::Punct(c) => format!("'{c}'"),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Launch;
+    use zmotor_bridge::link::InputMode;
+    use zmotor_core::axis::DriverPlan;
+
+    fn macros(text: &str) -> Macros {
+        Macros::parse(&[text.to_string()]).unwrap()
+    }
+
+    fn import(text: &str) -> Result<(LaunchFile, Vec<String>), Failure> {
+        import_text(text, &macros("user=me"))
+    }
+
+    const SEED: &str = include_str!("../../../launch/tangent-arm.db");
+
+    #[test]
+    fn the_seed_tangent_arm_becomes_two_axes_and_two_calc_links() {
+        let (file, warnings) = import(SEED).unwrap();
+        assert_eq!(warnings.len(), 1, "{warnings:?}");
+        assert!(warnings[0].contains("motor 'me:linear': DTYP 'OMS VME58' is hardware"), "{warnings:?}");
+        let deployment = Launch::from_file("seed", file).unwrap().deployment(None).unwrap();
+        let rotary = &deployment.plans[0];
+        assert_eq!((rotary.name.as_str(), &rotary.driver), ("me:rotary", &DriverPlan::Soft));
+        let f = &rotary.fields;
+        assert_eq!(f.out, "bridge/me:convertDriveValue/A");
+        assert_eq!((f.rdbl.as_str(), f.stoo.as_str()), ("bridge/me:convertReadbackValue/VAL", "motor/me:linear/STOP"));
+        assert_eq!(
+            (f.dinp.as_str(), f.urip, f.mres, f.dhlm, f.egu.as_str()),
+            ("motor/me:linear/DMOV", 1, 0.001, 45.0, "deg.")
+        );
+        let linear = &deployment.plans[1];
+        assert!(matches!(linear.driver, DriverPlan::Sim(_)));
+        assert_eq!((linear.fields.velo, linear.fields.out.as_str()), (25.0, ""), "a hardware address is dropped");
+        let drive = &deployment.calcs[0];
+        assert_eq!(
+            (drive.output.as_str(), drive.inputs[0].key.as_str()),
+            ("motor/me:linear/DVAL", "bridge/me:convertDriveValue/A")
+        );
+        assert_eq!(drive.inputs[0].mode, InputMode::Process, "rotary's OUT is PP: each write recomputes");
+        let readback = &deployment.calcs[1];
+        assert_eq!(
+            (readback.output.as_str(), readback.inputs[0].key.as_str()),
+            ("bridge/me:convertReadbackValue/VAL", "motor/me:linear/DRBV")
+        );
+        assert_eq!(readback.inputs[0].mode, InputMode::Process, "INPA is CP");
+    }
+
+    #[test]
+    fn a_copy_with_table_borders_still_loads() {
+        let bordered = SEED.replace("}\n", "} | \n");
+        let (file, warnings) = import(&bordered).unwrap();
+        assert_eq!((file.axes.len(), file.calcs.len()), (2, 2));
+        assert!(warnings.iter().any(|w| w.ends_with("stray '|' ignored")));
+    }
+
+    #[test]
+    fn macros_take_defaults_and_undefined_ones_are_errors_with_their_line() {
+        let text = "\n\nrecord(motor, \"$(P)m$(N=1)\") {\n field(DESC, \"${P}\")\n}\n";
+        let (file, _) = import_text(text, &macros("P=bl1:")).unwrap();
+        assert_eq!(file.axes[0].name, "bl1:m1");
+        assert_eq!(file.axes[0].fields["DESC"], toml::Value::String("bl1:".into()));
+        assert_eq!(
+            import_text(text, &Macros::default()).unwrap_err(),
+            Failure::at(3, "macro $(P) is not defined (give it with -m P=...)")
+        );
+    }
+
+    #[test]
+    fn errors_name_the_line_and_the_field() {
+        let bad_field = "record(motor, \"m1\") {\n  field(VELO, \"2\")\n  field(SPEED, \"3\")\n}";
+        assert_eq!(
+            import(bad_field).unwrap_err(),
+            Failure::at(3, "motor 'm1': field SPEED: not a field of the motor record")
+        );
+        let bad_link = "record(motor, \"m1\") {\n field(DTYP, \"Soft Channel\")\n field(OUT, \"c.A PP XX\")\n}";
+        assert!(import(bad_link).unwrap_err().message.contains("'XX' is not a link modifier"));
+        assert_eq!(import("record(motor \"m1\")").unwrap_err(), Failure::at(1, "record: expected ',', found \"m1\""));
+        assert_eq!(import("record(motor, \"m1\") {\n field(VELO, \"2\")\n").unwrap_err().line, 2);
+        assert!(import("device(motor, VME_IO, x, \"y\")").unwrap_err().message.contains("found 'device'"));
+        let bad_value = "record(motor, \"m1\") {\n field(VELO, \"fast\")\n}";
+        let (file, _) = import(bad_value).unwrap();
+        let error = Launch::from_file("db", file).unwrap_err();
+        assert!(error.message.contains("VELO: wrong type"), "{error}");
+    }
+
+    #[test]
+    fn records_of_the_same_name_merge_and_common_fields_are_ignored() {
+        let text =
+            "record(motor, m1) { field(VELO, 2) field(SCAN, \"Passive\") }\nrecord(motor, m1) { field(VELO, 3) }";
+        let (file, _) = import(text).unwrap();
+        assert_eq!(file.axes.len(), 1);
+        assert_eq!(file.axes[0].fields["VELO"], toml::Value::Integer(3));
+        assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
+    }
+
+    #[test]
+    fn calc_constants_links_and_value_holders() {
+        let text = r#"
+            record(ao, "offset") { field(VAL, "2.5") field(DOL, "other.VAL") }
+            record(calcout, "sum") {
+                field(CALC, "A+B+C")
+                field(INPA, "offset NPP")
+                field(INPB, "1000")
+                field(C, "7")
+                field(OOPT, "On Change")
+                field(OUT, "m1.VAL PP")
+            }
+            record(motor, "m1") { field(DTYP, "asynMotor") field(OUT, "@asyn(port,0)") }
+            record(stringin, "note") {}
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        assert_eq!((file.values[0].key(), file.values[0].value), ("bridge/offset/VAL".to_string(), 2.5));
+        let sum = &file.calcs[0];
+        assert_eq!(sum.inputs["A"], CalcInput::Linked { key: "bridge/offset/VAL".into(), mode: InputLinkMode::Npp });
+        assert_eq!((sum.constants["B"], sum.constants["C"]), (1000.0, 7.0));
+        assert_eq!((sum.output.as_str(), sum.option), ("motor/m1/VAL", CalcOption::OnChange));
+        assert!(warnings.iter().any(|w| w.contains("DOL 'other.VAL' is ignored")), "{warnings:?}");
+        assert!(warnings.iter().any(|w| w.contains("type stringin is not supported")), "{warnings:?}");
+        assert!(warnings.iter().any(|w| w.contains("DTYP 'asynMotor'")), "{warnings:?}");
+        Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn the_converted_toml_loads_to_the_same_deployment() {
+        let (file, _) = import(SEED).unwrap();
+        let launch = Launch::from_file("seed", file).unwrap();
+        let again = Launch::parse(&launch.to_toml()).unwrap();
+        assert_eq!(again.deployment(None).unwrap(), launch.deployment(None).unwrap());
+    }
+}
