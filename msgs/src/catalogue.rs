@@ -43,6 +43,7 @@ impl Kind {
         }
     }
 
+    /// The DBF type's name as the catalogue JSON shows it (`DOUBLE`, `MENU`, `LINK`, ...).
     pub fn type_name(self) -> &'static str {
         match self {
             Kind::Double => "DOUBLE",
@@ -70,6 +71,7 @@ pub enum Access {
 }
 
 impl Access {
+    /// The manual's Access column: `R`, `R/W` or `R/W*`.
     pub fn label(self) -> &'static str {
         match self {
             Access::RO => "R",
@@ -82,17 +84,23 @@ impl Access {
 /// Metadata of one field.
 #[derive(Debug, Serialize)]
 pub struct FieldDef {
+    /// The field this entry describes.
     #[serde(skip)]
     pub field: Field,
+    /// The EPICS field name (e.g. `VAL`).
     pub name: &'static str,
+    /// Storage kind (DBF type).
     pub kind: Kind,
+    /// Who may write the field.
     pub access: Access,
+    /// The DBD prompt: a short human-readable description.
     pub prompt: &'static str,
     /// Unit template; "EGU" stands for the axis's engineering units.
     pub unit: &'static str,
 }
 
 impl FieldDef {
+    /// The field's value in a new axis (the DBD default).
     pub fn default_value(&self) -> Value {
         Fields::default().get(self.field)
     }
@@ -160,7 +168,7 @@ macro_rules! catalogue {
         #[allow(clippy::upper_case_acronyms)]
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
         #[repr(u16)]
-        pub enum Field { $($name),* }
+        pub enum Field { $(#[doc = concat!($prompt, ".")] $name),* }
 
         /// Metadata of every field, in `Field` order.
         pub const FIELDS: &[FieldDef] = &[$(
@@ -176,7 +184,7 @@ macro_rules! catalogue {
 
         /// The values of every field of one axis, as typed Rust members.
         #[derive(Clone, Debug, PartialEq)]
-        pub struct Fields { $(pub $member: storage!($kind $(($arg))?)),* }
+        pub struct Fields { $(#[doc = concat!(stringify!($name), ": ", $prompt, ".")] pub $member: storage!($kind $(($arg))?)),* }
 
         impl Default for Fields {
             fn default() -> Self {
@@ -346,10 +354,12 @@ catalogue! {
 }
 
 impl Field {
+    /// The field's catalogue entry.
     pub fn def(self) -> &'static FieldDef {
         &FIELDS[self as usize]
     }
 
+    /// The field's EPICS name (e.g. `VAL`).
     pub fn name(self) -> &'static str {
         self.def().name
     }
@@ -366,10 +376,12 @@ impl Field {
         FIELDS.iter().find(|d| d.name.eq_ignore_ascii_case(name)).map(|d| d.field)
     }
 
+    /// Every field, in catalogue order.
     pub fn all() -> impl Iterator<Item = Field> {
         FIELDS.iter().map(|d| d.field)
     }
 
+    /// Number of fields in the catalogue.
     pub const COUNT: usize = FIELDS.len();
 }
 
@@ -377,7 +389,9 @@ impl Field {
 /// motor_settings.req do: the position (DVAL and OFF), and every setting a user configures.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Autosave {
+    /// Part of the axis position (motor_positions.req): DVAL and OFF.
     Position,
+    /// A user-configured setting (motor_settings.req).
     Setting,
 }
 

@@ -53,17 +53,66 @@ pub struct MalformedPayload {
 pub enum CodecError {
     /// The payload does not decode in its encoding.
     #[error("{field}: malformed {encoding} payload: {detail}")]
-    Malformed { field: &'static str, encoding: &'static str, detail: String },
+    Malformed {
+        /// The field written.
+        field: &'static str,
+        /// The payload's encoding, by name (`CBOR`, `JSON`, `text`).
+        encoding: &'static str,
+        /// What was wrong with the payload.
+        detail: String,
+    },
+    /// Text written to a numeric field, or a fractional number to an integer field.
     #[error("{field}: wrong type: expected {expected}, got {got}")]
-    WrongType { field: &'static str, expected: String, got: String },
+    WrongType {
+        /// The field written.
+        field: &'static str,
+        /// What the field takes (e.g. "a number", "an integer").
+        expected: String,
+        /// What the payload held.
+        got: String,
+    },
+    /// NaN or an infinity written to a DOUBLE or FLOAT field (or a value beyond f32 for a FLOAT).
     #[error("{field}: not a number ({value}); a finite value is required")]
-    NotFinite { field: &'static str, value: String },
+    NotFinite {
+        /// The field written.
+        field: &'static str,
+        /// The value given, as text.
+        value: String,
+    },
+    /// An integer outside the range of the field's kind, or a menu index with no choice.
     #[error("{field}: {value} is out of range [{min}, {max}]")]
-    OutOfRange { field: &'static str, value: String, min: i64, max: i64 },
+    OutOfRange {
+        /// The field written.
+        field: &'static str,
+        /// The value given, as text.
+        value: String,
+        /// Smallest allowed value.
+        min: i64,
+        /// Largest allowed value.
+        max: i64,
+    },
+    /// Text written to a menu field that names none of its choices.
     #[error("{field}: '{value}' is not a choice of {menu} ({choices})")]
-    NotAChoice { field: &'static str, value: String, menu: &'static str, choices: String },
+    NotAChoice {
+        /// The field written.
+        field: &'static str,
+        /// The text given.
+        value: String,
+        /// The menu's name (e.g. `motorSPMG`).
+        menu: &'static str,
+        /// The menu's choices, comma-separated.
+        choices: String,
+    },
+    /// Text longer than a STRING field holds (one byte is kept for the terminator).
     #[error("{field}: text of {len} bytes is longer than the field's {max}")]
-    TooLong { field: &'static str, len: usize, max: usize },
+    TooLong {
+        /// The field written.
+        field: &'static str,
+        /// Length of the text given, in bytes.
+        len: usize,
+        /// Longest text the field holds, in bytes.
+        max: usize,
+    },
 }
 
 /// Encode a published value as CBOR.

@@ -29,10 +29,12 @@ impl Default for KeyLayout {
 }
 
 impl KeyLayout {
+    /// The layout under `prefix` (surrounding slashes are dropped).
     pub fn new(prefix: &str) -> Self {
         Self { prefix: prefix.trim_matches('/').to_string() }
     }
 
+    /// The key prefix of this deployment's axes (e.g. `motor`).
     pub fn prefix(&self) -> &str {
         &self.prefix
     }
@@ -72,10 +74,12 @@ impl KeyLayout {
         format!("{}/*", self.prefix)
     }
 
+    /// `<prefix>/<axis>/ERR`: where refused fire-and-forget writes are reported as text.
     pub fn err(&self, axis: &str) -> String {
         format!("{}/{axis}/{ERR_KEY}", self.prefix)
     }
 
+    /// `<prefix>/<axis>/@driver/cmd`: the axis's driver-command trace.
     pub fn driver_cmd(&self, axis: &str) -> String {
         format!("{}/{axis}/{DRIVER_CMD_KEY}", self.prefix)
     }

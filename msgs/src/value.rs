@@ -8,8 +8,11 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum Value {
+    /// An integer: LONG, ULONG, SHORT, USHORT and menu (choice index) fields.
     Int(i64),
+    /// A floating-point number: DOUBLE and FLOAT fields.
     Float(f64),
+    /// Text: STRING and link fields.
     Text(String),
 }
 
@@ -37,7 +40,9 @@ impl std::fmt::Display for Value {
 /// A Rust storage type of a field; conversions are exact because the codec has already
 /// validated the value against the field's kind and range.
 pub trait FieldStorage: Sized {
+    /// The stored value as it travels on the wire.
     fn to_value(&self) -> Value;
+    /// The storage form of a value already validated for the field.
     fn from_value(value: &Value) -> Self;
 }
 

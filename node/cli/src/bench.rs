@@ -180,14 +180,10 @@ impl Drop for Server {
     }
 }
 
-async fn client(endpoint: &str) -> Result<Session, Error> {
-    Ok(zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await?)
-}
-
 /// A client of a server process that may not listen yet.
 async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Error> {
     loop {
-        if let Ok(session) = client(endpoint).await {
+        if let Ok(session) = crate::connect(endpoint).await {
             return Ok(session);
         }
         if since.elapsed() > Duration::from_secs(60) {

@@ -292,8 +292,9 @@ async fn launch(
     Ok(ExitCode::SUCCESS)
 }
 
-async fn client_session(client: &ClientArgs) -> Result<zenoh::Session, Error> {
-    Ok(zenoh::open(ZenohConfig::client(&client.connect).zenoh()?).await?)
+/// A client session connected to `endpoint`.
+async fn connect(endpoint: &str) -> Result<zenoh::Session, Error> {
+    zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await
 }
 
 /// The catalogue's name of a field a user typed, in any case.
@@ -326,7 +327,7 @@ fn show(payload: &[u8]) -> String {
 }
 
 async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<ExitCode, Error> {
-    let session = client_session(client).await?;
+    let session = connect(&client.connect).await?;
     let layout = KeyLayout::new(&client.prefix);
     // One field by name, or a pattern such as D* or the whole axis.
     let (key, single) = match field {
@@ -368,7 +369,7 @@ async fn put(
     wait: bool,
     timeout: f64,
 ) -> Result<ExitCode, Error> {
-    let session = client_session(client).await?;
+    let session = connect(&client.connect).await?;
     let layout = KeyLayout::new(&client.prefix);
     let key = format!("{}/{axis}/{}", layout.prefix(), field_name(field)?);
     let selector = if wait { format!("{key}?wait") } else { key.clone() };
@@ -394,7 +395,7 @@ async fn put(
 }
 
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
-    let session = client_session(client).await?;
+    let session = connect(&client.connect).await?;
     let layout = KeyLayout::new(&client.prefix);
     let wanted: Vec<&str> = fields.iter().map(|f| field_name(f)).collect::<Result<_, _>>()?;
     let subscriber = session.declare_subscriber(format!("{}/{axis}/*", layout.prefix())).await?;

@@ -26,11 +26,14 @@ pub struct DeviceSupport {
 /// fresh status.
 #[derive(Debug, Default, PartialEq)]
 pub struct Translation {
+    /// The driver commands, in order.
     pub commands: Vec<DriverCommand>,
+    /// The record must be processed with fresh status after them.
     pub wants_callback: bool,
 }
 
 impl DeviceSupport {
+    /// Translate one transaction of the record into driver commands.
     pub fn translate(&mut self, transaction: &[MotorCommand]) -> Translation {
         let mut out = Translation::default();
         for command in transaction {

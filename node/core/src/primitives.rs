@@ -8,7 +8,9 @@ use std::time::Duration;
 /// One `PUT` directive.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DirectivePut {
+    /// The key written to.
     pub key: String,
+    /// The value written, as text.
     pub value: String,
     /// How long to wait after the put before the motion starts (PREM only).
     pub delay: Duration,
@@ -17,6 +19,7 @@ pub struct DirectivePut {
 /// A parsed primitive string.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Primitive {
+    /// The `@PUT(...)@` directives, in order.
     pub puts: Vec<DirectivePut>,
     /// The controller command, if any text remains.
     pub text: Option<String>,

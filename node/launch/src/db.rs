@@ -251,7 +251,7 @@ fn calc(
         inputs: BTreeMap::new(),
         constants: BTreeMap::new(),
         output: format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name),
-        option: super::default_option(),
+        option: CalcOption::default(),
         origin: Default::default(),
     };
     for (name, text, line) in &record.fields {

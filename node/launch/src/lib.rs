@@ -27,8 +27,11 @@ pub const MAX_READBACK_RATE: f64 = 1000.0;
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{file}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
 pub struct LaunchError {
+    /// The file at fault.
     pub file: String,
+    /// The line, when it is known.
     pub line: Option<usize>,
+    /// What is wrong, naming the key.
     pub message: String,
 }
 
@@ -53,23 +56,30 @@ pub struct LaunchFile {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub state_dir: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Autosave settings.
     pub autosave: Option<AutosaveSection>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// How the processes join the network.
     pub zenoh: Option<ZenohConfig>,
     /// Per-host overrides of `[zenoh]`; with hosts, every item names the host that runs it.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub hosts: BTreeMap<String, HostSection>,
     #[serde(default, rename = "axis", skip_serializing_if = "Vec::is_empty")]
+    /// The axes (`[[axis]]`).
     pub axes: Vec<AxisSection>,
     #[serde(default, rename = "calc", skip_serializing_if = "Vec::is_empty")]
+    /// The calc links (`[[calc]]`).
     pub calcs: Vec<CalcSection>,
     #[serde(default, rename = "value", skip_serializing_if = "Vec::is_empty")]
+    /// The value holders (`[[value]]`).
     pub values: Vec<ValueSection>,
 }
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(default, deny_unknown_fields)]
+/// The `[autosave]` section.
 pub struct AutosaveSection {
+    /// Whether axes are saved and restored.
     pub enabled: bool,
     /// Seconds a change may wait before it is written (changes meanwhile are written together).
     pub delay: f64,
@@ -89,8 +99,10 @@ pub struct HostSection {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mode: Option<Mode>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Endpoints the host listens on, instead of `[zenoh]`'s.
     pub listen: Option<Vec<String>>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Endpoints the host connects to, instead of `[zenoh]`'s.
     pub connect: Option<Vec<String>>,
 }
 
@@ -103,9 +115,12 @@ pub struct Origin {
 
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
+/// An `[[axis]]` entry.
 pub struct AxisSection {
+    /// The axis's name: its key chunk.
     pub name: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
     pub host: Option<String>,
     /// `sim` (the simulator) or `soft` (Soft Channel: the axis drives other keys).
     #[serde(default)]
@@ -117,8 +132,10 @@ pub struct AxisSection {
     #[serde(default)]
     pub fields: BTreeMap<String, toml::Value>,
     #[serde(default, skip_serializing_if = "is_default")]
+    /// The simulator's mechanics (`driver = "sim"`).
     pub sim: SimConfig,
     #[serde(skip)]
+    /// Where it was written.
     pub origin: Origin,
 }
 
@@ -137,7 +154,7 @@ pub struct UnknownChoice(String);
 macro_rules! choices {
     ($(#[$meta:meta])* $name:ident, $refusal:literal { $($(#[$vmeta:meta])* $variant:ident = $text:literal),+ $(,)? }) => {
         $(#[$meta])*
-        #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
         pub enum $name {
             $($(#[$vmeta])* $variant),+
         }
@@ -176,22 +193,18 @@ choices!(
     /// What drives an axis.
     DriverKind, "'{given}' is not a known driver (known: {known})" {
         /// The physical simulator.
+        #[default]
         Sim = "sim",
         /// Soft Channel: the axis drives other keys.
         Soft = "soft",
     }
 );
 
-impl Default for DriverKind {
-    fn default() -> Self {
-        DriverKind::Sim
-    }
-}
-
 choices!(
     /// When a calc link writes its output (the calcout's OOPT).
     CalcOption, "'{given}' is not one of {known}" {
         /// Every time it is computed.
+        #[default]
         Every = "every",
         /// When the result changes.
         OnChange = "on_change",
@@ -202,6 +215,7 @@ choices!(
     /// What an update of a calc input does (the EPICS link's CP/NPP).
     InputLinkMode, "'{given}' is not one of {known}" {
         /// Recompute and write on each update.
+        #[default]
         Cp = "cp",
         /// Only keep the latest value.
         Npp = "npp",
@@ -216,8 +230,10 @@ fn default_readback_rate() -> f64 {
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct CalcSection {
+    /// The calc link's name.
     pub name: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
     pub host: Option<String>,
     /// The CALC expression.
     pub expression: String,
@@ -230,9 +246,10 @@ pub struct CalcSection {
     /// Key the result is written to.
     pub output: String,
     /// `every` (write every time, the default) or `on_change`.
-    #[serde(default = "default_option")]
+    #[serde(default)]
     pub option: CalcOption,
     #[serde(skip)]
+    /// Where it was written.
     pub origin: Origin,
 }
 
@@ -271,17 +288,16 @@ impl TryFrom<WrittenCalcInput> for CalcInput {
     }
 }
 
-fn default_option() -> CalcOption {
-    CalcOption::Every
-}
 
 /// A value holder, like an EPICS ao/ai record that only holds a value: it keeps the latest
 /// number written to its key and answers reads of it.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct ValueSection {
+    /// The value holder's name.
     pub name: String,
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
     pub host: Option<String>,
     /// Its key; `bridge/<name>/VAL` when omitted.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -290,10 +306,12 @@ pub struct ValueSection {
     #[serde(default)]
     pub value: f64,
     #[serde(skip)]
+    /// Where it was written.
     pub origin: Origin,
 }
 
 impl ValueSection {
+    /// Its key: `key`, or `bridge/<name>/VAL`.
     pub fn key(&self) -> String {
         self.key.clone().unwrap_or_else(|| format!("{}/{}/VAL", keys::BRIDGE_PREFIX, self.name))
     }
@@ -302,12 +320,17 @@ impl ValueSection {
 /// What one process runs: the Zenoh side for its host, and its part of the items.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Deployment {
+    /// How this process joins the network.
     pub zenoh: ZenohConfig,
+    /// Its axes.
     pub plans: Vec<AxisPlan>,
+    /// Its calc links.
     pub calcs: Vec<CalcLinkSpec>,
+    /// Its value holders.
     pub values: Vec<ValueSpec>,
     /// The launch file's state directory, resolved against the file's directory.
     pub state_dir: Option<PathBuf>,
+    /// Autosave settings.
     pub autosave: AutosaveSection,
 }
 
@@ -342,6 +365,7 @@ impl Problem {
 /// A whole launch: the main file with its includes merged, checked.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Launch {
+    /// Every item, the includes merged in.
     pub file: LaunchFile,
     /// Directory relative paths of the main file are resolved against.
     base: PathBuf,
@@ -440,6 +464,7 @@ impl Launch {
         LaunchError { file: source.name.clone(), line: line_of(&source.text, &problem.path), message: problem.message }
     }
 
+    /// The `[zenoh]` section, or its defaults.
     pub fn zenoh(&self) -> ZenohConfig {
         self.file.zenoh.clone().unwrap_or_default()
     }
@@ -495,6 +520,7 @@ impl Launch {
         axes.chain(calcs).chain(values).collect()
     }
 
+    /// The names of the hosts under `[hosts]`.
     pub fn hosts(&self) -> impl Iterator<Item = &str> {
         self.file.hosts.keys().map(String::as_str)
     }

@@ -106,7 +106,7 @@ impl ZenohConfig {
             ("mode", json(self.mode)),
             ("listen/endpoints", json(&self.listen)),
             ("connect/endpoints", json(&self.connect)),
-            ("scouting/multicast/enabled", json(&self.multicast_scouting)),
+            ("scouting/multicast/enabled", json(self.multicast_scouting)),
         ] {
             config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
         }

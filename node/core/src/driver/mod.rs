@@ -8,6 +8,7 @@ use crate::engine::DeviceStatus;
 use crate::time::Instant;
 use zmotor_msgs::{DriverCommand, Gain};
 
+/// A motor controller axis as the record's device support drives it (spec §15.5).
 pub trait Driver: Send + Sync {
     /// The clock advanced to `now`; a physical model integrates up to it.
     fn advance(&mut self, now: Instant);
@@ -15,14 +16,21 @@ pub trait Driver: Send + Sync {
     fn move_to(&mut self, position: f64, relative: bool, min_velocity: f64, max_velocity: f64, acceleration: f64);
     /// Constant-velocity motion; `velocity` is signed.
     fn move_velocity(&mut self, min_velocity: f64, velocity: f64, acceleration: f64);
+    /// Search for home, forwards or backwards.
     fn home(&mut self, forward: bool, min_velocity: f64, max_velocity: f64, acceleration: f64);
+    /// Decelerate to a stop.
     fn stop(&mut self, acceleration: f64);
     /// Redefine the current position without moving.
     fn set_position(&mut self, position: f64);
+    /// Closed-loop control (the amplifier) on or off.
     fn enable(&mut self, on: bool);
+    /// Encoder counts per motor step (MRES/ERES).
     fn set_encoder_ratio(&mut self, ratio: f64);
+    /// The controller's own high soft limit, steps.
     fn set_high_limit(&mut self, position: f64);
+    /// The controller's own low soft limit, steps.
     fn set_low_limit(&mut self, position: f64);
+    /// A PID gain, 0 to 1.
     fn set_gain(&mut self, gain: Gain, value: f64);
     /// A command primitive (INIT/PREM/POST text).
     fn raw(&mut self, text: &str);

@@ -180,6 +180,7 @@ enum Arrival {
 }
 
 #[derive(Debug)]
+/// A simulated controller axis with its physical carriage (see the module documentation).
 pub struct SimAxis {
     config: SimConfig,
     /// Seconds since the clock's origin.
@@ -210,6 +211,7 @@ pub struct SimAxis {
 }
 
 impl SimAxis {
+    /// A simulator at rest at `config.position`, at time zero.
     pub fn new(config: SimConfig) -> Self {
         Self {
             physical: config.position,
@@ -301,10 +303,12 @@ impl SimAxis {
         self.gains
     }
 
+    /// Where the carriage is, steps.
     pub fn physical_position(&self) -> f64 {
         self.physical
     }
 
+    /// A motion is in progress.
     pub fn is_moving(&self) -> bool {
         !self.profile.is_empty()
     }
@@ -315,6 +319,7 @@ impl SimAxis {
         self.physical = physical;
     }
 
+    /// The physical state, as `sim/<axis>/state` reports it.
     pub fn state(&self) -> SimState {
         SimState {
             position: self.physical,

@@ -13,6 +13,7 @@ pub enum DriveState {
     SoftMove,
     /// The driven motor moves, started by someone else.
     HardMove,
+    /// Nobody moves it.
     Done,
 }
 
@@ -30,6 +31,7 @@ pub enum InputLink {
 }
 
 #[derive(Clone, Debug)]
+/// Soft Channel device support of one axis (see the module documentation).
 pub struct SoftChannel {
     out: String,
     stop_out: String,
@@ -49,6 +51,7 @@ pub enum Reaction {
     ExternalMotion,
     /// Mark an external motion (first readback), then process.
     ExternalMotionThenCallback,
+    /// Nothing to do.
     Nothing,
 }
 
@@ -66,6 +69,7 @@ impl SoftChannel {
         }
     }
 
+    /// The status the record reads: the raw position and, from DINP, whether it is done.
     pub fn status(&self) -> DeviceStatus {
         let done = !self.has_done_input || self.state == DriveState::Done;
         DeviceStatus { position: self.raw_position, msta: if done { msta::DONE } else { 0 }, ..DeviceStatus::default() }

@@ -104,10 +104,12 @@ impl MotorRecord {
         self.post(Field::PP);
     }
 
+    /// Every field's current value.
     pub fn fields(&self) -> &Fields {
         &self.f
     }
 
+    /// One field's current value.
     pub fn get(&self, field: Field) -> Value {
         self.f.get(field)
     }
