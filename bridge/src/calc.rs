@@ -11,11 +11,13 @@ use std::f64::consts::PI;
 /// Number of inputs, A to L.
 pub const INPUTS: usize = 12;
 
+/// Why an expression does not parse, and where.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("column {column}: {message}")]
 pub struct CalcError {
     /// 1-based column of the offending text.
     pub column: usize,
+    /// What is wrong there.
     pub message: String,
 }
 
@@ -395,6 +397,7 @@ fn input_index(word: &str) -> Option<usize> {
 }
 
 impl Expression {
+    /// Parse an expression's text.
     pub fn parse(source: &str) -> Result<Self, CalcError> {
         let tokens = lex(source)?;
         if tokens.is_empty() {
@@ -424,6 +427,7 @@ impl Expression {
         Ok(Self { statements, source: source.to_string() })
     }
 
+    /// The text the expression was parsed from.
     pub fn source(&self) -> &str {
         &self.source
     }

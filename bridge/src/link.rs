@@ -16,37 +16,61 @@ pub enum InputMode {
 /// When the result is written to the output key (calcout OOPT).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum OutputOption {
+    /// Write the result on every recomputation (OOPT "Every Time").
     EveryTime,
+    /// Write the result only when it differs from the previous one (OOPT "On Change").
     OnChange,
 }
 
+/// One input of a calc link: which letter, bound to which key, and how it reacts.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputSpec {
     /// 0 for A … 11 for L.
     pub index: usize,
+    /// The key whose values feed the input.
     pub key: String,
+    /// Whether an update recomputes (CP) or is only held (NPP).
     pub mode: InputMode,
 }
 
 /// A calc link as configured.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CalcLinkSpec {
+    /// The link's name, used in messages (the record name for an imported calcout).
     pub name: String,
+    /// The calc expression (CALC).
     pub expression: String,
+    /// The inputs bound to keys.
     pub inputs: Vec<InputSpec>,
     /// Values of inputs before any update (EPICS fields A–L given in the database), by index.
     pub constants: Vec<(usize, f64)>,
     /// Where the result is written.
     pub output: String,
+    /// When the result is written (OOPT).
     pub option: OutputOption,
 }
 
+/// Why a calc link's configuration was refused.
 #[derive(Debug, PartialEq, thiserror::Error)]
 pub enum LinkError {
+    /// The expression does not parse.
     #[error("calc '{name}': expression '{expression}': {error}")]
-    Expression { name: String, expression: String, error: CalcError },
+    Expression {
+        /// The link's name.
+        name: String,
+        /// The expression's text.
+        expression: String,
+        /// Where and why it does not parse.
+        error: CalcError,
+    },
+    /// Two bindings of the same input letter.
     #[error("calc '{name}': input {input} is bound twice")]
-    DuplicateInput { name: String, input: char },
+    DuplicateInput {
+        /// The link's name.
+        name: String,
+        /// The input's letter (A–L).
+        input: char,
+    },
 }
 
 /// The running state of one calc link.
@@ -59,6 +83,7 @@ pub struct CalcLink {
 }
 
 impl CalcLink {
+    /// A link from its configuration: the expression parsed, the constants loaded.
     pub fn new(spec: CalcLinkSpec) -> Result<Self, LinkError> {
         let expression = Expression::parse(&spec.expression).map_err(|error| LinkError::Expression {
             name: spec.name.clone(),
@@ -79,6 +104,7 @@ impl CalcLink {
         Ok(Self { spec, expression, values, last_output: None })
     }
 
+    /// The configuration the link was built from.
     pub fn spec(&self) -> &CalcLinkSpec {
         &self.spec
     }
@@ -107,6 +133,7 @@ impl CalcLink {
     }
 }
 
+/// Letter of an input index (0 is A).
 pub fn input_name(index: usize) -> char {
     (b'A' + index as u8) as char
 }

@@ -15,6 +15,8 @@ pub const BRIDGE_PREFIX: &str = "bridge";
 pub const ERR_KEY: &str = "ERR";
 /// Key suffix of the driver-command trace.
 pub const DRIVER_CMD_KEY: &str = "@driver/cmd";
+/// Selector parameter of a put-with-completion (`<prefix>/<axis>/<FIELD>?wait`).
+pub const WAIT_PARAMETER: &str = "wait";
 
 /// Builds and parses the keys of one deployment (one prefix).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -69,11 +71,6 @@ impl KeyLayout {
         format!("{}/**", self.prefix)
     }
 
-    /// `<prefix>/*`: liveliness of every axis.
-    pub fn all_axes(&self) -> String {
-        format!("{}/*", self.prefix)
-    }
-
     /// `<prefix>/<axis>/ERR`: where refused fire-and-forget writes are reported as text.
     pub fn err(&self, axis: &str) -> String {
         format!("{}/{axis}/{ERR_KEY}", self.prefix)
@@ -82,6 +79,23 @@ impl KeyLayout {
     /// `<prefix>/<axis>/@driver/cmd`: the axis's driver-command trace.
     pub fn driver_cmd(&self, axis: &str) -> String {
         format!("{}/{axis}/{DRIVER_CMD_KEY}", self.prefix)
+    }
+
+    /// `<prefix>/<axis>/<pattern>`: the fields a pattern such as `D*` names (a `*` inside a
+    /// chunk is spelt `$*` in a key expression; `*` and `**` stay as they are).
+    pub fn field_pattern(&self, axis: &str, pattern: &str) -> String {
+        let pattern = if pattern == "*" || pattern == "**" { pattern.to_string() } else { pattern.replace('*', "$*") };
+        format!("{}/{axis}/{pattern}", self.prefix)
+    }
+
+    /// `<prefix>/<axis>/<FIELD>?wait`: the selector of a put-with-completion.
+    pub fn completion(&self, axis: &str, field: Field) -> String {
+        format!("{}?{WAIT_PARAMETER}", self.field(axis, field))
+    }
+
+    /// The axis chunk of a key under this prefix (`m1` in `motor/m1/VAL`); it may be a wildcard.
+    pub fn axis_chunk<'k>(&self, key: &'k str) -> Option<&'k str> {
+        key.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?.split('/').next()
     }
 
     /// The field name part of `<prefix>/<axis>/<FIELD>` for this axis, if the key has that shape.
@@ -95,6 +109,11 @@ impl KeyLayout {
 /// `sim/<axis>/<name>`
 pub fn sim_key(axis: &str, name: &str) -> String {
     format!("{SIM_PREFIX}/{axis}/{name}")
+}
+
+/// The axis chunk of a simulator key (`m1` in `sim/m1/position`); it may be a wildcard.
+pub fn sim_axis_chunk(key: &str) -> Option<&str> {
+    key.strip_prefix(SIM_PREFIX)?.strip_prefix('/')?.split('/').next()
 }
 
 /// Why a link's text is not a plain key (one key, no wildcards), as every link must be.
@@ -169,6 +188,14 @@ mod tests {
         assert_eq!(k.driver_cmd("m1"), "motor/m1/@driver/cmd");
         assert_eq!(KeyLayout::new("lab/motor/").field("x", Field::DMOV), "lab/motor/x/DMOV");
         assert_eq!(sim_key("m1", "position"), "sim/m1/position");
+        assert_eq!(k.field_pattern("m1", "D*"), "motor/m1/D$*");
+        assert_eq!(k.field_pattern("m1", "**"), "motor/m1/**");
+        assert_eq!(k.completion("m1", Field::VAL), "motor/m1/VAL?wait");
+        assert_eq!(
+            (k.axis_chunk("motor/m1/VAL"), k.axis_chunk("motor/*/VAL"), k.axis_chunk("sim/m1/x")),
+            (Some("m1"), Some("*"), None)
+        );
+        assert_eq!(sim_axis_chunk("sim/m1/position"), Some("m1"));
     }
 
     #[test]

@@ -19,12 +19,15 @@ pub struct StateMarker {
 }
 
 impl StateMarker {
+    /// The `kind` every marker carries.
     pub const KIND: &'static str = "state";
 
+    /// The marker of publication `seq`, with the axis's alarm status and severity at that moment.
     pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
         Self { kind: Self::KIND.to_string(), seq, stat, sevr }
     }
 
+    /// The marker as CBOR, the bytes of the attachment.
     pub fn encode(&self) -> Vec<u8> {
         crate::codec::encode_cbor(self)
     }
@@ -47,8 +50,11 @@ impl StateMarker {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum Gain {
+    /// Proportional gain (PCOF).
     Proportional,
+    /// Integral gain (ICOF).
     Integral,
+    /// Derivative gain (DCOF).
     Derivative,
 }
 
@@ -59,53 +65,79 @@ pub enum Gain {
 pub enum DriverCommand {
     /// Absolute target, or distance when `relative`.
     Move {
+        /// Target position, or distance when `relative`, in steps.
         position: f64,
+        /// Whether `position` is a distance from the current position.
         relative: bool,
+        /// Base velocity (VBAS), steps/s.
         min_velocity: f64,
+        /// Slew velocity, steps/s.
         max_velocity: f64,
+        /// Acceleration, steps/s².
         acceleration: f64,
     },
     /// Constant-velocity motion (jog); `max_velocity` is signed.
     MoveVelocity {
+        /// Base velocity (VBAS), steps/s.
         min_velocity: f64,
+        /// Jog velocity, steps/s; its sign is the direction.
         max_velocity: f64,
+        /// Acceleration, steps/s².
         acceleration: f64,
     },
+    /// Home search (HOMF/HOMR).
     Home {
+        /// Search in the raw positive direction; else the raw negative one.
         forward: bool,
+        /// Base velocity (VBAS), steps/s.
         min_velocity: f64,
+        /// Home velocity, steps/s.
         max_velocity: f64,
+        /// Acceleration, steps/s².
         acceleration: f64,
     },
+    /// Stop the motion.
     Stop {
+        /// Deceleration, steps/s².
         acceleration: f64,
     },
     /// Redefine the current position without moving.
     SetPosition {
+        /// The new position, steps.
         position: f64,
     },
     /// Amplifier / closed loop on or off.
     Enable {
+        /// True to enable, false to disable (CNEN).
         on: bool,
     },
     /// Encoder counts per motor step ratio (MRES/ERES).
     SetEncoderRatio {
+        /// Encoder counts per motor step.
         ratio: f64,
     },
+    /// Set the controller's high travel limit (from DHLM; RHLM).
     SetHighLimit {
+        /// The limit, steps.
         position: f64,
     },
+    /// Set the controller's low travel limit (from DLLM; RLLM).
     SetLowLimit {
+        /// The limit, steps.
         position: f64,
     },
+    /// Set one PID gain of closed-loop control.
     SetGain {
+        /// Which gain.
         gain: Gain,
+        /// The gain's value (PCOF, ICOF or DCOF).
         value: f64,
     },
     /// Request a fresh status report (the record's GET_INFO).
     Poll,
     /// A command primitive (INIT/PREM/POST text).
     Raw {
+        /// The command text, passed to the driver as is.
         text: String,
     },
 }
@@ -113,10 +145,12 @@ pub enum DriverCommand {
 /// A traced driver command with the engine's clock and a sequence number.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct DriverTrace {
+    /// The command sent.
     #[serde(flatten)]
     pub command: DriverCommand,
     /// Seconds on the engine's clock.
     pub t: f64,
+    /// Per-axis sequence number, shared with the state markers' `seq`.
     pub seq: u64,
 }
 
@@ -159,10 +193,15 @@ pub struct SimState {
     pub encoder: Option<f64>,
     /// Signed velocity, steps/s.
     pub velocity: f64,
+    /// Whether the stage is moving.
     pub moving: bool,
+    /// The high (raw positive) limit switch is active.
     pub high_limit: bool,
+    /// The low (raw negative) limit switch is active.
     pub low_limit: bool,
+    /// The home switch is active.
     pub at_home: bool,
+    /// A home search has completed (reported as MSTA `RA_HOMED`).
     pub homed: bool,
 }
 

@@ -40,13 +40,18 @@ pub fn fast_axis(name: &str) -> AxisPlan {
 
 /// A running node and the endpoint clients connect to.
 pub struct TestNode {
+    /// The node serving the axes; an `Option` so a test can take it to shut it down.
     pub node: Option<Node>,
+    /// The node's own Zenoh session, listening on `endpoint`.
     pub session: Session,
+    /// The 127.0.0.1 endpoint the node listens on, for clients to connect to.
     pub endpoint: String,
+    /// The node's key layout.
     pub layout: KeyLayout,
 }
 
 impl TestNode {
+    /// Start a node serving `plans`, with no calc links or value holders, on a free port.
     pub async fn start(plans: Vec<AxisPlan>) -> Self {
         let endpoint = free_local_endpoint().unwrap();
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..ZenohConfig::default() };
@@ -75,6 +80,7 @@ impl TestNode {
         zenoh::open(ZenohConfig::client(&self.endpoint).zenoh().unwrap()).await.unwrap()
     }
 
+    /// The key of one field of an axis of this node.
     pub fn key(&self, axis: &str, field: Field) -> String {
         self.layout.field(axis, field)
     }
@@ -108,6 +114,7 @@ pub async fn get_value(session: &Session, key: &str) -> Value {
     decode_cbor_value(&reply.result().expect("a value").payload().to_bytes()).unwrap()
 }
 
+/// Read one numeric field with a get, as f64.
 pub async fn get_f64(session: &Session, key: &str) -> f64 {
     get_value(session, key).await.as_f64().expect("a number")
 }
@@ -115,8 +122,11 @@ pub async fn get_f64(session: &Session, key: &str) -> f64 {
 /// One publication seen by a `Recorder`.
 #[derive(Clone, Debug)]
 pub struct Seen {
+    /// The key it was published on.
     pub key: String,
+    /// The published value (CBOR decoded; other encodings as text).
     pub value: Value,
+    /// The state marker attached to it.
     pub marker: StateMarker,
 }
 
@@ -124,11 +134,14 @@ pub struct Seen {
 /// the state marker (clients' writes) are only counted.
 pub struct Recorder {
     subscriber: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<zenoh::sample::Sample>>,
+    /// Every state publication recorded so far, in arrival order.
     pub seen: Vec<Seen>,
+    /// Number of samples received without a state marker (writes, not state).
     pub unmarked: usize,
 }
 
 impl Recorder {
+    /// Subscribe to `key_expr` and give the subscription time to reach the node.
     pub async fn new(session: &Session, key_expr: &str) -> Self {
         let subscriber = session.declare_subscriber(key_expr.to_string()).await.unwrap();
         // Let the subscription reach the node before anything is written.
@@ -186,6 +199,7 @@ impl Recorder {
     }
 }
 
+/// `Value::Int(v)`, for short expectations.
 pub fn int(v: i64) -> Value {
     Value::Int(v)
 }

@@ -432,7 +432,10 @@ async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<P
     }
     let received = std::sync::Arc::new(Received::default());
     let counter = received.clone();
-    let _all = session.declare_subscriber("motor/**").callback(move |sample| counter.count(&sample)).await?;
+    let _all = session
+        .declare_subscriber(KeyLayout::default().everything())
+        .callback(move |sample| counter.count(&sample))
+        .await?;
     tokio::time::sleep(Duration::from_millis(200)).await;
     let settling = Instant::now();
     let commander = match load {

@@ -297,11 +297,9 @@ async fn connect(endpoint: &str) -> Result<zenoh::Session, Error> {
     zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await
 }
 
-/// The catalogue's name of a field a user typed, in any case.
-fn field_name(name: &str) -> Result<&'static str, Error> {
-    Field::from_name_any_case(name)
-        .map(Field::name)
-        .ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
+/// The field a user typed, in any case.
+fn field_named(name: &str) -> Result<Field, Error> {
+    Field::from_name_any_case(name).ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
 }
 
 /// Print lines until the reader goes away (e.g. `| head`).
@@ -331,12 +329,8 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     let layout = KeyLayout::new(&client.prefix);
     // One field by name, or a pattern such as D* or the whole axis.
     let (key, single) = match field {
-        // Zenoh spells a wildcard inside a chunk `$*`.
-        Some(f) if f.contains('*') => {
-            let pattern = if f == "*" || f == "**" { f.to_string() } else { f.replace('*', "$*") };
-            (format!("{}/{axis}/{pattern}", layout.prefix()), false)
-        }
-        Some(f) => (format!("{}/{axis}/{}", layout.prefix(), field_name(f)?), true),
+        Some(pattern) if pattern.contains('*') => (layout.field_pattern(axis, pattern), false),
+        Some(name) => (layout.field(axis, field_named(name)?), true),
         None => (layout.axis_all(axis), false),
     };
     let replies = session.get(&key).timeout(Duration::from_secs(5)).await?;
@@ -371,8 +365,9 @@ async fn put(
 ) -> Result<ExitCode, Error> {
     let session = connect(&client.connect).await?;
     let layout = KeyLayout::new(&client.prefix);
-    let key = format!("{}/{axis}/{}", layout.prefix(), field_name(field)?);
-    let selector = if wait { format!("{key}?wait") } else { key.clone() };
+    let field = field_named(field)?;
+    let key = layout.field(axis, field);
+    let selector = if wait { layout.completion(axis, field) } else { key.clone() };
     let replies = session
         .get(&selector)
         .payload(value.to_string())
@@ -397,8 +392,8 @@ async fn put(
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
     let session = connect(&client.connect).await?;
     let layout = KeyLayout::new(&client.prefix);
-    let wanted: Vec<&str> = fields.iter().map(|f| field_name(f)).collect::<Result<_, _>>()?;
-    let subscriber = session.declare_subscriber(format!("{}/{axis}/*", layout.prefix())).await?;
+    let wanted: Vec<&str> = fields.iter().map(|f| field_named(f).map(Field::name)).collect::<Result<_, _>>()?;
+    let subscriber = session.declare_subscriber(layout.axis_fields(axis)).await?;
     loop {
         tokio::select! {
             sample = subscriber.recv_async() => {

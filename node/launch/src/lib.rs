@@ -288,7 +288,6 @@ impl TryFrom<WrittenCalcInput> for CalcInput {
     }
 }
 
-
 /// A value holder, like an EPICS ao/ai record that only holds a value: it keeps the latest
 /// number written to its key and answers reads of it.
 #[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]

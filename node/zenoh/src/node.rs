@@ -224,66 +224,83 @@ struct Router {
 impl Router {
     async fn declare(session: &Session, layout: &KeyLayout, routes: Routes) -> Result<Self, zenoh::Error> {
         let routes = Arc::new(routes);
-        let prefix = format!("{}/", layout.prefix());
-        let sim_prefix = format!("{}/", keys::SIM_PREFIX);
-        let (r1, p1) = (routes.clone(), prefix.clone());
-        let (r2, p2) = (routes.clone(), prefix);
-        let (r3, p3) = (routes.clone(), sim_prefix.clone());
-        let (r4, p4) = (routes, sim_prefix);
+        let fields = Space::Fields(layout.clone());
+        let (r1, s1) = (routes.clone(), fields.clone());
+        let (r2, s2) = (routes.clone(), fields);
+        let (r3, r4) = (routes.clone(), routes);
         Ok(Self {
             _writes: session
                 .declare_subscriber(layout.every_field())
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r1, &p1, sample, AxisInput::Write);
+                        route_sample(&r1, &s1, sample, AxisInput::Write);
                     }
                 })
                 .await?,
             _queries: session
                 .declare_queryable(layout.everything())
-                .callback(move |q| route_query(&r2, &p2, q, AxisInput::Query))
+                .callback(move |q| route_query(&r2, &s2, q, AxisInput::Query))
                 .await?,
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r3, &p3, sample, AxisInput::SimWrite);
+                        route_sample(&r3, &Space::Sim, sample, AxisInput::SimWrite);
                     }
                 })
                 .await?,
             _sim_queries: session
                 .declare_queryable(keys::sim_key("*", "**"))
-                .callback(move |q| route_query(&r4, &p4, q, AxisInput::SimQuery))
+                .callback(move |q| route_query(&r4, &Space::Sim, q, AxisInput::SimQuery))
                 .await?,
         })
     }
 }
 
-/// `<prefix><axis>/...` goes to that axis, if it is one of ours.
-fn route_sample(routes: &Routes, prefix: &str, sample: Sample, wrap: fn(Sample) -> AxisInput) {
-    let axis = sample.key_expr().as_str().strip_prefix(prefix).and_then(|rest| rest.split('/').next());
-    if let Some(handle) = axis.and_then(|axis| routes.get(axis)) {
+/// The keys a router serves: the axes' fields under a prefix, or the simulator's.
+#[derive(Clone)]
+enum Space {
+    Fields(KeyLayout),
+    Sim,
+}
+
+impl Space {
+    /// The axis chunk of a key in this space.
+    fn axis_chunk<'k>(&self, key: &'k str) -> Option<&'k str> {
+        match self {
+            Space::Fields(layout) => layout.axis_chunk(key),
+            Space::Sim => keys::sim_axis_chunk(key),
+        }
+    }
+
+    /// Every key of one axis in this space.
+    fn everything_of(&self, axis: &str) -> String {
+        match self {
+            Space::Fields(layout) => layout.axis_all(axis),
+            Space::Sim => keys::sim_key(axis, "**"),
+        }
+    }
+}
+
+/// A sample goes to the axis its key names, if it is one of ours.
+fn route_sample(routes: &Routes, space: &Space, sample: Sample, wrap: fn(Sample) -> AxisInput) {
+    let handle = space.axis_chunk(sample.key_expr().as_str()).and_then(|axis| routes.get(axis));
+    if let Some(handle) = handle {
         handle.deliver(wrap(sample));
     }
 }
 
 /// A query goes to every axis of ours it can concern (one, or all for a wildcard).
-fn route_query(routes: &Routes, prefix: &str, query: Query, wrap: fn(Query) -> AxisInput) {
-    let chunk = query
-        .key_expr()
-        .as_str()
-        .strip_prefix(prefix)
-        .and_then(|rest| rest.split('/').next())
-        .unwrap_or("")
-        .to_string();
+fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> AxisInput) {
+    let chunk = space.axis_chunk(query.key_expr().as_str()).unwrap_or("");
     if !chunk.is_empty() && !chunk.contains(['*', '$']) {
-        if let Some(handle) = routes.get(&chunk) {
+        if let Some(handle) = routes.get(chunk) {
             handle.deliver(wrap(query));
         }
         return;
     }
     for (axis, handle) in routes.iter() {
-        let Ok(all) = KeyExpr::try_from(format!("{prefix}{axis}/**")) else { continue };
+        let Ok(all) = KeyExpr::try_from(space.everything_of(axis)) else { continue };
         if query.key_expr().intersects(&all) {
             handle.deliver(wrap(query.clone()));
         }
@@ -362,7 +379,7 @@ impl AxisCore {
         match (name, query.payload().map(|p| p.to_bytes().into_owned())) {
             (Some(name), Some(payload)) => {
                 let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
-                let wait = query.parameters().contains_key("wait");
+                let wait = query.parameters().contains_key(keys::WAIT_PARAMETER);
                 self.service.write(now, &name, &payload, encoding, wait, query);
             }
             (Some(name), None) if !name.contains('*') => self.service.read(&name, query),
