@@ -307,6 +307,9 @@ impl Axis {
     }
 
     fn tick(&mut self, now: Instant, force_poll: bool) {
+        // Read before advancing: advancing past the end of a motion ends it, and the driver then
+        // no longer announces it.
+        let motion_event_due = self.next_event().is_some_and(|t| now >= t);
         self.advance(now);
         if self.held.as_ref().is_some_and(|h| self.now >= h.due) {
             let held = self.held.take().expect("checked above");
@@ -325,15 +328,14 @@ impl Axis {
             self.record.delay_expired();
             self.pump();
         }
-        let motion_event_due = self.next_event().is_some_and(|t| self.now >= t);
         let poll_due = self.next_poll.is_some_and(|t| self.now >= t);
         // While a PREM delay holds a motion back, status would only look stale "done".
         if self.polled() && self.held.is_none() && (force_poll || poll_due || motion_event_due) {
             let status = self.device_status();
-            // While a motion sequence is open (DMOV 0) every poll is a callback, as a
-            // controller's poller would report: an end of motion that arrived while the record
-            // ignored it (STUP BUSY) is then still seen.
-            if status != self.last_status || force_poll || self.record.fields().dmov == 0 {
+            // While a motion phase is open every poll is a callback, as a controller's poller
+            // would report: an end of motion that arrived while the record ignored it (STUP
+            // BUSY) is then still seen. A request held by SPMG is not a motion: it waits quietly.
+            if status != self.last_status || force_poll || self.record.motion_open() {
                 self.callback(status);
             }
             self.schedule_poll();
@@ -643,7 +645,8 @@ mod tests {
         run(&mut axis, 10.0);
         assert_eq!(axis.fields().dmov, 1);
         // A triangular 1 mm move takes 2·sqrt(1/50) ≈ 0.283 s; DMOV waits DLY more.
-        assert!(axis.now() >= at(0.283 + 0.5), "{:?}", axis.now());
+        let motion = 2.0 * (1.0f64 / 50.0).sqrt();
+        assert!(axis.now() >= at(motion + 0.5 - 1e-9), "{:?}", axis.now());
     }
 
     #[test]

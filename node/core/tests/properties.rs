@@ -1,7 +1,7 @@
 //! Properties of an axis (record + device support + simulator) in virtual time, for any
 //! sequence of writes: no move leg ends beyond the dial soft limits unless it starts beyond
 //! them and heads back; DMOV returns to 1 once the simulator can reach the target; and
-//! VAL = DVAL·dirsign + OFF whenever the axis is idle.
+//! VAL = DVAL·dirsign + OFF, DIFF = DVAL − DRBV, RDIF = NINT(DIFF/MRES) whenever it is idle.
 
 use proptest::prelude::*;
 use std::time::Duration;
@@ -113,10 +113,19 @@ fn check_moves(axis: &mut Axis) -> Result<(), TestCaseError> {
     Ok(())
 }
 
-/// VAL = DVAL·dirsign + OFF whenever the axis is idle.
+/// VAL = DVAL·dirsign + OFF, DIFF = DVAL − DRBV and RDIF = NINT(DIFF/MRES) whenever the axis
+/// is idle: every derived field agrees with its sources, after any refusal too.
 fn check_idle_coordinates(axis: &Axis) -> Result<(), TestCaseError> {
     let f = axis.fields();
     if f.dmov == 1 && f.mip == 0 {
+        let diff = f.dval - f.drbv;
+        prop_assert!(
+            (f.diff - diff).abs() <= 1e-9 * (1.0 + diff.abs()),
+            "idle DIFF {} ≠ DVAL − DRBV = {}",
+            f.diff,
+            diff
+        );
+        prop_assert_eq!(f.rdif, zmotor_core::engine::nint(f.diff / f.mres), "idle RDIF ≠ NINT(DIFF/MRES)");
         let dirsign = if f.dir == 0 { 1.0 } else { -1.0 };
         let expected = f.dval * dirsign + f.off;
         prop_assert!(

@@ -195,6 +195,11 @@ pub struct SimAxis {
     arrival: Arrival,
     last_direction_positive: bool,
     homed: bool,
+    /// The carriage came to rest by a home search and has not moved since.
+    rests_after_home_search: bool,
+    /// Where the current motion ends, exactly: a stepper arrives on a whole count, whatever the
+    /// rounding of the profile's arithmetic. None for a jog or a stop.
+    landing: Option<f64>,
     enabled: bool,
     /// Fraction of each commanded distance actually travelled (inch-worm): the motor stops short.
     fraction: f64,
@@ -225,6 +230,8 @@ impl SimAxis {
             arrival: Arrival::Nothing,
             last_direction_positive: true,
             homed: false,
+            rests_after_home_search: false,
+            landing: None,
             enabled: true,
             fraction: 1.0,
             slip: 0.0,
@@ -317,6 +324,7 @@ impl SimAxis {
     fn teleport(&mut self, physical: f64) {
         self.halt();
         self.physical = physical;
+        self.rests_after_home_search = false;
     }
 
     /// The physical state, as `sim/<axis>/state` reports it.
@@ -346,8 +354,12 @@ impl SimAxis {
         self.config.low_limit_switch.is_some_and(|s| self.physical <= s)
     }
 
+    /// As motorSim reports it: the carriage exactly on the home position. motorSim compares
+    /// positions exactly; a move to the switch lands on it, but its home search ends a rounding
+    /// error away, so the record reads ATHM 0 after a home. This simulator's search lands
+    /// exactly, so the bit stays clear after it until the carriage moves again.
     fn at_home(&self) -> bool {
-        (self.physical - self.config.home_switch).abs() <= 0.5
+        self.physical == self.config.home_switch && !self.rests_after_home_search
     }
 
     /// Commands are lost while the controller cannot be reached.
@@ -362,9 +374,11 @@ impl SimAxis {
 
     /// Plan a trapezoidal motion from the current physical position to `target`.
     fn start_motion(&mut self, target: f64, min_velocity: f64, max_velocity: f64, acceleration: f64, arrival: Arrival) {
+        self.rests_after_home_search = false;
         self.profile.clear();
         self.velocity = 0.0;
         self.arrival = arrival;
+        self.landing = Some(target);
         let distance = (target - self.physical).abs();
         // Below a nanostep there is nothing to travel (and no time would pass doing it).
         if distance < 1e-9 {
@@ -434,6 +448,7 @@ impl SimAxis {
             self.counter_offset = -self.physical;
             self.encoder_offset = -self.physical;
             self.homed = true;
+            self.rests_after_home_search = true;
         }
         self.arrival = Arrival::Nothing;
     }
@@ -441,6 +456,7 @@ impl SimAxis {
     /// Halt at once where the carriage is (a limit switch or a stall).
     fn halt(&mut self) {
         self.pending_slip = 0.0;
+        self.landing = None;
         self.profile.clear();
         self.velocity = 0.0;
         self.arrival = Arrival::Nothing;
@@ -464,7 +480,7 @@ impl Driver for SimAxis {
         let segment = self.profile.iter().find(|s| now < s.end()).or(self.profile.last()).copied();
         if let Some(segment) = segment {
             let (p, v) = segment.at(if ended { f64::INFINITY } else { now });
-            self.physical = p;
+            self.physical = if ended { self.landing.unwrap_or(p) } else { p };
             self.velocity = if ended { 0.0 } else { v };
         }
         let moving_up = self.last_direction_positive;
@@ -537,6 +553,7 @@ impl Driver for SimAxis {
             velocity: self.velocity,
             acceleration: -sign * acceleration,
         }];
+        self.landing = None;
         self.arrival = Arrival::Nothing;
     }
 
@@ -580,7 +597,8 @@ impl Driver for SimAxis {
                 bits |= bit;
             }
         };
-        set(self.last_direction_positive, msta::DIRECTION);
+        // As motorSim: the direction of the current motion, 0 at rest.
+        set(self.velocity > 0.0, msta::DIRECTION);
         set(!self.is_moving(), msta::DONE);
         set(self.at_high_limit(), msta::PLUS_LS);
         set(self.at_low_limit(), msta::MINUS_LS);
@@ -699,7 +717,7 @@ mod tests {
         let st = s.status();
         assert_eq!((st.position, s.physical_position()), (0.0, 120.0));
         assert_ne!(st.msta & msta::HOMED, 0);
-        assert_ne!(st.msta & msta::HOME, 0);
+        assert_eq!(st.msta & msta::HOME, 0, "as motorSim, not at home after a home search");
         set(&mut s, SimSetting::Fraction, 0.5);
         s.move_to(100.0, false, 0.0, 100.0, 0.0);
         s.advance(at(20.0));

@@ -51,6 +51,9 @@ pub struct MotorRecord {
     refusal: Option<String>,
     /// Departure Z9: a move was paused; its target is held and resumed by Go or Move.
     resume_on_go: bool,
+    /// Departure Z17: a new target was accepted while a motion ran; the retry that goes to it
+    /// starts a fresh retry budget.
+    retargeted: bool,
     /// The latest value of the RDBL readback link (None: not readable).
     readback_link: Option<f64>,
     /// The latest value of the DOL desired-output link (None: not readable yet).
@@ -71,6 +74,7 @@ impl MotorRecord {
             pending_status: None,
             refusal: None,
             resume_on_go: false,
+            retargeted: false,
             readback_link: None,
             desired: None,
             status_refresh: true,
@@ -102,6 +106,12 @@ impl MotorRecord {
         self.post(Field::DMOV);
         self.f.pp = 1;
         self.post(Field::PP);
+    }
+
+    /// A motion phase is open: DMOV is 0 and MIP names something under way (not only a request
+    /// held by SPMG).
+    pub fn motion_open(&self) -> bool {
+        self.f.dmov == 0 && self.f.mip & !mip::JOG_REQ != mip::DONE
     }
 
     /// Every field's current value.
@@ -186,16 +196,19 @@ impl MotorRecord {
 
     /// Departure Z12: a target held by SPMG Stop/Pause (or behind a held home) shows in VAL,
     /// DVAL and RVAL alike while it waits; the reference converts only the field written.
-    fn keep_held_target_consistent(&mut self) {
+    /// `dval_before` is DVAL as the processing found it: DVAL is posted once, when it changes.
+    fn keep_held_target_consistent(&mut self, dval_before: f64) {
         if self.f.val != self.f.lval {
             self.f.dval = (self.f.val - self.f.off) / self.dirsign();
         } else if self.f.rval != self.f.lrvl {
             self.f.dval = f64::from(self.f.rval) * self.f.mres;
         }
         let (val, rval) = (self.f.dval * self.dirsign() + self.f.off, nint(self.f.dval / self.f.mres));
-        for (field, changed) in
-            [(Field::VAL, val != self.f.val), (Field::RVAL, rval != self.f.rval), (Field::DVAL, true)]
-        {
+        for (field, changed) in [
+            (Field::VAL, val != self.f.val),
+            (Field::RVAL, rval != self.f.rval),
+            (Field::DVAL, self.f.dval != dval_before),
+        ] {
             if changed {
                 self.mark(field);
             }

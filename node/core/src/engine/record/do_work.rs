@@ -31,7 +31,10 @@ impl MotorRecord {
                 if self.f.spmg == choice::SPMG_STOP || stop_req {
                     let m = self.f.mip;
                     if m == mip::DONE || m & mip::STOP != 0 || m & mip::RETRY != 0 {
-                        if std::mem::take(&mut self.resume_on_go) {
+                        // Departure Z9/Z14: a STOP drops a target held by SPMG (a paused move's,
+                        // or one written while stopped): the axis stays where it is.
+                        let held = m == mip::DONE && self.f.dval != self.f.ldvl;
+                        if std::mem::take(&mut self.resume_on_go) || held {
                             self.sync_target_position();
                             self.set_mip(mip::DONE);
                             self.f.dmov = 1;
@@ -129,9 +132,17 @@ impl MotorRecord {
         }
 
         // §9.4 VAL → DVAL, and the Set-mode offset redefinition
+        let dval_before = self.f.dval;
         if self.f.val != self.f.lval {
             self.mark(VAL);
             if self.set_mode() && self.f.foff == choice::FOFF_VARIABLE {
+                // Departure Z12: a target held by SPMG is dropped; the calibration is of the dial
+                // position the record stands at.
+                if self.f.dval != self.f.ldvl {
+                    (self.f.dval, self.f.rval) = (self.f.ldvl, self.f.lrvl);
+                    self.mark(DVAL);
+                    self.mark(RVAL);
+                }
                 let dirsign = self.dirsign();
                 self.f.off = self.f.val - self.f.dval * dirsign;
                 self.f.rbv = self.f.drbv * dirsign + self.f.off;
@@ -148,7 +159,18 @@ impl MotorRecord {
         }
         if stop_or_pause {
             if !self.set_mode() {
-                self.keep_held_target_consistent();
+                self.keep_held_target_consistent(dval_before);
+                // Departure Z14: a held target keeps DMOV 0, also when this very processing
+                // ended the motion before it (a relative target written while a jog stopped).
+                if self.f.dval != self.f.ldvl && self.f.dmov == 1 {
+                    self.f.dmov = 0;
+                    if self.marks.contains(DMOV) {
+                        // Set to 1 in this processing and not posted yet: clients still have 0.
+                        self.marks.clear(DMOV);
+                    } else {
+                        self.mark(DMOV);
+                    }
+                }
             } else if self.f.dval != self.f.ldvl && self.f.mip & mip::LOAD_P == 0 {
                 // Departure Z12: a Set-mode calibration moves nothing, so SPMG does not hold it.
                 self.load_pos();
@@ -340,6 +362,7 @@ impl MotorRecord {
                 self.mark(RCNT);
             }
             self.f.rcnt = 0;
+            self.retargeted = false;
         } else {
             let factor = match self.f.rmod {
                 choice::RMOD_ARITHMETIC => {
@@ -402,7 +425,10 @@ impl MotorRecord {
             return;
         }
 
-        if self.f.mip == mip::DONE || self.f.mip == mip::RETRY {
+        if self.f.mip != mip::DONE && self.f.mip != mip::RETRY {
+            // A new target while a motion runs: nothing is sent now (§14.6).
+            self.retargeted |= self.f.dval != self.f.ldvl;
+        } else {
             self.set_mip(self.f.mip | mip::MOVE);
             if self.f.dmov != 0 {
                 self.f.dmov = 0;

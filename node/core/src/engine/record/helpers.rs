@@ -120,6 +120,23 @@ impl MotorRecord {
         }
     }
 
+    /// Departure Z16: at the end of every processing DIFF and RDIF follow DVAL and DRBV, also
+    /// when DVAL was set outside a status callback (a refused move restores it, a sync or a held
+    /// target sets it); the reference leaves them stale until the next callback, which may
+    /// never come at rest.
+    pub(super) fn follow_diff(&mut self) {
+        let diff = self.f.dval - self.f.drbv;
+        if diff != self.f.diff {
+            self.f.diff = diff;
+            self.mark(Field::DIFF);
+        }
+        let rdif = nint(diff / self.f.mres);
+        if rdif != self.f.rdif {
+            self.f.rdif = rdif;
+            self.mark(Field::RDIF);
+        }
+    }
+
     /// §5.8
     pub(super) fn load_pos(&mut self) {
         use Field::*;

@@ -64,8 +64,8 @@ impl MotorRecord {
         for field in [Field::VAL, Field::DVAL, Field::RVAL, Field::DMOV, Field::LVIO, Field::DIFF, Field::RDIF] {
             self.mark(field);
         }
-        let alarm_changed = self.alarm();
-        self.monitor(alarm_changed);
+        let alarm = self.alarm();
+        self.monitor(alarm);
     }
 
     /// §6.3

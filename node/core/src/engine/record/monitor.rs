@@ -2,12 +2,12 @@
 
 use super::MotorRecord;
 use zmotor_msgs::bits::msta;
-use zmotor_msgs::menus::{severity, status};
+use zmotor_msgs::menus::{choice, severity, status};
 use zmotor_msgs::Field;
 
 impl MotorRecord {
-    /// Compute STAT/SEVR; true if either changed.
-    pub(super) fn alarm(&mut self) -> bool {
+    /// Compute STAT/SEVR; says which changed.
+    pub(super) fn alarm(&mut self) -> AlarmChange {
         let f = &self.f;
         let (mut nsta, mut nsev) = (status::NO_ALARM, severity::NO_ALARM);
         let limits_on = !(f.dhlm == 0.0 && f.dllm == 0.0);
@@ -32,14 +32,23 @@ impl MotorRecord {
             self.f.msta &= !msta::COMM_ERR;
             self.mark(Field::MSTA);
         }
-        let changed = nsta != self.f.stat || nsev != self.f.sevr;
+        let change = AlarmChange { status: nsta != self.f.stat, severity: nsev != self.f.sevr };
         self.f.stat = nsta;
         self.f.sevr = nsev;
-        changed
+        change
     }
 
-    pub(super) fn monitor(&mut self, alarm_changed: bool) {
+    /// §13, in the record's order: SEVR and STAT when they changed (as recGblResetAlarms posts
+    /// them), RBV, the readback group, then the marked fields of `POSTED_IF_MARKED`.
+    pub(super) fn monitor(&mut self, alarm: AlarmChange) {
         use Field::*;
+        if alarm.severity {
+            self.post(SEVR);
+        }
+        let alarm_changed = alarm.status || alarm.severity;
+        if alarm_changed {
+            self.post(STAT);
+        }
         let rbv_marked = self.marks.contains(RBV);
         self.marks.clear(RBV);
         let rbv = self.f.rbv;
@@ -74,17 +83,44 @@ impl MotorRecord {
                 }
             }
         }
-        if alarm_changed {
-            self.post(STAT);
-            self.post(SEVR);
-        }
         self.flush_posts();
     }
 
-    /// Post every field still marked, then clear the marks.
+    /// Post every field still marked, in the record's order, then clear the marks.
     pub(super) fn flush_posts(&mut self) {
+        let raw_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
+        for field in POSTED_IF_MARKED {
+            if !self.marks.contains(field) {
+                continue;
+            }
+            self.marks.clear(field);
+            self.post(field);
+            // The raw switch is posted with the user switch it feeds.
+            match (field, raw_sense) {
+                (Field::HLS, true) | (Field::LLS, false) => self.post(Field::RHLS),
+                (Field::HLS, false) | (Field::LLS, true) => self.post(Field::RLLS),
+                _ => {}
+            }
+        }
+        // Every field the engine marks is in the list; anything else is still posted, last.
         for field in self.marks.take() {
             self.post(field);
         }
     }
 }
+
+/// Which of STAT and SEVR an `alarm` evaluation changed.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct AlarmChange {
+    pub(super) status: bool,
+    pub(super) severity: bool,
+}
+
+/// The fields §13 posts when marked, after the readback group, in the record's order.
+const POSTED_IF_MARKED: [Field; 36] = {
+    use Field::*;
+    [
+        VAL, DVAL, RVAL, TDIR, MIP, HLM, LLM, SPMG, RCNT, RLV, OFF, DHLM, DLLM, HLS, LLS, ATHM, MRES, ERES, UEIP, LVIO,
+        STOP, SBAS, SREV, UREV, VELO, VBAS, MISS, MOVN, DMOV, STUP, JOGF, JOGR, HOMF, HOMR, RHLM, RLLM,
+    ]
+};

@@ -28,8 +28,9 @@ impl MotorRecord {
             self.f.stup = choice::STUP_OFF;
             self.mark(Field::STUP);
         }
-        let alarm_changed = self.alarm();
-        self.monitor(alarm_changed);
+        self.follow_diff();
+        let alarm = self.alarm();
+        self.monitor(alarm);
         if self.f.dmov != 0 {
             self.outputs.push(Output::Done);
         }

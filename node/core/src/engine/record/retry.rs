@@ -14,6 +14,12 @@ impl MotorRecord {
             if self.f.rtry == 0 {
                 self.f.mip &= mip::JOG_REQ;
             } else {
+                // Departure Z17: a target accepted during the motion gets the whole budget; the
+                // reference counts each re-target as a retry, so a stream of setpoints ends off
+                // its last one with MISS 1.
+                if std::mem::take(&mut self.retargeted) && self.f.rcnt != 0 {
+                    self.f.rcnt = 0;
+                }
                 self.f.rcnt += 1;
                 if self.f.rcnt > self.f.rtry {
                     self.f.mip = mip::DONE;
@@ -33,6 +39,7 @@ impl MotorRecord {
                 self.mark(Field::RCNT);
             }
         } else {
+            self.retargeted = false;
             self.f.mip &= mip::JOG_REQ;
             if self.f.miss != 0 {
                 self.f.miss = 0;

@@ -272,3 +272,60 @@ fn z15_writing_0_to_a_home_button_is_an_error() {
     assert_eq!(err.to_string(), "HOMR refused: writing 0 does not abort a home; write STOP 1");
     assert!(rig.take().is_empty(), "no processing");
 }
+
+#[test]
+fn z16_a_refused_move_leaves_diff_and_rdif_at_the_restored_target() {
+    let mut rig = Rig::boot(Fields { dhlm: 100.0, dllm: -100.0, ..baseline_b() }, 0.0);
+    rig.put(Field::SPMG, 1.0).unwrap();
+    rig.put(Field::VAL, 500.0).unwrap();
+    assert_eq!((rig.f().val, rig.f().dval), (500.0, 500.0), "held while paused");
+    let err = rig.put(Field::SPMG, 3.0).unwrap_err();
+    assert!(err.to_string().starts_with("limit violation"), "{err}");
+    let f = rig.f();
+    assert_eq!((f.val, f.dval, f.drbv, f.dmov), (0.0, 0.0, 0.0, 1));
+    // The reference leaves DIFF 500 and RDIF 50000 here.
+    assert_eq!((f.diff, f.rdif), (0.0, 0));
+    assert_eq!(rig.posted(Field::DIFF).last(), Some(&Value::Float(0.0)));
+}
+
+#[test]
+fn z17_a_stream_of_new_targets_ends_at_the_last_one() {
+    // RTRY 3: the reference would run out after three re-targets and end with MISS 1.
+    let mut rig = Rig::boot(Fields { rtry: 3, rdbd: 0.05, ..baseline_b() }, 0.0);
+    rig.put(Field::VAL, 5.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0));
+    let mut position = 0.0;
+    for target in [1.0, 2.0, 1.5, 0.5, 1.0, 0.8] {
+        // A new target behind the moving motor: NTM stops it, the stop ends, the new target is
+        // approached as a retry.
+        position += 20.0;
+        rig.cb_moving(position);
+        rig.put(Field::VAL, target).unwrap();
+        rig.cb_moving(position + 1.0);
+        rig.cb(position + 2.0);
+        let sent = rig.take();
+        let Some(MoveAbs(raw)) = sent.iter().find(|c| matches!(c, MoveAbs(_))) else { panic!("{sent:?}") };
+        assert_eq!(*raw, target * 100.0, "each new target is moved to");
+        assert_eq!((rig.f().rcnt, rig.f().miss, rig.f().mip), (1, 0, mip::RETRY | mip::MOVE));
+        position = *raw - 5.0;
+        rig.cb_moving(position);
+    }
+    rig.cb(80.0);
+    let f = rig.f();
+    assert_eq!((f.dmov, f.miss, f.rbv, f.val), (1, 0, 0.8, 0.8));
+}
+
+#[test]
+fn z9_a_stop_drops_a_target_held_by_spmg() {
+    let mut rig = Rig::boot(baseline_b(), 0.0);
+    rig.put(Field::SPMG, 0.0).unwrap();
+    rig.put(Field::VAL, 2.0).unwrap();
+    assert_eq!((rig.f().dval, rig.f().dmov), (2.0, 0), "held");
+    rig.put(Field::STOP, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+    let f = rig.f();
+    assert_eq!((f.val, f.dval, f.diff, f.dmov), (0.0, 0.0, 0.0, 1));
+    // Go later does not run the dropped target.
+    rig.put(Field::SPMG, 3.0).unwrap();
+    assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))));
+}
