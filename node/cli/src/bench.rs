@@ -7,6 +7,7 @@ use crate::Error;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 use zenoh::bytes::Encoding;
+use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 use zmotor_core::axis::{AxisEvent, AxisPlan, DriverPlan, PollRates};
 use zmotor_core::driver::sim::SimConfig;
@@ -37,7 +38,7 @@ impl BenchOptions {
         Self {
             moves: 2000,
             scales: vec![1, 100, 1000, 10_000],
-            startup_axes: 1000,
+            startup_axes: 10_000,
             window: 3.0,
             moving_up_to: 2000,
             epics_load_axes: 1000,
@@ -56,8 +57,9 @@ const PONG: &str = "bench/pong";
 /// What a `zmotor bench-serve` process runs besides its ping echo.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub(crate) enum Serve {
-    /// Simulated axes that finish every move at once (the latency figures).
-    Instant,
+    /// Axes as the demo configures them (launch/sim-axis.toml: the physical simulator, 10 mm/s,
+    /// 0.2 s ramps, readback 10 Hz): the latency and start-up figures.
+    Demo,
     /// Simulated axes whose moves take real time, readback at 100 Hz (the scale figures).
     Moving,
     /// No axes: Zenoh alone publishing what as many moving axes publish, at the same rate.
@@ -69,21 +71,19 @@ pub(crate) enum Serve {
 pub(crate) async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: f64) -> Result<(), Error> {
     let config = ZenohConfig { listen: vec![listen.into()], ..ZenohConfig::default() };
     let session = zenoh::open(config.zenoh()?).await?;
-    let echo_session = session.clone();
+    // Zenoh's floor, measured as its own z_pong does: the echo is published from inside the
+    // subscriber callback through a declared publisher, no task spawned per sample.
+    let pong = session.declare_publisher(PONG).congestion_control(CongestionControl::Block).await?;
     let _echo = session
         .declare_subscriber(PING)
         .callback(move |sample| {
-            let session = echo_session.clone();
-            let payload = sample.payload().clone();
-            tokio::spawn(async move {
-                let _ = session.put(PONG, payload).await;
-            });
+            let _ = pong.put(sample.payload().clone()).wait();
         })
         .await?;
     let node = match serve {
         Serve::Zenoh => None,
-        Serve::Instant | Serve::Moving => {
-            let plans = bench_axes(axes, serve == Serve::Instant, readback_hz);
+        Serve::Demo | Serve::Moving => {
+            let plans = if serve == Serve::Demo { demo_axes(axes) } else { bench_axes(axes, readback_hz) };
             Some(Node::start(session.clone(), KeyLayout::default(), plans, vec![], vec![], None).await?)
         }
     };
@@ -101,7 +101,7 @@ pub(crate) async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: 
 /// the engine says: a bench axis half a second into a long move, at its next poll.
 fn fields_posted_per_poll() -> Vec<Field> {
     let start = zmotor_core::Instant::ZERO;
-    let mut axis = bench_axes(1, false, Load::LongMoves.readback_hz()).remove(0).build(start);
+    let mut axis = bench_axes(1, Load::LongMoves.readback_hz()).remove(0).build(start);
     axis.write(start, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
     while axis.now() < start + Duration::from_millis(500) {
         axis.drain_events().count();
@@ -144,16 +144,50 @@ fn bench_key(i: usize, field: Field) -> String {
     KeyLayout::default().field(&bench_axis(i), field)
 }
 
-/// `n` simulated axes named b0, b1, …; `instant` ones finish every move at once.
-fn bench_axes(n: usize, instant: bool, rate: f64) -> Vec<AxisPlan> {
+/// `n` simulated axes named b0, b1, …, polled `rate` times a second while moving.
+fn bench_axes(n: usize, rate: f64) -> Vec<AxisPlan> {
     (0..n)
         .map(|i| AxisPlan {
             name: bench_axis(i),
             fields: Fields { mres: 0.001, velo: 10.0, accl: 0.1, ..Fields::default() },
-            driver: DriverPlan::Sim(SimConfig { instant, ..SimConfig::default() }),
+            driver: DriverPlan::Sim(SimConfig::default()),
             rates: PollRates { moving: Duration::from_secs_f64(1.0 / rate), idle: Duration::from_secs(1) },
         })
         .collect()
+}
+
+/// The demo's launch file, as a user starts it.
+const DEMO: &str = include_str!("../../../launch/sim-axis.toml");
+
+/// `n` copies of the demo's axis (launch/sim-axis.toml, as shipped), named b0, b1, ….
+fn demo_axes(n: usize) -> Vec<AxisPlan> {
+    let demo = zmotor_launch::Launch::parse(DEMO).and_then(|launch| launch.deployment(None));
+    let axis = demo.expect("the shipped demo loads (a launch test checks it)").plans.remove(0);
+    (0..n).map(|i| AxisPlan { name: bench_axis(i), ..axis.clone() }).collect()
+}
+
+/// The targets the latency figures alternate between, mm.
+const LATENCY_TARGETS: [f64; 2] = [0.01, 0.02];
+
+/// How long the demo axis's latency move lasts on its simulator, in virtual time: write VAL
+/// from one target to the other, run until DMOV 1.
+fn demo_motion() -> Duration {
+    let start = zmotor_core::Instant::ZERO;
+    let mut axis = demo_axes(1).remove(0).build(start);
+    let at_first = |axis: &mut zmotor_core::axis::Axis| {
+        for _ in 0..100_000 {
+            if !axis.is_busy() {
+                return axis.now();
+            }
+            let t = axis.poll_timeout().expect("a simulated axis is polled");
+            axis.handle_timeout(t);
+        }
+        axis.now()
+    };
+    axis.write(start, Field::VAL, &Value::Float(LATENCY_TARGETS[0])).expect("the demo moves");
+    let from = at_first(&mut axis);
+    axis.write(from, Field::VAL, &Value::Float(LATENCY_TARGETS[1])).expect("the demo moves");
+    at_first(&mut axis) - from
 }
 
 /// A `zmotor bench-serve` child process; killed when dropped.
@@ -233,23 +267,26 @@ pub(crate) struct Latency {
     pub dmov0: Percentiles,
     pub dmov1: Percentiles,
     pub rtt: Percentiles,
+    /// The move's own duration on the simulator.
+    pub motion: Duration,
 }
 
-/// Put VAL and time DMOV 0 and DMOV 1 at the client; then Zenoh's own ping-pong.
+/// Put VAL to the demo's axis and time DMOV 0 and DMOV 1 at the client; between two moves,
+/// Zenoh's own round trip between the same two processes.
 async fn latency(moves: usize) -> Result<Latency, Error> {
     let endpoint = free_local_endpoint()?;
-    let _server = Server::spawn(&endpoint, 1, Serve::Instant, Load::LongMoves.readback_hz())?;
+    let _server = Server::spawn(&endpoint, 1, Serve::Demo, Load::LongMoves.readback_hz())?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     wait_for_axes(&session, 1, Duration::from_secs(20)).await?;
     let dmov = session.declare_subscriber(bench_key(0, Field::DMOV)).await?;
     let pong = session.declare_subscriber(PONG).await?;
     let val = session.declare_publisher(bench_key(0, Field::VAL)).encoding(Encoding::TEXT_PLAIN).await?;
-    let ping = session.declare_publisher(PING).await?;
+    let ping = session.declare_publisher(PING).congestion_control(CongestionControl::Block).await?;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let (mut to_dmov0, mut to_dmov1, mut rtt) = (Vec::new(), Vec::new(), Vec::new());
     // Moves and pings alternate, so both see the same conditions on a shared machine.
     for i in 0..moves + moves / 10 {
-        let target = if i % 2 == 0 { "0.01" } else { "0.02" };
+        let target = LATENCY_TARGETS[i % 2].to_string();
         let start = Instant::now();
         val.put(target).await?;
         let mut zero = None;
@@ -272,15 +309,23 @@ async fn latency(moves: usize) -> Result<Latency, Error> {
             rtt.push(start.elapsed());
         }
     }
-    Ok(Latency { dmov0: Percentiles::of(to_dmov0), dmov1: Percentiles::of(to_dmov1), rtt: Percentiles::of(rtt) })
+    Ok(Latency {
+        dmov0: Percentiles::of(to_dmov0),
+        dmov1: Percentiles::of(to_dmov1),
+        rtt: Percentiles::of(rtt),
+        motion: demo_motion(),
+    })
 }
 
 pub(crate) struct Scale {
     pub axes: usize,
     pub start: Duration,
     pub rss_per_axis_idle_kb: f64,
-    /// The node with every axis moving; None above `BenchOptions::moving_up_to` axes.
+    /// The node with every axis moving, watched by a subscriber of everything; None above
+    /// `BenchOptions::moving_up_to` axes.
     pub moving: Option<Publishing>,
+    /// The same, watched by a subscriber of RBV and DMOV only.
+    pub watching_readback: Option<Publishing>,
     /// Zenoh alone publishing the same samples at the same rate (`Serve::Zenoh`).
     pub zenoh_alone: Option<Publishing>,
 }
@@ -301,6 +346,25 @@ pub(crate) struct Publishing {
     /// the ends of moves (short moves) arrived at 90 % of their rate. None when `SETTLE_LIMIT`
     /// passed first.
     pub settled_after: Option<Duration>,
+}
+
+/// What the subscriber of a publishing measurement watches.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Watch {
+    /// Every key of every axis (`motor/**`): every field change the node publishes.
+    Everything,
+    /// RBV and DMOV of every axis, as a display or a robot stack following positions would.
+    ReadbackAndDone,
+}
+
+impl Watch {
+    fn keys(self) -> Vec<String> {
+        let layout = KeyLayout::default();
+        match self {
+            Watch::Everything => vec![layout.everything()],
+            Watch::ReadbackAndDone => vec![layout.field("*", Field::RBV), layout.field("*", Field::DMOV)],
+        }
+    }
 }
 
 /// How the axes of a publishing measurement move.
@@ -353,7 +417,7 @@ async fn scale(n: usize, window: f64, moving_up_to: usize) -> Result<Scale, Erro
     let node = Node::start(
         session.clone(),
         KeyLayout::default(),
-        bench_axes(n, false, Load::LongMoves.readback_hz()),
+        bench_axes(n, Load::LongMoves.readback_hz()),
         vec![],
         vec![],
         None,
@@ -365,11 +429,13 @@ async fn scale(n: usize, window: f64, moving_up_to: usize) -> Result<Scale, Erro
     node.shutdown().await;
     session.close().await?;
     if n > moving_up_to {
-        return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving: None, zenoh_alone: None });
+        let (moving, watching_readback, zenoh_alone) = (None, None, None);
+        return Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, watching_readback, zenoh_alone });
     }
-    let moving = Some(publishing(n, window, Serve::Moving, Load::LongMoves).await?);
-    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh, Load::LongMoves).await?);
-    Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, zenoh_alone })
+    let moving = Some(publishing(n, window, Serve::Moving, Load::LongMoves, Watch::Everything).await?);
+    let watching_readback = Some(publishing(n, window, Serve::Moving, Load::LongMoves, Watch::ReadbackAndDone).await?);
+    let zenoh_alone = Some(publishing(n, window, Serve::Zenoh, Load::LongMoves, Watch::Everything).await?);
+    Ok(Scale { axes: n, start: started, rss_per_axis_idle_kb, moving, watching_readback, zenoh_alone })
 }
 
 /// Samples a subscriber of `motor/**` received: all of them, RBV alone, DMOV 1 alone.
@@ -422,7 +488,7 @@ async fn command_short_moves(session: Session, n: usize, moves_per_s: f64) -> Re
 /// A server process of `n` axes moving under `load` (or Zenoh alone publishing as much): its
 /// CPU and what one subscriber receives, over `window` seconds once the load has settled (or
 /// `SETTLE_LIMIT` has passed).
-async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<Publishing, Error> {
+async fn publishing(n: usize, window: f64, serve: Serve, load: Load, watch: Watch) -> Result<Publishing, Error> {
     let endpoint = free_local_endpoint()?;
     let server = Server::spawn(&endpoint, n, serve, load.readback_hz())?;
     let pid = server.0.id().to_string();
@@ -431,11 +497,11 @@ async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<P
         wait_for_axes(&session, n, Duration::from_secs(120)).await?;
     }
     let received = std::sync::Arc::new(Received::default());
-    let counter = received.clone();
-    let _all = session
-        .declare_subscriber(KeyLayout::default().everything())
-        .callback(move |sample| counter.count(&sample))
-        .await?;
+    let mut subscribers = Vec::new();
+    for key in watch.keys() {
+        let counter = received.clone();
+        subscribers.push(session.declare_subscriber(key).callback(move |sample| counter.count(&sample)).await?);
+    }
     tokio::time::sleep(Duration::from_millis(200)).await;
     let settling = Instant::now();
     let commander = match load {
@@ -484,14 +550,58 @@ async fn publishing(n: usize, window: f64, serve: Serve, load: Load) -> Result<P
     })
 }
 
-/// From spawning a node process with `n` axes to all of them answering a get.
-async fn startup(n: usize) -> Result<Duration, Error> {
+/// The start-up of a node process with `n` axes, as a client sees it.
+pub(crate) struct Startup {
+    /// From spawning the process to every axis answering a get.
+    answering: Duration,
+    /// From spawning the process to a client seeing every axis's liveliness token.
+    visible: Duration,
+}
+
+async fn startup(n: usize) -> Result<Startup, Error> {
     let endpoint = free_local_endpoint()?;
     let start = Instant::now();
-    let _server = Server::spawn(&endpoint, n, Serve::Instant, Load::LongMoves.readback_hz())?;
+    let _server = Server::spawn(&endpoint, n, Serve::Demo, Load::LongMoves.readback_hz())?;
     let session = client_when_ready(&endpoint, start).await?;
     wait_for_axes(&session, n, Duration::from_secs(120)).await?;
-    Ok(start.elapsed())
+    let answering = start.elapsed();
+    // As a client watching axes appear does: a liveliness subscriber, with the tokens already there.
+    let tokens = session.liveliness().declare_subscriber(KeyLayout::default().axis("*")).history(true).await?;
+    let mut seen = std::collections::HashSet::new();
+    while seen.len() < n {
+        let token = tokio::time::timeout_at((start + Duration::from_secs(120)).into(), tokens.recv_async()).await;
+        let Ok(Ok(token)) = token else {
+            return Err(format!("{} of {n} liveliness tokens after 120 s", seen.len()).into());
+        };
+        if token.kind() == zenoh::sample::SampleKind::Put {
+            seen.insert(token.key_expr().as_str().to_string());
+        }
+    }
+    Ok(Startup { answering, visible: start.elapsed() })
+}
+
+/// Zenoh alone, in this process: how long one session takes to declare `n` liveliness tokens,
+/// and `n` publishers, on keys shaped like the axes'. The floor under the node's start-up and
+/// under the first moves of many axes (a publisher per field posted again and again).
+async fn zenoh_declarations(n: usize) -> Result<(Duration, Duration), Error> {
+    let config = ZenohConfig { listen: vec![free_local_endpoint()?], ..ZenohConfig::default() };
+    let session = zenoh::open(config.zenoh()?).await?;
+    let layout = KeyLayout::default();
+    let start = Instant::now();
+    let mut tokens = Vec::with_capacity(n);
+    for i in 0..n {
+        tokens.push(session.liveliness().declare_token(layout.axis(&bench_axis(i))).await?);
+    }
+    let tokens_took = start.elapsed();
+    let start = Instant::now();
+    let mut publishers = Vec::with_capacity(n);
+    for i in 0..n {
+        publishers.push(session.declare_publisher(bench_key(i, Field::RBV)).await?);
+    }
+    let publishers_took = start.elapsed();
+    drop((tokens, publishers));
+    session.close().await?;
+    Ok((tokens_took, publishers_took))
 }
 
 /// Run every measurement and print the figures.
@@ -500,72 +610,64 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         "zmotor bench: {} moves, scales {:?}, start-up of {} axes",
         options.moves, options.scales, options.startup_axes
     );
-    println!("\n1. command latency (client and node in separate processes, TCP on 127.0.0.1), µs");
+    println!("\n1. command latency: the demo's axis (launch/sim-axis.toml: physical simulator, readback 10 Hz) in");
+    println!("   a node process, a client in this one, TCP on 127.0.0.1; moves of 0.01 mm; µs");
     let l = latency(options.moves).await?;
-    println!("   {:<34} {:>9} {:>9} {:>9}", "", "p50", "p90", "p99");
+    let motion_us = l.motion.as_secs_f64() * 1e6;
+    println!("   {:<44} {:>9} {:>9} {:>9}", "", "p50", "p90", "p99");
     for (name, p) in [
         ("put VAL → DMOV 0 at the client", &l.dmov0),
-        ("put VAL → DMOV 1 (instant sim)", &l.dmov1),
-        ("Zenoh pub/sub round trip", &l.rtt),
+        ("put VAL → DMOV 1 at the client", &l.dmov1),
+        ("Zenoh round trip (z_ping/z_pong style)", &l.rtt),
     ] {
-        println!("   {name:<34} {:>9.1} {:>9.1} {:>9.1}", p.p50, p.p90, p.p99);
+        println!("   {name:<44} {:>9.1} {:>9.1} {:>9.1}", p.p50, p.p90, p.p99);
     }
+    println!("   {:<44} {:>9.1}", "the motion itself (simulator, virtual time)", motion_us);
     println!(
-        "   ratio DMOV 0 / Zenoh RTT (p50): {:.2}; DMOV 1 / RTT: {:.2}",
+        "   DMOV 0 / Zenoh RTT (p50): {:.2};  DMOV 1 − motion − RTT (p50): {:.0} µs",
         l.dmov0.p50 / l.rtt.p50,
-        l.dmov1.p50 / l.rtt.p50
+        l.dmov1.p50 - motion_us - l.rtt.p50
     );
 
     println!("\n2. engine cost per event: measured by criterion, `cargo bench -p zmotor-core --bench engine`");
 
     println!(
-        "\n3. scale: axes in one process; then, up to {} axes, every axis moving, readback at {} Hz, the node",
-        options.moving_up_to,
+        "\n3. scale: N axes in one process (start, memory); then, up to {} axes, every axis moving with",
+        options.moving_up_to
+    );
+    println!(
+        "   readback at {} Hz in a node process of its own, one subscriber in another: of every key (motor/**),",
         Load::LongMoves.readback_hz()
     );
-    println!("   in a process of its own and one subscriber of motor/** in another (settled: from the commands to");
-    println!("   all readbacks flowing); then Zenoh alone publishing the same samples at the same rate (no record)");
-    println!(
-        "   {:>6} {:>9} {:>12} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
-        "axes",
-        "start (s)",
-        "RSS/axis KB",
-        "node CPU",
-        "publications/s",
-        "RBV/axis/s",
-        "settled (s)",
-        "Zenoh CPU",
-        "publications/s"
-    );
+    println!("   then of RBV and DMOV only; then Zenoh alone publishing what the node publishes, no record.");
+    println!("   Settled: from the commands to all readbacks flowing (the CPU window opens then).");
     for &n in &options.scales {
         match scale(n, options.window, options.moving_up_to).await {
             Ok(s) => {
-                let [node_cpu, node_publications, rbv, settled, zenoh_cpu, zenoh_publications] =
-                    match (s.moving, s.zenoh_alone) {
-                        (Some(node), Some(zenoh)) => [
-                            percent(node.cpu),
-                            format!("{:.0}", node.publications_per_s),
-                            format!("{:.1}", node.rbv_per_axis_per_s),
-                            seconds(node.settled_after),
-                            percent(zenoh.cpu),
-                            format!("{:.0}", zenoh.publications_per_s),
-                        ],
-                        _ => ["not".into(), "measured".into(), "".into(), "".into(), "".into(), "".into()],
-                    };
                 println!(
-                    "   {:>6} {:>9.2} {:>12.1} {:>9} {:>15} {:>11} {:>12} {:>10} {:>15}",
+                    "   {:>6} axes: start {:.2} s, {:.1} KB per idle axis",
                     s.axes,
                     s.start.as_secs_f64(),
-                    s.rss_per_axis_idle_kb,
-                    node_cpu,
-                    node_publications,
-                    rbv,
-                    settled,
-                    zenoh_cpu,
-                    zenoh_publications
-                )
+                    s.rss_per_axis_idle_kb
+                );
+                for (who, p) in [
+                    ("node, subscriber of every key", &s.moving),
+                    ("node, subscriber of RBV and DMOV", &s.watching_readback),
+                    ("Zenoh alone, every key", &s.zenoh_alone),
+                ] {
+                    match p {
+                        Some(p) => println!(
+                            "      {who:<34} CPU {:>6}  {:>8.0} samples/s  {:>5.1} RBV/axis/s  settled {} s",
+                            percent(p.cpu),
+                            p.publications_per_s,
+                            p.rbv_per_axis_per_s,
+                            seconds(p.settled_after)
+                        ),
+                        None => println!("      {who:<34} not measured (beyond --moving-up-to)"),
+                    }
+                }
             }
-            Err(e) => println!("   {n:>6} failed: {e}"),
+            Err(e) => println!("   {n:>6} axes: failed: {e}"),
         }
     }
 
@@ -577,7 +679,7 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         n as f64 * EPICS_MOVES_PER_AXIS_PER_S
     );
     println!("   (the given IOC: 45 % CPU for 1,600 moves/s and 8,300 RBV events/s on 1,000 axes)");
-    let p = publishing(n, options.window, Serve::Moving, load).await?;
+    let p = publishing(n, options.window, Serve::Moving, load, Watch::Everything).await?;
     println!(
         "   node CPU {}   moves/s ended {:.0}   RBV/s {:.0}   publications/s {:.0}   settled after {} s",
         percent(p.cpu),
@@ -587,9 +689,17 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         seconds(p.settled_after)
     );
 
-    println!("\n5. start-up: process start → all {} axes answer get", options.startup_axes);
-    let t = startup(options.startup_axes).await?;
-    println!("   {:.2} s", t.as_secs_f64());
+    let n = options.startup_axes;
+    println!("\n5. start-up of {n} axes in a node process, as a client sees it");
+    let t = startup(n).await?;
+    println!("   process start → every axis answers get: {:.2} s", t.answering.as_secs_f64());
+    println!("   process start → every axis's liveliness token seen: {:.2} s", t.visible.as_secs_f64());
+    let (tokens, publishers) = zenoh_declarations(n).await?;
+    println!(
+        "   Zenoh alone, one session: {n} liveliness tokens declared in {:.2} s; {n} publishers in {:.2} s",
+        tokens.as_secs_f64(),
+        publishers.as_secs_f64()
+    );
     Ok(())
 }
 

@@ -150,7 +150,7 @@ enum Command {
         listen: String,
         #[arg(long, default_value_t = 1)]
         axes: usize,
-        #[arg(long, value_enum, default_value_t = bench::Serve::Instant)]
+        #[arg(long, value_enum, default_value_t = bench::Serve::Demo)]
         serve: bench::Serve,
         #[arg(long, default_value_t = 100.0)]
         readback_hz: f64,

@@ -14,7 +14,7 @@ fn the_benchmark_runs_in_smoke_mode() {
     assert!(output.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
     for part in [
         "1. command latency",
-        "Zenoh pub/sub round trip",
+        "Zenoh round trip",
         "3. scale",
         "Zenoh alone",
         "4. the load of the EPICS figure",

@@ -350,6 +350,14 @@ impl Axis {
         due.into_iter().flatten().min().map(|t| t.max(self.now))
     }
 
+    /// When something happens by itself next, apart from the periodic polls: the simulator's
+    /// end of motion, the DLY deadline, a PREM delay, a Soft Channel "done". A runner may keep
+    /// these on a finer clock than the polls (the end of a motion is reported when it happens).
+    pub fn event_timeout(&self) -> Option<Instant> {
+        let due = [self.delay_deadline, self.next_event(), self.held.as_ref().map(|h| h.due), self.done_due];
+        due.into_iter().flatten().min().map(|t| t.max(self.now))
+    }
+
     /// A motion sequence is open or the motor moves.
     pub fn is_busy(&self) -> bool {
         self.record.fields().dmov == 0 || self.record.fields().movn != 0

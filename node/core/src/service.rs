@@ -165,6 +165,11 @@ impl<R: Clone> AxisService<R> {
         self.axis.poll_timeout()
     }
 
+    /// When the next event apart from the periodic polls is due (see `Axis::event_timeout`).
+    pub fn event_timeout(&self) -> Option<Instant> {
+        self.axis.event_timeout()
+    }
+
     /// Time passed to `now`.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.axis.handle_timeout(now);

@@ -2,7 +2,7 @@
 //! settings of the command line, turned into a Zenoh configuration.
 
 use serde::{Deserialize, Serialize};
-use zmotor_msgs::keys;
+use zmotor_msgs::{keys, KeyLayout};
 
 /// The Zenoh role of a process.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -107,6 +107,10 @@ impl ZenohConfig {
             ("listen/endpoints", json(&self.listen)),
             ("connect/endpoints", json(&self.connect)),
             ("scouting/multicast/enabled", json(self.multicast_scouting)),
+            // A node declares a publisher per field it posts again and again; aggregated under
+            // the prefix, Zenoh declares its interest once instead of once per publisher (which
+            // cost the first moves of 1,000 axes about 20 s).
+            ("aggregation/publishers", json([KeyLayout::new(&self.prefix).everything()])),
         ] {
             config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
         }

@@ -8,6 +8,7 @@ pub mod autosave;
 pub mod config;
 mod links;
 mod node;
+mod timer;
 
 pub use config::{free_local_endpoint, ConfigError, Mode, ZenohConfig};
 pub use links::ValueSpec;

@@ -1,12 +1,50 @@
 //! What follows keys besides the axes: input links (as EPICS links follow PVs), calc links and
 //! value holders.
 
+use crate::node::Writer;
+use std::collections::HashMap;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
-use zmotor_msgs::{decode_scalar, encode_cbor, PayloadEncoding, StateMarker, Value};
+use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
+
+/// Where one follower wants a key's values: its channel and the key's index there.
+type Follower = (tokio::sync::mpsc::UnboundedSender<(usize, f64)>, usize);
+
+/// The node's followers of its own axes' fields. An axis publishes to the network only (other
+/// processes, and only when someone there subscribes); a link in this very node that follows
+/// one of its fields gets the value from here, in-process.
+#[derive(Default)]
+pub(crate) struct LocalFollowers {
+    layout: KeyLayout,
+    by_axis: std::sync::RwLock<HashMap<String, Vec<(Field, Follower)>>>,
+}
+
+impl LocalFollowers {
+    pub(crate) fn new(layout: KeyLayout) -> Self {
+        Self { layout, by_axis: Default::default() }
+    }
+
+    /// Follow `key` if it is a field of an axis (of this node or not: cheap to keep).
+    fn register(&self, key: &str, follower: Follower) {
+        let Some(axis) = self.layout.axis_chunk(key) else { return };
+        let Some(field) = self.layout.field_name(axis, key).and_then(Field::from_name) else { return };
+        let mut by_axis = self.by_axis.write().unwrap_or_else(|e| e.into_inner());
+        by_axis.entry(axis.to_string()).or_default().push((field, follower));
+    }
+
+    /// A field of `axis` took `value`.
+    pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) {
+        let by_axis = self.by_axis.read().unwrap_or_else(|e| e.into_inner());
+        let Some(followers) = by_axis.get(axis) else { return };
+        let Some(number) = value.as_f64() else { return };
+        for (_, (tx, index)) in followers.iter().filter(|(f, _)| *f == field) {
+            let _ = tx.send((*index, number));
+        }
+    }
+}
 
 /// Follows keys as EPICS links follow PVs: every update, and the current value asked for once
 /// at the start (as a link does when it connects). Any sample is a reading, state or write.
@@ -17,10 +55,15 @@ pub(crate) struct KeyFollower {
 }
 
 impl KeyFollower {
-    pub(crate) async fn start(session: &Session, keys: Vec<String>) -> Result<Self, zenoh::Error> {
+    pub(crate) async fn start(
+        session: &Session,
+        keys: Vec<String>,
+        local: &LocalFollowers,
+    ) -> Result<Self, zenoh::Error> {
         let (tx, values) = tokio::sync::mpsc::unbounded_channel();
         let mut subscribers = Vec::new();
         for (index, key) in keys.iter().enumerate() {
+            local.register(key, (tx.clone(), index));
             let updates = tx.clone();
             let subscriber = session
                 .declare_subscriber(key.clone())
@@ -58,7 +101,7 @@ pub(crate) fn is_state(sample: &Sample) -> bool {
 
 /// A calc link: recompute on its inputs, write the result to its output key.
 pub(crate) struct CalcTask {
-    pub(crate) session: Session,
+    pub(crate) writer: Writer,
     pub(crate) link: CalcLink,
     pub(crate) inputs: KeyFollower,
 }
@@ -68,11 +111,8 @@ impl CalcTask {
         let keys: Vec<String> = self.link.input_keys().map(str::to_string).collect();
         while let Some((index, value)) = self.inputs.values.recv().await {
             if let Some(result) = self.link.update(&keys[index], value) {
-                let output = &self.link.spec().output;
                 // A write to the output key, like a calcout's OUT: plain, no state marker.
-                if let Err(e) = self.session.put(output, result.to_string()).encoding(Encoding::TEXT_PLAIN).await {
-                    tracing::warn!(calc = %self.link.spec().name, output, "output put failed: {e}");
-                }
+                self.writer.put(&self.link.spec().output, result.to_string());
             }
         }
     }

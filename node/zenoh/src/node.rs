@@ -8,14 +8,15 @@
 //! declarations already there, and thousands of axes would pay it squared.
 
 use crate::autosave::{AutosaveError, SavedAxis, StateStore};
-use crate::links::{is_state, CalcTask, KeyFollower, ValueHolder, ValueSpec};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use crate::links::{is_state, CalcTask, KeyFollower, LocalFollowers, ValueHolder, ValueSpec};
+use crate::timer::Timer;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, TryLockError};
 use std::time::Duration;
 use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
-use zenoh::sample::Sample;
+use zenoh::sample::{Locality, Sample};
 use zenoh::{Session, Wait};
 use zmotor_bridge::{CalcLink, CalcLinkSpec, LinkError};
 use zmotor_core::axis::AxisPlan;
@@ -36,6 +37,9 @@ pub enum NodeError {
     /// A calc link cannot be built.
     #[error(transparent)]
     Calc(#[from] LinkError),
+    /// The timer thread cannot be started.
+    #[error("cannot start the timer thread: {0}")]
+    Timer(std::io::Error),
 }
 
 impl From<zenoh::Error> for NodeError {
@@ -52,6 +56,37 @@ pub struct AutosaveConfig {
     pub store: StateStore,
     /// How long a change waits before it is written.
     pub delay: Duration,
+}
+
+/// Where an axis's liveliness token is kept once declared.
+type TokenSlot = Arc<Mutex<Option<zenoh::liveliness::LivelinessToken>>>;
+
+/// The liveliness tokens of a node's axes (`<prefix>/<axis>`), declared in order by a task of
+/// their own once the axes already answer; each axis withdraws its own at shutdown.
+#[derive(Default)]
+struct Tokens(Vec<(String, TokenSlot)>);
+
+impl Tokens {
+    fn slot(&mut self, axis: &str) -> TokenSlot {
+        let slot = TokenSlot::default();
+        self.0.push((axis.to_string(), slot.clone()));
+        slot
+    }
+
+    fn declare_in_background(self, session: &Session, layout: &KeyLayout, stopped: tokio::sync::watch::Receiver<bool>) {
+        let (session, layout) = (session.clone(), layout.clone());
+        tokio::spawn(async move {
+            for (axis, slot) in self.0 {
+                if *stopped.borrow() {
+                    return;
+                }
+                match session.liveliness().declare_token(layout.axis(&axis)).await {
+                    Ok(token) => *slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(token),
+                    Err(e) => tracing::error!(axis, "cannot declare the liveliness token: {e}"),
+                }
+            }
+        });
+    }
 }
 
 /// How long a shutdown waits for moving axes to stop before saving anyway.
@@ -78,6 +113,11 @@ impl Node {
         autosave: Option<AutosaveConfig>,
     ) -> Result<Self, NodeError> {
         let (stop, stopped) = tokio::sync::watch::channel(false);
+        let timer = Timer::start().map_err(NodeError::Timer)?;
+        let writer = Writer { session: session.clone(), fields: Space::Fields(layout.clone()), local: Arc::default() };
+        let followers = Arc::new(LocalFollowers::new(layout.clone()));
+        let mut tokens = Tokens::default();
+        let demand = Arc::new(FieldDemand::declare(&session, &layout).await?);
         let mut routes = std::collections::HashMap::new();
         let mut axis_tasks = Vec::new();
         let budget = Arc::new(AtomicUsize::new(PUBLISHER_BUDGET));
@@ -87,11 +127,14 @@ impl Node {
                 None => None,
             };
             let (link_kinds, link_keys): (Vec<InputLink>, Vec<String>) = plan.input_links().into_iter().unzip();
-            let links = KeyFollower::start(&session, link_keys).await?;
+            let links = KeyFollower::start(&session, link_keys, &followers).await?;
             let name = plan.name.clone();
             let core = AxisCore {
                 service: AxisService::new(&name, plan.build(Instant::ZERO)),
                 session: session.clone(),
+                writer: writer.clone(),
+                followers: followers.clone(),
+                demand: demand.clone(),
                 layout: layout.clone(),
                 clock: tokio::time::Instant::now(),
                 trace: None,
@@ -115,11 +158,15 @@ impl Node {
                 links,
                 link_kinds,
                 saver,
-                token: Some(session.liveliness().declare_token(layout.axis(&name)).await?),
+                timer: timer.clone(),
+                token: tokens.slot(&name),
                 name,
             });
         }
-        let router = Router::declare(&session, &layout, routes).await?;
+        let router = Router::declare(&session, &layout, routes, &writer).await?;
+        // The axes answer as soon as the router exists; their liveliness tokens follow, as
+        // Zenoh's cost per token grows with the tokens already declared.
+        tokens.declare_in_background(&session, &layout, stopped.clone());
         let mut holders = Vec::new();
         for spec in values {
             holders.push(ValueHolder::declare(&session, spec).await?);
@@ -134,8 +181,9 @@ impl Node {
         let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
-            let inputs = KeyFollower::start(&session, link.input_keys().map(str::to_string).collect()).await?;
-            let mut task = CalcTask { session: session.clone(), link, inputs };
+            let keys = link.input_keys().map(str::to_string).collect();
+            let inputs = KeyFollower::start(&session, keys, &followers).await?;
+            let mut task = CalcTask { writer: writer.clone(), link, inputs };
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
         Ok(Self { axis_tasks, calc_tasks, stop, _router: router, _values: holders })
@@ -164,12 +212,50 @@ impl Drop for Node {
     }
 }
 
-/// What reaches one axis from the network.
+/// What reaches one axis: from the network, or from this node itself.
 enum AxisInput {
-    Write(Sample),
+    Write(Written),
     Query(Query),
-    SimWrite(Sample),
+    SimWrite(Written),
     SimQuery(Query),
+}
+
+/// A plain write to one key of an axis: the field (or simulator setting) named, the payload.
+struct Written {
+    name: String,
+    payload: Vec<u8>,
+    encoding: PayloadEncoding,
+}
+
+/// Plain writes this node makes to keys: link outputs, directives, calc results. The node's own
+/// subscribers do not hear its session (so publishing costs it no delivery to itself), so a
+/// write to one of its own axes is handed to that axis here, and put on the network for
+/// everyone else.
+#[derive(Clone)]
+pub(crate) struct Writer {
+    session: Session,
+    fields: Space,
+    /// The node's axes, once its router exists; weak, as the axes hold this writer.
+    local: Arc<std::sync::OnceLock<std::sync::Weak<Routes>>>,
+}
+
+impl Writer {
+    /// Write `value` (text) to `key`.
+    pub(crate) fn put(&self, key: &str, value: String) {
+        if let Some(routes) = self.local.get().and_then(std::sync::Weak::upgrade) {
+            for (space, wrap) in
+                [(&self.fields, AxisInput::Write as fn(Written) -> AxisInput), (&Space::Sim, AxisInput::SimWrite)]
+            {
+                if let Some((handle, name)) = space.target(&routes, key) {
+                    let written = Written { name, payload: value.as_bytes().to_vec(), encoding: PayloadEncoding::Text };
+                    handle.deliver(wrap(written));
+                }
+            }
+        }
+        if let Err(e) = self.session.put(key, value).encoding(Encoding::TEXT_PLAIN).wait() {
+            tracing::warn!(key, "put failed: {e}");
+        }
+    }
 }
 
 /// How the router reaches one axis. A write is handled at once on the Zenoh thread that
@@ -182,7 +268,7 @@ struct AxisHandle {
     core: Arc<Mutex<AxisCore>>,
     queue: tokio::sync::mpsc::UnboundedSender<AxisInput>,
     queued: Arc<AtomicUsize>,
-    /// Tells the task that its next wake-up may have moved.
+    /// Wakes the axis's task: its deadline came, or may have moved.
     rearm: Arc<tokio::sync::Notify>,
 }
 
@@ -222,18 +308,27 @@ struct Router {
 }
 
 impl Router {
-    async fn declare(session: &Session, layout: &KeyLayout, routes: Routes) -> Result<Self, zenoh::Error> {
+    async fn declare(
+        session: &Session,
+        layout: &KeyLayout,
+        routes: Routes,
+        writer: &Writer,
+    ) -> Result<Self, zenoh::Error> {
         let routes = Arc::new(routes);
+        let _ = writer.local.set(Arc::downgrade(&routes));
         let fields = Space::Fields(layout.clone());
         let (r1, s1) = (routes.clone(), fields.clone());
         let (r2, s2) = (routes.clone(), fields);
         let (r3, r4) = (routes.clone(), routes);
+        // The node's own publications do not come back to it: what it writes to its own axes
+        // goes through `Writer`.
         Ok(Self {
             _writes: session
                 .declare_subscriber(layout.every_field())
+                .allowed_origin(Locality::Remote)
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r1, &s1, sample, AxisInput::Write);
+                        route_sample(&r1, &s1, &sample, AxisInput::Write);
                     }
                 })
                 .await?,
@@ -243,9 +338,10 @@ impl Router {
                 .await?,
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
+                .allowed_origin(Locality::Remote)
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r3, &Space::Sim, sample, AxisInput::SimWrite);
+                        route_sample(&r3, &Space::Sim, &sample, AxisInput::SimWrite);
                     }
                 })
                 .await?,
@@ -280,13 +376,24 @@ impl Space {
             Space::Sim => keys::sim_key(axis, "**"),
         }
     }
+
+    /// The axis of ours a key names, and the name of the field or setting it names.
+    fn target<'r>(&self, routes: &'r Routes, key: &str) -> Option<(&'r AxisHandle, String)> {
+        let axis = self.axis_chunk(key)?;
+        let handle = routes.get(axis)?;
+        let name = match self {
+            Space::Fields(layout) => layout.field_name(axis, key)?,
+            Space::Sim => key.rsplit('/').next()?,
+        };
+        Some((handle, name.to_string()))
+    }
 }
 
 /// A sample goes to the axis its key names, if it is one of ours.
-fn route_sample(routes: &Routes, space: &Space, sample: Sample, wrap: fn(Sample) -> AxisInput) {
-    let handle = space.axis_chunk(sample.key_expr().as_str()).and_then(|axis| routes.get(axis));
-    if let Some(handle) = handle {
-        handle.deliver(wrap(sample));
+fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Written) -> AxisInput) {
+    if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
+        let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+        handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding }));
     }
 }
 
@@ -313,6 +420,10 @@ fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> 
 struct AxisCore {
     service: AxisService<Query>,
     session: Session,
+    /// Its plain writes to other keys.
+    writer: Writer,
+    /// Links of this node that follow this axis's fields.
+    followers: Arc<LocalFollowers>,
     layout: KeyLayout,
     clock: tokio::time::Instant,
     /// Declared at the first driver command, so idle axes cost no publisher.
@@ -320,6 +431,8 @@ struct AxisCore {
     /// Publishers of the fields this axis posts again and again, declared at their second post:
     /// a declared publisher's put costs a fraction of a session put (the key is resolved once).
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
+    /// Which fields anyone on the network subscribes to.
+    demand: Arc<FieldDemand>,
     /// Fields posted once so far (with a session put).
     posted_once: Vec<Field>,
     /// Declarations the node may still make (`PUBLISHER_BUDGET`), shared by its axes.
@@ -349,19 +462,9 @@ impl AxisCore {
     fn handle(&mut self, input: AxisInput) {
         let now = self.now();
         match input {
-            AxisInput::Write(sample) => {
-                let key = sample.key_expr().as_str();
-                if let Some(name) = self.layout.field_name(self.service.name(), key).map(str::to_string) {
-                    let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-                    self.service.put(now, &name, &sample.payload().to_bytes(), encoding);
-                }
-            }
+            AxisInput::Write(w) => self.service.put(now, &w.name, &w.payload, w.encoding),
             AxisInput::Query(query) => self.on_query(now, query),
-            AxisInput::SimWrite(sample) => {
-                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
-                let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-                self.service.sim_write(now, &name, &sample.payload().to_bytes(), encoding);
-            }
+            AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
             AxisInput::SimQuery(query) => {
                 let selected = query.key_expr().clone();
                 let axis = self.name().to_string();
@@ -435,12 +538,8 @@ impl AxisCore {
                         }
                     }
                 }
-                ServiceOutput::Put { key, value } => {
-                    // A link's or directive's put is a command to another node: a plain write, no marker.
-                    if let Err(e) = self.session.put(&key, value).encoding(Encoding::TEXT_PLAIN).wait() {
-                        tracing::warn!(axis = %self.name(), key, "put failed: {e}");
-                    }
-                }
+                // A link's or directive's put is a command: a plain write, no marker.
+                ServiceOutput::Put { key, value } => self.writer.put(&key, value),
             }
         }
     }
@@ -476,9 +575,15 @@ impl AxisCore {
         let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).wait();
     }
 
+    /// Publish a field's new value: to the links of this node that follow it, and to the
+    /// network when a subscriber there wants that field (as the record posts a monitor only to
+    /// those who asked). Publications go to other processes only: the node hears itself
+    /// in-process.
     fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker) {
-        let attachment = ZBytes::from(marker.encode());
-        let payload = encode_cbor(value);
+        self.followers.deliver(self.service.name(), field, value);
+        if !self.demand.wanted(field) {
+            return;
+        }
         let declared = match self.hot.iter().position(|(f, _)| *f == field) {
             Some(index) => Some(index),
             None if !self.posted_once.contains(&field) => {
@@ -486,8 +591,13 @@ impl AxisCore {
                 None
             }
             None if self.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok() => {
-                match self.session.declare_publisher(self.field_key(field)).encoding(Encoding::APPLICATION_CBOR).wait()
-                {
+                let declared = self
+                    .session
+                    .declare_publisher(self.field_key(field))
+                    .encoding(Encoding::APPLICATION_CBOR)
+                    .allowed_destination(Locality::Remote)
+                    .wait();
+                match declared {
                     Ok(publisher) => {
                         self.hot.push((field, publisher));
                         Some(self.hot.len() - 1)
@@ -500,15 +610,52 @@ impl AxisCore {
             }
             None => None,
         };
+        let attachment = ZBytes::from(marker.encode());
         let _ = match declared {
-            Some(index) => self.hot[index].1.put(payload).attachment(attachment).wait(),
+            Some(index) => self.hot[index].1.put(encode_cbor(value)).attachment(attachment).wait(),
             None => self
                 .session
-                .put(self.field_key(field), payload)
+                .put(self.field_key(field), encode_cbor(value))
                 .encoding(Encoding::APPLICATION_CBOR)
+                .allowed_destination(Locality::Remote)
                 .attachment(attachment)
                 .wait(),
         };
+    }
+}
+
+/// Which fields some subscriber on the network wants, of any axis: one probe publisher per
+/// field on `<prefix>/*/<FIELD>` whose matching status Zenoh keeps current. A field nobody
+/// subscribes to, for any axis, is not published (the record posts monitors only to those who
+/// asked); a subscriber of any axis's field gets that field from every axis, so no subscriber is
+/// ever missed. (A matching listener per axis and field does not scale in Zenoh 1.10: every
+/// subscriber declaration re-evaluates every listener.)
+pub(crate) struct FieldDemand {
+    wanted: Vec<Arc<AtomicBool>>,
+    _probes: Vec<zenoh::pubsub::Publisher<'static>>,
+}
+
+impl FieldDemand {
+    async fn declare(session: &Session, layout: &KeyLayout) -> Result<Self, zenoh::Error> {
+        let (mut wanted, mut probes) = (Vec::new(), Vec::new());
+        for field in Field::all() {
+            let probe =
+                session.declare_publisher(layout.field("*", field)).allowed_destination(Locality::Remote).await?;
+            let flag = Arc::new(AtomicBool::new(true));
+            let listener = flag.clone();
+            probe
+                .matching_listener()
+                .callback(move |status| listener.store(status.matching(), Ordering::Release))
+                .background()
+                .await?;
+            wanted.push(flag);
+            probes.push(probe);
+        }
+        Ok(Self { wanted, _probes: probes })
+    }
+
+    fn wanted(&self, field: Field) -> bool {
+        self.wanted[field as usize].load(Ordering::Acquire)
     }
 }
 
@@ -522,7 +669,10 @@ struct AxisTask {
     links: KeyFollower,
     link_kinds: Vec<InputLink>,
     saver: Option<Saver>,
-    token: Option<zenoh::liveliness::LivelinessToken>,
+    /// Wakes the task (through `rearm`) when the axis's next event comes.
+    timer: Timer,
+    /// The axis's liveliness token, once declared.
+    token: TokenSlot,
     name: String,
 }
 
@@ -531,14 +681,23 @@ impl AxisTask {
     async fn run(&mut self, mut stopped: tokio::sync::watch::Receiver<bool>) {
         let mut stopping: Option<tokio::time::Instant> = None;
         let clock = lock(&self.core).clock;
+        let mut scheduled = None;
         loop {
-            // Nothing due (a Soft Channel axis waiting for its links): look again in a minute.
-            let idle = clock.elapsed() + Duration::from_secs(60);
-            let next = lock(&self.core).service.poll_timeout().map_or(idle, Instant::since_origin);
-            let mut wake = clock + next;
-            for deadline in [stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten() {
-                wake = wake.min(deadline);
+            // Polls keep tokio's millisecond timer; events (the end of a motion, DLY) also go to
+            // the precise one, so they are reported when they happen. A Soft Channel axis may
+            // have no deadline at all.
+            let (next, event) = {
+                let core = lock(&self.core);
+                let at = |t: zmotor_core::Instant| clock + t.since_origin();
+                (core.service.poll_timeout().map(at), core.service.event_timeout().map(at))
+            };
+            if event != scheduled {
+                if let Some(at) = event {
+                    self.timer.wake_at(at.into_std(), self.rearm.clone());
+                }
+                scheduled = event;
             }
+            let other = [next, stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten().min();
             tokio::select! {
                 Some((index, value)) = self.links.values.recv() => {
                     lock(&self.core).link_update(self.link_kinds[index], value);
@@ -547,12 +706,17 @@ impl AxisTask {
                     self.queued.fetch_sub(1, Ordering::AcqRel);
                     lock(&self.core).handle(input);
                 }
-                _ = tokio::time::sleep_until(wake) => lock(&self.core).tick(),
                 _ = self.rearm.notified() => {}
+                _ = tokio::time::sleep_until(other.unwrap_or(clock)), if other.is_some() => {}
                 _ = stopped.changed(), if stopping.is_none() => {
                     stopping = Some(tokio::time::Instant::now() + STOP_GRACE);
                     lock(&self.core).stop_motion();
                 }
+            }
+            // Whatever woke the task, the axis's own time may have come.
+            if next.is_some_and(|at| tokio::time::Instant::now() >= at) {
+                lock(&self.core).tick();
+                scheduled = None;
             }
             self.autosave(false).await;
             let done = lock(&self.core).service.fields().dmov == 1;
@@ -564,7 +728,8 @@ impl AxisTask {
             tracing::warn!(axis = %self.name, "still moving {STOP_GRACE:?} after the stop; saving anyway");
         }
         self.autosave(true).await;
-        if let Some(token) = self.token.take() {
+        let token = self.token.lock().unwrap_or_else(|e| e.into_inner()).take();
+        if let Some(token) = token {
             let _ = token.undeclare().await;
         }
     }
