@@ -98,6 +98,27 @@ impl KeyLayout {
         key.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?.split('/').next()
     }
 
+    /// Check a link's key before it is wired: one plain key; when it names a motor field under
+    /// this prefix, a field that exists, writable when the link writes to it (`writes`), and not
+    /// a field of the axis that owns the link (`owner`).
+    pub fn check_link(&self, key: &str, writes: bool, owner: Option<&str>) -> Result<(), LinkKeyError> {
+        validate_plain_key(key)?;
+        let Some(axis) = self.axis_chunk(key) else { return Ok(()) };
+        let Some(name) = key.strip_prefix(self.prefix.as_str()).and_then(|r| r[1..].split_once('/')).map(|(_, n)| n)
+        else {
+            return Ok(());
+        };
+        let field = Field::from_name(name)
+            .ok_or_else(|| LinkKeyError::UnknownField { key: key.to_string(), name: name.to_string() })?;
+        if writes && field.def().access == crate::Access::RO {
+            return Err(LinkKeyError::ReadOnly { key: key.to_string(), field });
+        }
+        if owner == Some(axis) {
+            return Err(LinkKeyError::ToItself { key: key.to_string(), axis: axis.to_string(), field });
+        }
+        Ok(())
+    }
+
     /// The field name part of `<prefix>/<axis>/<FIELD>` for this axis, if the key has that shape.
     pub fn field_name<'k>(&self, axis: &str, key: &'k str) -> Option<&'k str> {
         let rest = key.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?;
@@ -146,6 +167,40 @@ pub fn validate_plain_key(key: &str) -> Result<(), PlainKeyError> {
         return refuse("it holds white space");
     }
     Ok(())
+}
+
+/// Why a link cannot be wired to its key.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum LinkKeyError {
+    /// The text is not one plain key.
+    #[error(transparent)]
+    NotPlain(#[from] PlainKeyError),
+    /// The key names a motor field that does not exist.
+    #[error("{key}: '{name}' is not a field of a motor")]
+    UnknownField {
+        /// The link's key.
+        key: String,
+        /// The field name it holds.
+        name: String,
+    },
+    /// An output link would write a read-only field.
+    #[error("{key}: {field} is read-only")]
+    ReadOnly {
+        /// The link's key.
+        key: String,
+        /// The field it names.
+        field: Field,
+    },
+    /// The link names a field of the axis that owns it: a loop.
+    #[error("{key}: axis '{axis}' would link to its own {field}, a loop")]
+    ToItself {
+        /// The link's key.
+        key: String,
+        /// The axis.
+        axis: String,
+        /// The field of its own the link names.
+        field: Field,
+    },
 }
 
 /// Why a name cannot be an axis's key chunk.
@@ -205,6 +260,24 @@ mod tests {
         assert_eq!(k.field_name("m1", "motor/m10/VAL"), None);
         assert_eq!(k.field_name("m1", "motor/m1/@driver/cmd"), None);
         assert_eq!(k.field_name("m1", "motorx/m1/VAL"), None);
+    }
+
+    #[test]
+    fn links_are_checked_against_the_catalogue_and_their_owner() {
+        let k = KeyLayout::default();
+        assert!(k.check_link("motor/lin/DVAL", true, Some("rot")).is_ok());
+        assert!(k.check_link("bridge/calc/A", true, None).is_ok(), "not a motor key: any plain key");
+        assert_eq!(
+            k.check_link("motor/lin/RBV", true, None).unwrap_err().to_string(),
+            "motor/lin/RBV: RBV is read-only"
+        );
+        assert!(k.check_link("motor/lin/RBV", false, None).is_ok(), "reading a read-only field is fine");
+        assert_eq!(
+            k.check_link("motor/lin/DRBX", false, None).unwrap_err().to_string(),
+            "motor/lin/DRBX: 'DRBX' is not a field of a motor"
+        );
+        assert!(matches!(k.check_link("motor/m1/VAL", false, Some("m1")), Err(LinkKeyError::ToItself { .. })));
+        assert!(matches!(k.check_link("a//b", false, None), Err(LinkKeyError::NotPlain(_))));
     }
 
     #[test]

@@ -14,6 +14,6 @@ pub mod wire;
 
 pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS, UNMODELLED_COMMON_FIELDS};
 pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, MalformedPayload, PayloadEncoding};
-pub use keys::KeyLayout;
+pub use keys::{KeyLayout, LinkKeyError};
 pub use value::Value;
 pub use wire::{Completion, DriverCommand, DriverTrace, Gain, SimState, StateMarker};

@@ -262,3 +262,39 @@ async fn axes_writing_to_themselves_and_to_each_other_do_not_deadlock() {
     assert!(near(&get_value(&client, &node.key("b", Field::TWV)).await, 3.0));
     assert!(near(&get_value(&client, &node.key("a", Field::TWV)).await, -4.0));
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn dmov_1_comes_at_the_end_of_the_motion_not_at_the_next_readback_poll() {
+    // Readback every 2 s: a 0.01 mm move (about 20 ms) would otherwise answer 2 s late.
+    let mut plan = fast_axis("m1");
+    plan.rates.moving = Duration::from_secs(2);
+    let node = TestNode::start(vec![plan]).await;
+    let client = node.client().await;
+    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let started = Instant::now();
+    put_text(&client, &node.key("m1", Field::VAL), "0.01").await;
+    rec.wait_for("DMOV", |v| *v == int(1)).await;
+    let elapsed = started.elapsed();
+    assert!(elapsed < Duration::from_secs(1), "DMOV 1 after {elapsed:?}");
+    // The record's order at the end of the move: MIP 0, MOVN 0, then DMOV 1, the last post.
+    let ending: Vec<(String, Value)> = rec
+        .seen
+        .iter()
+        .filter(|s| ["MIP", "MOVN", "DMOV"].iter().any(|f| s.key.ends_with(&format!("/{f}"))))
+        .map(|s| (s.key.rsplit('/').next().unwrap().to_string(), s.value.clone()))
+        .collect();
+    let last3: Vec<(&str, Value)> = ending[ending.len() - 3..].iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+    assert_eq!(last3, [("MIP", int(0)), ("MOVN", int(0)), ("DMOV", int(1))]);
+    rec.drain_for(Duration::from_millis(100)).await;
+    assert!(rec.seen.last().unwrap().key.ends_with("/DMOV"), "DMOV 1 is the last post: {:?}", rec.seen.last());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscriber_of_one_field_gets_it_from_the_first_move() {
+    // Nobody subscribes to DRBV until this client does: the node must start publishing it.
+    let node = TestNode::start(vec![fast_axis("m1")]).await;
+    let client = node.client().await;
+    let mut rec = Recorder::new(&client, "motor/m1/DRBV").await;
+    put_text(&client, &node.key("m1", Field::VAL), "3").await;
+    rec.wait_for("DRBV", |v| near(v, 3.0)).await;
+}

@@ -124,17 +124,13 @@ impl AxisPlan {
 
     /// The record's input links that are set, with the key each follows.
     pub fn input_links(&self) -> Vec<(InputLink, String)> {
-        let f = &self.fields;
-        [
-            (InputLink::Readback, &f.rdbl),
-            (InputLink::RawPosition, &f.rinp),
-            (InputLink::Done, &f.dinp),
-            (InputLink::Desired, &f.dol),
-        ]
-        .into_iter()
-        .filter(|(_, key)| !key.is_empty())
-        .map(|(link, key)| (link, key.clone()))
-        .collect()
+        InputLink::ALL
+            .into_iter()
+            .filter_map(|link| match self.fields.get(link.field()) {
+                Value::Text(key) if !key.is_empty() => Some((link, key)),
+                _ => None,
+            })
+            .collect()
     }
 }
 
@@ -248,9 +244,27 @@ impl Axis {
         }
         let accepted = WriteAccepted { after: self.completed };
         let result = self.record.write(field, value);
+        if result.is_ok() && field.def().kind == zmotor_msgs::Kind::Link {
+            self.relinked(field);
+        }
         self.pump();
         self.schedule_poll();
         result.map(|()| accepted)
+    }
+
+    /// A link field took a new key at run time: what the device and the record knew of the
+    /// old one goes. (Output links are read from their field at each use.)
+    fn relinked(&mut self, field: Field) {
+        let f = self.record.fields();
+        match field {
+            Field::RDBL => self.readback_link = f.rdbl.is_empty().then_some(0.0),
+            Field::DOL => self.record.forget_desired_value(),
+            _ => {}
+        }
+        let f = self.record.fields();
+        if let Device::Soft(soft) = &mut self.device {
+            soft.relink(&f.out, &f.stoo, &f.dinp);
+        }
     }
 
     /// A new value on one of the record's input links (RDBL, RINP, DINP, DOL) at time `now`.

@@ -14,8 +14,8 @@ use crate::time::Instant;
 use std::collections::VecDeque;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
-    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, MalformedPayload,
-    PayloadEncoding, SimState, StateMarker, Value,
+    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, KeyLayout, Kind,
+    LinkKeyError, MalformedPayload, PayloadEncoding, SimState, StateMarker, Value,
 };
 
 /// Why a request was refused. The message says it in plain words and names the field.
@@ -57,6 +57,14 @@ pub enum RequestError {
     /// The axis has no simulator.
     #[error("{0}: this axis is not simulated")]
     NotSimulated(String),
+    /// A link field was given a key it cannot be wired to.
+    #[error("{field}: {source}")]
+    Link {
+        /// The link field written.
+        field: Field,
+        /// Why the key cannot be wired.
+        source: LinkKeyError,
+    },
 }
 
 /// The answer to a confirmed write or a read.
@@ -108,6 +116,14 @@ pub enum ServiceOutput<R> {
         /// When it was delivered.
         at: Instant,
     },
+    /// An input link now names `key` ("" to follow nothing): follow it instead of the old one,
+    /// asking for its current value once, as at start.
+    Follow {
+        /// Which link.
+        link: InputLink,
+        /// Its new key.
+        key: String,
+    },
     /// A plain write of `value` (text) to another key: an output link or a directive.
     Put {
         /// The key written to.
@@ -126,6 +142,7 @@ struct Waiter<R> {
 
 /// One axis behind the wire contract (see the module documentation).
 pub struct AxisService<R> {
+    layout: KeyLayout,
     name: String,
     axis: Axis,
     /// Per-axis sequence number of publications and traces.
@@ -139,10 +156,18 @@ pub struct AxisService<R> {
 impl<R: Clone> AxisService<R> {
     /// Serve `axis` under the name `name`. What its boot produced is not published:
     /// initialisation posts no monitors, as in EPICS; clients read the initial state.
-    pub fn new(name: &str, mut axis: Axis) -> Self {
+    pub fn new(layout: &KeyLayout, name: &str, mut axis: Axis) -> Self {
         axis.drain_events().count();
-        // Boot may have changed the position (RSTM): the saved state follows what is.
-        Self { name: name.to_string(), axis, seq: 0, waiting: Vec::new(), outputs: VecDeque::new(), unsaved: true }
+        Self {
+            layout: layout.clone(),
+            name: name.to_string(),
+            axis,
+            seq: 0,
+            waiting: Vec::new(),
+            outputs: VecDeque::new(),
+            // Boot may have changed the position (RSTM): the saved state follows what is.
+            unsaved: true,
+        }
     }
 
     /// The axis's name (its key chunk).
@@ -303,8 +328,21 @@ impl<R: Clone> AxisService<R> {
     ) -> Result<(Field, WriteAccepted), RequestError> {
         let field = field_named(name)?;
         let value = zmotor_msgs::decode_write(field.def(), payload, encoding)?;
+        let key = match &value {
+            Value::Text(key) if field.def().kind == Kind::Link => Some(key.clone()),
+            _ => None,
+        };
+        if let Some(key) = key.as_deref().filter(|key| !key.is_empty()) {
+            let writes = field.is_output_link();
+            self.layout
+                .check_link(key, writes, Some(&self.name))
+                .map_err(|source| RequestError::Link { field, source })?;
+        }
         let accepted = self.axis.write(now, field, &value)?;
         self.unsaved |= field.autosave().is_some();
+        if let (Some(link), Some(key)) = (InputLink::of(field), key) {
+            self.outputs.push_back(ServiceOutput::Follow { link, key });
+        }
         Ok((field, accepted))
     }
 
@@ -394,7 +432,7 @@ mod tests {
     fn service() -> Service {
         let fields = Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() };
         let axis = Axis::new(fields, Box::new(SimAxis::new(SimConfig::default())), PollRates::default(), Instant::ZERO);
-        AxisService::new("m1", axis)
+        AxisService::new(&KeyLayout::default(), "m1", axis)
     }
 
     fn drain(service: &mut Service) -> Vec<ServiceOutput<u32>> {
@@ -579,6 +617,35 @@ mod tests {
             })
             .collect();
         assert!(seqs.len() > 3 && seqs.windows(2).all(|w| w[0] < w[1]), "{seqs:?}");
+    }
+
+    #[test]
+    fn a_link_written_at_run_time_is_followed_and_a_bad_one_refused_naming_the_field() {
+        let mut s = service();
+        s.write(at(0.0), "DOL", b"lab/setpoint", Text, false, 1);
+        let outputs = drain(&mut s);
+        let follows: Vec<&ServiceOutput<u32>> =
+            outputs.iter().filter(|o| matches!(o, ServiceOutput::Follow { .. })).collect();
+        assert_eq!(follows, [&ServiceOutput::Follow { link: InputLink::Desired, key: "lab/setpoint".into() }]);
+        for (field, key, why) in [
+            ("RDBL", "a//b", "RDBL: 'a//b' is not a plain key"),
+            ("OUT", "x/*y", "OUT: 'x/*y' is not a plain key"),
+            ("FLNK", "motor/m1/PROC", "FLNK: motor/m1/PROC: axis 'm1' would link to its own PROC"),
+            ("OUT", "motor/m2/RBV", "OUT: motor/m2/RBV: RBV is read-only"),
+            ("DINP", "motor/m2/DONE", "DINP: motor/m2/DONE: 'DONE' is not a field of a motor"),
+        ] {
+            s.write(at(0.0), field, key.as_bytes(), Text, false, 2);
+            let answers = replies(&drain(&mut s));
+            let [(2, Reply::Refused(refusal))] = &answers[..] else { panic!("{answers:?}") };
+            assert!(refusal.to_string().starts_with(why), "{refusal}");
+        }
+        assert_eq!(
+            (s.fields().rdbl.as_str(), s.fields().out.as_str(), s.fields().dol.as_str()),
+            ("", "", "lab/setpoint")
+        );
+        s.write(at(0.0), "DOL", b"", Text, false, 3);
+        let unlinked = drain(&mut s);
+        assert!(unlinked.contains(&ServiceOutput::Follow { link: InputLink::Desired, key: String::new() }));
     }
 
     #[test]

@@ -17,7 +17,7 @@ use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, Inpu
 use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
 use zmotor_core::driver::sim::SimConfig;
 use zmotor_msgs::toml_value::field_value;
-use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, Value};
+use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
 use zmotor_zenoh::{Mode, ValueSpec, ZenohConfig};
 
 /// Highest readback rate while moving, Hz.
@@ -665,34 +665,34 @@ fn check_wiring(
         let message = format!("calc links form a loop with no motor in between: {}", cycle.join(" → "));
         return Err(Problem::in_item("calc", calc_origins[first], &[], message));
     }
-    // (table, origin, who, key, writes)
-    let mut links: Vec<(&str, Origin, String, String, bool)> = Vec::new();
+    // The calc links' keys were checked to be plain where they were read.
     for (calc, origin) in calcs.iter().zip(calc_origins) {
+        let problem = |who: String, e: LinkKeyError| Problem::in_item("calc", *origin, &[], format!("{who}: {e}"));
         for input in &calc.inputs {
             let letter = zmotor_bridge::link::input_name(input.index);
-            links.push(("calc", *origin, format!("calc '{}' input {letter}", calc.name), input.key.clone(), false));
+            let who = format!("calc '{}' input {letter}", calc.name);
+            layout.check_link(&input.key, false, None).map_err(|e| problem(who, e))?;
         }
-        links.push(("calc", *origin, format!("calc '{}' output", calc.name), calc.output.clone(), true));
+        let who = format!("calc '{}' output", calc.name);
+        layout.check_link(&calc.output, true, None).map_err(|e| problem(who, e))?;
     }
     for (axis, origin) in axes.iter().zip(axis_origins) {
         for field in Field::all().filter(|f| f.def().kind == Kind::Link) {
             let Value::Text(key) = axis.fields.get(field) else { continue };
-            if !key.is_empty() {
-                let inner = ["fields", field.name()];
-                keys::validate_plain_key(&key).map_err(|e| {
-                    Problem::in_item("axis", *origin, &inner, format!("axis '{}': fields.{field}: {e}", axis.name))
-                })?;
-                links.push(("axis", *origin, format!("axis '{}' {field}", axis.name), key, field.is_output_link()));
+            if key.is_empty() {
+                continue;
             }
-        }
-    }
-    for (table, origin, who, key, writes) in links {
-        let Some(rest) = key.strip_prefix(layout.prefix()).and_then(|r| r.strip_prefix('/')) else { continue };
-        let Some((_, name)) = rest.split_once('/') else { continue };
-        let problem = |message: String| Problem::in_item(table, origin, &[], format!("{who}: {key}: {message}"));
-        let field = Field::from_name(name).ok_or_else(|| problem(format!("'{name}' is not a field of a motor")))?;
-        if writes && field.def().access == Access::RO {
-            return Err(problem(format!("{field} is read-only")));
+            match layout.check_link(&key, field.is_output_link(), Some(&axis.name)) {
+                Ok(()) => {}
+                Err(LinkKeyError::NotPlain(e)) => {
+                    let inner = ["fields", field.name()];
+                    let message = format!("axis '{}': fields.{field}: {e}", axis.name);
+                    return Err(Problem::in_item("axis", *origin, &inner, message));
+                }
+                Err(e) => {
+                    return Err(Problem::in_item("axis", *origin, &[], format!("axis '{}' {field}: {e}", axis.name)))
+                }
+            }
         }
     }
     Ok(())

@@ -3,6 +3,7 @@
 
 use crate::node::Writer;
 use std::collections::HashMap;
+use std::sync::Arc;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::sample::Sample;
@@ -35,6 +36,14 @@ impl LocalFollowers {
         by_axis.entry(axis.to_string()).or_default().push((field, follower));
     }
 
+    /// Stop following whatever `follower` followed.
+    fn unregister(&self, follower: &Follower) {
+        let mut by_axis = self.by_axis.write().unwrap_or_else(|e| e.into_inner());
+        for followers in by_axis.values_mut() {
+            followers.retain(|(_, (tx, index))| !(tx.same_channel(&follower.0) && *index == follower.1));
+        }
+    }
+
     /// A field of `axis` took `value`.
     pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) {
         let by_axis = self.by_axis.read().unwrap_or_else(|e| e.into_inner());
@@ -46,45 +55,67 @@ impl LocalFollowers {
     }
 }
 
-/// Follows keys as EPICS links follow PVs: every update, and the current value asked for once
-/// at the start (as a link does when it connects). Any sample is a reading, state or write.
-pub(crate) struct KeyFollower {
-    /// (index of the key, value), in arrival order.
-    pub(crate) values: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
-    _subscribers: Vec<zenoh::pubsub::Subscriber<()>>,
+/// The keys one task follows, by index, as EPICS links follow PVs: every update, and the
+/// current value asked for once when a key is followed (as a link does when it connects). Any
+/// sample is a reading, state or write. What a key follows can change at run time.
+pub(crate) struct Follows {
+    session: Session,
+    runtime: tokio::runtime::Handle,
+    local: Arc<LocalFollowers>,
+    tx: tokio::sync::mpsc::UnboundedSender<(usize, f64)>,
+    subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
 }
 
-impl KeyFollower {
-    pub(crate) async fn start(
+impl Follows {
+    /// Nothing followed yet; the values arrive on the receiver, as (index, value).
+    pub(crate) fn new(
         session: &Session,
-        keys: Vec<String>,
-        local: &LocalFollowers,
-    ) -> Result<Self, zenoh::Error> {
+        local: Arc<LocalFollowers>,
+    ) -> (Self, tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>) {
         let (tx, values) = tokio::sync::mpsc::unbounded_channel();
-        let mut subscribers = Vec::new();
-        for (index, key) in keys.iter().enumerate() {
-            local.register(key, (tx.clone(), index));
-            let updates = tx.clone();
-            let subscriber = session
-                .declare_subscriber(key.clone())
-                .callback(move |sample| {
-                    if let Some(value) = sample_number(&sample) {
-                        let _ = updates.send((index, value));
-                    }
-                })
-                .await?;
-            subscribers.push(subscriber);
-            let replies = session.get(key.clone()).timeout(Duration::from_secs(5)).await?;
-            let tx = tx.clone();
-            tokio::spawn(async move {
-                while let Ok(reply) = replies.recv_async().await {
-                    if let Some(value) = reply.result().ok().and_then(sample_number) {
-                        let _ = tx.send((index, value));
-                    }
-                }
-            });
+        let follows = Self {
+            session: session.clone(),
+            runtime: tokio::runtime::Handle::current(),
+            local,
+            tx,
+            subscribers: Vec::new(),
+        };
+        (follows, values)
+    }
+
+    /// Follow `key` at `index` instead of what was followed there; "" follows nothing.
+    pub(crate) fn follow(&mut self, index: usize, key: &str) -> Result<(), zenoh::Error> {
+        if self.subscribers.len() <= index {
+            self.subscribers.resize_with(index + 1, || None);
         }
-        Ok(Self { values, _subscribers: subscribers })
+        self.subscribers[index] = None;
+        let follower = (self.tx.clone(), index);
+        self.local.unregister(&follower);
+        if key.is_empty() {
+            return Ok(());
+        }
+        self.local.register(key, follower);
+        let updates = self.tx.clone();
+        let subscriber = self
+            .session
+            .declare_subscriber(key.to_string())
+            .callback(move |sample| {
+                if let Some(value) = sample_number(&sample) {
+                    let _ = updates.send((index, value));
+                }
+            })
+            .wait()?;
+        self.subscribers[index] = Some(subscriber);
+        let replies = self.session.get(key.to_string()).timeout(Duration::from_secs(5)).wait()?;
+        let first = self.tx.clone();
+        self.runtime.spawn(async move {
+            while let Ok(reply) = replies.recv_async().await {
+                if let Some(value) = reply.result().ok().and_then(sample_number) {
+                    let _ = first.send((index, value));
+                }
+            }
+        });
+        Ok(())
     }
 }
 
@@ -103,13 +134,15 @@ pub(crate) fn is_state(sample: &Sample) -> bool {
 pub(crate) struct CalcTask {
     pub(crate) writer: Writer,
     pub(crate) link: CalcLink,
-    pub(crate) inputs: KeyFollower,
+    /// Its input keys, followed for as long as the task lives.
+    pub(crate) _follows: Follows,
+    pub(crate) inputs: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
 }
 
 impl CalcTask {
     pub(crate) async fn run(&mut self) {
         let keys: Vec<String> = self.link.input_keys().map(str::to_string).collect();
-        while let Some((index, value)) = self.inputs.values.recv().await {
+        while let Some((index, value)) = self.inputs.recv().await {
             if let Some(result) = self.link.update(&keys[index], value) {
                 // A write to the output key, like a calcout's OUT: plain, no state marker.
                 self.writer.put(&self.link.spec().output, result.to_string());

@@ -8,7 +8,7 @@
 //! declarations already there, and thousands of axes would pay it squared.
 
 use crate::autosave::{AutosaveError, SavedAxis, StateStore};
-use crate::links::{is_state, CalcTask, KeyFollower, LocalFollowers, ValueHolder, ValueSpec};
+use crate::links::{is_state, CalcTask, Follows, LocalFollowers, ValueHolder, ValueSpec};
 use crate::timer::Timer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard, TryLockError};
@@ -126,14 +126,17 @@ impl Node {
                 Some(config) => Some(Saver::restore(config, &mut plan)?),
                 None => None,
             };
-            let (link_kinds, link_keys): (Vec<InputLink>, Vec<String>) = plan.input_links().into_iter().unzip();
-            let links = KeyFollower::start(&session, link_keys, &followers).await?;
+            let (mut follows, links) = Follows::new(&session, followers.clone());
+            for (link, key) in plan.input_links() {
+                follows.follow(link as usize, &key)?;
+            }
             let name = plan.name.clone();
             let core = AxisCore {
-                service: AxisService::new(&name, plan.build(Instant::ZERO)),
+                service: AxisService::new(&layout, &name, plan.build(Instant::ZERO)),
                 session: session.clone(),
                 writer: writer.clone(),
                 followers: followers.clone(),
+                follows,
                 demand: demand.clone(),
                 layout: layout.clone(),
                 clock: tokio::time::Instant::now(),
@@ -156,7 +159,6 @@ impl Node {
                 queued: handle.queued,
                 rearm: handle.rearm,
                 links,
-                link_kinds,
                 saver,
                 timer: timer.clone(),
                 token: tokens.slot(&name),
@@ -181,9 +183,11 @@ impl Node {
         let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
-            let keys = link.input_keys().map(str::to_string).collect();
-            let inputs = KeyFollower::start(&session, keys, &followers).await?;
-            let mut task = CalcTask { writer: writer.clone(), link, inputs };
+            let (mut follows, inputs) = Follows::new(&session, followers.clone());
+            for (index, key) in link.input_keys().enumerate() {
+                follows.follow(index, key)?;
+            }
+            let mut task = CalcTask { writer: writer.clone(), link, _follows: follows, inputs };
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
         Ok(Self { axis_tasks, calc_tasks, stop, _router: router, _values: holders })
@@ -424,6 +428,8 @@ struct AxisCore {
     writer: Writer,
     /// Links of this node that follow this axis's fields.
     followers: Arc<LocalFollowers>,
+    /// The keys this axis's input links follow, by `InputLink` index.
+    follows: Follows,
     layout: KeyLayout,
     clock: tokio::time::Instant,
     /// Declared at the first driver command, so idle axes cost no publisher.
@@ -540,6 +546,11 @@ impl AxisCore {
                 }
                 // A link's or directive's put is a command: a plain write, no marker.
                 ServiceOutput::Put { key, value } => self.writer.put(&key, value),
+                ServiceOutput::Follow { link, key } => {
+                    if let Err(e) = self.follows.follow(link as usize, &key) {
+                        tracing::error!(axis = %self.name(), key, "cannot follow the link: {e}");
+                    }
+                }
             }
         }
     }
@@ -665,9 +676,8 @@ struct AxisTask {
     queue: tokio::sync::mpsc::UnboundedReceiver<AxisInput>,
     queued: Arc<AtomicUsize>,
     rearm: Arc<tokio::sync::Notify>,
-    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `link_kinds` index.
-    links: KeyFollower,
-    link_kinds: Vec<InputLink>,
+    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `InputLink` index.
+    links: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
     saver: Option<Saver>,
     /// Wakes the task (through `rearm`) when the axis's next event comes.
     timer: Timer,
@@ -699,8 +709,8 @@ impl AxisTask {
             }
             let other = [next, stopping, self.saver.as_ref().and_then(|s| s.due)].into_iter().flatten().min();
             tokio::select! {
-                Some((index, value)) = self.links.values.recv() => {
-                    lock(&self.core).link_update(self.link_kinds[index], value);
+                Some((index, value)) = self.links.recv() => {
+                    lock(&self.core).link_update(InputLink::ALL[index], value);
                 }
                 Some(input) = self.queue.recv() => {
                     self.queued.fetch_sub(1, Ordering::AcqRel);

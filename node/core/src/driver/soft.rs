@@ -5,6 +5,7 @@
 
 use crate::engine::{DeviceStatus, MotorCommand};
 use zmotor_msgs::bits::msta;
+use zmotor_msgs::Field;
 
 /// Where the driven motor stands, as DINP tells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -18,7 +19,7 @@ pub enum DriveState {
 }
 
 /// Which input link an update arrived on.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum InputLink {
     /// RDBL: the readback, in RRES units.
     Readback,
@@ -28,6 +29,26 @@ pub enum InputLink {
     Done,
     /// DOL: the desired value in closed-loop mode.
     Desired,
+}
+
+impl InputLink {
+    /// Every input link.
+    pub const ALL: [InputLink; 4] = [InputLink::Readback, InputLink::RawPosition, InputLink::Done, InputLink::Desired];
+
+    /// The link field that names its key.
+    pub fn field(self) -> Field {
+        match self {
+            InputLink::Readback => Field::RDBL,
+            InputLink::RawPosition => Field::RINP,
+            InputLink::Done => Field::DINP,
+            InputLink::Desired => Field::DOL,
+        }
+    }
+
+    /// The input link a field names the key of, if it is one.
+    pub fn of(field: Field) -> Option<InputLink> {
+        InputLink::ALL.into_iter().find(|link| link.field() == field)
+    }
 }
 
 #[derive(Clone, Debug)]
@@ -67,6 +88,13 @@ impl SoftChannel {
             initialized: false,
             raw_position: 0.0,
         }
+    }
+
+    /// The OUT, STOO and DINP keys changed at run time ("" when unset).
+    pub fn relink(&mut self, out: &str, stop_out: &str, done_input: &str) {
+        self.out = out.to_string();
+        self.stop_out = stop_out.to_string();
+        self.has_done_input = !done_input.is_empty();
     }
 
     /// The status the record reads: the raw position and, from DINP, whether it is done.

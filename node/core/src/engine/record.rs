@@ -99,6 +99,11 @@ impl MotorRecord {
         }
     }
 
+    /// DOL now names another key (or none): its last value is no longer the desired one.
+    pub fn forget_desired_value(&mut self) {
+        self.desired = None;
+    }
+
     /// Soft Channel: the driven motor moved on its own (or the first readback arrived): the
     /// target will be re-synchronised at the next completion (§16.2).
     pub fn external_motion(&mut self) {

@@ -1,0 +1,84 @@
+//! Input links written at run time are followed at once, as the record follows them: a DOL and
+//! OMSL closed_loop written over Zenoh drive the axis from the linked key; RDBL switched at run
+//! time changes where the readback comes from; a link change that cannot be wired is refused and
+//! changes nothing.
+
+use std::time::Duration;
+use zmotor_msgs::{Field, Value};
+use zmotor_tests::*;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dol_written_at_run_time_drives_the_axis_in_closed_loop() {
+    let node = TestNode::start(vec![fast_axis("m1")]).await;
+    let client = node.client().await;
+    confirmed_write(&client, &node.key("m1", Field::DOL), "lab/setpoint", PATIENCE).await.unwrap();
+    confirmed_write(&client, &node.key("m1", Field::OMSL), "closed_loop", PATIENCE).await.unwrap();
+    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    // Twelve defined positions put on the linked key, each reached before the next.
+    for (i, position) in [1.0, 2.5, -3.0, 10.0, 0.5, 7.25, -1.0, 4.0, 4.5, -8.0, 6.0, 2.0].into_iter().enumerate() {
+        put_text(&client, "lab/setpoint", &position.to_string()).await;
+        rec.wait_for("RBV", |v| v.as_f64().is_some_and(|x| (x - position).abs() < 1e-6)).await;
+        rec.wait_for("DMOV", |v| *v == int(1)).await;
+        assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, position, "position {i}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rdbl_switched_at_run_time_changes_where_the_readback_comes_from() {
+    let mut plan = fast_axis("m1");
+    plan.fields.urip = 1;
+    plan.fields.rres = 1.0;
+    plan.fields.rdbl = "lab/encoder1".into();
+    let node = TestNode::start(vec![plan]).await;
+    let client = node.client().await;
+    let rbv = node.key("m1", Field::RBV);
+    put_text(&client, "lab/encoder1", "0.25").await;
+    wait_until(&client, &rbv, 0.25).await;
+    confirmed_write(&client, &node.key("m1", Field::RDBL), "lab/encoder2", PATIENCE).await.unwrap();
+    put_text(&client, "lab/encoder2", "0.5").await;
+    wait_until(&client, &rbv, 0.5).await;
+    // The old key is no longer followed.
+    put_text(&client, "lab/encoder1", "0.9").await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(get_f64(&client, &rbv).await, 0.5);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_change_that_cannot_be_wired_is_refused_and_changes_nothing() {
+    let mut plan = fast_axis("m1");
+    plan.fields.dol = "lab/setpoint".into();
+    let node = TestNode::start(vec![plan]).await;
+    let client = node.client().await;
+    let dol = node.key("m1", Field::DOL);
+    for (key, why) in [
+        ("a//b", "DOL: 'a//b' is not a plain key"),
+        ("x/*y", "DOL: 'x/*y' is not a plain key"),
+        ("motor/m1/RBV", "DOL: motor/m1/RBV: axis 'm1' would link to its own RBV"),
+        ("motor/m2/NOPE", "DOL: motor/m2/NOPE: 'NOPE' is not a field of a motor"),
+    ] {
+        let err = confirmed_write(&client, &dol, key, PATIENCE).await.unwrap_err();
+        assert!(err.starts_with(why), "{key}: {err}");
+    }
+    let err = confirmed_write(&client, &node.key("m1", Field::OUT), "motor/m2/RBV", PATIENCE).await.unwrap_err();
+    assert!(err.starts_with("OUT: motor/m2/RBV: RBV is read-only"), "{err}");
+    assert_eq!(get_value(&client, &dol).await, Value::Text("lab/setpoint".into()));
+    // Still following the link it had.
+    confirmed_write(&client, &node.key("m1", Field::OMSL), "closed_loop", PATIENCE).await.unwrap();
+    let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
+    put_text(&client, "lab/setpoint", "3").await;
+    rec.wait_for("DMOV", |v| *v == int(1)).await;
+    wait_until(&client, &node.key("m1", Field::RBV), 3.0).await;
+}
+
+/// Poll a field until it reads `expected` (bounded by PATIENCE).
+async fn wait_until(client: &zenoh::Session, key: &str, expected: f64) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let value = get_f64(client, key).await;
+        if (value - expected).abs() < 1e-9 {
+            return;
+        }
+        assert!(tokio::time::Instant::now() < deadline, "{key} is {value}, expected {expected}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
