@@ -143,11 +143,12 @@ pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, M
     match encoding {
         PayloadEncoding::Cbor => {
             let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| malformed(e.to_string()))?;
-            from_cbor(v).map_err(malformed)
+            from_cbor(v)
+                .ok_or_else(|| malformed(format!("a single number or text is required, got {}", cbor_kind(bytes))))
         }
         PayloadEncoding::Json => {
             let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
-            from_json(v).map_err(malformed)
+            from_json(&v).ok_or_else(|| malformed(format!("a number or a string is required, got {}", json_kind(&v))))
         }
         PayloadEncoding::Text => {
             let text = std::str::from_utf8(bytes).map_err(|e| malformed(e.to_string()))?;
@@ -156,40 +157,47 @@ pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, M
     }
 }
 
-fn from_cbor(v: ciborium::Value) -> Result<Value, String> {
+/// The scalar a CBOR item holds, if it is one that fits.
+fn from_cbor(v: ciborium::Value) -> Option<Value> {
     match v {
-        ciborium::Value::Integer(i) => {
-            i64::try_from(i128::from(i)).map(Value::Int).map_err(|_| "integer does not fit in 64 bits".to_string())
-        }
-        ciborium::Value::Float(f) => Ok(Value::Float(f)),
-        ciborium::Value::Text(s) => Ok(Value::Text(s)),
-        ciborium::Value::Bool(b) => Ok(Value::Int(i64::from(b))),
-        other => Err(format!("a single number or text is required, got {}", cbor_kind(&other))),
+        ciborium::Value::Integer(i) => i64::try_from(i128::from(i)).ok().map(Value::Int),
+        ciborium::Value::Float(f) => Some(Value::Float(f)),
+        ciborium::Value::Text(s) => Some(Value::Text(s)),
+        ciborium::Value::Bool(b) => Some(Value::Int(i64::from(b))),
+        _ => None,
     }
 }
 
-fn cbor_kind(v: &ciborium::Value) -> &'static str {
-    match v {
-        ciborium::Value::Bytes(_) => "a byte string",
-        ciborium::Value::Array(_) => "an array",
-        ciborium::Value::Map(_) => "a map",
-        ciborium::Value::Null => "null",
-        ciborium::Value::Tag(..) => "a tagged item",
+/// What a CBOR payload that is not one scalar holds, in words.
+fn cbor_kind(bytes: &[u8]) -> &'static str {
+    match ciborium::from_reader::<ciborium::Value, _>(bytes) {
+        Ok(ciborium::Value::Integer(_)) => "an integer that does not fit in 64 bits",
+        Ok(ciborium::Value::Bytes(_)) => "a byte string",
+        Ok(ciborium::Value::Array(_)) => "an array",
+        Ok(ciborium::Value::Map(_)) => "a map",
+        Ok(ciborium::Value::Null) => "null",
+        Ok(ciborium::Value::Tag(..)) => "a tagged item",
         _ => "an unsupported item",
     }
 }
 
-fn from_json(v: serde_json::Value) -> Result<Value, String> {
+/// The scalar a JSON value holds, if it is one.
+fn from_json(v: &serde_json::Value) -> Option<Value> {
     match v {
-        serde_json::Value::Number(n) => match n.as_i64() {
-            Some(i) => Ok(Value::Int(i)),
-            None => n.as_f64().map(Value::Float).ok_or_else(|| format!("unrepresentable number {n}")),
-        },
-        serde_json::Value::String(s) => Ok(Value::Text(s)),
-        serde_json::Value::Bool(b) => Ok(Value::Int(i64::from(b))),
-        serde_json::Value::Null => Err("a number or a string is required, got null".into()),
-        serde_json::Value::Array(_) => Err("a number or a string is required, got an array".into()),
-        serde_json::Value::Object(_) => Err("a number or a string is required, got an object".into()),
+        serde_json::Value::Number(n) => n.as_i64().map(Value::Int).or_else(|| n.as_f64().map(Value::Float)),
+        serde_json::Value::String(s) => Some(Value::Text(s.clone())),
+        serde_json::Value::Bool(b) => Some(Value::Int(i64::from(*b))),
+        _ => None,
+    }
+}
+
+/// What a JSON value that is not one scalar is, in words.
+fn json_kind(v: &serde_json::Value) -> &'static str {
+    match v {
+        serde_json::Value::Null => "null",
+        serde_json::Value::Array(_) => "an array",
+        serde_json::Value::Object(_) => "an object",
+        _ => "an unrepresentable number",
     }
 }
 
