@@ -354,6 +354,12 @@ impl SimAxis {
         self.config.low_limit_switch.is_some_and(|s| self.physical <= s)
     }
 
+    /// The carriage stands on the home switch, as the switch's own input reads (the status's
+    /// HOME bit follows motorSim, which clears it after a home search).
+    pub fn on_home_switch(&self) -> bool {
+        self.physical == self.config.home_switch
+    }
+
     /// As motorSim reports it: the carriage exactly on the home position. motorSim compares
     /// positions exactly; a move to the switch lands on it, but its home search ends a rounding
     /// error away, so the record reads ATHM 0 after a home. This simulator's search lands

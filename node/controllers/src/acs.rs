@@ -1,0 +1,295 @@
+//! ACS MCB-4B: ASCII over a serial line (19200 8N1) or a terminal server's TCP socket, every
+//! line ended by `\r`, every command answered by one line. A command is `#NN` (the 0-based
+//! axis, two digits), a letter, and its argument: `#01G+12000` moves axis 1 to step 12000.
+//! Speeds and accelerations are indexes: speed = 115200 / V steps/s (V 2–255), acceleration =
+//! 720000 / (256 − R) steps/s² (R 1–255). The controller has no jog: a jog is a relative move
+//! of a million steps. Status is polled per axis: `P` (position), `X` (moving), `E` (limit
+//! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does.
+
+use crate::protocol::ReplyError;
+use crate::protocol::{line_frame, line_text, whole_steps, CommandError, Event, Frame, Protocol, Purpose, Request};
+use zmotor_core::engine::DeviceStatus;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+/// The protocol's name in launch files.
+pub const NAME: &str = "acs_mcb4b";
+
+/// The line terminator, both ways.
+pub const TERMINATOR: &[u8] = b"\r";
+
+/// The distance of a jog, in steps: the controller has no move at constant velocity.
+pub const JOG_STEPS: i32 = 1_000_000;
+
+/// The speed index of `velocity` steps/s: speed = 115200 / V.
+pub fn speed_index(velocity: f64) -> u32 {
+    if velocity == 0.0 || !velocity.is_finite() {
+        return 255;
+    }
+    (115_200.0 / velocity.abs()).round().clamp(2.0, 255.0) as u32
+}
+
+/// The speed, in steps/s, of a speed index.
+pub fn speed_of_index(index: u32) -> f64 {
+    115_200.0 / f64::from(index.clamp(2, 255))
+}
+
+/// The ramp index of `acceleration` steps/s²: acceleration = 720000 / (256 − R).
+pub fn ramp_index(acceleration: f64) -> u32 {
+    if acceleration <= 0.0 || !acceleration.is_finite() {
+        return 255;
+    }
+    (256.0 - 720_000.0 / acceleration).round().clamp(1.0, 255.0) as u32
+}
+
+/// The acceleration, in steps/s², of a ramp index.
+pub fn acceleration_of_index(index: u32) -> f64 {
+    720_000.0 / (256.0 - f64::from(index.clamp(1, 255)))
+}
+
+/// Which reading a poll request is.
+mod item {
+    pub const POSITION: u8 = 0;
+    pub const MOVING: u8 = 1;
+    pub const SWITCHES: u8 = 2;
+    pub const POWER: u8 = 3;
+}
+
+/// The MCB-4B protocol, with the status of each channel being assembled from its poll.
+#[derive(Debug, Default)]
+pub struct Mcb4b {
+    partial: Vec<(usize, DeviceStatus)>,
+}
+
+impl Mcb4b {
+    /// A protocol with nothing polled yet.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    fn partial(&mut self, channel: usize) -> &mut DeviceStatus {
+        match self.partial.iter().position(|(c, _)| *c == channel) {
+            Some(i) => &mut self.partial[i].1,
+            None => {
+                self.partial.push((channel, DeviceStatus::default()));
+                &mut self.partial.last_mut().expect("just pushed").1
+            }
+        }
+    }
+}
+
+/// `#NN` and the rest, as one request line.
+fn line(channel: usize, rest: &str) -> Vec<u8> {
+    format!("#{channel:02}{rest}\r").into_bytes()
+}
+
+fn command_request(channel: usize, rest: &str) -> Request {
+    Request::query(line(channel, rest), Purpose::Command { channel, item: 0 })
+}
+
+/// Speed and ramp, as every motion sets them first.
+fn speed_and_ramp(channel: usize, velocity: f64, acceleration: f64) -> Vec<Request> {
+    vec![
+        command_request(channel, &format!("V={}", speed_index(velocity))),
+        command_request(channel, &format!("R={}", ramp_index(acceleration))),
+    ]
+}
+
+impl Protocol for Mcb4b {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn frame(&self, buffer: &[u8]) -> Frame {
+        match line_frame(buffer, TERMINATOR) {
+            // A stray terminator is not a reply.
+            Frame::Complete(1) => Frame::Junk(1),
+            frame => frame,
+        }
+    }
+
+    fn init(&mut self, _channels: &[usize]) -> Vec<Request> {
+        // The EPICS driver sends nothing but the first poll: nothing moves, nothing powers up.
+        Vec::new()
+    }
+
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+        let mut requests = Vec::new();
+        for &channel in channels {
+            for (item, letter) in
+                [(item::POSITION, "P"), (item::MOVING, "X"), (item::SWITCHES, "E"), (item::POWER, "W")]
+            {
+                requests.push(Request::query(line(channel, letter), Purpose::Poll { channel, item }));
+            }
+        }
+        requests
+    }
+
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+        let requests = match command {
+            DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
+                let steps = whole_steps("target", *position)?;
+                let mut requests = speed_and_ramp(channel, *max_velocity, *acceleration);
+                let verb = if *relative { "I" } else { "G" };
+                requests.push(command_request(channel, &format!("{verb}{steps:+}")));
+                requests
+            }
+            DriverCommand::MoveVelocity { max_velocity, acceleration, .. } => {
+                let mut requests = speed_and_ramp(channel, *max_velocity, *acceleration);
+                let distance = if *max_velocity >= 0.0 { JOG_STEPS } else { -JOG_STEPS };
+                requests.push(command_request(channel, &format!("I{distance:+}")));
+                requests
+            }
+            DriverCommand::Home { forward, max_velocity, acceleration, .. } => {
+                let mut requests = speed_and_ramp(channel, *max_velocity, *acceleration);
+                requests.push(command_request(channel, if *forward { "H+" } else { "H-" }));
+                requests
+            }
+            DriverCommand::Stop { .. } => vec![command_request(channel, "Q")],
+            DriverCommand::SetPosition { position } => {
+                vec![command_request(channel, &format!("P={:+}", whole_steps("position", *position)?))]
+            }
+            DriverCommand::Enable { on } => vec![command_request(channel, if *on { "W=1" } else { "W=0" })],
+            DriverCommand::Raw { text } => {
+                vec![Request::query(format!("{text}\r"), Purpose::Command { channel, item: 0 })]
+            }
+            // The MCB-4B keeps no soft limits, gains or encoder ratio; a status refresh is a poll.
+            DriverCommand::SetEncoderRatio { .. }
+            | DriverCommand::SetHighLimit { .. }
+            | DriverCommand::SetLowLimit { .. }
+            | DriverCommand::SetGain { .. }
+            | DriverCommand::Poll => Vec::new(),
+        };
+        Ok(requests)
+    }
+
+    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+        let text = line_text(frame, TERMINATOR);
+        let Purpose::Poll { channel, item } = request.purpose else {
+            // A command's acknowledgement: its text is not defined, only that it comes.
+            return Ok(Vec::new());
+        };
+        let asked = line_text(&request.bytes, TERMINATOR);
+        let value = text
+            .strip_prefix(asked.as_str())
+            .and_then(|rest| rest.strip_prefix('='))
+            .ok_or_else(|| ReplyError::new(request, frame, "not the echo of the query"))?;
+        let flag = |at: usize| value.as_bytes().get(at).map(|b| *b == b'1');
+        let status = self.partial(channel);
+        match item {
+            item::POSITION => {
+                let steps: f64 = value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a position"))?;
+                let moved_up = steps > status.position;
+                status.msta = if moved_up { status.msta | msta::DIRECTION } else { status.msta & !msta::DIRECTION };
+                status.position = steps;
+                status.encoder_position = steps;
+            }
+            item::MOVING => {
+                let moving = value.as_bytes().first().ok_or_else(|| ReplyError::new(request, frame, "empty"))? != &b'0';
+                set(&mut status.msta, msta::DONE, !moving);
+                set(&mut status.msta, msta::MOVING, moving);
+            }
+            item::SWITCHES => {
+                let (Some(plus), Some(minus), Some(home)) = (flag(0), flag(1), flag(2)) else {
+                    return Err(ReplyError::new(request, frame, "fewer than three switch flags"));
+                };
+                set(&mut status.msta, msta::PLUS_LS, plus);
+                set(&mut status.msta, msta::MINUS_LS, minus);
+                set(&mut status.msta, msta::HOME, home);
+            }
+            _ => {
+                let powered = flag(0).ok_or_else(|| ReplyError::new(request, frame, "empty"))?;
+                set(&mut status.msta, msta::POSITION, powered);
+                // The direction bit tells the current motion, not the last one.
+                if status.msta & msta::DONE != 0 {
+                    status.msta &= !msta::DIRECTION;
+                }
+                return Ok(vec![Event::Status { channel, status: *status }]);
+            }
+        }
+        Ok(Vec::new())
+    }
+}
+
+fn set(bits: &mut u32, bit: u32, on: bool) {
+    if on {
+        *bits |= bit;
+    } else {
+        *bits &= !bit;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sent(requests: &[Request]) -> Vec<String> {
+        requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
+    }
+
+    #[test]
+    fn indexes_follow_the_controller_formulas_and_its_ranges() {
+        assert_eq!((speed_index(2000.0), ramp_index(9500.0)), (58, 180));
+        assert_eq!((speed_index(1.0), speed_index(1e9), ramp_index(1.0), ramp_index(1e9)), (255, 2, 1, 255));
+        assert!((speed_of_index(58) - 1986.2).abs() < 0.1);
+    }
+
+    #[test]
+    fn moves_set_speed_and_ramp_then_go() {
+        let mut p = Mcb4b::new();
+        let go = DriverCommand::Move {
+            position: 12000.0,
+            relative: false,
+            min_velocity: 0.0,
+            max_velocity: 2000.0,
+            acceleration: 9500.0,
+        };
+        assert_eq!(sent(&p.command(1, &go).unwrap()), ["#01V=58\r", "#01R=180\r", "#01G+12000\r"]);
+        let by = DriverCommand::Move {
+            position: -500.4,
+            relative: true,
+            min_velocity: 0.0,
+            max_velocity: 2000.0,
+            acceleration: 9500.0,
+        };
+        assert_eq!(sent(&p.command(3, &by).unwrap())[2], "#03I-500\r");
+        let jog = DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -1000.0, acceleration: 9500.0 };
+        assert_eq!(sent(&p.command(0, &jog).unwrap())[2], "#00I-1000000\r");
+        let home = DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 1000.0, acceleration: 9500.0 };
+        assert_eq!(sent(&p.command(0, &home).unwrap())[2], "#00H+\r");
+        assert_eq!(sent(&p.command(2, &DriverCommand::Stop { acceleration: 1.0 }).unwrap()), ["#02Q\r"]);
+        assert_eq!(sent(&p.command(2, &DriverCommand::SetPosition { position: 0.0 }).unwrap()), ["#02P=+0\r"]);
+        let far = DriverCommand::Move {
+            position: 3e9,
+            relative: false,
+            min_velocity: 0.0,
+            max_velocity: 1.0,
+            acceleration: 1.0,
+        };
+        assert!(matches!(p.command(0, &far), Err(CommandError::OutOfRange { .. })), "refused, not clamped");
+    }
+
+    #[test]
+    fn a_poll_reads_position_motion_switches_and_power() {
+        let mut p = Mcb4b::new();
+        let poll = p.poll(&[1]);
+        assert_eq!(sent(&poll), ["#01P\r", "#01X\r", "#01E\r", "#01W\r"]);
+        assert_eq!(p.reply(&poll[0], b"#01P=+1500\r").unwrap(), []);
+        assert_eq!(p.reply(&poll[1], b"#01X=1\r").unwrap(), []);
+        assert_eq!(p.reply(&poll[2], b"#01E=101\r").unwrap(), []);
+        let events = p.reply(&poll[3], b"#01W=1\r").unwrap();
+        let [Event::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
+        assert_eq!(status.position, 1500.0);
+        let expected = msta::MOVING | msta::PLUS_LS | msta::HOME | msta::POSITION | msta::DIRECTION;
+        assert_eq!(status.msta, expected);
+    }
+
+    #[test]
+    fn a_reply_that_is_not_the_echo_of_its_query_is_refused() {
+        let mut p = Mcb4b::new();
+        let poll = p.poll(&[1]);
+        assert!(p.reply(&poll[0], b"#02P=+1500\r").is_err(), "another axis's reply");
+        assert!(p.reply(&poll[0], b"#01P=lots\r").is_err());
+        assert!(p.reply(&poll[2], b"#01E=1\r").is_err());
+    }
+}

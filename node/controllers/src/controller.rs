@@ -1,0 +1,622 @@
+//! One motor controller behind one connection, as a sans-IO state machine (asyn's "model 3"
+//! controller, without threads): it keeps one request in flight and queues the rest by priority
+//! (stop, then motion, then settings, then polls), polls every channel at the idle period and at
+//! the moving period while any channel moves (with a few fast polls after every motion command),
+//! and watches the link: a request unanswered within the timeout is retried if it is a query,
+//! and after a few failed exchanges in a row, or when the connection closes, every channel
+//! reports a communication error, everything queued is dropped (a move is never replayed
+//! later), and the connection is reopened with a growing back-off. A reopened connection is
+//! initialised and every channel polled before its status counts again.
+//!
+//! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
+//! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
+
+use crate::protocol::{CommandError, Event, Frame, Protocol, Request};
+use std::collections::VecDeque;
+use std::time::Duration;
+use zmotor_core::engine::DeviceStatus;
+use zmotor_core::Instant;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+/// How a controller is driven.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ControllerConfig {
+    /// The channels (the controller's axis numbers) that have an axis.
+    pub channels: Vec<usize>,
+    /// Time between polls while any channel moves.
+    pub moving_poll: Duration,
+    /// Time between polls while every channel is idle.
+    pub idle_poll: Duration,
+    /// How long a reply may take.
+    pub timeout: Duration,
+    /// How many times a query that timed out or was not understood is sent again.
+    pub retries: u32,
+    /// Failed exchanges in a row that mean the controller is lost.
+    pub failures_to_lose: u32,
+    /// Polls at the moving period after every motion command, as asyn forces them.
+    pub fast_polls: u32,
+    /// Wait before the first attempt to reconnect; doubled at every failed attempt.
+    pub reconnect_first: Duration,
+    /// Longest wait between attempts to reconnect.
+    pub reconnect_max: Duration,
+}
+
+impl ControllerConfig {
+    /// Defaults as the EPICS drivers' examples poll (0.1 s moving, 1 s idle, 2 forced fast
+    /// polls), for these channels.
+    pub fn for_channels(channels: Vec<usize>) -> Self {
+        Self {
+            channels,
+            moving_poll: Duration::from_millis(100),
+            idle_poll: Duration::from_secs(1),
+            timeout: Duration::from_secs(1),
+            retries: 1,
+            failures_to_lose: 3,
+            fast_polls: 2,
+            reconnect_first: Duration::from_millis(500),
+            reconnect_max: Duration::from_secs(10),
+        }
+    }
+}
+
+/// What the runner and the axes must hear about.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ControllerEvent {
+    /// Open the connection (the first time, or once the back-off after a loss has passed).
+    Connect,
+    /// Close the connection: communication with the controller is lost.
+    Disconnect,
+    /// A channel's status, for its axis (a poll's result, or a communication error).
+    Status {
+        /// The channel.
+        channel: usize,
+        /// Its status.
+        status: DeviceStatus,
+    },
+    /// The controller reported an error; the channel's status shows a problem until its next
+    /// command.
+    ControllerError {
+        /// The channel it concerns; every channel when the controller does not say.
+        channel: Option<usize>,
+        /// The vendor's code.
+        code: String,
+        /// What the code means.
+        meaning: String,
+    },
+    /// A command was not sent.
+    Refused {
+        /// The channel.
+        channel: usize,
+        /// Why.
+        why: Refusal,
+    },
+    /// An exchange failed (no reply in time, or a reply that does not parse); it was retried or
+    /// dropped as its kind allows.
+    Failed {
+        /// What failed, in words.
+        what: String,
+    },
+}
+
+/// Why a command was not sent.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Refusal {
+    /// The protocol cannot express it.
+    #[error(transparent)]
+    Command(#[from] CommandError),
+    /// The controller cannot be reached now; the command is not kept for later.
+    #[error("the controller cannot be reached; the command is dropped, not kept for later")]
+    NotConnected,
+    /// The channel has no axis on this controller.
+    #[error("channel {0} has no axis on this controller")]
+    UnknownChannel(usize),
+}
+
+/// Queue classes, most urgent first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Priority {
+    Stop,
+    Motion,
+    Setting,
+    Poll,
+}
+
+/// What a transaction is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Kind {
+    Init,
+    /// A poll of every channel, or of one (a status refresh).
+    Poll,
+    Command {
+        channel: usize,
+        motion: bool,
+    },
+}
+
+impl Kind {
+    /// Whether an exchange that failed may be sent again: queries may, commands never (a move
+    /// sent twice moves twice).
+    fn retryable(self) -> bool {
+        !matches!(self, Kind::Command { .. })
+    }
+}
+
+/// Requests that belong together, sent one after the other.
+#[derive(Debug)]
+struct Transaction {
+    priority: Priority,
+    kind: Kind,
+    requests: VecDeque<Request>,
+    /// When it was queued, in the controller's sequence: a poll queued before a motion command
+    /// of its channel reports a status that motion has made stale.
+    issued: u64,
+}
+
+/// The request waiting for its reply.
+#[derive(Debug)]
+struct InFlight {
+    request: Request,
+    deadline: Instant,
+    attempts: u32,
+}
+
+/// The connection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Link {
+    /// Closed; reconnect at `at`. `backoff` is the wait after the next attempt, if it fails.
+    Down {
+        at: Instant,
+        backoff: Duration,
+    },
+    /// The runner is opening it.
+    Connecting {
+        backoff: Duration,
+    },
+    /// Open; the init sequence and the first full poll run before statuses count.
+    Initialising {
+        backoff: Duration,
+    },
+    Up,
+}
+
+/// What the controller knows of one channel.
+#[derive(Clone, Debug, Default)]
+struct Channel {
+    /// The last status reported.
+    status: DeviceStatus,
+    /// A motion was commanded and no status since says it is over.
+    moving: bool,
+    /// The sequence number of the last motion command queued.
+    motion_issued: u64,
+    /// A controller error since the last command: MSTA shows a problem.
+    problem: bool,
+}
+
+/// One controller (see the module documentation).
+pub struct Controller {
+    protocol: Box<dyn Protocol>,
+    config: ControllerConfig,
+    link: Link,
+    channels: Vec<Channel>,
+    queue: Vec<Transaction>,
+    /// The transaction being carried out, and its request waiting for a reply.
+    current: Option<Transaction>,
+    in_flight: Option<InFlight>,
+    received: Vec<u8>,
+    next_poll: Option<Instant>,
+    fast_polls_left: u32,
+    failures: u32,
+    seq: u64,
+    now: Instant,
+    transmit: VecDeque<Vec<u8>>,
+    events: VecDeque<ControllerEvent>,
+}
+
+impl Controller {
+    /// A controller not connected yet: the first `handle_timeout` asks for the connection.
+    pub fn new(protocol: Box<dyn Protocol>, config: ControllerConfig, now: Instant) -> Self {
+        let channels = vec![Channel::default(); config.channels.iter().max().map_or(0, |c| c + 1)];
+        let backoff = config.reconnect_first;
+        Self {
+            protocol,
+            config,
+            link: Link::Down { at: now, backoff },
+            channels,
+            queue: Vec::new(),
+            current: None,
+            in_flight: None,
+            received: Vec::new(),
+            next_poll: None,
+            fast_polls_left: 0,
+            failures: 0,
+            seq: 0,
+            now,
+            transmit: VecDeque::new(),
+            events: VecDeque::new(),
+        }
+    }
+
+    /// The protocol's name.
+    pub fn protocol(&self) -> &'static str {
+        self.protocol.name()
+    }
+
+    /// Whether the link is up and initialised.
+    pub fn is_up(&self) -> bool {
+        self.link == Link::Up
+    }
+
+    /// A driver command for `channel` (from its axis's record).
+    pub fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand) {
+        self.advance(now);
+        if !self.config.channels.contains(&channel) {
+            self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::UnknownChannel(channel) });
+            return;
+        }
+        if !matches!(self.link, Link::Up) {
+            // Never kept for later: a move must not run minutes after it was asked for.
+            self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::NotConnected });
+            self.report_lost(channel);
+            return;
+        }
+        if let DriverCommand::Poll = command {
+            self.queue_poll_of(&[channel], Priority::Setting);
+            self.pump();
+            return;
+        }
+        let requests = match self.protocol.command(channel, command) {
+            Ok(requests) => requests,
+            Err(e) => {
+                // The axis took the command as started: its status must say it is not.
+                self.events.push_back(ControllerEvent::Refused { channel, why: e.into() });
+                let state = &mut self.channels[channel];
+                state.problem = true;
+                let status = DeviceStatus { msta: state.status.msta | msta::PROBLEM, ..state.status };
+                self.events.push_back(ControllerEvent::Status { channel, status });
+                return;
+            }
+        };
+        let (priority, motion) = match command {
+            DriverCommand::Stop { .. } => (Priority::Stop, false),
+            DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. } => {
+                (Priority::Motion, true)
+            }
+            _ => (Priority::Setting, false),
+        };
+        if priority == Priority::Stop {
+            self.drop_motion_of(channel);
+        }
+        self.seq += 1;
+        let state = &mut self.channels[channel];
+        state.problem = false;
+        if motion {
+            state.moving = true;
+            state.motion_issued = self.seq;
+            // Fast polls follow the command, queued behind it.
+            self.fast_polls_left = self.config.fast_polls;
+            self.next_poll = Some(self.now);
+        }
+        let kind = Kind::Command { channel, motion };
+        self.queue.push(Transaction { priority, kind, requests: requests.into(), issued: self.seq });
+        self.pump();
+    }
+
+    /// The runner opened the connection.
+    pub fn handle_connected(&mut self, now: Instant) {
+        self.advance(now);
+        let Link::Connecting { backoff } = self.link else { return };
+        self.link = Link::Initialising { backoff };
+        self.received.clear();
+        let init = self.protocol.init(&self.config.channels);
+        self.seq += 1;
+        self.queue.push(Transaction {
+            priority: Priority::Stop,
+            kind: Kind::Init,
+            requests: init.into(),
+            issued: self.seq,
+        });
+        let channels = self.config.channels.clone();
+        self.queue_poll_of(&channels, Priority::Stop);
+        self.pump();
+    }
+
+    /// The connection failed to open, or closed.
+    pub fn handle_disconnected(&mut self, now: Instant) {
+        self.advance(now);
+        match self.link {
+            Link::Down { .. } => {}
+            Link::Connecting { backoff } => self.go_down(backoff),
+            Link::Initialising { backoff } => self.lose(backoff),
+            Link::Up => self.lose(self.config.reconnect_first),
+        }
+    }
+
+    /// Bytes read from the connection.
+    pub fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
+        self.advance(now);
+        if !matches!(self.link, Link::Initialising { .. } | Link::Up) {
+            return;
+        }
+        self.received.extend_from_slice(bytes);
+        loop {
+            match self.protocol.frame(&self.received) {
+                Frame::Incomplete => break,
+                Frame::Junk(n) => {
+                    self.received.drain(..n.min(self.received.len()));
+                }
+                Frame::Complete(n) => {
+                    let frame: Vec<u8> = self.received.drain(..n.min(self.received.len())).collect();
+                    self.on_frame(&frame);
+                }
+            }
+        }
+        self.pump();
+    }
+
+    /// Time passed to `now`: a reply overdue, a poll due, a reconnection due.
+    pub fn handle_timeout(&mut self, now: Instant) {
+        self.advance(now);
+        if let Link::Down { at, backoff } = self.link {
+            if self.now >= at {
+                self.link = Link::Connecting { backoff };
+                self.events.push_back(ControllerEvent::Connect);
+            }
+            return;
+        }
+        if self.in_flight.as_ref().is_some_and(|f| self.now >= f.deadline) {
+            let in_flight = self.in_flight.take().expect("checked above");
+            self.on_failure(in_flight, "no reply in time");
+        }
+        if self.link == Link::Up && self.next_poll.is_some_and(|t| self.now >= t) {
+            let already = self.queue.iter().chain(&self.current).any(|t| t.kind == Kind::Poll);
+            if !already {
+                let channels = self.config.channels.clone();
+                self.queue_poll_of(&channels, Priority::Poll);
+            }
+            let moving = self.channels.iter().any(|c| c.moving);
+            let period =
+                if moving || self.fast_polls_left > 0 { self.config.moving_poll } else { self.config.idle_poll };
+            self.fast_polls_left = self.fast_polls_left.saturating_sub(1);
+            self.next_poll = Some(self.now + period);
+        }
+        self.pump();
+    }
+
+    /// When `handle_timeout` is due next.
+    pub fn poll_timeout(&self) -> Option<Instant> {
+        match self.link {
+            Link::Down { at, .. } => Some(at),
+            Link::Connecting { .. } => None,
+            Link::Initialising { .. } | Link::Up => {
+                let deadline = self.in_flight.as_ref().map(|f| f.deadline);
+                let poll = self.next_poll.filter(|_| self.link == Link::Up);
+                [deadline, poll].into_iter().flatten().min()
+            }
+        }
+    }
+
+    /// The next bytes to write.
+    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.transmit.pop_front()
+    }
+
+    /// The next event.
+    pub fn poll_event(&mut self) -> Option<ControllerEvent> {
+        self.events.pop_front()
+    }
+
+    fn advance(&mut self, now: Instant) {
+        self.now = self.now.max(now);
+    }
+
+    /// Queue a poll of `channels`: one transaction per channel (a batched request its own), so
+    /// that motion waits for one channel's poll at most, and a stop for one exchange.
+    fn queue_poll_of(&mut self, channels: &[usize], priority: Priority) {
+        self.seq += 1;
+        let mut transactions: Vec<Transaction> = Vec::new();
+        for request in self.protocol.poll(channels) {
+            let channel = request.purpose.channel();
+            match transactions.last_mut() {
+                Some(t) if t.requests.back().is_some_and(|r| r.purpose.channel() == channel) => {
+                    t.requests.push_back(request)
+                }
+                _ => transactions.push(Transaction {
+                    priority,
+                    kind: Kind::Poll,
+                    requests: [request].into(),
+                    issued: self.seq,
+                }),
+            }
+        }
+        self.queue.extend(transactions);
+    }
+
+    /// A stop goes before anything else of its channel: motion queued for it is dropped, and a
+    /// motion command being sent is cut short (its remaining requests would start it again).
+    fn drop_motion_of(&mut self, channel: usize) {
+        let motion = Kind::Command { channel, motion: true };
+        self.queue.retain(|t| t.kind != motion);
+        if let Some(current) = self.current.as_mut().filter(|t| t.kind == motion) {
+            current.requests.clear();
+        }
+    }
+
+    /// Send what can be sent: one request in flight at most.
+    fn pump(&mut self) {
+        while self.in_flight.is_none() && matches!(self.link, Link::Initialising { .. } | Link::Up) {
+            if self.current.as_ref().is_none_or(|t| t.requests.is_empty()) {
+                if let Some(done) = self.current.take() {
+                    self.finished(done);
+                }
+                let Some(next) = self.next_transaction() else { return };
+                self.current = Some(next);
+                continue;
+            }
+            let stop_waits = self.queue.iter().any(|t| t.priority == Priority::Stop);
+            if let Some(poll) = self.current.as_mut().filter(|t| t.kind == Kind::Poll && self.link == Link::Up) {
+                if stop_waits {
+                    // The rest of this poll can wait for the next round; a stop cannot.
+                    poll.requests.clear();
+                    continue;
+                }
+            }
+            let request = self.current.as_mut().and_then(|t| t.requests.pop_front()).expect("checked above");
+            // What arrived before this request belongs to nothing: a late reply to an exchange
+            // given up must not pass for this one's.
+            self.received.clear();
+            self.transmit.push_back(request.bytes.clone());
+            if request.answered {
+                self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts: 1 });
+            }
+        }
+    }
+
+    fn next_transaction(&mut self) -> Option<Transaction> {
+        let (index, _) = self.queue.iter().enumerate().min_by_key(|(i, t)| (t.priority, *i))?;
+        Some(self.queue.remove(index))
+    }
+
+    /// A transaction has sent all its requests and had all its replies.
+    fn finished(&mut self, transaction: Transaction) {
+        if transaction.kind == Kind::Poll {
+            if let Link::Initialising { .. } = self.link {
+                if self.queue.iter().all(|t| t.kind != Kind::Init && t.kind != Kind::Poll) {
+                    self.link = Link::Up;
+                    self.next_poll = Some(self.now + self.config.idle_poll);
+                }
+            }
+        }
+    }
+
+    fn on_frame(&mut self, frame: &[u8]) {
+        let Some(in_flight) = self.in_flight.take() else {
+            // Nothing asked for it: noise, or a reply too late for its request.
+            self.events.push_back(ControllerEvent::Failed {
+                what: format!("unexpected bytes {}", crate::protocol::printable(frame)),
+            });
+            return;
+        };
+        match self.protocol.reply(&in_flight.request, frame) {
+            Ok(events) => {
+                self.failures = 0;
+                let issued = self.current.as_ref().map_or(0, |t| t.issued);
+                for event in events {
+                    self.on_event(event, issued);
+                }
+            }
+            Err(e) => self.on_failure(in_flight, &e.to_string()),
+        }
+    }
+
+    fn on_event(&mut self, event: Event, issued: u64) {
+        match event {
+            Event::Status { channel, mut status } => {
+                let Some(state) = self.channels.get_mut(channel) else { return };
+                // A poll queued before the last motion command reports the state before it.
+                if issued < state.motion_issued {
+                    return;
+                }
+                state.moving = status.msta & msta::DONE == 0;
+                if state.problem {
+                    status.msta |= msta::PROBLEM;
+                }
+                state.status = status;
+                if matches!(self.link, Link::Initialising { .. } | Link::Up) {
+                    self.events.push_back(ControllerEvent::Status { channel, status });
+                }
+            }
+            Event::ControllerError { channel, code, meaning } => {
+                let affected: Vec<usize> = match channel {
+                    Some(channel) => vec![channel],
+                    None => self.config.channels.clone(),
+                };
+                for channel in affected {
+                    if let Some(state) = self.channels.get_mut(channel) {
+                        state.problem = true;
+                        let mut status = state.status;
+                        status.msta |= msta::PROBLEM;
+                        self.events.push_back(ControllerEvent::Status { channel, status });
+                    }
+                }
+                self.events.push_back(ControllerEvent::ControllerError { channel, code, meaning });
+            }
+            Event::FollowUp(requests) => {
+                if let Some(current) = self.current.as_mut() {
+                    for request in requests.into_iter().rev() {
+                        current.requests.push_front(request);
+                    }
+                }
+            }
+        }
+    }
+
+    /// An exchange failed: retry a query, drop a command's remaining requests, and lose the
+    /// controller after too many failures in a row.
+    fn on_failure(&mut self, in_flight: InFlight, why: &str) {
+        let what = format!("{} ({why})", crate::protocol::printable(&in_flight.request.bytes));
+        self.events.push_back(ControllerEvent::Failed { what });
+        self.failures += 1;
+        if self.failures >= self.config.failures_to_lose {
+            let backoff = match self.link {
+                Link::Initialising { backoff } => backoff,
+                _ => self.config.reconnect_first,
+            };
+            self.lose(backoff);
+            return;
+        }
+        let retryable = self.current.as_ref().is_some_and(|t| t.kind.retryable());
+        if retryable && in_flight.attempts <= self.config.retries {
+            self.received.clear();
+            self.transmit.push_back(in_flight.request.bytes.clone());
+            self.in_flight = Some(InFlight {
+                deadline: self.now + self.config.timeout,
+                attempts: in_flight.attempts + 1,
+                ..in_flight
+            });
+        } else if let Some(current) = self.current.as_mut() {
+            // A command half carried out is not carried on (its channel shows a problem until
+            // the next command); a poll gives up this round.
+            current.requests.clear();
+            if let Kind::Command { channel, .. } = current.kind {
+                self.channels[channel].problem = true;
+            }
+        }
+    }
+
+    /// Communication is lost: every channel says so, nothing queued survives, the connection
+    /// closes and is reopened after `wait`.
+    fn lose(&mut self, wait: Duration) {
+        for channel in self.config.channels.clone() {
+            self.report_lost(channel);
+            self.channels[channel].moving = false;
+        }
+        self.go_down(wait);
+    }
+
+    /// Close, and reopen after `wait`; a failed attempt then waits twice as long, up to the
+    /// longest wait.
+    fn go_down(&mut self, wait: Duration) {
+        self.queue.clear();
+        self.current = None;
+        self.in_flight = None;
+        self.received.clear();
+        self.transmit.clear();
+        self.next_poll = None;
+        self.failures = 0;
+        if !matches!(self.link, Link::Down { .. }) {
+            self.events.push_back(ControllerEvent::Disconnect);
+        }
+        let backoff = wait.saturating_mul(2).min(self.config.reconnect_max);
+        self.link = Link::Down { at: self.now + wait, backoff };
+    }
+
+    /// The channel's last status, with a communication error and no motion.
+    fn report_lost(&mut self, channel: usize) {
+        let Some(state) = self.channels.get(channel) else { return };
+        let mut status = state.status;
+        status.msta = (status.msta | msta::COMM_ERR | msta::DONE) & !msta::MOVING;
+        status.velocity = 0.0;
+        self.events.push_back(ControllerEvent::Status { channel, status });
+    }
+}

@@ -1,0 +1,229 @@
+//! What a vendor's protocol is to the controller layer: pure code that turns driver commands
+//! and polls into request frames, splits the byte stream into reply frames, and turns replies
+//! into channel status. No I/O, no clock.
+
+use zmotor_core::engine::DeviceStatus;
+use zmotor_msgs::DriverCommand;
+
+/// What a protocol needs to know of the installation.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ProtocolOptions {
+    /// How many of the controller's own units one record step is (an SMC100's millimetres, an
+    /// MCS2's picometres); None for the protocol's default.
+    pub units_per_step: Option<f64>,
+}
+
+/// One exchange with the controller: the bytes to write, and whether one reply frame answers
+/// them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Request {
+    /// The bytes, terminator or frame included.
+    pub bytes: Vec<u8>,
+    /// The controller answers with one reply frame (a query, or a command it acknowledges).
+    pub answered: bool,
+    /// What it is for, handed back with the reply.
+    pub purpose: Purpose,
+}
+
+impl Request {
+    /// A request the controller answers.
+    pub fn query(bytes: impl Into<Vec<u8>>, purpose: Purpose) -> Self {
+        Self { bytes: bytes.into(), answered: true, purpose }
+    }
+
+    /// A request the controller does not answer (a setter of a protocol whose setters are
+    /// silent).
+    pub fn silent(bytes: impl Into<Vec<u8>>, purpose: Purpose) -> Self {
+        Self { bytes: bytes.into(), answered: false, purpose }
+    }
+}
+
+/// What a request is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Purpose {
+    /// Part of the poll of one channel; `item` tells the protocol which reading it is.
+    Poll {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading (position, status, ...), as the protocol numbers them.
+        item: u8,
+    },
+    /// Part of a poll of several channels in one request (a batched poll).
+    PollMany {
+        /// Which reading, as the protocol numbers them.
+        item: u8,
+    },
+    /// Part of a command to one channel.
+    Command {
+        /// The channel commanded.
+        channel: usize,
+        /// Which step of the command, as the protocol numbers them.
+        item: u8,
+    },
+    /// Part of the initialisation of a new connection.
+    Init {
+        /// Which step, as the protocol numbers them.
+        item: u8,
+    },
+}
+
+impl Purpose {
+    /// The channel the request concerns, if one.
+    pub fn channel(self) -> Option<usize> {
+        match self {
+            Purpose::Poll { channel, .. } | Purpose::Command { channel, .. } => Some(channel),
+            Purpose::PollMany { .. } | Purpose::Init { .. } => None,
+        }
+    }
+}
+
+/// Where the first reply frame of a byte stream ends.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Frame {
+    /// More bytes are needed.
+    Incomplete,
+    /// A frame of this many bytes (terminators included) is complete.
+    Complete(usize),
+    /// This many bytes before any frame are noise (line noise, a stray terminator): drop them.
+    Junk(usize),
+}
+
+/// What a reply says.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    /// The full status of a channel: its poll is complete.
+    Status {
+        /// The channel.
+        channel: usize,
+        /// Its status, in raw units (steps) and MSTA bits.
+        status: DeviceStatus,
+    },
+    /// The controller reported an error, in its own words.
+    ControllerError {
+        /// The channel it concerns, when the controller says.
+        channel: Option<usize>,
+        /// The vendor's code.
+        code: String,
+        /// What the vendor's code means.
+        meaning: String,
+    },
+    /// Requests to send right after this one, before anything else (an error query after a
+    /// setter, the next entry of an error queue).
+    FollowUp(Vec<Request>),
+}
+
+/// A reply that cannot be understood.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("unexpected reply to {request}: {reply:?} ({why})")]
+pub struct ReplyError {
+    /// The request, as text.
+    pub request: String,
+    /// The reply, as text.
+    pub reply: String,
+    /// What was wrong with it.
+    pub why: &'static str,
+}
+
+impl ReplyError {
+    /// A reply to `request` that the protocol cannot use.
+    pub fn new(request: &Request, reply: &[u8], why: &'static str) -> Self {
+        Self { request: printable(&request.bytes), reply: printable(reply), why }
+    }
+}
+
+/// Why a driver command cannot be sent; nothing is sent then.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum CommandError {
+    /// The controller has nothing that does it.
+    #[error("{protocol} cannot {what}")]
+    Unsupported {
+        /// The protocol.
+        protocol: &'static str,
+        /// What it cannot do.
+        what: &'static str,
+    },
+    /// A value the controller cannot represent: refused, never clamped or wrapped.
+    #[error("{what} {value} is outside what the controller takes")]
+    OutOfRange {
+        /// What the value is.
+        what: &'static str,
+        /// The value.
+        value: f64,
+    },
+}
+
+/// A vendor's wire protocol (see the module documentation). Channels are the controller's own
+/// axis numbers as the launch file gives them.
+pub trait Protocol: Send {
+    /// The protocol's name, as launch files write it.
+    fn name(&self) -> &'static str;
+
+    /// Where the first reply frame in `buffer` ends.
+    fn frame(&self, buffer: &[u8]) -> Frame;
+
+    /// What a new connection sends before the channels are polled.
+    fn init(&mut self, channels: &[usize]) -> Vec<Request>;
+
+    /// One complete poll of `channels`: every reading a channel's status needs, batched into
+    /// fewer requests where the controller allows it.
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request>;
+
+    /// The requests that carry out one driver command on `channel`, in order.
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError>;
+
+    /// What the reply `frame` to `request` says.
+    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError>;
+}
+
+/// Frames that end with a terminator (`\r`, `\r\n`, `\n`): the length of the first line.
+pub fn line_frame(buffer: &[u8], terminator: &[u8]) -> Frame {
+    match buffer.windows(terminator.len()).position(|w| w == terminator) {
+        Some(at) => Frame::Complete(at + terminator.len()),
+        None => Frame::Incomplete,
+    }
+}
+
+/// A frame's bytes without the trailing terminator, as text (replies are ASCII; anything
+/// else is replaced).
+pub fn line_text(frame: &[u8], terminator: &[u8]) -> String {
+    let body = frame.strip_suffix(terminator).unwrap_or(frame);
+    String::from_utf8_lossy(body).into_owned()
+}
+
+/// Bytes as readable text for messages: control bytes escaped.
+pub fn printable(bytes: &[u8]) -> String {
+    bytes.iter().flat_map(|b| std::ascii::escape_default(*b)).map(char::from).collect()
+}
+
+/// A step count as a controller counts it: C-style NINT, in 32 bits. A value beyond is
+/// refused, never clamped (a clamped target drives the carriage somewhere nobody asked).
+pub fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {
+    let rounded = steps.round();
+    if rounded.is_finite() && rounded >= f64::from(i32::MIN) && rounded <= f64::from(i32::MAX) {
+        Ok(rounded as i32)
+    } else {
+        Err(CommandError::OutOfRange { what, value: steps })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_are_cut_at_their_terminator() {
+        assert_eq!(line_frame(b"#01P=+5\r#0", b"\r"), Frame::Complete(8));
+        assert_eq!(line_frame(b"#01P=+5", b"\r"), Frame::Incomplete);
+        assert_eq!(line_frame(b"1TP2.5\r\n", b"\r\n"), Frame::Complete(8));
+        assert_eq!(line_frame(b"1TP2.5\r", b"\r\n"), Frame::Incomplete);
+        assert_eq!(line_text(b"1TP2.5\r\n", b"\r\n"), "1TP2.5");
+        assert_eq!(printable(b"\x02a\r"), "\\x02a\\r");
+    }
+
+    #[test]
+    fn step_counts_round_half_away_from_zero_and_are_refused_beyond_32_bits() {
+        assert_eq!((whole_steps("p", 2.5), whole_steps("p", -2.5)), (Ok(3), Ok(-3)));
+        assert!(matches!(whole_steps("p", 3e9), Err(CommandError::OutOfRange { .. })));
+        assert!(whole_steps("p", f64::NAN).is_err());
+    }
+}

@@ -1,0 +1,114 @@
+//! What every protocol's tests share: a loopback in virtual time, and arbitrary record commands.
+#![allow(dead_code)] // each test file uses its own part
+
+use proptest::prelude::*;
+use std::time::Duration;
+use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
+use zmotor_controllers::emulator::Faults;
+use zmotor_controllers::loopback::Loopback;
+use zmotor_controllers::{ProtocolKind, ProtocolOptions};
+use zmotor_core::engine::DeviceStatus;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::{DriverCommand, Gain};
+
+/// `kind` driving its emulator with `channels` (the emulator has every channel up to the
+/// highest), through `faults`.
+pub fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
+    let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
+    let config = ControllerConfig::for_channels(channels.to_vec());
+    Loopback::new(kind.protocol(&ProtocolOptions::default()), emulator, config, faults)
+}
+
+/// Run until the controller is up and has reported every channel; the events on the way.
+pub fn bring_up(lb: &mut Loopback) -> Vec<ControllerEvent> {
+    lb.run_for(Duration::from_millis(100));
+    assert!(lb.controller.is_up(), "the controller came up: {:?}", lb.take_events());
+    lb.take_events()
+}
+
+/// The last status of `channel` among `events`.
+pub fn last_status(events: &[ControllerEvent], channel: usize) -> DeviceStatus {
+    *Loopback::statuses(events, channel).last().unwrap_or_else(|| panic!("a status of channel {channel}: {events:?}"))
+}
+
+/// Run in steps of `step` until `channel` reports done, at most `limit`; the statuses seen.
+pub fn run_until_done(lb: &mut Loopback, channel: usize, step: Duration, limit: Duration) -> Vec<DeviceStatus> {
+    let end = lb.now() + limit;
+    let mut seen = Vec::new();
+    while lb.now() < end {
+        lb.run_for(step);
+        let statuses = Loopback::statuses(&lb.take_events(), channel);
+        let done = statuses.last().is_some_and(|s| s.msta & msta::DONE != 0);
+        seen.extend(statuses);
+        if done {
+            return seen;
+        }
+    }
+    panic!("channel {channel} did not report done within {limit:?}: {seen:?}");
+}
+
+/// A motion command in the ranges a record sends (steps, steps/s, steps/s²).
+pub fn motion() -> impl Strategy<Value = DriverCommand> {
+    let speed = 10.0..50_000.0f64;
+    let accel = 100.0..500_000.0f64;
+    prop_oneof![
+        (-150_000.0..150_000.0f64, any::<bool>(), speed.clone(), accel.clone()).prop_map(
+            |(position, relative, max_velocity, acceleration)| DriverCommand::Move {
+                position,
+                relative,
+                min_velocity: 0.0,
+                max_velocity,
+                acceleration
+            }
+        ),
+        (speed.clone(), any::<bool>(), accel.clone()).prop_map(|(v, up, acceleration)| DriverCommand::MoveVelocity {
+            min_velocity: 0.0,
+            max_velocity: if up { v } else { -v },
+            acceleration
+        }),
+        (any::<bool>(), speed, accel.clone()).prop_map(|(forward, max_velocity, acceleration)| DriverCommand::Home {
+            forward,
+            min_velocity: 0.0,
+            max_velocity,
+            acceleration
+        }),
+        accel.prop_map(|acceleration| DriverCommand::Stop { acceleration }),
+    ]
+}
+
+/// Any command a record's device support sends, raw text excepted (it is the user's own).
+pub fn command() -> impl Strategy<Value = DriverCommand> {
+    prop_oneof![
+        4 => motion(),
+        1 => (-150_000.0..150_000.0f64).prop_map(|position| DriverCommand::SetPosition { position }),
+        1 => any::<bool>().prop_map(|on| DriverCommand::Enable { on }),
+        1 => (0.01..100.0f64).prop_map(|ratio| DriverCommand::SetEncoderRatio { ratio }),
+        1 => (0.0..190_000.0f64).prop_map(|position| DriverCommand::SetHighLimit { position }),
+        1 => (-190_000.0..0.0f64).prop_map(|position| DriverCommand::SetLowLimit { position }),
+        1 => (prop_oneof![Just(Gain::Proportional), Just(Gain::Integral), Just(Gain::Derivative)], 0.0..1.0f64)
+            .prop_map(|(gain, value)| DriverCommand::SetGain { gain, value }),
+        1 => Just(DriverCommand::Poll),
+    ]
+}
+
+/// Feed `commands` to `channels` in turn, a little apart, and check that every frame the driver
+/// wrote was well-formed for the emulator.
+pub fn no_malformed_frames(kind: ProtocolKind, channels: &[usize], commands: &[(usize, DriverCommand, u64)]) {
+    let mut lb = loopback(kind, channels, Faults::default());
+    bring_up(&mut lb);
+    for (pick, command, gap_ms) in commands {
+        lb.command(channels[pick % channels.len()], command);
+        lb.run_for(Duration::from_millis(*gap_ms));
+    }
+    lb.run_for(Duration::from_secs(2));
+    let refused: Vec<_> = lb
+        .take_events()
+        .into_iter()
+        .filter(|e| matches!(e, ControllerEvent::Refused { .. } | ControllerEvent::Failed { .. }))
+        .collect();
+    assert_eq!(lb.link.malformed(), 0, "frames the controller could not take, among {:?}", lb.written());
+    assert!(
+        refused.iter().all(|e| matches!(e, ControllerEvent::Refused { .. })),
+        "exchanges failed on a clean link: {refused:?}"
+    );
+}

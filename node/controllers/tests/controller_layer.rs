@@ -1,0 +1,264 @@
+//! The controller layer's rules, shown on the smallest protocol (ACS MCB-4B) in virtual time:
+//! one request in flight, stop before everything, fast polls after motion, completion within a
+//! moving-poll period, stale polls ignored, retries, comm loss, reconnection, nothing replayed.
+
+mod common;
+
+use common::{bring_up, last_status, loopback, run_until_done};
+use std::time::Duration;
+use zmotor_controllers::controller::{ControllerEvent, Refusal};
+use zmotor_controllers::emulator::Faults;
+use zmotor_controllers::loopback::Loopback;
+use zmotor_controllers::ProtocolKind;
+use zmotor_core::driver::Driver;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+const ACS: ProtocolKind = ProtocolKind::AcsMcb4b;
+const MS: Duration = Duration::from_millis(1);
+
+fn go(position: f64) -> DriverCommand {
+    DriverCommand::Move {
+        position,
+        relative: false,
+        min_velocity: 0.0,
+        max_velocity: 10_000.0,
+        acceleration: 100_000.0,
+    }
+}
+
+fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
+    lb.written()[from..].iter().map(|b| text(b)).collect()
+}
+
+/// Run a millisecond at a time until the next idle poll has been written (its reply not in yet).
+fn until_idle_poll_in_flight(lb: &mut Loopback) {
+    let start = lb.written().len();
+    for _ in 0..2000 {
+        lb.run_for(MS);
+        if lb.written().len() > start {
+            assert_eq!(written_since(lb, start), ["#00P\r"]);
+            return;
+        }
+    }
+    panic!("no poll within 2 s");
+}
+
+#[test]
+fn a_new_connection_polls_every_channel_before_it_is_up() {
+    let mut lb = loopback(ACS, &[0, 2], Faults::default());
+    let events = bring_up(&mut lb);
+    assert_eq!(events.first(), Some(&ControllerEvent::Connect));
+    let polled: Vec<String> = written_since(&lb, 0);
+    assert_eq!(polled, ["#00P\r", "#00X\r", "#00E\r", "#00W\r", "#02P\r", "#02X\r", "#02E\r", "#02W\r"]);
+    for channel in [0, 2] {
+        let status = last_status(&events, channel);
+        assert_eq!(status.msta & (msta::DONE | msta::COMM_ERR | msta::POSITION), msta::DONE | msta::POSITION);
+    }
+}
+
+#[test]
+fn one_request_is_in_flight_at_a_time() {
+    let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(5), ..Faults::default() });
+    lb.run_for(Duration::from_millis(2));
+    assert_eq!(written_since(&lb, 0), ["#00P\r"], "the next request waits for the reply");
+    lb.run_for(Duration::from_millis(4));
+    assert_eq!(written_since(&lb, 0), ["#00P\r", "#00X\r"]);
+}
+
+#[test]
+fn a_move_reports_not_done_at_once_then_done_within_one_moving_poll_of_its_end() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    let start = lb.written().len();
+    lb.command(0, &go(5000.0));
+    assert_eq!(written_since(&lb, start)[..3], ["#00V=12\r", "#00R=249\r", "#00G+5000\r"]);
+    let now = lb.now();
+    let end = {
+        let axis = lb.link.emulator().axis(0).expect("channel 0");
+        axis.advance(now);
+        axis.next_event().expect("the stage moves")
+    };
+    let statuses = run_until_done(&mut lb, 0, MS, Duration::from_secs(5));
+    assert!(statuses.iter().any(|s| s.msta & msta::MOVING != 0), "moving was seen: {statuses:?}");
+    assert_eq!(statuses.last().map(|s| s.position), Some(5000.0));
+    let late = lb.now().as_secs_f64() - end.as_secs_f64();
+    assert!((0.0..=0.1 + 1e-9).contains(&late), "done {late} s after the end of motion, at most one moving poll");
+}
+
+#[test]
+fn polls_follow_the_moving_period_while_moving_and_the_idle_period_at_rest() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    let polls = |lb: &Loopback, from: usize| lb.written()[from..].iter().filter(|b| b.as_slice() == b"#00P\r").count();
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(3));
+    assert_eq!(polls(&lb, start), 3, "idle: one poll a second");
+    lb.command(0, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 100_000.0 });
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(1));
+    assert!((10..=11).contains(&polls(&lb, start)), "moving: ten polls a second, {}", polls(&lb, start));
+}
+
+#[test]
+fn replies_split_at_every_byte_give_the_same_statuses() {
+    let run = |chunk: usize| {
+        let mut lb = loopback(ACS, &[0, 1], Faults::default()).with_chunks(chunk);
+        bring_up(&mut lb);
+        lb.command(1, &go(-3000.0));
+        lb.run_for(Duration::from_secs(2));
+        let events = lb.take_events();
+        (Loopback::statuses(&events, 0), Loopback::statuses(&events, 1), lb.written().to_vec())
+    };
+    let whole = run(usize::MAX);
+    assert!(whole.1.iter().any(|s| s.position == -3000.0 && s.msta & msta::DONE != 0));
+    assert_eq!(run(1), whole);
+    assert_eq!(run(2), whole);
+}
+
+#[test]
+fn a_stop_goes_before_queued_motion_and_drops_it() {
+    let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(10), ..Faults::default() });
+    bring_up(&mut lb);
+    until_idle_poll_in_flight(&mut lb);
+    // A poll is in flight: the move queues behind it, and the stop goes before the move.
+    let start = lb.written().len();
+    lb.command(0, &go(5000.0));
+    lb.command(0, &DriverCommand::Stop { acceleration: 100_000.0 });
+    lb.run_for(Duration::from_millis(500));
+    let sent = written_since(&lb, start);
+    assert_eq!(sent.first().map(String::as_str), Some("#00Q\r"), "{sent:?}");
+    assert!(!sent.iter().any(|s| s.starts_with("#00G")), "the move was dropped: {sent:?}");
+}
+
+#[test]
+fn a_poll_issued_before_a_move_does_not_end_it() {
+    let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(10), ..Faults::default() });
+    bring_up(&mut lb);
+    until_idle_poll_in_flight(&mut lb);
+    lb.command(0, &go(20_000.0));
+    // The poll's replies (read before the move) arrive; their "done" must not be reported, and
+    // the polls after the move report it under way.
+    lb.run_for(Duration::from_millis(500));
+    let statuses = Loopback::statuses(&lb.take_events(), 0);
+    assert!(statuses.iter().any(|s| s.msta & msta::MOVING != 0), "{statuses:?}");
+    assert!(statuses.iter().all(|s| s.msta & msta::DONE == 0), "{statuses:?}");
+}
+
+#[test]
+fn a_lost_reply_to_a_query_is_asked_again_and_a_lost_reply_to_a_command_is_not() {
+    let mut lb = loopback(ACS, &[0], Faults { drop_every: Some(6), ..Faults::default() });
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    let sent = written_since(&lb, 0);
+    // The sixth reply (to the second poll's "#00X") was lost: the query went again.
+    assert_eq!(sent[4..7], ["#00P\r", "#00X\r", "#00X\r"]);
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    // The third reply from here, the one to "#00G", is lost.
+    lb.link.set_faults(Faults { drop_every: Some(3), ..Faults::default() });
+    let start = lb.written().len();
+    lb.command(0, &go(5000.0));
+    lb.run_for(Duration::from_secs(2));
+    let sent = written_since(&lb, start);
+    assert_eq!(sent.iter().filter(|s| s.starts_with("#00G")).count(), 1, "a move is never sent twice: {sent:?}");
+    let events = lb.take_events();
+    assert!(events.iter().any(|e| matches!(e, ControllerEvent::Failed { .. })));
+    assert_ne!(Loopback::statuses(&events, 0)[0].msta & msta::PROBLEM, 0, "the failed command shows");
+}
+
+#[test]
+fn garbage_is_not_taken_for_a_reply() {
+    let mut lb = loopback(ACS, &[0], Faults { garble_every: Some(2), ..Faults::default() });
+    lb.run_for(Duration::from_secs(3));
+    let events = lb.take_events();
+    let failures = events.iter().filter(|e| matches!(e, ControllerEvent::Failed { .. })).count();
+    assert!(failures > 0);
+    for status in Loopback::statuses(&events, 0) {
+        assert_eq!(status.position, 0.0, "no garbage became a position");
+    }
+}
+
+#[test]
+fn a_silent_controller_is_lost_then_found_again_with_nothing_replayed() {
+    let mut lb = loopback(ACS, &[0, 1], Faults::default());
+    bring_up(&mut lb);
+    lb.link.set_faults(Faults { drop_every: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_secs(5));
+    let events = lb.take_events();
+    assert!(events.contains(&ControllerEvent::Disconnect), "{events:?}");
+    for channel in [0, 1] {
+        let status = last_status(&events, channel);
+        assert_eq!(status.msta & (msta::COMM_ERR | msta::DONE | msta::MOVING), msta::COMM_ERR | msta::DONE);
+    }
+    // While it is lost, a move is refused and not kept.
+    lb.set_reachable(false);
+    lb.command(0, &go(5000.0));
+    let refused = lb.take_events();
+    assert!(refused.iter().any(|e| matches!(e, ControllerEvent::Refused { channel: 0, why: Refusal::NotConnected })));
+    assert_ne!(last_status(&refused, 0).msta & msta::COMM_ERR, 0);
+    lb.run_for(Duration::from_secs(30));
+    assert!(!lb.controller.is_up());
+    // Back: initialised, polled in full, no comm error; the refused move never runs.
+    lb.link.set_faults(Faults::default());
+    lb.set_reachable(true);
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(11));
+    assert!(lb.controller.is_up());
+    let events = lb.take_events();
+    assert_eq!(last_status(&events, 0).msta & msta::COMM_ERR, 0);
+    let sent = written_since(&lb, start);
+    assert!(
+        sent.iter().all(|s| s.ends_with("P\r") || s.ends_with("X\r") || s.ends_with("E\r") || s.ends_with("W\r")),
+        "{sent:?}"
+    );
+    let axis = lb.link.emulator().axis(0).expect("channel 0");
+    assert!(!axis.is_moving());
+    assert_eq!(axis.physical_position(), 0.0);
+}
+
+#[test]
+fn reconnection_backs_off_up_to_its_longest_wait() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    lb.set_reachable(false);
+    lb.run_for(Duration::from_secs(60));
+    let attempts = lb.take_events().iter().filter(|e| **e == ControllerEvent::Connect).count();
+    // At 0, 0.5, 1.5, 3.5, 7.5, 15.5, then every 10 s: 25.5, 35.5, 45.5, 55.5.
+    assert_eq!(attempts, 10);
+}
+
+#[test]
+fn a_closed_connection_is_a_comm_loss_at_once() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_secs(1));
+    let events = lb.take_events();
+    assert!(events.contains(&ControllerEvent::Disconnect));
+    assert_ne!(last_status(&events, 0).msta & msta::COMM_ERR, 0);
+    lb.link.set_faults(Faults::default());
+    lb.run_for(Duration::from_secs(1));
+    assert!(lb.controller.is_up(), "reopened after the first back-off");
+}
+
+#[test]
+fn a_command_the_protocol_cannot_express_is_refused_with_a_problem_and_sends_nothing() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    let start = lb.written().len();
+    lb.command(0, &go(1e12));
+    let events = lb.take_events();
+    assert!(events.iter().any(|e| matches!(e, ControllerEvent::Refused { why: Refusal::Command(_), .. })));
+    let status = last_status(&events, 0);
+    assert_eq!(status.msta & (msta::PROBLEM | msta::DONE), msta::PROBLEM | msta::DONE);
+    assert!(written_since(&lb, start).is_empty());
+    lb.command(7, &go(1.0));
+    assert!(lb
+        .take_events()
+        .iter()
+        .any(|e| matches!(e, ControllerEvent::Refused { why: Refusal::UnknownChannel(7), .. })));
+}
