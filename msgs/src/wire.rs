@@ -142,6 +142,13 @@ pub enum DriverCommand {
     },
 }
 
+impl DriverCommand {
+    /// Whether it sets the motor going (a move, a jog, a home search).
+    pub fn starts_motion(&self) -> bool {
+        matches!(self, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. })
+    }
+}
+
 /// A traced driver command with the engine's clock and a sequence number.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct DriverTrace {

@@ -9,7 +9,7 @@ use zmotor_core::driver::sim::SimConfig;
 use zmotor_launch::Launch;
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
-use zmotor_zenoh::{free_local_endpoint, Node, ZenohConfig};
+use zmotor_zenoh::{free_local_endpoint, Node, NodeContents, ZenohConfig};
 
 /// Longest any single expectation waits before the test fails.
 pub const PATIENCE: Duration = Duration::from_secs(10);
@@ -57,7 +57,10 @@ impl TestNode {
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..ZenohConfig::default() };
         let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
         let layout = KeyLayout::default();
-        let node = Node::start(session.clone(), layout.clone(), plans, vec![], vec![], None).await.unwrap();
+        let node =
+            Node::start(session.clone(), layout.clone(), NodeContents { plans, ..NodeContents::default() }, None)
+                .await
+                .unwrap();
         Self { node: Some(node), session, endpoint, layout }
     }
 
@@ -68,10 +71,7 @@ impl TestNode {
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
         let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
         let layout = KeyLayout::new(&deployment.zenoh.prefix);
-        let node =
-            Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, None)
-                .await
-                .unwrap();
+        let node = Node::start(session.clone(), layout.clone(), deployment.contents, None).await.unwrap();
         Self { node: Some(node), session, endpoint, layout }
     }
 

@@ -14,7 +14,7 @@ use zmotor_core::driver::sim::SimConfig;
 use zmotor_msgs::codec::{decode_cbor_value, encode_cbor};
 use zmotor_msgs::wire::StateMarker;
 use zmotor_msgs::{Field, Fields, KeyLayout, Value};
-use zmotor_zenoh::{free_local_endpoint, Node, ZenohConfig};
+use zmotor_zenoh::{free_local_endpoint, Node, NodeContents, ZenohConfig};
 
 /// What a run measures.
 #[derive(Clone, Debug)]
@@ -84,7 +84,15 @@ pub(crate) async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: 
         Serve::Zenoh => None,
         Serve::Demo | Serve::Moving => {
             let plans = if serve == Serve::Demo { demo_axes(axes) } else { bench_axes(axes, readback_hz) };
-            Some(Node::start(session.clone(), KeyLayout::default(), plans, vec![], vec![], None).await?)
+            Some(
+                Node::start(
+                    session.clone(),
+                    KeyLayout::default(),
+                    NodeContents { plans, ..NodeContents::default() },
+                    None,
+                )
+                .await?,
+            )
         }
     };
     tokio::select! {
@@ -101,7 +109,7 @@ pub(crate) async fn serve(listen: &str, axes: usize, serve: Serve, readback_hz: 
 /// the engine says: a bench axis half a second into a long move, at its next poll.
 fn fields_posted_per_poll() -> Vec<Field> {
     let start = zmotor_core::Instant::ZERO;
-    let mut axis = bench_axes(1, Load::LongMoves.readback_hz()).remove(0).build(start);
+    let mut axis = bench_axes(1, Load::LongMoves.readback_hz()).remove(0).build(start, None);
     axis.write(start, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
     while axis.now() < start + Duration::from_millis(500) {
         axis.drain_events().count();
@@ -162,7 +170,7 @@ const DEMO: &str = include_str!("../../../launch/sim-axis.toml");
 /// `n` copies of the demo's axis (launch/sim-axis.toml, as shipped), named b0, b1, ….
 fn demo_axes(n: usize) -> Vec<AxisPlan> {
     let demo = zmotor_launch::Launch::parse(DEMO).and_then(|launch| launch.deployment(None));
-    let axis = demo.expect("the shipped demo loads (a launch test checks it)").plans.remove(0);
+    let axis = demo.expect("the shipped demo loads (a launch test checks it)").contents.plans.remove(0);
     (0..n).map(|i| AxisPlan { name: bench_axis(i), ..axis.clone() }).collect()
 }
 
@@ -173,7 +181,7 @@ const LATENCY_TARGETS: [f64; 2] = [0.01, 0.02];
 /// from one target to the other, run until DMOV 1.
 fn demo_motion() -> Duration {
     let start = zmotor_core::Instant::ZERO;
-    let mut axis = demo_axes(1).remove(0).build(start);
+    let mut axis = demo_axes(1).remove(0).build(start, None);
     let at_first = |axis: &mut zmotor_core::axis::Axis| {
         for _ in 0..100_000 {
             if !axis.is_busy() {
@@ -414,15 +422,8 @@ async fn scale(n: usize, window: f64, moving_up_to: usize) -> Result<Scale, Erro
     let session = zenoh::open(config.zenoh()?).await?;
     let rss_before = rss_kb("self");
     let start = Instant::now();
-    let node = Node::start(
-        session.clone(),
-        KeyLayout::default(),
-        bench_axes(n, Load::LongMoves.readback_hz()),
-        vec![],
-        vec![],
-        None,
-    )
-    .await?;
+    let contents = NodeContents { plans: bench_axes(n, Load::LongMoves.readback_hz()), ..NodeContents::default() };
+    let node = Node::start(session.clone(), KeyLayout::default(), contents, None).await?;
     let started = start.elapsed();
     tokio::time::sleep(Duration::from_millis(500)).await;
     let rss_per_axis_idle_kb = (rss_kb("self") - rss_before) / n as f64;

@@ -2,6 +2,7 @@
 //! errors become the plain words a user reads.
 
 mod bench;
+mod sim_controller;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
@@ -143,6 +144,23 @@ enum Command {
         #[arg(long)]
         moving_up_to: Option<usize>,
     },
+    /// Emulate a motor controller on the physical simulator, speaking its protocol on a TCP
+    /// socket or a pseudo-terminal, so that a launch file for real hardware runs with none.
+    SimController {
+        /// The protocol (acs_mcb4b, ...).
+        protocol: String,
+        /// Serve on this TCP address, host:port.
+        #[arg(long, conflicts_with = "pty", required_unless_present = "pty")]
+        listen: Option<String>,
+        /// Serve on a pseudo-terminal linked at this path.
+        #[arg(long)]
+        pty: Option<PathBuf>,
+        /// Axes of the emulated controller (default: a typical controller of the kind).
+        #[arg(long)]
+        channels: Option<usize>,
+        #[command(flatten)]
+        faults: sim_controller::FaultArgs,
+    },
     /// The benchmark's node process (started by `zmotor bench`).
     #[command(hide = true)]
     BenchServe {
@@ -209,6 +227,15 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             bench::serve(&listen, axes, serve, readback_hz).await?;
             Ok(ExitCode::SUCCESS)
         }
+        Command::SimController { protocol, listen, pty, channels, faults } => {
+            let endpoint = match (listen, pty) {
+                (Some(address), _) => sim_controller::Endpoint::Tcp(address),
+                (None, Some(path)) => sim_controller::Endpoint::Pty(path),
+                (None, None) => return Err("give --listen host:port or --pty PATH".into()),
+            };
+            sim_controller::run(&protocol, endpoint, channels, &faults).await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Fields => {
             print_lines(FIELDS.iter().map(|d| {
                 format!(
@@ -234,7 +261,9 @@ fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String
     } else if !macros.is_empty() {
         Err("-m applies to .db files only".into())
     } else {
-        Ok((Launch::load(file)?, Vec::new()))
+        let launch = Launch::load(file)?;
+        let warnings = launch.warnings().to_vec();
+        Ok((launch, warnings))
     }
 }
 
@@ -261,7 +290,7 @@ async fn launch(
     let mut deployment = launch.deployment(host)?;
     network.apply(&mut deployment.zenoh);
     let layout = KeyLayout::new(&deployment.zenoh.prefix);
-    let autosave = if deployment.autosave.enabled && !deployment.plans.is_empty() {
+    let autosave = if deployment.autosave.enabled && !deployment.contents.plans.is_empty() {
         let dir = state_dir(deployment.state_dir.as_deref())?;
         let store = StateStore::open(&dir, layout.prefix())?;
         tracing::info!(dir = %store.dir().display(), "autosave on");
@@ -277,11 +306,9 @@ async fn launch(
         tracing::info!(connect = ?deployment.zenoh.connect, "connecting");
     }
     let session = zenoh::open(config).await?;
-    let names: Vec<String> = deployment.plans.iter().map(|p| p.name.clone()).collect();
-    let calc_names: Vec<String> = deployment.calcs.iter().map(|c| c.name.clone()).collect();
-    let node =
-        Node::start(session.clone(), layout.clone(), deployment.plans, deployment.calcs, deployment.values, autosave)
-            .await?;
+    let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
+    let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
+    let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
         connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
     interrupted().await?;

@@ -65,7 +65,7 @@ impl ControllerConfig {
 pub enum ControllerEvent {
     /// Open the connection (the first time, or once the back-off after a loss has passed).
     Connect,
-    /// Close the connection: communication with the controller is lost.
+    /// Close the open connection: communication with the controller is lost.
     Disconnect,
     /// A channel's status, for its axis (a poll's result, or a communication error).
     Status {
@@ -277,12 +277,11 @@ impl Controller {
                 return;
             }
         };
-        let (priority, motion) = match command {
-            DriverCommand::Stop { .. } => (Priority::Stop, false),
-            DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. } => {
-                (Priority::Motion, true)
-            }
-            _ => (Priority::Setting, false),
+        let motion = command.starts_motion();
+        let priority = match command {
+            DriverCommand::Stop { .. } => Priority::Stop,
+            _ if motion => Priority::Motion,
+            _ => Priority::Setting,
         };
         if priority == Priority::Stop {
             self.drop_motion_of(channel);
@@ -604,7 +603,7 @@ impl Controller {
         self.transmit.clear();
         self.next_poll = None;
         self.failures = 0;
-        if !matches!(self.link, Link::Down { .. }) {
+        if matches!(self.link, Link::Initialising { .. } | Link::Up) {
             self.events.push_back(ControllerEvent::Disconnect);
         }
         let backoff = wait.saturating_mul(2).min(self.config.reconnect_max);

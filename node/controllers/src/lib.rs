@@ -8,6 +8,7 @@ pub mod controller;
 pub mod emulator;
 pub mod loopback;
 pub mod protocol;
+pub mod spec;
 
 pub use controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
 pub use protocol::{CommandError, Protocol, ProtocolOptions};
@@ -35,10 +36,34 @@ impl ProtocolKind {
         ProtocolKind::ALL.into_iter().find(|p| p.name() == name)
     }
 
+    /// Every protocol's name, for messages.
+    pub fn known() -> String {
+        ProtocolKind::ALL.map(ProtocolKind::name).join(", ")
+    }
+
+    /// Whether `channel` numbers an axis of this protocol's controllers.
+    pub fn check_channel(self, channel: usize) -> Result<(), spec::SpecError> {
+        let (valid, allowed) = match self {
+            ProtocolKind::AcsMcb4b => (channel <= 3, "0 to 3"),
+        };
+        if valid {
+            Ok(())
+        } else {
+            Err(spec::SpecError::Channel { channel, protocol: self.name(), allowed })
+        }
+    }
+
     /// A driver side of the protocol.
     pub fn protocol(self, _options: &ProtocolOptions) -> Box<dyn Protocol> {
         match self {
             ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
+        }
+    }
+
+    /// The size of the emulator `zmotor sim-controller` runs: a typical controller of the kind.
+    pub fn emulated_size(self) -> usize {
+        match self {
+            ProtocolKind::AcsMcb4b => 4,
         }
     }
 

@@ -109,16 +109,25 @@ pub enum DriverPlan {
     Sim(crate::driver::sim::SimConfig),
     /// Soft Channel device support: the axis drives other keys through its links.
     Soft,
+    /// A channel of a motor controller, which polls it and reports its status.
+    Controller {
+        /// The controller's name in the deployment.
+        controller: String,
+        /// The controller's own number for the axis.
+        channel: usize,
+    },
 }
 
 impl AxisPlan {
-    /// Boot the axis at `now`.
-    pub fn build(self, now: Instant) -> Axis {
+    /// Boot the axis at `now`. An axis on a controller boots on the status its controller last
+    /// reported (None: not reached yet).
+    pub fn build(self, now: Instant, controller_status: Option<DeviceStatus>) -> Axis {
         match self.driver {
             DriverPlan::Sim(sim) => {
                 Axis::new(self.fields, Box::new(crate::driver::sim::SimAxis::new(sim)), self.rates, now)
             }
             DriverPlan::Soft => Axis::new_soft(self.fields, self.rates, now),
+            DriverPlan::Controller { .. } => Axis::new_on_controller(self.fields, controller_status, self.rates, now),
         }
     }
 
@@ -136,8 +145,17 @@ impl AxisPlan {
 
 /// What stands behind the record.
 enum Device {
-    /// asyn-style device support in front of a driver (the simulator, hardware).
+    /// asyn-style device support in front of a driver the axis polls (the simulator).
     Driver { support: DeviceSupport, driver: Box<dyn Driver> },
+    /// asyn-style device support in front of a controller channel ("model 3"): the controller
+    /// polls, the axis keeps the status it last reported, and a motion command makes it "not
+    /// done" at once. The commands leave as `AxisEvent::Driver` for the controller.
+    Controller {
+        support: DeviceSupport,
+        status: DeviceStatus,
+        /// A status arrived that the record has not been shown yet.
+        reported: bool,
+    },
     /// Soft Channel device support: the axis drives other keys.
     Soft(SoftChannel),
 }
@@ -178,6 +196,33 @@ impl Axis {
         axis.boot()
     }
 
+    /// Boot an axis on a controller's channel, on the status the controller last reported. An
+    /// axis whose controller has not been reached boots with a communication error, at 0, and
+    /// does not restore an autosaved position (it cannot know where the stage is).
+    pub fn new_on_controller(fields: Fields, status: Option<DeviceStatus>, rates: PollRates, now: Instant) -> Self {
+        let known = status.filter(|s| s.msta & msta::COMM_ERR == 0);
+        let status = status.unwrap_or(DeviceStatus { msta: msta::DONE | msta::COMM_ERR, ..DeviceStatus::default() });
+        let device = Device::Controller { support: DeviceSupport::default(), status, reported: false };
+        let mut axis = Self::assemble(MotorRecord::new(fields), device, rates, now);
+        let init = axis.record.fields().init.clone();
+        axis.run_primitive(&init);
+        if let Some(known) = known {
+            let restore = axis.record.restore_commands(known.position);
+            axis.deliver(&restore);
+        }
+        axis.boot()
+    }
+
+    /// What the axis's controller reported at `now` for its channel: processed as the record's
+    /// device callback (when it changed, or while a motion is open).
+    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus) {
+        if let Device::Controller { status: kept, reported, .. } = &mut self.device {
+            *kept = status;
+            *reported = true;
+        }
+        self.tick(now, false);
+    }
+
     /// Boot a Soft Channel axis (§16.1): it drives its OUT key and reads RDBL/RINP/DINP.
     pub fn new_soft(fields: Fields, rates: PollRates, now: Instant) -> Self {
         let soft = SoftChannel::new(&fields.out, &fields.stoo, &fields.dinp, fields.dmov);
@@ -208,7 +253,7 @@ impl Axis {
         self.last_status = self.device_status();
         self.record.init(self.last_status);
         self.pump();
-        if self.polled() {
+        if matches!(self.device, Device::Driver { .. }) {
             self.next_poll = Some(self.now + self.rates.idle);
         }
         self
@@ -295,7 +340,7 @@ impl Axis {
         let reaction = match &mut self.device {
             Device::Soft(soft) => soft.update(link, value, dmov, locked, mres),
             // With a driver, the readback link is read at the next processing.
-            Device::Driver { .. } => Reaction::Nothing,
+            Device::Driver { .. } | Device::Controller { .. } => Reaction::Nothing,
         };
         if matches!(reaction, Reaction::ExternalMotion | Reaction::ExternalMotionThenCallback) {
             self.record.external_motion();
@@ -342,7 +387,11 @@ impl Axis {
             self.record.delay_expired();
             self.pump();
         }
-        let poll_due = self.next_poll.is_some_and(|t| self.now >= t);
+        let reported = match &mut self.device {
+            Device::Controller { reported, .. } => std::mem::take(reported),
+            _ => false,
+        };
+        let poll_due = reported || self.next_poll.is_some_and(|t| self.now >= t);
         // While a PREM delay holds a motion back, status would only look stale "done".
         if self.polled() && self.held.is_none() && (force_poll || poll_due || motion_event_due) {
             let status = self.device_status();
@@ -386,27 +435,29 @@ impl Axis {
     pub fn simulation(&mut self) -> Option<&mut crate::driver::sim::SimAxis> {
         match &mut self.device {
             Device::Driver { driver, .. } => driver.simulation(),
-            Device::Soft(_) => None,
+            Device::Controller { .. } | Device::Soft(_) => None,
         }
     }
 
     fn device_status(&self) -> DeviceStatus {
         let status = match &self.device {
             Device::Driver { driver, .. } => driver.status(),
+            Device::Controller { status, .. } => *status,
             Device::Soft(soft) => soft.status(),
         };
         DeviceStatus { readback: self.readback_link, ..status }
     }
 
-    /// Status reaches a driver-backed record by polling; a Soft Channel record only hears its links.
+    /// Status reaches a record on a driver or a controller from the device; a Soft Channel
+    /// record only hears its links.
     fn polled(&self) -> bool {
-        matches!(self.device, Device::Driver { .. })
+        !matches!(self.device, Device::Soft(_))
     }
 
     fn next_event(&self) -> Option<Instant> {
         match &self.device {
             Device::Driver { driver, .. } => driver.next_event(),
-            Device::Soft(_) => None,
+            Device::Controller { .. } | Device::Soft(_) => None,
         }
     }
 
@@ -438,7 +489,7 @@ impl Axis {
     /// PREM runs before anything that starts motion, and its PUT delay holds the motion back.
     fn deliver(&mut self, transaction: &[MotorCommand]) -> bool {
         let translation = match &mut self.device {
-            Device::Driver { support, .. } => support.translate(transaction),
+            Device::Driver { support, .. } | Device::Controller { support, .. } => support.translate(transaction),
             Device::Soft(soft) => {
                 let (puts, wants_callback) = soft.translate(transaction, self.record.fields().dval);
                 for (key, value) in puts {
@@ -447,9 +498,7 @@ impl Axis {
                 return wants_callback;
             }
         };
-        let starts_motion = translation.commands.iter().any(|c| {
-            matches!(c, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } | DriverCommand::Home { .. })
-        });
+        let starts_motion = translation.commands.iter().any(DriverCommand::starts_motion);
         if translation.commands.iter().any(|c| matches!(c, DriverCommand::Stop { .. })) {
             self.held = None;
         }
@@ -470,9 +519,15 @@ impl Axis {
     }
 
     fn execute_all(&mut self, commands: Vec<DriverCommand>) {
-        let Device::Driver { driver, .. } = &mut self.device else { return };
         for command in commands {
-            execute(driver.as_mut(), &command);
+            match &mut self.device {
+                Device::Driver { driver, .. } => execute(driver.as_mut(), &command),
+                // As asyn's model 3: "not done" from the moment motion is commanded, until a
+                // poll says otherwise.
+                Device::Controller { status, .. } if command.starts_motion() => status.msta &= !msta::DONE,
+                Device::Controller { .. } => {}
+                Device::Soft(_) => return,
+            }
             self.events.push(AxisEvent::Driver { command, at: self.now });
         }
     }

@@ -9,7 +9,7 @@
 use crate::axis::{Axis, AxisEvent, WriteAccepted};
 use crate::driver::sim::{SimSetting, SimSettingError};
 use crate::driver::soft::InputLink;
-use crate::engine::WriteError;
+use crate::engine::{DeviceStatus, WriteError};
 use crate::time::Instant;
 use std::collections::VecDeque;
 use zmotor_msgs::menus::severity;
@@ -198,6 +198,12 @@ impl<R: Clone> AxisService<R> {
     /// Time passed to `now`.
     pub fn handle_timeout(&mut self, now: Instant) {
         self.axis.handle_timeout(now);
+        self.collect();
+    }
+
+    /// What the axis's controller reported for its channel.
+    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus) {
+        self.axis.controller_status(now, status);
         self.collect();
     }
 

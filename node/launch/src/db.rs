@@ -177,7 +177,13 @@ fn motor(
 ) -> Result<AxisSection, Failure> {
     let dtyp = record.field("DTYP").map(|(_, v, _)| v.as_str()).unwrap_or("");
     let soft = dtyp == "Soft Channel";
-    if !soft {
+    let on_controller = match record.field("OUT") {
+        Some((_, out, line)) if dtyp == "asynMotor" => Some(asyn_address(out).ok_or_else(|| {
+            Failure::at(*line, format!("motor '{}': OUT '{out}' is not @asyn(PORT,AXIS)", record.name))
+        })?),
+        _ => None,
+    };
+    if !soft && on_controller.is_none() {
         warnings.push(format!(
             "line {}: motor '{}': DTYP '{dtyp}' is hardware zmotor cannot drive; it runs as a simulated axis",
             record.line, record.name
@@ -210,15 +216,33 @@ fn motor(
         };
         fields.insert(name.clone(), value);
     }
+    let driver = match (&on_controller, soft) {
+        (Some(_), _) => DriverKind::Controller,
+        (None, true) => DriverKind::Soft,
+        (None, false) => DriverKind::Sim,
+    };
+    let (controller, channel) = on_controller.unzip();
     Ok(AxisSection {
         name: record.name.clone(),
         host: None,
-        driver: if soft { DriverKind::Soft } else { DriverKind::Sim },
+        driver,
+        controller,
+        channel,
         readback_rate: super::default_readback_rate(),
         fields,
         sim: Default::default(),
         origin: Default::default(),
     })
+}
+
+/// The port and axis of an asyn motor address, `@asyn(PORT,AXIS[,timeout])`: the port is the
+/// name of a `[[controller]]` of the launch that loads the database.
+fn asyn_address(out: &str) -> Option<(String, usize)> {
+    let inside = out.trim().strip_prefix("@asyn(")?.strip_suffix(')')?;
+    let mut parts = inside.split(',').map(str::trim);
+    let port = parts.next().filter(|p| !p.is_empty())?;
+    let axis = parts.next()?.parse().ok()?;
+    Some((port.to_string(), axis))
 }
 
 /// An output link into a calc record's input A–L feeds that input (PP: and recomputes it).
@@ -575,7 +599,7 @@ mod tests {
         assert_eq!(warnings.len(), 1, "{warnings:?}");
         assert!(warnings[0].contains("motor 'me:linear': DTYP 'OMS VME58' is hardware"), "{warnings:?}");
         let deployment = Launch::from_file("seed", file).unwrap().deployment(None).unwrap();
-        let rotary = &deployment.plans[0];
+        let rotary = &deployment.contents.plans[0];
         assert_eq!((rotary.name.as_str(), &rotary.driver), ("me:rotary", &DriverPlan::Soft));
         let f = &rotary.fields;
         assert_eq!(f.out, "bridge/me:convertDriveValue/A");
@@ -584,16 +608,16 @@ mod tests {
             (f.dinp.as_str(), f.urip, f.mres, f.dhlm, f.egu.as_str()),
             ("motor/me:linear/DMOV", 1, 0.001, 45.0, "deg.")
         );
-        let linear = &deployment.plans[1];
+        let linear = &deployment.contents.plans[1];
         assert!(matches!(linear.driver, DriverPlan::Sim(_)));
         assert_eq!((linear.fields.velo, linear.fields.out.as_str()), (25.0, ""), "a hardware address is dropped");
-        let drive = &deployment.calcs[0];
+        let drive = &deployment.contents.calcs[0];
         assert_eq!(
             (drive.output.as_str(), drive.inputs[0].key.as_str()),
             ("motor/me:linear/DVAL", "bridge/me:convertDriveValue/A")
         );
         assert_eq!(drive.inputs[0].mode, InputMode::Process, "rotary's OUT is PP: each write recomputes");
-        let readback = &deployment.calcs[1];
+        let readback = &deployment.contents.calcs[1];
         assert_eq!(
             (readback.output.as_str(), readback.inputs[0].key.as_str()),
             ("bridge/me:convertReadbackValue/VAL", "motor/me:linear/DRBV")
@@ -661,7 +685,7 @@ mod tests {
                 field(OOPT, "On Change")
                 field(OUT, "m1.VAL PP")
             }
-            record(motor, "m1") { field(DTYP, "asynMotor") field(OUT, "@asyn(port,0)") }
+            record(motor, "m1") { field(DTYP, "OMS VME58") field(OUT, "@C0 S0") }
             record(stringin, "note") {}
         "#;
         let (file, warnings) = import(text).unwrap();
@@ -672,8 +696,26 @@ mod tests {
         assert_eq!((sum.output.as_str(), sum.option), ("motor/m1/VAL", CalcOption::OnChange));
         assert!(warnings.iter().any(|w| w.contains("DOL 'other.VAL' is ignored")), "{warnings:?}");
         assert!(warnings.iter().any(|w| w.contains("type stringin is not supported")), "{warnings:?}");
-        assert!(warnings.iter().any(|w| w.contains("DTYP 'asynMotor'")), "{warnings:?}");
+        assert!(warnings.iter().any(|w| w.contains("DTYP 'OMS VME58'")), "{warnings:?}");
         Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn asyn_motors_run_on_the_controller_their_port_names() {
+        let macros = Macros::parse(&["P=bl1:".to_string()]).unwrap();
+        let bad = "\nrecord(motor, \"$(P)bad\") { field(DTYP, \"asynMotor\") field(OUT, \"@asyn(MCB)\") }";
+        let failure = import_text(bad, &macros).unwrap_err();
+        assert_eq!(failure.line, 2);
+        assert!(failure.message.contains("'@asyn(MCB)' is not @asyn(PORT,AXIS)"), "{}", failure.message);
+        let good = r#"record(motor, "$(P)x") { field(DTYP, "asynMotor") field(OUT, "@asyn(MCB, 1, 1.0)") }"#;
+        let (file, warnings) = import_text(good, &macros).unwrap();
+        assert!(warnings.is_empty(), "an asyn motor is not simulated: {warnings:?}");
+        let x = &file.axes[0];
+        assert_eq!(x.name, "bl1:x");
+        assert_eq!((x.driver, x.controller.as_deref(), x.channel), (DriverKind::Controller, Some("MCB"), Some(1)));
+        // Alone, the database names a controller nobody defined.
+        let alone = Launch::from_file("motors.db", file).unwrap_err();
+        assert!(alone.message.contains("no [[controller]] 'MCB'"), "{alone}");
     }
 
     #[test]

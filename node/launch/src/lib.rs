@@ -14,11 +14,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
+use zmotor_controllers::spec::{self, ControllerSpec, SerialSettings, Transport};
+use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
 use zmotor_core::driver::sim::SimConfig;
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
-use zmotor_zenoh::{Mode, ValueSpec, ZenohConfig};
+use zmotor_zenoh::{Mode, NodeContents, ValueSpec, ZenohConfig};
 
 /// Highest readback rate while moving, Hz.
 pub const MAX_READBACK_RATE: f64 = 1000.0;
@@ -52,6 +54,10 @@ pub struct LaunchFile {
     /// Further launch files, relative to this one.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub include: Vec<String>,
+    /// EPICS databases whose records join this launch (`[[database]]`); their asyn motors
+    /// (`OUT "@asyn(PORT,N)"`) run on this launch's `[[controller]]` named PORT.
+    #[serde(default, rename = "database", skip_serializing_if = "Vec::is_empty")]
+    pub databases: Vec<DatabaseSection>,
     /// Where autosave keeps state (relative to this file); `ZMOTOR_STATE_DIR` overrides it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub state_dir: Option<String>,
@@ -64,6 +70,9 @@ pub struct LaunchFile {
     /// Per-host overrides of `[zenoh]`; with hosts, every item names the host that runs it.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub hosts: BTreeMap<String, HostSection>,
+    #[serde(default, rename = "controller", skip_serializing_if = "Vec::is_empty")]
+    /// The motor controllers (`[[controller]]`).
+    pub controllers: Vec<ControllerSection>,
     #[serde(default, rename = "axis", skip_serializing_if = "Vec::is_empty")]
     /// The axes (`[[axis]]`).
     pub axes: Vec<AxisSection>,
@@ -89,6 +98,17 @@ impl Default for AutosaveSection {
     fn default() -> Self {
         Self { enabled: true, delay: 1.0 }
     }
+}
+
+/// A `[[database]]` entry: an EPICS database loaded with its macros, as dbLoadRecords does.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DatabaseSection {
+    /// The `.db` file, relative to this launch file.
+    pub file: String,
+    /// Macro definitions, e.g. `{ P = "bl1:" }`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub macros: BTreeMap<String, String>,
 }
 
 /// What differs on one host: how it joins the network.
@@ -122,9 +142,16 @@ pub struct AxisSection {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     /// The host that runs it (with `[hosts]`).
     pub host: Option<String>,
-    /// `sim` (the simulator) or `soft` (Soft Channel: the axis drives other keys).
+    /// `sim` (the simulator), `soft` (Soft Channel: the axis drives other keys) or
+    /// `controller` (a channel of a `[[controller]]`).
     #[serde(default)]
     pub driver: DriverKind,
+    /// The controller (`driver = "controller"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller: Option<String>,
+    /// The controller's own number for the axis (`driver = "controller"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<usize>,
     /// Readback publications per second while moving.
     #[serde(default = "default_readback_rate")]
     pub readback_rate: f64,
@@ -197,8 +224,124 @@ choices!(
         Sim = "sim",
         /// Soft Channel: the axis drives other keys.
         Soft = "soft",
+        /// A channel of a motor controller.
+        Controller = "controller",
     }
 );
+
+choices!(
+    /// A serial line's parity.
+    ParityChoice, "'{given}' is not a parity (known: {known})" {
+        /// No parity bit.
+        #[default]
+        None = "none",
+        /// Odd.
+        Odd = "odd",
+        /// Even.
+        Even = "even",
+    }
+);
+
+choices!(
+    /// A serial line's flow control.
+    FlowControlChoice, "'{given}' is not a flow control (known: {known})" {
+        /// None.
+        #[default]
+        None = "none",
+        /// XON/XOFF.
+        Software = "software",
+        /// RTS/CTS.
+        Hardware = "hardware",
+    }
+);
+
+/// A `[[controller]]` entry: a motor controller, how to reach it, how to poll it.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// The controller's name; its axes name it.
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`); its axes run there too.
+    pub host: Option<String>,
+    /// The protocol it speaks (`acs_mcb4b`, ...).
+    pub protocol: String,
+    /// `host:port` of a TCP connection (an Ethernet controller or a terminal server).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tcp: Option<String>,
+    /// A serial port, instead of `tcp`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial: Option<SerialSection>,
+    /// Seconds between polls while an axis moves.
+    #[serde(default = "default_moving_poll")]
+    pub moving_poll: f64,
+    /// Seconds between polls while every axis is idle.
+    #[serde(default = "default_idle_poll")]
+    pub idle_poll: f64,
+    /// Seconds a reply may take.
+    #[serde(default = "default_timeout")]
+    pub timeout: f64,
+    /// Times a query without a good reply is sent again.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    /// The controller's units per record step, where the protocol has units (see README).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units_per_step: Option<f64>,
+    #[serde(skip)]
+    /// Where it was written.
+    pub origin: Origin,
+}
+
+/// A serial port's settings.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SerialSection {
+    /// The device, e.g. `/dev/ttyUSB0`.
+    pub device: String,
+    /// Bits per second.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// `none`, `odd` or `even`.
+    #[serde(default)]
+    pub parity: ParityChoice,
+    /// 5 to 8.
+    #[serde(default = "default_data_bits")]
+    pub data_bits: u8,
+    /// 1 or 2.
+    #[serde(default = "default_stop_bits")]
+    pub stop_bits: u8,
+    /// `none`, `software` or `hardware`.
+    #[serde(default)]
+    pub flow_control: FlowControlChoice,
+}
+
+fn default_moving_poll() -> f64 {
+    0.1
+}
+
+fn default_idle_poll() -> f64 {
+    1.0
+}
+
+fn default_timeout() -> f64 {
+    1.0
+}
+
+fn default_retries() -> u32 {
+    1
+}
+
+fn default_baud() -> u32 {
+    9600
+}
+
+fn default_data_bits() -> u8 {
+    8
+}
+
+fn default_stop_bits() -> u8 {
+    1
+}
 
 choices!(
     /// When a calc link writes its output (the calcout's OOPT).
@@ -321,12 +464,8 @@ impl ValueSection {
 pub struct Deployment {
     /// How this process joins the network.
     pub zenoh: ZenohConfig,
-    /// Its axes.
-    pub plans: Vec<AxisPlan>,
-    /// Its calc links.
-    pub calcs: Vec<CalcLinkSpec>,
-    /// Its value holders.
-    pub values: Vec<ValueSpec>,
+    /// What it serves: axes, calc links, value holders, controllers.
+    pub contents: NodeContents,
     /// The launch file's state directory, resolved against the file's directory.
     pub state_dir: Option<PathBuf>,
     /// Autosave settings.
@@ -369,6 +508,8 @@ pub struct Launch {
     /// Directory relative paths of the main file are resolved against.
     base: PathBuf,
     sources: Vec<Source>,
+    /// What importing its databases warned of.
+    warnings: Vec<String>,
 }
 
 impl Launch {
@@ -387,7 +528,8 @@ impl Launch {
 
     /// `canonical`: the main file's own path, so that including it is found out.
     fn build(name: &str, text: &str, base: &Path, canonical: Option<PathBuf>) -> Result<Self, LaunchError> {
-        let mut launch = Self { file: LaunchFile::default(), base: base.to_path_buf(), sources: Vec::new() };
+        let mut launch =
+            Self { file: LaunchFile::default(), base: base.to_path_buf(), sources: Vec::new(), warnings: Vec::new() };
         let main = launch.read_source(name, text)?;
         if let Some(zenoh) = main.zenoh.clone() {
             launch.file.zenoh = Some(zenoh);
@@ -425,11 +567,27 @@ impl Launch {
         let source = self.sources.len() - 1;
         let origin = |index| Origin { source, index };
         self.file.hosts.extend(file.hosts);
+        self.file.controllers.extend(
+            file.controllers.into_iter().enumerate().map(|(i, c)| ControllerSection { origin: origin(i), ..c }),
+        );
         self.file.axes.extend(file.axes.into_iter().enumerate().map(|(i, a)| AxisSection { origin: origin(i), ..a }));
         self.file.calcs.extend(file.calcs.into_iter().enumerate().map(|(i, c)| CalcSection { origin: origin(i), ..c }));
         self.file
             .values
             .extend(file.values.into_iter().enumerate().map(|(i, v)| ValueSection { origin: origin(i), ..v }));
+        for database in &file.databases {
+            let path = dir.join(&database.file);
+            let definitions: Vec<String> = database.macros.iter().map(|(k, v)| format!("{k}={v}")).collect();
+            let macros =
+                Macros::parse(&definitions).map_err(|e| self.error(Problem::at(source, vec![], e.to_string())))?;
+            let (imported, warnings) = import_db(&path, &macros)?;
+            let name = path.display().to_string();
+            self.warnings.extend(warnings.into_iter().map(|w| format!("{name}: {w}")));
+            // Errors found later in its records name the database (its lines are its own).
+            self.sources.push(Source { name, text: String::new() });
+            let imported = LaunchFile { include: Vec::new(), databases: Vec::new(), ..imported };
+            self.merge(imported, dir, visited)?;
+        }
         for (index, include) in file.include.iter().enumerate() {
             let at = |message: String| {
                 self.error(Problem::at(source, vec![Seg::Key("include".into()), Seg::Index(index)], message))
@@ -461,6 +619,11 @@ impl Launch {
     fn error(&self, problem: Problem) -> LaunchError {
         let source = &self.sources[problem.source];
         LaunchError { file: source.name.clone(), line: line_of(&source.text, &problem.path), message: problem.message }
+    }
+
+    /// What importing the launch's databases warned of (hardware simulated, records skipped).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
     }
 
     /// The `[zenoh]` section, or its defaults.
@@ -496,6 +659,10 @@ impl Launch {
                 _ => {}
             }
         }
+        for controller in &self.file.controllers {
+            controller.spec(Vec::new())?;
+        }
+        self.check_axes_on_controllers()?;
         let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
         let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
         for value in &self.file.values {
@@ -513,10 +680,41 @@ impl Launch {
     /// (table, name, host, origin) of every item.
     fn items(&self) -> Vec<(&'static str, &str, Option<&str>, Origin)> {
         let f = &self.file;
+        let controllers = f.controllers.iter().map(|c| ("controller", c.name.as_str(), c.host.as_deref(), c.origin));
         let axes = f.axes.iter().map(|a| ("axis", a.name.as_str(), a.host.as_deref(), a.origin));
         let calcs = f.calcs.iter().map(|c| ("calc", c.name.as_str(), c.host.as_deref(), c.origin));
         let values = f.values.iter().map(|v| ("value", v.name.as_str(), v.host.as_deref(), v.origin));
-        axes.chain(calcs).chain(values).collect()
+        controllers.chain(axes).chain(calcs).chain(values).collect()
+    }
+
+    /// Every axis on a controller names one of this launch, on its host, by a channel the
+    /// protocol has and no other axis of that controller uses.
+    fn check_axes_on_controllers(&self) -> Result<(), Problem> {
+        let mut taken: BTreeMap<(&str, usize), &str> = BTreeMap::new();
+        for axis in &self.file.axes {
+            let at = |key: &str, message: String| {
+                Problem::in_item("axis", axis.origin, &[key], format!("axis '{}': {key}: {message}", axis.name))
+            };
+            let (Some(name), Some(channel)) = (&axis.controller, axis.channel) else { continue };
+            let Some(controller) = self.file.controllers.iter().find(|c| c.name == *name) else {
+                let known: Vec<&str> = self.file.controllers.iter().map(|c| c.name.as_str()).collect();
+                return Err(at("controller", format!("no [[controller]] '{name}' (known: {})", known.join(", "))));
+            };
+            if controller.host != axis.host {
+                let message = format!("controller '{name}' runs on another host: an axis runs where its controller is");
+                return Err(at("host", message));
+            }
+            if let Some(protocol) = ProtocolKind::from_name(&controller.protocol) {
+                protocol.check_channel(channel).map_err(|e| at("channel", e.to_string()))?;
+            }
+            if let Some(other) = taken.insert((name.as_str(), channel), axis.name.as_str()) {
+                return Err(at(
+                    "channel",
+                    format!("channel {channel} of controller '{name}' is already axis '{other}'"),
+                ));
+            }
+        }
+        Ok(())
     }
 
     /// The names of the hosts under `[hosts]`.
@@ -544,8 +742,11 @@ impl Launch {
         let runs_here = |item_host: &Option<String>| host.is_none() || item_host.as_deref() == host;
         let plan = |a: &AxisSection| a.plan().map_err(|p| self.error(p));
         let spec = |c: &CalcSection| c.spec().map_err(|p| self.error(p));
-        Ok(Deployment {
-            zenoh,
+        let controller = |c: &ControllerSection| {
+            let channels = self.file.axes.iter().filter(|a| a.controller.as_ref() == Some(&c.name));
+            c.spec(channels.filter_map(|a| a.channel).collect()).map_err(|p| self.error(p))
+        };
+        let contents = NodeContents {
             plans: self.file.axes.iter().filter(|a| runs_here(&a.host)).map(plan).collect::<Result<_, _>>()?,
             calcs: self.file.calcs.iter().filter(|c| runs_here(&c.host)).map(spec).collect::<Result<_, _>>()?,
             values: self
@@ -555,6 +756,17 @@ impl Launch {
                 .filter(|v| runs_here(&v.host))
                 .map(|v| ValueSpec { key: v.key(), initial: v.value })
                 .collect(),
+            controllers: self
+                .file
+                .controllers
+                .iter()
+                .filter(|c| runs_here(&c.host))
+                .map(controller)
+                .collect::<Result<_, _>>()?,
+        };
+        Ok(Deployment {
+            zenoh,
+            contents,
             state_dir: self.file.state_dir.as_ref().map(|dir| self.base.join(dir)),
             autosave: self.file.autosave.clone().unwrap_or_default(),
         })
@@ -577,15 +789,28 @@ impl AxisSection {
             Problem::in_item("axis", self.origin, inner, format!("axis '{}': {key}: {message}", self.name))
         };
         keys::validate_axis_name(&self.name).map_err(|e| at(&["name"], e.to_string()))?;
-        let driver = match self.driver {
-            DriverKind::Sim => DriverPlan::Sim(self.sim.clone()),
-            DriverKind::Soft => DriverPlan::Soft,
+        let driver = match (self.driver, &self.controller, self.channel) {
+            (DriverKind::Controller, Some(controller), Some(channel)) => {
+                DriverPlan::Controller { controller: controller.clone(), channel }
+            }
+            (DriverKind::Controller, None, _) => return Err(at(&["controller"], "names no [[controller]]".into())),
+            (DriverKind::Controller, _, None) => {
+                return Err(at(&["channel"], "the controller's number for the axis is missing".into()))
+            }
+            (_, Some(_), _) => return Err(at(&["controller"], "only with driver = \"controller\"".into())),
+            (_, _, Some(_)) => return Err(at(&["channel"], "only with driver = \"controller\"".into())),
+            (DriverKind::Sim, None, None) => DriverPlan::Sim(self.sim.clone()),
+            (DriverKind::Soft, None, None) => DriverPlan::Soft,
         };
         if !(self.readback_rate > 0.0 && self.readback_rate <= MAX_READBACK_RATE) {
             let message = format!("{} Hz is outside (0, {MAX_READBACK_RATE}]", self.readback_rate);
             return Err(at(&["readback_rate"], message));
         }
-        let dtyp = if driver == DriverPlan::Soft { "Soft Channel" } else { "Sim Motor" };
+        let dtyp = match driver {
+            DriverPlan::Soft => "Soft Channel",
+            DriverPlan::Sim(_) => "Sim Motor",
+            DriverPlan::Controller { .. } => "asynMotor",
+        };
         let mut fields = Fields { name: self.name.clone(), dtyp: dtyp.into(), ..Fields::default() };
         for (name, raw) in &self.fields {
             let inner = ["fields", name.as_str()];
@@ -601,6 +826,68 @@ impl AxisSection {
         }
         let rates = PollRates { moving: Duration::from_secs_f64(1.0 / self.readback_rate), ..PollRates::default() };
         Ok(AxisPlan { name: self.name.clone(), fields, driver, rates })
+    }
+}
+
+impl ControllerSection {
+    /// The controller, driving `channels`; every setting checked.
+    fn spec(&self, channels: Vec<usize>) -> Result<ControllerSpec, Problem> {
+        let at = |inner: &[&str], message: String| {
+            let key = inner.join(".");
+            Problem::in_item("controller", self.origin, inner, format!("controller '{}': {key}: {message}", self.name))
+        };
+        if self.name.trim().is_empty() {
+            return Err(at(&["name"], "must not be empty".into()));
+        }
+        let protocol = ProtocolKind::from_name(&self.protocol).ok_or_else(|| {
+            at(&["protocol"], format!("'{}' is not a known protocol (known: {})", self.protocol, ProtocolKind::known()))
+        })?;
+        let transport = match (&self.tcp, &self.serial) {
+            (Some(address), None) => {
+                let (host, port) = address.rsplit_once(':').unwrap_or((address, ""));
+                if host.is_empty() || port.parse::<u16>().map_or(true, |p| p == 0) {
+                    return Err(at(&["tcp"], format!("'{address}' is not host:port")));
+                }
+                Transport::Tcp { address: address.clone() }
+            }
+            (None, Some(serial)) => {
+                let settings = SerialSettings {
+                    device: serial.device.clone(),
+                    baud: serial.baud,
+                    parity: match serial.parity {
+                        ParityChoice::None => spec::Parity::None,
+                        ParityChoice::Odd => spec::Parity::Odd,
+                        ParityChoice::Even => spec::Parity::Even,
+                    },
+                    data_bits: serial.data_bits,
+                    stop_bits: serial.stop_bits,
+                    flow_control: match serial.flow_control {
+                        FlowControlChoice::None => spec::FlowControl::None,
+                        FlowControlChoice::Software => spec::FlowControl::Software,
+                        FlowControlChoice::Hardware => spec::FlowControl::Hardware,
+                    },
+                };
+                settings.check().map_err(|e| at(&["serial"], e.to_string()))?;
+                Transport::Serial(settings)
+            }
+            _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),
+        };
+        let options = ProtocolOptions { units_per_step: self.units_per_step };
+        options.check().map_err(|e| at(&["units_per_step"], e.to_string()))?;
+        let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
+            spec::period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
+        };
+        let config = ControllerConfig {
+            moving_poll: period("moving_poll", self.moving_poll, 0.001, 10.0)?,
+            idle_poll: period("idle_poll", self.idle_poll, 0.001, 60.0)?,
+            timeout: period("timeout", self.timeout, 0.001, 60.0)?,
+            retries: self.retries,
+            ..ControllerConfig::for_channels(channels)
+        };
+        if self.retries > 10 {
+            return Err(at(&["retries"], format!("{} is more than 10", self.retries)));
+        }
+        Ok(ControllerSpec { name: self.name.clone(), protocol, options, transport, config })
     }
 }
 
@@ -729,9 +1016,9 @@ mod tests {
     #[test]
     fn the_tangent_arm_wiring_is_accepted() {
         let deployment = Launch::parse(WIRING).unwrap().deployment(None).unwrap();
-        assert_eq!(deployment.calcs[0].inputs[0].mode, InputMode::Process);
-        assert_eq!(deployment.plans[1].driver, DriverPlan::Soft);
-        assert_eq!(deployment.plans[1].fields.dtyp, "Soft Channel");
+        assert_eq!(deployment.contents.calcs[0].inputs[0].mode, InputMode::Process);
+        assert_eq!(deployment.contents.plans[1].driver, DriverPlan::Soft);
+        assert_eq!(deployment.contents.plans[1].fields.dtyp, "Soft Channel");
     }
 
     #[test]
@@ -782,7 +1069,7 @@ mod tests {
         let deployment = Launch::parse(GOOD).unwrap().deployment(None).unwrap();
         assert_eq!(deployment.zenoh.mode, Mode::Peer);
         assert!(!deployment.zenoh.multicast_scouting);
-        let plans = deployment.plans;
+        let plans = deployment.contents.plans;
         let f = &plans[0].fields;
         assert_eq!((f.mres, f.velo, f.dir, f.egu.as_str(), f.name.as_str()), (0.001, 10.0, 1, "mm", "m1"));
         assert!(matches!(&plans[0].driver, DriverPlan::Sim(sim) if sim.high_limit_switch == Some(105000.0)));
@@ -823,6 +1110,111 @@ mod tests {
         assert_eq!(mode.to_string(), "<launch>:3: zenoh.mode: 'server' is not one of peer, client, router");
     }
 
+    const CONTROLLED: &str = r#"[[controller]]
+name = "mcb"
+protocol = "acs_mcb4b"
+tcp = "127.0.0.1:4001"
+moving_poll = 0.05
+
+[[axis]]
+name = "x"
+driver = "controller"
+controller = "mcb"
+channel = 2
+
+[[axis]]
+name = "y"
+driver = "controller"
+controller = "mcb"
+channel = 0
+"#;
+
+    #[test]
+    fn a_controller_drives_the_channels_of_its_axes() {
+        let deployment = Launch::parse(CONTROLLED).unwrap().deployment(None).unwrap();
+        let [mcb] = &deployment.contents.controllers[..] else { panic!("one controller") };
+        assert_eq!(
+            (mcb.protocol, &mcb.transport),
+            (ProtocolKind::AcsMcb4b, &Transport::Tcp { address: "127.0.0.1:4001".into() })
+        );
+        assert_eq!((mcb.config.channels.clone(), mcb.config.moving_poll), (vec![2, 0], Duration::from_millis(50)));
+        let x = &deployment.contents.plans[0];
+        assert_eq!(x.driver, DriverPlan::Controller { controller: "mcb".into(), channel: 2 });
+        assert_eq!(x.fields.dtyp, "asynMotor");
+        let serial = CONTROLLED.replace(
+            r#"tcp = "127.0.0.1:4001""#,
+            r#"serial = { device = "/dev/ttyS0", baud = 19200, parity = "even", stop_bits = 2 }"#,
+        );
+        let deployment = Launch::parse(&serial).unwrap().deployment(None).unwrap();
+        let Transport::Serial(line) = &deployment.contents.controllers[0].transport else { panic!("a serial line") };
+        assert_eq!((line.baud, line.parity, line.data_bits, line.stop_bits), (19200, spec::Parity::Even, 8, 2));
+    }
+
+    #[test]
+    fn controller_errors_name_the_file_line_and_key() {
+        let refused = |from: &str, to: &str| Launch::parse(&CONTROLLED.replacen(from, to, 1)).unwrap_err().to_string();
+        assert_eq!(
+            refused("acs_mcb4b", "acs"),
+            format!(
+                "<launch>:3: controller 'mcb': protocol: 'acs' is not a known protocol (known: {})",
+                ProtocolKind::known()
+            )
+        );
+        assert_eq!(
+            refused("127.0.0.1:4001", "127.0.0.1"),
+            "<launch>:4: controller 'mcb': tcp: '127.0.0.1' is not host:port"
+        );
+        assert_eq!(
+            refused("moving_poll = 0.05", "moving_poll = 0"),
+            "<launch>:5: controller 'mcb': moving_poll: 0 s is outside [0.001, 10] s"
+        );
+        assert!(refused("moving_poll = 0.05", "parity = \"odd\"").starts_with("<launch>:5: unknown field `parity`"));
+        assert_eq!(
+            refused("tcp = \"127.0.0.1:4001\"", "tcp = \"h:1\"\nserial = { device = \"/dev/ttyS0\" }"),
+            "<launch>:2: controller 'mcb': name: give one of tcp = \"host:port\" or a [controller.serial] port"
+        );
+        assert_eq!(
+            refused("controller = \"mcb\"", "controller = \"other\""),
+            "<launch>:10: axis 'x': controller: no [[controller]] 'other' (known: mcb)"
+        );
+        assert_eq!(
+            refused("channel = 2", "channel = 4"),
+            "<launch>:11: axis 'x': channel: channel 4: acs_mcb4b numbers its axes 0 to 3"
+        );
+        assert_eq!(
+            refused("channel = 2", "channel = 0"),
+            "<launch>:17: axis 'y': channel: channel 0 of controller 'mcb' is already axis 'x'"
+        );
+        assert_eq!(
+            refused("driver = \"controller\"", "driver = \"sim\""),
+            "<launch>:10: axis 'x': controller: only with driver = \"controller\""
+        );
+        assert_eq!(
+            refused("channel = 2\n", ""),
+            "<launch>:8: axis 'x': channel: the controller's number for the axis is missing"
+        );
+    }
+
+    #[test]
+    fn a_database_of_asyn_motors_runs_on_the_launch_files_controllers() {
+        let dir = tempfile::tempdir().unwrap();
+        let db =
+            r#"record(motor, "$(P)m1") { field(DTYP, "asynMotor") field(OUT, "@asyn(mcb,3)") field(MRES, "0.01") }"#;
+        std::fs::write(dir.path().join("motors.db"), db).unwrap();
+        let main = "[[database]]\nfile = \"motors.db\"\nmacros = { P = \"bl:\" }\n\n[[controller]]\nname = \"mcb\"\nprotocol = \"acs_mcb4b\"\ntcp = \"h:4001\"\n";
+        std::fs::write(dir.path().join("main.toml"), main).unwrap();
+        let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
+        let deployment = launch.deployment(None).unwrap();
+        let axis = &deployment.contents.plans[0];
+        assert_eq!((axis.name.as_str(), axis.fields.mres), ("bl:m1", 0.01));
+        assert_eq!(axis.driver, DriverPlan::Controller { controller: "mcb".into(), channel: 3 });
+        assert_eq!(deployment.contents.controllers[0].config.channels, [3]);
+        std::fs::write(dir.path().join("motors.db"), db.replace("mcb,3", "mcb,9")).unwrap();
+        let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+        assert!(error.file.ends_with("motors.db"), "the database is named: {error}");
+        assert!(error.message.contains("acs_mcb4b numbers its axes 0 to 3"), "{error}");
+    }
+
     const HOSTS: &str = r#"
         [zenoh]
         connect = ["tcp/10.0.0.1:7447"]
@@ -848,8 +1240,8 @@ mod tests {
     fn each_host_starts_only_its_part() {
         let launch = Launch::parse(HOSTS).unwrap();
         let optics = launch.deployment(Some("optics")).unwrap();
-        let names = |d: &Deployment| d.plans.iter().map(|p| p.name.clone()).collect::<Vec<_>>();
-        assert_eq!((names(&optics), optics.calcs.len()), (vec!["m1".to_string()], 0));
+        let names = |d: &Deployment| d.contents.plans.iter().map(|p| p.name.clone()).collect::<Vec<_>>();
+        assert_eq!((names(&optics), optics.contents.calcs.len()), (vec!["m1".to_string()], 0));
         assert_eq!(optics.zenoh.listen, ["tcp/10.0.0.2:7447"]);
         assert_eq!(
             (optics.zenoh.mode.name(), optics.zenoh.connect.as_slice()),
@@ -857,7 +1249,7 @@ mod tests {
         );
         let detector = launch.deployment(Some("detector")).unwrap();
         assert_eq!(
-            (names(&detector), detector.calcs.len(), detector.zenoh.mode.name()),
+            (names(&detector), detector.contents.calcs.len(), detector.zenoh.mode.name()),
             (vec!["m2".to_string()], 1, "client")
         );
         assert_eq!(names(&launch.deployment(None).unwrap()), ["m1", "m2"], "no --host: everything in one process");
@@ -887,7 +1279,7 @@ mod tests {
         assert!(error.message.starts_with("axis 'm2': fields.VELO: "), "{error}");
         write("hutch/more.toml", "[[axis]]\nname = \"m2\"\n");
         let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
-        let names: Vec<String> = launch.deployment(None).unwrap().plans.into_iter().map(|p| p.name).collect();
+        let names: Vec<String> = launch.deployment(None).unwrap().contents.plans.into_iter().map(|p| p.name).collect();
         assert_eq!(names, ["m0", "m1", "m2"]);
         write("hutch/more.toml", "[zenoh]\nmode = \"client\"\n");
         let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
@@ -917,10 +1309,10 @@ mod tests {
         assert!(loaded >= 4, "{loaded} launch files in {}", dir.display());
         let reference = Launch::load(&dir.join("reference.toml")).unwrap();
         let optics = reference.deployment(Some("optics")).unwrap();
-        let names: Vec<&str> = optics.plans.iter().map(|p| p.name.as_str()).collect();
+        let names: Vec<&str> = optics.contents.plans.iter().map(|p| p.name.as_str()).collect();
         assert_eq!(names, ["m1", "slit_top", "slit_bottom"], "the included slits run on the optics host");
         let user = reference.deployment(Some("user")).unwrap();
-        assert_eq!((user.calcs.len(), user.values.len(), user.zenoh.mode.name()), (1, 1, "client"));
+        assert_eq!((user.contents.calcs.len(), user.contents.values.len(), user.zenoh.mode.name()), (1, 1, "client"));
     }
 
     #[test]

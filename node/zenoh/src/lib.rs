@@ -6,10 +6,11 @@
 
 pub mod autosave;
 pub mod config;
+mod controllers;
 mod links;
 mod node;
 mod timer;
 
 pub use config::{free_local_endpoint, ConfigError, Mode, ZenohConfig};
 pub use links::ValueSpec;
-pub use node::{AutosaveConfig, Node, NodeError};
+pub use node::{AutosaveConfig, Node, NodeContents, NodeError};

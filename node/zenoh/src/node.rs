@@ -8,6 +8,7 @@
 //! declarations already there, and thousands of axes would pay it squared.
 
 use crate::autosave::{AutosaveError, SavedAxis, StateStore};
+use crate::controllers::{ControllerPort, RunningController, ToController};
 use crate::links::{is_state, CalcTask, Follows, LocalFollowers, ValueHolder, ValueSpec};
 use crate::timer::Timer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -19,8 +20,10 @@ use zenoh::query::Query;
 use zenoh::sample::{Locality, Sample};
 use zenoh::{Session, Wait};
 use zmotor_bridge::{CalcLink, CalcLinkSpec, LinkError};
-use zmotor_core::axis::AxisPlan;
+use zmotor_controllers::spec::ControllerSpec;
+use zmotor_core::axis::{AxisPlan, DriverPlan};
 use zmotor_core::driver::soft::InputLink;
+use zmotor_core::engine::DeviceStatus;
 use zmotor_core::service::{AxisService, Reply, ServiceOutput};
 use zmotor_core::Instant;
 use zmotor_msgs::{encode_cbor, keys, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
@@ -40,6 +43,14 @@ pub enum NodeError {
     /// The timer thread cannot be started.
     #[error("cannot start the timer thread: {0}")]
     Timer(std::io::Error),
+    /// An axis names a controller the node does not run.
+    #[error("axis '{axis}': no controller '{controller}' in this node")]
+    UnknownController {
+        /// The axis.
+        axis: String,
+        /// The controller it names.
+        controller: String,
+    },
 }
 
 impl From<zenoh::Error> for NodeError {
@@ -92,27 +103,57 @@ impl Tokens {
 /// How long a shutdown waits for moving axes to stop before saving anyway.
 const STOP_GRACE: Duration = Duration::from_secs(5);
 
+/// How long the axes of a controller wait at start-up for its first full poll; past it, they
+/// boot in COMM alarm and follow the controller when it answers.
+const CONTROLLER_BOOT_WAIT: Duration = Duration::from_secs(10);
+
+/// What a node serves.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NodeContents {
+    /// Its axes.
+    pub plans: Vec<AxisPlan>,
+    /// Its calc links.
+    pub calcs: Vec<CalcLinkSpec>,
+    /// Its value holders.
+    pub values: Vec<ValueSpec>,
+    /// The controllers its axes are on.
+    pub controllers: Vec<ControllerSpec>,
+}
+
 /// A running node: its axes' and calc links' tasks, stopped when dropped or on `shutdown`.
 pub struct Node {
     axis_tasks: Vec<tokio::task::JoinHandle<()>>,
     calc_tasks: Vec<tokio::task::JoinHandle<()>>,
+    controller_tasks: Vec<tokio::task::JoinHandle<()>>,
     stop: tokio::sync::watch::Sender<bool>,
+    /// Stops the controllers, after the axes (their last stop commands go through them).
+    stop_controllers: tokio::sync::watch::Sender<bool>,
     _router: Router,
     _values: Vec<ValueHolder>,
 }
 
 impl Node {
-    /// Start one task per axis, then one per calc link, on `session`. With autosave, each axis
-    /// boots from its saved state (RSTM deciding about the position) and saves its changes.
+    /// Start one task per controller, then one per axis (an axis on a controller boots on the
+    /// controller's first full poll), then one per calc link, on `session`. With autosave,
+    /// each axis boots from its saved state (RSTM deciding about the position) and saves its
+    /// changes.
     pub async fn start(
         session: Session,
         layout: KeyLayout,
-        plans: Vec<AxisPlan>,
-        calcs: Vec<CalcLinkSpec>,
-        values: Vec<ValueSpec>,
+        contents: NodeContents,
         autosave: Option<AutosaveConfig>,
     ) -> Result<Self, NodeError> {
+        let NodeContents { plans, calcs, values, controllers } = contents;
         let (stop, stopped) = tokio::sync::watch::channel(false);
+        let (stop_controllers, controllers_stopped) = tokio::sync::watch::channel(false);
+        let mut running: Vec<RunningController> =
+            controllers.into_iter().map(|spec| crate::controllers::start(spec, controllers_stopped.clone())).collect();
+        let mut first_statuses = std::collections::HashMap::new();
+        for controller in &mut running {
+            let first = tokio::time::timeout(CONTROLLER_BOOT_WAIT, &mut controller.first).await;
+            first_statuses.insert(controller.name.clone(), first.ok().and_then(Result::ok).unwrap_or_default());
+        }
+        let mut on_controllers: std::collections::HashMap<String, Vec<(usize, AxisHandle)>> = Default::default();
         let timer = Timer::start().map_err(NodeError::Timer)?;
         let writer = Writer { session: session.clone(), fields: Space::Fields(layout.clone()), local: Arc::default() };
         let followers = Arc::new(LocalFollowers::new(layout.clone()));
@@ -131,8 +172,25 @@ impl Node {
                 follows.follow(link as usize, &key)?;
             }
             let name = plan.name.clone();
+            let on_controller = match &plan.driver {
+                DriverPlan::Controller { controller, channel } => Some((controller.clone(), *channel)),
+                _ => None,
+            };
+            let (controller, first_status) = match &on_controller {
+                Some((controller, channel)) => {
+                    let running = running.iter().find(|r| r.name == *controller).ok_or_else(|| {
+                        NodeError::UnknownController { axis: name.clone(), controller: controller.clone() }
+                    })?;
+                    let port = ControllerPort { sender: running.sender.clone(), channel: *channel };
+                    let known: Option<&std::collections::BTreeMap<usize, DeviceStatus>> =
+                        first_statuses.get(controller);
+                    (Some(port), known.and_then(|statuses| statuses.get(channel).copied()))
+                }
+                None => (None, None),
+            };
             let core = AxisCore {
-                service: AxisService::new(&layout, &name, plan.build(Instant::ZERO)),
+                service: AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status)),
+                controller: controller.clone(),
                 session: session.clone(),
                 writer: writer.clone(),
                 followers: followers.clone(),
@@ -153,6 +211,9 @@ impl Node {
                 rearm: Default::default(),
             };
             routes.insert(name.clone(), handle.clone());
+            if let Some((controller, channel)) = on_controller {
+                on_controllers.entry(controller).or_default().push((channel, handle.clone()));
+            }
             axis_tasks.push(AxisTask {
                 core: handle.core,
                 queue,
@@ -165,6 +226,16 @@ impl Node {
                 name,
             });
         }
+        for controller in &running {
+            let axes = on_controllers.remove(&controller.name).unwrap_or_default();
+            let sink = move |channel: usize, status: DeviceStatus| {
+                for (_, handle) in axes.iter().filter(|(c, _)| *c == channel) {
+                    handle.deliver(AxisInput::ControllerStatus(status));
+                }
+            };
+            let _ = controller.sender.send(ToController::Attach(Box::new(sink)));
+        }
+        let controller_tasks = running.into_iter().map(|r| r.task).collect();
         let router = Router::declare(&session, &layout, routes, &writer).await?;
         // The axes answer as soon as the router exists; their liveliness tokens follow, as
         // Zenoh's cost per token grows with the tokens already declared.
@@ -190,7 +261,7 @@ impl Node {
             let mut task = CalcTask { writer: writer.clone(), link, _follows: follows, inputs };
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
-        Ok(Self { axis_tasks, calc_tasks, stop, _router: router, _values: holders })
+        Ok(Self { axis_tasks, calc_tasks, controller_tasks, stop, stop_controllers, _router: router, _values: holders })
     }
 
     /// Stop every moving axis, wait (at most `STOP_GRACE`) until they are done, save their
@@ -204,12 +275,17 @@ impl Node {
         for task in std::mem::take(&mut self.calc_tasks) {
             task.abort();
         }
+        let _ = self.stop_controllers.send(true);
+        for task in std::mem::take(&mut self.controller_tasks) {
+            let _ = task.await;
+        }
     }
 }
 
 impl Drop for Node {
     fn drop(&mut self) {
         let _ = self.stop.send(true);
+        let _ = self.stop_controllers.send(true);
         for task in &self.calc_tasks {
             task.abort();
         }
@@ -222,6 +298,8 @@ enum AxisInput {
     Query(Query),
     SimWrite(Written),
     SimQuery(Query),
+    /// What the axis's controller reported for its channel.
+    ControllerStatus(DeviceStatus),
 }
 
 /// A plain write to one key of an axis: the field (or simulator setting) named, the payload.
@@ -423,6 +501,8 @@ fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> 
 /// Publications and replies are sent without awaiting (`wait`), so a Zenoh callback can run this.
 struct AxisCore {
     service: AxisService<Query>,
+    /// The controller behind the axis, if it has one: its driver commands go there.
+    controller: Option<ControllerPort>,
     session: Session,
     /// Its plain writes to other keys.
     writer: Writer,
@@ -479,6 +559,7 @@ impl AxisCore {
                 };
                 self.service.sim_read(now, selects, query);
             }
+            AxisInput::ControllerStatus(status) => self.service.controller_status(now, status),
         }
         self.flush();
     }
@@ -533,6 +614,9 @@ impl AxisCore {
                 }
                 ServiceOutput::Reply { to, reply } => self.reply(&to, reply),
                 ServiceOutput::DriverCommand { command, at } => {
+                    if let Some(controller) = &self.controller {
+                        controller.send(command.clone());
+                    }
                     let trace_publisher = self.trace_publisher();
                     let listening = *traced.get_or_insert_with(|| {
                         trace_publisher.is_some_and(|p| p.matching_status().wait().is_ok_and(|m| m.matching()))

@@ -11,7 +11,6 @@ impl MotorRecord {
         let f = &self.f;
         let (mut nsta, mut nsev) = (status::NO_ALARM, severity::NO_ALARM);
         let limits_on = !(f.dhlm == 0.0 && f.dllm == 0.0);
-        let mut comm_error = false;
         if f.udf != 0 {
             (nsta, nsev) = (status::UDF, severity::INVALID);
         // Departure Z4: the target is compared with the soft limits only while they are on (Q8).
@@ -20,17 +19,13 @@ impl MotorRecord {
         } else if f.hlsv != severity::NO_ALARM && (f.lls != 0 || (limits_on && f.dval < f.dllm)) {
             (nsta, nsev) = (status::LOW, f.hlsv);
         } else {
+            // Departure Z18: the comm-error bit stays in MSTA, where clients look for the cause.
             if f.msta & msta::COMM_ERR != 0 {
-                comm_error = true;
                 (nsta, nsev) = (status::COMM, severity::INVALID);
             }
             if f.msta & (msta::SLIP_STALL | msta::PROBLEM) != 0 && nsev < severity::MAJOR {
                 (nsta, nsev) = (status::STATE, severity::MAJOR);
             }
-        }
-        if comm_error {
-            self.f.msta &= !msta::COMM_ERR;
-            self.mark(Field::MSTA);
         }
         let change = AlarmChange { status: nsta != self.f.stat, severity: nsev != self.f.sevr };
         self.f.stat = nsta;

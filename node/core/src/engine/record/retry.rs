@@ -1,7 +1,7 @@
 //! §11 maybe_retry(): the end-of-motion evaluation of retries, MISS and SPMG Move.
 
 use super::MotorRecord;
-use zmotor_msgs::bits::mip;
+use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
 use zmotor_msgs::Field;
 
@@ -21,7 +21,10 @@ impl MotorRecord {
                     self.f.rcnt = 0;
                 }
                 self.f.rcnt += 1;
-                if self.f.rcnt > self.f.rtry {
+                // Departure Z19: no retry while the controller cannot be reached (it would be
+                // refused, or worse, run when the link comes back): the motion ends, missed.
+                let unreachable = self.f.msta & msta::COMM_ERR != 0;
+                if self.f.rcnt > self.f.rtry || unreachable {
                     self.f.mip = mip::DONE;
                     if (self.f.jogf != 0 && self.f.hls == 0) || (self.f.jogr != 0 && self.f.lls == 0) {
                         self.f.mip |= mip::JOG_REQ;

@@ -802,7 +802,8 @@ fn alarms_follow_limits_and_driver_problems() {
     assert_eq!((rig.f().stat, rig.f().sevr), (7, 2));
     rig.status(DeviceStatus { msta: msta::DONE | msta::COMM_ERR, ..idle(0.0) });
     assert_eq!((rig.f().stat, rig.f().sevr), (9, 3));
-    assert_eq!(rig.f().msta & msta::COMM_ERR, 0, "the record clears the comm-error bit");
+    // Departure Z18: the reference clears the bit; zmotor keeps it for clients to see why.
+    assert_ne!(rig.f().msta & msta::COMM_ERR, 0, "MSTA shows the comm error");
 }
 
 #[test]

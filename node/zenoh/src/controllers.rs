@@ -1,0 +1,277 @@
+//! Controllers on their connections: a thin tokio runner around each sans-IO `Controller`
+//! (zmotor-controllers). It opens the TCP socket or serial port when the controller asks, moves
+//! bytes both ways, turns the wall clock into timeouts, hands each channel's status to its axis
+//! and the axes' driver commands to the controller. Nothing here decides anything.
+
+use std::collections::BTreeMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadHalf, WriteHalf};
+use tokio::sync::{mpsc, oneshot, watch};
+use zmotor_controllers::spec::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
+use zmotor_controllers::{Controller, ControllerEvent};
+use zmotor_core::engine::DeviceStatus;
+use zmotor_core::Instant;
+use zmotor_msgs::DriverCommand;
+
+/// Longest wait for a TCP connection or a serial port to open.
+const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
+
+/// A byte stream to a controller.
+trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
+impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
+
+type Stream = Box<dyn Io>;
+type Opening = Pin<Box<dyn Future<Output = std::io::Result<Stream>> + Send>>;
+
+/// Where a controller's statuses go once its axes exist: (channel, status).
+pub(crate) type StatusSink = Box<dyn FnMut(usize, DeviceStatus) + Send>;
+
+/// What reaches a controller's runner.
+pub(crate) enum ToController {
+    /// A driver command of the axis on `channel`.
+    Command { channel: usize, command: DriverCommand },
+    /// The axes exist: statuses go to them from now on.
+    Attach(StatusSink),
+}
+
+/// How an axis reaches its controller.
+#[derive(Clone)]
+pub(crate) struct ControllerPort {
+    pub(crate) sender: mpsc::UnboundedSender<ToController>,
+    pub(crate) channel: usize,
+}
+
+impl ControllerPort {
+    pub(crate) fn send(&self, command: DriverCommand) {
+        let _ = self.sender.send(ToController::Command { channel: self.channel, command });
+    }
+}
+
+/// A controller being run: how to reach it, and what it reported by the time its axes boot.
+pub(crate) struct RunningController {
+    pub(crate) name: String,
+    pub(crate) sender: mpsc::UnboundedSender<ToController>,
+    /// The statuses of its channels once it is up, or none if it could not be reached.
+    pub(crate) first: oneshot::Receiver<BTreeMap<usize, DeviceStatus>>,
+    pub(crate) task: tokio::task::JoinHandle<()>,
+}
+
+/// Start the runner of one controller; it ends when `stopped` turns true.
+pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> RunningController {
+    let (sender, commands) = mpsc::unbounded_channel();
+    let (first_in, first) = oneshot::channel();
+    let origin = tokio::time::Instant::now();
+    let controller = Controller::new(spec.protocol.protocol(&spec.options), spec.config.clone(), Instant::ZERO);
+    let name = spec.name.clone();
+    let mut runner = Runner {
+        name: spec.name,
+        transport: spec.transport,
+        controller,
+        origin,
+        reader: None,
+        writer: None,
+        opening: None,
+        sink: None,
+        latest: BTreeMap::new(),
+        first: Some(first_in),
+        was_up: false,
+        unreachable: false,
+    };
+    let task = tokio::spawn(async move { runner.run(commands, stopped).await });
+    RunningController { name, sender, first, task }
+}
+
+struct Runner {
+    name: String,
+    transport: Transport,
+    controller: Controller,
+    origin: tokio::time::Instant,
+    reader: Option<ReadHalf<Stream>>,
+    writer: Option<WriteHalf<Stream>>,
+    opening: Option<Opening>,
+    sink: Option<StatusSink>,
+    /// Each channel's latest status, for axes not attached yet.
+    latest: BTreeMap<usize, DeviceStatus>,
+    first: Option<oneshot::Sender<BTreeMap<usize, DeviceStatus>>>,
+    was_up: bool,
+    /// Opening the connection failed, and has not succeeded since.
+    unreachable: bool,
+}
+
+impl Runner {
+    fn now(&self) -> Instant {
+        Instant::after(self.origin.elapsed())
+    }
+
+    async fn run(&mut self, mut commands: mpsc::UnboundedReceiver<ToController>, mut stopped: watch::Receiver<bool>) {
+        let mut buffer = vec![0u8; 4096];
+        self.controller.handle_timeout(self.now());
+        loop {
+            self.drain().await;
+            let deadline = self.controller.poll_timeout().map(|t| self.origin + t.since_origin());
+            tokio::select! {
+                Some(message) = commands.recv() => match message {
+                    ToController::Command { channel, command } => self.controller.command(self.now(), channel, &command),
+                    ToController::Attach(mut sink) => {
+                        for (channel, status) in std::mem::take(&mut self.latest) {
+                            sink(channel, status);
+                        }
+                        self.sink = Some(sink);
+                    }
+                },
+                read = read_some(&mut self.reader, &mut buffer) => match read {
+                    Ok(n) if n > 0 => self.controller.handle_input(self.now(), &buffer[..n]),
+                    Ok(_) => self.closed("the controller closed the connection"),
+                    Err(e) => self.closed(&e.to_string()),
+                },
+                opened = async { self.opening.as_mut().expect("guarded").await }, if self.opening.is_some() => {
+                    self.opening = None;
+                    match opened {
+                        Ok(stream) => {
+                            let (reader, writer) = tokio::io::split(stream);
+                            (self.reader, self.writer) = (Some(reader), Some(writer));
+                            self.controller.handle_connected(self.now());
+                        }
+                        Err(e) => {
+                            // Said once; the attempts go on quietly, with a growing back-off.
+                            if std::mem::replace(&mut self.unreachable, true) {
+                                tracing::debug!(controller = %self.name, "cannot open {}: {e}", self.transport);
+                            } else {
+                                tracing::warn!(controller = %self.name, "cannot open {}: {e}; trying again", self.transport);
+                            }
+                            self.controller.handle_disconnected(self.now());
+                            // A controller not reached at start-up: its axes boot without it.
+                            self.ready();
+                        }
+                    }
+                }
+                _ = tokio::time::sleep_until(deadline.unwrap_or(self.origin)), if deadline.is_some() => {
+                    self.controller.handle_timeout(self.now());
+                }
+                _ = stopped.changed() => return,
+            }
+        }
+    }
+
+    /// Write what the controller has to send, and act on its events.
+    async fn drain(&mut self) {
+        loop {
+            while let Some(event) = self.controller.poll_event() {
+                self.on_event(event);
+            }
+            let Some(bytes) = self.controller.poll_transmit() else { break };
+            let Some(writer) = self.writer.as_mut() else { continue };
+            let written = async {
+                writer.write_all(&bytes).await?;
+                writer.flush().await
+            };
+            if let Err(e) = written.await {
+                self.closed(&e.to_string());
+            }
+        }
+        if !self.was_up && self.controller.is_up() {
+            self.unreachable = false;
+            tracing::info!(controller = %self.name, "{} on {}: up", self.controller.protocol(), self.transport);
+            self.ready();
+        }
+        self.was_up = self.controller.is_up();
+    }
+
+    fn on_event(&mut self, event: ControllerEvent) {
+        match event {
+            ControllerEvent::Connect => {
+                tracing::debug!(controller = %self.name, "opening {}", self.transport);
+                self.opening = Some(open(self.transport.clone()));
+            }
+            ControllerEvent::Disconnect => {
+                tracing::warn!(controller = %self.name, "communication lost; its axes are in COMM alarm until it answers again");
+                (self.reader, self.writer) = (None, None);
+                self.ready();
+            }
+            ControllerEvent::Status { channel, status } => match &mut self.sink {
+                Some(sink) => sink(channel, status),
+                None => {
+                    self.latest.insert(channel, status);
+                }
+            },
+            ControllerEvent::ControllerError { channel, code, meaning } => {
+                let channel = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
+                tracing::error!(controller = %self.name, "{channel}: controller error {code}: {meaning}");
+            }
+            ControllerEvent::Refused { channel, why } => {
+                tracing::warn!(controller = %self.name, "channel {channel}: command not sent: {why}");
+            }
+            ControllerEvent::Failed { what } => tracing::warn!(controller = %self.name, "exchange failed: {what}"),
+        }
+    }
+
+    /// The connection failed under us.
+    fn closed(&mut self, why: &str) {
+        tracing::warn!(controller = %self.name, "{}: {why}", self.transport);
+        (self.reader, self.writer) = (None, None);
+        self.controller.handle_disconnected(self.now());
+    }
+
+    /// The axes may boot: on the statuses known so far (none if the controller was not reached).
+    fn ready(&mut self) {
+        if let Some(first) = self.first.take() {
+            let known = if self.controller.is_up() { self.latest.clone() } else { BTreeMap::new() };
+            let _ = first.send(known);
+        }
+    }
+}
+
+/// Read from the stream if there is one; never ready otherwise.
+async fn read_some(reader: &mut Option<ReadHalf<Stream>>, buffer: &mut [u8]) -> std::io::Result<usize> {
+    match reader {
+        Some(reader) => reader.read(buffer).await,
+        None => std::future::pending().await,
+    }
+}
+
+/// Open the transport, within `OPEN_TIMEOUT`.
+fn open(transport: Transport) -> Opening {
+    Box::pin(async move {
+        let opening = async {
+            match &transport {
+                Transport::Tcp { address } => {
+                    let stream = tokio::net::TcpStream::connect(address.as_str()).await?;
+                    // Requests are small and each waits for its reply: no Nagle delay.
+                    stream.set_nodelay(true)?;
+                    Ok(Box::new(stream) as Stream)
+                }
+                Transport::Serial(settings) => open_serial(settings),
+            }
+        };
+        tokio::time::timeout(OPEN_TIMEOUT, opening)
+            .await
+            .unwrap_or_else(|_| Err(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))
+    })
+}
+
+fn open_serial(settings: &SerialSettings) -> std::io::Result<Stream> {
+    use tokio_serial::SerialPortBuilderExt;
+    let port = tokio_serial::new(&settings.device, settings.baud)
+        .parity(match settings.parity {
+            Parity::None => tokio_serial::Parity::None,
+            Parity::Odd => tokio_serial::Parity::Odd,
+            Parity::Even => tokio_serial::Parity::Even,
+        })
+        .data_bits(match settings.data_bits {
+            5 => tokio_serial::DataBits::Five,
+            6 => tokio_serial::DataBits::Six,
+            7 => tokio_serial::DataBits::Seven,
+            _ => tokio_serial::DataBits::Eight,
+        })
+        .stop_bits(if settings.stop_bits == 2 { tokio_serial::StopBits::Two } else { tokio_serial::StopBits::One })
+        .flow_control(match settings.flow_control {
+            FlowControl::None => tokio_serial::FlowControl::None,
+            FlowControl::Software => tokio_serial::FlowControl::Software,
+            FlowControl::Hardware => tokio_serial::FlowControl::Hardware,
+        })
+        .open_native_async()
+        .map_err(std::io::Error::from)?;
+    Ok(Box::new(port))
+}
