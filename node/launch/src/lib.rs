@@ -1191,7 +1191,7 @@ channel = 0
         );
         assert_eq!(
             refused("channel = 2\n", ""),
-            "<launch>:8: axis 'x': channel: the controller's number for the axis is missing"
+            "<launch>:7: axis 'x': channel: the controller's number for the axis is missing"
         );
     }
 
