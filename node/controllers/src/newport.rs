@@ -721,6 +721,15 @@ mod tests {
     }
 
     #[test]
+    fn millimetres_per_step_default_to_a_tenth_of_a_micrometre_and_nonsense_is_not_taken() {
+        assert_eq!(Smc100::new(None).units_per_step(), 0.0001);
+        assert_eq!(Smc100::new(Some(0.00005)).units_per_step(), 0.00005);
+        for nonsense in [0.0, -0.0001, f64::NAN, f64::INFINITY] {
+            assert_eq!(Smc100::new(Some(nonsense)).units_per_step(), DEFAULT_UNITS_PER_STEP, "{nonsense}");
+        }
+    }
+
+    #[test]
     fn values_the_controller_cannot_take_are_refused_not_clamped() {
         let mut p = Smc100::default();
         let refused = |r: Result<Vec<Request>, CommandError>| matches!(r, Err(CommandError::OutOfRange { .. }));
