@@ -7,6 +7,7 @@ pub mod acs;
 pub mod controller;
 pub mod emulator;
 pub mod loopback;
+pub mod newport;
 pub mod protocol;
 pub mod spec;
 
@@ -18,16 +19,19 @@ pub use protocol::{CommandError, Protocol, ProtocolOptions};
 pub enum ProtocolKind {
     /// ACS MCB-4B.
     AcsMcb4b,
+    /// Newport SMC100 (CC/PP) chain, or CONEX-CC.
+    NewportSmc100,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 1] = [ProtocolKind::AcsMcb4b];
+    pub const ALL: [ProtocolKind; 2] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             ProtocolKind::AcsMcb4b => acs::NAME,
+            ProtocolKind::NewportSmc100 => newport::NAME,
         }
     }
 
@@ -45,6 +49,7 @@ impl ProtocolKind {
     pub fn check_channel(self, channel: usize) -> Result<(), spec::SpecError> {
         let (valid, allowed) = match self {
             ProtocolKind::AcsMcb4b => (channel <= 3, "0 to 3"),
+            ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
         };
         if valid {
             Ok(())
@@ -54,24 +59,33 @@ impl ProtocolKind {
     }
 
     /// A driver side of the protocol.
-    pub fn protocol(self, _options: &ProtocolOptions) -> Box<dyn Protocol> {
+    pub fn protocol(self, options: &ProtocolOptions) -> Box<dyn Protocol> {
         match self {
             ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
+            ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
         }
     }
 
-    /// The size of the emulator `zmotor sim-controller` runs: a typical controller of the kind.
+    /// The argument to `emulator` that `zmotor sim-controller` gives: a typical controller of
+    /// the kind.
     pub fn emulated_size(self) -> usize {
         match self {
             ProtocolKind::AcsMcb4b => 4,
+            ProtocolKind::NewportSmc100 => 3,
         }
     }
 
-    /// An emulated controller of `channels` axes.
+    /// An emulated controller with every channel below `channels` that the kind has. Where the
+    /// channel is an address that starts at 1 (Newport SMC100), the chain has the addresses 1
+    /// to `channels` − 1, one at least.
     pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
         let mechanics = emulator::stage();
         match self {
             ProtocolKind::AcsMcb4b => Box::new(emulator::acs::Mcb4bEmulator::new(channels, &mechanics)),
+            ProtocolKind::NewportSmc100 => Box::new(emulator::newport::Smc100Emulator::new(
+                channels.saturating_sub(1).max(1),
+                &emulator::newport::stage(),
+            )),
         }
     }
 }
