@@ -639,13 +639,14 @@ impl Protocol for PiGcs2 {
                 requests
             }
             DriverCommand::MoveVelocity { max_velocity, acceleration, .. } => {
+                let up = *max_velocity >= 0.0;
                 let axis = self.axis(channel);
-                let end = if *max_velocity >= 0.0 { axis.travel_max } else { axis.travel_min };
+                let end = if up { axis.travel_max } else { axis.travel_min };
                 let end = end
                     .ok_or(CommandError::Unsupported { protocol: NAME, what: "jog before its travel range is read" })?;
-                axis.direction_up = *max_velocity >= 0.0;
                 let mut requests = self.dynamics(channel, *max_velocity, *acceleration)?;
                 requests.extend(checked(channel, format!("MOV {channel} {}", self.units_text(channel, end))));
+                self.axis(channel).direction_up = up;
                 requests
             }
             DriverCommand::Home { forward, max_velocity, .. } => {

@@ -264,7 +264,7 @@ impl Gcs2Emulator {
 
     /// `<axis> <value>` pairs.
     fn pairs(&self, args: &[&str]) -> Result<Vec<(usize, f64)>, u32> {
-        if args.is_empty() || args.len() % 2 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(2) {
             return Err(code::PARAMETER_COUNT);
         }
         args.chunks(2)
@@ -400,7 +400,7 @@ impl Gcs2Emulator {
         let indexes: Vec<usize> = if args.is_empty() {
             (0..self.axes.len()).collect()
         } else {
-            if args.len() % 2 != 0 {
+            if !args.len().is_multiple_of(2) {
                 return Err(code::PARAMETER_COUNT);
             }
             let pairs: Result<Vec<usize>, u32> = args
@@ -415,7 +415,7 @@ impl Gcs2Emulator {
     }
 
     fn parameter_query(&self, args: &[&str]) -> Outcome {
-        if args.is_empty() || args.len() % 2 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(2) {
             return Err(code::PARAMETER_COUNT);
         }
         let mut replies = Vec::new();
@@ -428,7 +428,7 @@ impl Gcs2Emulator {
     }
 
     fn set_parameter(&mut self, args: &[&str]) -> Outcome {
-        if args.is_empty() || args.len() % 3 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(3) {
             return Err(code::PARAMETER_COUNT);
         }
         let mut settings = Vec::new();
