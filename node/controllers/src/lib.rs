@@ -1,13 +1,15 @@
 //! zmotor-controllers: real motor controllers, sans-IO. `controller` is the controller layer
 //! (one connection, a priority queue, polls, the link and its loss); `protocol` what a vendor's
 //! protocol provides; one module per vendor; `emulator` the vendors' controllers emulated on
-//! zmotor-core's physical simulator. A runner (zmotor-zenoh) moves the bytes.
+//! zmotor-core's physical simulator; `spec` a controller as a deployment describes it. A runner
+//! (zmotor-zenoh) moves the bytes.
 
 pub mod acs;
 pub mod controller;
 pub mod emulator;
 pub mod loopback;
 pub mod newport;
+pub mod pi_gcs2;
 pub mod protocol;
 pub mod spec;
 
@@ -21,17 +23,20 @@ pub enum ProtocolKind {
     AcsMcb4b,
     /// Newport SMC100 (CC/PP) chain, or CONEX-CC.
     NewportSmc100,
+    /// PI GCS 2 (C-863 Mercury, C-884 and their class).
+    PiGcs2,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 2] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100];
+    pub const ALL: [ProtocolKind; 3] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             ProtocolKind::AcsMcb4b => acs::NAME,
             ProtocolKind::NewportSmc100 => newport::NAME,
+            ProtocolKind::PiGcs2 => pi_gcs2::NAME,
         }
     }
 
@@ -50,6 +55,7 @@ impl ProtocolKind {
         let (valid, allowed) = match self {
             ProtocolKind::AcsMcb4b => (channel <= 3, "0 to 3"),
             ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
+            ProtocolKind::PiGcs2 => ((1..=16).contains(&channel), "by their axis name, 1 to 16"),
         };
         if valid {
             Ok(())
@@ -63,6 +69,7 @@ impl ProtocolKind {
         match self {
             ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
             ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
+            ProtocolKind::PiGcs2 => Box::new(pi_gcs2::PiGcs2::new(options)),
         }
     }
 
@@ -72,12 +79,14 @@ impl ProtocolKind {
         match self {
             ProtocolKind::AcsMcb4b => 4,
             ProtocolKind::NewportSmc100 => 3,
+            ProtocolKind::PiGcs2 => 5,
         }
     }
 
-    /// An emulated controller with every channel below `channels` that the kind has. Where the
-    /// channel is an address that starts at 1 (Newport SMC100), the chain has the addresses 1
-    /// to `channels` − 1, one at least.
+    /// An emulated controller with every channel below `channels` that the kind has: an
+    /// SMC100 chain has the addresses 1 to `channels` − 1 (one at least), a PI controller the
+    /// axes 1 to `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules
+    /// at least).
     pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
         let mechanics = emulator::stage();
         match self {
@@ -86,6 +95,10 @@ impl ProtocolKind {
                 channels.saturating_sub(1).max(1),
                 &emulator::newport::stage(),
             )),
+            ProtocolKind::PiGcs2 => {
+                let axes = channels.saturating_sub(1).max(4);
+                Box::new(emulator::pi_gcs2::Gcs2Emulator::new(axes, &emulator::pi_gcs2::mechanics()))
+            },
         }
     }
 }

@@ -6,6 +6,7 @@
 
 pub mod acs;
 pub mod newport;
+pub mod pi_gcs2;
 
 use std::collections::VecDeque;
 use std::time::Duration;
