@@ -8,6 +8,7 @@ pub mod controller;
 pub mod emulator;
 pub mod loopback;
 pub mod protocol;
+pub mod smaract_mcs2;
 
 pub use controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
 pub use protocol::{CommandError, Protocol, ProtocolOptions};
