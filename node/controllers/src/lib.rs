@@ -18,16 +18,19 @@ pub use protocol::{CommandError, Protocol, ProtocolOptions};
 pub enum ProtocolKind {
     /// ACS MCB-4B.
     AcsMcb4b,
+    /// SmarAct MCS2 (linear positioners with a sensor, over TCP).
+    SmaractMcs2,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 1] = [ProtocolKind::AcsMcb4b];
+    pub const ALL: [ProtocolKind; 2] = [ProtocolKind::AcsMcb4b, ProtocolKind::SmaractMcs2];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             ProtocolKind::AcsMcb4b => acs::NAME,
+            ProtocolKind::SmaractMcs2 => smaract_mcs2::NAME,
         }
     }
 
@@ -37,17 +40,23 @@ impl ProtocolKind {
     }
 
     /// A driver side of the protocol.
-    pub fn protocol(self, _options: &ProtocolOptions) -> Box<dyn Protocol> {
+    pub fn protocol(self, options: &ProtocolOptions) -> Box<dyn Protocol> {
         match self {
             ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
+            ProtocolKind::SmaractMcs2 => Box::new(smaract_mcs2::Mcs2::new(options)),
         }
     }
 
-    /// An emulated controller of `channels` axes.
+    /// An emulated controller of `channels` axes (an MCS2's in picometres, at the default
+    /// scale of one nanometre per step).
     pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
         let mechanics = emulator::stage();
         match self {
             ProtocolKind::AcsMcb4b => Box::new(emulator::acs::Mcb4bEmulator::new(channels, &mechanics)),
+            ProtocolKind::SmaractMcs2 => {
+                let positioner = emulator::smaract_mcs2::positioner(&mechanics);
+                Box::new(emulator::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
+            }
         }
     }
 }
