@@ -11,6 +11,7 @@ pub mod loopback;
 pub mod newport;
 pub mod pi_gcs2;
 pub mod protocol;
+pub mod smaract_mcs2;
 pub mod spec;
 
 pub use controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
@@ -25,11 +26,13 @@ pub enum ProtocolKind {
     NewportSmc100,
     /// PI GCS 2 (C-863 Mercury, C-884 and their class).
     PiGcs2,
+    /// SmarAct MCS2 (linear positioners with a sensor, over TCP).
+    SmaractMcs2,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 3] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2];
+    pub const ALL: [ProtocolKind; 4] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2, ProtocolKind::SmaractMcs2];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
@@ -37,6 +40,7 @@ impl ProtocolKind {
             ProtocolKind::AcsMcb4b => acs::NAME,
             ProtocolKind::NewportSmc100 => newport::NAME,
             ProtocolKind::PiGcs2 => pi_gcs2::NAME,
+            ProtocolKind::SmaractMcs2 => smaract_mcs2::NAME,
         }
     }
 
@@ -56,6 +60,7 @@ impl ProtocolKind {
             ProtocolKind::AcsMcb4b => (channel <= 3, "0 to 3"),
             ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
             ProtocolKind::PiGcs2 => ((1..=16).contains(&channel), "by their axis name, 1 to 16"),
+            ProtocolKind::SmaractMcs2 => (channel <= 26, "0 to 26"),
         };
         if valid {
             Ok(())
@@ -70,6 +75,7 @@ impl ProtocolKind {
             ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
             ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
             ProtocolKind::PiGcs2 => Box::new(pi_gcs2::PiGcs2::new(options)),
+            ProtocolKind::SmaractMcs2 => Box::new(smaract_mcs2::Mcs2::new(options)),
         }
     }
 
@@ -80,6 +86,7 @@ impl ProtocolKind {
             ProtocolKind::AcsMcb4b => 4,
             ProtocolKind::NewportSmc100 => 3,
             ProtocolKind::PiGcs2 => 5,
+            ProtocolKind::SmaractMcs2 => 3,
         }
     }
 
@@ -98,6 +105,10 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => {
                 let axes = channels.saturating_sub(1).max(4);
                 Box::new(emulator::pi_gcs2::Gcs2Emulator::new(axes, &emulator::pi_gcs2::mechanics()))
+            },
+            ProtocolKind::SmaractMcs2 => {
+                let positioner = emulator::smaract_mcs2::positioner(&mechanics);
+                Box::new(emulator::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
             },
         }
     }

@@ -7,6 +7,7 @@
 pub mod acs;
 pub mod newport;
 pub mod pi_gcs2;
+pub mod smaract_mcs2;
 
 use std::collections::VecDeque;
 use std::time::Duration;
