@@ -5,6 +5,7 @@
 //! do: replies lost, late or garbled, a connection that closes.
 
 pub mod acs;
+pub mod phytron;
 
 use std::collections::VecDeque;
 use std::time::Duration;
