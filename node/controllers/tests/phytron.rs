@@ -68,6 +68,26 @@ fn a_new_connection_reads_the_encoder_types_then_polls_every_axis_in_one_frame_a
 }
 
 #[test]
+fn a_reconnection_reads_and_polls_again_and_moves_nothing() {
+    let mut lb = loopback(PHYTRON, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(12, &go(-4000.0, false));
+    run_until_done(&mut lb, 12, TICK, Duration::from_secs(2));
+    lb.set_reachable(false);
+    lb.run_for(Duration::from_secs(1));
+    let start = lb.written().len();
+    lb.set_reachable(true);
+    lb.run_for(Duration::from_secs(3));
+    let events = lb.take_events();
+    assert!(lb.controller.is_up());
+    let after = written_payloads(&lb, start);
+    assert_eq!(after[0], "M1.1P34R M1.2P34R M2.1P34R M2.2P34R");
+    assert!(after[1..].iter().all(|p| p.starts_with("SE1.1 M1.1P20R")), "polls only: {after:?}");
+    assert_eq!(last_status(&events, 12).position, -4000.0);
+    assert_eq!(lb.link.emulator().axis(12).map(|a| a.physical_position()), Some(-4000.0));
+}
+
+#[test]
 fn moves_land_where_asked_absolute_and_relative() {
     let mut lb = loopback(PHYTRON, &CHANNELS, Faults::default());
     bring_up(&mut lb);
