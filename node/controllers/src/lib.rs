@@ -9,6 +9,7 @@ pub mod controller;
 pub mod emulator;
 pub mod loopback;
 pub mod newport;
+pub mod phytron;
 pub mod pi_gcs2;
 pub mod protocol;
 pub mod smaract_mcs2;
@@ -28,11 +29,13 @@ pub enum ProtocolKind {
     PiGcs2,
     /// SmarAct MCS2 (linear positioners with a sensor, over TCP).
     SmaractMcs2,
+    /// Phytron phyMOTION (channel = module × 10 + axis).
+    Phytron,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 4] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2, ProtocolKind::SmaractMcs2];
+    pub const ALL: [ProtocolKind; 5] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2, ProtocolKind::SmaractMcs2, ProtocolKind::Phytron];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
@@ -41,6 +44,7 @@ impl ProtocolKind {
             ProtocolKind::NewportSmc100 => newport::NAME,
             ProtocolKind::PiGcs2 => pi_gcs2::NAME,
             ProtocolKind::SmaractMcs2 => smaract_mcs2::NAME,
+            ProtocolKind::Phytron => phytron::NAME,
         }
     }
 
@@ -61,6 +65,7 @@ impl ProtocolKind {
             ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
             ProtocolKind::PiGcs2 => ((1..=16).contains(&channel), "by their axis name, 1 to 16"),
             ProtocolKind::SmaractMcs2 => (channel <= 26, "0 to 26"),
+            ProtocolKind::Phytron => ((11..=99).contains(&channel) && channel % 10 != 0, "module × 10 + axis, each 1 to 9"),
         };
         if valid {
             Ok(())
@@ -76,6 +81,7 @@ impl ProtocolKind {
             ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
             ProtocolKind::PiGcs2 => Box::new(pi_gcs2::PiGcs2::new(options)),
             ProtocolKind::SmaractMcs2 => Box::new(smaract_mcs2::Mcs2::new(options)),
+            ProtocolKind::Phytron => Box::new(phytron::Phymotion::new(options)),
         }
     }
 
@@ -87,6 +93,7 @@ impl ProtocolKind {
             ProtocolKind::NewportSmc100 => 3,
             ProtocolKind::PiGcs2 => 5,
             ProtocolKind::SmaractMcs2 => 3,
+            ProtocolKind::Phytron => 23,
         }
     }
 
@@ -109,6 +116,11 @@ impl ProtocolKind {
             ProtocolKind::SmaractMcs2 => {
                 let positioner = emulator::smaract_mcs2::positioner(&mechanics);
                 Box::new(emulator::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
+            },
+            ProtocolKind::Phytron => {
+                // Each axis reads an encoder of one count a step (I1EM modules).
+                let mechanics = zmotor_core::driver::sim::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
+                Box::new(emulator::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
             },
         }
     }

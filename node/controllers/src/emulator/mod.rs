@@ -6,6 +6,7 @@
 
 pub mod acs;
 pub mod newport;
+pub mod phytron;
 pub mod pi_gcs2;
 pub mod smaract_mcs2;
 
