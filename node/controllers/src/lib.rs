@@ -35,7 +35,13 @@ pub enum ProtocolKind {
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 5] = [ProtocolKind::AcsMcb4b, ProtocolKind::NewportSmc100, ProtocolKind::PiGcs2, ProtocolKind::SmaractMcs2, ProtocolKind::Phytron];
+    pub const ALL: [ProtocolKind; 5] = [
+        ProtocolKind::AcsMcb4b,
+        ProtocolKind::NewportSmc100,
+        ProtocolKind::PiGcs2,
+        ProtocolKind::SmaractMcs2,
+        ProtocolKind::Phytron,
+    ];
 
     /// Its name in launch files and on the command line.
     pub fn name(self) -> &'static str {
@@ -65,7 +71,9 @@ impl ProtocolKind {
             ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
             ProtocolKind::PiGcs2 => ((1..=16).contains(&channel), "by their axis name, 1 to 16"),
             ProtocolKind::SmaractMcs2 => (channel <= 26, "0 to 26"),
-            ProtocolKind::Phytron => ((11..=99).contains(&channel) && channel % 10 != 0, "module × 10 + axis, each 1 to 9"),
+            ProtocolKind::Phytron => {
+                ((11..=99).contains(&channel) && !channel.is_multiple_of(10), "module × 10 + axis, each 1 to 9")
+            }
         };
         if valid {
             Ok(())
@@ -112,16 +120,16 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => {
                 let axes = channels.saturating_sub(1).max(4);
                 Box::new(emulator::pi_gcs2::Gcs2Emulator::new(axes, &emulator::pi_gcs2::mechanics()))
-            },
+            }
             ProtocolKind::SmaractMcs2 => {
                 let positioner = emulator::smaract_mcs2::positioner(&mechanics);
                 Box::new(emulator::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
-            },
+            }
             ProtocolKind::Phytron => {
                 // Each axis reads an encoder of one count a step (I1EM modules).
                 let mechanics = zmotor_core::driver::sim::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
                 Box::new(emulator::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
-            },
+            }
         }
     }
 }
