@@ -2,7 +2,7 @@
 `zmotor sim-controller`) through motor/<axis>/... keys, with no zmotor code at all.
 
 Usage: python3 controller_client.py PHASE ENDPOINT AXIS
-  motion     move absolute and relative, jog, stop a move, home
+  motion     home, move absolute and relative, jog, stop a move
   lost       the controller is gone: the axis is in COMM alarm and a move goes nowhere
   recovered  the controller is back: the alarm clears and nothing moves by itself
 Exits non-zero with a message on the first broken expectation.
@@ -58,10 +58,18 @@ with zenoh.open(conf) as session:
         return abs(a - b) <= within
 
     if phase == "motion":
+        # The node may have started before its controller answered: it reaches it soon after.
+        wait_for("SEVR", lambda v: v == 0, 20, "the axis never left its alarm")
         wait_for("DMOV", lambda v: v == 1, 20, "the axis never came up")
-        expect(get("SEVR") == 0, f"in alarm at start: STAT {get('STAT')}")
         resolution = abs(get("MRES"))
         within = max(get("RDBD"), resolution)
+
+        # Home first: some controllers (an SMC100, a PI axis) move only once referenced. The
+        # search ends on the home switch, or with the axis referenced.
+        outcome = put_wait("HOMR", 1, timeout=120.0)
+        expect(outcome["DMOV"] == 1, f"home: {outcome}")
+        msta = int(get("MSTA"))
+        expect(msta & (HOME | HOMED) != 0, f"home ended neither at home nor homed: MSTA {msta:#x}")
         start = get("RBV")
 
         # Absolute, with completion.
@@ -84,22 +92,18 @@ with zenoh.open(conf) as session:
         time.sleep(0.5)
         expect(get("RBV") == stopped and get("MOVN") == 0, "still moving after the jog ended")
 
-        # A long move, stopped on the way.
+        # A long move (to near the high soft limit), stopped on the way.
         origin = get("RBV")
-        put("VAL", origin + 50)
+        far = get("HLM") - 0.5
+        put("VAL", far)
         wait_for("RBV", lambda v: v > origin + 0.2, 10, "the long move did not start")
         put("STOP", 1)
         wait_for("DMOV", lambda v: v == 1, 20, "the stopped move never ended")
         stopped = get("RBV")
-        expect(stopped < origin + 40, f"STOP did not stop the move: at {stopped}")
+        expect(stopped < far - 1, f"STOP did not stop the move to {far}: at {stopped}")
         time.sleep(0.5)
         expect(get("RBV") == stopped, "moving after the stop")
 
-        # Home: the search ends on the home switch or with the axis referenced.
-        outcome = put_wait("HOMR", 1, timeout=120.0)
-        expect(outcome["DMOV"] == 1, f"home: {outcome}")
-        msta = int(get("MSTA"))
-        expect(msta & (HOME | HOMED) != 0, f"home ended neither at home nor homed: MSTA {msta:#x}")
         print("controller client: motion ok")
 
     elif phase == "lost":
@@ -113,7 +117,9 @@ with zenoh.open(conf) as session:
         print("controller client: lost ok")
 
     elif phase == "recovered":
-        wait_for("SEVR", lambda v: v == 0, 30, "the alarm never cleared after the controller came back")
+        # The COMM alarm clears; a controller that restarted may report a problem of its own
+        # (a PI servo off until switched on again), which is not a comm error.
+        wait_for("STAT", lambda v: v != 9, 30, "the COMM alarm never cleared after the controller came back")
         expect(int(get("MSTA")) & COMM_ERR == 0, "MSTA still has the comm error")
         rbv = get("RBV")
         time.sleep(1.0)

@@ -45,23 +45,34 @@ fn client(phase: &str, endpoint: &str, axis: &str) {
     assert!(output.status.success() && said.contains(&format!("{phase} ok")), "{said}");
 }
 
-/// The launch file `launch`, whose controller is at `address`, against its emulator.
-fn drive_through_loss_and_recovery(protocol: &str, launch: &str, address: &str, axis: &str) {
+/// How a launch file reaches its controller: the TCP address or serial device it names.
+enum Reach {
+    Tcp(&'static str),
+    Pty(&'static str),
+}
+
+/// The launch file `launch`, whose controller is reached as `reach` says, against its emulator.
+fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, axis: &str) {
     if !python_has_zenoh() {
         assert!(std::env::var_os("CI").is_none(), "CI must install eclipse-zenoh and cbor2 for Python (see .ci/run)");
         eprintln!("SKIPPED: python3 with eclipse-zenoh and cbor2 is not installed");
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let controller_endpoint = free_local_endpoint().unwrap();
-    let controller_address = controller_endpoint.trim_start_matches("tcp/").to_string();
+    let (named, here, flag) = match reach {
+        Reach::Tcp(address) => {
+            let free = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
+            (address, free, "--listen")
+        }
+        Reach::Pty(device) => (device, dir.path().join("tty").to_str().unwrap().to_string(), "--pty"),
+    };
     let text = std::fs::read_to_string(repo_file(launch)).unwrap();
-    assert!(text.contains(address), "{launch} names its controller at {address}");
+    assert!(text.contains(named), "{launch} names its controller at {named}");
     let file = dir.path().join("launch.toml");
-    std::fs::write(&file, text.replace(address, &controller_address)).unwrap();
+    std::fs::write(&file, text.replace(named, &here)).unwrap();
     let endpoint = free_local_endpoint().unwrap();
 
-    let emulate = || zmotor(&["sim-controller", protocol, "--listen", &controller_address]);
+    let emulate = || zmotor(&["sim-controller", protocol, flag, &here]);
     let emulator = emulate();
     let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
         .args(["launch", file.to_str().unwrap(), "--listen", &endpoint])
@@ -82,5 +93,26 @@ fn drive_through_loss_and_recovery(protocol: &str, launch: &str, address: &str, 
 
 #[test]
 fn acs_mcb4b() {
-    drive_through_loss_and_recovery("acs_mcb4b", "launch/acs-mcb4b.toml", "127.0.0.1:4001", "acs1");
+    drive_through_loss_and_recovery("acs_mcb4b", "launch/acs-mcb4b.toml", Reach::Tcp("127.0.0.1:4001"), "acs1");
+}
+
+#[test]
+fn newport_smc100_on_a_serial_line() {
+    let reach = Reach::Pty("/tmp/zmotor-smc100");
+    drive_through_loss_and_recovery("newport_smc100", "launch/newport-smc100.toml", reach, "smc1");
+}
+
+#[test]
+fn pi_gcs2() {
+    drive_through_loss_and_recovery("pi_gcs2", "launch/pi-gcs2.toml", Reach::Tcp("127.0.0.1:50000"), "pi1");
+}
+
+#[test]
+fn smaract_mcs2() {
+    drive_through_loss_and_recovery("smaract_mcs2", "launch/smaract-mcs2.toml", Reach::Tcp("127.0.0.1:55551"), "mcs0");
+}
+
+#[test]
+fn phytron() {
+    drive_through_loss_and_recovery("phytron", "launch/phytron.toml", Reach::Tcp("127.0.0.1:22222"), "phy11");
 }

@@ -54,7 +54,8 @@
 //! **Poll and status.** Per channel `TP` (position) and `TS` (four hex digits of positioner
 //! errors, two of controller state). MSTA: DONE unless HOMING, MOVING or JOGGING/TRACKING
 //! (the EPICS SMC100 driver reports a home as done at once, mended here); HOMED in READY,
-//! DISABLE, MOVING and JOGGING; POSITION (closed loop) in READY, MOVING, HOMING and JOGGING;
+//! DISABLE, MOVING and JOGGING; POSITION (the drive enabled, which CNEN mirrors) in every state
+//! but DISABLE and CONFIGURATION, NOT REFERENCED included (it takes a home);
 //! HOME in READY from HOMING (as EPICS: homed and not moved since); PLUS_LS / MINUS_LS from the
 //! positive / negative end-of-run bits, whatever else is set (EPICS only sees them alone);
 //! SLIP_STALL on a following error; PROBLEM on any other positioner error bit, the ESP stage
@@ -233,7 +234,9 @@ pub fn msta_of(error_bits: u16, state_code: u8) -> u32 {
         (!moving, msta::DONE),
         (moving, msta::MOVING),
         (matches!(class, Some(Ready | Disable | Moving | Jogging)), msta::HOMED),
-        (matches!(class, Some(Ready | Moving | Homing | Jogging)), msta::POSITION),
+        // The drive is enabled (CNEN follows) in every state but DISABLE and CONFIGURATION:
+        // a controller not referenced yet takes a home, so the record must not see it disabled.
+        (matches!(class, Some(NotReferenced | Ready | Moving | Homing | Jogging)), msta::POSITION),
         (state_code == state::READY_FROM_HOMING, msta::HOME),
         (error_bits & errors::POSITIVE_END_OF_RUN != 0, msta::PLUS_LS),
         (error_bits & errors::NEGATIVE_END_OF_RUN != 0, msta::MINUS_LS),
@@ -871,21 +874,21 @@ mod tests {
     fn states_map_to_msta() {
         let base = msta::GAIN_SUPPORT;
         let cases = [
-            (0x0000, 0x0A, msta::DONE),
+            (0x0000, 0x0A, msta::DONE | msta::POSITION),
             (0x0000, 0x1E, msta::MOVING | msta::POSITION),
             (0x0000, 0x28, msta::MOVING | msta::POSITION | msta::HOMED),
             (0x0000, 0x33, msta::DONE | msta::POSITION | msta::HOMED),
             (0x0000, 0x3C, msta::DONE | msta::HOMED),
             (0x0000, 0x14, msta::DONE),
             (0x0000, 0x46, msta::MOVING | msta::POSITION | msta::HOMED),
-            (0x0000, 0x10, msta::DONE | msta::PROBLEM),
+            (0x0000, 0x10, msta::DONE | msta::POSITION | msta::PROBLEM),
             (0x0000, 0x99, msta::DONE | msta::PROBLEM),
-            (0x0002, 0x0F, msta::DONE | msta::PLUS_LS),
+            (0x0002, 0x0F, msta::DONE | msta::POSITION | msta::PLUS_LS),
             (0x0001, 0x33, msta::DONE | msta::POSITION | msta::HOMED | msta::MINUS_LS),
             // End of run with a current limit: EPICS sees no limit here; both show.
-            (0x000A, 0x0F, msta::DONE | msta::PLUS_LS | msta::PROBLEM),
+            (0x000A, 0x0F, msta::DONE | msta::POSITION | msta::PLUS_LS | msta::PROBLEM),
             (0x0020, 0x3D, msta::DONE | msta::HOMED | msta::SLIP_STALL | msta::PROBLEM),
-            (0x0040, 0x0B, msta::DONE | msta::PROBLEM),
+            (0x0040, 0x0B, msta::DONE | msta::POSITION | msta::PROBLEM),
         ];
         for (error_bits, code, expected) in cases {
             assert_eq!(msta_of(error_bits, code), expected | base, "{error_bits:04X}{code:02X}");
