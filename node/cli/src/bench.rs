@@ -31,6 +31,31 @@ pub(crate) struct BenchOptions {
     pub(crate) moving_up_to: usize,
     /// Axes under the load of the EPICS figure (`Load::ShortMoves`).
     pub(crate) epics_load_axes: usize,
+    /// Seconds of request/reply round trips per controller protocol.
+    pub(crate) controller_window: f64,
+    /// Moves per controller protocol for the end-of-motion figure.
+    pub(crate) controller_moves: usize,
+    /// The parts measured.
+    pub(crate) parts: Vec<Part>,
+}
+
+/// The parts of the benchmark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum Part {
+    /// 1. command latency.
+    Latency,
+    /// 3. scale.
+    Scale,
+    /// 4. the load of the EPICS figure.
+    EpicsLoad,
+    /// 5. start-up.
+    Startup,
+    /// 6. controllers.
+    Controllers,
+}
+
+impl Part {
+    pub(crate) const ALL: [Part; 5] = [Part::Latency, Part::Scale, Part::EpicsLoad, Part::Startup, Part::Controllers];
 }
 
 impl BenchOptions {
@@ -42,12 +67,25 @@ impl BenchOptions {
             window: 3.0,
             moving_up_to: 2000,
             epics_load_axes: 1000,
+            controller_window: 2.0,
+            controller_moves: 40,
+            parts: Part::ALL.to_vec(),
         }
     }
 
     /// A run of a few seconds that only proves every part works.
     pub(crate) fn smoke() -> Self {
-        Self { moves: 50, scales: vec![1, 10], startup_axes: 10, window: 0.5, moving_up_to: 10, epics_load_axes: 10 }
+        Self {
+            moves: 50,
+            scales: vec![1, 10],
+            startup_axes: 10,
+            window: 0.5,
+            moving_up_to: 10,
+            epics_load_axes: 10,
+            controller_window: 0.2,
+            controller_moves: 2,
+            parts: Part::ALL.to_vec(),
+        }
     }
 }
 
@@ -223,7 +261,7 @@ impl Drop for Server {
 }
 
 /// A client of a server process that may not listen yet.
-async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Error> {
+pub(crate) async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Error> {
     loop {
         if let Ok(session) = crate::connect(endpoint).await {
             return Ok(session);
@@ -264,7 +302,7 @@ pub(crate) struct Percentiles {
 }
 
 impl Percentiles {
-    fn of(mut samples: Vec<Duration>) -> Self {
+    pub(crate) fn of(mut samples: Vec<Duration>) -> Self {
         samples.sort();
         let at = |q: f64| samples[((samples.len() as f64 - 1.0) * q).round() as usize].as_secs_f64() * 1e6;
         Self { p50: at(0.5), p90: at(0.9), p99: at(0.99) }
@@ -611,6 +649,19 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         "zmotor bench: {} moves, scales {:?}, start-up of {} axes",
         options.moves, options.scales, options.startup_axes
     );
+    for part in &options.parts {
+        match part {
+            Part::Latency => latency_part(options).await?,
+            Part::Scale => scale_part(options).await,
+            Part::EpicsLoad => epics_load_part(options).await?,
+            Part::Startup => startup_part(options).await?,
+            Part::Controllers => controllers_part(options).await?,
+        }
+    }
+    Ok(())
+}
+
+async fn latency_part(options: &BenchOptions) -> Result<(), Error> {
     println!("\n1. command latency: the demo's axis (launch/sim-axis.toml: physical simulator, readback 10 Hz) in");
     println!("   a node process, a client in this one, TCP on 127.0.0.1; moves of 0.01 mm; µs");
     let l = latency(options.moves).await?;
@@ -632,6 +683,10 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
 
     println!("\n2. engine cost per event: measured by criterion, `cargo bench -p zmotor-core --bench engine`");
 
+    Ok(())
+}
+
+async fn scale_part(options: &BenchOptions) {
     println!(
         "\n3. scale: N axes in one process (start, memory); then, up to {} axes, every axis moving with",
         options.moving_up_to
@@ -671,7 +726,9 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
             Err(e) => println!("   {n:>6} axes: failed: {e}"),
         }
     }
+}
 
+async fn epics_load_part(options: &BenchOptions) -> Result<(), Error> {
     let n = options.epics_load_axes;
     let load = Load::ShortMoves { moves_per_s: n as f64 * EPICS_MOVES_PER_AXIS_PER_S };
     println!(
@@ -690,6 +747,10 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         seconds(p.settled_after)
     );
 
+    Ok(())
+}
+
+async fn startup_part(options: &BenchOptions) -> Result<(), Error> {
     let n = options.startup_axes;
     println!("\n5. start-up of {n} axes in a node process, as a client sees it");
     let t = startup(n).await?;
@@ -701,6 +762,34 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
         tokens.as_secs_f64(),
         publishers.as_secs_f64()
     );
+
+    Ok(())
+}
+
+async fn controllers_part(options: &BenchOptions) -> Result<(), Error> {
+    println!("\n6. controllers: each protocol against its emulator (zmotor sim-controller's, in this process)");
+    println!("   round trips: request/reply exchanges per second over one TCP connection on 127.0.0.1;");
+    println!("   poll: one full poll of 1 axis and of 8 (all of them on a smaller controller), median;");
+    println!("   end → DMOV 1: the vendor's ready launch file in a node process, a client here: from the");
+    println!("   emulated stage's end of motion to DMOV 1 at the client, µs, beside the moving-poll period");
+    println!(
+        "   {:<16} {:>12} {:>10} {:>14} {:>10} {:>10} {:>10} {:>8}",
+        "", "round trips/s", "poll 1", "poll n", "end→DMOV1 p50", "p90", "p99", "poll"
+    );
+    for f in crate::controller_bench::run(options.controller_window, options.controller_moves).await? {
+        println!(
+            "   {:<16} {:>12.0} {:>8.0} µs {:>2} {:>8.0} µs {:>13.0} {:>10.0} {:>10.0} {:>5.0} ms",
+            f.name,
+            f.round_trips_per_s,
+            f.poll_one.as_secs_f64() * 1e6,
+            f.poll_many.0,
+            f.poll_many.1.as_secs_f64() * 1e6,
+            f.end_to_done.p50,
+            f.end_to_done.p90,
+            f.end_to_done.p99,
+            f.moving_poll.as_secs_f64() * 1e3
+        );
+    }
     Ok(())
 }
 

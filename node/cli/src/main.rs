@@ -2,6 +2,7 @@
 //! errors become the plain words a user reads.
 
 mod bench;
+mod controller_bench;
 mod sim_controller;
 
 use clap::{Parser, Subcommand};
@@ -143,6 +144,9 @@ enum Command {
         /// memory only).
         #[arg(long)]
         moving_up_to: Option<usize>,
+        /// Measure only these parts, comma-separated (default: all).
+        #[arg(long, value_delimiter = ',', value_enum)]
+        parts: Option<Vec<bench::Part>>,
     },
     /// Emulate a motor controller on the physical simulator, speaking its protocol on a TCP
     /// socket or a pseudo-terminal, so that a launch file for real hardware runs with none.
@@ -215,8 +219,9 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
         Command::Schema { dir } => schema(&dir),
-        Command::Bench { smoke, moves, scales, moving_up_to } => {
+        Command::Bench { smoke, moves, scales, moving_up_to, parts } => {
             let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
+            options.parts = parts.unwrap_or(options.parts);
             options.moves = moves.unwrap_or(options.moves);
             options.scales = scales.unwrap_or(options.scales);
             options.moving_up_to = moving_up_to.unwrap_or(options.moving_up_to);

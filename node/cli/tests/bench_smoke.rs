@@ -19,6 +19,12 @@ fn the_benchmark_runs_in_smoke_mode() {
         "Zenoh alone",
         "4. the load of the EPICS figure",
         "5. start-up",
+        "6. controllers",
+        "acs_mcb4b",
+        "newport_smc100",
+        "pi_gcs2",
+        "smaract_mcs2",
+        "phytron",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
