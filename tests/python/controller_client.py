@@ -82,6 +82,13 @@ with zenoh.open(conf) as session:
         wait_for("DMOV", lambda v: v == 1, 30, "the relative move never ended")
         expect(near(get("RBV"), start + 3, within), f"relative move ended at {get('RBV')}")
 
+        # Beyond the soft limit: refused, nothing moves.
+        here = get("RBV")
+        beyond = get("HLM") + 1
+        replies = list(session.get(f"motor/{axis}/VAL?wait", payload=str(beyond), timeout=30.0))
+        expect(len(replies) == 1 and replies[0].err is not None, f"a target beyond HLM was accepted: {replies}")
+        expect(get("LVIO") == 1 and get("RBV") == here, "a refused target moved the axis")
+
         # Jog forward, then let go: the axis stops, wherever it is.
         before = get("RBV")
         put("JOGF", 1)

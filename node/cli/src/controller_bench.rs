@@ -32,7 +32,7 @@ struct Ready {
     reach: Reach,
     axis: &'static str,
     channel: usize,
-    /// Two targets to move between, in the axis's units.
+    /// Where moves start, and the farthest they go, in the axis's units.
     targets: [f64; 2],
 }
 
@@ -285,12 +285,22 @@ async fn time_moves(session: &Session, ready: &Ready, emulated: &Emulated, moves
     }
     wait_put(session, &key("HOMF"), "1").await?;
     let mut delays = Vec::new();
+    let [near, far] = ready.targets;
     for i in 0..moves {
+        // Polls restart with every motion command (as asyn's do): moves of one length would all
+        // end at the same phase of the polls. Every other move goes a length spread evenly over
+        // 30–100 % of the span, the others back to the start.
+        let spread = 0.3 + 0.7 * (i as f64 * 0.618_033_988_75).fract();
+        let target = if i % 2 == 0 { near + (far - near) * spread } else { near };
         while dmov.try_recv().ok().flatten().is_some() {}
-        session.put(key("VAL"), ready.targets[i % 2].to_string()).await?;
+        session.put(key("VAL"), format!("{target:.3}")).await?;
+        let sent = Instant::now();
         let end = loop {
             if let Some(end) = emulated.motion_end(ready.channel) {
                 break end;
+            }
+            if sent.elapsed() > Duration::from_secs(5) {
+                return Err(format!("move {i} to {target:.3} never reached the emulated stage").into());
             }
             tokio::time::sleep(Duration::from_micros(200)).await;
         };
