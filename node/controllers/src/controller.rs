@@ -11,7 +11,7 @@
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
 //! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
 
-use crate::protocol::{CommandError, Event, Frame, Protocol, Request};
+use crate::protocol::{CommandError, Event, Frame, Protocol, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
 use zmotor_core::engine::DeviceStatus;
@@ -76,14 +76,7 @@ pub enum ControllerEvent {
     },
     /// The controller reported an error; the channel's status shows a problem until its next
     /// command.
-    ControllerError {
-        /// The channel it concerns; every channel when the controller does not say.
-        channel: Option<usize>,
-        /// The vendor's code.
-        code: String,
-        /// What the code means.
-        meaning: String,
-    },
+    ControllerError(VendorError),
     /// A command was not sent.
     Refused {
         /// The channel.
@@ -525,8 +518,8 @@ impl Controller {
                     self.events.push_back(ControllerEvent::Status { channel, status });
                 }
             }
-            Event::ControllerError { channel, code, meaning } => {
-                let affected: Vec<usize> = match channel {
+            Event::ControllerError(error) => {
+                let affected: Vec<usize> = match error.channel {
                     Some(channel) => vec![channel],
                     None => self.config.channels.clone(),
                 };
@@ -538,7 +531,7 @@ impl Controller {
                         self.events.push_back(ControllerEvent::Status { channel, status });
                     }
                 }
-                self.events.push_back(ControllerEvent::ControllerError { channel, code, meaning });
+                self.events.push_back(ControllerEvent::ControllerError(error));
             }
             Event::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {

@@ -68,7 +68,9 @@
 //! CONFIGURATION state's settings (home type and speed, stage parameters: raw text can reach
 //! them), the SMC100PP's stepper specifics, and the CONEX-AGP/AGAP and DL variants.
 
-use crate::protocol::{line_frame, line_text, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request};
+use crate::protocol::{
+    line_frame, line_text, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request, VendorError,
+};
 use std::ops::RangeInclusive;
 use zmotor_core::engine::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -447,10 +449,12 @@ impl Smc100 {
         let faults = error_bits & errors::FAULTS;
         let appeared = faults & !memory.faults;
         memory.faults = faults;
-        let fault = (appeared != 0).then(|| Event::ControllerError {
-            channel: Some(channel),
-            code: format!("{error_bits:04X}"),
-            meaning: fault_names(faults),
+        let fault = (appeared != 0).then(|| {
+            Event::ControllerError(VendorError {
+                channel: Some(channel),
+                code: format!("{error_bits:04X}"),
+                meaning: fault_names(faults),
+            })
         });
         (status, fault)
     }
@@ -466,11 +470,11 @@ impl Smc100 {
                 // The home search starts now: the motion is not over.
                 status.msta = (status.msta | msta::MOVING) & !msta::DONE;
             } else {
-                events.push(Event::ControllerError {
+                events.push(Event::ControllerError(VendorError {
                     channel: Some(channel),
                     code: "RS".to_string(),
                     meaning: format!("the controller did not reset (state {state_code:02X}): the home was not started"),
-                });
+                }));
             }
         }
         self.channels[channel].reported = status;
@@ -650,11 +654,11 @@ impl Protocol for Smc100 {
                     return Ok(Vec::new());
                 }
                 let meaning = error_meaning(code).unwrap_or("an error code the manual does not list");
-                Ok(vec![Event::ControllerError {
+                Ok(vec![Event::ControllerError(VendorError {
                     channel: Some(channel),
                     code: code.to_string(),
                     meaning: meaning.into(),
-                }])
+                })])
             }
         }
     }
@@ -840,7 +844,7 @@ mod tests {
         p.reply(&ask[0], b"1TS000032\r\n").unwrap();
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS000032\r\n");
         assert!(events.iter().all(|e| !matches!(e, Event::FollowUp(_))), "{events:?}");
-        assert!(events.iter().any(|e| matches!(e, Event::ControllerError { code, .. } if code == "RS")));
+        assert!(events.iter().any(|e| matches!(e, Event::ControllerError(VendorError { code, .. }) if code == "RS")));
     }
 
     #[test]
@@ -899,7 +903,9 @@ mod tests {
     fn a_fault_is_reported_once_when_it_appears() {
         let mut p = Smc100::default();
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS00203D\r\n");
-        let [Event::Status { .. }, Event::ControllerError { channel: Some(1), code, meaning }] = &events[..] else {
+        let [Event::Status { .. }, Event::ControllerError(VendorError { channel: Some(1), code, meaning })] =
+            &events[..]
+        else {
             panic!("{events:?}")
         };
         assert_eq!((code.as_str(), meaning.as_str()), ("0020", "following error"));
@@ -917,11 +923,11 @@ mod tests {
         let events = p.reply(te, b"5TEH\r\n").unwrap();
         assert_eq!(
             events,
-            [Event::ControllerError {
+            [Event::ControllerError(VendorError {
                 channel: Some(5),
                 code: "H".into(),
                 meaning: "Command not allowed in NOT REFERENCED state".into()
-            }]
+            })]
         );
         assert!(p.reply(te, b"5TE\r\n").is_err());
         assert!(p.reply(te, b"5TEHK\r\n").is_err());

@@ -85,7 +85,7 @@
 //! the I/O modules; velocity readback.
 
 use crate::protocol::{
-    whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request,
+    whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request, VendorError,
 };
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
@@ -497,10 +497,12 @@ impl Phymotion {
             .iter()
             .zip(replies)
             .find(|(_, (acknowledged, _))| !acknowledged)
-            .map(|(command, _)| Event::ControllerError {
-                channel: Some(channel),
-                code: "NAK".to_string(),
-                meaning: format!("the controller refused {command}"),
+            .map(|(command, _)| {
+                Event::ControllerError(VendorError {
+                    channel: Some(channel),
+                    code: "NAK".to_string(),
+                    meaning: format!("the controller refused {command}"),
+                })
             })
             .into_iter()
             .collect()
@@ -523,11 +525,11 @@ impl Phymotion {
             let entry = &mut polled[at].1;
             if !acknowledged {
                 if !std::mem::replace(&mut entry.refused, true) {
-                    events.push(Event::ControllerError {
+                    events.push(Event::ControllerError(VendorError {
                         channel: Some(channel),
                         code: "NAK".to_string(),
                         meaning: format!("the controller refused {command}: no such axis?"),
-                    });
+                    }));
                 }
                 continue;
             }
@@ -600,11 +602,11 @@ impl Phymotion {
         };
         let mut events = Vec::new();
         if new_errors != 0 {
-            events.push(Event::ControllerError {
+            events.push(Event::ControllerError(VendorError {
                 channel: Some(channel),
                 code: format!("SE 0x{new_errors:04X}"),
                 meaning: error_meaning(new_errors),
-            });
+            }));
         }
         events.push(Event::Status { channel, status });
         events
@@ -897,7 +899,8 @@ mod tests {
         let mut p = protocol();
         let poll = p.poll(&[22]);
         let events = p.reply(&poll[0], &ack(&["8704", "10", "10"])).unwrap();
-        let [Event::ControllerError { channel: Some(22), code, meaning }, Event::Status { status, .. }] = &events[..]
+        let [Event::ControllerError(VendorError { channel: Some(22), code, meaning }), Event::Status { status, .. }] =
+            &events[..]
         else {
             panic!("{events:?}")
         };
@@ -907,7 +910,7 @@ mod tests {
         let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & msta::PROBLEM, msta::PROBLEM, "still a problem, not reported again");
         let events = p.reply(&poll[0], &ack(&["16896", "10", "10"])).unwrap();
-        let [Event::ControllerError { code, .. }, Event::Status { status, .. }] = &events[..] else {
+        let [Event::ControllerError(VendorError { code, .. }), Event::Status { status, .. }] = &events[..] else {
             panic!("{events:?}")
         };
         assert_eq!(code, "SE 0x4000");
@@ -934,11 +937,11 @@ mod tests {
         let events = p.reply(&requests[0], &refused).unwrap();
         assert_eq!(
             events,
-            [Event::ControllerError {
+            [Event::ControllerError(VendorError {
                 channel: Some(11),
                 code: "NAK".into(),
                 meaning: "the controller refused M1.1A100".into()
-            }]
+            })]
         );
     }
 
@@ -948,7 +951,9 @@ mod tests {
         let poll = p.poll(&[11, 31]);
         let reply = reply_frame(b"\x060\x060\x060\x15\x15\x15");
         let events = p.reply(&poll[0], &reply).unwrap();
-        assert!(matches!(&events[0], Event::ControllerError { channel: Some(31), code, .. } if code == "NAK"));
+        assert!(
+            matches!(&events[0], Event::ControllerError(VendorError { channel: Some(31), code, .. }) if code == "NAK")
+        );
         assert!(matches!(&events[1], Event::Status { channel: 11, .. }));
         assert_eq!(events.len(), 2);
     }

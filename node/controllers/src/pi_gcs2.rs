@@ -81,6 +81,7 @@
 
 use crate::protocol::{
     line_text, whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request,
+    VendorError,
 };
 use std::collections::BTreeMap;
 use zmotor_core::engine::DeviceStatus;
@@ -561,7 +562,11 @@ fn error_events(
     if code == 0 || expected.contains(&code) {
         return Ok(Vec::new());
     }
-    Ok(vec![Event::ControllerError { channel, code: code.to_string(), meaning: error_meaning(code).to_string() }])
+    Ok(vec![Event::ControllerError(VendorError {
+        channel,
+        code: code.to_string(),
+        meaning: error_meaning(code).to_string(),
+    })])
 }
 
 impl Protocol for PiGcs2 {
@@ -958,14 +963,20 @@ mod tests {
         assert_eq!(p.reply(&moved[7], b"0\n").unwrap(), []);
         assert_eq!(
             p.reply(&moved[7], b"7\n").unwrap(),
-            [Event::ControllerError { channel: Some(3), code: "7".into(), meaning: "Position out of limits".into() }]
+            [Event::ControllerError(VendorError {
+                channel: Some(3),
+                code: "7".into(),
+                meaning: "Position out of limits".into()
+            })]
         );
         let stop = p.command(3, &DriverCommand::Stop { acceleration: 1.0 }).unwrap();
         assert_eq!(p.reply(&stop[1], b"10\n").unwrap(), [], "a stop leaves 10");
-        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [Event::ControllerError { .. }]));
+        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [Event::ControllerError(VendorError { .. })]));
         let poll = p.poll(&[1]);
         let events = p.reply(&poll[3], b"1024\n").unwrap();
-        let [Event::ControllerError { channel: None, code, meaning }] = &events[..] else { panic!("{events:?}") };
+        let [Event::ControllerError(VendorError { channel: None, code, meaning })] = &events[..] else {
+            panic!("{events:?}")
+        };
         assert_eq!((code.as_str(), meaning.starts_with("Motion error")), ("1024", true));
         assert!(p.reply(&poll[3], b"1=0\n").is_err());
     }

@@ -99,17 +99,21 @@ pub enum Event {
         status: DeviceStatus,
     },
     /// The controller reported an error, in its own words.
-    ControllerError {
-        /// The channel it concerns, when the controller says.
-        channel: Option<usize>,
-        /// The vendor's code.
-        code: String,
-        /// What the vendor's code means.
-        meaning: String,
-    },
+    ControllerError(VendorError),
     /// Requests to send right after this one, before anything else (an error query after a
     /// setter, the next entry of an error queue).
     FollowUp(Vec<Request>),
+}
+
+/// An error a controller reported.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct VendorError {
+    /// The channel it concerns, when the controller says; every channel otherwise.
+    pub channel: Option<usize>,
+    /// The vendor's code.
+    pub code: String,
+    /// What the vendor's code means.
+    pub meaning: String,
 }
 
 /// A reply that cannot be understood.

@@ -59,7 +59,7 @@
 //! and step settings of the EPICS driver's extra records. Replies carry no channel, so a reply
 //! is checked by its form only.
 
-use crate::protocol::{line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose};
+use crate::protocol::{line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, VendorError};
 use crate::protocol::{ReplyError, Request};
 use std::collections::BTreeMap;
 use zmotor_core::engine::DeviceStatus;
@@ -310,7 +310,7 @@ impl Mcs2 {
         if request.purpose == (Purpose::Init { item: init_item::STALE_ERRORS }) {
             tracing::warn!(code, meaning, "MCS2 error queue entry from before this connection");
         } else {
-            events.push(Event::ControllerError { channel, code: code.to_string(), meaning });
+            events.push(Event::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
         }
         if self.errors_in_a_row < MAX_ERRORS_PER_DRAIN {
             events.push(Event::FollowUp(vec![request.clone()]));
@@ -734,7 +734,11 @@ mod tests {
         let events = p.reply(&init[4], b"34,\"Invalid channel index\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError { channel: None, code: "34".into(), meaning: "Invalid channel index".into() }
+            Event::ControllerError(VendorError {
+                channel: None,
+                code: "34".into(),
+                meaning: "Invalid channel index".into()
+            })
         );
     }
 
@@ -817,7 +821,11 @@ mod tests {
         assert_eq!(
             p.reply(read, b"262,\"Amplifier disabled\"\r\n").unwrap(),
             [
-                Event::ControllerError { channel: Some(3), code: "262".into(), meaning: "Amplifier disabled".into() },
+                Event::ControllerError(VendorError {
+                    channel: Some(3),
+                    code: "262".into(),
+                    meaning: "Amplifier disabled".into()
+                }),
                 Event::FollowUp(vec![read.clone()])
             ]
         );
@@ -825,14 +833,22 @@ mod tests {
         let events = p.reply(read, b"-113,\"\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError { channel: Some(3), code: "-113".into(), meaning: "Undefined header".into() }
+            Event::ControllerError(VendorError {
+                channel: Some(3),
+                code: "-113".into(),
+                meaning: "Undefined header".into()
+            })
         );
         assert_eq!(p.reply(read, b"0,\"No error\"\r\n").unwrap(), []);
         let poll = p.poll(&[3]);
         let events = p.reply(&poll[2], b"272,\"Movement overridden\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError { channel: None, code: "272".into(), meaning: "Movement overridden".into() }
+            Event::ControllerError(VendorError {
+                channel: None,
+                code: "272".into(),
+                meaning: "Movement overridden".into()
+            })
         );
         // A queue that never empties is read MAX_ERRORS_PER_DRAIN entries in a row, no more.
         assert_eq!(p.reply(read, b"0,\"No error\"\r\n").unwrap(), []);

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, last_status, loopback, run_until_done};
+use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
 use zmotor_controllers::controller::{ControllerEvent, Refusal};
 use zmotor_controllers::emulator::Faults;
@@ -25,14 +25,6 @@ fn go(position: f64) -> DriverCommand {
         max_velocity: 10_000.0,
         acceleration: 100_000.0,
     }
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
-    lb.written()[from..].iter().map(|b| text(b)).collect()
 }
 
 /// Run a millisecond at a time until the next idle poll has been written (its reply not in yet).

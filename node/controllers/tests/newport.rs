@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{bring_up, command, last_status, loopback, run_until_done};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::controller::{ControllerConfig, ControllerEvent, Refusal};
@@ -33,10 +33,6 @@ fn home() -> DriverCommand {
     DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 10_000.0, acceleration: 100_000.0 }
 }
 
-fn written(lb: &Loopback, from: usize) -> Vec<String> {
-    lb.written()[from..].iter().map(|b| String::from_utf8_lossy(b).into_owned()).collect()
-}
-
 /// Put the carriage of `channel` at `mm` by hand.
 fn push_carriage(lb: &mut Loopback, channel: usize, mm: f64) {
     let axis = lb.link.emulator().axis(channel).expect("a controller at this address");
@@ -57,24 +53,12 @@ fn homed(lb: &mut Loopback, channel: usize) {
     assert_eq!(at_home.position, 0.0);
 }
 
-fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
-    events
-        .iter()
-        .filter_map(|e| match e {
-            ControllerEvent::ControllerError { channel, code, meaning } => {
-                Some((*channel, code.clone(), meaning.clone()))
-            }
-            _ => None,
-        })
-        .collect()
-}
-
 #[test]
 fn a_new_connection_clears_old_errors_polls_and_moves_nothing() {
     let mut lb = loopback(SMC, &[1, 2], Faults::default());
     push_carriage(&mut lb, 2, 4.0);
     let events = bring_up(&mut lb);
-    assert_eq!(written(&lb, 0), ["1TE\r\n", "2TE\r\n", "1TP\r\n", "1TS\r\n", "2TP\r\n", "2TS\r\n"]);
+    assert_eq!(written_since(&lb, 0), ["1TE\r\n", "2TE\r\n", "1TP\r\n", "1TS\r\n", "2TP\r\n", "2TS\r\n"]);
     let status = last_status(&events, 2);
     assert_eq!(status.position, 40_000.0);
     // Just powered up: not referenced, enabled (it takes a home), nothing wrong.
@@ -86,7 +70,7 @@ fn a_new_connection_clears_old_errors_polls_and_moves_nothing() {
     lb.link.set_faults(Faults::default());
     lb.run_for(Duration::from_secs(2));
     assert!(lb.controller.is_up());
-    let sent = written(&lb, 0);
+    let sent = written_since(&lb, 0);
     assert!(sent.iter().all(|s| s.ends_with("TE\r\n") || s.ends_with("TP\r\n") || s.ends_with("TS\r\n")), "{sent:?}");
     assert_eq!(lb.link.emulator().axis(2).expect("controller 2").physical_position(), 4.0);
 }
@@ -120,7 +104,7 @@ fn a_home_search_ends_at_the_home_switch_resetting_first_when_already_referenced
     let at_home = statuses.last().expect("done");
     assert_eq!(at_home.position, 0.0);
     assert_eq!(at_home.msta & (msta::HOME | msta::HOMED), msta::HOME | msta::HOMED);
-    let sent = written(&lb, start);
+    let sent = written_since(&lb, start);
     assert_eq!(sent[..3], ["1TS\r\n", "1OR\r\n", "1TE\r\n"], "not referenced: OR at once");
     assert!(!sent.contains(&"1RS\r\n".to_string()));
     // Referenced: a reset first, OR once the controller is back, and home again.
@@ -129,7 +113,7 @@ fn a_home_search_ends_at_the_home_switch_resetting_first_when_already_referenced
     let statuses = carry_out(&mut lb, 1, &home());
     assert!(statuses.iter().take_while(|s| s.msta & msta::DONE == 0).count() > 5, "{statuses:?}");
     assert_eq!(statuses.last().map(|s| s.position), Some(0.0));
-    let sent = written(&lb, start);
+    let sent = written_since(&lb, start);
     let reset = sent.iter().position(|s| s == "1RS\r\n").expect("a reset");
     let or = sent.iter().position(|s| s == "1OR\r\n").expect("a home");
     assert!(reset < or, "{sent:?}");
@@ -147,7 +131,7 @@ fn moves_land_where_asked_in_millimetres() {
     let there = statuses.last().expect("done");
     assert_eq!(there.position, 50_000.0);
     assert_eq!(there.msta & (msta::HOME | msta::HOMED | msta::PROBLEM), msta::HOMED, "moved off home");
-    assert_eq!(written(&lb, start)[..4], ["1VA2.000000\r\n", "1AC20.000000\r\n", "1PA5.000000\r\n", "1TE\r\n"]);
+    assert_eq!(written_since(&lb, start)[..4], ["1VA2.000000\r\n", "1AC20.000000\r\n", "1PA5.000000\r\n", "1TE\r\n"]);
     let statuses = carry_out(&mut lb, 1, &go(-12_345.0, true));
     assert_eq!(statuses.last().map(|s| s.position), Some(37_655.0));
     let carriage = lb.link.emulator().axis(1).expect("controller 1").physical_position();
@@ -186,7 +170,7 @@ fn a_jog_runs_until_stopped_and_otherwise_to_the_software_limit() {
     let at_limit = statuses.last().expect("done");
     assert_eq!(at_limit.position, -125_000.0);
     assert_eq!(at_limit.msta & (msta::HOMED | msta::MINUS_LS | msta::PROBLEM), msta::HOMED);
-    let sent = written(&lb, start);
+    let sent = written_since(&lb, start);
     assert_eq!(sent[..5], ["1VA5.000000\r\n", "1AC20.000000\r\n", "1SL?\r\n", "1PA-12.500000\r\n", "1TE\r\n"]);
 }
 
@@ -212,7 +196,7 @@ fn the_low_limit_is_where_a_jog_down_stops() {
     homed(&mut lb, 1);
     let start = lb.written().len();
     carry_out(&mut lb, 1, &DriverCommand::SetLowLimit { position: -20_000.0 });
-    assert_eq!(written(&lb, start)[..2], ["1SL-2.000000\r\n", "1TE\r\n"]);
+    assert_eq!(written_since(&lb, start)[..2], ["1SL-2.000000\r\n", "1TE\r\n"]);
     let statuses = carry_out(&mut lb, 1, &jog(-20_000.0));
     assert_eq!(statuses.last().map(|s| s.position), Some(-20_000.0));
 }
@@ -229,7 +213,7 @@ fn set_position_is_refused_and_sends_nothing() {
         ControllerEvent::Refused { channel: 1, why: Refusal::Command(CommandError::Unsupported { .. }) }
     )));
     assert_ne!(last_status(&events, 1).msta & msta::PROBLEM, 0);
-    assert!(written(&lb, start).is_empty());
+    assert!(written_since(&lb, start).is_empty());
 }
 
 #[test]

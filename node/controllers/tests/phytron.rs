@@ -4,10 +4,9 @@
 
 mod common;
 
-use common::{bring_up, command, last_status, loopback, run_until_done};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::controller::ControllerEvent;
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
 use zmotor_controllers::ProtocolKind;
@@ -30,18 +29,6 @@ fn written_payloads(lb: &Loopback, from: usize) -> Vec<String> {
 
 fn go(position: f64, relative: bool) -> DriverCommand {
     DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
-
-fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
-    events
-        .iter()
-        .filter_map(|e| match e {
-            ControllerEvent::ControllerError { channel, code, meaning } => {
-                Some((*channel, code.clone(), meaning.clone()))
-            }
-            _ => None,
-        })
-        .collect()
 }
 
 #[test]

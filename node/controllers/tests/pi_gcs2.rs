@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{bring_up, command, last_status, loopback, run_until_done};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
@@ -30,26 +30,6 @@ fn jog(velocity: f64) -> DriverCommand {
 
 fn home(forward: bool) -> DriverCommand {
     DriverCommand::Home { forward, min_velocity: 0.0, max_velocity: 50_000.0, acceleration: 1_000_000.0 }
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
-    lb.written()[from..].iter().map(|b| text(b)).collect()
-}
-
-fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
-    events
-        .iter()
-        .filter_map(|e| match e {
-            ControllerEvent::ControllerError { channel, code, meaning } => {
-                Some((*channel, code.clone(), meaning.clone()))
-            }
-            _ => None,
-        })
-        .collect()
 }
 
 fn physical(lb: &mut Loopback, channel: usize) -> f64 {

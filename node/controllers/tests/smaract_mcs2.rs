@@ -4,12 +4,13 @@
 
 mod common;
 
-use common::{bring_up, command, last_status, loopback, run_until_done};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
+use zmotor_controllers::protocol::VendorError;
 use zmotor_controllers::{ProtocolKind, ProtocolOptions};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -21,22 +22,6 @@ fn go(position: f64, relative: bool) -> DriverCommand {
     DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
 }
 
-fn sent(lb: &Loopback, from: usize) -> Vec<String> {
-    lb.written()[from..].iter().map(|b| String::from_utf8_lossy(b).into_owned()).collect()
-}
-
-fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
-    events
-        .iter()
-        .filter_map(|e| match e {
-            ControllerEvent::ControllerError { channel, code, meaning } => {
-                Some((*channel, code.clone(), meaning.clone()))
-            }
-            _ => None,
-        })
-        .collect()
-}
-
 #[test]
 fn moves_land_where_asked_to_the_picometre() {
     let mut lb = loopback(MCS2, &[0], Faults::default());
@@ -44,7 +29,7 @@ fn moves_land_where_asked_to_the_picometre() {
     let start = lb.written().len();
     lb.command(0, &go(1234.567, false));
     assert_eq!(
-        sent(&lb, start)[..4],
+        written_since(&lb, start)[..4],
         [":CHAN0:MMOD 0\r\n", ":CHAN0:ACC 200000000\r\n", ":CHAN0:VEL 20000000\r\n", ":MOVE0 1234567\r\n"]
     );
     let statuses = run_until_done(&mut lb, 0, TICK, Duration::from_secs(2));
@@ -55,7 +40,7 @@ fn moves_land_where_asked_to_the_picometre() {
     let done = statuses.last().expect("done");
     assert_eq!((done.position, done.encoder_position), (1000.0, 1000.0));
     assert_eq!(lb.link.emulator().axis(0).map(|a| a.physical_position()), Some(1_000_000.0), "in picometres");
-    assert!(lb.take_events().iter().all(|e| !matches!(e, ControllerEvent::ControllerError { .. })));
+    assert!(lb.take_events().iter().all(|e| !matches!(e, ControllerEvent::ControllerError(VendorError { .. }))));
 }
 
 #[test]
@@ -101,7 +86,7 @@ fn a_reference_search_ends_on_the_mark_with_the_position_zeroed() {
         &DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 },
     );
     assert_eq!(
-        sent(&lb, start)[..5],
+        written_since(&lb, start)[..5],
         [
             ":CHAN0:REF:OPT 5\r\n",
             ":CHAN0:HOLD -1\r\n",
@@ -208,7 +193,7 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
 fn connecting_and_reconnecting_move_nothing() {
     let mut lb = loopback(MCS2, &[0, 2], Faults::default());
     bring_up(&mut lb);
-    let first = sent(&lb, 0);
+    let first = written_since(&lb, 0);
     assert_eq!(
         first,
         [
@@ -236,7 +221,7 @@ fn connecting_and_reconnecting_move_nothing() {
     let start = lb.written().len();
     lb.run_for(Duration::from_secs(3));
     assert!(lb.controller.is_up());
-    let again = sent(&lb, start);
+    let again = written_since(&lb, start);
     assert!(again.starts_with(&first[..5]), "{again:?}");
     assert!(again.iter().all(|line| line.ends_with("?\r\n") || line.ends_with(":HOLD -1\r\n")), "{again:?}");
     let axis = lb.link.emulator().axis(0).expect("channel 0");

@@ -9,6 +9,7 @@ use std::pin::Pin;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
+use zmotor_controllers::protocol::VendorError;
 use zmotor_controllers::spec::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_controllers::{Controller, ControllerEvent};
 use zmotor_core::engine::DeviceStatus;
@@ -196,7 +197,7 @@ impl Runner {
                     self.latest.insert(channel, status);
                 }
             },
-            ControllerEvent::ControllerError { channel, code, meaning } => {
+            ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
                 let channel = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
                 tracing::error!(controller = %self.name, "{channel}: controller error {code}: {meaning}");
             }

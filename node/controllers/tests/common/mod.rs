@@ -6,6 +6,7 @@ use std::time::Duration;
 use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
+use zmotor_controllers::protocol::VendorError;
 use zmotor_controllers::{ProtocolKind, ProtocolOptions};
 use zmotor_core::engine::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -24,6 +25,29 @@ pub fn bring_up(lb: &mut Loopback) -> Vec<ControllerEvent> {
     lb.run_for(Duration::from_millis(100));
     assert!(lb.controller.is_up(), "the controller came up: {:?}", lb.take_events());
     lb.take_events()
+}
+
+/// The controller errors among `events`: (channel, code, meaning).
+pub fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
+    events
+        .iter()
+        .filter_map(|e| match e {
+            ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
+                Some((*channel, code.clone(), meaning.clone()))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+/// Bytes as text, for assertions on ASCII protocols.
+pub fn text(bytes: &[u8]) -> String {
+    String::from_utf8_lossy(bytes).into_owned()
+}
+
+/// What the driver wrote from request number `from` on, as text.
+pub fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
+    lb.written()[from..].iter().map(|b| text(b)).collect()
 }
 
 /// The last status of `channel` among `events`.
