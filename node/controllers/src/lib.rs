@@ -54,9 +54,23 @@ impl ProtocolKind {
         }
     }
 
-    /// The protocol named `name`.
+    /// Other names people call it by (the controller, the maker, the EPICS module).
+    pub fn aliases(self) -> &'static [&'static str] {
+        match self {
+            ProtocolKind::AcsMcb4b => &["mcb4b", "mcb-4b", "acs", "motoracs"],
+            ProtocolKind::NewportSmc100 => &["smc100", "smc100cc", "conex", "conex_cc", "conex-cc"],
+            ProtocolKind::PiGcs2 => &["gcs2", "pigcs2", "pi", "motorpigcs2"],
+            ProtocolKind::SmaractMcs2 => &["mcs2", "smaract", "motorsmaract"],
+            ProtocolKind::Phytron => &["phymotion", "motorphytron"],
+        }
+    }
+
+    /// The protocol named `name` or one of its aliases, in any case.
     pub fn from_name(name: &str) -> Option<ProtocolKind> {
-        ProtocolKind::ALL.into_iter().find(|p| p.name() == name)
+        let named = |p: &ProtocolKind| {
+            p.name().eq_ignore_ascii_case(name) || p.aliases().iter().any(|a| a.eq_ignore_ascii_case(name))
+        };
+        ProtocolKind::ALL.into_iter().find(named)
     }
 
     /// Every protocol's name, for messages.
@@ -131,5 +145,26 @@ impl ProtocolKind {
                 Box::new(emulator::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn protocols_are_found_by_name_and_alias_in_any_case_and_aliases_are_unique() {
+        assert_eq!(ProtocolKind::from_name("acs_mcb4b"), Some(ProtocolKind::AcsMcb4b));
+        assert_eq!(ProtocolKind::from_name("SMC100"), Some(ProtocolKind::NewportSmc100));
+        assert_eq!(ProtocolKind::from_name("phyMOTION"), Some(ProtocolKind::Phytron));
+        assert_eq!(ProtocolKind::from_name("acs_mcb"), None);
+        let mut names: Vec<&str> = ProtocolKind::ALL
+            .iter()
+            .flat_map(|p| std::iter::once(p.name()).chain(p.aliases().iter().copied()))
+            .collect();
+        let all = names.len();
+        names.sort_unstable();
+        names.dedup();
+        assert_eq!(names.len(), all, "a name names one protocol");
     }
 }
