@@ -129,12 +129,17 @@ pub fn decode_cbor_value(bytes: &[u8]) -> Result<Value, MalformedPayload> {
 
 /// Decode and validate a write to the field described by `def`.
 pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, CodecError> {
-    let raw = decode_scalar(bytes, encoding).map_err(|e| CodecError::Malformed {
-        field: def.name,
-        encoding: e.encoding.name(),
-        detail: e.detail,
-    })?;
-    validate(def, raw)
+    let malformed =
+        |e: MalformedPayload| CodecError::Malformed { field: def.name, encoding: e.encoding.name(), detail: e.detail };
+    // Text written to a text field is stored as written (a description `007`, a primitive `-0`),
+    // never read as a number and re-formatted; only the line end a shell adds goes.
+    if encoding == PayloadEncoding::Text && matches!(def.kind, Kind::Str(_) | Kind::Link) {
+        let text =
+            std::str::from_utf8(bytes).map_err(|e| malformed(MalformedPayload { encoding, detail: e.to_string() }))?;
+        let line = text.strip_suffix('\n').map_or(text, |t| t.strip_suffix('\r').unwrap_or(t));
+        return validate(def, Value::Text(line.to_string()));
+    }
+    validate(def, decode_scalar(bytes, encoding).map_err(malformed)?)
 }
 
 /// Decode one scalar (number or text) in any accepted encoding.
@@ -323,6 +328,18 @@ mod tests {
         assert_eq!(write(Field::RMOD, b"in-position", Text), Ok(Value::Int(3)));
         assert_eq!(write(Field::DESC, b"slit blade", Text), Ok(Value::Text("slit blade".into())));
         assert_eq!(write(Field::STOP, b"1.0", Text), Ok(Value::Int(1)));
+    }
+
+    #[test]
+    fn text_fields_store_what_was_written_or_refuse_it() {
+        use PayloadEncoding::Text;
+        for written in ["007", "1.50", "1e3", "-0", " padded ", "\"quoted\""] {
+            assert_eq!(write(Field::DESC, written.as_bytes(), Text), Ok(Value::Text(written.into())), "{written}");
+        }
+        assert_eq!(write(Field::PREM, b"-0\n", Text), Ok(Value::Text("-0".into())), "a shell's line end goes");
+        let long = format!("1{}", "0".repeat(5000));
+        assert!(matches!(write(Field::DESC, long.as_bytes(), Text), Err(CodecError::TooLong { field: "DESC", .. })));
+        assert!(write(Field::EGU, b"\xff", Text).is_err(), "not UTF-8");
     }
 
     #[test]

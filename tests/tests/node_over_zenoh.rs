@@ -119,7 +119,7 @@ async fn a_limit_violation_moves_nothing_and_says_why() {
     let client = node.client().await;
     let mut rec = Recorder::new(&client, "motor/m1/*").await;
     let err = confirmed_write(&client, &node.key("m1", Field::VAL), "150", PATIENCE).await.unwrap_err();
-    assert!(err.starts_with("limit violation"), "{err}");
+    assert!(err.starts_with("VAL: limit violation"), "{err}");
     assert_eq!(get_value(&client, &node.key("m1", Field::LVIO)).await, int(1));
     assert!(near(&get_value(&client, &node.key("m1", Field::VAL)).await, 0.0));
     rec.drain_for(Duration::from_millis(100)).await;
@@ -297,4 +297,23 @@ async fn a_subscriber_of_one_field_gets_it_from_the_first_move() {
     let mut rec = Recorder::new(&client, "motor/m1/DRBV").await;
     put_text(&client, &node.key("m1", Field::VAL), "3").await;
     rec.wait_for("DRBV", |v| near(v, 3.0)).await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_write_to_a_wildcard_key_is_refused_and_text_fields_keep_what_was_written() {
+    let node = TestNode::start(vec![fast_axis("m1"), fast_axis("m2")]).await;
+    let client = node.client().await;
+    let err = confirmed_write(&client, "motor/*/VAL", "2", PATIENCE).await.unwrap_err();
+    assert!(err.contains("has wildcards"), "{err}");
+    for axis in ["m1", "m2"] {
+        assert!(near(&get_value(&client, &node.key(axis, Field::VAL)).await, 0.0), "{axis} did not move");
+    }
+    for written in ["007", "1.50", "-0"] {
+        let stored = confirmed_write(&client, &node.key("m1", Field::DESC), written, PATIENCE).await.unwrap();
+        assert_eq!(decode_cbor_value(&stored), Ok(Value::Text(written.into())));
+    }
+    let long = format!("1{}", "0".repeat(5000));
+    let err = confirmed_write(&client, &node.key("m1", Field::DESC), &long, PATIENCE).await.unwrap_err();
+    assert!(err.starts_with("DESC: "), "{err}");
+    assert_eq!(get_value(&client, &node.key("m1", Field::DESC)).await, Value::Text("-0".into()));
 }

@@ -102,7 +102,7 @@ async fn the_rotary_limits_refuse_fifty_degrees() {
     ready(&node, &client).await;
     let mut linear = Recorder::new(&client, "motor/linear/DVAL").await;
     let err = confirmed_write(&client, &node.key("rotary", Field::VAL), "50", PATIENCE).await.unwrap_err();
-    assert!(err.starts_with("limit violation"), "{err}");
+    assert!(err.starts_with("VAL: limit violation"), "{err}");
     assert_eq!(get_value(&client, &node.key("rotary", Field::LVIO)).await, int(1));
     linear.drain_for(Duration::from_millis(300)).await;
     assert!(linear.values("DVAL").is_empty(), "nothing was sent to the linear stage");

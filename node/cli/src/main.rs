@@ -181,13 +181,18 @@ enum Command {
 
 #[tokio::main]
 async fn main() -> ExitCode {
+    let command = Cli::parse().command;
+    // A client command says what went wrong in one line of its own; Zenoh's logs (with its
+    // source paths) only when RUST_LOG asks for them. A node logs Zenoh's warnings.
+    let quiet_zenoh = matches!(command, Command::Get { .. } | Command::Put { .. } | Command::Monitor { .. });
+    let default_filter = if quiet_zenoh { "info,zenoh=off" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
         .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| "info,zenoh=warn".into()),
+            tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| default_filter.into()),
         )
         .with_writer(std::io::stderr)
         .init();
-    match run(Cli::parse().command).await {
+    match run(command).await {
         Ok(code) => code,
         Err(e) => {
             eprintln!("zmotor: {e}");
@@ -326,7 +331,13 @@ async fn launch(
 
 /// A client session connected to `endpoint`.
 async fn connect(endpoint: &str) -> Result<zenoh::Session, Error> {
-    zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await
+    zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await.map_err(|_| {
+        format!(
+            "nothing answers at {endpoint}: start a node there (zmotor launch launch/sim-axis.toml) or point \
+             --connect at one"
+        )
+        .into()
+    })
 }
 
 /// The field a user typed, in any case.
@@ -387,6 +398,17 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     Ok(code)
 }
 
+/// How long a `put --wait` whose query ended unanswered waits to see the axis's token go.
+const VANISHING: Duration = Duration::from_secs(3);
+
+/// How a confirmed write ended.
+enum Ending {
+    Reply(zenoh::query::Reply),
+    /// The axis's liveliness token went away first.
+    Vanished,
+    NoReply,
+}
+
 async fn put(
     client: &ClientArgs,
     axis: &str,
@@ -400,23 +422,72 @@ async fn put(
     let field = field_named(field)?;
     let key = layout.field(axis, field);
     let selector = if wait { layout.completion(axis, field) } else { key.clone() };
+    // The axis's liveliness token tells a node that vanished from one that never was.
+    let token = session.liveliness().declare_subscriber(layout.axis(axis)).history(true).await?;
     let replies = session
         .get(&selector)
         .payload(value.to_string())
         .encoding(Encoding::TEXT_PLAIN)
         .timeout(Duration::from_secs_f64(timeout))
         .await?;
-    let mut code = ExitCode::FAILURE;
-    match replies.recv_async().await {
-        Ok(reply) => match reply.result() {
+    let mut alive = false;
+    let ending = loop {
+        tokio::select! {
+            reply = replies.recv_async() => break reply.map_or(Ending::NoReply, Ending::Reply),
+            change = token.recv_async() => match change {
+                Ok(sample) if sample.kind() == zenoh::sample::SampleKind::Put => alive = true,
+                Ok(_) if wait => break Ending::Vanished,
+                _ => {}
+            },
+        }
+    };
+    // A node that dies ends the query before its token is seen to go: wait a little for that.
+    let ending = match ending {
+        Ending::NoReply if alive && wait => {
+            let gone = tokio::time::timeout(VANISHING, async {
+                while let Ok(sample) = token.recv_async().await {
+                    if sample.kind() == zenoh::sample::SampleKind::Delete {
+                        return true;
+                    }
+                }
+                false
+            });
+            if gone.await.unwrap_or(false) {
+                Ending::Vanished
+            } else {
+                Ending::NoReply
+            }
+        }
+        other => other,
+    };
+    let code = match ending {
+        Ending::Reply(reply) => match reply.into_result() {
             Ok(sample) => {
                 println!("{}", show(&sample.payload().to_bytes()));
-                code = ExitCode::SUCCESS;
+                ExitCode::SUCCESS
             }
-            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
+            Err(err) => {
+                eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes()));
+                ExitCode::FAILURE
+            }
         },
-        Err(_) => eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect),
-    }
+        Ending::Vanished => {
+            let token = layout.axis(axis);
+            eprintln!(
+                "zmotor: the node serving {axis} vanished before answering (its liveliness token {token} went away): \
+                 the write's outcome is unknown"
+            );
+            ExitCode::FAILURE
+        }
+        Ending::NoReply if alive => {
+            eprintln!("zmotor: {axis} is served but did not answer within {timeout} s");
+            ExitCode::FAILURE
+        }
+        Ending::NoReply => {
+            eprintln!("zmotor: no axis {axis} answers at {} (is its node running and reachable?)", client.connect);
+            ExitCode::FAILURE
+        }
+    };
     session.close().await?;
     Ok(code)
 }

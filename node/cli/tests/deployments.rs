@@ -331,3 +331,30 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     let rotary = client.wait_for(router_endpoint, "rotary", "RBV", |v| (v - 20.0).abs() < 0.01);
     assert!((rotary - 20.0).abs() < 0.01);
 }
+
+#[test]
+fn a_put_wait_whose_node_dies_says_the_node_vanished() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("slow.toml");
+    std::fs::write(&file, slow_stage("Never", 60.0)).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let waiting = here
+        .zmotor(&["put", "m1", "VAL", "50", "--wait", "--connect", &endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    here.wait_for(&endpoint, "m1", "RBV", |v| v > 0.2);
+    node.kill();
+    let started = Instant::now();
+    let output = waiting.wait_with_output().unwrap();
+    let said = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success());
+    assert!(said.contains("the node serving m1 vanished before answering"), "{said}");
+    assert!(started.elapsed() < Duration::from_secs(10), "told at once, not at the timeout");
+    let nobody = here.put(&endpoint, "m1", "VAL", "1", true).unwrap_err();
+    assert!(nobody.contains("nothing answers at"), "{nobody}");
+}

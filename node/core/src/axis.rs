@@ -769,7 +769,7 @@ mod tests {
         axis.write(at(0.0), Field::CNEN, &Value::Int(0)).unwrap();
         assert_eq!(axis.fields().cnen, 0);
         let err = axis.write(at(0.1), Field::VAL, &Value::Float(1.0)).unwrap_err();
-        assert!(err.to_string().starts_with("motor disabled"), "{err}");
+        assert!(err.to_string().starts_with("VAL: motor disabled"), "{err}");
         axis.write(at(0.2), Field::CNEN, &Value::Int(1)).unwrap();
         axis.write(at(0.3), Field::VAL, &Value::Float(1.0)).unwrap();
         run(&mut axis, 10.0);

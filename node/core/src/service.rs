@@ -568,7 +568,7 @@ mod tests {
         s.write(at(0.0), "VAL", b"500", Text, true, 1);
         let outputs = drain(&mut s);
         let answers = replies(&outputs);
-        let [(1, Reply::Refused(RequestError::Record(WriteError::NotActedUpon(reason))))] = &answers[..] else {
+        let [(1, Reply::Refused(RequestError::Record(WriteError::NotActedUpon { reason, .. })))] = &answers[..] else {
             panic!("{answers:?}")
         };
         assert!(reason.starts_with("limit violation"), "{reason}");

@@ -148,7 +148,7 @@ fn w58_urip_reads_the_readback_link() {
     let mut axis = sim_axis(fields.clone());
     // Not readable yet: a move is refused, nothing sent.
     let err = axis.write(at(0.0), Field::VAL, &Value::Float(1.0)).unwrap_err();
-    assert_eq!(err.to_string(), "the readback link RDBL (lab/encoder) cannot be read");
+    assert_eq!(err.to_string(), "VAL: the readback link RDBL (lab/encoder) cannot be read");
     assert_eq!((axis.fields().val, axis.fields().dmov, axis.fields().lvio), (0.0, 1, 0));
     axis.link_update(at(0.1), InputLink::Readback, 0.123);
     axis.refresh_status(at(0.1));

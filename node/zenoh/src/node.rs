@@ -473,6 +473,10 @@ impl Space {
 
 /// A sample goes to the axis its key names, if it is one of ours.
 fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Written) -> AxisInput) {
+    if sample.key_expr().as_str().contains(['*', '$']) {
+        tracing::warn!(key = %sample.key_expr(), "a put to a key with wildcards is not a write; ignored");
+        return;
+    }
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding }));
@@ -481,6 +485,13 @@ fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Writte
 
 /// A query goes to every axis of ours it can concern (one, or all for a wildcard).
 fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> AxisInput) {
+    if query.payload().is_some() && query.key_expr().as_str().contains(['*', '$']) {
+        // Answering with the fields' values would look like success, and writing every match
+        // is not what a write means: refused, naming the key.
+        let message = format!("{}: a write names one field of one axis; this key has wildcards", query.key_expr());
+        let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).wait();
+        return;
+    }
     let chunk = space.axis_chunk(query.key_expr().as_str()).unwrap_or("");
     if !chunk.is_empty() && !chunk.contains(['*', '$']) {
         if let Some(handle) = routes.get(chunk) {

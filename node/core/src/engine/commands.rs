@@ -104,6 +104,11 @@ pub enum WriteError {
     },
     /// Accepted and processed, but the record would not act on it (a soft-limit violation,
     /// a home against an active switch, ...); the drive fields went back.
-    #[error("{0}")]
-    NotActedUpon(String),
+    #[error("{field}: {reason}")]
+    NotActedUpon {
+        /// The field written.
+        field: Field,
+        /// Why the record did not act.
+        reason: String,
+    },
 }

@@ -8,6 +8,13 @@ pub fn nint(x: f64) -> i32 {
     x.round() as i32
 }
 
+/// A raw position (steps) as the driver holds it: NINT in 32 bits, or None when `x` is not a
+/// number or beyond (never clamped: a clamped target drives the carriage somewhere unasked).
+pub fn raw_position(x: f64) -> Option<i32> {
+    let rounded = x.round();
+    (rounded.abs() <= f64::from(i32::MAX)).then_some(rounded as i32)
+}
+
 /// Everything a move, jog or home needs in raw units, computed from the current fields.
 #[derive(Clone, Copy, Debug)]
 pub struct MoveMaths {
@@ -81,5 +88,10 @@ mod tests {
     #[test]
     fn nint_rounds_half_away_from_zero() {
         assert_eq!((nint(2.5), nint(-2.5), nint(2.4999), nint(-0.4)), (3, -3, 2, 0));
+        assert_eq!((raw_position(-2.5), raw_position(f64::from(i32::MAX))), (Some(-3), Some(i32::MAX)));
+        assert_eq!(
+            (raw_position(2f64.powi(31)), raw_position(f64::NAN), raw_position(f64::INFINITY)),
+            (None, None, None)
+        );
     }
 }

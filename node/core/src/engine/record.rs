@@ -163,7 +163,7 @@ impl MotorRecord {
             self.flush_posts();
         }
         match self.refusal.take() {
-            Some(reason) => Err(WriteError::NotActedUpon(reason)),
+            Some(reason) => Err(WriteError::NotActedUpon { field, reason }),
             None => Ok(()),
         }
     }

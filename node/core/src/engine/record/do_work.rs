@@ -4,7 +4,7 @@
 use super::legs::{at_least_one_step, Leg};
 use super::{MotorRecord, Reason};
 use crate::engine::commands::MotorCommand;
-use crate::engine::maths::{nint, MoveMaths};
+use crate::engine::maths::{nint, raw_position, MoveMaths};
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
 use zmotor_msgs::{Field, Value};
@@ -203,7 +203,7 @@ impl MotorRecord {
             if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
                 self.f.set(button, &Value::Int(0));
                 self.mark(button);
-                self.refusal = Some(format!("{button} refused: the {switch} limit switch is active"));
+                self.refusal = Some(format!("home ({button}) refused: the {switch} limit switch is active"));
             }
         }
         let home_requested = (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
@@ -395,10 +395,20 @@ impl MotorRecord {
         if self.f.lvio != lvio_at_entry {
             self.mark(LVIO);
         }
+        // Departure Z20: a target whose raw position the driver cannot hold (32 bits, as RVAL) is
+        // refused; the reference clamps it and drives the carriage towards the clamped position.
+        let raw_target = self.f.dval / self.f.mres;
         let refusal = if lvio {
             Some(format!(
                 "limit violation: dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
                 self.f.dval, self.f.dllm, self.f.dhlm
+            ))
+        } else if raw_position(raw_target).is_none() {
+            Some(format!(
+                "target out of range: dial target {} at MRES {} is {} steps, beyond the 32-bit raw position",
+                self.f.dval,
+                self.f.mres,
+                raw_target.round()
             ))
         } else if self.f.urip == choice::YES && self.readback_link.is_none() {
             Some(format!("the readback link RDBL ({}) cannot be read", self.f.rdbl))

@@ -3,7 +3,7 @@
 
 use super::MotorRecord;
 use crate::engine::commands::MotorCommand;
-use crate::engine::maths::nint;
+use crate::engine::maths::{nint, raw_position};
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
 use zmotor_msgs::{Field, Value};
@@ -141,6 +141,16 @@ impl MotorRecord {
     pub(super) fn load_pos(&mut self) {
         use Field::*;
         let newpos = self.f.dval / self.f.mres;
+        // Departure Z20: a position the driver cannot hold (MRES 0, beyond 32 bits) is not sent.
+        if raw_position(newpos).is_none() {
+            self.refusal = Some(format!(
+                "the position is not set: dial {} at MRES {} is {} steps, beyond the 32-bit raw position",
+                self.f.dval,
+                self.f.mres,
+                newpos.round()
+            ));
+            return;
+        }
         self.f.ldvl = self.f.dval;
         self.f.lval = self.f.val;
         if self.f.rval != nint(newpos) {

@@ -3,7 +3,7 @@
 
 use super::MotorRecord;
 use crate::engine::commands::{DeviceStatus, MotorCommand};
-use crate::engine::maths::nint;
+use crate::engine::maths::{nint, raw_position};
 use zmotor_msgs::menus::choice;
 use zmotor_msgs::Field;
 
@@ -27,7 +27,8 @@ impl MotorRecord {
             3 => near_zero || use_rel,
             _ => false,
         };
-        if load {
+        // A position the driver cannot hold is not restored (Z20).
+        if load && raw_position(f.dval / f.mres).is_some() {
             cmds.push(MotorCommand::LoadPos(f.dval / f.mres));
         }
         cmds

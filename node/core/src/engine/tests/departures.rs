@@ -11,7 +11,7 @@ fn jog_fields() -> Fields {
 fn z1_a_refused_jog_leaves_no_request_behind() {
     let mut rig = Rig::boot(jog_fields(), 850.0);
     let err = rig.put(Field::JOGF, 1.0).unwrap_err();
-    assert!(err.to_string().starts_with("limit violation"), "{err}");
+    assert!(err.to_string().starts_with("JOGF: limit violation"), "{err}");
     assert!(rig.take().is_empty());
     assert_eq!((rig.f().lvio, rig.f().jogf, rig.f().mip), (1, 0, mip::DONE));
     // The reference would now start a reverse jog (Q1, W27a); zmotor moves to the target.
@@ -73,7 +73,7 @@ fn z6_a_home_refused_at_a_limit_switch_is_reset_and_never_starts_later() {
     let mut rig = Rig::boot(Fields { hvel: 0.5, ..baseline_b() }, 0.0);
     rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) });
     let err = rig.put(Field::HOMF, 1.0).unwrap_err();
-    assert_eq!(err.to_string(), "HOMF refused: the high limit switch is active");
+    assert_eq!(err.to_string(), "HOMF: home (HOMF) refused: the high limit switch is active");
     assert_eq!(rig.f().homf, 0);
     assert_eq!(rig.posted(Field::HOMF).last(), Some(&Value::Int(0)));
     assert!(!rig.take().iter().any(|c| matches!(c, HomeFor | HomeRev)));
@@ -185,10 +185,10 @@ fn z11_a_disabled_servo_refuses_moves_with_a_clear_error() {
     rig.status(servo(false));
     assert_eq!(rig.f().cnen, 0);
     let err = rig.put(Field::VAL, 1.0).unwrap_err();
-    assert!(err.to_string().starts_with("motor disabled"), "{err}");
+    assert!(err.to_string().starts_with("VAL: motor disabled"), "{err}");
     assert!(rig.take().is_empty());
     assert_eq!((rig.f().val, rig.f().dmov, rig.f().lvio), (0.0, 1, 0));
-    assert!(rig.put(Field::JOGF, 1.0).unwrap_err().to_string().starts_with("motor disabled"));
+    assert!(rig.put(Field::JOGF, 1.0).unwrap_err().to_string().starts_with("JOGF: motor disabled"));
     assert_eq!((rig.f().jogf, rig.f().mip), (0, 0));
     assert!(rig.put(Field::HOMR, 1.0).is_err());
     assert_eq!(rig.f().homr, 0);
@@ -280,7 +280,7 @@ fn z16_a_refused_move_leaves_diff_and_rdif_at_the_restored_target() {
     rig.put(Field::VAL, 500.0).unwrap();
     assert_eq!((rig.f().val, rig.f().dval), (500.0, 500.0), "held while paused");
     let err = rig.put(Field::SPMG, 3.0).unwrap_err();
-    assert!(err.to_string().starts_with("limit violation"), "{err}");
+    assert!(err.to_string().starts_with("SPMG: limit violation"), "{err}");
     let f = rig.f();
     assert_eq!((f.val, f.dval, f.drbv, f.dmov), (0.0, 0.0, 0.0, 1));
     // The reference leaves DIFF 500 and RDIF 50000 here.
@@ -328,4 +328,29 @@ fn z9_a_stop_drops_a_target_held_by_spmg() {
     // Go later does not run the dropped target.
     rig.put(Field::SPMG, 3.0).unwrap();
     assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))));
+}
+
+#[test]
+fn z20_a_target_beyond_the_raw_range_is_refused_not_clamped() {
+    // Soft limits off (DHLM = DLLM = 0), as after MRES 0: nothing else stops 2^70.
+    let mut rig = Rig::boot(baseline_b(), 0.0);
+    let err = rig.put(Field::VAL, 2f64.powi(70)).unwrap_err();
+    assert!(err.to_string().starts_with("VAL: target out of range"), "{err}");
+    assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))), "nothing is sent");
+    let f = rig.f();
+    assert_eq!((f.val, f.dval, f.rval, f.dmov), (0.0, 0.0, 0, 1));
+    // MRES 0: no position has a raw value: the position is not loaded (no NaN sent), a move is
+    // refused, nothing clamped to i32::MAX.
+    let err = rig.put(Field::MRES, 0.0).unwrap_err();
+    assert!(err.to_string().starts_with("MRES: the position is not set"), "{err}");
+    assert!(rig.take().iter().all(|c| !matches!(c, LoadPos(_))));
+    assert_eq!((rig.f().mres, rig.f().dmov), (0.0, 1), "MRES stored, nothing under way");
+    assert!(rig.put(Field::VAL, 1.0).is_err());
+    rig.put(Field::MRES, 0.01).unwrap();
+    assert_eq!(rig.take(), vec![LoadPos(0.0), GetInfo], "a real resolution loads the position again");
+    rig.cb(0.0);
+    assert_eq!((rig.f().rval, rig.f().dmov), (0, 1));
+    // The largest raw position that fits is a target like any other.
+    rig.put(Field::VAL, f64::from(i32::MAX - 1000) * 0.01).unwrap();
+    assert!(rig.take().iter().any(|c| matches!(c, MoveAbs(_))));
 }

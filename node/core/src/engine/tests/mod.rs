@@ -419,7 +419,7 @@ fn w14_request_outside_the_limits_moves_nothing_and_restores_targets() {
     let f = rig.f();
     assert_eq!((f.rhlm, f.rllm, f.hlm, f.llm, f.lvio), (1000.0, -1000.0, 10.0, -10.0, 0));
     let err = rig.put(Field::VAL, 12.0).unwrap_err();
-    assert!(matches!(err, WriteError::NotActedUpon(_)), "{err}");
+    assert!(matches!(err, WriteError::NotActedUpon { .. }), "{err}");
     assert!(rig.take().is_empty());
     let f = rig.f();
     assert_eq!((f.lvio, f.val, f.dval, f.rval), (1, 5.0, 5.0, 500));
