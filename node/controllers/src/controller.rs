@@ -11,7 +11,7 @@
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
 //! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
 
-use crate::protocol::{CommandError, Event, Frame, Protocol, Request, VendorError};
+use crate::protocol::{CommandError, Event, Frame, Protocol, Purpose, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
 use zmotor_core::engine::DeviceStatus;
@@ -73,6 +73,9 @@ pub enum ControllerEvent {
         channel: usize,
         /// Its status.
         status: DeviceStatus,
+        /// Motion commands the controller had received for the channel when it read this: an
+        /// axis that has sent more knows the status is older than its last motion.
+        motions: u64,
     },
     /// The controller reported an error; the channel's status shows a problem until its next
     /// command.
@@ -125,11 +128,15 @@ enum Kind {
         channel: usize,
         motion: bool,
     },
+    /// A stop: sent again if it fails (stopping twice stops), and owed after a lost link.
+    Stop {
+        channel: usize,
+    },
 }
 
 impl Kind {
-    /// Whether an exchange that failed may be sent again: queries may, commands never (a move
-    /// sent twice moves twice).
+    /// Whether an exchange that failed may be sent again: queries and stops may, other commands
+    /// never (a move sent twice moves twice).
     fn retryable(self) -> bool {
         !matches!(self, Kind::Command { .. })
     }
@@ -184,6 +191,13 @@ struct Channel {
     motion_issued: u64,
     /// A controller error since the last command: MSTA shows a problem.
     problem: bool,
+    /// Motion commands received for the channel (see `ControllerEvent::Status`).
+    motions: u64,
+    /// The deceleration of its last motion or stop, for a stop the controller owes it.
+    acceleration: f64,
+    /// It was moving, or being stopped, when the link was lost: a stop goes first when the
+    /// link is back, so that nothing keeps moving that nobody commands.
+    stop_owed: bool,
 }
 
 /// One controller (see the module documentation).
@@ -196,6 +210,11 @@ pub struct Controller {
     /// The transaction being carried out, and its request waiting for a reply.
     current: Option<Transaction>,
     in_flight: Option<InFlight>,
+    /// After a timeout nothing is sent until then: a reply still on its way must not be taken
+    /// for the next request's.
+    quiet_until: Option<Instant>,
+    /// A request whose reply did not come in time, sent again once the quiet is over.
+    retry: Option<InFlight>,
     received: Vec<u8>,
     next_poll: Option<Instant>,
     fast_polls_left: u32,
@@ -219,6 +238,8 @@ impl Controller {
             queue: Vec::new(),
             current: None,
             in_flight: None,
+            quiet_until: None,
+            retry: None,
             received: Vec::new(),
             next_poll: None,
             fast_polls_left: 0,
@@ -247,8 +268,24 @@ impl Controller {
             self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::UnknownChannel(channel) });
             return;
         }
-        if !matches!(self.link, Link::Up) {
-            // Never kept for later: a move must not run minutes after it was asked for.
+        let motion = command.starts_motion();
+        let stop = matches!(command, DriverCommand::Stop { .. });
+        let state = &mut self.channels[channel];
+        if motion {
+            state.motions += 1;
+        }
+        if let DriverCommand::Move { acceleration, .. }
+        | DriverCommand::MoveVelocity { acceleration, .. }
+        | DriverCommand::Home { acceleration, .. }
+        | DriverCommand::Stop { acceleration } = command
+        {
+            state.acceleration = *acceleration;
+        }
+        let open = matches!(self.link, Link::Initialising { .. } | Link::Up);
+        if !(self.link == Link::Up || (stop && open)) {
+            // Never kept for later: a move must not run minutes after it was asked for. A stop
+            // is owed instead: it goes first when the link is back.
+            self.channels[channel].stop_owed |= stop;
             self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::NotConnected });
             self.report_lost(channel);
             return;
@@ -263,22 +300,18 @@ impl Controller {
             Err(e) => {
                 // The axis took the command as started: its status must say it is not.
                 self.events.push_back(ControllerEvent::Refused { channel, why: e.into() });
-                let state = &mut self.channels[channel];
-                state.problem = true;
-                let status = DeviceStatus { msta: state.status.msta | msta::PROBLEM, ..state.status };
-                self.events.push_back(ControllerEvent::Status { channel, status });
+                self.report_problem(channel);
                 return;
             }
         };
-        let motion = command.starts_motion();
-        let priority = match command {
-            DriverCommand::Stop { .. } => Priority::Stop,
-            _ if motion => Priority::Motion,
-            _ => Priority::Setting,
-        };
-        if priority == Priority::Stop {
+        let (priority, kind) = if stop {
             self.drop_motion_of(channel);
-        }
+            (Priority::Stop, Kind::Stop { channel })
+        } else if motion {
+            (Priority::Motion, Kind::Command { channel, motion })
+        } else {
+            (Priority::Setting, Kind::Command { channel, motion })
+        };
         self.seq += 1;
         let state = &mut self.channels[channel];
         state.problem = false;
@@ -289,7 +322,6 @@ impl Controller {
             self.fast_polls_left = self.config.fast_polls;
             self.next_poll = Some(self.now);
         }
-        let kind = Kind::Command { channel, motion };
         self.queue.push(Transaction { priority, kind, requests: requests.into(), issued: self.seq });
         self.pump();
     }
@@ -308,6 +340,26 @@ impl Controller {
             requests: init.into(),
             issued: self.seq,
         });
+        for channel in self.config.channels.clone() {
+            let state = &mut self.channels[channel];
+            if !std::mem::take(&mut state.stop_owed) {
+                continue;
+            }
+            let stop = DriverCommand::Stop { acceleration: state.acceleration };
+            match self.protocol.command(channel, &stop) {
+                Ok(requests) => {
+                    tracing::warn!(channel, "moving or being stopped when the link was lost: stopped first");
+                    let kind = Kind::Stop { channel };
+                    self.queue.push(Transaction {
+                        priority: Priority::Stop,
+                        kind,
+                        requests: requests.into(),
+                        issued: self.seq,
+                    });
+                }
+                Err(e) => tracing::error!(channel, "the stop owed since the link was lost cannot be sent: {e}"),
+            }
+        }
         let channels = self.config.channels.clone();
         self.queue_poll_of(&channels, Priority::Stop);
         self.pump();
@@ -331,6 +383,13 @@ impl Controller {
             return;
         }
         self.received.extend_from_slice(bytes);
+        if self.received.len() > MAX_UNFRAMED {
+            // Bytes that never make a frame (a device streaming, the wrong protocol): dropped.
+            let what = format!("{} bytes that are no frame of the protocol, dropped", self.received.len());
+            self.received.clear();
+            self.events.push_back(ControllerEvent::Failed { what });
+            return;
+        }
         loop {
             match self.protocol.frame(&self.received) {
                 Frame::Incomplete => break,
@@ -358,6 +417,7 @@ impl Controller {
         }
         if self.in_flight.as_ref().is_some_and(|f| self.now >= f.deadline) {
             let in_flight = self.in_flight.take().expect("checked above");
+            self.quiet_until = Some(self.now + self.config.timeout / 4);
             self.on_failure(in_flight, "no reply in time");
         }
         if self.link == Link::Up && self.next_poll.is_some_and(|t| self.now >= t) {
@@ -383,7 +443,7 @@ impl Controller {
             Link::Initialising { .. } | Link::Up => {
                 let deadline = self.in_flight.as_ref().map(|f| f.deadline);
                 let poll = self.next_poll.filter(|_| self.link == Link::Up);
-                [deadline, poll].into_iter().flatten().min()
+                [deadline, poll, self.quiet_until].into_iter().flatten().min()
             }
         }
     }
@@ -436,6 +496,15 @@ impl Controller {
 
     /// Send what can be sent: one request in flight at most.
     fn pump(&mut self) {
+        if self.quiet_until.is_some_and(|t| self.now < t) {
+            return;
+        }
+        if self.quiet_until.take().is_some() {
+            self.received.clear();
+        }
+        if let Some(retry) = self.retry.take() {
+            self.send(retry.request, retry.attempts);
+        }
         while self.in_flight.is_none() && matches!(self.link, Link::Initialising { .. } | Link::Up) {
             if self.current.as_ref().is_none_or(|t| t.requests.is_empty()) {
                 if let Some(done) = self.current.take() {
@@ -446,21 +515,38 @@ impl Controller {
                 continue;
             }
             let stop_waits = self.queue.iter().any(|t| t.priority == Priority::Stop);
-            if let Some(poll) = self.current.as_mut().filter(|t| t.kind == Kind::Poll && self.link == Link::Up) {
-                if stop_waits {
-                    // The rest of this poll can wait for the next round; a stop cannot.
-                    poll.requests.clear();
-                    continue;
-                }
+            if stop_waits && self.link == Link::Up && self.current.as_ref().is_some_and(|t| t.kind == Kind::Poll) {
+                self.preempt_poll();
+                continue;
             }
             let request = self.current.as_mut().and_then(|t| t.requests.pop_front()).expect("checked above");
-            // What arrived before this request belongs to nothing: a late reply to an exchange
-            // given up must not pass for this one's.
-            self.received.clear();
-            self.transmit.push_back(request.bytes.clone());
-            if request.answered {
-                self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts: 1 });
-            }
+            self.send(request, 1);
+        }
+    }
+
+    /// Write `request` (its `attempts`-th time); wait for its reply if it has one.
+    fn send(&mut self, request: Request, attempts: u32) {
+        // What arrived before this request belongs to nothing: a late reply to an exchange
+        // given up must not pass for this one's.
+        self.received.clear();
+        self.transmit.push_back(request.bytes.clone());
+        if request.answered {
+            self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts });
+        }
+    }
+
+    /// A stop waits: the rest of the poll being carried out waits for the next round. Requests
+    /// a reply added to it that are commands (a home continued once the controller is ready)
+    /// become a motion transaction of their own, behind the stop, unless the stop is theirs.
+    fn preempt_poll(&mut self) {
+        let Some(poll) = self.current.as_mut() else { return };
+        let commands: VecDeque<Request> =
+            poll.requests.drain(..).filter(|r| matches!(r.purpose, Purpose::Command { .. })).collect();
+        let issued = poll.issued;
+        let Some(channel) = commands.front().and_then(|r| r.purpose.channel()) else { return };
+        if !self.queue.iter().any(|t| t.kind == Kind::Stop { channel }) {
+            let kind = Kind::Command { channel, motion: true };
+            self.queue.push(Transaction { priority: Priority::Motion, kind, requests: commands, issued });
         }
     }
 
@@ -471,13 +557,11 @@ impl Controller {
 
     /// A transaction has sent all its requests and had all its replies.
     fn finished(&mut self, transaction: Transaction) {
-        if transaction.kind == Kind::Poll {
-            if let Link::Initialising { .. } = self.link {
-                if self.queue.iter().all(|t| t.kind != Kind::Init && t.kind != Kind::Poll) {
-                    self.link = Link::Up;
-                    self.next_poll = Some(self.now + self.config.idle_poll);
-                }
-            }
+        let initialising = matches!(self.link, Link::Initialising { .. });
+        let last = self.queue.iter().all(|t| t.kind != Kind::Init && t.kind != Kind::Poll);
+        if initialising && matches!(transaction.kind, Kind::Init | Kind::Poll) && last {
+            self.link = Link::Up;
+            self.next_poll = Some(self.now + self.config.idle_poll);
         }
     }
 
@@ -490,6 +574,9 @@ impl Controller {
             return;
         };
         match self.protocol.reply(&in_flight.request, frame) {
+            Ok(events) if events.iter().any(|e| matches!(e, Event::Status { status, .. } if !finite(status))) => {
+                self.on_failure(in_flight, "a position that is not a number");
+            }
             Ok(events) => {
                 self.failures = 0;
                 let issued = self.current.as_ref().map_or(0, |t| t.issued);
@@ -514,8 +601,9 @@ impl Controller {
                     status.msta |= msta::PROBLEM;
                 }
                 state.status = status;
+                let motions = state.motions;
                 if matches!(self.link, Link::Initialising { .. } | Link::Up) {
-                    self.events.push_back(ControllerEvent::Status { channel, status });
+                    self.events.push_back(ControllerEvent::Status { channel, status, motions });
                 }
             }
             Event::ControllerError(error) => {
@@ -524,12 +612,7 @@ impl Controller {
                     None => self.config.channels.clone(),
                 };
                 for channel in affected {
-                    if let Some(state) = self.channels.get_mut(channel) {
-                        state.problem = true;
-                        let mut status = state.status;
-                        status.msta |= msta::PROBLEM;
-                        self.events.push_back(ControllerEvent::Status { channel, status });
-                    }
+                    self.report_problem(channel);
                 }
                 self.events.push_back(ControllerEvent::ControllerError(error));
             }
@@ -557,31 +640,60 @@ impl Controller {
             self.lose(backoff);
             return;
         }
-        let retryable = self.current.as_ref().is_some_and(|t| t.kind.retryable());
-        if retryable && in_flight.attempts <= self.config.retries {
-            self.received.clear();
-            self.transmit.push_back(in_flight.request.bytes.clone());
-            self.in_flight = Some(InFlight {
-                deadline: self.now + self.config.timeout,
-                attempts: in_flight.attempts + 1,
-                ..in_flight
-            });
-        } else if let Some(current) = self.current.as_mut() {
+        let kind = self.current.as_ref().map(|t| t.kind);
+        if kind.is_some_and(Kind::retryable) && in_flight.attempts <= self.config.retries {
+            let retry = InFlight { attempts: in_flight.attempts + 1, ..in_flight };
+            if self.quiet_until.is_some() {
+                self.retry = Some(retry);
+            } else {
+                self.send(retry.request, retry.attempts);
+            }
+            return;
+        }
+        match kind {
+            // A connection not initialised in full (a scale not read, the wrong controller) is
+            // not used: it is dropped and opened again.
+            Some(Kind::Init) => {
+                let backoff = match self.link {
+                    Link::Initialising { backoff } => backoff,
+                    _ => self.config.reconnect_first,
+                };
+                self.lose(backoff);
+            }
             // A command half carried out is not carried on (its channel shows a problem until
             // the next command); a poll gives up this round.
-            current.requests.clear();
-            if let Kind::Command { channel, .. } = current.kind {
-                self.channels[channel].problem = true;
+            Some(Kind::Command { channel, .. } | Kind::Stop { channel }) => {
+                self.abandon_current();
+                self.report_problem(channel);
             }
+            _ => self.abandon_current(),
+        }
+    }
+
+    /// The rest of the transaction under way is not sent.
+    fn abandon_current(&mut self) {
+        if let Some(current) = self.current.as_mut() {
+            current.requests.clear();
         }
     }
 
     /// Communication is lost: every channel says so, nothing queued survives, the connection
     /// closes and is reopened after `wait`.
     fn lose(&mut self, wait: Duration) {
+        let stopping: Vec<usize> = self
+            .queue
+            .iter()
+            .chain(&self.current)
+            .filter_map(|t| match t.kind {
+                Kind::Stop { channel } => Some(channel),
+                _ => None,
+            })
+            .collect();
         for channel in self.config.channels.clone() {
             self.report_lost(channel);
-            self.channels[channel].moving = false;
+            let state = &mut self.channels[channel];
+            state.stop_owed |= state.moving || stopping.contains(&channel);
+            state.moving = false;
         }
         self.go_down(wait);
     }
@@ -592,6 +704,8 @@ impl Controller {
         self.queue.clear();
         self.current = None;
         self.in_flight = None;
+        self.retry = None;
+        self.quiet_until = None;
         self.received.clear();
         self.transmit.clear();
         self.next_poll = None;
@@ -609,6 +723,29 @@ impl Controller {
         let mut status = state.status;
         status.msta = (status.msta | msta::COMM_ERR | msta::DONE) & !msta::MOVING;
         status.velocity = 0.0;
-        self.events.push_back(ControllerEvent::Status { channel, status });
+        self.events.push_back(ControllerEvent::Status { channel, status, motions: state.motions });
     }
+
+    /// The channel shows a problem until its next command: its last status, with PROBLEM, and
+    /// still "not done" if a motion commanded has not been reported over (a status read before
+    /// the motion must not end it).
+    fn report_problem(&mut self, channel: usize) {
+        let Some(state) = self.channels.get_mut(channel) else { return };
+        state.problem = true;
+        let mut status = state.status;
+        status.msta |= msta::PROBLEM;
+        if state.moving {
+            status.msta &= !msta::DONE;
+        }
+        self.events.push_back(ControllerEvent::Status { channel, status, motions: state.motions });
+    }
+}
+
+/// Replies are read in bytes until a frame completes; beyond this many without one, they are
+/// dropped.
+const MAX_UNFRAMED: usize = 64 * 1024;
+
+/// A status whose numbers are numbers.
+fn finite(status: &DeviceStatus) -> bool {
+    status.position.is_finite() && status.encoder_position.is_finite() && status.velocity.is_finite()
 }

@@ -104,7 +104,7 @@ impl Loopback {
         events
             .iter()
             .filter_map(|e| match e {
-                ControllerEvent::Status { channel: c, status } if *c == channel => Some(*status),
+                ControllerEvent::Status { channel: c, status, .. } if *c == channel => Some(*status),
                 _ => None,
             })
             .collect()

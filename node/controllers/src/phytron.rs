@@ -448,7 +448,10 @@ impl Phymotion {
                 commands
             }
             DriverCommand::Stop { acceleration } => {
-                vec![format!("M{token}P15={:.6}", ramp(*acceleration)?), format!("M{token}S")]
+                // A stop is never refused: a deceleration that is no number stops as hard as the
+                // controller can.
+                let ramp = ramp(*acceleration).unwrap_or(*RAMPS.end());
+                vec![format!("M{token}P15={ramp:.6}"), format!("M{token}S")]
             }
             DriverCommand::SetPosition { position } => {
                 let steps = whole_steps("position", *position)?;

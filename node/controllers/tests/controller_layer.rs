@@ -6,11 +6,13 @@ mod common;
 
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerEvent, Refusal};
+use zmotor_controllers::controller::{ControllerConfig, ControllerEvent, Refusal};
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
+use zmotor_controllers::protocol::{line_frame, CommandError, Event, Frame, Purpose, ReplyError, Request};
 use zmotor_controllers::ProtocolKind;
 use zmotor_core::driver::Driver;
+use zmotor_core::engine::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -253,4 +255,140 @@ fn a_command_the_protocol_cannot_express_is_refused_with_a_problem_and_sends_not
         .take_events()
         .iter()
         .any(|e| matches!(e, ControllerEvent::Refused { why: Refusal::UnknownChannel(7), .. })));
+}
+
+#[test]
+fn a_stop_whose_reply_is_lost_is_sent_again() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    lb.command(0, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 100_000.0 });
+    lb.run_for(Duration::from_millis(50));
+    // The first reply from here, the stop's, is lost.
+    lb.link.set_faults(Faults { drop_every: Some(1), ..Faults::default() });
+    let start = lb.written().len();
+    lb.command(0, &DriverCommand::Stop { acceleration: 100_000.0 });
+    lb.run_for(Duration::from_millis(1100));
+    lb.link.set_faults(Faults::default());
+    lb.run_for(Duration::from_secs(2));
+    let stops = written_since(&lb, start).iter().filter(|w| *w == "#00Q\r").count();
+    assert_eq!(stops, 2, "{:?}", written_since(&lb, start));
+    assert!(!lb.link.emulator().axis(0).expect("channel 0").is_moving());
+}
+
+#[test]
+fn a_jog_running_when_the_link_is_lost_is_stopped_first_when_it_is_back() {
+    let mut lb = loopback(ACS, &[0, 1], Faults::default());
+    bring_up(&mut lb);
+    lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 100_000.0 });
+    lb.run_for(Duration::from_millis(300));
+    lb.set_reachable(false);
+    lb.run_for(Duration::from_secs(2));
+    let start = lb.written().len();
+    lb.set_reachable(true);
+    lb.run_for(Duration::from_secs(2));
+    assert!(lb.controller.is_up());
+    let sent = written_since(&lb, start);
+    assert_eq!(sent.first().map(String::as_str), Some("#01Q\r"), "the stop goes first: {sent:?}");
+    assert_eq!(sent.iter().filter(|w| w.starts_with("#00Q")).count(), 0, "only the channel that moved");
+    let now = lb.now();
+    let axis = lb.link.emulator().axis(1).expect("channel 1");
+    zmotor_core::driver::Driver::advance(axis, now);
+    assert!(!axis.is_moving());
+}
+
+#[test]
+fn late_replies_are_never_taken_for_the_next_requests() {
+    // Every reply 1.1 s late, the timeout 1 s: each arrives after its request was given up.
+    let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(1100), ..Faults::default() });
+    lb.run_for(Duration::from_secs(20));
+    let events = lb.take_events();
+    assert!(!lb.controller.is_up());
+    assert!(Loopback::statuses(&events, 0).iter().all(|s| s.msta & msta::COMM_ERR != 0), "{events:?}");
+}
+
+#[test]
+fn a_stop_is_taken_while_the_link_initialises_and_owed_while_it_is_down() {
+    let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(10), ..Faults::default() });
+    lb.run_for(Duration::from_millis(5));
+    assert!(!lb.controller.is_up());
+    let start = lb.written().len();
+    lb.command(0, &DriverCommand::Stop { acceleration: 1000.0 });
+    lb.run_for(Duration::from_millis(200));
+    assert!(written_since(&lb, start).contains(&"#00Q\r".to_string()), "sent on the open link");
+    lb.set_reachable(false);
+    lb.command(0, &DriverCommand::Stop { acceleration: 1000.0 });
+    let start = lb.written().len();
+    lb.set_reachable(true);
+    lb.run_for(Duration::from_secs(2));
+    assert_eq!(written_since(&lb, start).first().map(String::as_str), Some("#00Q\r"), "the owed stop");
+}
+
+/// A protocol whose controller never initialises (its `ID?` answer is never right), though it
+/// answers polls: the link must not come up on a controller that is not what it should be.
+struct Picky;
+
+impl zmotor_controllers::Protocol for Picky {
+    fn name(&self) -> &'static str {
+        "picky"
+    }
+    fn frame(&self, buffer: &[u8]) -> Frame {
+        line_frame(buffer, b"\r")
+    }
+    fn init(&mut self, _channels: &[usize]) -> Vec<Request> {
+        vec![Request::query(&b"ID?\r"[..], Purpose::Init { item: 0 })]
+    }
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+        channels.iter().map(|&channel| Request::query(&b"P?\r"[..], Purpose::Poll { channel, item: 0 })).collect()
+    }
+    fn command(&mut self, _channel: usize, _command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+        Ok(Vec::new())
+    }
+    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+        match request.purpose {
+            Purpose::Init { .. } => Err(ReplyError::new(request, frame, "not the controller expected")),
+            Purpose::Poll { channel, .. } => Ok(vec![Event::Status {
+                channel,
+                status: DeviceStatus { msta: msta::DONE, ..DeviceStatus::default() },
+            }]),
+            _ => Ok(Vec::new()),
+        }
+    }
+}
+
+/// Answers every line with "NO" to `ID?` and "0" to anything else.
+#[derive(Default)]
+struct Answering(Vec<Vec<u8>>);
+
+impl zmotor_controllers::emulator::Emulator for Answering {
+    fn name(&self) -> &'static str {
+        "picky"
+    }
+    fn handle_input(&mut self, _now: zmotor_core::Instant, bytes: &[u8]) {
+        for line in bytes.split(|b| *b == b'\r').filter(|l| !l.is_empty()) {
+            self.0.push(if line == b"ID?" { b"NO\r".to_vec() } else { b"0\r".to_vec() });
+        }
+    }
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        (!self.0.is_empty()).then(|| self.0.remove(0))
+    }
+    fn malformed(&self) -> usize {
+        0
+    }
+    fn axis(&mut self, _channel: usize) -> Option<&mut zmotor_core::driver::sim::SimAxis> {
+        None
+    }
+    fn raise_error(&mut self, _channel: usize) -> bool {
+        false
+    }
+}
+
+#[test]
+fn a_controller_that_does_not_initialise_is_not_used() {
+    let config = ControllerConfig::for_channels(vec![0]);
+    let mut lb = Loopback::new(Box::new(Picky), Box::new(Answering::default()), config, Faults::default());
+    lb.run_for(Duration::from_secs(5));
+    assert!(!lb.controller.is_up());
+    let events = lb.take_events();
+    assert!(events.contains(&ControllerEvent::Disconnect), "dropped and opened again: {events:?}");
+    assert!(Loopback::statuses(&events, 0).iter().all(|s| s.msta & msta::COMM_ERR != 0), "{events:?}");
 }

@@ -253,3 +253,20 @@ proptest! {
         common::no_malformed_frames(MCS2, &[0, 3], &commands);
     }
 }
+
+#[test]
+fn an_error_reported_during_a_motion_shows_a_problem_but_does_not_end_it() {
+    let mut lb = loopback(MCS2, &[0], Faults::default());
+    bring_up(&mut lb);
+    // An error waits in the queue: the move's own error read reports it, before any poll has
+    // seen the stage move (the last status read says "done").
+    assert!(lb.link.emulator().raise_error(0));
+    // 100 µm at 20 µm/s: five seconds of motion.
+    lb.command(0, &go(100_000.0, false));
+    lb.run_for(Duration::from_millis(500));
+    let events = lb.take_events();
+    assert!(!controller_errors(&events).is_empty(), "the error was read: {events:?}");
+    let statuses = Loopback::statuses(&events, 0);
+    assert!(statuses.iter().any(|s| s.msta & msta::PROBLEM != 0), "{statuses:?}");
+    assert!(statuses.iter().all(|s| s.msta & msta::DONE == 0), "the motion goes on: {statuses:?}");
+}

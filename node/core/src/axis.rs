@@ -155,6 +155,8 @@ enum Device {
         status: DeviceStatus,
         /// A status arrived that the record has not been shown yet.
         reported: bool,
+        /// Motion commands sent: a status the controller read before the last of them is old.
+        motions: u64,
     },
     /// Soft Channel device support: the axis drives other keys.
     Soft(SoftChannel),
@@ -202,7 +204,7 @@ impl Axis {
     pub fn new_on_controller(fields: Fields, status: Option<DeviceStatus>, rates: PollRates, now: Instant) -> Self {
         let known = status.filter(|s| s.msta & msta::COMM_ERR == 0);
         let status = status.unwrap_or(DeviceStatus { msta: msta::DONE | msta::COMM_ERR, ..DeviceStatus::default() });
-        let device = Device::Controller { support: DeviceSupport::default(), status, reported: false };
+        let device = Device::Controller { support: DeviceSupport::default(), status, reported: false, motions: 0 };
         let mut axis = Self::assemble(MotorRecord::new(fields), device, rates, now);
         let init = axis.record.fields().init.clone();
         axis.run_primitive(&init);
@@ -213,10 +215,16 @@ impl Axis {
         axis.boot()
     }
 
-    /// What the axis's controller reported at `now` for its channel: processed as the record's
-    /// device callback (when it changed, or while a motion is open).
-    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus) {
-        if let Device::Controller { status: kept, reported, .. } = &mut self.device {
+    /// What the axis's controller reported at `now` for its channel, read after `motions`
+    /// motion commands of the axis had reached it: processed as the record's device callback
+    /// (when it changed, or while a motion is open). A status read before the axis's last motion
+    /// command reached the controller (it crossed that command on the way) is dropped: it would
+    /// end a motion that has not begun.
+    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus, motions: u64) {
+        if let Device::Controller { status: kept, reported, motions: sent, .. } = &mut self.device {
+            if motions < *sent {
+                return;
+            }
             *kept = status;
             *reported = true;
         }
@@ -524,7 +532,10 @@ impl Axis {
                 Device::Driver { driver, .. } => execute(driver.as_mut(), &command),
                 // As asyn's model 3: "not done" from the moment motion is commanded, until a
                 // poll says otherwise.
-                Device::Controller { status, .. } if command.starts_motion() => status.msta &= !msta::DONE,
+                Device::Controller { status, motions, .. } if command.starts_motion() => {
+                    *motions += 1;
+                    status.msta &= !msta::DONE;
+                }
                 Device::Controller { .. } => {}
                 Device::Soft(_) => return,
             }

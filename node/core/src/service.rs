@@ -201,9 +201,9 @@ impl<R: Clone> AxisService<R> {
         self.collect();
     }
 
-    /// What the axis's controller reported for its channel.
-    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus) {
-        self.axis.controller_status(now, status);
+    /// What the axis's controller reported for its channel, after `motions` motion commands.
+    pub fn controller_status(&mut self, now: Instant, status: DeviceStatus, motions: u64) {
+        self.axis.controller_status(now, status, motions);
         self.collect();
     }
 

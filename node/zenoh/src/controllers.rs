@@ -26,8 +26,8 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
 type Stream = Box<dyn Io>;
 type Opening = Pin<Box<dyn Future<Output = std::io::Result<Stream>> + Send>>;
 
-/// Where a controller's statuses go once its axes exist: (channel, status).
-pub(crate) type StatusSink = Box<dyn FnMut(usize, DeviceStatus) + Send>;
+/// Where a controller's statuses go once its axes exist: (channel, status, motions received).
+pub(crate) type StatusSink = Box<dyn FnMut(usize, DeviceStatus, u64) + Send>;
 
 /// What reaches a controller's runner.
 pub(crate) enum ToController {
@@ -77,6 +77,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         sink: None,
         latest: BTreeMap::new(),
         first: Some(first_in),
+        write_timeout: spec.config.timeout,
         was_up: false,
         unreachable: false,
     };
@@ -93,9 +94,11 @@ struct Runner {
     writer: Option<WriteHalf<Stream>>,
     opening: Option<Opening>,
     sink: Option<StatusSink>,
-    /// Each channel's latest status, for axes not attached yet.
-    latest: BTreeMap<usize, DeviceStatus>,
+    /// Each channel's latest status (and motions received), for axes not attached yet.
+    latest: BTreeMap<usize, (DeviceStatus, u64)>,
     first: Option<oneshot::Sender<BTreeMap<usize, DeviceStatus>>>,
+    /// How long a write may take.
+    write_timeout: std::time::Duration,
     was_up: bool,
     /// Opening the connection failed, and has not succeeded since.
     unreachable: bool,
@@ -116,8 +119,8 @@ impl Runner {
                 Some(message) = commands.recv() => match message {
                     ToController::Command { channel, command } => self.controller.command(self.now(), channel, &command),
                     ToController::Attach(mut sink) => {
-                        for (channel, status) in std::mem::take(&mut self.latest) {
-                            sink(channel, status);
+                        for (channel, (status, motions)) in std::mem::take(&mut self.latest) {
+                            sink(channel, status, motions);
                         }
                         self.sink = Some(sink);
                     }
@@ -168,8 +171,12 @@ impl Runner {
                 writer.write_all(&bytes).await?;
                 writer.flush().await
             };
-            if let Err(e) = written.await {
-                self.closed(&e.to_string());
+            // A port that takes nothing (flow control held, a stalled peer) must not stop the
+            // runner: its timeouts, reads and stops go on.
+            match tokio::time::timeout(self.write_timeout, written).await {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => self.closed(&e.to_string()),
+                Err(_) => self.closed("a write did not complete in time"),
             }
         }
         if !self.was_up && self.controller.is_up() {
@@ -191,10 +198,10 @@ impl Runner {
                 (self.reader, self.writer) = (None, None);
                 self.ready();
             }
-            ControllerEvent::Status { channel, status } => match &mut self.sink {
-                Some(sink) => sink(channel, status),
+            ControllerEvent::Status { channel, status, motions } => match &mut self.sink {
+                Some(sink) => sink(channel, status, motions),
                 None => {
-                    self.latest.insert(channel, status);
+                    self.latest.insert(channel, (status, motions));
                 }
             },
             ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
@@ -218,7 +225,11 @@ impl Runner {
     /// The axes may boot: on the statuses known so far (none if the controller was not reached).
     fn ready(&mut self) {
         if let Some(first) = self.first.take() {
-            let known = if self.controller.is_up() { self.latest.clone() } else { BTreeMap::new() };
+            let known = if self.controller.is_up() {
+                self.latest.iter().map(|(channel, (status, _))| (*channel, *status)).collect()
+            } else {
+                BTreeMap::new()
+            };
             let _ = first.send(known);
         }
     }

@@ -228,9 +228,9 @@ impl Node {
         }
         for controller in &running {
             let axes = on_controllers.remove(&controller.name).unwrap_or_default();
-            let sink = move |channel: usize, status: DeviceStatus| {
+            let sink = move |channel: usize, status: DeviceStatus, motions: u64| {
                 for (_, handle) in axes.iter().filter(|(c, _)| *c == channel) {
-                    handle.deliver(AxisInput::ControllerStatus(status));
+                    handle.deliver(AxisInput::ControllerStatus(status, motions));
                 }
             };
             let _ = controller.sender.send(ToController::Attach(Box::new(sink)));
@@ -298,8 +298,8 @@ enum AxisInput {
     Query(Query),
     SimWrite(Written),
     SimQuery(Query),
-    /// What the axis's controller reported for its channel.
-    ControllerStatus(DeviceStatus),
+    /// What the axis's controller reported for its channel, after how many motion commands.
+    ControllerStatus(DeviceStatus, u64),
 }
 
 /// A plain write to one key of an axis: the field (or simulator setting) named, the payload.
@@ -570,7 +570,7 @@ impl AxisCore {
                 };
                 self.service.sim_read(now, selects, query);
             }
-            AxisInput::ControllerStatus(status) => self.service.controller_status(now, status),
+            AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
         }
         self.flush();
     }

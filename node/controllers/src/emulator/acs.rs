@@ -40,7 +40,7 @@ impl Mcb4bEmulator {
         let rest = line.strip_prefix('#').filter(|rest| rest.len() >= 3 && rest.is_char_boundary(2))?;
         let (number, rest) = rest.split_at(2);
         let n = number.parse::<usize>().ok().filter(|n| *n < self.axes.len())?;
-        let (letter, argument) = rest.split_at(1);
+        let (letter, argument) = rest.split_at(rest.chars().next()?.len_utf8());
         let value = || argument.strip_prefix('=').unwrap_or(argument).parse::<i64>().ok();
         let (speed, accel) = (speed_of_index(self.speed[n]), acceleration_of_index(self.ramp[n]));
         let axis = &mut self.axes[n];
@@ -69,7 +69,7 @@ impl Mcb4bEmulator {
             ("I", _) if argument.starts_with(['+', '-']) => {
                 let distance = value()?;
                 // A million steps is how the driver jogs: run at speed until stopped.
-                match (self.power[n], distance.abs() == i64::from(JOG_STEPS)) {
+                match (self.power[n], distance.unsigned_abs() == u64::from(JOG_STEPS.unsigned_abs())) {
                     (false, _) => {}
                     (true, true) => axis.move_velocity(0.0, speed * distance.signum() as f64, accel),
                     (true, false) => axis.move_to(distance as f64, true, 0.0, speed, accel),
@@ -122,5 +122,20 @@ impl Emulator for Mcb4bEmulator {
     fn raise_error(&mut self, _channel: usize) -> bool {
         // The MCB-4B reports no errors: a command it does not take is answered like any other.
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::emulator::stage;
+
+    #[test]
+    fn garbage_from_a_client_is_refused_never_a_panic() {
+        let mut e = Mcb4bEmulator::new(2, &stage());
+        e.handle_input(Instant::ZERO, b"#01\xc3\xa9\r#01I-9223372036854775808\r#9\r\xff\r");
+        let replies: Vec<Vec<u8>> = std::iter::from_fn(|| e.poll_transmit()).collect();
+        assert_eq!(replies.len(), 4);
+        assert_eq!(e.malformed(), 3, "the huge relative move is a move; the rest are not commands");
     }
 }
