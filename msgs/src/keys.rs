@@ -88,6 +88,11 @@ impl KeyLayout {
         format!("{}/{axis}/{pattern}", self.prefix)
     }
 
+    /// `<prefix>/<axis>/@hold/<client>`: the liveliness token a client holds a motion by.
+    pub fn hold(&self, axis: &str, client: &str) -> String {
+        format!("{}/{axis}/@hold/{client}", self.prefix)
+    }
+
     /// `<prefix>/<axis>/<FIELD>?wait`: the selector of a put-with-completion.
     pub fn completion(&self, axis: &str, field: Field) -> String {
         format!("{}?{WAIT_PARAMETER}", self.field(axis, field))

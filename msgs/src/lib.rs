@@ -16,4 +16,4 @@ pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS, UNM
 pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, MalformedPayload, PayloadEncoding};
 pub use keys::{KeyLayout, LinkKeyError};
 pub use value::Value;
-pub use wire::{Completion, DriverCommand, DriverTrace, Gain, SimState, StateMarker};
+pub use wire::{Completion, DriverCommand, DriverTrace, Gain, Hold, SimState, StateMarker};

@@ -3,7 +3,7 @@
 
 use crate::catalogue::{Kind, FIELDS};
 use crate::value::Value;
-use crate::wire::{Completion, DriverTrace, SimState, StateMarker};
+use crate::wire::{Completion, DriverTrace, Hold, SimState, StateMarker};
 
 /// (file name, schema) for every message type on the wire.
 pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
@@ -13,6 +13,7 @@ pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
     vec![
         ("field-value.schema.json", json::<Value>()),
         ("state-marker.schema.json", json::<StateMarker>()),
+        ("hold.schema.json", json::<Hold>()),
         ("driver-command.schema.json", json::<DriverTrace>()),
         ("sim-state.schema.json", json::<SimState>()),
         ("completion.schema.json", json::<Completion>()),

@@ -46,6 +46,41 @@ impl StateMarker {
     }
 }
 
+/// Attachment of a write that holds what it starts (the jog deadman, "hold to move"): the
+/// motion lasts only while the liveliness token `token` lives. The client declares the token
+/// (by convention `<prefix>/<axis>/@hold/<client>`, see `KeyLayout::hold`) before it writes;
+/// when the token goes (the client stopped, crashed, or was cut off), a jog ends as JOGF/JOGR =
+/// 0 would end it, any other motion as STOP.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Hold {
+    /// Always "hold".
+    pub kind: String,
+    /// The key of the client's liveliness token.
+    pub token: String,
+}
+
+impl Hold {
+    /// The `kind` every hold carries.
+    pub const KIND: &'static str = "hold";
+
+    /// A hold on the liveliness token `token`.
+    pub fn new(token: &str) -> Self {
+        Self { kind: Self::KIND.to_string(), token: token.to_string() }
+    }
+
+    /// The hold as CBOR, the bytes of the attachment.
+    pub fn encode(&self) -> Vec<u8> {
+        crate::codec::encode_cbor(self)
+    }
+
+    /// The hold an attachment carries, if it is one (CBOR, or the same map as JSON).
+    pub fn decode(attachment: &[u8]) -> Option<Self> {
+        let hold =
+            ciborium::from_reader::<Self, _>(attachment).ok().or_else(|| serde_json::from_slice(attachment).ok());
+        hold.filter(|h| h.kind == Self::KIND)
+    }
+}
+
 /// Which PID gain a `set_gain` command sets.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, JsonSchema)]
 #[serde(rename_all = "snake_case")]
@@ -215,6 +250,15 @@ pub struct SimState {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_hold_round_trips_in_cbor_and_reads_from_json() {
+        let hold = Hold::new("motor/m1/@hold/abc");
+        assert_eq!(Hold::decode(&hold.encode()), Some(hold.clone()));
+        assert_eq!(Hold::decode(br#"{"kind":"hold","token":"motor/m1/@hold/abc"}"#), Some(hold));
+        assert_eq!(Hold::decode(&StateMarker::new(1, 0, 0).encode()), None, "a marker is no hold");
+        assert_eq!(Hold::decode(b"1"), None);
+    }
 
     #[test]
     fn state_marker_round_trips_and_plain_payloads_are_not_markers() {

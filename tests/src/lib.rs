@@ -35,6 +35,7 @@ pub fn fast_axis(name: &str) -> AxisPlan {
             ..SimConfig::default()
         }),
         rates: PollRates { moving: Duration::from_millis(20), idle: Duration::from_secs(1) },
+        jog_hold: zmotor_core::service::JogHold::Optional,
     }
 }
 

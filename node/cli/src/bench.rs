@@ -11,6 +11,7 @@ use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 use zmotor_core::axis::{AxisEvent, AxisPlan, DriverPlan, PollRates};
 use zmotor_core::driver::sim::SimConfig;
+use zmotor_core::service::JogHold;
 use zmotor_msgs::codec::{decode_cbor_value, encode_cbor};
 use zmotor_msgs::wire::StateMarker;
 use zmotor_msgs::{Field, Fields, KeyLayout, Value};
@@ -198,6 +199,7 @@ fn bench_axes(n: usize, rate: f64) -> Vec<AxisPlan> {
             fields: Fields { mres: 0.001, velo: 10.0, accl: 0.1, ..Fields::default() },
             driver: DriverPlan::Sim(SimConfig::default()),
             rates: PollRates { moving: Duration::from_secs_f64(1.0 / rate), idle: Duration::from_secs(1) },
+            jog_hold: JogHold::Optional,
         })
         .collect()
 }

@@ -118,6 +118,16 @@ enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
+    /// Jog an axis while this runs: it stops at Ctrl-C, and also if this process dies or is cut
+    /// off (the jog is held by this process's liveliness token: the jog deadman).
+    Jog {
+        axis: String,
+        /// `+` (JOGF) or `-` (JOGR).
+        #[arg(allow_hyphen_values = true, value_parser = ["+", "-"])]
+        direction: String,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
     /// Print field changes as they are published (all fields when none is named).
     Monitor {
         axis: String,
@@ -184,7 +194,8 @@ async fn main() -> ExitCode {
     let command = Cli::parse().command;
     // A client command says what went wrong in one line of its own; Zenoh's logs (with its
     // source paths) only when RUST_LOG asks for them. A node logs Zenoh's warnings.
-    let quiet_zenoh = matches!(command, Command::Get { .. } | Command::Put { .. } | Command::Monitor { .. });
+    let quiet_zenoh =
+        matches!(command, Command::Get { .. } | Command::Put { .. } | Command::Monitor { .. } | Command::Jog { .. });
     let default_filter = if quiet_zenoh { "info,zenoh=off" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -223,6 +234,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             put(&client, &axis, &field, &value, wait, timeout).await
         }
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
+        Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
         Command::Bench { smoke, moves, scales, moving_up_to, parts } => {
             let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
@@ -490,6 +502,64 @@ async fn put(
     };
     session.close().await?;
     Ok(code)
+}
+
+/// Jog `axis` under a hold until Ctrl-C (or SIGTERM), or until the jog ends by itself (a limit).
+async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode, Error> {
+    let session = connect(&client.connect).await?;
+    let layout = KeyLayout::new(&client.prefix);
+    let button = if forward { Field::JOGF } else { Field::JOGR };
+    let token = layout.hold(axis, &session.zid().to_string());
+    let _token = session.liveliness().declare_token(&token).await?;
+    let dmov = session.declare_subscriber(layout.field(axis, Field::DMOV)).await?;
+    let write = |value: &'static str| {
+        session
+            .get(layout.field(axis, button))
+            .payload(value)
+            .encoding(Encoding::TEXT_PLAIN)
+            .attachment(zmotor_msgs::Hold::new(&token).encode())
+            .timeout(Duration::from_secs(5))
+    };
+    let started = write("1").await?.recv_async().await;
+    match started.map(zenoh::query::Reply::into_result) {
+        Ok(Ok(_)) => eprintln!("jogging {axis} {}; Ctrl-C to stop", if forward { "forward" } else { "in reverse" }),
+        Ok(Err(err)) => return Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned().into()),
+        Err(_) => return Err(format!("no axis {axis} answers at {}", client.connect).into()),
+    }
+    let interrupted = interrupted();
+    tokio::pin!(interrupted);
+    loop {
+        tokio::select! {
+            result = &mut interrupted => {
+                result?;
+                break;
+            }
+            sample = dmov.recv_async() => match sample.map(|s| decode_cbor_value(&s.payload().to_bytes())) {
+                Ok(Ok(zmotor_msgs::Value::Int(1))) => {
+                    eprintln!("the jog ended by itself (a limit, or someone stopped it)");
+                    break;
+                }
+                Ok(_) => {}
+                Err(_) => break,
+            },
+        }
+    }
+    let _ = write("0").await?.recv_async().await;
+    // The jog decelerates (and takes out its backlash) before it is over.
+    let settled = async {
+        while let Ok(sample) = dmov.recv_async().await {
+            if decode_cbor_value(&sample.payload().to_bytes()) == Ok(zmotor_msgs::Value::Int(1)) {
+                return;
+            }
+        }
+    };
+    let _ = tokio::time::timeout(Duration::from_secs(30), settled).await;
+    let replies = session.get(layout.field(axis, Field::RBV)).timeout(Duration::from_secs(5)).await?;
+    if let Ok(Ok(sample)) = replies.recv_async().await.map(zenoh::query::Reply::into_result) {
+        println!("{}", show(&sample.payload().to_bytes()));
+    }
+    session.close().await?;
+    Ok(ExitCode::SUCCESS)
 }
 
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {

@@ -4,124 +4,13 @@
 //! across network namespaces (a router, two axis hosts and a client, each with its own address).
 //! Endpoints are on 127.0.0.1 (or on the namespaces' private link); waits are bounded polls.
 
-use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+mod common;
+
+use common::{repo_file, slow_stage, Host, Namespaces, Running, PATIENCE};
+use std::path::Path;
+use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 use zmotor_zenoh::free_local_endpoint;
-
-const PATIENCE: Duration = Duration::from_secs(15);
-
-/// Where a process runs: this host, or inside a network namespace.
-#[derive(Clone, Default)]
-struct Host {
-    netns: Option<String>,
-}
-
-impl Host {
-    fn zmotor(&self, args: &[&str]) -> Command {
-        let mut command = match &self.netns {
-            Some(ns) => {
-                let mut c = Command::new("ip");
-                c.args(["netns", "exec", ns, env!("CARGO_BIN_EXE_zmotor")]);
-                c
-            }
-            None => Command::new(env!("CARGO_BIN_EXE_zmotor")),
-        };
-        command.args(args).env("RUST_LOG", "warn");
-        command
-    }
-
-    /// A long-running `zmotor` (launch, router), killed when dropped.
-    fn spawn(&self, args: &[&str], state_dir: &Path) -> Running {
-        let child = self
-            .zmotor(args)
-            .env("ZMOTOR_STATE_DIR", state_dir)
-            .stdout(Stdio::null())
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        Running(Some(child))
-    }
-
-    fn run(&self, args: &[&str]) -> Output {
-        self.zmotor(args).output().unwrap()
-    }
-
-    /// A field's value, or None while the axis does not answer.
-    fn get(&self, endpoint: &str, axis: &str, field: &str) -> Option<f64> {
-        let output = self.run(&["get", axis, field, "--connect", endpoint]);
-        String::from_utf8_lossy(&output.stdout).trim().parse().ok()
-    }
-
-    /// A field's value: the first answer (a loaded host may need a second get); panics after
-    /// PATIENCE.
-    fn answer(&self, endpoint: &str, axis: &str, field: &str) -> f64 {
-        self.wait_for(endpoint, axis, field, |_| true)
-    }
-
-    /// Poll a field until `accept` holds; panics after PATIENCE.
-    fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
-        let deadline = Instant::now() + PATIENCE;
-        let mut last = None;
-        while Instant::now() < deadline {
-            last = self.get(endpoint, axis, field);
-            if let Some(value) = last.filter(|v| accept(*v)) {
-                return value;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        panic!("{axis}.{field} never as expected within {PATIENCE:?}; last {last:?}");
-    }
-
-    /// A confirmed write; Ok(the node's answer) or Err(its refusal).
-    fn put(&self, endpoint: &str, axis: &str, field: &str, value: &str, wait: bool) -> Result<String, String> {
-        let mut args = vec!["put", axis, field, value, "--connect", endpoint, "--timeout", "30"];
-        if wait {
-            args.push("--wait");
-        }
-        let output = self.run(&args);
-        if output.status.success() {
-            Ok(String::from_utf8_lossy(&output.stdout).trim().to_string())
-        } else {
-            Err(String::from_utf8_lossy(&output.stderr).trim().to_string())
-        }
-    }
-}
-
-struct Running(Option<Child>);
-
-impl Running {
-    fn pid(&self) -> u32 {
-        self.0.as_ref().unwrap().id()
-    }
-
-    /// SIGTERM, then the exit status and what the process logged.
-    fn terminate(mut self) -> (std::process::ExitStatus, String) {
-        Command::new("kill").args(["-TERM", &self.pid().to_string()]).status().unwrap();
-        let output = self.0.take().unwrap().wait_with_output().unwrap();
-        (output.status, String::from_utf8_lossy(&output.stderr).into_owned())
-    }
-
-    /// SIGKILL: no chance to save anything.
-    fn kill(mut self) {
-        let mut child = self.0.take().unwrap();
-        child.kill().unwrap();
-        child.wait().unwrap();
-    }
-}
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        if let Some(mut child) = self.0.take() {
-            let _ = child.kill();
-            let _ = child.wait();
-        }
-    }
-}
-
-fn repo_file(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
-}
 
 /// The saved position of an axis, read from its autosave file.
 fn saved_dval(state_dir: &Path, axis: &str) -> f64 {
@@ -147,14 +36,6 @@ fn the_seed_database_is_launched_moved_and_shut_down_cleanly() {
     assert!(log.contains("OMS VME58"), "the simulated hardware is named in a warning: {log}");
     assert!((saved_dval(state.path(), "db:rotary") - 10.0).abs() < 0.01);
     assert!((saved_dval(state.path(), "db:linear") - 176.327).abs() < 0.01);
-}
-
-/// A slow stage (1 mm/s), its restore mode and autosave delay as given.
-fn slow_stage(rstm: &str, delay: f64) -> String {
-    format!(
-        "[autosave]\ndelay = {delay}\n[[axis]]\nname = \"m1\"\n[axis.fields]\n\
-         MRES = 0.001\nVELO = 1\nACCL = 0.1\nDHLM = 100\nDLLM = -100\nRSTM = \"{rstm}\"\n"
-    )
 }
 
 #[test]
@@ -222,61 +103,6 @@ fn a_node_killed_mid_move_restarts_from_its_saved_state_under_each_restore_mode(
         // move's target, as autosave keeps it) is loaded into it.
         let expected = if *mode == "Never" { 0.0 } else { 40.0 };
         assert_eq!(rbv, expected, "RSTM {mode}");
-    }
-}
-
-/// Network namespaces joined by veth pairs to a bridge in a namespace of their own, removed
-/// when dropped. None where namespaces cannot be made (not root, no CAP_NET_ADMIN, no `ip`).
-struct Namespaces {
-    names: Vec<String>,
-}
-
-impl Namespaces {
-    fn create(hosts: &[(&str, &str)]) -> Option<Self> {
-        let tag = std::process::id() % 100_000;
-        let switch = format!("zms{tag}");
-        let mut made = Self { names: vec![switch.clone()] };
-        let ip = |args: &[&str]| Command::new("ip").args(args).output().is_ok_and(|o| o.status.success());
-        if !ip(&["netns", "add", &switch]) {
-            made.names.clear();
-            return None;
-        }
-        let in_switch = |args: &[&str]| ip(&[&["netns", "exec", &switch, "ip"], args].concat());
-        if !(in_switch(&["link", "add", "br0", "type", "bridge"]) && in_switch(&["link", "set", "br0", "up"])) {
-            return None;
-        }
-        for (index, (name, address)) in hosts.iter().enumerate() {
-            let ns = format!("{name}{tag}");
-            let (inside, outside) = (format!("zmi{tag}x{index}"), format!("zmo{tag}x{index}"));
-            if !ip(&["netns", "add", &ns]) {
-                return None;
-            }
-            made.names.push(ns.clone());
-            let in_ns = |args: &[&str]| ip(&[&["netns", "exec", &ns, "ip"], args].concat());
-            let ok =
-                ip(&["link", "add", &inside, "netns", &ns, "type", "veth", "peer", "name", &outside, "netns", &switch])
-                    && in_switch(&["link", "set", &outside, "master", "br0"])
-                    && in_switch(&["link", "set", &outside, "up"])
-                    && in_ns(&["addr", "add", &format!("{address}/24"), "dev", &inside])
-                    && in_ns(&["link", "set", &inside, "up"])
-                    && in_ns(&["link", "set", "lo", "up"]);
-            if !ok {
-                return None;
-            }
-        }
-        Some(made)
-    }
-
-    fn host(&self, index: usize) -> Host {
-        Host { netns: Some(self.names[index + 1].clone()) }
-    }
-}
-
-impl Drop for Namespaces {
-    fn drop(&mut self) {
-        for name in &self.names {
-            let _ = Command::new("ip").args(["netns", "del", name]).output();
-        }
     }
 }
 

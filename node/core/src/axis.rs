@@ -100,6 +100,8 @@ pub struct AxisPlan {
     pub driver: DriverPlan,
     /// Status poll periods.
     pub rates: PollRates,
+    /// Whether it jogs only under a hold (the jog deadman).
+    pub jog_hold: crate::service::JogHold,
 }
 
 /// What drives an axis.

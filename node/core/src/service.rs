@@ -12,9 +12,10 @@ use crate::driver::soft::InputLink;
 use crate::engine::{DeviceStatus, WriteError};
 use crate::time::Instant;
 use std::collections::VecDeque;
+use zmotor_msgs::keys::PlainKeyError;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
-    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, KeyLayout, Kind,
+    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout, Kind,
     LinkKeyError, MalformedPayload, PayloadEncoding, SimState, StateMarker, Value,
 };
 
@@ -57,6 +58,20 @@ pub enum RequestError {
     /// The axis has no simulator.
     #[error("{0}: this axis is not simulated")]
     NotSimulated(String),
+    /// A jog without a hold on an axis that jogs only under one (the jog deadman).
+    #[error(
+        "{0}: this axis jogs only under a hold (the jog deadman): attach {{kind: \"hold\", token: <your \
+         liveliness token>}} to the write (README: Holding a motion)"
+    )]
+    HoldRequired(Field),
+    /// A hold whose token is not a key a liveliness token can have.
+    #[error("{field}: the hold's token: {source}")]
+    HoldToken {
+        /// The field written.
+        field: Field,
+        /// Why the token is no plain key.
+        source: PlainKeyError,
+    },
     /// A link field was given a key it cannot be wired to.
     #[error("{field}: {source}")]
     Link {
@@ -124,6 +139,17 @@ pub enum ServiceOutput<R> {
         /// Its new key.
         key: String,
     },
+    /// A motion is held by the liveliness token `token`: watch it, and call
+    /// `AxisService::hold_released` when it goes (or is not there).
+    WatchHold {
+        /// The token's key.
+        token: String,
+    },
+    /// Nothing is held by `token` any more: stop watching it.
+    ForgetHold {
+        /// The token's key.
+        token: String,
+    },
     /// A plain write of `value` (text) to another key: an output link or a directive.
     Put {
         /// The key written to.
@@ -131,6 +157,58 @@ pub enum ServiceOutput<R> {
         /// The value, as text.
         value: String,
     },
+}
+
+/// A write as it arrives: the field's name, the payload and its encoding, and the hold that
+/// the writer holds what it starts by, if any.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WriteRequest<'a> {
+    /// The field's name, as the key spells it.
+    pub name: &'a str,
+    /// The payload.
+    pub payload: &'a [u8],
+    /// How it is encoded.
+    pub encoding: PayloadEncoding,
+    /// The write's hold (its attachment), if it has one.
+    pub hold: Option<Hold>,
+}
+
+impl<'a> WriteRequest<'a> {
+    /// A write without a hold.
+    pub fn new(name: &'a str, payload: &'a [u8], encoding: PayloadEncoding) -> Self {
+        Self { name, payload, encoding, hold: None }
+    }
+
+    /// The same write, held by `hold`.
+    pub fn held(self, hold: Option<Hold>) -> Self {
+        Self { hold, ..self }
+    }
+}
+
+/// Whether an axis jogs only under a hold (the jog deadman).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum JogHold {
+    /// A plain JOGF/JOGR = 1 is taken, as the record takes it (with a warning, once).
+    #[default]
+    Optional,
+    /// A JOGF/JOGR = 1 without a hold is refused.
+    Required,
+}
+
+/// How a held motion ends when its hold goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Release {
+    /// As JOGF or JOGR = 0 would end it (with its backlash).
+    Unjog(Field),
+    /// As STOP would.
+    Stop,
+}
+
+/// A motion under way that lasts only while `token` lives.
+#[derive(Clone, Debug, PartialEq)]
+struct Held {
+    token: String,
+    release: Release,
 }
 
 /// A `?wait` write waiting for the end of its motion.
@@ -151,6 +229,11 @@ pub struct AxisService<R> {
     outputs: VecDeque<ServiceOutput<R>>,
     /// A field autosave keeps changed since `take_unsaved_change`.
     unsaved: bool,
+    jog_hold: JogHold,
+    /// Motions under way that their writers hold.
+    held: Vec<Held>,
+    /// A plain jog has been warned about.
+    warned_unheld_jog: bool,
 }
 
 impl<R: Clone> AxisService<R> {
@@ -167,7 +250,40 @@ impl<R: Clone> AxisService<R> {
             outputs: VecDeque::new(),
             // Boot may have changed the position (RSTM): the saved state follows what is.
             unsaved: true,
+            jog_hold: JogHold::Optional,
+            held: Vec::new(),
+            warned_unheld_jog: false,
         }
+    }
+
+    /// The same service, jogging only under a hold if `rule` says so.
+    pub fn with_jog_hold(self, rule: JogHold) -> Self {
+        Self { jog_hold: rule, ..self }
+    }
+
+    /// The liveliness token `token` went (or was never there): whatever it held ends, a jog as
+    /// JOGF/JOGR = 0 would end it, another motion as STOP.
+    pub fn hold_released(&mut self, now: Instant, token: &str) {
+        let (released, kept): (Vec<Held>, Vec<Held>) = self.held.drain(..).partition(|h| h.token == token);
+        self.held = kept;
+        if !released.is_empty() {
+            self.outputs.push_back(ServiceOutput::ForgetHold { token: token.to_string() });
+        }
+        for held in released {
+            let f = self.axis.fields();
+            let ending = match held.release {
+                Release::Unjog(field) if f.get(field) != Value::Int(0) => Some((field, Value::Int(0))),
+                Release::Stop if f.dmov == 0 => Some((Field::STOP, Value::Int(1))),
+                _ => None,
+            };
+            if let Some((field, value)) = ending {
+                tracing::warn!(axis = %self.name, token, "the hold went: {field} = {value}");
+                if let Err(e) = self.axis.write(now, field, &value) {
+                    tracing::error!(axis = %self.name, "the end of a released hold was refused: {e}");
+                }
+            }
+        }
+        self.collect();
     }
 
     /// The axis's name (its key chunk).
@@ -218,9 +334,10 @@ impl<R: Clone> AxisService<R> {
         std::mem::take(&mut self.unsaved)
     }
 
-    /// A plain put to the field named `name`: applied, or refused with the reason on ERR.
-    pub fn put(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding) {
-        if let Err(refusal) = self.apply(now, name, payload, encoding) {
+    /// A plain put: applied, or refused with the reason on ERR.
+    pub fn put(&mut self, now: Instant, request: WriteRequest) {
+        let name = request.name;
+        if let Err(refusal) = self.apply(now, request) {
             tracing::warn!(axis = %self.name, field = name, "write refused: {refusal}");
             self.refuse(&refusal);
         }
@@ -230,8 +347,9 @@ impl<R: Clone> AxisService<R> {
     /// A confirmed write to the field named `name`: answered with the field's new value, or,
     /// with `wait`, with the `Completion` once the motion the write started has finished; a
     /// refusal is answered (and reported on ERR) with the reason.
-    pub fn write(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding, wait: bool, to: R) {
-        match self.apply(now, name, payload, encoding) {
+    pub fn write(&mut self, now: Instant, request: WriteRequest, wait: bool, to: R) {
+        let name = request.name;
+        match self.apply(now, request) {
             Err(refusal) => {
                 tracing::warn!(axis = %self.name, field = name, "confirmed write refused: {refusal}");
                 self.refuse(&refusal);
@@ -325,15 +443,21 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// Decode and apply one write.
-    fn apply(
-        &mut self,
-        now: Instant,
-        name: &str,
-        payload: &[u8],
-        encoding: PayloadEncoding,
-    ) -> Result<(Field, WriteAccepted), RequestError> {
-        let field = field_named(name)?;
-        let value = zmotor_msgs::decode_write(field.def(), payload, encoding)?;
+    fn apply(&mut self, now: Instant, request: WriteRequest) -> Result<(Field, WriteAccepted), RequestError> {
+        let field = field_named(request.name)?;
+        let value = zmotor_msgs::decode_write(field.def(), request.payload, request.encoding)?;
+        let starts_jog = matches!(field, Field::JOGF | Field::JOGR) && value != Value::Int(0);
+        match &request.hold {
+            Some(hold) => {
+                keys::validate_plain_key(&hold.token).map_err(|source| RequestError::HoldToken { field, source })?
+            }
+            None if starts_jog && self.jog_hold == JogHold::Required => return Err(RequestError::HoldRequired(field)),
+            None if starts_jog && !std::mem::replace(&mut self.warned_unheld_jog, true) => tracing::warn!(
+                axis = %self.name,
+                "a jog without a hold keeps running if its client vanishes (README: Holding a motion); said once"
+            ),
+            None => {}
+        }
         let key = match &value {
             Value::Text(key) if field.def().kind == Kind::Link => Some(key.clone()),
             _ => None,
@@ -346,10 +470,21 @@ impl<R: Clone> AxisService<R> {
         }
         let accepted = self.axis.write(now, field, &value)?;
         self.unsaved |= field.autosave().is_some();
+        if let Some(hold) = request.hold.filter(|_| self.axis.fields().dmov == 0) {
+            self.hold(hold.token, if starts_jog { Release::Unjog(field) } else { Release::Stop });
+        }
         if let (Some(link), Some(key)) = (InputLink::of(field), key) {
             self.outputs.push_back(ServiceOutput::Follow { link, key });
         }
         Ok((field, accepted))
+    }
+
+    /// A motion under way is held by `token`.
+    fn hold(&mut self, token: String, release: Release) {
+        if !self.held.iter().any(|h| h.token == token) {
+            self.outputs.push_back(ServiceOutput::WatchHold { token: token.clone() });
+        }
+        self.held.push(Held { token, release });
     }
 
     fn refuse(&mut self, refusal: &RequestError) {
@@ -399,6 +534,12 @@ impl<R: Clone> AxisService<R> {
                 }
                 AxisEvent::Put { key, value } => self.outputs.push_back(ServiceOutput::Put { key, value }),
                 AxisEvent::Done(done) => {
+                    // The motion is over: what held it holds nothing now.
+                    let mut tokens: Vec<String> = self.held.drain(..).map(|h| h.token).collect();
+                    tokens.dedup();
+                    for token in tokens {
+                        self.outputs.push_back(ServiceOutput::ForgetHold { token });
+                    }
                     let (ended, waiting) = std::mem::take(&mut self.waiting)
                         .into_iter()
                         .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
@@ -492,14 +633,14 @@ mod tests {
     #[test]
     fn a_confirmed_write_is_answered_with_the_value_it_left() {
         let mut s = service();
-        s.write(at(0.0), "VELO", b"5", Text, false, 1);
+        s.write(at(0.0), WriteRequest::new("VELO", b"5", Text), false, 1);
         assert_eq!(replies(&drain(&mut s)), vec![(1, Reply::Value(Field::VELO, Value::Float(5.0)))]);
     }
 
     #[test]
     fn a_wait_write_is_answered_when_its_motion_ends_and_not_before() {
         let mut s = service();
-        s.write(at(0.0), "VAL", b"1", Text, true, 7);
+        s.write(at(0.0), WriteRequest::new("VAL", b"1", Text), true, 7);
         let first = drain(&mut s);
         assert!(replies(&first).is_empty(), "answered before the motion: {first:?}");
         assert_eq!(published(&first, Field::DMOV), vec![Value::Int(0)]);
@@ -519,7 +660,7 @@ mod tests {
     #[test]
     fn a_wait_write_that_moves_nothing_is_answered_at_once() {
         let mut s = service();
-        s.write(at(0.0), "VELO", b"4", Text, true, 3);
+        s.write(at(0.0), WriteRequest::new("VELO", b"4", Text), true, 3);
         let answers = replies(&drain(&mut s));
         assert!(matches!(&answers[..], [(3, Reply::Completion(Field::VELO, c))] if c.dmov == 1), "{answers:?}");
     }
@@ -527,11 +668,11 @@ mod tests {
     #[test]
     fn a_wait_is_not_answered_by_the_end_of_the_motion_before_it() {
         let mut s = service();
-        s.write(at(0.0), "VAL", b"1", Text, false, 1);
+        s.write(at(0.0), WriteRequest::new("VAL", b"1", Text), false, 1);
         drain(&mut s);
         // Written when the first move has ended on the simulator but before any poll saw it:
         // the processing that notices the end comes first and must not answer this write.
-        s.write(at(5.0), "VAL", b"2", Text, true, 2);
+        s.write(at(5.0), WriteRequest::new("VAL", b"2", Text), true, 2);
         let outputs = drain(&mut s);
         assert_eq!(published(&outputs, Field::DMOV), vec![Value::Int(1), Value::Int(0)]);
         assert!(replies(&outputs).iter().all(|(to, _)| *to == 1), "{outputs:?}");
@@ -542,10 +683,10 @@ mod tests {
     #[test]
     fn refusals_are_answered_and_reported_on_err_and_change_nothing() {
         let mut s = service();
-        s.write(at(0.0), "RBV", b"3", Text, false, 1);
-        s.write(at(0.0), "NOPE", b"3", Text, false, 2);
-        s.write(at(0.0), "VAL", b"ten", Text, true, 3);
-        s.put(at(0.0), "VAL", b"NaN", Text);
+        s.write(at(0.0), WriteRequest::new("RBV", b"3", Text), false, 1);
+        s.write(at(0.0), WriteRequest::new("NOPE", b"3", Text), false, 2);
+        s.write(at(0.0), WriteRequest::new("VAL", b"ten", Text), true, 3);
+        s.put(at(0.0), WriteRequest::new("VAL", b"NaN", Text));
         let outputs = drain(&mut s);
         let messages: Vec<String> = replies(&outputs)
             .into_iter()
@@ -565,7 +706,7 @@ mod tests {
     #[test]
     fn a_limit_violation_is_a_refusal_of_the_write() {
         let mut s = service();
-        s.write(at(0.0), "VAL", b"500", Text, true, 1);
+        s.write(at(0.0), WriteRequest::new("VAL", b"500", Text), true, 1);
         let outputs = drain(&mut s);
         let answers = replies(&outputs);
         let [(1, Reply::Refused(RequestError::Record(WriteError::NotActedUpon { reason, .. })))] = &answers[..] else {
@@ -578,8 +719,8 @@ mod tests {
     #[test]
     fn field_names_are_exact_and_the_wrong_case_is_refused_naming_the_field() {
         let mut s = service();
-        s.put(at(0.0), "val", b"5", Text);
-        s.write(at(0.0), "Val", b"5", Text, false, 1);
+        s.put(at(0.0), WriteRequest::new("val", b"5", Text));
+        s.write(at(0.0), WriteRequest::new("Val", b"5", Text), false, 1);
         s.read("rbv", 2);
         let outputs = drain(&mut s);
         assert_eq!(
@@ -614,7 +755,7 @@ mod tests {
     #[test]
     fn publications_carry_growing_sequence_numbers_and_the_alarm() {
         let mut s = service();
-        s.put(at(0.0), "VAL", b"1", Text);
+        s.put(at(0.0), WriteRequest::new("VAL", b"1", Text));
         let seqs: Vec<u64> = drain(&mut s)
             .iter()
             .filter_map(|o| match o {
@@ -628,7 +769,7 @@ mod tests {
     #[test]
     fn a_link_written_at_run_time_is_followed_and_a_bad_one_refused_naming_the_field() {
         let mut s = service();
-        s.write(at(0.0), "DOL", b"lab/setpoint", Text, false, 1);
+        s.write(at(0.0), WriteRequest::new("DOL", b"lab/setpoint", Text), false, 1);
         let outputs = drain(&mut s);
         let follows: Vec<&ServiceOutput<u32>> =
             outputs.iter().filter(|o| matches!(o, ServiceOutput::Follow { .. })).collect();
@@ -640,7 +781,7 @@ mod tests {
             ("OUT", "motor/m2/RBV", "OUT: motor/m2/RBV: RBV is read-only"),
             ("DINP", "motor/m2/DONE", "DINP: motor/m2/DONE: 'DONE' is not a field of a motor"),
         ] {
-            s.write(at(0.0), field, key.as_bytes(), Text, false, 2);
+            s.write(at(0.0), WriteRequest::new(field, key.as_bytes(), Text), false, 2);
             let answers = replies(&drain(&mut s));
             let [(2, Reply::Refused(refusal))] = &answers[..] else { panic!("{answers:?}") };
             assert!(refusal.to_string().starts_with(why), "{refusal}");
@@ -649,7 +790,7 @@ mod tests {
             (s.fields().rdbl.as_str(), s.fields().out.as_str(), s.fields().dol.as_str()),
             ("", "", "lab/setpoint")
         );
-        s.write(at(0.0), "DOL", b"", Text, false, 3);
+        s.write(at(0.0), WriteRequest::new("DOL", b"", Text), false, 3);
         let unlinked = drain(&mut s);
         assert!(unlinked.contains(&ServiceOutput::Follow { link: InputLink::Desired, key: String::new() }));
     }
@@ -670,5 +811,82 @@ mod tests {
         let answers = replies(&drain(&mut s));
         assert!(matches!(&answers[0], (9, Reply::SimState(state)) if state.position == 2500.0), "{answers:?}");
         assert_eq!(answers[1], (9, Reply::SimSetting(SimSetting::Fraction, Value::Float(1.0))));
+    }
+
+    const TOKEN: &str = "motor/m1/@hold/client-1";
+
+    fn held(name: &'static str, payload: &'static [u8]) -> WriteRequest<'static> {
+        WriteRequest::new(name, payload, Text).held(Some(Hold::new(TOKEN)))
+    }
+
+    fn watched(outputs: &[ServiceOutput<u32>]) -> Vec<&str> {
+        outputs
+            .iter()
+            .filter_map(|o| match o {
+                ServiceOutput::WatchHold { token } => Some(token.as_str()),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Run virtual time until the axis is at rest (or 30 s); the outputs on the way.
+    fn until_rest(s: &mut Service, from: f64) -> Vec<ServiceOutput<u32>> {
+        let mut outputs = Vec::new();
+        let mut now = from;
+        while s.fields().dmov == 0 && now < from + 30.0 {
+            now += 0.01;
+            s.handle_timeout(at(now));
+            outputs.extend(drain(s));
+        }
+        outputs
+    }
+
+    #[test]
+    fn a_held_jog_ends_as_a_release_of_the_button_when_its_token_goes() {
+        let mut s = service();
+        s.write(at(0.0), held("JOGF", b"1"), false, 1);
+        assert_eq!(watched(&drain(&mut s)), [TOKEN]);
+        s.handle_timeout(at(0.5));
+        assert_eq!((s.fields().jogf, s.fields().dmov), (1, 0));
+        s.hold_released(at(0.5), TOKEN);
+        assert_eq!(s.fields().jogf, 0, "released as JOGF = 0 would");
+        assert!(drain(&mut s).iter().any(|o| matches!(o, ServiceOutput::ForgetHold { token } if token == TOKEN)));
+        until_rest(&mut s, 0.5);
+        assert_eq!(s.fields().movn, 0);
+    }
+
+    #[test]
+    fn a_held_move_stops_when_its_token_goes_and_a_finished_one_is_forgotten() {
+        let mut s = service();
+        s.write(at(0.0), held("VAL", b"50"), false, 1);
+        drain(&mut s);
+        s.handle_timeout(at(0.5));
+        s.hold_released(at(0.5), TOKEN);
+        until_rest(&mut s, 0.5);
+        assert!(s.fields().rbv < 10.0, "stopped on the way: {}", s.fields().rbv);
+        // A held move that ends by itself forgets its hold; the token's going then does nothing.
+        s.write(at(40.0), held("VAL", b"0.01"), false, 2);
+        let outputs = until_rest(&mut s, 40.0);
+        assert!(outputs.iter().any(|o| matches!(o, ServiceOutput::ForgetHold { .. })));
+        s.hold_released(at(45.0), TOKEN);
+        assert!(drain(&mut s).iter().all(|o| !matches!(o, ServiceOutput::Publish { field: Field::STOP, .. })));
+    }
+
+    #[test]
+    fn an_axis_that_requires_a_hold_refuses_a_plain_jog() {
+        let mut s = service().with_jog_hold(JogHold::Required);
+        s.write(at(0.0), WriteRequest::new("JOGR", b"1", Text), false, 1);
+        let outputs = drain(&mut s);
+        let [(1, Reply::Refused(RequestError::HoldRequired(Field::JOGR)))] = &replies(&outputs)[..] else {
+            panic!("{outputs:?}")
+        };
+        assert_eq!((s.fields().jogr, s.fields().dmov), (0, 1), "nothing moved");
+        s.write(at(0.1), held("JOGR", b"1"), false, 2);
+        assert_eq!(s.fields().jogr, 1);
+        drain(&mut s);
+        // A hold whose token is no key is refused.
+        let bad = WriteRequest::new("VAL", b"1", Text).held(Some(Hold::new("motor/*/x")));
+        s.write(at(0.2), bad, false, 3);
+        assert!(matches!(&replies(&drain(&mut s))[..], [(3, Reply::Refused(RequestError::HoldToken { .. }))]));
     }
 }

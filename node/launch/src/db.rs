@@ -228,6 +228,7 @@ fn motor(
         driver,
         controller,
         channel,
+        jog_hold: Default::default(),
         readback_rate: super::default_readback_rate(),
         fields,
         sim: Default::default(),

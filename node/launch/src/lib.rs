@@ -18,6 +18,7 @@ use zmotor_controllers::spec::{self, ControllerSpec, SerialSettings, Transport};
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
 use zmotor_core::driver::sim::SimConfig;
+use zmotor_core::service::JogHold;
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
 use zmotor_zenoh::{Mode, NodeContents, ValueSpec, ZenohConfig};
@@ -155,6 +156,10 @@ pub struct AxisSection {
     /// Readback publications per second while moving.
     #[serde(default = "default_readback_rate")]
     pub readback_rate: f64,
+    /// `required`: a jog is taken only under a hold (the jog deadman); `optional` (the default):
+    /// a plain jog too, as the record takes it.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub jog_hold: JogHoldChoice,
     /// Initial field values, by EPICS field name.
     #[serde(default)]
     pub fields: BTreeMap<String, toml::Value>,
@@ -226,6 +231,17 @@ choices!(
         Soft = "soft",
         /// A channel of a motor controller.
         Controller = "controller",
+    }
+);
+
+choices!(
+    /// Whether an axis jogs only under a hold.
+    JogHoldChoice, "'{given}' is not one of {known}" {
+        /// A plain jog is taken too.
+        #[default]
+        Optional = "optional",
+        /// A jog without a hold is refused.
+        Required = "required",
     }
 );
 
@@ -825,7 +841,11 @@ impl AxisSection {
             fields.set(field, &field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?);
         }
         let rates = PollRates { moving: Duration::from_secs_f64(1.0 / self.readback_rate), ..PollRates::default() };
-        Ok(AxisPlan { name: self.name.clone(), fields, driver, rates })
+        let jog_hold = match self.jog_hold {
+            JogHoldChoice::Optional => JogHold::Optional,
+            JogHoldChoice::Required => JogHold::Required,
+        };
+        Ok(AxisPlan { name: self.name.clone(), fields, driver, rates, jog_hold })
     }
 }
 
@@ -1154,9 +1174,9 @@ channel = 0
     fn controller_errors_name_the_file_line_and_key() {
         let refused = |from: &str, to: &str| Launch::parse(&CONTROLLED.replacen(from, to, 1)).unwrap_err().to_string();
         assert_eq!(
-            refused("acs_mcb4b", "acs"),
+            refused("acs_mcb4b", "acme"),
             format!(
-                "<launch>:3: controller 'mcb': protocol: 'acs' is not a known protocol (known: {})",
+                "<launch>:3: controller 'mcb': protocol: 'acme' is not a known protocol (known: {})",
                 ProtocolKind::known()
             )
         );

@@ -96,6 +96,16 @@ impl ZenohConfig {
         Self { mode: Mode::Client, listen: vec![], connect: vec![endpoint.to_string()], ..Self::default() }
     }
 
+    /// How long this process may be silent before its peers take it for gone: half a second
+    /// for a client (a jog it holds ends within a second of its being cut off), a second for a
+    /// node or router (a busy one must not be dropped). Zenoh's default is ten seconds.
+    pub fn lease(&self) -> std::time::Duration {
+        match self.mode {
+            Mode::Client => CLIENT_LEASE,
+            Mode::Peer | Mode::Router => NODE_LEASE,
+        }
+    }
+
     /// The Zenoh configuration.
     pub fn zenoh(&self) -> Result<zenoh::Config, ConfigError> {
         fn json(value: impl Serialize) -> String {
@@ -111,12 +121,21 @@ impl ZenohConfig {
             // the prefix, Zenoh declares its interest once instead of once per publisher (which
             // cost the first moves of 1,000 axes about 20 s).
             ("aggregation/publishers", json([KeyLayout::new(&self.prefix).everything()])),
+            // How long this process may be silent before the others take it for gone: what a
+            // hold (the jog deadman) relies on to stop a jog whose client is cut off.
+            ("transport/link/tx/lease", json(self.lease().as_millis() as u64)),
         ] {
             config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
         }
         Ok(config)
     }
 }
+
+/// The lease of a client session (see `ZenohConfig::lease`).
+pub const CLIENT_LEASE: std::time::Duration = std::time::Duration::from_millis(500);
+
+/// The lease of a node's or router's session (see `ZenohConfig::lease`).
+pub const NODE_LEASE: std::time::Duration = std::time::Duration::from_millis(1000);
 
 /// A Zenoh configuration entry that Zenoh refused (an endpoint it cannot parse, ...).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

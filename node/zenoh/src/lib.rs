@@ -7,6 +7,7 @@
 pub mod autosave;
 pub mod config;
 mod controllers;
+mod holds;
 mod links;
 mod node;
 mod timer;

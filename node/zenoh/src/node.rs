@@ -9,6 +9,7 @@
 
 use crate::autosave::{AutosaveError, SavedAxis, StateStore};
 use crate::controllers::{ControllerPort, RunningController, ToController};
+use crate::holds::Holds;
 use crate::links::{is_state, CalcTask, Follows, LocalFollowers, ValueHolder, ValueSpec};
 use crate::timer::Timer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -24,9 +25,9 @@ use zmotor_controllers::spec::ControllerSpec;
 use zmotor_core::axis::{AxisPlan, DriverPlan};
 use zmotor_core::driver::soft::InputLink;
 use zmotor_core::engine::DeviceStatus;
-use zmotor_core::service::{AxisService, Reply, ServiceOutput};
+use zmotor_core::service::{AxisService, Reply, ServiceOutput, WriteRequest};
 use zmotor_core::Instant;
-use zmotor_msgs::{encode_cbor, keys, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
+use zmotor_msgs::{encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, StateMarker, Value};
 
 /// Why a node could not start.
 #[derive(Debug, thiserror::Error)]
@@ -171,7 +172,8 @@ impl Node {
             for (link, key) in plan.input_links() {
                 follows.follow(link as usize, &key)?;
             }
-            let name = plan.name.clone();
+            let (holds, released) = Holds::new(&session, tokio::runtime::Handle::current());
+            let (name, jog_hold) = (plan.name.clone(), plan.jog_hold);
             let on_controller = match &plan.driver {
                 DriverPlan::Controller { controller, channel } => Some((controller.clone(), *channel)),
                 _ => None,
@@ -189,12 +191,14 @@ impl Node {
                 None => (None, None),
             };
             let core = AxisCore {
-                service: AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status)),
+                service: AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status))
+                    .with_jog_hold(jog_hold),
                 controller: controller.clone(),
                 session: session.clone(),
                 writer: writer.clone(),
                 followers: followers.clone(),
                 follows,
+                holds,
                 demand: demand.clone(),
                 layout: layout.clone(),
                 clock: tokio::time::Instant::now(),
@@ -220,6 +224,7 @@ impl Node {
                 queued: handle.queued,
                 rearm: handle.rearm,
                 links,
+                released,
                 saver,
                 timer: timer.clone(),
                 token: tokens.slot(&name),
@@ -307,6 +312,8 @@ struct Written {
     name: String,
     payload: Vec<u8>,
     encoding: PayloadEncoding,
+    /// The hold its attachment names, if any.
+    hold: Option<Hold>,
 }
 
 /// Plain writes this node makes to keys: link outputs, directives, calc results. The node's own
@@ -329,7 +336,12 @@ impl Writer {
                 [(&self.fields, AxisInput::Write as fn(Written) -> AxisInput), (&Space::Sim, AxisInput::SimWrite)]
             {
                 if let Some((handle, name)) = space.target(&routes, key) {
-                    let written = Written { name, payload: value.as_bytes().to_vec(), encoding: PayloadEncoding::Text };
+                    let written = Written {
+                        name,
+                        payload: value.as_bytes().to_vec(),
+                        encoding: PayloadEncoding::Text,
+                        hold: None,
+                    };
                     handle.deliver(wrap(written));
                 }
             }
@@ -479,7 +491,8 @@ fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Writte
     }
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-        handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding }));
+        let hold = sample.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
+        handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
     }
 }
 
@@ -521,6 +534,8 @@ struct AxisCore {
     followers: Arc<LocalFollowers>,
     /// The keys this axis's input links follow, by `InputLink` index.
     follows: Follows,
+    /// The liveliness tokens its held motions depend on.
+    holds: Holds,
     layout: KeyLayout,
     clock: tokio::time::Instant,
     /// Declared at the first driver command, so idle axes cost no publisher.
@@ -559,7 +574,9 @@ impl AxisCore {
     fn handle(&mut self, input: AxisInput) {
         let now = self.now();
         match input {
-            AxisInput::Write(w) => self.service.put(now, &w.name, &w.payload, w.encoding),
+            AxisInput::Write(w) => {
+                self.service.put(now, WriteRequest::new(&w.name, &w.payload, w.encoding).held(w.hold))
+            }
             AxisInput::Query(query) => self.on_query(now, query),
             AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
             AxisInput::SimQuery(query) => {
@@ -581,7 +598,9 @@ impl AxisCore {
             (Some(name), Some(payload)) => {
                 let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
                 let wait = query.parameters().contains_key(keys::WAIT_PARAMETER);
-                self.service.write(now, &name, &payload, encoding, wait, query);
+                let hold = query.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
+                let request = WriteRequest::new(&name, &payload, encoding).held(hold);
+                self.service.write(now, request, wait, query);
             }
             (Some(name), None) if !name.contains('*') => self.service.read(&name, query),
             _ => {
@@ -596,6 +615,12 @@ impl AxisCore {
     fn tick(&mut self) {
         let now = self.now();
         self.service.handle_timeout(now);
+        self.flush();
+    }
+
+    fn hold_released(&mut self, token: &str) {
+        let now = self.now();
+        self.service.hold_released(now, token);
         self.flush();
     }
 
@@ -641,6 +666,8 @@ impl AxisCore {
                 }
                 // A link's or directive's put is a command: a plain write, no marker.
                 ServiceOutput::Put { key, value } => self.writer.put(&key, value),
+                ServiceOutput::WatchHold { token } => self.holds.watch(&token),
+                ServiceOutput::ForgetHold { token } => self.holds.forget(&token),
                 ServiceOutput::Follow { link, key } => {
                     if let Err(e) = self.follows.follow(link as usize, &key) {
                         tracing::error!(axis = %self.name(), key, "cannot follow the link: {e}");
@@ -773,6 +800,8 @@ struct AxisTask {
     rearm: Arc<tokio::sync::Notify>,
     /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `InputLink` index.
     links: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
+    /// Liveliness tokens of held motions that went.
+    released: tokio::sync::mpsc::UnboundedReceiver<String>,
     saver: Option<Saver>,
     /// Wakes the task (through `rearm`) when the axis's next event comes.
     timer: Timer,
@@ -807,6 +836,7 @@ impl AxisTask {
                 Some((index, value)) = self.links.recv() => {
                     lock(&self.core).link_update(InputLink::ALL[index], value);
                 }
+                Some(token) = self.released.recv() => lock(&self.core).hold_released(&token),
                 Some(input) = self.queue.recv() => {
                     self.queued.fetch_sub(1, Ordering::AcqRel);
                     lock(&self.core).handle(input);

@@ -1,0 +1,228 @@
+//! What the end-to-end tests of the `zmotor` binary share: processes on this host or in
+//! network namespaces, driven through the CLI, killed when dropped.
+#![allow(dead_code)] // each test file uses its own part
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+pub const PATIENCE: Duration = Duration::from_secs(15);
+
+/// Where a process runs: this host, or inside a network namespace.
+#[derive(Clone, Default)]
+pub struct Host {
+    pub netns: Option<String>,
+}
+
+impl Host {
+    pub fn zmotor(&self, args: &[&str]) -> Command {
+        let mut command = match &self.netns {
+            Some(ns) => {
+                let mut c = Command::new("ip");
+                c.args(["netns", "exec", ns, env!("CARGO_BIN_EXE_zmotor")]);
+                c
+            }
+            None => Command::new(env!("CARGO_BIN_EXE_zmotor")),
+        };
+        command.args(args).env("RUST_LOG", "warn");
+        command
+    }
+
+    /// A long-running `zmotor` (launch, router), killed when dropped.
+    pub fn spawn(&self, args: &[&str], state_dir: &Path) -> Running {
+        let child = self
+            .zmotor(args)
+            .env("ZMOTOR_STATE_DIR", state_dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        Running(Some(child))
+    }
+
+    pub fn run(&self, args: &[&str]) -> Output {
+        self.zmotor(args).output().unwrap()
+    }
+
+    /// A field's value, or None while the axis does not answer.
+    pub fn get(&self, endpoint: &str, axis: &str, field: &str) -> Option<f64> {
+        let output = self.run(&["get", axis, field, "--connect", endpoint]);
+        String::from_utf8_lossy(&output.stdout).trim().parse().ok()
+    }
+
+    /// A field's value: the first answer (a loaded host may need a second get); panics after
+    /// PATIENCE.
+    pub fn answer(&self, endpoint: &str, axis: &str, field: &str) -> f64 {
+        self.wait_for(endpoint, axis, field, |_| true)
+    }
+
+    /// Poll a field until `accept` holds; panics after PATIENCE.
+    pub fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
+        let deadline = Instant::now() + PATIENCE;
+        let mut last = None;
+        while Instant::now() < deadline {
+            last = self.get(endpoint, axis, field);
+            if let Some(value) = last.filter(|v| accept(*v)) {
+                return value;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        panic!("{axis}.{field} never as expected within {PATIENCE:?}; last {last:?}");
+    }
+
+    /// A confirmed write; Ok(the node's answer) or Err(its refusal).
+    pub fn put(&self, endpoint: &str, axis: &str, field: &str, value: &str, wait: bool) -> Result<String, String> {
+        let mut args = vec!["put", axis, field, value, "--connect", endpoint, "--timeout", "30"];
+        if wait {
+            args.push("--wait");
+        }
+        let output = self.run(&args);
+        if output.status.success() {
+            Ok(String::from_utf8_lossy(&output.stdout).trim().to_string())
+        } else {
+            Err(String::from_utf8_lossy(&output.stderr).trim().to_string())
+        }
+    }
+}
+
+pub struct Running(pub Option<Child>);
+
+impl Running {
+    pub fn pid(&self) -> u32 {
+        self.0.as_ref().unwrap().id()
+    }
+
+    /// SIGTERM, then the exit status and what the process logged.
+    pub fn terminate(mut self) -> (std::process::ExitStatus, String) {
+        Command::new("kill").args(["-TERM", &self.pid().to_string()]).status().unwrap();
+        let output = self.0.take().unwrap().wait_with_output().unwrap();
+        (output.status, String::from_utf8_lossy(&output.stderr).into_owned())
+    }
+
+    /// SIGKILL: no chance to save anything.
+    pub fn kill(mut self) {
+        let mut child = self.0.take().unwrap();
+        child.kill().unwrap();
+        child.wait().unwrap();
+    }
+}
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        if let Some(mut child) = self.0.take() {
+            let _ = child.kill();
+            let _ = child.wait();
+        }
+    }
+}
+
+pub fn repo_file(path: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
+}
+
+/// A slow stage (1 mm/s), its restore mode and autosave delay as given.
+pub fn slow_stage(rstm: &str, delay: f64) -> String {
+    format!(
+        "[autosave]\ndelay = {delay}\n[[axis]]\nname = \"m1\"\n[axis.fields]\n\
+         MRES = 0.001\nVELO = 1\nACCL = 0.1\nDHLM = 100\nDLLM = -100\nRSTM = \"{rstm}\"\n"
+    )
+}
+
+/// Network namespaces joined by veth pairs to a bridge in a namespace of their own, removed
+/// when dropped. None where namespaces cannot be made (not root, no CAP_NET_ADMIN, no `ip`).
+pub struct Namespaces {
+    names: Vec<String>,
+}
+
+impl Namespaces {
+    pub fn create(hosts: &[(&str, &str)]) -> Option<Self> {
+        let tag = std::process::id() % 100_000;
+        let switch = format!("zms{tag}");
+        let mut made = Self { names: vec![switch.clone()] };
+        let ip = |args: &[&str]| Command::new("ip").args(args).output().is_ok_and(|o| o.status.success());
+        if !ip(&["netns", "add", &switch]) {
+            made.names.clear();
+            return None;
+        }
+        let in_switch = |args: &[&str]| ip(&[&["netns", "exec", &switch, "ip"], args].concat());
+        if !(in_switch(&["link", "add", "br0", "type", "bridge"]) && in_switch(&["link", "set", "br0", "up"])) {
+            return None;
+        }
+        for (index, (name, address)) in hosts.iter().enumerate() {
+            let ns = format!("{name}{tag}");
+            let (inside, outside) = (format!("zmi{tag}x{index}"), format!("zmo{tag}x{index}"));
+            if !ip(&["netns", "add", &ns]) {
+                return None;
+            }
+            made.names.push(ns.clone());
+            let in_ns = |args: &[&str]| ip(&[&["netns", "exec", &ns, "ip"], args].concat());
+            let ok =
+                ip(&["link", "add", &inside, "netns", &ns, "type", "veth", "peer", "name", &outside, "netns", &switch])
+                    && in_switch(&["link", "set", &outside, "master", "br0"])
+                    && in_switch(&["link", "set", &outside, "up"])
+                    && in_ns(&["addr", "add", &format!("{address}/24"), "dev", &inside])
+                    && in_ns(&["link", "set", &inside, "up"])
+                    && in_ns(&["link", "set", "lo", "up"]);
+            if !ok {
+                return None;
+            }
+        }
+        Some(made)
+    }
+
+    pub fn host(&self, index: usize) -> Host {
+        Host { netns: Some(self.names[index + 1].clone()) }
+    }
+
+    /// Pull the cable of host `index`: its link to the switch goes down, nothing is closed.
+    pub fn cut(&self, index: usize) -> bool {
+        let tag = std::process::id() % 100_000;
+        let ns = &self.names[index + 1];
+        let inside = format!("zmi{tag}x{index}");
+        Command::new("ip")
+            .args(["netns", "exec", ns, "ip", "link", "set", &inside, "down"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    }
+}
+
+impl Drop for Namespaces {
+    fn drop(&mut self) {
+        for name in &self.names {
+            let _ = Command::new("ip").args(["netns", "del", name]).output();
+        }
+    }
+}
+
+/// Lines a process prints, each with when it arrived, read on a thread of their own.
+pub struct Lines(std::sync::mpsc::Receiver<(Instant, String)>);
+
+impl Lines {
+    /// The lines of `child`'s standard output (which must be piped).
+    pub fn of(child: &mut Child) -> Self {
+        let stdout = child.stdout.take().expect("stdout is piped");
+        let (sender, receiver) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
+                if sender.send((Instant::now(), line)).is_err() {
+                    return;
+                }
+            }
+        });
+        Self(receiver)
+    }
+
+    /// When the first line for which `accept` holds arrives, within `patience`.
+    pub fn wait_for(&self, patience: Duration, accept: impl Fn(&str) -> bool) -> Option<Instant> {
+        let deadline = Instant::now() + patience;
+        while let Some(left) = deadline.checked_duration_since(Instant::now()) {
+            match self.0.recv_timeout(left) {
+                Ok((at, line)) if accept(&line) => return Some(at),
+                Ok(_) => {}
+                Err(_) => return None,
+            }
+        }
+        None
+    }
+}

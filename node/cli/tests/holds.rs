@@ -1,0 +1,129 @@
+//! The jog deadman: a jog held by its client's liveliness token ends, as JOGF = 0 would,
+//! within a second of the client vanishing: killed (SIGKILL), or cut off by the network (its
+//! link pulled in a network namespace); an axis that requires the hold refuses a plain jog.
+//! Separate processes; times are taken from a monitor's lines as they arrive.
+
+mod common;
+
+use common::{Host, Lines, Namespaces, Running, PATIENCE};
+use std::process::{Command, Stdio};
+use std::time::Duration;
+use zmotor_zenoh::free_local_endpoint;
+
+/// A slow jog (1 mm/s) on a long stage, jog_hold as given.
+fn jog_stage(jog_hold: &str) -> String {
+    format!(
+        "[autosave]\nenabled = false\n[[axis]]\nname = \"m1\"\njog_hold = \"{jog_hold}\"\n[axis.fields]\n\
+         MRES = 0.001\nVELO = 1\nJVEL = 1\nACCL = 0.1\nDHLM = 1000\nDLLM = -1000\n"
+    )
+}
+
+/// A monitor of m1's JOGF, its lines as they come.
+fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
+    let mut child = host
+        .zmotor(&["monitor", "m1", "JOGF", "--connect", endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = Lines::of(&mut child);
+    std::thread::sleep(Duration::from_millis(500));
+    (Running(Some(child)), lines)
+}
+
+/// The time from `vanish` (called once the jog runs) to JOGF 0 on the node.
+fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Duration {
+    let (_monitor, lines) = monitor_jogf(host, endpoint);
+    host.wait_for(endpoint, "m1", "MOVN", |v| v == 1.0);
+    let gone = std::time::Instant::now();
+    vanish();
+    let released = lines.wait_for(PATIENCE, |line| line.split_whitespace().collect::<Vec<_>>() == ["JOGF", "0"]);
+    let released = released.expect("the jog was released");
+    host.wait_for(endpoint, "m1", "MOVN", |v| v == 0.0);
+    let took = released.saturating_duration_since(gone);
+    eprintln!("released {took:?} after the client went");
+    took
+}
+
+/// A node of `jog_stage(jog_hold)` on this host, up: its state directory, process, endpoint.
+fn node_here(jog_hold: &str) -> (tempfile::TempDir, Running, String) {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("jog.toml");
+    std::fs::write(&file, jog_stage(jog_hold)).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    (dir, node, endpoint)
+}
+
+#[test]
+fn a_jog_whose_client_is_killed_ends_within_a_second() {
+    let (_dir, _node, endpoint) = node_here("optional");
+    let here = Host::default();
+    let mut jogger = here.zmotor(&["jog", "m1", "+", "--connect", &endpoint]).stderr(Stdio::null()).spawn().unwrap();
+    let pid = jogger.id().to_string();
+    let took = time_to_release(&here, &endpoint, || kill(&pid));
+    let _ = jogger.wait();
+    assert!(took < Duration::from_secs(1), "released {took:?} after the client was killed");
+}
+
+#[test]
+fn a_stock_python_client_holding_a_jog_and_killed_has_its_jog_ended_within_a_second() {
+    let python = Command::new("python3").args(["-c", "import zenoh, cbor2"]).output();
+    if !python.is_ok_and(|o| o.status.success()) {
+        assert!(std::env::var_os("CI").is_none(), "CI must install eclipse-zenoh and cbor2 for Python (see .ci/run)");
+        eprintln!("SKIPPED: python3 with eclipse-zenoh and cbor2 is not installed");
+        return;
+    }
+    let (_dir, _node, endpoint) = node_here("required");
+    let here = Host::default();
+    let script = common::repo_file("tests/python/hold_jog.py");
+    let mut jogger = Command::new("python3").arg(script).args([&endpoint, "m1"]).stdout(Stdio::null()).spawn().unwrap();
+    let pid = jogger.id().to_string();
+    let took = time_to_release(&here, &endpoint, || kill(&pid));
+    let _ = jogger.wait();
+    assert!(took < Duration::from_secs(1), "released {took:?} after the client was killed");
+}
+
+/// SIGKILL to a process this test started.
+fn kill(pid: &str) {
+    Command::new("kill").args(["-KILL", pid]).status().unwrap();
+}
+
+#[test]
+fn a_jog_whose_client_is_cut_off_ends_within_a_second() {
+    let hosts = [("zmn", "10.78.0.1"), ("zmj", "10.78.0.2")];
+    let Some(net) = Namespaces::create(&hosts) else {
+        eprintln!("SKIPPED: network namespaces cannot be created here (needs root and `ip netns`)");
+        return;
+    };
+    let (node_host, client_host) = (net.host(0), net.host(1));
+    let endpoint = "tcp/10.78.0.1:7447";
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("jog.toml");
+    std::fs::write(&file, jog_stage("required")).unwrap();
+    let _node = node_host.spawn(&["launch", file.to_str().unwrap(), "--listen", endpoint], dir.path());
+    node_host.wait_for(endpoint, "m1", "DMOV", |v| v == 1.0);
+    let mut jogger =
+        client_host.zmotor(&["jog", "m1", "+", "--connect", endpoint]).stderr(Stdio::null()).spawn().unwrap();
+    let took = time_to_release(&node_host, endpoint, || assert!(net.cut(1), "the link is cut"));
+    let _ = jogger.kill();
+    let _ = jogger.wait();
+    assert!(took < Duration::from_secs(1), "released {took:?} after the client was cut off");
+}
+
+#[test]
+fn an_axis_that_requires_a_hold_refuses_a_plain_jog_and_takes_a_held_one() {
+    let (_dir, _node, endpoint) = node_here("required");
+    let here = Host::default();
+    let refused = here.put(&endpoint, "m1", "JOGF", "1", false).unwrap_err();
+    assert!(refused.contains("JOGF: this axis jogs only under a hold"), "{refused}");
+    assert_eq!(here.answer(&endpoint, "m1", "MOVN"), 0.0);
+    let mut jogger = here.zmotor(&["jog", "m1", "+", "--connect", &endpoint]);
+    let jogger = Running(Some(jogger.stdout(Stdio::null()).stderr(Stdio::null()).spawn().unwrap()));
+    here.wait_for(&endpoint, "m1", "MOVN", |v| v == 1.0);
+    let (status, _) = jogger.terminate();
+    assert!(status.success(), "zmotor jog ends cleanly on SIGTERM");
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+}
