@@ -184,3 +184,77 @@ fn a_put_wait_whose_node_dies_says_the_node_vanished() {
     let nobody = here.put(&endpoint, "m1", "VAL", "1", true).unwrap_err();
     assert!(nobody.contains("nothing answers at"), "{nobody}");
 }
+
+/// `zmotor monitor m1 RBV` through `endpoint`, its lines as they come.
+fn monitor_rbv(endpoint: &str) -> (Running, common::Lines) {
+    let mut child = Host::default()
+        .zmotor(&["monitor", "m1", "RBV", "--connect", endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = common::Lines::of(&mut child);
+    std::thread::sleep(Duration::from_millis(500));
+    (Running(Some(child)), lines)
+}
+
+/// Whether `lines` show m1's readback at `value` within PATIENCE.
+fn shows_rbv(lines: &common::Lines, value: &str) -> bool {
+    lines.wait_for(PATIENCE, |line| line.split_whitespace().collect::<Vec<_>>() == ["RBV", value]).is_some()
+}
+
+#[test]
+fn a_router_restarted_between_client_and_node_brings_both_back_and_moves_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("slow.toml");
+    std::fs::write(&file, slow_stage("Never", 60.0)).unwrap();
+    let router_endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let router_args = ["router", "--listen", router_endpoint.as_str()];
+    let router = here.spawn(&router_args, dir.path());
+    let node_args = ["launch", file.to_str().unwrap(), "--mode", "client", "--connect", &router_endpoint];
+    let _node = here.spawn(&node_args, dir.path());
+    here.wait_for(&router_endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (_monitor, lines) = monitor_rbv(&router_endpoint);
+    here.put(&router_endpoint, "m1", "VAL", "0.5", true).unwrap();
+    assert!(shows_rbv(&lines, "0.5"), "the monitor saw the move");
+    router.kill();
+    std::thread::sleep(Duration::from_millis(500));
+    let _router = here.spawn(&router_args, dir.path());
+    // Both sides reconnect by themselves; the node kept its state and moved nothing.
+    let rbv = here.wait_for(&router_endpoint, "m1", "RBV", |_| true);
+    assert_eq!((rbv, here.answer(&router_endpoint, "m1", "DMOV")), (0.5, 1.0));
+    // A move of a few seconds: the monitor, reconnecting on its own schedule, sees its end.
+    let deadline = Instant::now() + PATIENCE;
+    let mut moved = here.put(&router_endpoint, "m1", "VAL", "4", true);
+    while moved.is_err() && Instant::now() < deadline {
+        std::thread::sleep(Duration::from_millis(200));
+        moved = here.put(&router_endpoint, "m1", "VAL", "4", true);
+    }
+    assert!(moved.unwrap().contains("reached=1"));
+    assert!(shows_rbv(&lines, "4"), "the monitor's subscription came back with the router");
+}
+
+#[test]
+fn a_node_restarted_under_a_monitoring_client_is_monitored_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("slow.toml");
+    std::fs::write(&file, slow_stage("Always", 0.1)).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let args = ["launch", file.to_str().unwrap(), "--listen", endpoint.as_str()];
+    let node = here.spawn(&args, dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (_monitor, lines) = monitor_rbv(&endpoint);
+    here.put(&endpoint, "m1", "VAL", "0.3", true).unwrap();
+    assert!(shows_rbv(&lines, "0.3"));
+    let (status, _) = node.terminate();
+    assert!(status.success());
+    let _node = here.spawn(&args, dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    assert_eq!(here.answer(&endpoint, "m1", "RBV"), 0.3, "restored, not moved");
+    // A move of a few seconds: the monitor, reconnecting on its own schedule, sees its end.
+    let moved = here.put(&endpoint, "m1", "VAL", "4", true).unwrap();
+    assert!(moved.contains("reached=1"));
+    assert!(shows_rbv(&lines, "4"), "the monitor resumed with the node");
+}

@@ -124,6 +124,9 @@ impl ZenohConfig {
             // How long this process may be silent before the others take it for gone: what a
             // hold (the jog deadman) relies on to stop a jog whose client is cut off.
             ("transport/link/tx/lease", json(self.lease().as_millis() as u64)),
+            // A lost router or node is tried again every second at most (Zenoh: up to 4 s), so
+            // monitors and links resume soon after it is back.
+            ("connect/retry", r#"{ period_max_ms: 1000 }"#.to_string()),
         ] {
             config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
         }
@@ -156,6 +159,15 @@ pub fn free_local_endpoint() -> std::io::Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_mode_makes_a_configuration_zenoh_takes() {
+        for mode in [Mode::Peer, Mode::Client, Mode::Router] {
+            let config = ZenohConfig { mode, ..ZenohConfig::default() };
+            assert!(config.zenoh().is_ok(), "{mode}");
+        }
+        assert_eq!(ZenohConfig::client("tcp/127.0.0.1:1").lease(), CLIENT_LEASE);
+    }
 
     #[test]
     fn modes_parse_and_print_by_name() {
