@@ -38,6 +38,8 @@ pub(crate) struct BenchOptions {
     pub(crate) controller_moves: usize,
     /// The parts measured.
     pub(crate) parts: Vec<Part>,
+    /// Seconds each storm of writes lasts.
+    pub(crate) storm: f64,
 }
 
 /// The parts of the benchmark.
@@ -53,10 +55,13 @@ pub(crate) enum Part {
     Startup,
     /// 6. controllers.
     Controllers,
+    /// 7. a storm of writes.
+    Writes,
 }
 
 impl Part {
-    pub(crate) const ALL: [Part; 5] = [Part::Latency, Part::Scale, Part::EpicsLoad, Part::Startup, Part::Controllers];
+    pub(crate) const ALL: [Part; 6] =
+        [Part::Latency, Part::Scale, Part::EpicsLoad, Part::Startup, Part::Controllers, Part::Writes];
 }
 
 impl BenchOptions {
@@ -71,6 +76,7 @@ impl BenchOptions {
             controller_window: 2.0,
             controller_moves: 40,
             parts: Part::ALL.to_vec(),
+            storm: 60.0,
         }
     }
 
@@ -86,6 +92,7 @@ impl BenchOptions {
             controller_window: 0.2,
             controller_moves: 2,
             parts: Part::ALL.to_vec(),
+            storm: 1.0,
         }
     }
 }
@@ -658,6 +665,7 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
             Part::EpicsLoad => epics_load_part(options).await?,
             Part::Startup => startup_part(options).await?,
             Part::Controllers => controllers_part(options).await?,
+            Part::Writes => writes_part(options).await?,
         }
     }
     Ok(())
@@ -766,6 +774,98 @@ async fn startup_part(options: &BenchOptions) -> Result<(), Error> {
     );
 
     Ok(())
+}
+
+async fn writes_part(options: &BenchOptions) -> Result<(), Error> {
+    println!("\n7. a storm of writes: VAL written to axes in turn (plain puts, targets spread over ±50 mm) for");
+    println!(
+        "   {} s, readback 10 Hz, a node process, the client here; then one `?wait` write per axis",
+        options.storm
+    );
+    for (axes, per_axis_hz) in [(1, 1000.0), (100, 100.0)] {
+        let s = write_storm(axes, per_axis_hz, options.storm).await?;
+        println!(
+            "   {axes:>3} axes × {per_axis_hz:>4.0} writes/s: {:>6.0} writes/s sent, node CPU {}, RSS {:.1} → {:.1} \
+             (a quarter in) → {:.1} MB (max {:.1}), last target reached on {}/{axes} axes",
+            s.writes_per_s,
+            percent(s.cpu),
+            s.rss_start_kb / 1024.0,
+            s.rss_quarter_kb / 1024.0,
+            s.rss_end_kb / 1024.0,
+            s.rss_max_kb / 1024.0,
+            s.reached
+        );
+    }
+    Ok(())
+}
+
+/// What a storm of writes did to a node.
+struct WriteStorm {
+    writes_per_s: f64,
+    cpu: f64,
+    rss_start_kb: f64,
+    /// A quarter into the storm: what the start (publishers, routes) costs is paid by then.
+    rss_quarter_kb: f64,
+    rss_end_kb: f64,
+    rss_max_kb: f64,
+    /// Axes whose final `?wait` write reached its target.
+    reached: usize,
+}
+
+/// `per_axis_hz` writes a second to each of `axes` axes for `seconds`, then a final target each.
+async fn write_storm(axes: usize, per_axis_hz: f64, seconds: f64) -> Result<WriteStorm, Error> {
+    let endpoint = free_local_endpoint()?;
+    let server = Server::spawn(&endpoint, axes, Serve::Moving, 10.0)?;
+    let pid = server.0.id().to_string();
+    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    wait_for_axes(&session, axes, Duration::from_secs(60)).await?;
+    let mut publishers = Vec::new();
+    for i in 0..axes {
+        publishers.push(session.declare_publisher(bench_key(i, Field::VAL)).encoding(Encoding::TEXT_PLAIN).await?);
+    }
+    let (rss_start_kb, cpu0, start) = (rss_kb(&pid), cpu_seconds(&pid), Instant::now());
+    let (mut rss_max_kb, mut rss_quarter_kb) = (rss_start_kb, None);
+    let mut ticks = tokio::time::interval(Duration::from_secs_f64(1.0 / (axes as f64 * per_axis_hz)));
+    let mut sent = 0usize;
+    while start.elapsed().as_secs_f64() < seconds {
+        ticks.tick().await;
+        let target = ((sent as f64 * 0.618_033_988_75).fract() - 0.5) * 100.0;
+        publishers[sent % axes].put(format!("{target:.3}")).await?;
+        sent += 1;
+        if sent.is_multiple_of(1000) {
+            let rss = rss_kb(&pid);
+            rss_max_kb = rss_max_kb.max(rss);
+            if rss_quarter_kb.is_none() && start.elapsed().as_secs_f64() >= seconds / 4.0 {
+                rss_quarter_kb = Some(rss);
+            }
+        }
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    let cpu = (cpu_seconds(&pid) - cpu0) / elapsed;
+    // Every axis's final target at once, then their answers.
+    let mut pending = Vec::new();
+    for i in 0..axes {
+        let selector = format!("{}?{}", bench_key(i, Field::VAL), zmotor_msgs::keys::WAIT_PARAMETER);
+        pending.push(session.get(selector).payload("7.5").timeout(Duration::from_secs(60)).await?);
+    }
+    let mut reached = 0;
+    for replies in pending {
+        let Ok(reply) = replies.recv_async().await else { continue };
+        let Ok(sample) = reply.result() else { continue };
+        let completion: Option<zmotor_msgs::Completion> = ciborium::from_reader(&sample.payload().to_bytes()[..]).ok();
+        reached += usize::from(completion.is_some_and(|c| c.reached == 1 && (c.rbv - 7.5).abs() < 1e-9));
+    }
+    let rss_end_kb = rss_kb(&pid);
+    session.close().await?;
+    Ok(WriteStorm {
+        writes_per_s: sent as f64 / elapsed,
+        cpu,
+        rss_start_kb,
+        rss_quarter_kb: rss_quarter_kb.unwrap_or(rss_end_kb),
+        rss_end_kb,
+        rss_max_kb: rss_max_kb.max(rss_end_kb),
+        reached,
+    })
 }
 
 async fn controllers_part(options: &BenchOptions) -> Result<(), Error> {

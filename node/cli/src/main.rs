@@ -157,6 +157,9 @@ enum Command {
         /// Measure only these parts, comma-separated (default: all).
         #[arg(long, value_delimiter = ',', value_enum)]
         parts: Option<Vec<bench::Part>>,
+        /// Seconds each storm of writes lasts (default 60).
+        #[arg(long)]
+        storm: Option<f64>,
     },
     /// Emulate a motor controller on the physical simulator, speaking its protocol on a TCP
     /// socket or a pseudo-terminal, so that a launch file for real hardware runs with none.
@@ -236,9 +239,10 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
         Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
-        Command::Bench { smoke, moves, scales, moving_up_to, parts } => {
+        Command::Bench { smoke, moves, scales, moving_up_to, parts, storm } => {
             let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
             options.parts = parts.unwrap_or(options.parts);
+            options.storm = storm.unwrap_or(options.storm);
             options.moves = moves.unwrap_or(options.moves);
             options.scales = scales.unwrap_or(options.scales);
             options.moving_up_to = moving_up_to.unwrap_or(options.moving_up_to);

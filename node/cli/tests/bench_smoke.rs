@@ -25,6 +25,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "pi_gcs2",
         "smaract_mcs2",
         "phytron",
+        "7. a storm of writes",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
@@ -37,5 +38,11 @@ fn the_benchmark_runs_in_smoke_mode() {
         .and_then(|n| n.parse().ok())
         .unwrap_or_else(|| panic!("no 'moves/s ended' figure in:\n{stdout}"));
     assert!(ended > 0.0, "no move ended under the EPICS load:\n{stdout}");
+    // After a storm of writes the last target is reached on every axis.
+    for storm in ["  1 axes", "100 axes"] {
+        let line = stdout.lines().find(|l| l.trim_start().starts_with(storm.trim_start())).unwrap_or_default();
+        let axes = storm.split_whitespace().next().unwrap_or_default();
+        assert!(line.ends_with(&format!("reached on {axes}/{axes} axes")), "{storm}: {line}");
+    }
     println!("{stdout}");
 }
