@@ -39,10 +39,13 @@ fn the_benchmark_runs_in_smoke_mode() {
         .unwrap_or_else(|| panic!("no 'moves/s ended' figure in:\n{stdout}"));
     assert!(ended > 0.0, "no move ended under the EPICS load:\n{stdout}");
     // After a storm of writes the last target is reached on every axis.
-    for storm in ["  1 axes", "100 axes"] {
-        let line = stdout.lines().find(|l| l.trim_start().starts_with(storm.trim_start())).unwrap_or_default();
-        let axes = storm.split_whitespace().next().unwrap_or_default();
-        assert!(line.ends_with(&format!("reached on {axes}/{axes} axes")), "{storm}: {line}");
+    for axes in [1, 100] {
+        let storm = format!("{axes} axes ×");
+        let line = stdout
+            .lines()
+            .find(|l| l.trim_start().starts_with(&storm))
+            .unwrap_or_else(|| panic!("no storm line for {axes} axes in:\n{stdout}"));
+        assert!(line.ends_with(&format!("reached on {axes}/{axes} axes")), "{line}");
     }
     println!("{stdout}");
 }

@@ -39,9 +39,13 @@ pub struct MacroError(pub String);
 /// Import a database file; the warnings say what was simulated or ignored.
 pub fn import_db(path: &Path, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
     let text = super::read_text(path)?;
-    let file = path.display().to_string();
-    import_text(&text, macros).map_err(|failure| LaunchError {
-        file,
+    import_db_text(&path.display().to_string(), &text, macros)
+}
+
+/// Import a database's text; errors name `file`.
+pub fn import_db_text(file: &str, text: &str, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
+    import_text(text, macros).map_err(|failure| LaunchError {
+        file: file.to_string(),
         line: Some(failure.line),
         message: failure.message,
     })

@@ -6,7 +6,7 @@
 mod db;
 mod locate;
 
-pub use db::{import_db, MacroError, Macros};
+pub use db::{import_db, import_db_text, MacroError, Macros};
 
 use locate::{line_of, Seg};
 use serde::{Deserialize, Serialize};
