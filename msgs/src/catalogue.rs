@@ -411,6 +411,29 @@ impl Field {
     }
 }
 
+/// Who may write a field under access control: an operator drives, an expert configures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WriteClass {
+    /// A command that moves or stops the axis, or the tweak step an operator sets beside it:
+    /// targets (VAL, DVAL, RVAL, RLV), tweak, jog, home, STOP, SPMG, SYNC, STUP, CNEN, PROC.
+    Drive,
+    /// Everything else one may write: limits, resolution, speeds, offsets, SET, links, ...
+    Configure,
+}
+
+impl Field {
+    /// The class of a writable field; `None` for a read-only one.
+    pub fn write_class(self) -> Option<WriteClass> {
+        use Field::*;
+        match self {
+            _ if self.def().access == Access::RO => None,
+            VAL | DVAL | RVAL | RLV | TWF | TWR | TWV | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP
+            | CNEN | PROC => Some(WriteClass::Drive),
+            _ => Some(WriteClass::Configure),
+        }
+    }
+}
+
 impl Field {
     /// A link the record writes through (OUT, STOO, RLNK, FLNK); its other links are read.
     pub fn is_output_link(self) -> bool {
@@ -439,6 +462,20 @@ mod tests {
     fn table_order_matches_the_enum() {
         for (i, def) in FIELDS.iter().enumerate() {
             assert_eq!(def.field as usize, i, "{}", def.name);
+        }
+    }
+
+    #[test]
+    fn commands_drive_settings_configure_and_read_only_fields_take_no_write() {
+        use Field::*;
+        for field in [VAL, TWF, JOGR, HOMF, STOP, SPMG] {
+            assert_eq!(field.write_class(), Some(WriteClass::Drive), "{field}");
+        }
+        for field in [HLM, DLLM, MRES, VELO, OFF, SET, FOFF, DIR, OUT] {
+            assert_eq!(field.write_class(), Some(WriteClass::Configure), "{field}");
+        }
+        for field in [RBV, DMOV, MSTA] {
+            assert_eq!(field.write_class(), None, "{field}");
         }
     }
 

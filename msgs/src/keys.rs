@@ -15,6 +15,8 @@ pub const BRIDGE_PREFIX: &str = "bridge";
 pub const ERR_KEY: &str = "ERR";
 /// Key suffix of the driver-command trace.
 pub const DRIVER_CMD_KEY: &str = "@driver/cmd";
+/// The chunk of a write key (`KeyLayout::write`).
+pub const WRITE_CHUNK: &str = "@write";
 /// Selector parameter of a put-with-completion (`<prefix>/<axis>/<FIELD>?wait`).
 pub const WAIT_PARAMETER: &str = "wait";
 
@@ -93,9 +95,48 @@ impl KeyLayout {
         format!("{}/{axis}/@hold/{client}", self.prefix)
     }
 
-    /// `<prefix>/<axis>/<FIELD>?wait`: the selector of a put-with-completion.
-    pub fn completion(&self, axis: &str, field: Field) -> String {
-        format!("{}?{WAIT_PARAMETER}", self.field(axis, field))
+    /// `<prefix>/<axis>/@write/<FIELD>`: where a confirmed write goes when access control must tell
+    /// it from a read (Zenoh's rules see a `get` either way; `**` does not cover an `@` chunk).
+    pub fn write(&self, axis: &str, field: Field) -> String {
+        format!("{}/{axis}/{WRITE_CHUNK}/{}", self.prefix, field.name())
+    }
+
+    /// `<prefix>/*/@write/<FIELD>`: the write keys of one field on every axis.
+    pub fn writes_of(&self, field: Field) -> String {
+        format!("{}/*/{WRITE_CHUNK}/{}", self.prefix, field.name())
+    }
+
+    /// `<prefix>/*/@write/*`: every write key (a node answers confirmed writes here).
+    pub fn every_write(&self) -> String {
+        format!("{}/*/{WRITE_CHUNK}/*", self.prefix)
+    }
+
+    /// `<prefix>/*/<FIELD>`: one field's key on every axis.
+    pub fn field_of_every_axis(&self, field: Field) -> String {
+        format!("{}/*/{}", self.prefix, field.name())
+    }
+
+    /// `<prefix>/*/@hold/*`: every hold token.
+    pub fn every_hold(&self) -> String {
+        self.hold("*", "*")
+    }
+
+    /// The field name of `<prefix>/<axis>/@write/<FIELD>` for this axis, if the key has that shape.
+    pub fn written_field_name<'k>(&self, axis: &str, key: &'k str) -> Option<&'k str> {
+        let rest = key.strip_prefix(self.prefix.as_str())?.strip_prefix('/')?;
+        let rest = rest.strip_prefix(axis)?.strip_prefix('/')?.strip_prefix(WRITE_CHUNK)?.strip_prefix('/')?;
+        (!rest.is_empty() && !rest.contains('/')).then_some(rest)
+    }
+
+    /// `<prefix>/<axis>/@write/<FIELD>`, with `?wait` for a put-with-completion: what a
+    /// client that may meet access control writes to (an open node serves it too).
+    pub fn write_selector(&self, axis: &str, field: Field, wait: bool) -> String {
+        let key = self.write(axis, field);
+        if wait {
+            format!("{key}?{WAIT_PARAMETER}")
+        } else {
+            key
+        }
     }
 
     /// The axis chunk of a key under this prefix (`m1` in `motor/m1/VAL`); it may be a wildcard.
@@ -250,12 +291,31 @@ mod tests {
         assert_eq!(sim_key("m1", "position"), "sim/m1/position");
         assert_eq!(k.field_pattern("m1", "D*"), "motor/m1/D$*");
         assert_eq!(k.field_pattern("m1", "**"), "motor/m1/**");
-        assert_eq!(k.completion("m1", Field::VAL), "motor/m1/VAL?wait");
+        assert_eq!(k.write_selector("m1", Field::VAL, true), "motor/m1/@write/VAL?wait");
         assert_eq!(
             (k.axis_chunk("motor/m1/VAL"), k.axis_chunk("motor/*/VAL"), k.axis_chunk("sim/m1/x")),
             (Some("m1"), Some("*"), None)
         );
         assert_eq!(sim_axis_chunk("sim/m1/position"), Some("m1"));
+        assert_eq!(k.write("m1", Field::VAL), "motor/m1/@write/VAL");
+        assert_eq!(
+            (k.writes_of(Field::HLM), k.every_write()),
+            ("motor/*/@write/HLM".into(), "motor/*/@write/*".into())
+        );
+        assert_eq!(
+            (k.field_of_every_axis(Field::VAL), k.every_hold()),
+            ("motor/*/VAL".into(), "motor/*/@hold/*".into())
+        );
+    }
+
+    #[test]
+    fn written_field_names_are_parsed_from_write_keys_only() {
+        let k = KeyLayout::default();
+        assert_eq!(k.written_field_name("m1", "motor/m1/@write/VAL"), Some("VAL"));
+        assert_eq!(k.written_field_name("m1", "motor/m1/VAL"), None);
+        assert_eq!(k.written_field_name("m1", "motor/m10/@write/VAL"), None);
+        assert_eq!(k.written_field_name("m1", "motor/m1/@write/"), None);
+        assert_eq!(k.written_field_name("m1", "motor/m1/@write/VAL/x"), None);
     }
 
     #[test]

@@ -12,7 +12,7 @@ pub mod toml_value;
 pub mod value;
 pub mod wire;
 
-pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, FIELDS, UNMODELLED_COMMON_FIELDS};
+pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, WriteClass, FIELDS, UNMODELLED_COMMON_FIELDS};
 pub use codec::{decode_scalar, decode_write, encode_cbor, validate, CodecError, MalformedPayload, PayloadEncoding};
 pub use keys::{KeyLayout, LinkKeyError};
 pub use value::Value;

@@ -272,7 +272,7 @@ impl Drop for Server {
 /// A client of a server process that may not listen yet.
 pub(crate) async fn client_when_ready(endpoint: &str, since: Instant) -> Result<Session, Error> {
     loop {
-        if let Ok(session) = crate::connect(endpoint).await {
+        if let Ok(session) = zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await {
             return Ok(session);
         }
         if since.elapsed() > Duration::from_secs(60) {

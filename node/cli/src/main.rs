@@ -13,7 +13,7 @@ use zenoh::bytes::Encoding;
 use zmotor_launch::{import_db, Launch, Macros};
 use zmotor_msgs::{codec::decode_cbor_value, Field, KeyLayout, FIELDS};
 use zmotor_zenoh::autosave::{state_dir, StateStore};
-use zmotor_zenoh::{AutosaveConfig, Mode, Node, ZenohConfig};
+use zmotor_zenoh::{AutosaveConfig, LoginConfig, Mode, Node, TlsConfig, ZenohConfig};
 
 /// Any failure, as the user will read it.
 type Error = Box<dyn std::error::Error + Send + Sync>;
@@ -34,6 +34,38 @@ struct ClientArgs {
     /// Key prefix of the axes.
     #[arg(long, default_value = zmotor_msgs::keys::DEFAULT_PREFIX)]
     prefix: String,
+    /// PEM file of the certificate authority to trust (tls/... endpoints).
+    #[arg(long)]
+    ca: Option<PathBuf>,
+    /// PEM file of this client's certificate, for mutual TLS (with --key).
+    #[arg(long, requires_all = ["ca", "key"])]
+    cert: Option<PathBuf>,
+    /// PEM file of its private key.
+    #[arg(long, requires = "cert")]
+    key: Option<PathBuf>,
+    /// Connect as this user; the password is read from ZMOTOR_PASSWORD.
+    #[arg(long)]
+    user: Option<String>,
+}
+
+impl ClientArgs {
+    /// How this client joins the network.
+    fn zenoh(&self) -> Result<ZenohConfig, Error> {
+        let path = |p: &PathBuf| p.display().to_string();
+        let mut section = ZenohConfig::client(&self.connect);
+        section.tls = self.ca.as_ref().map(|ca| TlsConfig {
+            ca: path(ca),
+            certificate: self.cert.as_ref().map(path),
+            key: self.key.as_ref().map(path),
+            mutual: self.cert.is_some(),
+        });
+        if let Some(user) = &self.user {
+            let password =
+                std::env::var("ZMOTOR_PASSWORD").map_err(|_| "--user needs the password in ZMOTOR_PASSWORD")?;
+            section.login = Some(LoginConfig { user: Some(user.clone()), password: Some(password), users_file: None });
+        }
+        Ok(section)
+    }
 }
 
 /// How a deployment's process joins the network, over what its launch file says.
@@ -96,6 +128,9 @@ enum Command {
         /// Answer multicast scouting (off by default: deployments name their endpoints).
         #[arg(long)]
         multicast_scouting: bool,
+        /// Take TLS, logins and access rules from this launch file's [zenoh] section.
+        #[arg(long)]
+        launch: Option<PathBuf>,
     },
     /// Read a field (or every field when FIELD is omitted).
     Get {
@@ -108,10 +143,15 @@ enum Command {
     Put {
         axis: String,
         field: String,
+        /// The value (a negative number is a value, not an option).
+        #[arg(allow_hyphen_values = true)]
         value: String,
         /// Answer only when the motion this write started has finished (DMOV back to 1).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "plain")]
         wait: bool,
+        /// A plain put, as a robot's publisher sends it: no answer, a refusal goes to ERR.
+        #[arg(long)]
+        plain: bool,
         /// Seconds to wait for the answer.
         #[arg(long, default_value_t = 600.0)]
         timeout: f64,
@@ -224,8 +264,22 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             print!("# converted by zmotor convert from {}\n{notes}\n{}\n", file.display(), launch.to_toml().trim_end());
             Ok(ExitCode::SUCCESS)
         }
-        Command::Router { listen, connect, multicast_scouting } => {
-            let section = ZenohConfig { mode: Mode::Router, listen, connect, multicast_scouting, ..Default::default() };
+        Command::Router { listen, connect, multicast_scouting, launch } => {
+            let security = match launch {
+                Some(file) => Launch::load(&file)?.deployment(None)?.zenoh,
+                None => ZenohConfig::default(),
+            };
+            warn_if_open(&security);
+            let section = ZenohConfig {
+                mode: Mode::Router,
+                listen,
+                connect,
+                multicast_scouting,
+                prefix: security.prefix,
+                tls: security.tls,
+                login: security.login,
+                access: security.access,
+            };
             let session = zenoh::open(section.zenoh()?).await?;
             tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
             interrupted().await?;
@@ -233,7 +287,14 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
-        Command::Put { axis, field, value, wait, timeout, client } => {
+        Command::Put { axis, field, value, plain: true, client, .. } => {
+            let session = connect(&client).await?;
+            let key = KeyLayout::new(&client.prefix).field(&axis, field_named(&field)?);
+            session.put(key, value).encoding(Encoding::TEXT_PLAIN).await?;
+            session.close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Put { axis, field, value, wait, timeout, client, .. } => {
             put(&client, &axis, &field, &value, wait, timeout).await
         }
         Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
@@ -315,6 +376,7 @@ async fn launch(
     }
     let mut deployment = launch.deployment(host)?;
     network.apply(&mut deployment.zenoh);
+    warn_if_open(&deployment.zenoh);
     let layout = KeyLayout::new(&deployment.zenoh.prefix);
     let autosave = if deployment.autosave.enabled && !deployment.contents.plans.is_empty() {
         let dir = state_dir(deployment.state_dir.as_deref())?;
@@ -345,11 +407,23 @@ async fn launch(
     Ok(ExitCode::SUCCESS)
 }
 
-/// A client session connected to `endpoint`.
-async fn connect(endpoint: &str) -> Result<zenoh::Session, Error> {
-    zenoh::open(ZenohConfig::client(endpoint).zenoh()?).await.map_err(|_| {
+/// Say at start that a process is open to whoever reaches it.
+fn warn_if_open(section: &ZenohConfig) {
+    if !section.guarded() {
+        tracing::warn!(
+            "no [[zenoh.access]] rules: whoever reaches this process may move its axes and change their settings \
+             (README: Running it safely)"
+        );
+    }
+}
+
+/// A client session connected where `client` says.
+async fn connect(client: &ClientArgs) -> Result<zenoh::Session, Error> {
+    let endpoint = &client.connect;
+    zenoh::open(client.zenoh()?.zenoh()?).await.map_err(|_| {
+        let tls = if client.ca.is_some() { ", or it refused this client's certificate" } else { "" };
         format!(
-            "nothing answers at {endpoint}: start a node there (zmotor launch launch/sim-axis.toml) or point \
+            "nothing answers at {endpoint}{tls}: start a node there (zmotor launch launch/sim-axis.toml) or point \
              --connect at one"
         )
         .into()
@@ -384,7 +458,7 @@ fn show(payload: &[u8]) -> String {
 }
 
 async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<ExitCode, Error> {
-    let session = connect(&client.connect).await?;
+    let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     // One field by name, or a pattern such as D* or the whole axis.
     let (key, single) = match field {
@@ -408,11 +482,18 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
     print_lines(lines);
     let code = if values.is_empty() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
     if values.is_empty() {
-        eprintln!("zmotor: no answer for {key} (is the axis running, and is {} reachable?)", client.connect);
+        eprintln!(
+            "zmotor: no answer for {key} (is the axis running, and is {} reachable?{})",
+            client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
+        );
     }
     session.close().await?;
     Ok(code)
 }
+
+/// What an unanswered client may also be told: Zenoh answers a query its access rules deny
+/// with nothing at all.
+const UNANSWERED_UNDER_ACCESS_CONTROL: &str = " Under access control, a request the rules deny gets no answer either.";
 
 /// How long a `put --wait` whose query ended unanswered waits to see the axis's token go.
 const VANISHING: Duration = Duration::from_secs(3);
@@ -433,13 +514,13 @@ async fn put(
     wait: bool,
     timeout: f64,
 ) -> Result<ExitCode, Error> {
-    let session = connect(&client.connect).await?;
+    let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let field = field_named(field)?;
-    let key = layout.field(axis, field);
-    let selector = if wait { layout.completion(axis, field) } else { key.clone() };
+    let selector = layout.write_selector(axis, field, wait);
     // The axis's liveliness token tells a node that vanished from one that never was.
     let token = session.liveliness().declare_subscriber(layout.axis(axis)).history(true).await?;
+    let asked = std::time::Instant::now();
     let replies = session
         .get(&selector)
         .payload(value.to_string())
@@ -495,12 +576,19 @@ async fn put(
             );
             ExitCode::FAILURE
         }
-        Ending::NoReply if alive => {
+        Ending::NoReply if alive && asked.elapsed().as_secs_f64() >= timeout => {
             eprintln!("zmotor: {axis} is served but did not answer within {timeout} s");
             ExitCode::FAILURE
         }
+        Ending::NoReply if alive => {
+            eprintln!("zmotor: {axis} is served but its node gave no answer.{UNANSWERED_UNDER_ACCESS_CONTROL}");
+            ExitCode::FAILURE
+        }
         Ending::NoReply => {
-            eprintln!("zmotor: no axis {axis} answers at {} (is its node running and reachable?)", client.connect);
+            eprintln!(
+                "zmotor: no axis {axis} answers at {} (is its node running and reachable?{})",
+                client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
+            );
             ExitCode::FAILURE
         }
     };
@@ -510,7 +598,7 @@ async fn put(
 
 /// Jog `axis` under a hold until Ctrl-C (or SIGTERM), or until the jog ends by itself (a limit).
 async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode, Error> {
-    let session = connect(&client.connect).await?;
+    let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let button = if forward { Field::JOGF } else { Field::JOGR };
     let token = layout.hold(axis, &session.zid().to_string());
@@ -518,7 +606,7 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
     let dmov = session.declare_subscriber(layout.field(axis, Field::DMOV)).await?;
     let write = |value: &'static str| {
         session
-            .get(layout.field(axis, button))
+            .get(layout.write_selector(axis, button, false))
             .payload(value)
             .encoding(Encoding::TEXT_PLAIN)
             .attachment(zmotor_msgs::Hold::new(&token).encode())
@@ -528,7 +616,9 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
     match started.map(zenoh::query::Reply::into_result) {
         Ok(Ok(_)) => eprintln!("jogging {axis} {}; Ctrl-C to stop", if forward { "forward" } else { "in reverse" }),
         Ok(Err(err)) => return Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned().into()),
-        Err(_) => return Err(format!("no axis {axis} answers at {}", client.connect).into()),
+        Err(_) => {
+            return Err(format!("no axis {axis} answers at {}.{UNANSWERED_UNDER_ACCESS_CONTROL}", client.connect).into())
+        }
     }
     let interrupted = interrupted();
     tokio::pin!(interrupted);
@@ -567,7 +657,7 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
 }
 
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
-    let session = connect(&client.connect).await?;
+    let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let wanted: Vec<&str> = fields.iter().map(|f| field_named(f).map(Field::name)).collect::<Result<_, _>>()?;
     let subscriber = session.declare_subscriber(layout.axis_fields(axis)).await?;

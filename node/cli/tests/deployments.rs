@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::{repo_file, slow_stage, Host, Namespaces, Running, PATIENCE};
+use common::{repo_file, slow_stage, Host, Namespaces, Pki, Running, PATIENCE};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -113,13 +113,23 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
         eprintln!("SKIPPED: network namespaces cannot be created here (needs root and `ip netns`)");
         return;
     };
-    let (router, host_a, host_b, client) = (net.host(0), net.host(1), net.host(2), net.host(3));
-    let router_endpoint = "tcp/10.77.0.1:7447";
+    let (router, host_a, host_b, mut client) = (net.host(0), net.host(1), net.host(2), net.host(3));
+    let router_endpoint = "tls/10.77.0.1:7447";
     let dir = tempfile::tempdir().unwrap();
+    // Every link runs over mutual TLS, with certificates of an authority made here: the
+    // router's names its address, the nodes and the client show theirs.
+    let pki = Pki::new("zmotor test authority");
+    let router_file = dir.path().join("router.toml");
+    std::fs::write(&router_file, pki.launch_section(&pki.issue("router", &["10.77.0.1"]))).unwrap();
+    let node = pki.issue("node", &[]);
+    client.client_args = pki.client_args(&node);
     // The tangent arm split: the linear stage and the drive calc on host a, the soft rotary
     // motor and the readback calc on host b; both reach each other through the router.
-    let file = repo_file("launch/two-hosts.toml");
-    let _router = router.spawn(&["router", "--listen", router_endpoint], dir.path());
+    let text = std::fs::read_to_string(repo_file("launch/two-hosts.toml")).unwrap();
+    let file = dir.path().join("two-hosts-tls.toml");
+    std::fs::write(&file, text + &pki.launch_section(&node)).unwrap();
+    let router_args = ["router", "--listen", router_endpoint, "--launch", router_file.to_str().unwrap()];
+    let _router = router.spawn(&router_args, dir.path());
     let file = file.to_str().unwrap();
     let _a = host_a.spawn(&["launch", file, "--host", "optics", "--connect", router_endpoint], &dir.path().join("a"));
     let _b = host_b.spawn(&["launch", file, "--host", "user", "--connect", router_endpoint], &dir.path().join("b"));
@@ -129,6 +139,7 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     // Monitor from the client host while moving the hard axis.
     let monitor = client
         .zmotor(&["monitor", "linear", "DMOV", "RBV", "--connect", router_endpoint])
+        .args(&client.client_args)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -156,6 +167,14 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     );
     let rotary = client.wait_for(router_endpoint, "rotary", "RBV", |v| (v - 20.0).abs() < 0.01);
     assert!((rotary - 20.0).abs() < 0.01);
+
+    // A client with no certificate, or on plain TCP, does not get in.
+    for (args, endpoint) in
+        [(vec!["--ca", pki.ca().to_str().unwrap()], router_endpoint), (vec![], "tcp/10.77.0.1:7447")]
+    {
+        let output = client.zmotor(&["get", "linear", "RBV", "--connect", endpoint]).args(args).output().unwrap();
+        assert!(!output.status.success(), "{endpoint}: {}", String::from_utf8_lossy(&output.stdout));
+    }
 }
 
 #[test]

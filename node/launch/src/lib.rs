@@ -21,7 +21,7 @@ use zmotor_core::driver::sim::SimConfig;
 use zmotor_core::service::JogHold;
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
-use zmotor_zenoh::{Mode, NodeContents, ValueSpec, ZenohConfig};
+use zmotor_zenoh::{Mode, NodeContents, TlsConfig, ValueSpec, ZenohConfig};
 
 /// Highest readback rate while moving, Hz.
 pub const MAX_READBACK_RATE: f64 = 1000.0;
@@ -125,6 +125,9 @@ pub struct HostSection {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     /// Endpoints the host connects to, instead of `[zenoh]`'s.
     pub connect: Option<Vec<String>>,
+    /// The host's TLS certificate and key, instead of `[zenoh.tls]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls: Option<TlsConfig>,
 }
 
 /// Where an item was written: which file of the launch, and its index in that file's array.
@@ -655,6 +658,23 @@ impl Launch {
                 return Err(Problem::at(0, keys_path(&["autosave", "delay"]), message));
             }
         }
+        for (index, rule) in zenoh.access.iter().enumerate() {
+            let at = |key: &str, message: String| {
+                let path =
+                    vec![Seg::Key("zenoh".into()), Seg::Key("access".into()), Seg::Index(index), Seg::Key(key.into())];
+                Problem::at(0, path, format!("zenoh.access '{}': {message}", rule.name))
+            };
+            if rule.may.is_empty() {
+                return Err(at("may", "grants nothing: say what its members may (read, drive, configure, all)".into()));
+            }
+            if rule.cert_common_names.is_empty() && rule.usernames.is_empty() && rule.interfaces.is_empty() {
+                let message = "has no members: name cert_common_names, usernames or interfaces".to_string();
+                return Err(at("name", message));
+            }
+            if zenoh.access[..index].iter().any(|r| r.name == rule.name) {
+                return Err(at("name", "is defined twice".into()));
+            }
+        }
         let items = self.items();
         let mut seen = BTreeMap::new();
         for (table, name, host, origin) in &items {
@@ -754,7 +774,9 @@ impl Launch {
             zenoh.mode = section.mode.unwrap_or(zenoh.mode);
             zenoh.listen = section.listen.clone().unwrap_or(zenoh.listen);
             zenoh.connect = section.connect.clone().unwrap_or(zenoh.connect);
+            zenoh.tls = section.tls.clone().or(zenoh.tls);
         }
+        self.resolve_files(&mut zenoh);
         let runs_here = |item_host: &Option<String>| host.is_none() || item_host.as_deref() == host;
         let plan = |a: &AxisSection| a.plan().map_err(|p| self.error(p));
         let spec = |c: &CalcSection| c.spec().map_err(|p| self.error(p));
@@ -779,6 +801,7 @@ impl Launch {
                 .filter(|c| runs_here(&c.host))
                 .map(controller)
                 .collect::<Result<_, _>>()?,
+            guarded: zenoh.guarded(),
         };
         Ok(Deployment {
             zenoh,
@@ -786,6 +809,18 @@ impl Launch {
             state_dir: self.file.state_dir.as_ref().map(|dir| self.base.join(dir)),
             autosave: self.file.autosave.clone().unwrap_or_default(),
         })
+    }
+
+    /// The files `[zenoh]` names (certificates, keys, users), relative to the launch file.
+    fn resolve_files(&self, zenoh: &mut ZenohConfig) {
+        let resolve = |file: &mut String| *file = self.base.join(&*file).display().to_string();
+        if let Some(tls) = &mut zenoh.tls {
+            resolve(&mut tls.ca);
+            tls.certificate.iter_mut().chain(tls.key.iter_mut()).for_each(resolve);
+        }
+        if let Some(users) = zenoh.login.as_mut().and_then(|l| l.users_file.as_mut()) {
+            resolve(users);
+        }
     }
 
     /// The launch as one TOML file (includes merged).
@@ -1094,6 +1129,26 @@ mod tests {
         assert_eq!((f.mres, f.velo, f.dir, f.egu.as_str(), f.name.as_str()), (0.001, 10.0, 1, "mm", "m1"));
         assert!(matches!(&plans[0].driver, DriverPlan::Sim(sim) if sim.high_limit_switch == Some(105000.0)));
         assert_eq!(plans[0].rates.moving, Duration::from_millis(20));
+    }
+
+    #[test]
+    fn access_rules_and_tls_files_are_checked_and_resolved_against_the_launch_file() {
+        let text = "[zenoh]\nlisten = [\"tls/127.0.0.1:7447\"]\n\
+                    [zenoh.tls]\nca = \"certs/ca.pem\"\ncertificate = \"/etc/node.pem\"\nkey = \"node.key\"\nmutual = true\n\
+                    [[zenoh.access]]\nname = \"operators\"\nmay = [\"drive\", \"configure\"]\ncert_common_names = [\"op\"]\n";
+        let launch = Launch::from_text("lab.toml", text, Path::new("/srv/lab")).unwrap();
+        let deployment = launch.deployment(None).unwrap();
+        let tls = deployment.zenoh.tls.as_ref().unwrap();
+        assert_eq!((tls.ca.as_str(), tls.certificate.as_deref()), ("/srv/lab/certs/ca.pem", Some("/etc/node.pem")));
+        assert!(deployment.contents.guarded);
+        assert!(!Launch::parse("").unwrap().deployment(None).unwrap().contents.guarded);
+
+        let bad = |rule: &str| Launch::parse(&format!("[[zenoh.access]]\n{rule}")).unwrap_err().to_string();
+        assert!(bad("name = \"x\"\nmay = []\nusernames = [\"u\"]").contains("zenoh.access 'x': grants nothing"));
+        assert!(bad("name = \"x\"\nmay = [\"read\"]").contains("zenoh.access 'x': has no members"));
+        assert!(bad("name = \"x\"\nmay = [\"fly\"]\nusernames = [\"u\"]").contains("unknown variant `fly`"));
+        let twice = "name = \"x\"\nmay = [\"read\"]\nusernames = [\"u\"]\n";
+        assert!(bad(&format!("{twice}[[zenoh.access]]\n{twice}")).contains("zenoh.access 'x': is defined twice"));
     }
 
     #[test]

@@ -76,6 +76,86 @@ pub struct ZenohConfig {
     pub multicast_scouting: bool,
     /// Key prefix of the axes.
     pub prefix: String,
+    /// TLS for `tls/...` endpoints (`[zenoh.tls]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tls: Option<TlsConfig>,
+    /// User/password authentication (`[zenoh.login]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub login: Option<LoginConfig>,
+    /// Who may do what (`[[zenoh.access]]`); with none, whoever reaches the process may do
+    /// anything.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub access: Vec<AccessRule>,
+}
+
+/// TLS on `tls/...` endpoints: the authority this process trusts and the certificate it shows.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TlsConfig {
+    /// PEM file of the certificate authority that signed the others' certificates.
+    pub ca: String,
+    /// PEM file of this process's certificate (required to listen, and to connect under mutual
+    /// TLS).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<String>,
+    /// PEM file of its private key.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<String>,
+    /// Mutual TLS: whoever connects here must show a certificate the authority signed (its
+    /// common name is then a subject of the access rules).
+    #[serde(default)]
+    pub mutual: bool,
+}
+
+/// User/password authentication: the name this process gives when it connects, and the users
+/// it accepts from those who connect to it.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LoginConfig {
+    /// The user this process connects as.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub user: Option<String>,
+    /// Its password.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub password: Option<String>,
+    /// A file of `user:password` lines: whoever connects here must be one of them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub users_file: Option<String>,
+}
+
+/// What a group of clients may do, and how Zenoh recognises them.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct AccessRule {
+    /// A name for the group (it names the rule in Zenoh's access control).
+    pub name: String,
+    /// What its members may do.
+    pub may: Vec<Permission>,
+    /// Members by the common name of their TLS certificate (mutual TLS).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cert_common_names: Vec<String>,
+    /// Members by user name (`[zenoh.login]`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub usernames: Vec<String>,
+    /// Members by the network interface they arrive on (e.g. `lo`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub interfaces: Vec<String>,
+}
+
+/// A permission of an access rule.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Permission {
+    /// Subscribe, read (`get`) and see the axes' liveliness.
+    Read,
+    /// Read, and write the fields that move or stop an axis (`WriteClass::Drive`), holding
+    /// what they start.
+    Drive,
+    /// Read, and write every other writable field (limits, resolution, speeds, offsets, SET,
+    /// links) and the simulator's settings.
+    Configure,
+    /// Everything, on every key: for other nodes and routers.
+    All,
 }
 
 impl Default for ZenohConfig {
@@ -86,6 +166,9 @@ impl Default for ZenohConfig {
             connect: vec![],
             multicast_scouting: false,
             prefix: keys::DEFAULT_PREFIX.into(),
+            tls: None,
+            login: None,
+            access: Vec::new(),
         }
     }
 }
@@ -130,8 +213,128 @@ impl ZenohConfig {
         ] {
             config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
         }
+        let mut optional = Vec::new();
+        if let Some(tls) = &self.tls {
+            optional.push(("transport/link/tls", json(tls.zenoh())));
+        }
+        if let Some(login) = &self.login {
+            let usrpwd = serde_json::json!({
+                "user": login.user, "password": login.password, "dictionary_file": login.users_file,
+            });
+            optional.push(("transport/auth/usrpwd", usrpwd.to_string()));
+        }
+        if !self.access.is_empty() {
+            optional.push(("access_control", access_control(&KeyLayout::new(&self.prefix), &self.access).to_string()));
+        }
+        for (key, value) in optional {
+            config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
+        }
         Ok(config)
     }
+
+    /// Whether access rules guard this process (confirmed writes then go to write keys only).
+    pub fn guarded(&self) -> bool {
+        !self.access.is_empty()
+    }
+}
+
+impl TlsConfig {
+    fn zenoh(&self) -> serde_json::Value {
+        serde_json::json!({
+            "root_ca_certificate": self.ca,
+            "listen_certificate": self.certificate,
+            "listen_private_key": self.key,
+            // Under mutual TLS this process shows its certificate when it connects, too.
+            "connect_certificate": self.certificate.as_ref().filter(|_| self.mutual),
+            "connect_private_key": self.key.as_ref().filter(|_| self.mutual),
+            "enable_mtls": self.mutual,
+            "verify_name_on_connect": true,
+        })
+    }
+}
+
+/// Zenoh's access control for a launch file's rules. Nothing is allowed but what a rule
+/// allows: a member of any rule sees everything that flows to it (publications, replies,
+/// declarations); what it may send depends on its permissions. Zenoh's rules tell a put from
+/// a query, but not a read from a confirmed write (both are queries): so confirmed writes go
+/// to write keys (`<prefix>/<axis>/@write/<FIELD>`), which `**` does not cover, and a guarded
+/// node refuses a confirmed write anywhere else.
+fn access_control(layout: &KeyLayout, rules: &[AccessRule]) -> serde_json::Value {
+    use zmotor_msgs::{Field, WriteClass};
+    const EVERY_MESSAGE: [&str; 9] = [
+        "put",
+        "delete",
+        "declare_subscriber",
+        "query",
+        "declare_queryable",
+        "reply",
+        "liveliness_token",
+        "declare_liveliness_subscriber",
+        "liveliness_query",
+    ];
+    let every_key = serde_json::json!(["**", layout.every_write(), layout.every_hold(), layout.driver_cmd("*")]);
+    let writable = |class: WriteClass| -> Vec<String> {
+        Field::all()
+            .filter(|f| f.write_class() == Some(class))
+            .flat_map(|f| [layout.field_of_every_axis(f), layout.writes_of(f)])
+            .collect()
+    };
+    let mut configure = writable(WriteClass::Configure);
+    configure.push(keys::sim_key("*", "*"));
+    let rule = |id: &str, flow: &str, messages: &[&str], key_exprs: serde_json::Value| serde_json::json!({ "id": id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": key_exprs });
+    let zenoh_rules = [
+        rule("see", "egress", &EVERY_MESSAGE, every_key.clone()),
+        rule(
+            "read",
+            "ingress",
+            &["declare_subscriber", "query", "declare_liveliness_subscriber", "liveliness_query"],
+            serde_json::json!(["**"]),
+        ),
+        rule("drive", "ingress", &["put", "query"], serde_json::json!(writable(WriteClass::Drive))),
+        rule("hold", "ingress", &["liveliness_token"], serde_json::json!([layout.every_hold()])),
+        rule("configure", "ingress", &["put", "query"], serde_json::json!(configure)),
+        rule("all", "ingress", &EVERY_MESSAGE, every_key),
+    ];
+    let subjects: Vec<serde_json::Value> = rules
+        .iter()
+        .map(|r| {
+            let mut subject = serde_json::json!({ "id": r.name });
+            for (key, names) in [
+                ("cert_common_names", &r.cert_common_names),
+                ("usernames", &r.usernames),
+                ("interfaces", &r.interfaces),
+            ] {
+                if !names.is_empty() {
+                    subject[key] = serde_json::json!(names);
+                }
+            }
+            subject
+        })
+        .collect();
+    let policies: Vec<serde_json::Value> = rules
+        .iter()
+        .map(|r| {
+            let mut granted = vec!["see", "read"];
+            for permission in &r.may {
+                granted.extend_from_slice(match permission {
+                    Permission::Read => &[],
+                    Permission::Drive => &["drive", "hold"],
+                    Permission::Configure => &["configure"],
+                    Permission::All => &["all"],
+                });
+            }
+            granted.sort_unstable();
+            granted.dedup();
+            serde_json::json!({ "id": r.name, "rules": granted, "subjects": [r.name] })
+        })
+        .collect();
+    serde_json::json!({
+        "enabled": true,
+        "default_permission": "deny",
+        "rules": zenoh_rules,
+        "subjects": subjects,
+        "policies": policies,
+    })
 }
 
 /// The lease of a client session (see `ZenohConfig::lease`).
@@ -174,6 +377,64 @@ mod tests {
         assert_eq!("router".parse::<Mode>(), Ok(Mode::Router));
         assert_eq!("Peer".parse::<Mode>(), Err(UnknownMode("Peer".into())));
         assert_eq!(Mode::Client.to_string(), "client");
+    }
+
+    fn guarded() -> ZenohConfig {
+        let rule = |name: &str, may: Vec<Permission>| AccessRule {
+            name: name.into(),
+            may,
+            cert_common_names: vec![name.into()],
+            ..AccessRule::default()
+        };
+        ZenohConfig {
+            tls: Some(TlsConfig {
+                ca: "ca.pem".into(),
+                certificate: Some("node.pem".into()),
+                key: Some("node.key".into()),
+                mutual: true,
+            }),
+            login: Some(LoginConfig { user: Some("node".into()), password: Some("pw".into()), users_file: None }),
+            access: vec![
+                rule("viewer", vec![Permission::Read]),
+                rule("operator", vec![Permission::Drive, Permission::Configure, Permission::Drive]),
+                AccessRule { interfaces: vec!["lo".into()], ..rule("nodes", vec![Permission::All]) },
+            ],
+            ..ZenohConfig::default()
+        }
+    }
+
+    #[test]
+    fn tls_login_and_access_rules_make_a_configuration_zenoh_takes() {
+        let config = guarded();
+        assert!(config.guarded() && !ZenohConfig::default().guarded());
+        let zenoh = config.zenoh().unwrap();
+        assert_eq!(zenoh.get_json("transport/link/tls/enable_mtls").unwrap(), "true");
+        assert_eq!(zenoh.get_json("transport/link/tls/connect_certificate").unwrap(), r#""node.pem""#);
+        assert_eq!(zenoh.get_json("access_control/default_permission").unwrap(), r#""deny""#);
+    }
+
+    #[test]
+    fn each_permission_grants_its_rules_once() {
+        let acl = access_control(&KeyLayout::default(), &guarded().access);
+        let granted = |i: usize| acl["policies"][i]["rules"].clone();
+        assert_eq!(granted(0), serde_json::json!(["read", "see"]));
+        assert_eq!(granted(1), serde_json::json!(["configure", "drive", "hold", "read", "see"]));
+        assert_eq!(granted(2), serde_json::json!(["all", "read", "see"]));
+        assert_eq!(
+            acl["subjects"][2],
+            serde_json::json!({"id": "nodes", "cert_common_names": ["nodes"], "interfaces": ["lo"]})
+        );
+    }
+
+    #[test]
+    fn a_reader_may_query_every_field_key_but_no_write_key() {
+        // The rules rely on this: `**` does not cover a chunk that starts with `@`.
+        let all = zenoh::key_expr::KeyExpr::try_from("**").unwrap();
+        let layout = KeyLayout::default();
+        assert!(all.includes(&zenoh::key_expr::KeyExpr::try_from(layout.field("m1", zmotor_msgs::Field::VAL)).unwrap()));
+        for key in [layout.write("m1", zmotor_msgs::Field::VAL), layout.hold("m1", "c"), layout.driver_cmd("m1")] {
+            assert!(!all.includes(&zenoh::key_expr::KeyExpr::try_from(key.clone()).unwrap()), "{key}");
+        }
     }
 
     #[test]

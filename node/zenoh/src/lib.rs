@@ -12,6 +12,6 @@ mod links;
 mod node;
 mod timer;
 
-pub use config::{free_local_endpoint, ConfigError, Mode, ZenohConfig};
+pub use config::{free_local_endpoint, AccessRule, ConfigError, LoginConfig, Mode, Permission, TlsConfig, ZenohConfig};
 pub use links::ValueSpec;
 pub use node::{AutosaveConfig, Node, NodeContents, NodeError};

@@ -119,6 +119,9 @@ pub struct NodeContents {
     pub values: Vec<ValueSpec>,
     /// The controllers its axes are on.
     pub controllers: Vec<ControllerSpec>,
+    /// Under access control: a confirmed write is taken on a write key only
+    /// (`KeyLayout::write`), which the rules can tell from a read.
+    pub guarded: bool,
 }
 
 /// A running node: its axes' and calc links' tasks, stopped when dropped or on `shutdown`.
@@ -144,7 +147,7 @@ impl Node {
         contents: NodeContents,
         autosave: Option<AutosaveConfig>,
     ) -> Result<Self, NodeError> {
-        let NodeContents { plans, calcs, values, controllers } = contents;
+        let NodeContents { plans, calcs, values, controllers, guarded } = contents;
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let (stop_controllers, controllers_stopped) = tokio::sync::watch::channel(false);
         let mut running: Vec<RunningController> =
@@ -201,6 +204,7 @@ impl Node {
                 holds,
                 demand: demand.clone(),
                 layout: layout.clone(),
+                guarded,
                 clock: tokio::time::Instant::now(),
                 trace: None,
                 hot: Vec::new(),
@@ -397,6 +401,7 @@ type Routes = std::collections::HashMap<String, AxisHandle>;
 struct Router {
     _writes: zenoh::pubsub::Subscriber<()>,
     _queries: zenoh::query::Queryable<()>,
+    _confirmed_writes: zenoh::query::Queryable<()>,
     _sim_writes: zenoh::pubsub::Subscriber<()>,
     _sim_queries: zenoh::query::Queryable<()>,
 }
@@ -412,7 +417,8 @@ impl Router {
         let _ = writer.local.set(Arc::downgrade(&routes));
         let fields = Space::Fields(layout.clone());
         let (r1, s1) = (routes.clone(), fields.clone());
-        let (r2, s2) = (routes.clone(), fields);
+        let (r2, s2) = (routes.clone(), fields.clone());
+        let (r5, s5) = (routes.clone(), fields);
         let (r3, r4) = (routes.clone(), routes);
         // The node's own publications do not come back to it: what it writes to its own axes
         // goes through `Writer`.
@@ -429,6 +435,11 @@ impl Router {
             _queries: session
                 .declare_queryable(layout.everything())
                 .callback(move |q| route_query(&r2, &s2, q, AxisInput::Query))
+                .await?,
+            // `<prefix>/**` does not cover the `@write` chunk: write keys are served apart.
+            _confirmed_writes: session
+                .declare_queryable(layout.every_write())
+                .callback(move |q| route_query(&r5, &s5, q, AxisInput::Query))
                 .await?,
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
@@ -537,6 +548,8 @@ struct AxisCore {
     /// The liveliness tokens its held motions depend on.
     holds: Holds,
     layout: KeyLayout,
+    /// Whether confirmed writes are taken on write keys only (`NodeContents::guarded`).
+    guarded: bool,
     clock: tokio::time::Instant,
     /// Declared at the first driver command, so idle axes cost no publisher.
     trace: Option<zenoh::pubsub::Publisher<'static>>,
@@ -593,8 +606,18 @@ impl AxisCore {
     }
 
     fn on_query(&mut self, now: Instant, query: Query) {
-        let name = self.layout.field_name(self.service.name(), query.key_expr().as_str()).map(str::to_string);
+        let key = query.key_expr().as_str();
+        let written = self.layout.written_field_name(self.service.name(), key);
+        let name = written.or_else(|| self.layout.field_name(self.service.name(), key)).map(str::to_string);
         match (name, query.payload().map(|p| p.to_bytes().into_owned())) {
+            (Some(name), Some(_)) if self.guarded && written.is_none() => {
+                // Here a query on a field key is a read: the access rules let readers make it.
+                let message = format!(
+                    "{key}: this node is under access control; a confirmed write goes to {}/@write/{name}",
+                    self.layout.axis(self.service.name())
+                );
+                let _ = query.reply_err(message).encoding(Encoding::TEXT_PLAIN).wait();
+            }
             (Some(name), Some(payload)) => {
                 let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
                 let wait = query.parameters().contains_key(keys::WAIT_PARAMETER);
@@ -689,9 +712,12 @@ impl AxisCore {
     }
 
     fn reply(&self, query: &Query, reply: Reply) {
+        // A reply to a write key carries that key: Zenoh drops replies outside the query's.
+        let written = self.layout.written_field_name(self.name(), query.key_expr().as_str()).is_some();
+        let key_of = |field| if written { query.key_expr().clone().into_owned() } else { self.field_key(field) };
         let (key, payload) = match reply {
-            Reply::Value(field, value) => (self.field_key(field), encode_cbor(&value)),
-            Reply::Completion(field, completion) => (self.field_key(field), encode_cbor(&completion)),
+            Reply::Value(field, value) => (key_of(field), encode_cbor(&value)),
+            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion)),
             Reply::SimState(state) => match KeyExpr::try_from(keys::sim_key(self.name(), keys::SIM_STATE_KEY)) {
                 Ok(key) => (key, encode_cbor(&state)),
                 Err(_) => return,

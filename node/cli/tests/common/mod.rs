@@ -12,6 +12,8 @@ pub const PATIENCE: Duration = Duration::from_secs(15);
 #[derive(Clone, Default)]
 pub struct Host {
     pub netns: Option<String>,
+    /// Arguments every client command of this host adds (its certificate, ...).
+    pub client_args: Vec<String>,
 }
 
 impl Host {
@@ -44,9 +46,14 @@ impl Host {
         self.zmotor(args).output().unwrap()
     }
 
+    /// A client command, with this host's client arguments.
+    pub fn client(&self, args: &[&str]) -> Output {
+        self.zmotor(args).args(&self.client_args).output().unwrap()
+    }
+
     /// A field's value, or None while the axis does not answer.
     pub fn get(&self, endpoint: &str, axis: &str, field: &str) -> Option<f64> {
-        let output = self.run(&["get", axis, field, "--connect", endpoint]);
+        let output = self.client(&["get", axis, field, "--connect", endpoint]);
         String::from_utf8_lossy(&output.stdout).trim().parse().ok()
     }
 
@@ -76,7 +83,7 @@ impl Host {
         if wait {
             args.push("--wait");
         }
-        let output = self.run(&args);
+        let output = self.client(&args);
         if output.status.success() {
             Ok(String::from_utf8_lossy(&output.stdout).trim().to_string())
         } else {
@@ -171,7 +178,7 @@ impl Namespaces {
     }
 
     pub fn host(&self, index: usize) -> Host {
-        Host { netns: Some(self.names[index + 1].clone()) }
+        Host { netns: Some(self.names[index + 1].clone()), client_args: Vec::new() }
     }
 
     /// Pull the cable of host `index`: its link to the switch goes down, nothing is closed.
@@ -224,5 +231,80 @@ impl Lines {
             }
         }
         None
+    }
+}
+
+/// A certificate authority made for one test (never a committed key), and the certificates it
+/// signs, as PEM files in a temporary directory.
+pub struct Pki {
+    pub dir: tempfile::TempDir,
+    issuer: rcgen::Issuer<'static, rcgen::KeyPair>,
+}
+
+/// A certificate and its key, as files.
+pub struct Identity {
+    pub certificate: PathBuf,
+    pub key: PathBuf,
+}
+
+impl Pki {
+    pub fn new(name: &str) -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let key = rcgen::KeyPair::generate().unwrap();
+        let mut params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+        params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+        params.distinguished_name.push(rcgen::DnType::CommonName, name);
+        params.key_usages = vec![rcgen::KeyUsagePurpose::KeyCertSign, rcgen::KeyUsagePurpose::DigitalSignature];
+        let certificate = params.self_signed(&key).unwrap();
+        std::fs::write(dir.path().join("ca.pem"), certificate.pem()).unwrap();
+        Self { dir, issuer: rcgen::Issuer::new(params, key) }
+    }
+
+    /// The authority's certificate file.
+    pub fn ca(&self) -> PathBuf {
+        self.dir.path().join("ca.pem")
+    }
+
+    /// A certificate for `common_name`, valid for the addresses given (a listener's).
+    pub fn issue(&self, common_name: &str, addresses: &[&str]) -> Identity {
+        let key = rcgen::KeyPair::generate().unwrap();
+        let mut names = vec!["localhost".to_string()];
+        names.extend(addresses.iter().map(|a| a.to_string()));
+        let mut params = rcgen::CertificateParams::new(names).unwrap();
+        params.distinguished_name.push(rcgen::DnType::CommonName, common_name);
+        params.extended_key_usages =
+            vec![rcgen::ExtendedKeyUsagePurpose::ServerAuth, rcgen::ExtendedKeyUsagePurpose::ClientAuth];
+        let certificate = params.signed_by(&key, &self.issuer).unwrap();
+        let identity = Identity {
+            certificate: self.dir.path().join(format!("{common_name}.pem")),
+            key: self.dir.path().join(format!("{common_name}.key")),
+        };
+        std::fs::write(&identity.certificate, certificate.pem()).unwrap();
+        std::fs::write(&identity.key, key.serialize_pem()).unwrap();
+        identity
+    }
+
+    /// The `[zenoh.tls]` section of a launch file that shows `identity`, under mutual TLS.
+    pub fn launch_section(&self, identity: &Identity) -> String {
+        format!(
+            "\n[zenoh.tls]\nca = {:?}\ncertificate = {:?}\nkey = {:?}\nmutual = true\n",
+            self.ca(),
+            identity.certificate,
+            identity.key
+        )
+    }
+
+    /// The command-line arguments of a client that shows `identity`.
+    pub fn client_args(&self, identity: &Identity) -> Vec<String> {
+        [
+            "--ca",
+            self.ca().to_str().unwrap(),
+            "--cert",
+            identity.certificate.to_str().unwrap(),
+            "--key",
+            identity.key.to_str().unwrap(),
+        ]
+        .map(String::from)
+        .to_vec()
     }
 }
