@@ -132,7 +132,13 @@ enum Command {
         #[arg(long)]
         launch: Option<PathBuf>,
     },
-    /// Read a field (or every field when FIELD is omitted).
+    /// List the axes live on the network: name, DESC, EGU, RBV and whether each moves.
+    List {
+        #[command(flatten)]
+        client: ClientArgs,
+    },
+    /// Read a field (or every field when FIELD is omitted) of an axis, or of several axes
+    /// separated by commas (m1,m2: lines `m1.RBV 1.5`).
     Get {
         axis: String,
         field: Option<String>,
@@ -168,10 +174,14 @@ enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
-    /// Print field changes as they are published (all fields when none is named).
+    /// Print field changes as they arrive, as camonitor does (`m1.RBV 2026-12-01
+    /// 12:00:00.123456 10`, the time of arrival in UTC), all fields when none is named.
     Monitor {
         axis: String,
         fields: Vec<String>,
+        /// One JSON object a line: {"axis", "field", "time" (RFC 3339), "value"}.
+        #[arg(long)]
+        json: bool,
         #[command(flatten)]
         client: ClientArgs,
     },
@@ -237,8 +247,14 @@ async fn main() -> ExitCode {
     let command = Cli::parse().command;
     // A client command says what went wrong in one line of its own; Zenoh's logs (with its
     // source paths) only when RUST_LOG asks for them. A node logs Zenoh's warnings.
-    let quiet_zenoh =
-        matches!(command, Command::Get { .. } | Command::Put { .. } | Command::Monitor { .. } | Command::Jog { .. });
+    let quiet_zenoh = matches!(
+        command,
+        Command::Get { .. }
+            | Command::Put { .. }
+            | Command::Monitor { .. }
+            | Command::Jog { .. }
+            | Command::List { .. }
+    );
     let default_filter = if quiet_zenoh { "info,zenoh=off" } else { "info,zenoh=warn" };
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -297,7 +313,8 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         Command::Put { axis, field, value, wait, timeout, client, .. } => {
             put(&client, &axis, &field, &value, wait, timeout).await
         }
-        Command::Monitor { axis, fields, client } => monitor(&client, &axis, &fields).await,
+        Command::Monitor { axis, fields, json, client } => monitor(&client, &axis, &fields, json).await,
+        Command::List { client } => list(&client).await,
         Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
         Command::Bench { smoke, moves, scales, moving_up_to, parts, storm } => {
@@ -457,16 +474,42 @@ fn show(payload: &[u8]) -> String {
     }
 }
 
-async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<ExitCode, Error> {
+async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<ExitCode, Error> {
     let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
-    // One field by name, or a pattern such as D* or the whole axis.
-    let (key, single) = match field {
-        Some(pattern) if pattern.contains('*') => (layout.field_pattern(axis, pattern), false),
-        Some(name) => (layout.field(axis, field_named(name)?), true),
-        None => (layout.axis_all(axis), false),
-    };
-    let replies = session.get(&key).timeout(Duration::from_secs(5)).await?;
+    let axes: Vec<&str> = axes.split(',').filter(|a| !a.is_empty()).collect();
+    let several = axes.len() > 1;
+    let mut code = ExitCode::SUCCESS;
+    for axis in axes {
+        // One field by name, or a pattern such as D* or the whole axis.
+        let (key, single) = match field {
+            Some(pattern) if pattern.contains('*') => (layout.field_pattern(axis, pattern), false),
+            Some(name) => (layout.field(axis, field_named(name)?), true),
+            None => (layout.axis_all(axis), false),
+        };
+        let mut values = read(&session, &key).await?;
+        values.sort_by_key(|(field, ..)| *field);
+        print_lines(values.iter().map(|(_, name, value)| match (several, single) {
+            (true, _) => format!("{axis}.{name} {value}"),
+            (false, true) => value.clone(),
+            (false, false) => format!("{name:<6} {value}"),
+        }));
+        if values.is_empty() {
+            code = ExitCode::FAILURE;
+            eprintln!(
+                "zmotor: no answer for {key} (is the axis running, and is {} reachable?{})",
+                client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
+            );
+        }
+    }
+    session.close().await?;
+    Ok(code)
+}
+
+/// The replies to a read of `key`: (field, the last chunk of the reply's key, value as text).
+/// An error reply is printed.
+async fn read(session: &zenoh::Session, key: &str) -> Result<Vec<(Option<Field>, String, String)>, Error> {
+    let replies = session.get(key).timeout(Duration::from_secs(5)).await?;
     let mut values = Vec::new();
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
@@ -477,18 +520,57 @@ async fn get(client: &ClientArgs, axis: &str, field: Option<&str>) -> Result<Exi
             Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
         }
     }
-    values.sort_by_key(|(field, ..)| *field);
-    let lines = values.iter().map(|(_, name, value)| if single { value.clone() } else { format!("{name:<6} {value}") });
-    print_lines(lines);
-    let code = if values.is_empty() { ExitCode::FAILURE } else { ExitCode::SUCCESS };
-    if values.is_empty() {
-        eprintln!(
-            "zmotor: no answer for {key} (is the axis running, and is {} reachable?{})",
-            client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
-        );
+    Ok(values)
+}
+
+/// The live axes (their liveliness tokens), with DESC, EGU, RBV and whether they move.
+async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
+    let session = connect(client).await?;
+    let layout = KeyLayout::new(&client.prefix);
+    let tokens = session.liveliness().get(layout.axis("*")).timeout(Duration::from_secs(5)).await?;
+    let mut axes = std::collections::BTreeSet::new();
+    while let Ok(reply) = tokens.recv_async().await {
+        if let Some(axis) = reply.result().ok().and_then(|s| layout.axis_chunk(s.key_expr().as_str())) {
+            axes.insert(axis.to_string());
+        }
+    }
+    // One read of each column for every axis at once.
+    let columns = [Field::DESC, Field::EGU, Field::RBV, Field::DMOV];
+    let mut cells = std::collections::HashMap::new();
+    for field in columns {
+        let replies = session.get(layout.field_of_every_axis(field)).timeout(Duration::from_secs(5)).await?;
+        while let Ok(reply) = replies.recv_async().await {
+            let Ok(sample) = reply.result() else { continue };
+            if let Some(axis) = layout.axis_chunk(sample.key_expr().as_str()) {
+                cells.insert((axis.to_string(), field), show(&sample.payload().to_bytes()));
+            }
+        }
+    }
+    let cell = |axis: &str, field| cells.get(&(axis.to_string(), field)).cloned().unwrap_or_else(|| "?".into());
+    let rows: Vec<[String; 5]> = axes
+        .iter()
+        .map(|axis| {
+            let state = match cell(axis, Field::DMOV).as_str() {
+                "0" => "moving",
+                "1" => "idle",
+                _ => "?",
+            };
+            [axis.clone(), cell(axis, Field::DESC), cell(axis, Field::EGU), cell(axis, Field::RBV), state.into()]
+        })
+        .collect();
+    let header = ["AXIS", "DESC", "EGU", "RBV", "STATE"].map(String::from);
+    let widths: Vec<usize> =
+        (0..5).map(|i| rows.iter().chain([&header]).map(|r| r[i].chars().count()).max().unwrap_or(0)).collect();
+    let line = |row: &[String; 5]| {
+        row.iter().zip(&widths).map(|(text, width)| format!("{text:<width$}")).collect::<Vec<_>>().join("  ")
+    };
+    if rows.is_empty() {
+        eprintln!("zmotor: no axis is live at {}", client.connect);
+    } else {
+        print_lines(std::iter::once(line(&header)).chain(rows.iter().map(line)).map(|l| l.trim_end().to_string()));
     }
     session.close().await?;
-    Ok(code)
+    Ok(ExitCode::SUCCESS)
 }
 
 /// What an unanswered client may also be told: Zenoh answers a query its access rules deny
@@ -656,7 +738,7 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
     Ok(ExitCode::SUCCESS)
 }
 
-async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<ExitCode, Error> {
+async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool) -> Result<ExitCode, Error> {
     let session = connect(client).await?;
     let layout = KeyLayout::new(&client.prefix);
     let wanted: Vec<&str> = fields.iter().map(|f| field_named(f).map(Field::name)).collect::<Result<_, _>>()?;
@@ -668,8 +750,12 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<E
                 let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
                 if wanted.is_empty() || wanted.contains(&name.as_str()) {
                     let payload = sample.payload().to_bytes();
-                    let value = if name == zmotor_msgs::keys::ERR_KEY { String::from_utf8_lossy(&payload).into_owned() } else { show(&payload) };
-                    print_lines([format!("{name:<6} {value}")]);
+                    let value = match decode_cbor_value(&payload) {
+                        Ok(value) => value,
+                        // ERR's refusals are text.
+                        Err(_) => zmotor_msgs::Value::Text(String::from_utf8_lossy(&payload).into_owned()),
+                    };
+                    print_lines([monitor_line(axis, &name, std::time::SystemTime::now(), &value, json)]);
                 }
             }
             _ = tokio::signal::ctrl_c() => break,
@@ -677,6 +763,16 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String]) -> Result<E
     }
     session.close().await?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// A monitor's line: camonitor's `m1.RBV 2026-12-01 12:00:00.123456 10`, or a JSON object.
+fn monitor_line(axis: &str, field: &str, at: std::time::SystemTime, value: &zmotor_msgs::Value, json: bool) -> String {
+    let time = humantime::format_rfc3339_micros(at).to_string();
+    if json {
+        serde_json::json!({ "axis": axis, "field": field, "time": time, "value": value }).to_string()
+    } else {
+        format!("{axis}.{field} {} {value}", time.trim_end_matches('Z').replacen('T', " ", 1))
+    }
 }
 
 fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {

@@ -153,7 +153,8 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     let mut monitor = monitor;
     let seen = monitor.0.take().unwrap().wait_with_output().unwrap();
     let seen = String::from_utf8_lossy(&seen.stdout);
-    assert!(seen.contains("DMOV   0") && seen.contains("DMOV   1"), "monitor saw: {seen}");
+    let saw = |value| seen.lines().any(|line| common::monitored(line) == Some(("linear.DMOV", value)));
+    assert!(saw("0") && saw("1"), "monitor saw: {seen}");
 
     // The composite motor across hosts: rotary (host b) drives linear (host a), commanded
     // right after the linear's own move, while the rotary may still be following it.
@@ -219,7 +220,7 @@ fn monitor_rbv(endpoint: &str) -> (Running, common::Lines) {
 
 /// Whether `lines` show m1's readback at `value` within PATIENCE.
 fn shows_rbv(lines: &common::Lines, value: &str) -> bool {
-    lines.wait_for(PATIENCE, |line| line.split_whitespace().collect::<Vec<_>>() == ["RBV", value]).is_some()
+    lines.wait_for(PATIENCE, |line| common::monitored(line) == Some(("m1.RBV", value))).is_some()
 }
 
 #[test]

@@ -37,7 +37,7 @@ fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Durati
     host.wait_for(endpoint, "m1", "MOVN", |v| v == 1.0);
     let gone = std::time::Instant::now();
     vanish();
-    let released = lines.wait_for(PATIENCE, |line| line.split_whitespace().collect::<Vec<_>>() == ["JOGF", "0"]);
+    let released = lines.wait_for(PATIENCE, |line| common::monitored(line) == Some(("m1.JOGF", "0")));
     let released = released.expect("the jog was released");
     host.wait_for(endpoint, "m1", "MOVN", |v| v == 0.0);
     let took = released.saturating_duration_since(gone);

@@ -38,8 +38,7 @@ DLLM = -100
 
 /// A guarded node on 127.0.0.1 and its endpoint.
 fn guarded_node(pki: &Pki) -> (Running, String) {
-    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let endpoint = format!("tls/127.0.0.1:{port}");
+    let endpoint = zmotor_zenoh::free_local_endpoint().unwrap().replace("tcp/", "tls/");
     let node = pki.issue("node", &["127.0.0.1"]);
     let text = format!("[zenoh]\nlisten = [\"{endpoint}\"]\n{}{RULES}", pki.launch_section(&node));
     let file = pki.dir.path().join("guarded.toml");

@@ -92,6 +92,15 @@ impl Host {
     }
 }
 
+/// A `zmotor monitor` line (`m1.RBV 2026-12-01 12:00:00.123456 10`): the channel and value.
+pub fn monitored(line: &str) -> Option<(&str, &str)> {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    match words[..] {
+        [channel, date, time, value] if date.len() == 10 && time.len() == 15 => Some((channel, value)),
+        _ => None,
+    }
+}
+
 pub struct Running(pub Option<Child>);
 
 impl Running {

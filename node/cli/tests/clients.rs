@@ -1,0 +1,86 @@
+//! What a user at the command line sees: the live axes listed, several axes read at once, and a
+//! monitor that prints as camonitor does or one JSON object a line.
+
+mod common;
+
+use common::{Host, Lines, Running, PATIENCE};
+use std::process::Stdio;
+use zmotor_zenoh::free_local_endpoint;
+
+const TWO_AXES: &str = r#"
+[[axis]]
+name = "m1"
+driver = "sim"
+[axis.fields]
+DESC = "slit top"
+EGU = "mm"
+VELO = 1
+MRES = 0.001
+
+[[axis]]
+name = "m2"
+driver = "sim"
+[axis.fields]
+DESC = "slit bottom"
+EGU = "deg"
+"#;
+
+fn stdout(host: &Host, args: &[&str]) -> String {
+    String::from_utf8_lossy(&host.run(args).stdout).into_owned()
+}
+
+#[test]
+fn list_get_of_several_axes_and_monitors_show_what_is_live() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let file = dir.path().join("two.toml");
+    std::fs::write(&file, TWO_AXES).unwrap();
+    let here = Host::default();
+    let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+
+    let listed = stdout(&here, &["list", "--connect", &endpoint]);
+    let rows: Vec<Vec<&str>> = listed.lines().map(|l| l.split("  ").filter(|c| !c.is_empty()).collect()).collect();
+    assert_eq!(rows.len(), 3, "{listed}");
+    assert_eq!(rows[0].iter().map(|c| c.trim()).collect::<Vec<_>>(), ["AXIS", "DESC", "EGU", "RBV", "STATE"]);
+    assert_eq!(rows[1].iter().map(|c| c.trim()).collect::<Vec<_>>(), ["m1", "slit top", "mm", "0", "idle"]);
+    assert_eq!(rows[2].iter().map(|c| c.trim()).collect::<Vec<_>>(), ["m2", "slit bottom", "deg", "0", "idle"]);
+
+    assert_eq!(
+        stdout(&here, &["get", "m1,m2", "DESC", "--connect", &endpoint]),
+        "m1.DESC slit top\nm2.DESC slit bottom\n"
+    );
+
+    // A move seen by a camonitor-style monitor and a JSON one.
+    let monitor = |json: bool| {
+        let mut args = vec!["monitor", "m1", "RBV", "DMOV", "--connect", &endpoint];
+        if json {
+            args.push("--json");
+        }
+        let mut child = here.zmotor(&args).stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
+        let lines = Lines::of(&mut child);
+        (Running(Some(child)), lines)
+    };
+    let ((_plain, plain), (_json, json)) = (monitor(false), monitor(true));
+    std::thread::sleep(std::time::Duration::from_millis(500));
+    let moving = stdout(&here, &["list", "--connect", &endpoint]);
+    assert!(!moving.contains("moving"), "{moving}");
+    here.put(&endpoint, "m1", "VAL", "0.2", false).unwrap();
+    assert!(stdout(&here, &["list", "--connect", &endpoint]).lines().nth(1).unwrap().ends_with("moving"));
+    assert!(plain.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.RBV", "0.2"))).is_some(), "the last RBV");
+    assert!(
+        plain.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.DMOV", "1"))).is_some(),
+        "DMOV 1 after the last RBV"
+    );
+    let ended = json.wait_for(PATIENCE, |line| {
+        let object: serde_json::Value = serde_json::from_str(line).unwrap();
+        assert_eq!(object["axis"], "m1");
+        assert!(object["time"].as_str().unwrap().ends_with('Z'), "{line}");
+        object["field"] == "RBV" && object["value"] == 0.2
+    });
+    assert!(ended.is_some(), "the JSON monitor saw RBV reach 0.2");
+
+    drop(node);
+    let gone = here.zmotor(&["list", "--connect", &endpoint]).output().unwrap();
+    assert!(!gone.status.success() || String::from_utf8_lossy(&gone.stdout).is_empty());
+}
