@@ -185,6 +185,21 @@ enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
+    /// Serve every live axis to Channel Access clients (caget, pyepics, ophyd, CS-Studio) as a
+    /// motor record: `<P><axis>` its VAL, `<P><axis>.<FIELD>` each field.
+    Ca {
+        /// `<P>`, prepended to every channel name.
+        #[arg(long, default_value = "")]
+        pv_prefix: String,
+        /// Address to serve on (searches by UDP, circuits by TCP).
+        #[arg(long, default_value = "127.0.0.1")]
+        address: std::net::IpAddr,
+        /// Port of searches and circuits (EPICS_CA_SERVER_PORT).
+        #[arg(long, default_value_t = 5064)]
+        port: u16,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
     /// Write the JSON Schemas of every message type and the field catalogue into DIR.
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
@@ -315,6 +330,16 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, json, client } => monitor(&client, &axis, &fields, json).await,
         Command::List { client } => list(&client).await,
+        Command::Ca { pv_prefix, address, port, client } => {
+            let session = connect(&client).await?;
+            let config = zmotor_zenoh::channel_access::CaConfig { pv_prefix, address, port };
+            let layout = KeyLayout::new(&client.prefix);
+            let served = zmotor_zenoh::channel_access::ChannelAccess::start(session.clone(), layout, &config).await?;
+            interrupted().await?;
+            drop(served);
+            session.close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
         Command::Bench { smoke, moves, scales, moving_up_to, parts, storm } => {

@@ -5,6 +5,7 @@
 //! file.
 
 pub mod autosave;
+pub mod channel_access;
 pub mod config;
 mod controllers;
 mod holds;

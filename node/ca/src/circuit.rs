@@ -1,0 +1,352 @@
+//! One client's TCP circuit, as a state machine: bytes in (`handle_input`), changes of the
+//! network in (`handle_change`, `axis_gone`, `write_done`), bytes out (`poll_transmit`) and
+//! requests to the network out (`poll_request`). The runner holds the values (`Directory`).
+
+use crate::codec::{self, command, Header, MINOR_VERSION};
+use crate::dbr::{self, Base, Class, DbrType, Snapshot};
+use crate::names::{Pv, Target};
+use std::collections::{BTreeMap, VecDeque};
+use zmotor_msgs::{Field, WriteClass};
+
+/// What a circuit asks of the values the runner holds.
+pub trait Directory {
+    /// Whether an axis is live now.
+    fn is_live(&self, axis: &str) -> bool;
+    /// What a channel shows now; `None` until the axis's values have been fetched.
+    fn snapshot(&self, pv: &Pv) -> Option<Snapshot>;
+}
+
+/// ECA status codes (`caerr.h`): message number << 3 | severity.
+pub mod status {
+    /// Success.
+    pub const NORMAL: u32 = 1;
+    /// The write failed (refused, or nobody answered).
+    pub const PUTFAIL: u32 = 160;
+    /// A type the server cannot convert to.
+    pub const BADTYPE: u32 = 114;
+    /// No write access.
+    pub const NO_WRITE_ACCESS: u32 = 376;
+    /// The channel's server side is gone.
+    pub const DISCONNECTED: u32 = 192;
+}
+
+/// Access rights bits.
+const READ: u32 = 1;
+const WRITE: u32 = 2;
+
+/// A request to the network.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Request {
+    /// Fetch an axis's values (then tell the circuit with `handle_change`).
+    Fetch {
+        /// The axis.
+        axis: String,
+    },
+    /// A confirmed write; `wait`: answered when the motion it starts has ended.
+    Write {
+        /// What is written.
+        pv: Pv,
+        /// The value as text.
+        text: String,
+        /// Whether to wait for the end of the motion (a put-callback of a drive field).
+        wait: bool,
+        /// How to answer the client, given back in `write_done`.
+        answer: WriteAnswer,
+    },
+}
+
+/// How a write's outcome is told to the client.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WriteAnswer {
+    /// A put-callback: a WRITE_NOTIFY reply.
+    Notify {
+        /// The request's id.
+        ioid: u32,
+        /// The type written.
+        data_type: u16,
+        /// The count written.
+        count: u32,
+    },
+    /// A plain write: an error message only if it failed.
+    OnFailure {
+        /// The request's header, quoted in the error.
+        request: Header,
+        /// The channel's client id.
+        cid: u32,
+    },
+}
+
+struct Channel {
+    cid: u32,
+    pv: Pv,
+}
+
+struct Subscription {
+    sid: u32,
+    dbr: u16,
+    mask: u16,
+}
+
+/// DBE_PROPERTY: the subscriber wants metadata changes.
+const PROPERTY_EVENT: u16 = 8;
+
+/// A read or subscription waiting for its axis's values.
+struct Pending {
+    sid: u32,
+    data_type: u16,
+    ioid: u32,
+}
+
+/// One client's circuit.
+#[derive(Default)]
+pub struct Circuit {
+    inbox: Vec<u8>,
+    channels: BTreeMap<u32, Channel>,
+    subscriptions: BTreeMap<u32, Subscription>,
+    pending_reads: Vec<Pending>,
+    next_sid: u32,
+    events_on: bool,
+    transmit: Vec<u8>,
+    requests: VecDeque<Request>,
+    prefix: String,
+}
+
+impl Circuit {
+    /// A circuit serving PV names under `prefix`.
+    pub fn new(prefix: &str) -> Self {
+        Self { prefix: prefix.to_string(), events_on: true, next_sid: 1, ..Self::default() }
+    }
+
+    /// Bytes from the client. An error means the circuit must be closed.
+    pub fn handle_input(&mut self, bytes: &[u8], directory: &dyn Directory) -> Result<(), codec::FrameError> {
+        self.inbox.extend_from_slice(bytes);
+        let mut used = 0;
+        while let Some((header, payload, length)) = codec::parse(&self.inbox[used..])? {
+            let payload = payload.to_vec();
+            used += length;
+            self.handle_message(header, &payload, directory);
+        }
+        self.inbox.drain(..used);
+        Ok(())
+    }
+
+    /// Bytes to send the client, if any.
+    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        (!self.transmit.is_empty()).then(|| std::mem::take(&mut self.transmit))
+    }
+
+    /// A request to the network, if any.
+    pub fn poll_request(&mut self) -> Option<Request> {
+        self.requests.pop_front()
+    }
+
+    /// A field of an axis changed (or the axis's values arrived): answer the reads that
+    /// waited for it and post to the subscriptions it concerns.
+    pub fn handle_change(&mut self, axis: &str, field: Field, directory: &dyn Directory) {
+        let waiting = std::mem::take(&mut self.pending_reads);
+        for pending in waiting {
+            let pv = self.channels.get(&pending.sid).map(|c| c.pv.clone());
+            match pv.filter(|pv| pv.axis == axis).and_then(|pv| directory.snapshot(&pv)) {
+                Some(snapshot) => self.send_read(&pending, &snapshot),
+                None => self.pending_reads.push(pending),
+            }
+        }
+        let concerned: Vec<(u32, Pv, u16)> = self
+            .subscriptions
+            .iter()
+            .filter_map(|(subid, s)| {
+                let pv = &self.channels.get(&s.sid)?.pv;
+                let shows = pv.axis == axis
+                    && (pv.target == Target::Field(field)
+                        || (pv.metadata_from().contains(&field)
+                            && (s.mask & PROPERTY_EVENT != 0
+                                || DbrType::from_code(s.dbr).is_some_and(|d| d.class >= Class::Graphic))));
+                shows.then(|| (*subid, pv.clone(), s.dbr))
+            })
+            .collect();
+        if !self.events_on {
+            return;
+        }
+        for (subid, pv, dbr) in concerned {
+            if let Some(snapshot) = directory.snapshot(&pv) {
+                self.post(subid, dbr, &snapshot);
+            }
+        }
+    }
+
+    /// An axis went away: its channels are disconnected.
+    pub fn axis_gone(&mut self, axis: &str) {
+        let gone: Vec<u32> = self.channels.iter().filter(|(_, c)| c.pv.axis == axis).map(|(sid, _)| *sid).collect();
+        for sid in gone {
+            if let Some(channel) = self.channels.remove(&sid) {
+                self.send(Header::new(command::SERVER_DISCONN, 0, 0, channel.cid, 0), &[]);
+            }
+            self.subscriptions.retain(|_, s| s.sid != sid);
+            self.pending_reads.retain(|p| p.sid != sid);
+        }
+    }
+
+    /// A write ended: `Err` says why it failed.
+    pub fn write_done(&mut self, answer: WriteAnswer, outcome: Result<(), String>) {
+        match (answer, outcome) {
+            (WriteAnswer::Notify { ioid, data_type, count }, outcome) => {
+                let code = if outcome.is_ok() { status::NORMAL } else { status::PUTFAIL };
+                self.send(Header::new(command::WRITE_NOTIFY, data_type, count, code, ioid), &[]);
+            }
+            (WriteAnswer::OnFailure { .. }, Ok(())) => {}
+            (WriteAnswer::OnFailure { request, cid }, Err(message)) => {
+                self.error(request, cid, status::PUTFAIL, &message)
+            }
+        }
+    }
+
+    fn handle_message(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
+        match header.command {
+            command::VERSION => self.send(Header::new(command::VERSION, 0, MINOR_VERSION.into(), 0, 0), &[]),
+            command::ECHO => self.send(Header::new(command::ECHO, 0, 0, 0, 0), &[]),
+            command::EVENTS_OFF => self.events_on = false,
+            command::EVENTS_ON => self.events_on = true,
+            command::CREATE_CHAN => self.create_channel(header, payload, directory),
+            command::READ_NOTIFY => self.read(header, directory),
+            command::EVENT_ADD => self.subscribe(header, payload, directory),
+            command::EVENT_CANCEL if self.subscriptions.remove(&header.p2).is_some() => {
+                let reply = Header::new(command::EVENT_ADD, header.data_type, header.count, header.p1, header.p2);
+                self.send(reply, &[]);
+            }
+            command::CLEAR_CHANNEL => {
+                let sid = header.p1;
+                self.channels.remove(&sid);
+                self.subscriptions.retain(|_, s| s.sid != sid);
+                self.pending_reads.retain(|p| p.sid != sid);
+                self.send(Header::new(command::CLEAR_CHANNEL, 0, 0, header.p1, header.p2), &[]);
+            }
+            command::WRITE | command::WRITE_NOTIFY => self.write(header, payload),
+            command::SEARCH => {
+                if let Some(reply) = crate::search::reply(&self.prefix, header, payload, 0, directory) {
+                    self.transmit.extend_from_slice(&reply);
+                }
+            }
+            // CLIENT_NAME, HOST_NAME and anything else: nothing to answer.
+            _ => {}
+        }
+    }
+
+    fn create_channel(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
+        let cid = header.p1;
+        let name = codec::text(payload);
+        let Some(pv) = Pv::parse(&self.prefix, &name).filter(|pv| directory.is_live(&pv.axis)) else {
+            self.send(Header::new(command::CREATE_CH_FAIL, 0, 0, cid, 0), &[]);
+            return;
+        };
+        let sid = self.next_sid;
+        self.next_sid = self.next_sid.wrapping_add(1).max(1);
+        let rights = if pv.writable() { READ | WRITE } else { READ };
+        let native = pv.native();
+        if directory.snapshot(&pv).is_none() {
+            self.requests.push_back(Request::Fetch { axis: pv.axis.clone() });
+        }
+        self.channels.insert(sid, Channel { cid, pv });
+        self.send(Header::new(command::ACCESS_RIGHTS, 0, 0, cid, rights), &[]);
+        self.send(Header::new(command::CREATE_CHAN, native.code(), 1, cid, sid), &[]);
+    }
+
+    fn read(&mut self, header: Header, directory: &dyn Directory) {
+        let pending = Pending { sid: header.p1, data_type: header.data_type, ioid: header.p2 };
+        let Some(channel) = self.channels.get(&pending.sid) else {
+            return self.error(header, 0, status::DISCONNECTED, "no such channel");
+        };
+        match directory.snapshot(&channel.pv) {
+            Some(snapshot) => self.send_read(&pending, &snapshot),
+            None => {
+                self.requests.push_back(Request::Fetch { axis: channel.pv.axis.clone() });
+                self.pending_reads.push(pending);
+            }
+        }
+    }
+
+    fn send_read(&mut self, pending: &Pending, snapshot: &Snapshot) {
+        match self.encode(pending.data_type, snapshot) {
+            Some(bytes) => {
+                let reply = Header::new(command::READ_NOTIFY, pending.data_type, 1, status::NORMAL, pending.ioid);
+                self.send(reply, &bytes);
+            }
+            None => {
+                let reply = Header::new(command::READ_NOTIFY, pending.data_type, 0, status::BADTYPE, pending.ioid);
+                self.send(reply, &[]);
+            }
+        }
+    }
+
+    fn subscribe(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
+        let (sid, subid) = (header.p1, header.p2);
+        let Some(channel) = self.channels.get(&sid) else { return };
+        let mask = payload.get(12..14).map_or(1, |m| u16::from_be_bytes([m[0], m[1]]));
+        let (snapshot, axis) = (directory.snapshot(&channel.pv), channel.pv.axis.clone());
+        self.subscriptions.insert(subid, Subscription { sid, dbr: header.data_type, mask });
+        match snapshot {
+            Some(snapshot) => self.post(subid, header.data_type, &snapshot),
+            None => self.requests.push_back(Request::Fetch { axis }),
+        }
+    }
+
+    fn post(&mut self, subid: u32, dbr: u16, snapshot: &Snapshot) {
+        if let Some(bytes) = self.encode(dbr, snapshot) {
+            self.send(Header::new(command::EVENT_ADD, dbr, 1, status::NORMAL, subid), &bytes);
+        }
+    }
+
+    /// The DBR encoding of a snapshot, or `None` for a type not served.
+    fn encode(&self, data_type: u16, snapshot: &Snapshot) -> Option<Vec<u8>> {
+        match data_type {
+            dbr::DBR_CLASS_NAME => {
+                let mut bytes = b"motor".to_vec();
+                bytes.resize(dbr::STRING_SIZE, 0);
+                Some(bytes)
+            }
+            dbr::DBR_STSACK_STRING => {
+                let mut bytes = Vec::new();
+                for word in [snapshot.status, snapshot.severity, 0, 0] {
+                    bytes.extend_from_slice(&word.to_be_bytes());
+                }
+                bytes.extend(snapshot.encode(DbrType { base: Base::String, class: Class::Plain }));
+                Some(bytes)
+            }
+            code => DbrType::from_code(code).map(|dbr| snapshot.encode(dbr)),
+        }
+    }
+
+    fn write(&mut self, header: Header, payload: &[u8]) {
+        let Some(channel) = self.channels.get(&header.p1) else {
+            return self.error(header, 0, status::DISCONNECTED, "no such channel");
+        };
+        let (pv, cid) = (channel.pv.clone(), channel.cid);
+        let answer = if header.command == command::WRITE_NOTIFY {
+            WriteAnswer::Notify { ioid: header.p2, data_type: header.data_type, count: header.count }
+        } else {
+            WriteAnswer::OnFailure { request: header, cid }
+        };
+        if !pv.writable() {
+            return self.write_done(answer, Err(format!("{}: read-only", pv.name(&self.prefix))));
+        }
+        match dbr::written_text(header.data_type, payload) {
+            Ok(text) => {
+                let wait = matches!(answer, WriteAnswer::Notify { .. })
+                    && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
+                self.requests.push_back(Request::Write { pv, text, wait, answer });
+            }
+            Err(e) => self.write_done(answer, Err(e.to_string())),
+        }
+    }
+
+    /// An ERROR message about `request`.
+    fn error(&mut self, request: Header, cid: u32, code: u32, message: &str) {
+        let mut payload = codec::encode(request, &[]);
+        payload.truncate(16);
+        payload.extend(codec::name_payload(message));
+        self.send(Header::new(command::ERROR, 0, 0, cid, code), &payload);
+    }
+
+    fn send(&mut self, header: Header, payload: &[u8]) {
+        self.transmit.extend(codec::encode(header, payload));
+    }
+}

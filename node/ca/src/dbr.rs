@@ -1,0 +1,385 @@
+//! The DBR encodings of a value: plain, with alarm (STS), with time (TIME), with display
+//! metadata (GR) and with control limits (CTRL), for each of the seven base types, as
+//! `db_access.h` lays them out; and the decoding of a client's write into the text a zmotor
+//! node takes.
+
+use zmotor_msgs::{Kind, Value};
+
+/// Seconds from the POSIX epoch to the EPICS epoch (1990-01-01).
+pub const EPICS_EPOCH_OFFSET: u64 = 631_152_000;
+
+/// Length of a DBR_STRING, its NUL included.
+pub const STRING_SIZE: usize = 40;
+
+/// The base types, by their DBR code.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Base {
+    /// DBR_STRING (0)
+    String,
+    /// DBR_SHORT (1)
+    Short,
+    /// DBR_FLOAT (2)
+    Float,
+    /// DBR_ENUM (3)
+    Enum,
+    /// DBR_CHAR (4)
+    Char,
+    /// DBR_LONG (5)
+    Long,
+    /// DBR_DOUBLE (6)
+    Double,
+}
+
+impl Base {
+    const ALL: [Base; 7] = [Base::String, Base::Short, Base::Float, Base::Enum, Base::Char, Base::Long, Base::Double];
+
+    /// The DBR code.
+    pub fn code(self) -> u16 {
+        Self::ALL.iter().position(|b| *b == self).unwrap_or(0) as u16
+    }
+
+    /// The type a channel of a field of this kind has.
+    pub fn native(kind: Kind) -> Base {
+        match kind {
+            Kind::Double | Kind::ULong => Base::Double,
+            Kind::Float => Base::Float,
+            Kind::Long | Kind::UShort => Base::Long,
+            Kind::Short => Base::Short,
+            Kind::Menu(_) => Base::Enum,
+            Kind::Str(_) | Kind::Link => Base::String,
+        }
+    }
+}
+
+/// What a DBR type adds to the value (in order: each adds to the one before).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Class {
+    /// The value alone.
+    Plain,
+    /// Alarm status and severity.
+    Status,
+    /// Alarm and time stamp.
+    Time,
+    /// Alarm, units, precision and display limits.
+    Graphic,
+    /// The same and control limits.
+    Control,
+}
+
+/// A DBR type a client asked for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DbrType {
+    /// Its base type.
+    pub base: Base,
+    /// Its class.
+    pub class: Class,
+}
+
+/// DBR_STSACK_STRING: alarm, acknowledgement and the value as text.
+pub const DBR_STSACK_STRING: u16 = 37;
+/// DBR_CLASS_NAME: the record type's name.
+pub const DBR_CLASS_NAME: u16 = 38;
+
+impl DbrType {
+    /// The type of a DBR code from 0 to 34; others are served apart (or refused).
+    pub fn from_code(code: u16) -> Option<Self> {
+        let class =
+            [Class::Plain, Class::Status, Class::Time, Class::Graphic, Class::Control].get(usize::from(code / 7))?;
+        Some(Self { base: Base::ALL[usize::from(code % 7)], class: *class })
+    }
+}
+
+/// A time stamp in the EPICS epoch.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Stamp {
+    /// Seconds since 1990-01-01 UTC.
+    pub seconds: u32,
+    /// Nanoseconds within the second.
+    pub nanoseconds: u32,
+}
+
+impl Stamp {
+    /// The stamp of a time given as seconds and nanoseconds since the POSIX epoch.
+    pub fn from_posix(seconds: u64, nanoseconds: u32) -> Self {
+        Self { seconds: seconds.saturating_sub(EPICS_EPOCH_OFFSET) as u32, nanoseconds }
+    }
+}
+
+/// What a channel shows: the value and everything the DBR classes add to it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Snapshot {
+    /// The value.
+    pub value: Value,
+    /// The channel's native type.
+    pub native: Base,
+    /// Alarm status (menuAlarmStat index).
+    pub status: u16,
+    /// Alarm severity (menuAlarmSevr index).
+    pub severity: u16,
+    /// When the value arrived.
+    pub stamp: Stamp,
+    /// Engineering units.
+    pub units: String,
+    /// Display precision.
+    pub precision: i16,
+    /// Upper display and control limit.
+    pub upper: f64,
+    /// Lower display and control limit.
+    pub lower: f64,
+    /// The choices of a menu field.
+    pub choices: &'static [&'static str],
+}
+
+impl Snapshot {
+    fn number(&self) -> f64 {
+        match &self.value {
+            Value::Int(i) => *i as f64,
+            Value::Float(x) => *x,
+            Value::Text(text) => text.trim().parse().unwrap_or(0.0),
+        }
+    }
+
+    /// The value as DBR_STRING text: a menu's choice, a number at the channel's precision.
+    pub fn text(&self) -> String {
+        match (&self.value, self.native) {
+            (Value::Int(i), Base::Enum) => usize::try_from(*i)
+                .ok()
+                .and_then(|i| self.choices.get(i))
+                .map_or_else(|| i.to_string(), |c| c.to_string()),
+            (Value::Float(x), _) => format!("{x:.*}", usize::try_from(self.precision).unwrap_or(0).min(17)),
+            (value, _) => value.to_string(),
+        }
+    }
+
+    /// The DBR encoding of this snapshot as `dbr`.
+    pub fn encode(&self, dbr: DbrType) -> Vec<u8> {
+        let mut out = Writer::default();
+        if dbr.class != Class::Plain {
+            out.u16(self.status);
+            out.u16(self.severity);
+        }
+        match (dbr.class, dbr.base) {
+            (Class::Plain, _) => {}
+            (Class::Status, Base::Char) => out.pad(1),
+            (Class::Status, Base::Double) => out.pad(4),
+            (Class::Status, _) => {}
+            (Class::Time, base) => {
+                out.u32(self.stamp.seconds);
+                out.u32(self.stamp.nanoseconds);
+                match base {
+                    Base::Short | Base::Enum => out.pad(2),
+                    Base::Char => out.pad(3),
+                    Base::Double => out.pad(4),
+                    Base::String | Base::Float | Base::Long => {}
+                }
+            }
+            (Class::Graphic | Class::Control, Base::String) => {}
+            (Class::Graphic | Class::Control, Base::Enum) => {
+                let choices = &self.choices[..self.choices.len().min(16)];
+                out.u16(choices.len() as u16);
+                for index in 0..16 {
+                    out.fixed_text(choices.get(index).copied().unwrap_or(""), 26);
+                }
+            }
+            (class, base) => {
+                if matches!(base, Base::Float | Base::Double) {
+                    out.u16(self.precision as u16);
+                    out.pad(2);
+                }
+                out.fixed_text(&self.units, 8);
+                // Display limits, then the alarm limits (the motor record has none), then the
+                // control limits.
+                let mut limits = vec![self.upper, self.lower, 0.0, 0.0, 0.0, 0.0];
+                if class == Class::Control {
+                    limits.extend([self.upper, self.lower]);
+                }
+                for limit in limits {
+                    out.number(base, limit);
+                }
+                if base == Base::Char {
+                    out.pad(1);
+                }
+            }
+        }
+        match dbr.base {
+            Base::String => out.fixed_text(&self.text(), STRING_SIZE),
+            Base::Enum => out.u16(self.number().clamp(0.0, f64::from(u16::MAX)) as u16),
+            base => out.number(base, self.number()),
+        }
+        out.0
+    }
+}
+
+/// Big-endian output.
+#[derive(Default)]
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn u16(&mut self, value: u16) {
+        self.0.extend_from_slice(&value.to_be_bytes());
+    }
+
+    fn u32(&mut self, value: u32) {
+        self.0.extend_from_slice(&value.to_be_bytes());
+    }
+
+    fn pad(&mut self, bytes: usize) {
+        self.0.resize(self.0.len() + bytes, 0);
+    }
+
+    /// Text in a fixed field: truncated to leave a NUL, padded with NULs.
+    fn fixed_text(&mut self, text: &str, size: usize) {
+        let bytes = text.as_bytes();
+        let used = bytes.len().min(size - 1);
+        self.0.extend_from_slice(&bytes[..used]);
+        self.pad(size - used);
+    }
+
+    /// A number in a numeric base type (saturating where it does not fit).
+    fn number(&mut self, base: Base, value: f64) {
+        match base {
+            Base::Short => self.0.extend_from_slice(&(value.round() as i16).to_be_bytes()),
+            Base::Float => self.0.extend_from_slice(&(value as f32).to_be_bytes()),
+            Base::Char => self.0.push(value.round() as u8),
+            Base::Long => self.0.extend_from_slice(&(value.round() as i32).to_be_bytes()),
+            Base::Double => self.0.extend_from_slice(&value.to_be_bytes()),
+            Base::Enum => self.u16(value.round() as u16),
+            Base::String => self.fixed_text(&value.to_string(), STRING_SIZE),
+        }
+    }
+}
+
+/// A write a client sent that cannot be read.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum WriteError {
+    /// The DBR type is not one a value is written as.
+    #[error("DBR type {0} is not a type a value is written as")]
+    BadType(u16),
+    /// The payload is shorter than one element.
+    #[error("a {0:?} write needs {1} bytes, {2} came")]
+    Short(Base, usize, usize),
+}
+
+/// The first element of a client's write, as the text a zmotor node takes (a number, a menu
+/// index or choice, a string).
+pub fn written_text(data_type: u16, payload: &[u8]) -> Result<String, WriteError> {
+    let dbr =
+        DbrType::from_code(data_type).filter(|d| d.class == Class::Plain).ok_or(WriteError::BadType(data_type))?;
+    let size = match dbr.base {
+        Base::String => 1,
+        Base::Char => 1,
+        Base::Short | Base::Enum => 2,
+        Base::Float | Base::Long => 4,
+        Base::Double => 8,
+    };
+    if payload.len() < size {
+        return Err(WriteError::Short(dbr.base, size, payload.len()));
+    }
+    let be = |n: usize| -> [u8; 8] {
+        let mut bytes = [0; 8];
+        bytes[..n].copy_from_slice(&payload[..n]);
+        bytes
+    };
+    Ok(match dbr.base {
+        Base::String => crate::codec::text(&payload[..payload.len().min(STRING_SIZE)]),
+        Base::Char => payload[0].to_string(),
+        Base::Short => i16::from_be_bytes([payload[0], payload[1]]).to_string(),
+        Base::Enum => u16::from_be_bytes([payload[0], payload[1]]).to_string(),
+        Base::Float => f32::from_be_bytes(be(4)[..4].try_into().expect("four bytes")).to_string(),
+        Base::Long => i32::from_be_bytes(be(4)[..4].try_into().expect("four bytes")).to_string(),
+        Base::Double => f64::from_be_bytes(be(8)).to_string(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn snapshot(value: Value, native: Base) -> Snapshot {
+        Snapshot {
+            value,
+            native,
+            status: 0,
+            severity: 0,
+            stamp: Stamp::from_posix(EPICS_EPOCH_OFFSET + 10, 5),
+            units: "mm".into(),
+            precision: 3,
+            upper: 100.0,
+            lower: -100.0,
+            choices: &["Stop", "Pause", "Move", "Go"],
+        }
+    }
+
+    /// The sizes of db_access.h's structures (dbr_size[]), before padding to 8.
+    #[test]
+    fn every_class_has_the_size_of_its_c_structure() {
+        let sizes: [(u16, usize); 20] = [
+            (0, 40),
+            (5, 4),
+            (6, 8),
+            (7, 44),
+            (10, 6),
+            (13, 16),
+            (14, 52),
+            (15, 16),
+            (17, 16),
+            (18, 16),
+            (19, 16),
+            (20, 24),
+            (21, 44),
+            (22, 26),
+            (24, 424),
+            (27, 72),
+            (28, 44),
+            (29, 30),
+            (33, 48),
+            (34, 88),
+        ];
+        for (code, size) in sizes {
+            let dbr = DbrType::from_code(code).unwrap();
+            let native = if dbr.base == Base::Enum { Base::Enum } else { Base::Double };
+            let value = if native == Base::Enum { Value::Int(3) } else { Value::Float(1.5) };
+            assert_eq!(snapshot(value, native).encode(dbr).len(), size, "DBR type {code}");
+        }
+    }
+
+    #[test]
+    fn a_ctrl_double_carries_units_precision_limits_and_value() {
+        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(34).unwrap());
+        assert_eq!(i16::from_be_bytes([bytes[4], bytes[5]]), 3, "precision");
+        assert_eq!(&bytes[8..10], b"mm");
+        assert_eq!(f64::from_be_bytes(bytes[16..24].try_into().unwrap()), 100.0, "upper display");
+        assert_eq!(f64::from_be_bytes(bytes[64..72].try_into().unwrap()), 100.0, "upper control");
+        assert_eq!(f64::from_be_bytes(bytes[72..80].try_into().unwrap()), -100.0, "lower control");
+        assert_eq!(f64::from_be_bytes(bytes[80..88].try_into().unwrap()), 2.5);
+    }
+
+    #[test]
+    fn a_time_double_carries_the_epics_stamp() {
+        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(20).unwrap());
+        assert_eq!(u32::from_be_bytes(bytes[4..8].try_into().unwrap()), 10);
+        assert_eq!(u32::from_be_bytes(bytes[8..12].try_into().unwrap()), 5);
+        assert_eq!(f64::from_be_bytes(bytes[16..24].try_into().unwrap()), 2.5);
+    }
+
+    #[test]
+    fn menus_read_as_their_choices_and_numbers_at_their_precision() {
+        let menu = snapshot(Value::Int(3), Base::Enum);
+        assert_eq!(&menu.encode(DbrType::from_code(0).unwrap())[..3], b"Go\0");
+        let ctrl = menu.encode(DbrType::from_code(31).unwrap());
+        assert_eq!(i16::from_be_bytes([ctrl[4], ctrl[5]]), 4, "four choices");
+        assert_eq!(&ctrl[6 + 26..6 + 26 + 5], b"Pause");
+        assert_eq!(u16::from_be_bytes([ctrl[422], ctrl[423]]), 3);
+        assert_eq!(snapshot(Value::Float(2.5), Base::Double).text(), "2.500");
+    }
+
+    #[test]
+    fn writes_become_the_text_a_node_takes() {
+        assert_eq!(written_text(6, &2.5f64.to_be_bytes()), Ok("2.5".into()));
+        assert_eq!(written_text(3, &[0, 2]), Ok("2".into()));
+        assert_eq!(written_text(0, b"Go\0\0\0\0\0\0"), Ok("Go".into()));
+        assert_eq!(written_text(5, &(-7i32).to_be_bytes()), Ok("-7".into()));
+        assert_eq!(written_text(20, &[0; 24]), Err(WriteError::BadType(20)));
+        assert_eq!(written_text(6, &[0; 4]), Err(WriteError::Short(Base::Double, 8, 4)));
+    }
+}

@@ -1,0 +1,119 @@
+//! Channel names: `<P><axis>` is the axis's VAL, `<P><axis>.<FIELD>` any field of the
+//! catalogue, `<P><axis>.RTYP` the record type (`motor`).
+
+use crate::dbr::Base;
+use zmotor_msgs::{keys, Access, Field};
+
+/// What a channel shows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Target {
+    /// A field of the catalogue.
+    Field(Field),
+    /// `.RTYP`: the record type, `motor`.
+    RecordType,
+}
+
+/// A channel of an axis.
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub struct Pv {
+    /// The axis.
+    pub axis: String,
+    /// What of it.
+    pub target: Target,
+}
+
+impl Pv {
+    /// The channel a name asks for under `prefix`, if it is one (field names are exact, as
+    /// EPICS spells them).
+    pub fn parse(prefix: &str, name: &str) -> Option<Pv> {
+        let rest = name.strip_prefix(prefix)?;
+        let (axis, field) = rest.split_once('.').unwrap_or((rest, "VAL"));
+        keys::validate_axis_name(axis).ok()?;
+        let target = match field {
+            "RTYP" => Target::RecordType,
+            name => Target::Field(Field::from_name(name)?),
+        };
+        Some(Pv { axis: axis.to_string(), target })
+    }
+
+    /// Its full name under `prefix`.
+    pub fn name(&self, prefix: &str) -> String {
+        match self.target {
+            Target::Field(field) => format!("{prefix}{}.{}", self.axis, field.name()),
+            Target::RecordType => format!("{prefix}{}.RTYP", self.axis),
+        }
+    }
+
+    /// Whether a client may write it.
+    pub fn writable(&self) -> bool {
+        matches!(self.target, Target::Field(f) if f.def().access != Access::RO)
+    }
+
+    /// Its native DBR type.
+    pub fn native(&self) -> Base {
+        match self.target {
+            Target::Field(field) => Base::native(field.def().kind),
+            Target::RecordType => Base::String,
+        }
+    }
+
+    /// The fields its control limits come from (high, low), as the motor record's
+    /// get_control_double gives them: the user limits for user values, the dial limits for dial
+    /// values.
+    pub fn limits(&self) -> Option<(Field, Field)> {
+        use Field::*;
+        match self.target {
+            Target::Field(VAL | RBV | HLM | LLM | LVAL) => Some((HLM, LLM)),
+            Target::Field(DVAL | DRBV | DHLM | DLLM) => Some((DHLM, DLLM)),
+            _ => None,
+        }
+    }
+
+    /// The fields its metadata comes from: alarm, units, precision, limits.
+    pub fn metadata_from(&self) -> Vec<Field> {
+        let mut fields = vec![Field::STAT, Field::SEVR, Field::EGU, Field::PREC];
+        fields.extend(self.limits().into_iter().flat_map(|(high, low)| [high, low]));
+        fields
+    }
+
+    /// Its units, given the axis's engineering units.
+    pub fn units(&self, egu: &str) -> String {
+        match self.target {
+            Target::Field(field) => field.def().unit.replace("EGU", egu),
+            Target::RecordType => String::new(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_map_onto_axes_and_fields() {
+        let pv = |name| Pv::parse("bl1:", name);
+        assert_eq!(pv("bl1:m1"), Some(Pv { axis: "m1".into(), target: Target::Field(Field::VAL) }));
+        assert_eq!(pv("bl1:m1.RBV").map(|p| p.target), Some(Target::Field(Field::RBV)));
+        assert_eq!(pv("bl1:m1.RTYP").map(|p| p.target), Some(Target::RecordType));
+        assert_eq!(pv("bl1:m1.rbv"), None, "field names are exact");
+        assert_eq!(pv("bl1:m1.NOPE"), None);
+        assert_eq!(pv("bl2:m1"), None);
+        assert_eq!(pv("bl1:m/1"), None);
+        assert_eq!(pv("bl1:m1.DVAL").unwrap().name("bl1:"), "bl1:m1.DVAL");
+    }
+
+    #[test]
+    fn access_type_limits_and_units_follow_the_catalogue() {
+        let pv = |name| Pv::parse("", name).unwrap();
+        assert!(pv("m1").writable() && !pv("m1.RBV").writable() && !pv("m1.RTYP").writable());
+        assert_eq!(
+            (pv("m1").native(), pv("m1.SPMG").native(), pv("m1.DESC").native()),
+            (Base::Double, Base::Enum, Base::String)
+        );
+        assert_eq!(
+            (pv("m1.RBV").limits(), pv("m1.DRBV").limits()),
+            (Some((Field::HLM, Field::LLM)), Some((Field::DHLM, Field::DLLM)))
+        );
+        assert_eq!((pv("m1.VELO").units("mm"), pv("m1.RVAL").units("mm")), ("mm/s".into(), "steps".into()));
+    }
+}

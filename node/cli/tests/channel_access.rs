@@ -1,0 +1,49 @@
+//! `zmotor ca` serves a node's axes to stock EPICS clients (pyepics, ophyd under bluesky,
+//! caproto): tests/python/ca_clients.py, run against a node and the front-end on 127.0.0.1.
+
+mod common;
+
+use common::{repo_file, Host};
+use std::process::Command;
+use zmotor_zenoh::free_local_endpoint;
+
+fn clients(port: u16, stage: &str) -> String {
+    let output = Command::new("python3")
+        .arg(repo_file("tests/python/ca_clients.py"))
+        .arg(stage)
+        .env("EPICS_CA_ADDR_LIST", format!("127.0.0.1:{port}"))
+        .env("EPICS_CA_AUTO_ADDR_LIST", "NO")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    assert!(output.status.success(), "{stage}: {stdout}\n{}", String::from_utf8_lossy(&output.stderr));
+    stdout
+}
+
+#[test]
+fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
+    let probe = Command::new("python3").args(["-c", "import epics, ophyd, bluesky, caproto"]).output();
+    if !probe.is_ok_and(|o| o.status.success()) {
+        assert!(std::env::var_os("CI").is_none(), "CI must install pyepics, ophyd, bluesky and caproto (.ci/run)");
+        eprintln!("SKIPPED: python3 with pyepics, ophyd, bluesky and caproto is not installed");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let launch = repo_file("launch/sim-axis.toml");
+    let node = here.spawn(&["launch", launch.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let _ca = here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir.path());
+
+    let seen = clients(port, "clients") + &clients(port, "ophyd");
+    for check in ["reads", "put-callback waits", "control limits are re-posted", "reports failure", "caproto", "ophyd"]
+    {
+        assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
+    }
+
+    // The node goes: its axis is no longer served.
+    node.kill();
+    assert!(clients(port, "gone").contains("ok a vanished axis"));
+}

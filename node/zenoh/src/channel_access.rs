@@ -1,0 +1,326 @@
+//! The Channel Access front-end: serves every axis live on the Zenoh network to CA clients, as
+//! a client of that network. `zmotor-ca` holds the protocol; this moves its bytes (a UDP socket
+//! for searches, a TCP circuit per client) and holds the values: the axes' liveliness tokens
+//! say which are live, one subscription to every field keeps their values, a read of a whole
+//! axis fetches them when a client first asks. Writes are confirmed Zenoh writes to write keys
+//! (so that they work under access control); a put-callback of a drive field waits for the end
+//! of the motion (`?wait`).
+
+use std::collections::{HashMap, HashSet};
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, SystemTime};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{broadcast, mpsc};
+use zenoh::bytes::Encoding;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::Session;
+use zmotor_ca::{search, Circuit, Directory, Pv, Request, Snapshot, Stamp, Target, WriteAnswer};
+use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::{Field, KeyLayout, Kind, Value};
+
+/// Where and how the front-end serves.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CaConfig {
+    /// Prepended to every channel name (`<P><axis>.<FIELD>`).
+    pub pv_prefix: String,
+    /// The address to listen on.
+    pub address: IpAddr,
+    /// The UDP port searches come to, and the TCP port of circuits (5064 in EPICS).
+    pub port: u16,
+}
+
+/// The front-end could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum CaError {
+    /// A socket could not be bound.
+    #[error("cannot listen on {address}: {source}")]
+    Bind {
+        /// Where.
+        address: SocketAddr,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A Zenoh declaration failed.
+    #[error("zenoh: {0}")]
+    Zenoh(#[from] zenoh::Error),
+}
+
+/// How long a put-callback of a drive field may wait for its motion to end.
+const MOTION_PATIENCE: Duration = Duration::from_secs(3600);
+/// How long any other request waits for the node.
+const ANSWER_PATIENCE: Duration = Duration::from_secs(10);
+
+/// A field's last value, and when it arrived.
+#[derive(Clone, Debug)]
+struct Entry {
+    value: Value,
+    stamp: Stamp,
+}
+
+/// The values the front-end holds.
+#[derive(Default)]
+struct Values {
+    live: HashSet<String>,
+    /// Axes fetched (or being fetched) since they became live.
+    fetched: HashSet<String>,
+    fields: HashMap<String, HashMap<Field, Entry>>,
+}
+
+impl Values {
+    fn number(&self, axis: &str, field: Field) -> f64 {
+        self.entry(axis, field).and_then(|e| e.value.as_f64()).unwrap_or(0.0)
+    }
+
+    fn entry(&self, axis: &str, field: Field) -> Option<&Entry> {
+        self.fields.get(axis)?.get(&field)
+    }
+}
+
+impl Directory for Values {
+    fn is_live(&self, axis: &str) -> bool {
+        self.live.contains(axis)
+    }
+
+    fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
+        let alarm = self.entry(&pv.axis, Field::STAT)?;
+        let (value, stamp, choices) = match pv.target {
+            Target::Field(field) => {
+                let entry = self.entry(&pv.axis, field)?;
+                let choices = match field.def().kind {
+                    Kind::Menu(menu) => menu.choices,
+                    _ => &[],
+                };
+                (entry.value.clone(), entry.stamp, choices)
+            }
+            Target::RecordType => (Value::Text("motor".into()), alarm.stamp, &[][..]),
+        };
+        let egu = match self.entry(&pv.axis, Field::EGU).map(|e| &e.value) {
+            Some(Value::Text(egu)) => egu.clone(),
+            _ => String::new(),
+        };
+        let (upper, lower) =
+            pv.limits().map_or((0.0, 0.0), |(high, low)| (self.number(&pv.axis, high), self.number(&pv.axis, low)));
+        Some(Snapshot {
+            value,
+            native: pv.native(),
+            status: self.number(&pv.axis, Field::STAT) as u16,
+            severity: self.number(&pv.axis, Field::SEVR) as u16,
+            stamp,
+            units: pv.units(&egu),
+            precision: self.number(&pv.axis, Field::PREC) as i16,
+            upper,
+            lower,
+            choices,
+        })
+    }
+}
+
+/// What circuits are told of the network.
+#[derive(Clone, Debug)]
+enum Change {
+    Field(String, Field),
+    Gone(String),
+}
+
+/// What every task of the front-end shares.
+#[derive(Clone)]
+struct Shared {
+    session: Session,
+    layout: KeyLayout,
+    values: Arc<Mutex<Values>>,
+    changes: broadcast::Sender<Change>,
+    prefix: String,
+}
+
+impl Shared {
+    fn values(&self) -> std::sync::MutexGuard<'_, Values> {
+        self.values.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// Store a field's value as a sample brings it, and tell the circuits.
+    fn store(&self, sample: &Sample) {
+        let key = sample.key_expr().as_str();
+        let Some(axis) = self.layout.axis_chunk(key) else { return };
+        let Some(field) = self.layout.field_name(axis, key).and_then(Field::from_name) else { return };
+        let Ok(value) = decode_cbor_value(&sample.payload().to_bytes()) else { return };
+        let since = SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
+        let stamp = Stamp::from_posix(since.as_secs(), since.subsec_nanos());
+        let axis = axis.to_string();
+        self.values().fields.entry(axis.clone()).or_default().insert(field, Entry { value, stamp });
+        let _ = self.changes.send(Change::Field(axis, field));
+    }
+
+    /// Read every field of an axis, once while it stays live.
+    fn fetch(&self, axis: String) {
+        if !self.values().fetched.insert(axis.clone()) {
+            return;
+        }
+        let shared = self.clone();
+        tokio::spawn(async move {
+            let Ok(replies) = shared.session.get(shared.layout.axis_all(&axis)).timeout(ANSWER_PATIENCE).await else {
+                return;
+            };
+            while let Ok(reply) = replies.recv_async().await {
+                if let Ok(sample) = reply.result() {
+                    shared.store(sample);
+                }
+            }
+        });
+    }
+
+    /// A confirmed write to a write key; the outcome goes back to the circuit.
+    fn write(&self, pv: Pv, text: String, wait: bool, answer: WriteAnswer, done: mpsc::UnboundedSender<Done>) {
+        let Target::Field(field) = pv.target else { return };
+        let shared = self.clone();
+        tokio::spawn(async move {
+            let selector = shared.layout.write_selector(&pv.axis, field, wait);
+            let patience = if wait { MOTION_PATIENCE } else { ANSWER_PATIENCE };
+            let outcome =
+                match shared.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience).await
+                {
+                    Ok(replies) => match replies.recv_async().await {
+                        Ok(reply) => reply
+                            .result()
+                            .map(|_| ())
+                            .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+                        Err(_) => Err(format!(
+                            "{}: no answer (the axis's node vanished, or access control refused the write)",
+                            pv.name(&shared.prefix)
+                        )),
+                    },
+                    Err(e) => Err(e.to_string()),
+                };
+            let _ = done.send((answer, outcome));
+        });
+    }
+}
+
+/// A write's outcome, for its circuit.
+type Done = (WriteAnswer, Result<(), String>);
+
+/// A running front-end; dropping it stops it.
+pub struct ChannelAccess {
+    tasks: Vec<tokio::task::JoinHandle<()>>,
+    _tokens: zenoh::pubsub::Subscriber<()>,
+    _fields: zenoh::pubsub::Subscriber<()>,
+    /// The TCP port circuits connect to.
+    pub tcp_port: u16,
+}
+
+impl Drop for ChannelAccess {
+    fn drop(&mut self) {
+        self.tasks.iter().for_each(tokio::task::JoinHandle::abort);
+    }
+}
+
+impl ChannelAccess {
+    /// Serve the axes under `layout` that `session` reaches.
+    pub async fn start(session: Session, layout: KeyLayout, config: &CaConfig) -> Result<Self, CaError> {
+        let address = SocketAddr::new(config.address, config.port);
+        let bind = |source| CaError::Bind { address, source };
+        let listener = tokio::net::TcpListener::bind(address).await.map_err(bind)?;
+        let tcp_port = listener.local_addr().map_err(bind)?.port();
+        let udp = tokio::net::UdpSocket::bind(SocketAddr::new(config.address, tcp_port)).await.map_err(bind)?;
+        let (changes, _) = broadcast::channel(4096);
+        let shared = Shared {
+            session: session.clone(),
+            layout: layout.clone(),
+            values: Arc::default(),
+            changes,
+            prefix: config.pv_prefix.clone(),
+        };
+        let fields = {
+            let shared = shared.clone();
+            session.declare_subscriber(layout.every_field()).callback(move |sample| shared.store(&sample)).await?
+        };
+        let tokens = {
+            let shared = shared.clone();
+            session
+                .liveliness()
+                .declare_subscriber(layout.axis("*"))
+                .history(true)
+                .callback(move |sample| {
+                    let Some(axis) = shared.layout.axis_chunk(sample.key_expr().as_str()).map(str::to_string) else {
+                        return;
+                    };
+                    let mut values = shared.values();
+                    if sample.kind() == SampleKind::Put {
+                        values.live.insert(axis);
+                    } else {
+                        values.live.remove(&axis);
+                        values.fetched.remove(&axis);
+                        values.fields.remove(&axis);
+                        drop(values);
+                        let _ = shared.changes.send(Change::Gone(axis));
+                    }
+                })
+                .await?
+        };
+        let searches = {
+            let shared = shared.clone();
+            tokio::spawn(async move {
+                let mut buffer = vec![0; 64 * 1024];
+                while let Ok((length, from)) = udp.recv_from(&mut buffer).await {
+                    let answer = search::answer(&shared.prefix, &buffer[..length], tcp_port, &*shared.values());
+                    if let Some(answer) = answer {
+                        let _ = udp.send_to(&answer, from).await;
+                    }
+                }
+            })
+        };
+        let circuits = {
+            let shared = shared.clone();
+            tokio::spawn(async move {
+                while let Ok((stream, peer)) = listener.accept().await {
+                    let shared = shared.clone();
+                    tokio::spawn(async move {
+                        if let Err(e) = serve_circuit(stream, &shared).await {
+                            tracing::debug!(%peer, "circuit closed: {e}");
+                        }
+                    });
+                }
+            })
+        };
+        tracing::info!(%address, tcp_port, pv_prefix = config.pv_prefix, "Channel Access serving the live axes");
+        Ok(Self { tasks: vec![searches, circuits], _tokens: tokens, _fields: fields, tcp_port })
+    }
+}
+
+/// One client's circuit until it closes.
+async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::io::Result<()> {
+    stream.set_nodelay(true)?;
+    let (mut reader, mut writer) = stream.into_split();
+    let mut changes = shared.changes.subscribe();
+    let (done, mut finished) = mpsc::unbounded_channel::<Done>();
+    let mut circuit = Circuit::new(&shared.prefix);
+    let mut buffer = vec![0; 16 * 1024];
+    loop {
+        tokio::select! {
+            read = reader.read(&mut buffer) => {
+                let length = read?;
+                if length == 0 {
+                    return Ok(());
+                }
+                let handled = circuit.handle_input(&buffer[..length], &*shared.values());
+                handled.map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+            }
+            change = changes.recv() => match change {
+                Ok(Change::Field(axis, field)) => circuit.handle_change(&axis, field, &*shared.values()),
+                Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
+                Err(broadcast::error::RecvError::Lagged(missed)) => tracing::warn!(missed, "a circuit fell behind the network's changes"),
+                Err(broadcast::error::RecvError::Closed) => return Ok(()),
+            },
+            Some((answer, outcome)) = finished.recv() => circuit.write_done(answer, outcome),
+        }
+        while let Some(request) = circuit.poll_request() {
+            match request {
+                Request::Fetch { axis } => shared.fetch(axis),
+                Request::Write { pv, text, wait, answer } => shared.write(pv, text, wait, answer, done.clone()),
+            }
+        }
+        while let Some(bytes) = circuit.poll_transmit() {
+            writer.write_all(&bytes).await?;
+        }
+    }
+}

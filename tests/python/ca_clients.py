@@ -1,0 +1,141 @@
+"""Stock EPICS Channel Access clients against `zmotor ca`, with no zmotor code: pyepics (caget,
+caput with wait, monitors), ophyd's EpicsMotor in a bluesky RunEngine scan, and caproto (its
+command-line tools and its client) as a second CA implementation. Each check asserts; a line
+`ok <check>` is printed for each that passed.
+
+Usage: python3 ca_clients.py clients | ophyd | gone
+The environment names the server (EPICS_CA_ADDR_LIST=127.0.0.1:PORT, EPICS_CA_AUTO_ADDR_LIST=NO).
+The axis m1 is launch/sim-axis.toml's: mm, PREC 3, dial limits ±100, 10 mm/s.
+"""
+import subprocess
+import sys
+import time
+import warnings
+
+warnings.simplefilter("ignore")
+if sys.argv[1] == "ophyd":
+    import ophyd  # noqa: F401  (before pyepics, whose PV class it extends)
+import epics  # noqa: E402
+
+
+def ok(check):
+    print("ok", check, flush=True)
+
+
+def near(a, b, tolerance=1e-9):
+    return a is not None and abs(a - b) <= tolerance
+
+
+def reads():
+    assert near(epics.caget("m1.RBV", timeout=10), 0.0), epics.caget("m1.RBV")
+    assert epics.caget("m1.EGU") == "mm"
+    assert epics.caget("m1.RTYP") == "motor"
+    assert epics.caget("m1.DESC") == "simulated linear stage"
+    assert epics.caget("m1.SPMG", as_string=True) == "Go"
+    assert epics.caget("m1.SPMG") == 3
+    ctrl = epics.PV("m1", form="ctrl")
+    ctrl.wait_for_connection(timeout=10)
+    meta = ctrl.get_ctrlvars()
+    assert meta["precision"] == 3 and meta["units"] == "mm", meta
+    assert (meta["upper_ctrl_limit"], meta["lower_ctrl_limit"]) == (100.0, -100.0), meta
+    dial = epics.PV("m1.DVAL").get_ctrlvars()
+    assert (dial["upper_ctrl_limit"], dial["lower_ctrl_limit"]) == (100.0, -100.0), dial
+    assert epics.PV("m1.SPMG").get_ctrlvars()["enum_strs"][:4] == ("Stop", "Pause", "Move", "Go")
+    rbv = epics.PV("m1.RBV", form="time")
+    assert rbv.get(timeout=10) == 0.0 and rbv.timestamp > time.time() - 3600, rbv.timestamp
+    assert epics.PV("m1.RBV").write_access is False and epics.PV("m1.VELO").write_access is True
+    ok("reads")
+
+
+def put_wait_and_monitors():
+    seen = []
+    rbv = epics.PV("m1.RBV", callback=lambda value=None, **kw: seen.append(value))
+    rbv.wait_for_connection(timeout=10)
+    ctrl_limits = []
+    val = epics.PV("m1", form="ctrl", callback=lambda **kw: ctrl_limits.append(kw.get("upper_ctrl_limit")))
+    val.wait_for_connection(timeout=10)
+    time.sleep(0.5)
+    start = time.monotonic()
+    assert epics.caput("m1", 5.0, wait=True, timeout=30) == 1
+    took = time.monotonic() - start
+    # 5 mm at 10 mm/s with 0.2 s ramps: the put-callback waits for the end of the motion.
+    assert took > 0.5, took
+    assert epics.caget("m1.DMOV") == 1 and near(epics.caget("m1.RBV"), 5.0)
+    time.sleep(0.5)
+    assert near(seen[-1], 5.0) and len(seen) >= 3, seen
+    assert any(0.0 < v < 5.0 for v in seen), seen
+    ok("put-callback waits for the motion; monitors follow it")
+    assert epics.caput("m1.HLM", 50.0, wait=True) == 1
+    deadline = time.monotonic() + 5
+    while 50.0 not in ctrl_limits and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert 50.0 in ctrl_limits, ctrl_limits
+    assert epics.caput("m1.HLM", 100.0, wait=True) == 1
+    ok("control limits are re-posted when HLM changes")
+
+
+def refused():
+    from caproto.sync.client import write
+
+    before = epics.caget("m1.RBV")
+    reply = write("m1", 500.0, notify=True, repeater=False, timeout=10)
+    assert reply.status.name == "ECA_PUTFAIL", reply
+    reply = write("m1.RBV", 1.0, notify=True, repeater=False, timeout=10)
+    assert reply.status.name == "ECA_PUTFAIL", reply
+    time.sleep(0.3)
+    assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
+    assert epics.caget("m1") == before
+    ok("a refused write reports failure and moves nothing")
+
+
+def caproto_tools():
+    def run(*args):
+        out = subprocess.run(args, capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, out.stderr
+        return out.stdout
+
+    def value(text):
+        return text.split("[", 1)[1].split("]", 1)[0]
+
+    assert float(value(run("caproto-get", "--no-repeater", "m1.RBV"))) == 5.0
+    run("caproto-put", "--no-repeater", "-c", "m1", "2.5")
+    assert near(epics.caget("m1.RBV"), 2.5)
+    assert value(run("caproto-get", "--no-repeater", "m1.RTYP")) == "motor"
+    ok("caproto's command-line tools read and put-callback")
+
+
+def ophyd_scan():
+    from bluesky import RunEngine
+    from bluesky.plans import scan
+    from ophyd import EpicsMotor
+
+    motor = EpicsMotor("m1", name="m1")
+    motor.wait_for_connection(timeout=10)
+    assert motor.limits == (-100.0, 100.0) and motor.precision == 3 and motor.egu == "mm"
+    moving = []
+    motor.motor_is_moving.subscribe(lambda value=None, **kw: moving.append(value), run=False)
+    status = motor.set(3.0)
+    status.wait(30)
+    assert status.success and near(motor.position, 3.0) and motor.moving is False
+    assert 1 in moving, moving
+    documents = []
+    RunEngine({})(scan([], motor, 0, 1, 3), lambda name, doc: documents.append((name, doc)))
+    positions = [doc["data"]["m1"] for name, doc in documents if name == "event"]
+    assert positions == [0.0, 0.5, 1.0], positions
+    ok("ophyd EpicsMotor moves, reads limits and precision, and scans three points under bluesky")
+
+
+def gone():
+    pv = epics.PV("m1.RBV")
+    assert not pv.wait_for_connection(timeout=3), "m1 is still served"
+    ok("a vanished axis is not served")
+
+
+# ophyd runs in a process of its own: it patches pyepics's PV class when it is imported.
+STAGES = {
+    "clients": [reads, put_wait_and_monitors, refused, caproto_tools],
+    "ophyd": [ophyd_scan],
+    "gone": [gone],
+}
+for check in STAGES[sys.argv[1]]:
+    check()
