@@ -3,7 +3,7 @@ caput with wait, monitors), ophyd's EpicsMotor in a bluesky RunEngine scan, and 
 command-line tools and its client) as a second CA implementation. Each check asserts; a line
 `ok <check>` is printed for each that passed.
 
-Usage: python3 ca_clients.py clients | ophyd | gone
+Usage: python3 ca_clients.py clients | ophyd | jog | gone
 The environment names the server (EPICS_CA_ADDR_LIST=127.0.0.1:PORT, EPICS_CA_AUTO_ADDR_LIST=NO).
 The axis m1 is launch/sim-axis.toml's: mm, PREC 3, dial limits ±100, 10 mm/s.
 """
@@ -131,11 +131,18 @@ def gone():
     ok("a vanished axis is not served")
 
 
+def jog():
+    assert epics.caput("m1.JOGF", 1, wait=False) == 1
+    print("jogging", flush=True)
+    time.sleep(600)  # until killed: the jog must end when this client vanishes
+
+
 # ophyd runs in a process of its own: it patches pyepics's PV class when it is imported.
 STAGES = {
     "clients": [reads, put_wait_and_monitors, refused, caproto_tools],
     "ophyd": [ophyd_scan],
     "gone": [gone],
+    "jog": [jog],
 }
 for check in STAGES[sys.argv[1]]:
     check()

@@ -50,6 +50,9 @@ pub enum Request {
         text: String,
         /// Whether to wait for the end of the motion (a put-callback of a drive field).
         wait: bool,
+        /// Whether the motion is held by this circuit (a jog: it ends when the circuit does,
+        /// as the jog deadman has it).
+        hold: bool,
         /// How to answer the client, given back in `write_done`.
         answer: WriteAnswer,
     },
@@ -332,7 +335,8 @@ impl Circuit {
             Ok(text) => {
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
-                self.requests.push_back(Request::Write { pv, text, wait, answer });
+                let hold = matches!(pv.target, Target::Field(Field::JOGF | Field::JOGR));
+                self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }
             Err(e) => self.write_done(answer, Err(e.to_string())),
         }

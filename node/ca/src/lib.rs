@@ -111,8 +111,8 @@ mod tests {
         let rbv_sid = rbv[1].0.p2;
 
         request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, sid, 42), &4.0f64.to_be_bytes());
-        let Some(Request::Write { pv, text, wait, answer }) = circuit.poll_request() else { panic!("no write") };
-        assert_eq!((pv.name("bl:"), text.as_str(), wait), ("bl:m1.VAL".into(), "4", true));
+        let Some(Request::Write { pv, text, wait, hold, answer }) = circuit.poll_request() else { panic!("no write") };
+        assert_eq!((pv.name("bl:"), text.as_str(), wait, hold), ("bl:m1.VAL".into(), "4", true, false));
         circuit.write_done(answer, Err("limit violation".into()));
         let failed = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((failed[0].0.command, failed[0].0.p1, failed[0].0.p2), (command::WRITE_NOTIFY, 160, 42));

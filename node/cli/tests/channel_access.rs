@@ -3,39 +3,61 @@
 
 mod common;
 
-use common::{repo_file, Host};
+use common::{repo_file, time_to_release, Host, Lines, Running};
 use std::process::Command;
+use std::process::Stdio;
+use std::time::Duration;
 use zmotor_zenoh::free_local_endpoint;
 
-fn clients(port: u16, stage: &str) -> String {
-    let output = Command::new("python3")
+/// The client script at `stage`, pointed at the front-end on `port`.
+fn script(port: u16, stage: &str) -> Command {
+    let mut command = Command::new("python3");
+    command
         .arg(repo_file("tests/python/ca_clients.py"))
         .arg(stage)
         .env("EPICS_CA_ADDR_LIST", format!("127.0.0.1:{port}"))
-        .env("EPICS_CA_AUTO_ADDR_LIST", "NO")
-        .output()
-        .unwrap();
+        .env("EPICS_CA_AUTO_ADDR_LIST", "NO");
+    command
+}
+
+fn clients(port: u16, stage: &str) -> String {
+    let output = script(port, stage).output().unwrap();
     let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
     assert!(output.status.success(), "{stage}: {stdout}\n{}", String::from_utf8_lossy(&output.stderr));
     stdout
 }
 
-#[test]
-fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
+/// Whether the Python clients are installed (CI must have them).
+fn clients_installed() -> bool {
     let probe = Command::new("python3").args(["-c", "import epics, ophyd, bluesky, caproto"]).output();
     if !probe.is_ok_and(|o| o.status.success()) {
         assert!(std::env::var_os("CI").is_none(), "CI must install pyepics, ophyd, bluesky and caproto (.ci/run)");
         eprintln!("SKIPPED: python3 with pyepics, ophyd, bluesky and caproto is not installed");
-        return;
+        return false;
     }
-    let dir = tempfile::tempdir().unwrap();
+    true
+}
+
+/// A node of launch/sim-axis.toml and the front-end before it: the node, its endpoint, the
+/// front-end's port.
+fn served(dir: &std::path::Path) -> (Running, Running, String, u16) {
     let endpoint = free_local_endpoint().unwrap();
     let here = Host::default();
     let launch = repo_file("launch/sim-axis.toml");
-    let node = here.spawn(&["launch", launch.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    let node = here.spawn(&["launch", launch.to_str().unwrap(), "--listen", &endpoint], dir);
     here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let _ca = here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir.path());
+    let ca = here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir);
+    (node, ca, endpoint, port)
+}
+
+#[test]
+fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
+    if !clients_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (node, _ca, _, port) = served(dir.path());
 
     let seen = clients(port, "clients") + &clients(port, "ophyd");
     for check in ["reads", "put-callback waits", "control limits are re-posted", "reports failure", "caproto", "ophyd"]
@@ -46,4 +68,21 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
     // The node goes: its axis is no longer served.
     node.kill();
     assert!(clients(port, "gone").contains("ok a vanished axis"));
+}
+
+#[test]
+fn a_jog_from_a_channel_access_client_that_is_killed_ends_within_a_second() {
+    if !clients_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (_node, _ca, endpoint, port) = served(dir.path());
+    let mut jogger = script(port, "jog").stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
+    let lines = Lines::of(&mut jogger);
+    let jogger = Running(Some(jogger));
+    let took = time_to_release(&Host::default(), &endpoint, || {
+        assert!(lines.wait_for(common::PATIENCE, |l| l == "jogging").is_some(), "the client jogs");
+        jogger.kill();
+    });
+    assert!(took < Duration::from_secs(1), "released {took:?} after the client was killed");
 }

@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{Host, Lines, Namespaces, Running, PATIENCE};
+use common::{time_to_release, Host, Namespaces, Running};
 use std::process::{Command, Stdio};
 use std::time::Duration;
 use zmotor_zenoh::free_local_endpoint;
@@ -16,33 +16,6 @@ fn jog_stage(jog_hold: &str) -> String {
         "[autosave]\nenabled = false\n[[axis]]\nname = \"m1\"\njog_hold = \"{jog_hold}\"\n[axis.fields]\n\
          MRES = 0.001\nVELO = 1\nJVEL = 1\nACCL = 0.1\nDHLM = 1000\nDLLM = -1000\n"
     )
-}
-
-/// A monitor of m1's JOGF, its lines as they come.
-fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
-    let mut child = host
-        .zmotor(&["monitor", "m1", "JOGF", "--connect", endpoint])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let lines = Lines::of(&mut child);
-    std::thread::sleep(Duration::from_millis(500));
-    (Running(Some(child)), lines)
-}
-
-/// The time from `vanish` (called once the jog runs) to JOGF 0 on the node.
-fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Duration {
-    let (_monitor, lines) = monitor_jogf(host, endpoint);
-    host.wait_for(endpoint, "m1", "MOVN", |v| v == 1.0);
-    let gone = std::time::Instant::now();
-    vanish();
-    let released = lines.wait_for(PATIENCE, |line| common::monitored(line) == Some(("m1.JOGF", "0")));
-    let released = released.expect("the jog was released");
-    host.wait_for(endpoint, "m1", "MOVN", |v| v == 0.0);
-    let took = released.saturating_duration_since(gone);
-    eprintln!("released {took:?} after the client went");
-    took
 }
 
 /// A node of `jog_stage(jog_hold)` on this host, up: its state directory, process, endpoint.

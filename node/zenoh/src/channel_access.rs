@@ -8,6 +8,7 @@
 
 use std::collections::{HashMap, HashSet};
 use std::net::{IpAddr, SocketAddr};
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -17,7 +18,10 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 use zmotor_ca::{search, Circuit, Directory, Pv, Request, Snapshot, Stamp, Target, WriteAnswer};
 use zmotor_msgs::codec::decode_cbor_value;
-use zmotor_msgs::{Field, KeyLayout, Kind, Value};
+use zmotor_msgs::{Field, Hold, KeyLayout, Kind, Value};
+
+/// Circuits served so far by this process: each holds its jogs by a token of its own.
+static CIRCUITS: AtomicU64 = AtomicU64::new(0);
 
 /// Where and how the front-end serves.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -170,27 +174,31 @@ impl Shared {
     }
 
     /// A confirmed write to a write key; the outcome goes back to the circuit.
-    fn write(&self, pv: Pv, text: String, wait: bool, answer: WriteAnswer, done: mpsc::UnboundedSender<Done>) {
+    fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
+        let Write { pv, text, wait, hold, answer } = write;
         let Target::Field(field) = pv.target else { return };
         let shared = self.clone();
         tokio::spawn(async move {
             let selector = shared.layout.write_selector(&pv.axis, field, wait);
             let patience = if wait { MOTION_PATIENCE } else { ANSWER_PATIENCE };
-            let outcome =
-                match shared.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience).await
-                {
-                    Ok(replies) => match replies.recv_async().await {
-                        Ok(reply) => reply
-                            .result()
-                            .map(|_| ())
-                            .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-                        Err(_) => Err(format!(
-                            "{}: no answer (the axis's node vanished, or access control refused the write)",
-                            pv.name(&shared.prefix)
-                        )),
-                    },
-                    Err(e) => Err(e.to_string()),
-                };
+            let mut request =
+                shared.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience);
+            if let Some(token) = hold {
+                request = request.attachment(Hold::new(&token).encode());
+            }
+            let outcome = match request.await {
+                Ok(replies) => match replies.recv_async().await {
+                    Ok(reply) => reply
+                        .result()
+                        .map(|_| ())
+                        .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+                    Err(_) => Err(format!(
+                        "{}: no answer (the axis's node vanished, or access control refused the write)",
+                        pv.name(&shared.prefix)
+                    )),
+                },
+                Err(e) => Err(e.to_string()),
+            };
             let _ = done.send((answer, outcome));
         });
     }
@@ -198,6 +206,16 @@ impl Shared {
 
 /// A write's outcome, for its circuit.
 type Done = (WriteAnswer, Result<(), String>);
+
+/// A write to send: what the circuit asked, the hold token resolved.
+struct Write {
+    pv: Pv,
+    text: String,
+    wait: bool,
+    /// The liveliness token that holds the motion, if it is held.
+    hold: Option<String>,
+    answer: WriteAnswer,
+}
 
 /// A running front-end; dropping it stops it.
 pub struct ChannelAccess {
@@ -294,6 +312,10 @@ async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::i
     let mut changes = shared.changes.subscribe();
     let (done, mut finished) = mpsc::unbounded_channel::<Done>();
     let mut circuit = Circuit::new(&shared.prefix);
+    // The tokens this circuit holds its jogs by, per axis: they go when the circuit closes (the
+    // client quit, died or was cut off), and the node then ends the jogs.
+    let mut holds: HashMap<String, (String, zenoh::liveliness::LivelinessToken)> = HashMap::new();
+    let client = format!("ca-{}-{}", shared.session.zid(), CIRCUITS.fetch_add(1, Ordering::Relaxed));
     let mut buffer = vec![0; 16 * 1024];
     loop {
         tokio::select! {
@@ -316,11 +338,30 @@ async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::i
         while let Some(request) = circuit.poll_request() {
             match request {
                 Request::Fetch { axis } => shared.fetch(axis),
-                Request::Write { pv, text, wait, answer } => shared.write(pv, text, wait, answer, done.clone()),
+                Request::Write { pv, text, wait, hold, answer } => {
+                    let hold = if hold { Some(hold_token(shared, &mut holds, &pv.axis, &client).await?) } else { None };
+                    shared.write(Write { pv, text, wait, hold, answer }, done.clone());
+                }
             }
         }
         while let Some(bytes) = circuit.poll_transmit() {
             writer.write_all(&bytes).await?;
         }
     }
+}
+
+/// The key of the token a circuit holds an axis's jogs by, declared at its first jog.
+async fn hold_token(
+    shared: &Shared,
+    holds: &mut HashMap<String, (String, zenoh::liveliness::LivelinessToken)>,
+    axis: &str,
+    client: &str,
+) -> std::io::Result<String> {
+    if let Some((key, _)) = holds.get(axis) {
+        return Ok(key.clone());
+    }
+    let key = shared.layout.hold(axis, client);
+    let token = shared.session.liveliness().declare_token(&key).await.map_err(std::io::Error::other)?;
+    holds.insert(axis.to_string(), (key.clone(), token));
+    Ok(key)
 }

@@ -317,3 +317,30 @@ impl Pki {
         .to_vec()
     }
 }
+
+/// A monitor of m1's JOGF, its lines as they come.
+pub fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
+    let mut child = host
+        .zmotor(&["monitor", "m1", "JOGF", "--connect", endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = Lines::of(&mut child);
+    std::thread::sleep(Duration::from_millis(500));
+    (Running(Some(child)), lines)
+}
+
+/// The time from `vanish` (called once the jog runs) to JOGF 0 on the node.
+pub fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Duration {
+    let (_monitor, lines) = monitor_jogf(host, endpoint);
+    host.wait_for(endpoint, "m1", "MOVN", |v| v == 1.0);
+    let gone = std::time::Instant::now();
+    vanish();
+    let released = lines.wait_for(PATIENCE, |line| monitored(line) == Some(("m1.JOGF", "0")));
+    let released = released.expect("the jog was released");
+    host.wait_for(endpoint, "m1", "MOVN", |v| v == 0.0);
+    let took = released.saturating_duration_since(gone);
+    eprintln!("released {took:?} after the client went");
+    took
+}
