@@ -439,9 +439,33 @@ async fn launch(
     let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
+    // The front-end is a client of the node's own network: a session of its own, since a node's
+    // publications leave its session only for others.
+    let channel_access = match &deployment.channel_access {
+        Some(config) => {
+            let reach = deployment.zenoh.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
+            let Some(endpoint) = reach.or_else(|| deployment.zenoh.connect.first().cloned()) else {
+                return Err("[channel_access] needs the node to listen or connect somewhere".into());
+            };
+            let section = ZenohConfig {
+                tls: deployment.zenoh.tls.clone(),
+                login: deployment.zenoh.login.clone(),
+                ..ZenohConfig::client(&endpoint)
+            };
+            let client = zenoh::open(section.zenoh()?).await?;
+            let served =
+                zmotor_zenoh::channel_access::ChannelAccess::start(client.clone(), layout.clone(), config).await?;
+            Some((client, served))
+        }
+        None => None,
+    };
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
         connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
     interrupted().await?;
+    if let Some((client, served)) = channel_access {
+        drop(served);
+        client.close().await?;
+    }
     tracing::info!("stopping: moving axes stop, state is saved");
     node.shutdown().await;
     session.close().await?;

@@ -38,16 +38,21 @@ fn clients_installed() -> bool {
     true
 }
 
-/// A node of launch/sim-axis.toml and the front-end before it: the node, its endpoint, the
-/// front-end's port.
-fn served(dir: &std::path::Path) -> (Running, Running, String, u16) {
+/// A node of launch/sim-axis.toml and the front-end before it, run by `zmotor ca` or by the
+/// launch file's `[channel_access]`: the processes, the node's endpoint, the front-end's port.
+fn served(dir: &std::path::Path, by_launch_file: bool) -> (Running, Option<Running>, String, u16) {
     let endpoint = free_local_endpoint().unwrap();
-    let here = Host::default();
-    let launch = repo_file("launch/sim-axis.toml");
-    let node = here.spawn(&["launch", launch.to_str().unwrap(), "--listen", &endpoint], dir);
-    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
     let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
-    let ca = here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir);
+    let here = Host::default();
+    let mut launch = std::fs::read_to_string(repo_file("launch/sim-axis.toml")).unwrap();
+    if by_launch_file {
+        launch += &format!("\n[channel_access]\nport = {port}\n");
+    }
+    let file = dir.join("axis.toml");
+    std::fs::write(&file, launch).unwrap();
+    let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir);
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let ca = (!by_launch_file).then(|| here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir));
     (node, ca, endpoint, port)
 }
 
@@ -57,7 +62,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (node, _ca, _, port) = served(dir.path());
+    let (node, _ca, _, port) = served(dir.path(), false);
 
     let seen = clients(port, "clients") + &clients(port, "ophyd");
     for check in ["reads", "put-callback waits", "control limits are re-posted", "reports failure", "caproto", "ophyd"]
@@ -76,7 +81,8 @@ fn a_jog_from_a_channel_access_client_that_is_killed_ends_within_a_second() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let (_node, _ca, endpoint, port) = served(dir.path());
+    // The front-end of a launch file's [channel_access], in the node's process.
+    let (_node, _, endpoint, port) = served(dir.path(), true);
     let mut jogger = script(port, "jog").stdout(Stdio::piped()).stderr(Stdio::null()).spawn().unwrap();
     let lines = Lines::of(&mut jogger);
     let jogger = Running(Some(jogger));

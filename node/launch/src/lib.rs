@@ -21,6 +21,7 @@ use zmotor_core::driver::sim::SimConfig;
 use zmotor_core::service::JogHold;
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
+use zmotor_zenoh::channel_access::CaConfig;
 use zmotor_zenoh::{Mode, NodeContents, TlsConfig, ValueSpec, ZenohConfig};
 
 /// Highest readback rate while moving, Hz.
@@ -71,6 +72,9 @@ pub struct LaunchFile {
     /// Per-host overrides of `[zenoh]`; with hosts, every item names the host that runs it.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub hosts: BTreeMap<String, HostSection>,
+    /// A Channel Access front-end serving the axes (`[channel_access]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel_access: Option<ChannelAccessSection>,
     #[serde(default, rename = "controller", skip_serializing_if = "Vec::is_empty")]
     /// The motor controllers (`[[controller]]`).
     pub controllers: Vec<ControllerSection>,
@@ -98,6 +102,28 @@ pub struct AutosaveSection {
 impl Default for AutosaveSection {
     fn default() -> Self {
         Self { enabled: true, delay: 1.0 }
+    }
+}
+
+/// The `[channel_access]` section: `zmotor ca` run by the launch (on its host, when given).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ChannelAccessSection {
+    /// `<P>`, prepended to every channel name.
+    pub pv_prefix: String,
+    /// Address to serve on.
+    pub address: std::net::IpAddr,
+    /// Port of searches and circuits.
+    pub port: u16,
+    /// The host that runs it (with `[hosts]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+}
+
+impl Default for ChannelAccessSection {
+    fn default() -> Self {
+        let CaConfig { pv_prefix, address, port } = CaConfig::default();
+        Self { pv_prefix, address, port, host: None }
     }
 }
 
@@ -489,6 +515,8 @@ pub struct Deployment {
     pub state_dir: Option<PathBuf>,
     /// Autosave settings.
     pub autosave: AutosaveSection,
+    /// The Channel Access front-end this process runs, if any.
+    pub channel_access: Option<CaConfig>,
 }
 
 /// A file that took part in a launch, kept to point errors at their line.
@@ -555,6 +583,7 @@ impl Launch {
         }
         launch.file.state_dir = main.state_dir.clone();
         launch.file.autosave = main.autosave.clone();
+        launch.file.channel_access = main.channel_access.clone();
         let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
         launch.merge(main, base, &mut visited)?;
         launch.check().map_err(|p| launch.error(p))?;
@@ -698,6 +727,12 @@ impl Launch {
         for controller in &self.file.controllers {
             controller.spec(Vec::new())?;
         }
+        if let Some(host) = self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref()) {
+            if !self.file.hosts.contains_key(host) {
+                let message = format!("channel_access.host: '{host}' is not declared under [hosts]");
+                return Err(Problem::at(0, keys_path(&["channel_access", "host"]), message));
+            }
+        }
         self.check_axes_on_controllers()?;
         let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
         let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
@@ -808,6 +843,11 @@ impl Launch {
             contents,
             state_dir: self.file.state_dir.as_ref().map(|dir| self.base.join(dir)),
             autosave: self.file.autosave.clone().unwrap_or_default(),
+            channel_access: self.file.channel_access.as_ref().filter(|ca| runs_here(&ca.host)).map(|ca| CaConfig {
+                pv_prefix: ca.pv_prefix.clone(),
+                address: ca.address,
+                port: ca.port,
+            }),
         })
     }
 
@@ -1149,6 +1189,17 @@ mod tests {
         assert!(bad("name = \"x\"\nmay = [\"fly\"]\nusernames = [\"u\"]").contains("unknown variant `fly`"));
         let twice = "name = \"x\"\nmay = [\"read\"]\nusernames = [\"u\"]\n";
         assert!(bad(&format!("{twice}[[zenoh.access]]\n{twice}")).contains("zenoh.access 'x': is defined twice"));
+    }
+
+    #[test]
+    fn a_channel_access_section_runs_on_its_host() {
+        let text = "[hosts.a]\n[hosts.b]\n[channel_access]\npv_prefix = \"bl1:\"\nport = 5070\nhost = \"b\"\n";
+        let launch = Launch::parse(text).unwrap();
+        assert_eq!(launch.deployment(Some("a")).unwrap().channel_access, None);
+        let ca = launch.deployment(Some("b")).unwrap().channel_access.unwrap();
+        assert_eq!((ca.pv_prefix.as_str(), ca.port, ca.address.to_string()), ("bl1:", 5070, "127.0.0.1".into()));
+        let unknown = Launch::parse("[channel_access]\nhost = \"c\"\n").unwrap_err().to_string();
+        assert!(unknown.contains("channel_access.host: 'c' is not declared"), "{unknown}");
     }
 
     #[test]

@@ -34,6 +34,13 @@ pub struct CaConfig {
     pub port: u16,
 }
 
+impl Default for CaConfig {
+    /// No prefix, on 127.0.0.1 (a lab serves on 0.0.0.0 or an interface's address), port 5064.
+    fn default() -> Self {
+        Self { pv_prefix: String::new(), address: IpAddr::from([127, 0, 0, 1]), port: 5064 }
+    }
+}
+
 /// The front-end could not start.
 #[derive(Debug, thiserror::Error)]
 pub enum CaError {
