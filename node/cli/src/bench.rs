@@ -40,6 +40,8 @@ pub(crate) struct BenchOptions {
     pub(crate) parts: Vec<Part>,
     /// Seconds each storm of writes lasts.
     pub(crate) storm: f64,
+    /// One-step moves each way for the Channel Access figures.
+    pub(crate) ca_moves: usize,
 }
 
 /// The parts of the benchmark.
@@ -57,11 +59,20 @@ pub(crate) enum Part {
     Controllers,
     /// 7. a storm of writes.
     Writes,
+    /// 8. Channel Access beside Zenoh.
+    ChannelAccess,
 }
 
 impl Part {
-    pub(crate) const ALL: [Part; 6] =
-        [Part::Latency, Part::Scale, Part::EpicsLoad, Part::Startup, Part::Controllers, Part::Writes];
+    pub(crate) const ALL: [Part; 7] = [
+        Part::Latency,
+        Part::Scale,
+        Part::EpicsLoad,
+        Part::Startup,
+        Part::Controllers,
+        Part::Writes,
+        Part::ChannelAccess,
+    ];
 }
 
 impl BenchOptions {
@@ -77,6 +88,7 @@ impl BenchOptions {
             controller_moves: 40,
             parts: Part::ALL.to_vec(),
             storm: 60.0,
+            ca_moves: 100,
         }
     }
 
@@ -93,6 +105,7 @@ impl BenchOptions {
             controller_moves: 2,
             parts: Part::ALL.to_vec(),
             storm: 1.0,
+            ca_moves: 3,
         }
     }
 }
@@ -666,6 +679,7 @@ pub(crate) async fn run(options: &BenchOptions) -> Result<(), Error> {
             Part::Startup => startup_part(options).await?,
             Part::Controllers => controllers_part(options).await?,
             Part::Writes => writes_part(options).await?,
+            Part::ChannelAccess => channel_access_part(options).await?,
         }
     }
     Ok(())
@@ -891,6 +905,25 @@ async fn controllers_part(options: &BenchOptions) -> Result<(), Error> {
             f.end_to_done.p99,
             f.moving_poll.as_secs_f64() * 1e3
         );
+    }
+    Ok(())
+}
+
+async fn channel_access_part(options: &BenchOptions) -> Result<(), Error> {
+    println!("\n8. Channel Access beside Zenoh: the demo's axis in a node process whose launch file runs the");
+    println!("   front-end ([channel_access]); here a CA client (as caget and `caput -c` send) and a Zenoh client,");
+    println!(
+        "   in turn: {} reads of RBV, {} one-step (1 µm) moves answered at their end; µs",
+        options.moves, options.ca_moves
+    );
+    let f = crate::ca_bench::run(options.moves, options.ca_moves).await?;
+    for (what, p) in [
+        ("caget RBV (CA read)", &f.ca_read),
+        ("Zenoh get RBV", &f.zenoh_read),
+        ("caput -c VAL, one step", &f.ca_move),
+        ("Zenoh ?wait VAL, one step", &f.zenoh_move),
+    ] {
+        println!("   {what:<28} p50 {:>9.0}  p90 {:>9.0}  p99 {:>9.0}", p.p50, p.p90, p.p99);
     }
     Ok(())
 }

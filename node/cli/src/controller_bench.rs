@@ -220,7 +220,7 @@ impl Exchange {
 }
 
 /// A `zmotor launch` child process; killed when dropped.
-struct NodeProcess(Child);
+pub(crate) struct NodeProcess(pub(crate) Child);
 
 impl Drop for NodeProcess {
     fn drop(&mut self) {

@@ -2,6 +2,7 @@
 //! errors become the plain words a user reads.
 
 mod bench;
+mod ca_bench;
 mod controller_bench;
 mod sim_controller;
 

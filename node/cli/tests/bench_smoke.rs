@@ -26,6 +26,8 @@ fn the_benchmark_runs_in_smoke_mode() {
         "smaract_mcs2",
         "phytron",
         "7. a storm of writes",
+        "8. Channel Access beside Zenoh",
+        "caput -c VAL, one step",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
