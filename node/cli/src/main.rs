@@ -201,6 +201,14 @@ enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
+    /// Serve motor screens to browsers: an index of the live axes and a screen per axis.
+    Web {
+        /// HTTP address to serve on.
+        #[arg(long, default_value = "127.0.0.1:8080")]
+        address: std::net::SocketAddr,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
     /// Write the JSON Schemas of every message type and the field catalogue into DIR.
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
@@ -331,6 +339,16 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, json, client } => monitor(&client, &axis, &fields, json).await,
         Command::List { client } => list(&client).await,
+        Command::Web { address, client } => {
+            let session = connect(&client).await?;
+            let config = zmotor_web::WebConfig { address };
+            let served = zmotor_web::Web::start(session.clone(), KeyLayout::new(&client.prefix), &config).await?;
+            eprintln!("motor screens at http://{}/ ; Ctrl-C to stop", served.address);
+            interrupted().await?;
+            drop(served);
+            session.close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Ca { pv_prefix, address, port, client } => {
             let session = connect(&client).await?;
             let config = zmotor_zenoh::channel_access::CaConfig { pv_prefix, address, port };
@@ -440,32 +458,28 @@ async fn launch(
     let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
-    // The front-end is a client of the node's own network: a session of its own, since a node's
+    // The front-ends are clients of the node's own network, on a session of their own: a node's
     // publications leave its session only for others.
-    let channel_access = match &deployment.channel_access {
-        Some(config) => {
-            let reach = deployment.zenoh.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
-            let Some(endpoint) = reach.or_else(|| deployment.zenoh.connect.first().cloned()) else {
-                return Err("[channel_access] needs the node to listen or connect somewhere".into());
-            };
-            let section = ZenohConfig {
-                tls: deployment.zenoh.tls.clone(),
-                login: deployment.zenoh.login.clone(),
-                ..ZenohConfig::client(&endpoint)
-            };
-            let client = zenoh::open(section.zenoh()?).await?;
-            let served =
-                zmotor_zenoh::channel_access::ChannelAccess::start(client.clone(), layout.clone(), config).await?;
-            Some((client, served))
-        }
-        None => None,
+    let front_session = match deployment.channel_access.is_some() || deployment.web.is_some() {
+        true => Some(front_end_session(&deployment.zenoh).await?),
+        false => None,
     };
+    let mut front_ends = (None, None);
+    if let Some(session) = &front_session {
+        if let Some(config) = &deployment.channel_access {
+            let start = zmotor_zenoh::channel_access::ChannelAccess::start(session.clone(), layout.clone(), config);
+            front_ends.0 = Some(start.await?);
+        }
+        if let Some(config) = &deployment.web {
+            front_ends.1 = Some(zmotor_web::Web::start(session.clone(), layout.clone(), config).await?);
+        }
+    }
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
         connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
     interrupted().await?;
-    if let Some((client, served)) = channel_access {
-        drop(served);
-        client.close().await?;
+    drop(front_ends);
+    if let Some(session) = front_session {
+        session.close().await?;
     }
     tracing::info!("stopping: moving axes stop, state is saved");
     node.shutdown().await;
@@ -482,6 +496,18 @@ fn warn_if_open(section: &ZenohConfig) {
              (README: Running it safely)"
         );
     }
+}
+
+/// A client session of the network a node's `section` joins: to where it listens (or else
+/// connects), with its TLS and login.
+async fn front_end_session(section: &ZenohConfig) -> Result<zenoh::Session, Error> {
+    let reach = section.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
+    let Some(endpoint) = reach.or_else(|| section.connect.first().cloned()) else {
+        return Err("[channel_access] and [web] need the node to listen or connect somewhere".into());
+    };
+    let client =
+        ZenohConfig { tls: section.tls.clone(), login: section.login.clone(), ..ZenohConfig::client(&endpoint) };
+    zenoh::open(client.zenoh()?).await
 }
 
 /// A client session connected where `client` says.
@@ -576,36 +602,18 @@ async fn read(session: &zenoh::Session, key: &str) -> Result<Vec<(Option<Field>,
 /// The live axes (their liveliness tokens), with DESC, EGU, RBV and whether they move.
 async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
     let session = connect(client).await?;
-    let layout = KeyLayout::new(&client.prefix);
-    let tokens = session.liveliness().get(layout.axis("*")).timeout(Duration::from_secs(5)).await?;
-    let mut axes = std::collections::BTreeSet::new();
-    while let Ok(reply) = tokens.recv_async().await {
-        if let Some(axis) = reply.result().ok().and_then(|s| layout.axis_chunk(s.key_expr().as_str())) {
-            axes.insert(axis.to_string());
-        }
-    }
-    // One read of each column for every axis at once.
-    let columns = [Field::DESC, Field::EGU, Field::RBV, Field::DMOV];
-    let mut cells = std::collections::HashMap::new();
-    for field in columns {
-        let replies = session.get(layout.field_of_every_axis(field)).timeout(Duration::from_secs(5)).await?;
-        while let Ok(reply) = replies.recv_async().await {
-            let Ok(sample) = reply.result() else { continue };
-            if let Some(axis) = layout.axis_chunk(sample.key_expr().as_str()) {
-                cells.insert((axis.to_string(), field), show(&sample.payload().to_bytes()));
-            }
-        }
-    }
-    let cell = |axis: &str, field| cells.get(&(axis.to_string(), field)).cloned().unwrap_or_else(|| "?".into());
+    let axes = zmotor_zenoh::summary::live_axes(&session, &KeyLayout::new(&client.prefix)).await?;
+    let text = |t: &Option<String>| t.clone().unwrap_or_else(|| "?".into());
     let rows: Vec<[String; 5]> = axes
         .iter()
-        .map(|axis| {
-            let state = match cell(axis, Field::DMOV).as_str() {
-                "0" => "moving",
-                "1" => "idle",
-                _ => "?",
+        .map(|a| {
+            let state = match a.moving {
+                Some(true) => "moving",
+                Some(false) => "idle",
+                None => "?",
             };
-            [axis.clone(), cell(axis, Field::DESC), cell(axis, Field::EGU), cell(axis, Field::RBV), state.into()]
+            let rbv = a.rbv.map_or_else(|| "?".into(), |r| r.to_string());
+            [a.name.clone(), text(&a.desc), text(&a.egu), rbv, state.into()]
         })
         .collect();
     let header = ["AXIS", "DESC", "EGU", "RBV", "STATE"].map(String::from);

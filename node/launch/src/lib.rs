@@ -21,6 +21,7 @@ use zmotor_core::driver::sim::SimConfig;
 use zmotor_core::service::JogHold;
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
+use zmotor_web::WebConfig;
 use zmotor_zenoh::channel_access::CaConfig;
 use zmotor_zenoh::{Mode, NodeContents, TlsConfig, ValueSpec, ZenohConfig};
 
@@ -72,6 +73,9 @@ pub struct LaunchFile {
     /// Per-host overrides of `[zenoh]`; with hosts, every item names the host that runs it.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub hosts: BTreeMap<String, HostSection>,
+    /// A web server of motor screens (`[web]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub web: Option<WebSection>,
     /// A Channel Access front-end serving the axes (`[channel_access]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_access: Option<ChannelAccessSection>,
@@ -124,6 +128,23 @@ impl Default for ChannelAccessSection {
     fn default() -> Self {
         let CaConfig { pv_prefix, address, port } = CaConfig::default();
         Self { pv_prefix, address, port, host: None }
+    }
+}
+
+/// The `[web]` section: `zmotor web` run by the launch (on its host, when given).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct WebSection {
+    /// The HTTP address.
+    pub address: std::net::SocketAddr,
+    /// The host that runs it (with `[hosts]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+}
+
+impl Default for WebSection {
+    fn default() -> Self {
+        Self { address: WebConfig::default().address, host: None }
     }
 }
 
@@ -517,6 +538,8 @@ pub struct Deployment {
     pub autosave: AutosaveSection,
     /// The Channel Access front-end this process runs, if any.
     pub channel_access: Option<CaConfig>,
+    /// The web server this process runs, if any.
+    pub web: Option<WebConfig>,
 }
 
 /// A file that took part in a launch, kept to point errors at their line.
@@ -584,6 +607,7 @@ impl Launch {
         launch.file.state_dir = main.state_dir.clone();
         launch.file.autosave = main.autosave.clone();
         launch.file.channel_access = main.channel_access.clone();
+        launch.file.web = main.web.clone();
         let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
         launch.merge(main, base, &mut visited)?;
         launch.check().map_err(|p| launch.error(p))?;
@@ -727,10 +751,14 @@ impl Launch {
         for controller in &self.file.controllers {
             controller.spec(Vec::new())?;
         }
-        if let Some(host) = self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref()) {
-            if !self.file.hosts.contains_key(host) {
-                let message = format!("channel_access.host: '{host}' is not declared under [hosts]");
-                return Err(Problem::at(0, keys_path(&["channel_access", "host"]), message));
+        let front_ends = [
+            ("channel_access", self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref())),
+            ("web", self.file.web.as_ref().and_then(|web| web.host.as_ref())),
+        ];
+        for (section, host) in front_ends {
+            if let Some(host) = host.filter(|h| !self.file.hosts.contains_key(*h)) {
+                let message = format!("{section}.host: '{host}' is not declared under [hosts]");
+                return Err(Problem::at(0, keys_path(&[section, "host"]), message));
             }
         }
         self.check_axes_on_controllers()?;
@@ -848,6 +876,7 @@ impl Launch {
                 address: ca.address,
                 port: ca.port,
             }),
+            web: self.file.web.as_ref().filter(|w| runs_here(&w.host)).map(|w| WebConfig { address: w.address }),
         })
     }
 
@@ -1200,6 +1229,10 @@ mod tests {
         assert_eq!((ca.pv_prefix.as_str(), ca.port, ca.address.to_string()), ("bl1:", 5070, "127.0.0.1".into()));
         let unknown = Launch::parse("[channel_access]\nhost = \"c\"\n").unwrap_err().to_string();
         assert!(unknown.contains("channel_access.host: 'c' is not declared"), "{unknown}");
+        let web = Launch::parse("[web]\naddress = \"0.0.0.0:8081\"\n").unwrap().deployment(None).unwrap().web;
+        assert_eq!(web.map(|w| w.address.to_string()), Some("0.0.0.0:8081".into()));
+        let unknown = Launch::parse("[web]\nhost = \"c\"\n").unwrap_err().to_string();
+        assert!(unknown.contains("web.host: 'c' is not declared"), "{unknown}");
     }
 
     #[test]

@@ -11,6 +11,7 @@ mod controllers;
 mod holds;
 mod links;
 mod node;
+pub mod summary;
 mod timer;
 
 pub use config::{free_local_endpoint, AccessRule, ConfigError, LoginConfig, Mode, Permission, TlsConfig, ZenohConfig};

@@ -1,0 +1,139 @@
+//! `zmotor web` in headless Chromium (tests/python/web_screen.py, Selenium): the index lists the
+//! axis, tweak-forward moves it on the page and in the plot, a target beyond the soft limit
+//! shows the node's refusal; the screenshot is kept (`target/tmp/web-screen.png`).
+
+mod common;
+
+use common::{monitor_jogf, Host};
+use std::process::Command;
+use zmotor_zenoh::free_local_endpoint;
+
+const AXIS: &str = r#"
+[autosave]
+enabled = false
+
+[[axis]]
+name = "m1"
+driver = "sim"
+[axis.fields]
+DESC = "slit top blade"
+EGU = "mm"
+MRES = 0.001
+VELO = 2
+ACCL = 0.2
+TWV = 1
+DHLM = 100
+DLLM = -100
+PREC = 3
+"#;
+
+#[test]
+fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
+    if !browser_installed() {
+        return;
+    }
+    // The screen of the launch file's [web], in the node's process.
+    let dir = tempfile::tempdir().unwrap();
+    let address = free_address();
+    let file = dir.path().join("axis.toml");
+    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"{address}\"\n")).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+
+    let screenshot = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("web-screen.png");
+    let output = Command::new("python3")
+        .arg(common::repo_file("tests/python/web_screen.py"))
+        .args([&format!("http://{address}/"), "m1", screenshot.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let seen = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{seen}\n{}", String::from_utf8_lossy(&output.stderr));
+    for check in
+        ["lists the axis", "tweak forward moves", "plot follows", "refused with the node's words", "screenshot"]
+    {
+        assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
+    }
+    assert!(std::fs::metadata(&screenshot).unwrap().len() > 10_000, "a screenshot of the screen");
+
+    // `zmotor web`, a process of its own, lists the same axis.
+    let address = free_address();
+    let _web = here.spawn(&["web", "--address", &address, "--connect", &endpoint], dir.path());
+    let axes = http_get(&address, "/api/axes");
+    assert!(axes.contains(r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"moving":false"#), "{axes}");
+}
+
+/// Whether Chromium, its driver and Selenium are installed (CI must have them).
+fn browser_installed() -> bool {
+    let probe = Command::new("python3").args(["-c", "import selenium"]).output();
+    let browser =
+        std::path::Path::new("/usr/bin/chromium").exists() && std::path::Path::new("/usr/bin/chromedriver").exists();
+    if !probe.is_ok_and(|o| o.status.success()) || !browser {
+        assert!(std::env::var_os("CI").is_none(), "CI must install chromium, chromium-driver and selenium (.ci/run)");
+        eprintln!("SKIPPED: chromium, chromedriver or Python's selenium is not installed");
+        return false;
+    }
+    true
+}
+
+fn free_address() -> String {
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    format!("127.0.0.1:{port}")
+}
+
+/// The body of a GET, once the server answers.
+fn http_get(address: &str, path: &str) -> String {
+    use std::io::{Read, Write};
+    let deadline = std::time::Instant::now() + common::PATIENCE;
+    loop {
+        if let Ok(mut stream) = std::net::TcpStream::connect(address) {
+            write!(stream, "GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").unwrap();
+            let mut response = String::new();
+            stream.read_to_string(&mut response).unwrap();
+            if let Some((_, body)) = response.split_once("\r\n\r\n") {
+                return body.to_string();
+            }
+        }
+        assert!(std::time::Instant::now() < deadline, "nothing answers at {address}");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_jog_from_a_page_whose_browser_is_killed_ends_within_a_second() {
+    if !browser_installed() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let address = free_address();
+    let file = dir.path().join("axis.toml");
+    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"{address}\"\n")).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (_monitor, lines) = monitor_jogf(&here, &endpoint);
+    let screenshot = dir.path().join("unused.png");
+    let output = Command::new("python3")
+        .arg(common::repo_file("tests/python/web_screen.py"))
+        .args([&format!("http://{address}/"), "m1", screenshot.to_str().unwrap(), "jog"])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&output.stdout);
+    assert!(output.status.success(), "{said}\n{}", String::from_utf8_lossy(&output.stderr));
+    let killed: f64 = said.lines().find_map(|l| l.strip_prefix("killed ")).and_then(|t| t.parse().ok()).unwrap();
+    // The monitor's line says when JOGF 0 arrived (UTC, µs).
+    let released = std::cell::Cell::new(None);
+    lines.wait_for(common::PATIENCE, |line| {
+        let Some((_, "0")) = common::monitored(line).filter(|(channel, _)| *channel == "m1.JOGF") else { return false };
+        let stamp = line.split_whitespace().skip(1).take(2).collect::<Vec<_>>().join("T") + "Z";
+        released.set(humantime::parse_rfc3339(&stamp).ok());
+        true
+    });
+    let released = released.get().expect("JOGF went back to 0");
+    let released = released.duration_since(std::time::UNIX_EPOCH).unwrap().as_secs_f64();
+    let took = released - killed;
+    eprintln!("released {took:.3} s after the browser was killed");
+    assert!((0.0..1.0).contains(&took), "released {took:.3} s after the browser was killed");
+}

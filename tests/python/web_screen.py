@@ -1,0 +1,91 @@
+"""Drive zmotor's motor screen in headless Chromium (Debian's chromium and chromedriver, through
+Selenium): open the index, open the axis, click tweak-forward and see the motor move on the page
+and in the plot, type a target beyond the soft limit and see the node's refusal; keep a
+screenshot. A line `ok <check>` is printed for each check that passed.
+
+Usage: python3 web_screen.py URL AXIS SCREENSHOT [jog]
+The axis's tweak step (TWV) is 1. With `jog`: hold JOGF down until the page shows the motion,
+then kill the browser (SIGKILL) with the button still held, and print when (`killed <unix time>`).
+"""
+import sys
+
+from selenium import webdriver
+from selenium.webdriver.chrome.options import Options
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
+from selenium.webdriver.support.ui import WebDriverWait
+
+url, axis, screenshot = sys.argv[1:4]
+jog_only = sys.argv[4:] == ["jog"]
+
+
+def ok(check):
+    print("ok", check, flush=True)
+
+
+options = Options()
+options.binary_location = "/usr/bin/chromium"
+for argument in ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,1300"]:
+    options.add_argument(argument)
+driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+try:
+    wait = WebDriverWait(driver, 20)
+    if jog_only:
+        from selenium.webdriver.common.action_chains import ActionChains
+
+        driver.get(url + "axis/" + axis)
+        wait.until(lambda d: d.find_element(By.ID, "live").text == "live")
+        ActionChains(driver).click_and_hold(driver.find_element(By.ID, "jogf")).perform()
+        wait.until(lambda d: d.find_element(By.ID, "motion").text == "moving")
+        ok("jogging, the button held")
+        # Kill the browser this script started (chromedriver's children), the button still
+        # held: nothing of the page runs to release it.
+        import os
+        import signal
+        import time
+
+        driver_pid = driver.service.process.pid
+        with open(f"/proc/{driver_pid}/task/{driver_pid}/children") as children:
+            browsers = [int(pid) for pid in children.read().split()]
+        killed_at = time.time()
+        for pid in browsers:
+            os.kill(pid, signal.SIGKILL)
+        print(f"killed {killed_at:.6f}", flush=True)
+        sys.exit(0)
+    driver.get(url)
+    wait.until(lambda d: d.find_elements(By.LINK_TEXT, axis))[0].click()
+    ok("the index lists the axis")
+
+    def rbv():
+        return driver.find_element(By.CSS_SELECTOR, 'td[data-cell="RBV"] span').text
+
+    wait.until(lambda d: rbv() != "")
+    before = float(rbv())
+    plotted = driver.execute_script("return window.zmotorPlot.RBV.length")
+    driver.find_element(By.ID, "twf").click()
+    wait.until(lambda d: abs(float(rbv()) - (before + 1.0)) < 1e-9)
+    ok("tweak forward moves the motor and the page shows its readback")
+    positions = driver.execute_script("return window.zmotorPlot.RBV.map(p => p[1])")
+    assert len(positions) > plotted + 1, positions
+    assert min(positions) <= before and max(positions) >= before + 1.0 - 1e-9, positions
+    assert any(before < p < before + 1.0 for p in positions), positions
+    ok("the plot follows the motion")
+
+    target = driver.find_element(By.CSS_SELECTOR, 'td[data-cell="VAL"] input')
+    # Focused first: a field being typed in is not overwritten by the axis's posts.
+    target.click()
+    target.send_keys(Keys.CONTROL, "a")
+    target.send_keys("500", Keys.ENTER)
+    try:
+        wait.until(lambda d: "limit" in d.find_element(By.ID, "error").text)
+    except Exception:
+        driver.save_screenshot(screenshot)
+        raise AssertionError("no refusal shown: error %r, VAL %r" % (
+            driver.find_element(By.ID, "error").text, target.get_attribute("value")))
+    assert abs(float(rbv()) - (before + 1.0)) < 1e-9
+    ok("a target beyond the soft limit is refused with the node's words, and nothing moves")
+    driver.save_screenshot(screenshot)
+    ok("screenshot")
+finally:
+    driver.quit()
