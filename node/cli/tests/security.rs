@@ -148,3 +148,45 @@ fn a_client_without_a_certificate_the_authority_signed_cannot_connect() {
         assert!(!output.status.success() && said.contains("nothing answers at"), "{who}: {said}");
     }
 }
+
+#[test]
+fn users_log_in_with_a_password_and_their_rule_says_what_they_may() {
+    let dir = tempfile::tempdir().unwrap();
+    let users = dir.path().join("users.txt");
+    std::fs::write(&users, "alice:wonderland\nbob:builder\n").unwrap();
+    let endpoint = zmotor_zenoh::free_local_endpoint().unwrap();
+    let text = format!(
+        "[zenoh]\nlisten = [\"{endpoint}\"]\n[zenoh.login]\nusers_file = {users:?}\n\
+         [[zenoh.access]]\nname = \"operators\"\nmay = [\"drive\"]\nusernames = [\"alice\"]\n\
+         [[zenoh.access]]\nname = \"viewers\"\nmay = [\"read\"]\nusernames = [\"bob\"]\n\
+         [[axis]]\nname = \"m1\"\n[axis.fields]\nVELO = 20\nMRES = 0.001\n"
+    );
+    let file = dir.path().join("login.toml");
+    std::fs::write(&file, text).unwrap();
+    let _node = Host::default().spawn(&["launch", file.to_str().unwrap()], &dir.path().join("state"));
+    let get = |name: &str, password: &str, field: &str| {
+        let output = Host::default()
+            .zmotor(&["get", "m1", field, "--connect", &endpoint, "--user", name])
+            .env("ZMOTOR_PASSWORD", password)
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&output.stdout).trim().parse::<f64>().ok()
+    };
+    let put = |name: &str, password: &str, value: &str| {
+        Host::default()
+            .zmotor(&["put", "m1", "VAL", value, "--wait", "--connect", &endpoint, "--user", name])
+            .env("ZMOTOR_PASSWORD", password)
+            .output()
+            .unwrap()
+    };
+    let deadline = std::time::Instant::now() + common::PATIENCE;
+    while get("alice", "wonderland", "DMOV") != Some(1.0) {
+        assert!(std::time::Instant::now() < deadline, "the node answers alice");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert!(put("alice", "wonderland", "1").status.success(), "alice drives");
+    assert!(!put("bob", "builder", "5").status.success(), "bob only reads");
+    assert_eq!(get("bob", "builder", "RBV"), Some(1.0), "bob reads");
+    assert_eq!(get("alice", "not her password", "RBV"), None, "a wrong password does not get in");
+    assert_eq!(get("mallory", "wonderland", "RBV"), None, "nor a user the node does not know");
+}
