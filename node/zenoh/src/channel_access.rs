@@ -1,8 +1,8 @@
 //! The Channel Access front-end: serves every axis live on the Zenoh network to CA clients, as
 //! a client of that network. `zmotor-ca` holds the protocol; this moves its bytes (a UDP socket
 //! for searches, a TCP circuit per client) and holds the values: the axes' liveliness tokens
-//! say which are live, one subscription to every field keeps their values, a read of a whole
-//! axis fetches them when a client first asks. Writes are confirmed Zenoh writes to write keys
+//! say which are live; when a client first asks for an axis, a subscription to its fields keeps
+//! their values and a read of the whole axis fetches them. Writes are confirmed Zenoh writes to write keys
 //! (so that they work under access control); a put-callback of a drive field waits for the end
 //! of the motion (`?wait`).
 
@@ -73,8 +73,9 @@ struct Entry {
 #[derive(Default)]
 struct Values {
     live: HashSet<String>,
-    /// Axes fetched (or being fetched) since they became live.
-    fetched: HashSet<String>,
+    /// The axes a client asked for since they became live, each with the subscriber to its
+    /// fields (`None` while it is declared): the nodes publish only what someone follows.
+    followed: HashMap<String, Option<zenoh::pubsub::Subscriber<()>>>,
     fields: HashMap<String, HashMap<Field, Entry>>,
 }
 
@@ -162,13 +163,20 @@ impl Shared {
         let _ = self.changes.send(Change::Field(axis, field));
     }
 
-    /// Read every field of an axis, once while it stays live.
+    /// Follow an axis's fields and read them all, once while it stays live.
     fn fetch(&self, axis: String) {
-        if !self.values().fetched.insert(axis.clone()) {
-            return;
-        }
+        match self.values().followed.entry(axis.clone()) {
+            std::collections::hash_map::Entry::Occupied(_) => return,
+            std::collections::hash_map::Entry::Vacant(slot) => slot.insert(None),
+        };
         let shared = self.clone();
         tokio::spawn(async move {
+            let storing = shared.clone();
+            let follow = shared.session.declare_subscriber(shared.layout.axis_fields(&axis));
+            let Ok(subscriber) = follow.callback(move |sample| storing.store(&sample)).await else { return };
+            if let Some(slot) = shared.values().followed.get_mut(&axis) {
+                *slot = Some(subscriber);
+            }
             let Ok(replies) = shared.session.get(shared.layout.axis_all(&axis)).timeout(ANSWER_PATIENCE).await else {
                 return;
             };
@@ -228,7 +236,6 @@ struct Write {
 pub struct ChannelAccess {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     _tokens: zenoh::pubsub::Subscriber<()>,
-    _fields: zenoh::pubsub::Subscriber<()>,
     /// The TCP port circuits connect to.
     pub tcp_port: u16,
 }
@@ -255,10 +262,7 @@ impl ChannelAccess {
             changes,
             prefix: config.pv_prefix.clone(),
         };
-        let fields = {
-            let shared = shared.clone();
-            session.declare_subscriber(layout.every_field()).callback(move |sample| shared.store(&sample)).await?
-        };
+        let runtime = tokio::runtime::Handle::current();
         let tokens = {
             let shared = shared.clone();
             session
@@ -274,9 +278,11 @@ impl ChannelAccess {
                         values.live.insert(axis);
                     } else {
                         values.live.remove(&axis);
-                        values.fetched.remove(&axis);
                         values.fields.remove(&axis);
+                        // Undeclared on a task of ours, not inside Zenoh's callback.
+                        let followed = values.followed.remove(&axis);
                         drop(values);
+                        runtime.spawn(async move { drop(followed) });
                         let _ = shared.changes.send(Change::Gone(axis));
                     }
                 })
@@ -308,7 +314,7 @@ impl ChannelAccess {
             })
         };
         tracing::info!(%address, tcp_port, pv_prefix = config.pv_prefix, "Channel Access serving the live axes");
-        Ok(Self { tasks: vec![searches, circuits], _tokens: tokens, _fields: fields, tcp_port })
+        Ok(Self { tasks: vec![searches, circuits], _tokens: tokens, tcp_port })
     }
 }
 
