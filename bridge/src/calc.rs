@@ -251,7 +251,17 @@ struct Parser {
     tokens: Vec<(Token, usize)>,
     pos: usize,
     end_column: usize,
+    /// Parentheses, calls, conditionals and prefix operators open now.
+    depth: usize,
 }
+
+/// The longest expression taken (EPICS's calc fields hold 80 to 160 characters): it bounds the
+/// evaluation's recursion.
+pub const MAX_LENGTH: usize = 1000;
+
+/// The deepest nesting taken: it bounds the parser's recursion (found by fuzzing: 3,000 nested
+/// parentheses overflowed the stack).
+pub const MAX_NESTING: usize = 64;
 
 impl Parser {
     fn peek(&self) -> Option<&Token> {
@@ -291,8 +301,23 @@ impl Parser {
         Ok(Statement::Value(self.conditional()?))
     }
 
+    /// One level deeper, or an error past `MAX_NESTING`.
+    fn nested<T>(&mut self, parse: impl FnOnce(&mut Self) -> Result<T, CalcError>) -> Result<T, CalcError> {
+        if self.depth >= MAX_NESTING {
+            return error(self.column(), format!("nested more than {MAX_NESTING} deep"));
+        }
+        self.depth += 1;
+        let parsed = parse(self);
+        self.depth -= 1;
+        parsed
+    }
+
     /// `c ? a : b`, the lowest precedence, grouping to the right.
     fn conditional(&mut self) -> Result<Expr, CalcError> {
+        self.nested(Self::conditional_here)
+    }
+
+    fn conditional_here(&mut self) -> Result<Expr, CalcError> {
         let condition = self.binary(1)?;
         if self.peek() == Some(&Token::Symbol("?")) {
             self.pos += 1;
@@ -329,7 +354,7 @@ impl Parser {
         };
         if let Some(op) = unary {
             self.pos += 1;
-            return Ok(Expr::Unary(op, Box::new(self.prefix()?)));
+            return Ok(Expr::Unary(op, Box::new(self.nested(Self::prefix)?)));
         }
         self.operand()
     }
@@ -399,11 +424,14 @@ fn input_index(word: &str) -> Option<usize> {
 impl Expression {
     /// Parse an expression's text.
     pub fn parse(source: &str) -> Result<Self, CalcError> {
+        if source.chars().count() > MAX_LENGTH {
+            return error(MAX_LENGTH + 1, format!("the expression is longer than {MAX_LENGTH} characters"));
+        }
         let tokens = lex(source)?;
         if tokens.is_empty() {
             return error(1, "the expression is empty");
         }
-        let mut parser = Parser { tokens, pos: 0, end_column: source.len() + 1 };
+        let mut parser = Parser { tokens, pos: 0, end_column: source.len() + 1, depth: 0 };
         let mut statements = Vec::new();
         loop {
             statements.push(parser.statement()?);
@@ -603,6 +631,19 @@ mod tests {
 
     fn calc_with(source: &str, mut inputs: [f64; INPUTS]) -> f64 {
         Expression::parse(source).unwrap_or_else(|e| panic!("{source}: {e}")).eval(&mut inputs)
+    }
+
+    #[test]
+    fn nesting_and_length_are_bounded_with_a_clear_error() {
+        let deep = |n: usize| format!("{}A{}", "(".repeat(n), ")".repeat(n));
+        assert_eq!(calc(&deep(MAX_NESTING - 1)), 0.0);
+        let error = Expression::parse(&deep(400)).unwrap_err();
+        assert!(error.message.contains("nested more than 64 deep"), "{error}");
+        assert!(Expression::parse(&"~".repeat(500)).unwrap_err().message.contains("nested"));
+        let long = vec!["A"; MAX_LENGTH].join("+");
+        assert!(Expression::parse(&long).unwrap_err().message.contains("longer than 1000 characters"));
+        let sum = vec!["1"; MAX_LENGTH / 2].join("+");
+        assert_eq!(calc(&sum), (MAX_LENGTH / 2) as f64, "a long flat sum still evaluates");
     }
 
     fn inputs(values: &[f64]) -> [f64; INPUTS] {
