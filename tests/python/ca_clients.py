@@ -81,7 +81,7 @@ def refused():
     reply = write("m1", 500.0, notify=True, repeater=False, timeout=10)
     assert reply.status.name == "ECA_PUTFAIL", reply
     reply = write("m1.RBV", 1.0, notify=True, repeater=False, timeout=10)
-    assert reply.status.name == "ECA_PUTFAIL", reply
+    assert reply.status.name == "ECA_NOWTACCESS", reply
     time.sleep(0.3)
     assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
     assert epics.caget("m1") == before

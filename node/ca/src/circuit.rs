@@ -28,6 +28,8 @@ pub mod status {
     pub const NO_WRITE_ACCESS: u32 = 376;
     /// The channel's server side is gone.
     pub const DISCONNECTED: u32 = 192;
+    /// No such channel on this circuit.
+    pub const BAD_CHANNEL_ID: u32 = 410;
 }
 
 /// Access rights bits.
@@ -88,8 +90,14 @@ struct Subscription {
     sid: u32,
     dbr: u16,
     mask: u16,
+    /// Whether its first event went (it waits for its axis's values).
+    posted: bool,
 }
 
+/// DBE_VALUE and DBE_LOG: the subscriber wants value changes.
+const VALUE_EVENTS: u16 = 1 | 2;
+/// DBE_ALARM: the subscriber wants alarm changes.
+const ALARM_EVENT: u16 = 4;
 /// DBE_PROPERTY: the subscriber wants metadata changes.
 const PROPERTY_EVENT: u16 = 8;
 
@@ -109,6 +117,8 @@ pub struct Circuit {
     pending_reads: Vec<Pending>,
     next_sid: u32,
     events_on: bool,
+    /// Whether a change went unposted while events were off.
+    missed: bool,
     transmit: Vec<u8>,
     requests: VecDeque<Request>,
     prefix: String,
@@ -154,26 +164,37 @@ impl Circuit {
                 None => self.pending_reads.push(pending),
             }
         }
-        let concerned: Vec<(u32, Pv, u16)> = self
+        let alarm = matches!(field, Field::STAT | Field::SEVR);
+        let concerned: Vec<u32> = self
             .subscriptions
             .iter()
-            .filter_map(|(subid, s)| {
-                let pv = &self.channels.get(&s.sid)?.pv;
-                let shows = pv.axis == axis
-                    && (pv.target == Target::Field(field)
+            .filter(|(_, s)| {
+                let Some(pv) = self.channels.get(&s.sid).map(|c| &c.pv) else { return false };
+                let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
+                pv.axis == axis
+                    && (!s.posted
+                        || (pv.target == Target::Field(field) && s.mask & VALUE_EVENTS != 0)
+                        || (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
                         || (pv.metadata_from().contains(&field)
-                            && (s.mask & PROPERTY_EVENT != 0
-                                || DbrType::from_code(s.dbr).is_some_and(|d| d.class >= Class::Graphic))));
-                shows.then(|| (*subid, pv.clone(), s.dbr))
+                            && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
             })
+            .map(|(subid, _)| *subid)
             .collect();
         if !self.events_on {
+            self.missed |= !concerned.is_empty();
             return;
         }
-        for (subid, pv, dbr) in concerned {
-            if let Some(snapshot) = directory.snapshot(&pv) {
-                self.post(subid, dbr, &snapshot);
-            }
+        for subid in concerned {
+            self.post(subid, directory);
+        }
+    }
+
+    /// Post every subscription's current value again (after events were held back, or when
+    /// the runner lost changes).
+    pub fn repost(&mut self, directory: &dyn Directory) {
+        let all: Vec<u32> = self.subscriptions.keys().copied().collect();
+        for subid in all {
+            self.post(subid, directory);
         }
     }
 
@@ -192,14 +213,21 @@ impl Circuit {
     /// A write ended: `Err` says why it failed.
     pub fn write_done(&mut self, answer: WriteAnswer, outcome: Result<(), String>) {
         match (answer, outcome) {
-            (WriteAnswer::Notify { ioid, data_type, count }, outcome) => {
-                let code = if outcome.is_ok() { status::NORMAL } else { status::PUTFAIL };
-                self.send(Header::new(command::WRITE_NOTIFY, data_type, count, code, ioid), &[]);
+            (WriteAnswer::Notify { ioid, data_type, count }, Ok(())) => {
+                self.send(Header::new(command::WRITE_NOTIFY, data_type, count, status::NORMAL, ioid), &[]);
             }
             (WriteAnswer::OnFailure { .. }, Ok(())) => {}
-            (WriteAnswer::OnFailure { request, cid }, Err(message)) => {
-                self.error(request, cid, status::PUTFAIL, &message)
+            (answer, Err(message)) => self.refuse_write(answer, status::PUTFAIL, &message),
+        }
+    }
+
+    /// A write's failure, with its ECA code.
+    fn refuse_write(&mut self, answer: WriteAnswer, code: u32, message: &str) {
+        match answer {
+            WriteAnswer::Notify { ioid, data_type, count } => {
+                self.send(Header::new(command::WRITE_NOTIFY, data_type, count, code, ioid), &[]);
             }
+            WriteAnswer::OnFailure { request, cid } => self.error(request, cid, code, message),
         }
     }
 
@@ -208,7 +236,12 @@ impl Circuit {
             command::VERSION => self.send(Header::new(command::VERSION, 0, MINOR_VERSION.into(), 0, 0), &[]),
             command::ECHO => self.send(Header::new(command::ECHO, 0, 0, 0, 0), &[]),
             command::EVENTS_OFF => self.events_on = false,
-            command::EVENTS_ON => self.events_on = true,
+            command::EVENTS_ON => {
+                self.events_on = true;
+                if std::mem::take(&mut self.missed) {
+                    self.repost(directory);
+                }
+            }
             command::CREATE_CHAN => self.create_channel(header, payload, directory),
             command::READ_NOTIFY => self.read(header, directory),
             command::EVENT_ADD => self.subscribe(header, payload, directory),
@@ -256,7 +289,7 @@ impl Circuit {
     fn read(&mut self, header: Header, directory: &dyn Directory) {
         let pending = Pending { sid: header.p1, data_type: header.data_type, ioid: header.p2 };
         let Some(channel) = self.channels.get(&pending.sid) else {
-            return self.error(header, 0, status::DISCONNECTED, "no such channel");
+            return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
         match directory.snapshot(&channel.pv) {
             Some(snapshot) => self.send_read(&pending, &snapshot),
@@ -282,19 +315,27 @@ impl Circuit {
 
     fn subscribe(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
         let (sid, subid) = (header.p1, header.p2);
-        let Some(channel) = self.channels.get(&sid) else { return };
-        let mask = payload.get(12..14).map_or(1, |m| u16::from_be_bytes([m[0], m[1]]));
-        let (snapshot, axis) = (directory.snapshot(&channel.pv), channel.pv.axis.clone());
-        self.subscriptions.insert(subid, Subscription { sid, dbr: header.data_type, mask });
-        match snapshot {
-            Some(snapshot) => self.post(subid, header.data_type, &snapshot),
-            None => self.requests.push_back(Request::Fetch { axis }),
+        let Some(channel) = self.channels.get(&sid) else {
+            return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
+        };
+        let mask = payload.get(12..14).map_or(VALUE_EVENTS | ALARM_EVENT, |m| u16::from_be_bytes([m[0], m[1]]));
+        let axis = channel.pv.axis.clone();
+        self.subscriptions.insert(subid, Subscription { sid, dbr: header.data_type, mask, posted: false });
+        self.post(subid, directory);
+        if !self.subscriptions.get(&subid).is_some_and(|s| s.posted) {
+            self.requests.push_back(Request::Fetch { axis });
         }
     }
 
-    fn post(&mut self, subid: u32, dbr: u16, snapshot: &Snapshot) {
-        if let Some(bytes) = self.encode(dbr, snapshot) {
-            self.send(Header::new(command::EVENT_ADD, dbr, 1, status::NORMAL, subid), &bytes);
+    /// A subscription's current value, if its axis's values are there.
+    fn post(&mut self, subid: u32, directory: &dyn Directory) {
+        let Some(subscription) = self.subscriptions.get(&subid) else { return };
+        let dbr = subscription.dbr;
+        let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
+        let Some(bytes) = directory.snapshot(pv).and_then(|snapshot| self.encode(dbr, &snapshot)) else { return };
+        self.send(Header::new(command::EVENT_ADD, dbr, 1, status::NORMAL, subid), &bytes);
+        if let Some(subscription) = self.subscriptions.get_mut(&subid) {
+            subscription.posted = true;
         }
     }
 
@@ -320,7 +361,7 @@ impl Circuit {
 
     fn write(&mut self, header: Header, payload: &[u8]) {
         let Some(channel) = self.channels.get(&header.p1) else {
-            return self.error(header, 0, status::DISCONNECTED, "no such channel");
+            return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
         let (pv, cid) = (channel.pv.clone(), channel.cid);
         let answer = if header.command == command::WRITE_NOTIFY {
@@ -329,7 +370,8 @@ impl Circuit {
             WriteAnswer::OnFailure { request: header, cid }
         };
         if !pv.writable() {
-            return self.write_done(answer, Err(format!("{}: read-only", pv.name(&self.prefix))));
+            let message = format!("{}: read-only", pv.name(&self.prefix));
+            return self.refuse_write(answer, status::NO_WRITE_ACCESS, &message);
         }
         match dbr::written_text(header.data_type, payload) {
             Ok(text) => {

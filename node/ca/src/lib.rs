@@ -118,20 +118,49 @@ mod tests {
         assert_eq!((failed[0].0.command, failed[0].0.p1, failed[0].0.p2), (command::WRITE_NOTIFY, 160, 42));
 
         let refused = request(&mut circuit, &directory, Header::new(command::WRITE, 6, 1, rbv_sid, 3), &[0; 8]);
-        assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 160));
+        assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
         assert!(codec::text(&refused[0].1[16..]).contains("read-only"));
         assert_eq!(circuit.poll_request(), None, "nothing is written to a read-only field");
+    }
+
+    #[test]
+    fn a_monitor_made_before_the_values_arrive_gets_its_first_event_then_alarms_and_held_events() {
+        let mut circuit = Circuit::new("");
+        let mut directory = OneAxis { fetched: false };
+        let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 1, 13), b"m1.RBV\0");
+        let sid = created[1].0.p2;
+        // DBR_TIME_DOUBLE, DBE_VALUE | DBE_ALARM: nothing yet, the axis is fetched.
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&5u16.to_be_bytes());
+        assert!(request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 20, 1, sid, 9), &add).is_empty());
+        directory.fetched = true;
+        // The first change of the axis, whichever field, brings the first event.
+        circuit.handle_change("m1", Field::DESC, &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
+        circuit.handle_change("m1", Field::DESC, &directory);
+        assert_eq!(circuit.poll_transmit(), None, "DESC is not RBV's");
+        circuit.handle_change("m1", Field::SEVR, &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "an alarm change reaches DBE_ALARM");
+        // Events held back by EVENTS_OFF are posted at EVENTS_ON.
+        request(&mut circuit, &directory, Header::new(command::EVENTS_OFF, 0, 0, 0, 0), &[]);
+        circuit.handle_change("m1", Field::RBV, &directory);
+        assert_eq!(circuit.poll_transmit(), None);
+        let resumed = request(&mut circuit, &directory, Header::new(command::EVENTS_ON, 0, 0, 0, 0), &[]);
+        assert_eq!((resumed.len(), resumed[0].0.command), (1, command::EVENT_ADD));
+        // An unknown channel id is named as such.
+        let unknown = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, 999, 1), &[]);
+        assert_eq!((unknown[0].0.command, unknown[0].0.p2), (command::ERROR, 410));
     }
 
     #[test]
     fn searches_are_answered_for_live_channels_only() {
         let directory = OneAxis { fetched: false };
         let mut datagram = codec::encode(Header::new(command::VERSION, 0, 13, 0, 0), &[]);
-        datagram.extend(codec::encode(Header::new(command::SEARCH, 5, 13, 11, 11), b"m1.RBV\0"));
+        datagram.extend(codec::encode(Header::new(command::SEARCH, 5, 13, 11, 21), b"m1.RBV\0"));
         datagram.extend(codec::encode(Header::new(command::SEARCH, 5, 13, 12, 12), b"m2\0"));
         let answer = messages(&search::answer("", &datagram, 5064, &directory).unwrap());
         assert_eq!(answer.len(), 2);
-        assert_eq!((answer[1].0.command, answer[1].0.data_type, answer[1].0.p2), (command::SEARCH, 5064, 11));
+        assert_eq!((answer[1].0.command, answer[1].0.data_type, answer[1].0.p2), (command::SEARCH, 5064, 21));
         let unknown = codec::encode(Header::new(command::SEARCH, 5, 13, 12, 12), b"m2\0");
         assert_eq!(search::answer("", &unknown, 5064, &directory), None);
     }

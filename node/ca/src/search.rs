@@ -19,7 +19,7 @@ pub fn reply(
         return None;
     }
     // The server's address: ~0 tells the client to use the address the reply came from.
-    let header = Header::new(command::SEARCH, tcp_port, 0, u32::MAX, request.p1);
+    let header = Header::new(command::SEARCH, tcp_port, 0, u32::MAX, request.p2);
     Some(codec::encode(header, &MINOR_VERSION.to_be_bytes()))
 }
 

@@ -72,6 +72,16 @@ pub enum RequestError {
         /// Why the token is no plain key.
         source: PlainKeyError,
     },
+    /// A hold whose token is not one of this axis's hold tokens.
+    #[error("{field}: the hold's token {token} is not under {space} (a hold names a token of this axis's hold space)")]
+    HoldElsewhere {
+        /// The field written.
+        field: Field,
+        /// The token named.
+        token: String,
+        /// Where this axis's hold tokens are.
+        space: String,
+    },
     /// A link field was given a key it cannot be wired to.
     #[error("{field}: {source}")]
     Link {
@@ -449,7 +459,13 @@ impl<R: Clone> AxisService<R> {
         let starts_jog = matches!(field, Field::JOGF | Field::JOGR) && value != Value::Int(0);
         match &request.hold {
             Some(hold) => {
-                keys::validate_plain_key(&hold.token).map_err(|source| RequestError::HoldToken { field, source })?
+                keys::validate_plain_key(&hold.token).map_err(|source| RequestError::HoldToken { field, source })?;
+                // Only a token in the hold space: another key (the axis's own token, say) would
+                // hold the motion by something that does not go with its client.
+                let space = self.layout.hold(&self.name, "");
+                if hold.token.strip_prefix(&space).is_none_or(|client| client.is_empty()) {
+                    return Err(RequestError::HoldElsewhere { field, token: hold.token.clone(), space });
+                }
             }
             None if starts_jog && self.jog_hold == JogHold::Required => return Err(RequestError::HoldRequired(field)),
             None if starts_jog && !std::mem::replace(&mut self.warned_unheld_jog, true) => tracing::warn!(
@@ -888,5 +904,13 @@ mod tests {
         let bad = WriteRequest::new("VAL", b"1", Text).held(Some(Hold::new("motor/*/x")));
         s.write(at(0.2), bad, false, 3);
         assert!(matches!(&replies(&drain(&mut s))[..], [(3, Reply::Refused(RequestError::HoldToken { .. }))]));
+        // A hold by a token outside the axis's hold space (its own liveliness token) is refused.
+        let elsewhere = WriteRequest::new("JOGF", b"1", Text).held(Some(Hold::new("motor/m1")));
+        s.write(at(0.3), elsewhere, false, 4);
+        let [(4, Reply::Refused(refusal @ RequestError::HoldElsewhere { .. }))] = &replies(&drain(&mut s))[..] else {
+            panic!("a hold outside the hold space was taken")
+        };
+        assert!(refusal.to_string().contains("not under motor/m1/@hold/"), "{refusal}");
+        assert_eq!(s.fields().jogf, 0, "nothing moved");
     }
 }

@@ -11,13 +11,14 @@
 
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::extract::{Path, State};
-use axum::http::{header, StatusCode};
+use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::{Json, Router};
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use zenoh::bytes::Encoding;
 use zenoh::sample::{Sample, SampleKind};
@@ -120,7 +121,16 @@ async fn axes(State(state): State<AppState>) -> Response {
     }
 }
 
-async fn socket(ws: WebSocketUpgrade, Path(axis): Path<String>, State(state): State<AppState>) -> Response {
+async fn socket(
+    ws: WebSocketUpgrade,
+    Path(axis): Path<String>,
+    State(state): State<AppState>,
+    headers: HeaderMap,
+) -> Response {
+    if !same_origin(&headers) {
+        // Another site's page in the operator's browser must not reach the axes.
+        return (StatusCode::FORBIDDEN, "a page of another origin may not open this socket").into_response();
+    }
     if keys::validate_axis_name(&axis).is_err() {
         return (StatusCode::BAD_REQUEST, format!("'{axis}' is not an axis name")).into_response();
     }
@@ -129,6 +139,16 @@ async fn socket(ws: WebSocketUpgrade, Path(axis): Path<String>, State(state): St
             tracing::debug!("a screen's socket closed: {e}");
         }
     })
+}
+
+/// Whether a socket's request comes from a page of this server (or from no page at all: a
+/// script or a tool sends no Origin).
+fn same_origin(headers: &HeaderMap) -> bool {
+    let Some(origin) = headers.get(header::ORIGIN) else { return true };
+    let host = headers.get(header::HOST).and_then(|h| h.to_str().ok());
+    let origin_host =
+        origin.to_str().ok().and_then(|o| o.split_once("://")).map(|(_, rest)| rest.trim_end_matches('/'));
+    host.is_some() && origin_host == host
 }
 
 /// A write the page asks for.
@@ -151,17 +171,41 @@ fn shown(sample: &Sample) -> Option<String> {
     Some(serde_json::json!({ "field": field, "value": value }).to_string())
 }
 
+/// Messages waiting for a page; a page that falls this far behind is closed.
+const PAGE_QUEUE: usize = 4096;
+
+/// While a page holds a jog, it is pinged this often, and dropped (its jog ended) when it has
+/// not been heard from for `HELD_SILENCE`: a browser cut off sends no close.
+const HELD_PING: Duration = Duration::from_millis(250);
+const HELD_SILENCE: Duration = Duration::from_secs(1);
+
+/// The page's queue: messages for it, and whether one had to be dropped.
+#[derive(Clone)]
+struct ToPage {
+    sender: mpsc::Sender<String>,
+    overflowed: Arc<AtomicBool>,
+}
+
+impl ToPage {
+    fn send(&self, text: String) {
+        if self.sender.try_send(text).is_err() {
+            self.overflowed.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
 /// One page's socket, until it closes; its jogs end with it.
 async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> Result<(), axum::Error> {
     let AppState { session, layout } = state;
-    let (out, mut outgoing) = mpsc::unbounded_channel::<String>();
-    let to_page = out.clone();
+    let (sender, mut outgoing) = mpsc::channel::<String>(PAGE_QUEUE);
+    let out = ToPage { sender, overflowed: Arc::default() };
     let zenoh_error = |e: zenoh::Error| axum::Error::new(e);
+    let to_page = out.clone();
     let _fields = session
         .declare_subscriber(layout.axis_fields(&axis))
         .callback(move |sample| {
             if let Some(text) = shown(&sample) {
-                let _ = to_page.send(text);
+                to_page.send(text);
             }
         })
         .await
@@ -172,8 +216,7 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
         .declare_subscriber(layout.axis(&axis))
         .history(true)
         .callback(move |sample| {
-            let live = sample.kind() == SampleKind::Put;
-            let _ = to_page.send(serde_json::json!({ "live": live }).to_string());
+            to_page.send(serde_json::json!({ "live": sample.kind() == SampleKind::Put }).to_string())
         })
         .await
         .map_err(zenoh_error)?;
@@ -182,80 +225,118 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
     tokio::spawn(async move {
         while let Ok(reply) = replies.recv_async().await {
             if let Some(text) = reply.result().ok().and_then(shown) {
-                let _ = to_page.send(text);
+                to_page.send(text);
             }
         }
     });
     // The token this page holds its jogs by, declared at its first jog.
     let client = format!("web-{}-{}", session.zid(), SOCKETS.fetch_add(1, Ordering::Relaxed));
     let mut hold: Option<(String, zenoh::liveliness::LivelinessToken)> = None;
+    let mut heard = Instant::now();
+    let mut pings = tokio::time::interval(HELD_PING);
     loop {
+        if out.overflowed.load(Ordering::Relaxed) {
+            return Err(axum::Error::new("the page fell too far behind the axis"));
+        }
         tokio::select! {
-            message = socket.recv() => match message {
-                Some(Ok(Message::Text(text))) => {
-                    let Ok(write) = serde_json::from_str::<PageWrite>(&text) else {
-                        let _ = out.send(serde_json::json!({ "error": format!("not a write: {text}") }).to_string());
-                        continue;
-                    };
-                    let held = match Field::from_name(&write.field) {
-                        Some(Field::JOGF | Field::JOGR) => {
-                            if hold.is_none() {
-                                let key = layout.hold(&axis, &client);
-                                let token = session.liveliness().declare_token(&key).await.map_err(zenoh_error)?;
-                                hold = Some((key, token));
+            message = socket.recv() => {
+                heard = Instant::now();
+                match message {
+                    Some(Ok(Message::Text(text))) => {
+                        let Ok(write) = serde_json::from_str::<PageWrite>(&text) else {
+                            out.send(serde_json::json!({ "error": format!("not a write: {text}") }).to_string());
+                            continue;
+                        };
+                        let held = match Field::from_name(&write.field) {
+                            Some(Field::JOGF | Field::JOGR) => {
+                                if hold.is_none() {
+                                    let key = layout.hold(&axis, &client);
+                                    let token = session.liveliness().declare_token(&key).await.map_err(zenoh_error)?;
+                                    hold = Some((key, token));
+                                }
+                                hold.as_ref().map(|(key, _)| key.clone())
                             }
-                            hold.as_ref().map(|(key, _)| key.clone())
-                        }
-                        _ => None,
-                    };
-                    tokio::spawn(confirmed_write(session.clone(), layout.clone(), axis.clone(), write, held, out.clone()));
+                            _ => None,
+                        };
+                        confirmed_write(&session, &layout, &axis, write, held, out.clone()).await;
+                    }
+                    Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return Ok(()),
+                    Some(Ok(_)) => {}
                 }
-                Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return Ok(()),
-                Some(Ok(_)) => {}
-            },
+            }
             Some(text) = outgoing.recv() => socket.send(Message::Text(text.into())).await?,
+            _ = pings.tick(), if hold.is_some() => {
+                if heard.elapsed() > HELD_SILENCE {
+                    return Err(axum::Error::new("a page holding a jog went silent"));
+                }
+                socket.send(Message::Ping(Vec::new().into())).await?;
+            }
         }
     }
 }
 
-/// A page's write as a confirmed write to the axis's write key; the outcome goes to the page.
+/// A page's write as a confirmed write to the axis's write key, sent now (in the page's
+/// order: VELO then VAL, or JOGF 1 then 0, reach the node so); the answer goes to the page.
 async fn confirmed_write(
-    session: Session,
-    layout: KeyLayout,
-    axis: String,
+    session: &Session,
+    layout: &KeyLayout,
+    axis: &str,
     write: PageWrite,
     hold: Option<String>,
-    out: mpsc::UnboundedSender<String>,
+    out: ToPage,
 ) {
     let PageWrite { id, field, value } = write;
-    let outcome = match Field::from_name(&field) {
+    let sent = match Field::from_name(&field) {
         None => Err(format!("{field}: unknown field")),
         Some(field) => {
             let mut request = session
-                .get(layout.write_selector(&axis, field, false))
+                .get(layout.write_selector(axis, field, false))
                 .payload(value)
                 .encoding(Encoding::TEXT_PLAIN)
                 .timeout(ANSWER_PATIENCE);
             if let Some(token) = &hold {
                 request = request.attachment(Hold::new(token).encode());
             }
-            match request.await {
-                Ok(replies) => match replies.recv_async().await {
-                    Ok(reply) => reply
-                        .result()
-                        .map(|_| ())
-                        .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-                    Err(_) => {
-                        Err(format!("{axis}: no answer (its node vanished, or access control refused the write)"))
-                    }
-                },
-                Err(e) => Err(e.to_string()),
-            }
+            request.await.map_err(|e| e.to_string())
         }
     };
-    let answer = match outcome {
-        Ok(()) => serde_json::json!({ "id": id, "ok": true }),
-        Err(error) => serde_json::json!({ "id": id, "error": error }),
-    };
-    let _ = out.send(answer.to_string());
+    let unanswered = format!("{axis}: no answer (its node vanished, or access control refused the write)");
+    tokio::spawn(async move {
+        let outcome = match sent {
+            Ok(replies) => match replies.recv_async().await {
+                Ok(reply) => reply
+                    .result()
+                    .map(|_| ())
+                    .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
+                Err(_) => Err(unanswered),
+            },
+            Err(error) => Err(error),
+        };
+        let answer = match outcome {
+            Ok(()) => serde_json::json!({ "id": id, "ok": true }),
+            Err(error) => serde_json::json!({ "id": id, "error": error }),
+        };
+        out.send(answer.to_string());
+    });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sockets_are_opened_by_this_servers_pages_or_by_no_page() {
+        let headers = |origin: Option<&str>| {
+            let mut map = HeaderMap::new();
+            map.insert(header::HOST, "127.0.0.1:8080".parse().unwrap());
+            if let Some(origin) = origin {
+                map.insert(header::ORIGIN, origin.parse().unwrap());
+            }
+            map
+        };
+        assert!(same_origin(&headers(Some("http://127.0.0.1:8080"))));
+        assert!(same_origin(&headers(None)), "a tool sends no Origin");
+        assert!(!same_origin(&headers(Some("https://evil.example"))));
+        assert!(!same_origin(&headers(Some("http://127.0.0.1:9999"))));
+    }
 }

@@ -159,7 +159,13 @@ impl Shared {
         let since = SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
         let stamp = Stamp::from_posix(since.as_secs(), since.subsec_nanos());
         let axis = axis.to_string();
-        self.values().fields.entry(axis.clone()).or_default().insert(field, Entry { value, stamp });
+        let mut values = self.values();
+        // Only axes followed now: a late sample of an axis that went must not revive its values.
+        if !values.followed.contains_key(&axis) {
+            return;
+        }
+        values.fields.entry(axis.clone()).or_default().insert(field, Entry { value, stamp });
+        drop(values);
         let _ = self.changes.send(Change::Field(axis, field));
     }
 
@@ -173,7 +179,10 @@ impl Shared {
         tokio::spawn(async move {
             let storing = shared.clone();
             let follow = shared.session.declare_subscriber(shared.layout.axis_fields(&axis));
-            let Ok(subscriber) = follow.callback(move |sample| storing.store(&sample)).await else { return };
+            let Ok(subscriber) = follow.callback(move |sample| storing.store(&sample)).await else {
+                shared.values().followed.remove(&axis);
+                return;
+            };
             if let Some(slot) = shared.values().followed.get_mut(&axis) {
                 *slot = Some(subscriber);
             }
@@ -185,32 +194,41 @@ impl Shared {
                     shared.store(sample);
                 }
             }
+            // Nothing came (a node too slow, or gone): the next client request tries again.
+            let mut values = shared.values();
+            if values.entry(&axis, Field::STAT).is_none() {
+                let followed = values.followed.remove(&axis);
+                drop(values);
+                drop(followed);
+            }
         });
     }
 
     /// A confirmed write to a write key; the outcome goes back to the circuit.
-    fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
+    /// Sent here, in the circuit's order (a client's VELO then VAL, or VAL then STOP, reach the
+    /// node in that order); the answer is awaited on a task of its own.
+    async fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
         let Write { pv, text, wait, hold, answer } = write;
         let Target::Field(field) = pv.target else { return };
-        let shared = self.clone();
+        let selector = self.layout.write_selector(&pv.axis, field, wait);
+        let patience = if wait { MOTION_PATIENCE } else { ANSWER_PATIENCE };
+        let mut request = self.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience);
+        if let Some(token) = hold {
+            request = request.attachment(Hold::new(&token).encode());
+        }
+        let sent = request.await;
+        let unanswered = format!(
+            "{}: no answer (the axis's node vanished, or access control refused the write)",
+            pv.name(&self.prefix)
+        );
         tokio::spawn(async move {
-            let selector = shared.layout.write_selector(&pv.axis, field, wait);
-            let patience = if wait { MOTION_PATIENCE } else { ANSWER_PATIENCE };
-            let mut request =
-                shared.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience);
-            if let Some(token) = hold {
-                request = request.attachment(Hold::new(&token).encode());
-            }
-            let outcome = match request.await {
+            let outcome = match sent {
                 Ok(replies) => match replies.recv_async().await {
                     Ok(reply) => reply
                         .result()
                         .map(|_| ())
                         .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-                    Err(_) => Err(format!(
-                        "{}: no answer (the axis's node vanished, or access control refused the write)",
-                        pv.name(&shared.prefix)
-                    )),
+                    Err(_) => Err(unanswered),
                 },
                 Err(e) => Err(e.to_string()),
             };
@@ -235,6 +253,8 @@ struct Write {
 /// A running front-end; dropping it stops it.
 pub struct ChannelAccess {
     tasks: Vec<tokio::task::JoinHandle<()>>,
+    /// Dropped with the front-end: every circuit ends (and its holds with it).
+    _running: tokio::sync::watch::Sender<()>,
     _tokens: zenoh::pubsub::Subscriber<()>,
     /// The TCP port circuits connect to.
     pub tcp_port: u16,
@@ -300,13 +320,15 @@ impl ChannelAccess {
                 }
             })
         };
+        let (running, stopped) = tokio::sync::watch::channel(());
         let circuits = {
             let shared = shared.clone();
             tokio::spawn(async move {
                 while let Ok((stream, peer)) = listener.accept().await {
                     let shared = shared.clone();
+                    let stopped = stopped.clone();
                     tokio::spawn(async move {
-                        if let Err(e) = serve_circuit(stream, &shared).await {
+                        if let Err(e) = serve_circuit(stream, &shared, stopped).await {
                             tracing::debug!(%peer, "circuit closed: {e}");
                         }
                     });
@@ -314,12 +336,16 @@ impl ChannelAccess {
             })
         };
         tracing::info!(%address, tcp_port, pv_prefix = config.pv_prefix, "Channel Access serving the live axes");
-        Ok(Self { tasks: vec![searches, circuits], _tokens: tokens, tcp_port })
+        Ok(Self { tasks: vec![searches, circuits], _running: running, _tokens: tokens, tcp_port })
     }
 }
 
 /// One client's circuit until it closes.
-async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::io::Result<()> {
+async fn serve_circuit(
+    stream: tokio::net::TcpStream,
+    shared: &Shared,
+    mut stopped: tokio::sync::watch::Receiver<()>,
+) -> std::io::Result<()> {
     stream.set_nodelay(true)?;
     let (mut reader, mut writer) = stream.into_split();
     let mut changes = shared.changes.subscribe();
@@ -332,6 +358,7 @@ async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::i
     let mut buffer = vec![0; 16 * 1024];
     loop {
         tokio::select! {
+            _ = stopped.changed() => return Ok(()),
             read = reader.read(&mut buffer) => {
                 let length = read?;
                 if length == 0 {
@@ -343,7 +370,10 @@ async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::i
             change = changes.recv() => match change {
                 Ok(Change::Field(axis, field)) => circuit.handle_change(&axis, field, &*shared.values()),
                 Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
-                Err(broadcast::error::RecvError::Lagged(missed)) => tracing::warn!(missed, "a circuit fell behind the network's changes"),
+                Err(broadcast::error::RecvError::Lagged(missed)) => {
+                    tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");
+                    circuit.repost(&*shared.values());
+                }
                 Err(broadcast::error::RecvError::Closed) => return Ok(()),
             },
             Some((answer, outcome)) = finished.recv() => circuit.write_done(answer, outcome),
@@ -352,8 +382,16 @@ async fn serve_circuit(stream: tokio::net::TcpStream, shared: &Shared) -> std::i
             match request {
                 Request::Fetch { axis } => shared.fetch(axis),
                 Request::Write { pv, text, wait, hold, answer } => {
-                    let hold = if hold { Some(hold_token(shared, &mut holds, &pv.axis, &client).await?) } else { None };
-                    shared.write(Write { pv, text, wait, hold, answer }, done.clone());
+                    let hold = match hold {
+                        true => {
+                            // A circuit that holds a jog must notice a client cut off within a
+                            // second, not TCP's quarter of an hour.
+                            watch_closely(writer.as_ref())?;
+                            Some(hold_token(shared, &mut holds, &pv.axis, &client).await?)
+                        }
+                        false => None,
+                    };
+                    shared.write(Write { pv, text, wait, hold, answer }, done.clone()).await;
                 }
             }
         }
@@ -377,4 +415,16 @@ async fn hold_token(
     let token = shared.session.liveliness().declare_token(&key).await.map_err(std::io::Error::other)?;
     holds.insert(axis.to_string(), (key.clone(), token));
     Ok(key)
+}
+
+/// Keep-alive probes after a second of silence, and at most a second for sent data to be
+/// acknowledged: a client cut off (no FIN, no RST) is then dropped, and its holds with it.
+fn watch_closely(stream: &tokio::net::TcpStream) -> std::io::Result<()> {
+    let socket = socket2::SockRef::from(stream);
+    let probes = socket2::TcpKeepalive::new()
+        .with_time(Duration::from_secs(1))
+        .with_interval(Duration::from_secs(1))
+        .with_retries(1);
+    socket.set_tcp_keepalive(&probes)?;
+    socket.set_tcp_user_timeout(Some(Duration::from_secs(1)))
 }
