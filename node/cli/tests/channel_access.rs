@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{repo_file, time_to_release, Host, Lines, Running};
+use common::{repo_file, time_to_release, Host, Lines, Namespaces, Running};
 use std::process::Command;
 use std::process::Stdio;
 use std::time::Duration;
@@ -91,4 +91,44 @@ fn a_jog_from_a_channel_access_client_that_is_killed_ends_within_a_second() {
         jogger.kill();
     });
     assert!(took < Duration::from_secs(1), "released {took:?} after the client was killed");
+}
+
+#[test]
+fn a_jog_from_a_channel_access_client_cut_off_by_the_network_ends_within_about_two_seconds() {
+    if !clients_installed() {
+        return;
+    }
+    let hosts = [("zcan", "10.79.0.1"), ("zcac", "10.79.0.2")];
+    let Some(net) = Namespaces::create(&hosts) else {
+        eprintln!("SKIPPED: network namespaces cannot be created here (needs root and `ip netns`)");
+        return;
+    };
+    let (server, client) = (net.host(0), net.host(1));
+    let endpoint = "tcp/10.79.0.1:7447";
+    let dir = tempfile::tempdir().unwrap();
+    let launch = std::fs::read_to_string(repo_file("launch/sim-axis.toml")).unwrap()
+        + "\n[channel_access]\naddress = \"10.79.0.1\"\nport = 5064\n";
+    let file = dir.path().join("axis.toml");
+    std::fs::write(&file, launch).unwrap();
+    let _node = server.spawn(&["launch", file.to_str().unwrap(), "--listen", endpoint], dir.path());
+    server.wait_for(endpoint, "m1", "DMOV", |v| v == 1.0);
+    let namespace = client.netns.clone().unwrap();
+    let jogger = Command::new("ip")
+        .args(["netns", "exec", &namespace, "python3"])
+        .arg(repo_file("tests/python/ca_clients.py"))
+        .arg("jog")
+        .env("EPICS_CA_ADDR_LIST", "10.79.0.1:5064")
+        .env("EPICS_CA_AUTO_ADDR_LIST", "NO")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let jogger = Running(Some(jogger));
+    // The client's link is pulled: no FIN, no RST reaches the front-end.
+    let took = time_to_release(&server, endpoint, || assert!(net.cut(1), "the link is cut"));
+    jogger.kill();
+    // A CA client that sends nothing is found gone by TCP keep-alive, whose clock ticks in whole
+    // seconds (a probe after 1 s of silence, dropped 0.5 s later at most): about 2 s, not the
+    // 1 s a Zenoh client's lease gives (README says so).
+    assert!(took < Duration::from_millis(2500), "released {took:?} after the client was cut off");
 }

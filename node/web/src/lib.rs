@@ -177,7 +177,7 @@ const PAGE_QUEUE: usize = 4096;
 /// While a page holds a jog, it is pinged this often, and dropped (its jog ended) when it has
 /// not been heard from for `HELD_SILENCE`: a browser cut off sends no close.
 const HELD_PING: Duration = Duration::from_millis(250);
-const HELD_SILENCE: Duration = Duration::from_secs(1);
+const HELD_SILENCE: Duration = Duration::from_millis(750);
 
 /// The page's queue: messages for it, and whether one had to be dropped.
 #[derive(Clone)]
