@@ -273,7 +273,7 @@ impl ChannelAccess {
         let bind = |source| CaError::Bind { address, source };
         let listener = tokio::net::TcpListener::bind(address).await.map_err(bind)?;
         let tcp_port = listener.local_addr().map_err(bind)?.port();
-        let udp = tokio::net::UdpSocket::bind(SocketAddr::new(config.address, tcp_port)).await.map_err(bind)?;
+        let udp = search_socket(SocketAddr::new(config.address, tcp_port)).map_err(bind)?;
         let (changes, _) = broadcast::channel(4096);
         let shared = Shared {
             session: session.clone(),
@@ -427,4 +427,14 @@ fn watch_closely(stream: &tokio::net::TcpStream) -> std::io::Result<()> {
         .with_retries(1);
     socket.set_tcp_keepalive(&probes)?;
     socket.set_tcp_user_timeout(Some(Duration::from_millis(500)))
+}
+
+/// The UDP socket searches come to, shared as EPICS servers share it (SO_REUSEADDR): an IOC on
+/// the same host and port still gets its broadcast searches.
+fn search_socket(address: SocketAddr) -> std::io::Result<tokio::net::UdpSocket> {
+    let socket = socket2::Socket::new(socket2::Domain::for_address(address), socket2::Type::DGRAM, None)?;
+    socket.set_reuse_address(true)?;
+    socket.set_nonblocking(true)?;
+    socket.bind(&address.into())?;
+    tokio::net::UdpSocket::from_std(socket.into())
 }
