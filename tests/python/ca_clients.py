@@ -7,6 +7,7 @@ Usage: python3 ca_clients.py clients | ophyd | jog | gone
 The environment names the server (EPICS_CA_ADDR_LIST=127.0.0.1:PORT, EPICS_CA_AUTO_ADDR_LIST=NO).
 The axis m1 is launch/sim-axis.toml's: mm, PREC 3, dial limits ±100, 10 mm/s.
 """
+import math
 import subprocess
 import sys
 import time
@@ -38,6 +39,9 @@ def reads():
     meta = ctrl.get_ctrlvars()
     assert meta["precision"] == 3 and meta["units"] == "mm", meta
     assert (meta["upper_ctrl_limit"], meta["lower_ctrl_limit"]) == (100.0, -100.0), meta
+    # VAL's alarm limits are HIHI, HIGH, LOW, LOLO (0 here); RBV has none (NaN), as the record gives.
+    assert (meta["upper_alarm_limit"], meta["lower_alarm_limit"]) == (0.0, 0.0), meta
+    assert math.isnan(epics.PV("m1.RBV").get_ctrlvars()["upper_alarm_limit"])
     dial = epics.PV("m1.DVAL").get_ctrlvars()
     assert (dial["upper_ctrl_limit"], dial["lower_ctrl_limit"]) == (100.0, -100.0), dial
     assert epics.PV("m1.SPMG").get_ctrlvars()["enum_strs"][:4] == ("Stop", "Pause", "Move", "Go")

@@ -126,6 +126,8 @@ pub struct Snapshot {
     pub upper: f64,
     /// Lower display and control limit.
     pub lower: f64,
+    /// Alarm limits: upper alarm, upper warning, lower warning, lower alarm (NaN: none).
+    pub alarm: [f64; 4],
     /// The choices of a menu field.
     pub choices: &'static [&'static str],
 }
@@ -187,9 +189,9 @@ impl Snapshot {
                     out.pad(2);
                 }
                 out.fixed_text(&self.units, 8);
-                // Display limits, then the alarm limits (the motor record has none), then the
-                // control limits.
-                let mut limits = vec![self.upper, self.lower, 0.0, 0.0, 0.0, 0.0];
+                // Display limits, then the alarm limits, then the control limits.
+                let mut limits = vec![self.upper, self.lower];
+                limits.extend(self.alarm);
                 if class == Class::Control {
                     limits.extend([self.upper, self.lower]);
                 }
@@ -306,6 +308,7 @@ mod tests {
             precision: 3,
             upper: 100.0,
             lower: -100.0,
+            alarm: [f64::NAN; 4],
             choices: &["Stop", "Pause", "Move", "Go"],
         }
     }
@@ -349,6 +352,7 @@ mod tests {
         assert_eq!(i16::from_be_bytes([bytes[4], bytes[5]]), 3, "precision");
         assert_eq!(&bytes[8..10], b"mm");
         assert_eq!(f64::from_be_bytes(bytes[16..24].try_into().unwrap()), 100.0, "upper display");
+        assert!(f64::from_be_bytes(bytes[32..40].try_into().unwrap()).is_nan(), "no upper alarm limit");
         assert_eq!(f64::from_be_bytes(bytes[64..72].try_into().unwrap()), 100.0, "upper control");
         assert_eq!(f64::from_be_bytes(bytes[72..80].try_into().unwrap()), -100.0, "lower control");
         assert_eq!(f64::from_be_bytes(bytes[80..88].try_into().unwrap()), 2.5);

@@ -42,6 +42,7 @@ mod tests {
                 precision: 2,
                 upper: 10.0,
                 lower: -10.0,
+                alarm: [f64::NAN; 4],
                 choices: &[],
             })
         }

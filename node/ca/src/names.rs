@@ -69,10 +69,19 @@ impl Pv {
         }
     }
 
+    /// The fields its alarm limits come from (upper alarm, upper warning, lower warning, lower
+    /// alarm), as the motor record's get_alarm_double gives them: HIHI, HIGH, LOW, LOLO for VAL
+    /// and DVAL; none for the others.
+    pub fn alarm_limits(&self) -> Option<[Field; 4]> {
+        use Field::*;
+        matches!(self.target, Target::Field(VAL | DVAL)).then_some([HIHI, HIGH, LOW, LOLO])
+    }
+
     /// The fields its metadata comes from: alarm, units, precision, limits.
     pub fn metadata_from(&self) -> Vec<Field> {
         let mut fields = vec![Field::STAT, Field::SEVR, Field::EGU, Field::PREC];
         fields.extend(self.limits().into_iter().flat_map(|(high, low)| [high, low]));
+        fields.extend(self.alarm_limits().into_iter().flatten());
         fields
     }
 
@@ -115,5 +124,9 @@ mod tests {
             (Some((Field::HLM, Field::LLM)), Some((Field::DHLM, Field::DLLM)))
         );
         assert_eq!((pv("m1.VELO").units("mm"), pv("m1.RVAL").units("mm")), ("mm/s".into(), "steps".into()));
+        assert_eq!(
+            (pv("m1").alarm_limits(), pv("m1.RBV").alarm_limits()),
+            (Some([Field::HIHI, Field::HIGH, Field::LOW, Field::LOLO]), None)
+        );
     }
 }

@@ -123,6 +123,7 @@ impl Directory for Values {
             precision: self.number(&pv.axis, Field::PREC) as i16,
             upper,
             lower,
+            alarm: pv.alarm_limits().map_or([f64::NAN; 4], |fields| fields.map(|f| self.number(&pv.axis, f))),
             choices,
         })
     }
