@@ -3,9 +3,10 @@ Selenium): open the index, open the axis, click tweak-forward and see the motor 
 and in the plot, type a target beyond the soft limit and see the node's refusal; keep a
 screenshot. A line `ok <check>` is printed for each check that passed.
 
-Usage: python3 web_screen.py URL AXIS SCREENSHOT [jog]
+Usage: python3 web_screen.py URL AXIS SCREENSHOT [jog | hold]
 The axis's tweak step (TWV) is 1. With `jog`: hold JOGF down until the page shows the motion,
 then kill the browser (SIGKILL) with the button still held, and print when (`killed <unix time>`).
+With `hold`: hold JOGF down and wait, until SIGTERM closes the browser (a link cut meanwhile).
 """
 import sys
 
@@ -17,7 +18,7 @@ from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 
 url, axis, screenshot = sys.argv[1:4]
-jog_only = sys.argv[4:] == ["jog"]
+mode = (sys.argv[4:] or ["screen"])[0]
 
 
 def ok(check):
@@ -31,7 +32,7 @@ for argument in ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-d
 driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
 try:
     wait = WebDriverWait(driver, 20)
-    if jog_only:
+    if mode in ("jog", "hold"):
         from selenium.webdriver.common.action_chains import ActionChains
 
         driver.get(url + "axis/" + axis)
@@ -39,6 +40,12 @@ try:
         ActionChains(driver).click_and_hold(driver.find_element(By.ID, "jogf")).perform()
         wait.until(lambda d: d.find_element(By.ID, "motion").text == "moving")
         ok("jogging, the button held")
+        if mode == "hold":
+            import signal
+            import time
+
+            signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+            time.sleep(600)
         # Kill the browser this script started (chromedriver's children), the button still
         # held: nothing of the page runs to release it.
         import os

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{monitor_jogf, Host};
+use common::{monitor_jogf, time_to_release, Host, Namespaces};
 use std::process::Command;
 use zmotor_zenoh::free_local_endpoint;
 
@@ -136,4 +136,37 @@ fn a_jog_from_a_page_whose_browser_is_killed_ends_within_a_second() {
     let took = released - killed;
     eprintln!("released {took:.3} s after the browser was killed");
     assert!((0.0..1.0).contains(&took), "released {took:.3} s after the browser was killed");
+}
+
+#[test]
+fn a_jog_from_a_page_cut_off_by_the_network_ends_within_a_second() {
+    if !browser_installed() {
+        return;
+    }
+    let hosts = [("zwbn", "10.80.0.1"), ("zwbc", "10.80.0.2")];
+    let Some(net) = Namespaces::create(&hosts) else {
+        eprintln!("SKIPPED: network namespaces cannot be created here (needs root and `ip netns`)");
+        return;
+    };
+    let (server, browser) = (net.host(0), net.host(1));
+    let endpoint = "tcp/10.80.0.1:7447";
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("axis.toml");
+    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"10.80.0.1:8080\"\n")).unwrap();
+    let _node = server.spawn(&["launch", file.to_str().unwrap(), "--listen", endpoint], dir.path());
+    server.wait_for(endpoint, "m1", "DMOV", |v| v == 1.0);
+    let screenshot = dir.path().join("unused.png");
+    let page = Command::new("ip")
+        .args(["netns", "exec", browser.netns.as_deref().unwrap(), "python3"])
+        .arg(common::repo_file("tests/python/web_screen.py"))
+        .args(["http://10.80.0.1:8080/", "m1", screenshot.to_str().unwrap(), "hold"])
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let took = time_to_release(&server, endpoint, || assert!(net.cut(1), "the link is cut"));
+    // The script closes its browser on SIGTERM (a SIGKILL would leave the browser running).
+    Command::new("kill").args(["-TERM", &page.id().to_string()]).status().unwrap();
+    let mut page = page;
+    page.wait().unwrap();
+    assert!(took < std::time::Duration::from_secs(1), "released {took:?} after the page was cut off");
 }
