@@ -6,7 +6,6 @@
 use crate::bench::{client_when_ready, Percentiles};
 use crate::controller_bench::NodeProcess;
 use crate::Error;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::bytes::Encoding;
@@ -98,14 +97,7 @@ pub(crate) async fn run(reads: usize, moves: usize) -> Result<Figures, Error> {
     let launch = format!("{}\n[channel_access]\nport = {port}\n", include_str!("../../../launch/sim-axis.toml"));
     let file = dir.path().join("axis.toml");
     std::fs::write(&file, launch)?;
-    let endpoint = zmotor_zenoh::free_local_endpoint()?;
-    let node = Command::new(std::env::current_exe()?)
-        .args(["launch", &file.to_string_lossy(), "--listen", &endpoint])
-        .env("ZMOTOR_STATE_DIR", dir.path())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let _node = NodeProcess(node);
+    let (_node, endpoint) = NodeProcess::launch(&file, dir.path())?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     let mut ca = CaClient::connect(port).await?;
     let rbv = ca.channel("m1.RBV", 1).await?;

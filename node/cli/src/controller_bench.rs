@@ -220,7 +220,22 @@ impl Exchange {
 }
 
 /// A `zmotor launch` child process; killed when dropped.
-pub(crate) struct NodeProcess(pub(crate) Child);
+pub(crate) struct NodeProcess(Child);
+
+impl NodeProcess {
+    /// `zmotor launch FILE` in a process of its own, listening on a free local endpoint (which
+    /// it returns), its state in `state_dir`.
+    pub(crate) fn launch(file: &std::path::Path, state_dir: &std::path::Path) -> Result<(Self, String), Error> {
+        let endpoint = zmotor_zenoh::free_local_endpoint()?;
+        let node = Command::new(std::env::current_exe()?)
+            .args(["launch", &file.to_string_lossy(), "--listen", &endpoint])
+            .env("ZMOTOR_STATE_DIR", state_dir)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()?;
+        Ok((Self(node), endpoint))
+    }
+}
 
 impl Drop for NodeProcess {
     fn drop(&mut self) {
@@ -257,14 +272,7 @@ async fn end_of_motion_to_done(ready: &Ready, moves: usize) -> Result<(Percentil
     std::fs::write(&file, ready.launch.replace(named, &here))?;
     let launch = zmotor_launch::Launch::load(&file)?;
     let moving_poll = launch.deployment(None)?.contents.controllers[0].config.moving_poll;
-    let endpoint = zmotor_zenoh::free_local_endpoint()?;
-    let node = Command::new(std::env::current_exe()?)
-        .args(["launch", &file.to_string_lossy(), "--listen", &endpoint])
-        .env("ZMOTOR_STATE_DIR", dir.path())
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()?;
-    let _node = NodeProcess(node);
+    let (_node, endpoint) = NodeProcess::launch(&file, dir.path())?;
     let session = client_when_ready(&endpoint, Instant::now()).await?;
     let result = time_moves(&session, ready, &emulated, moves).await;
     server.abort();

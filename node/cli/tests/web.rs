@@ -34,13 +34,8 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
     }
     // The screen of the launch file's [web], in the node's process.
     let dir = tempfile::tempdir().unwrap();
-    let address = free_address();
-    let file = dir.path().join("axis.toml");
-    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"{address}\"\n")).unwrap();
-    let endpoint = free_local_endpoint().unwrap();
-    let here = Host::default();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (address, endpoint, here) = (free_address(), free_local_endpoint().unwrap(), Host::default());
+    let _node = node_with_screens(&here, dir.path(), &address, &endpoint);
 
     let screenshot = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("web-screen.png");
     let output = Command::new("python3")
@@ -62,6 +57,16 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
     let _web = here.spawn(&["web", "--address", &address, "--connect", &endpoint], dir.path());
     let axes = http_get(&address, "/api/axes");
     assert!(axes.contains(r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"moving":false"#), "{axes}");
+}
+
+/// A node of `AXIS` on `host`, listening on `endpoint`, whose launch file serves the screens at
+/// `address` ([web], in its process); its axis answers.
+fn node_with_screens(host: &Host, dir: &std::path::Path, address: &str, endpoint: &str) -> common::Running {
+    let file = dir.join("axis.toml");
+    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"{address}\"\n")).unwrap();
+    let node = host.spawn(&["launch", file.to_str().unwrap(), "--listen", endpoint], dir);
+    host.wait_for(endpoint, "m1", "DMOV", |v| v == 1.0);
+    node
 }
 
 /// Whether Chromium, its driver and Selenium are installed (CI must have them).
@@ -106,13 +111,8 @@ fn a_jog_from_a_page_whose_browser_is_killed_ends_within_a_second() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
-    let address = free_address();
-    let file = dir.path().join("axis.toml");
-    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"{address}\"\n")).unwrap();
-    let endpoint = free_local_endpoint().unwrap();
-    let here = Host::default();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (address, endpoint, here) = (free_address(), free_local_endpoint().unwrap(), Host::default());
+    let _node = node_with_screens(&here, dir.path(), &address, &endpoint);
     let (_monitor, lines) = monitor_jogf(&here, &endpoint);
     let screenshot = dir.path().join("unused.png");
     let output = Command::new("python3")
@@ -151,10 +151,7 @@ fn a_jog_from_a_page_cut_off_by_the_network_ends_within_a_second() {
     let (server, browser) = (net.host(0), net.host(1));
     let endpoint = "tcp/10.80.0.1:7447";
     let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("axis.toml");
-    std::fs::write(&file, format!("{AXIS}\n[web]\naddress = \"10.80.0.1:8080\"\n")).unwrap();
-    let _node = server.spawn(&["launch", file.to_str().unwrap(), "--listen", endpoint], dir.path());
-    server.wait_for(endpoint, "m1", "DMOV", |v| v == 1.0);
+    let _node = node_with_screens(&server, dir.path(), "10.80.0.1:8080", endpoint);
     let screenshot = dir.path().join("unused.png");
     let page = Command::new("ip")
         .args(["netns", "exec", browser.netns.as_deref().unwrap(), "python3"])

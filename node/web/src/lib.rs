@@ -20,11 +20,10 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
-use zenoh::bytes::Encoding;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 use zmotor_msgs::codec::decode_cbor_value;
-use zmotor_msgs::{keys, Field, Hold, KeyLayout};
+use zmotor_msgs::{keys, Field, KeyLayout};
 
 /// Where the screen is served.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -289,27 +288,13 @@ async fn confirmed_write(
     let sent = match Field::from_name(&field) {
         None => Err(format!("{field}: unknown field")),
         Some(field) => {
-            let mut request = session
-                .get(layout.write_selector(axis, field, false))
-                .payload(value)
-                .encoding(Encoding::TEXT_PLAIN)
-                .timeout(ANSWER_PATIENCE);
-            if let Some(token) = &hold {
-                request = request.attachment(Hold::new(token).encode());
-            }
-            request.await.map_err(|e| e.to_string())
+            let how = (false, hold.as_deref());
+            Ok(zmotor_zenoh::client::confirmed_write(session, layout, (axis, field), value, how, ANSWER_PATIENCE).await)
         }
     };
-    let unanswered = format!("{axis}: no answer (its node vanished, or access control refused the write)");
     tokio::spawn(async move {
         let outcome = match sent {
-            Ok(replies) => match replies.recv_async().await {
-                Ok(reply) => reply
-                    .result()
-                    .map(|_| ())
-                    .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-                Err(_) => Err(unanswered),
-            },
+            Ok(sent) => sent.outcome().await,
             Err(error) => Err(error),
         };
         let answer = match outcome {

@@ -13,12 +13,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::{broadcast, mpsc};
-use zenoh::bytes::Encoding;
 use zenoh::sample::{Sample, SampleKind};
 use zenoh::Session;
 use zmotor_ca::{search, Circuit, Directory, Pv, Request, Snapshot, Stamp, Target, WriteAnswer};
 use zmotor_msgs::codec::decode_cbor_value;
-use zmotor_msgs::{Field, Hold, KeyLayout, Kind, Value};
+use zmotor_msgs::{Field, KeyLayout, Kind, Value};
 
 /// Circuits served so far by this process: each holds its jogs by a token of its own.
 static CIRCUITS: AtomicU64 = AtomicU64::new(0);
@@ -211,29 +210,12 @@ impl Shared {
     async fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
         let Write { pv, text, wait, hold, answer } = write;
         let Target::Field(field) = pv.target else { return };
-        let selector = self.layout.write_selector(&pv.axis, field, wait);
         let patience = if wait { MOTION_PATIENCE } else { ANSWER_PATIENCE };
-        let mut request = self.session.get(selector).payload(text).encoding(Encoding::TEXT_PLAIN).timeout(patience);
-        if let Some(token) = hold {
-            request = request.attachment(Hold::new(&token).encode());
-        }
-        let sent = request.await;
-        let unanswered = format!(
-            "{}: no answer (the axis's node vanished, or access control refused the write)",
-            pv.name(&self.prefix)
-        );
+        let how = (wait, hold.as_deref());
+        let sent = crate::client::confirmed_write(&self.session, &self.layout, (&pv.axis, field), text, how, patience);
+        let sent = sent.await;
         tokio::spawn(async move {
-            let outcome = match sent {
-                Ok(replies) => match replies.recv_async().await {
-                    Ok(reply) => reply
-                        .result()
-                        .map(|_| ())
-                        .map_err(|e| String::from_utf8_lossy(&e.payload().to_bytes()).into_owned()),
-                    Err(_) => Err(unanswered),
-                },
-                Err(e) => Err(e.to_string()),
-            };
-            let _ = done.send((answer, outcome));
+            let _ = done.send((answer, sent.outcome().await));
         });
     }
 }

@@ -6,6 +6,7 @@
 
 pub mod autosave;
 pub mod channel_access;
+pub mod client;
 pub mod config;
 mod controllers;
 mod holds;
