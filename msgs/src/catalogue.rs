@@ -435,6 +435,14 @@ impl Field {
 }
 
 impl Field {
+    /// A jog button (JOGF, JOGR): what a client holds (the jog deadman), since a jog runs until
+    /// told to end.
+    pub fn is_jog(self) -> bool {
+        matches!(self, Field::JOGF | Field::JOGR)
+    }
+}
+
+impl Field {
     /// A link the record writes through (OUT, STOO, RLNK, FLNK); its other links are read.
     pub fn is_output_link(self) -> bool {
         matches!(self, Field::OUT | Field::STOO | Field::RLNK | Field::FLNK)

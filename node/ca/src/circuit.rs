@@ -377,7 +377,7 @@ impl Circuit {
             Ok(text) => {
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
-                let hold = matches!(pv.target, Target::Field(Field::JOGF | Field::JOGR));
+                let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }
             Err(e) => self.write_done(answer, Err(e.to_string())),

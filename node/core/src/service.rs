@@ -456,7 +456,7 @@ impl<R: Clone> AxisService<R> {
     fn apply(&mut self, now: Instant, request: WriteRequest) -> Result<(Field, WriteAccepted), RequestError> {
         let field = field_named(request.name)?;
         let value = zmotor_msgs::decode_write(field.def(), request.payload, request.encoding)?;
-        let starts_jog = matches!(field, Field::JOGF | Field::JOGR) && value != Value::Int(0);
+        let starts_jog = field.is_jog() && value != Value::Int(0);
         match &request.hold {
             Some(hold) => {
                 keys::validate_plain_key(&hold.token).map_err(|source| RequestError::HoldToken { field, source })?;

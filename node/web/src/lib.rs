@@ -246,8 +246,8 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
                             out.send(serde_json::json!({ "error": format!("not a write: {text}") }).to_string());
                             continue;
                         };
-                        let held = match Field::from_name(&write.field) {
-                            Some(Field::JOGF | Field::JOGR) => {
+                        let held = match Field::from_name(&write.field).filter(|f| f.is_jog()) {
+                            Some(_) => {
                                 if hold.is_none() {
                                     let key = layout.hold(&axis, &client);
                                     let token = session.liveliness().declare_token(&key).await.map_err(zenoh_error)?;
