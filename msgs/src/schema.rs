@@ -44,7 +44,13 @@ pub fn catalogue_json() -> serde_json::Value {
             entry
         })
         .collect();
-    serde_json::json!({ "fields": fields, "msta_bits": crate::bits::MSTA_BITS, "mip_bits": crate::bits::MIP_BITS })
+    let refusals: Vec<&str> = crate::refusal::RefusalKind::ALL.iter().map(|k| k.name()).collect();
+    serde_json::json!({
+        "fields": fields,
+        "msta_bits": crate::bits::MSTA_BITS,
+        "mip_bits": crate::bits::MIP_BITS,
+        "refusal_kinds": refusals,
+    })
 }
 
 #[cfg(test)]
