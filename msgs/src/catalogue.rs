@@ -383,6 +383,18 @@ impl Field {
 
     /// Number of fields in the catalogue.
     pub const COUNT: usize = FIELDS.len();
+
+    /// The display precision of this field on an axis whose PREC is `prec`, as the record's
+    /// `get_precision` gives it to clients: the raw readbacks none, VERS two decimals, every
+    /// other field PREC (within 0 to 15, as `recGblGetPrec` bounds it).
+    pub fn precision(self, prec: i16) -> i16 {
+        match self {
+            Field::RRBV | Field::RMP | Field::REP => 0,
+            Field::VERS => 2,
+            _ if !(0..=15).contains(&prec) => 15,
+            _ => prec,
+        }
+    }
 }
 
 /// What autosave keeps of a field, as EPICS autosave's motor_positions.req and

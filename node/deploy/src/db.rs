@@ -7,8 +7,9 @@
 //! A link `R.FIELD PP MS` becomes the key of R's field; PP/NPP/CP decide whether an update
 //! recomputes a calc link. Motors with a hardware DTYP become simulated axes, with a warning.
 
-use super::{
-    AxisSection, CalcInput, CalcOption, CalcSection, DriverKind, InputLinkMode, LaunchError, LaunchFile, ValueSection,
+use crate::file::{
+    default_readback_rate, read_text, AxisSection, CalcInput, CalcOption, CalcSection, DriverKind, InputLinkMode,
+    LaunchError, LaunchFile, ValueSection,
 };
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -38,7 +39,7 @@ pub struct MacroError(pub String);
 
 /// Import a database file; the warnings say what was simulated or ignored.
 pub fn import_db(path: &Path, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
-    let text = super::read_text(path)?;
+    let text = read_text(path)?;
     import_db_text(&path.display().to_string(), &text, macros)
 }
 
@@ -233,7 +234,7 @@ fn motor(
         controller,
         channel,
         jog_hold: Default::default(),
-        readback_rate: super::default_readback_rate(),
+        readback_rate: default_readback_rate(),
         fields,
         sim: Default::default(),
         origin: Default::default(),

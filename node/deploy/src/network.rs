@@ -189,13 +189,13 @@ impl ZenohConfig {
         }
     }
 
-    /// The Zenoh configuration.
-    pub fn zenoh(&self) -> Result<zenoh::Config, ConfigError> {
+    /// The Zenoh configuration as (key, JSON5 value) entries, in the order they are applied to
+    /// Zenoh's defaults (`zmotor_client::zenoh_config` applies them).
+    pub fn entries(&self) -> Vec<(&'static str, String)> {
         fn json(value: impl Serialize) -> String {
             serde_json::to_string(&value).expect("plain values serialize")
         }
-        let mut config = zenoh::Config::default();
-        for (key, value) in [
+        let mut entries = vec![
             ("mode", json(self.mode)),
             ("listen/endpoints", json(&self.listen)),
             ("connect/endpoints", json(&self.connect)),
@@ -210,26 +210,20 @@ impl ZenohConfig {
             // A lost router or node is tried again every second at most (Zenoh: up to 4 s), so
             // monitors and links resume soon after it is back.
             ("connect/retry", r#"{ period_max_ms: 1000 }"#.to_string()),
-        ] {
-            config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
-        }
-        let mut optional = Vec::new();
+        ];
         if let Some(tls) = &self.tls {
-            optional.push(("transport/link/tls", json(tls.zenoh())));
+            entries.push(("transport/link/tls", json(tls.zenoh())));
         }
         if let Some(login) = &self.login {
             let usrpwd = serde_json::json!({
                 "user": login.user, "password": login.password, "dictionary_file": login.users_file,
             });
-            optional.push(("transport/auth/usrpwd", usrpwd.to_string()));
+            entries.push(("transport/auth/usrpwd", usrpwd.to_string()));
         }
         if !self.access.is_empty() {
-            optional.push(("access_control", access_control(&KeyLayout::new(&self.prefix), &self.access).to_string()));
+            entries.push(("access_control", access_control(&KeyLayout::new(&self.prefix), &self.access).to_string()));
         }
-        for (key, value) in optional {
-            config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
-        }
-        Ok(config)
+        entries
     }
 
     /// Whether access rules guard this process (confirmed writes then go to write keys only).
@@ -343,43 +337,20 @@ pub const CLIENT_LEASE: std::time::Duration = std::time::Duration::from_millis(5
 /// The lease of a node's or router's session (see `ZenohConfig::lease`).
 pub const NODE_LEASE: std::time::Duration = std::time::Duration::from_millis(1000);
 
-/// A Zenoh configuration entry that Zenoh refused (an endpoint it cannot parse, ...).
-#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-#[error("zenoh configuration {key}: {message}")]
-pub struct ConfigError {
-    /// The configuration key.
-    pub key: &'static str,
-    /// What Zenoh said.
-    pub message: String,
-}
-
-/// A TCP endpoint on 127.0.0.1 with a port that is free now, for tests and benchmarks.
-pub fn free_local_endpoint() -> std::io::Result<String> {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    Ok(format!("tcp/127.0.0.1:{port}"))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn every_mode_makes_a_configuration_zenoh_takes() {
-        for mode in [Mode::Peer, Mode::Client, Mode::Router] {
-            let config = ZenohConfig { mode, ..ZenohConfig::default() };
-            assert!(config.zenoh().is_ok(), "{mode}");
-        }
-        assert_eq!(ZenohConfig::client("tcp/127.0.0.1:1").lease(), CLIENT_LEASE);
-    }
 
     #[test]
     fn modes_parse_and_print_by_name() {
         assert_eq!("router".parse::<Mode>(), Ok(Mode::Router));
         assert_eq!("Peer".parse::<Mode>(), Err(UnknownMode("Peer".into())));
         assert_eq!(Mode::Client.to_string(), "client");
+        assert_eq!(ZenohConfig::client("tcp/127.0.0.1:1").lease(), CLIENT_LEASE);
     }
 
-    fn guarded() -> ZenohConfig {
+    /// A process under TLS, user/password and three access rules.
+    pub(crate) fn guarded() -> ZenohConfig {
         let rule = |name: &str, may: Vec<Permission>| AccessRule {
             name: name.into(),
             may,
@@ -404,16 +375,6 @@ mod tests {
     }
 
     #[test]
-    fn tls_login_and_access_rules_make_a_configuration_zenoh_takes() {
-        let config = guarded();
-        assert!(config.guarded() && !ZenohConfig::default().guarded());
-        let zenoh = config.zenoh().unwrap();
-        assert_eq!(zenoh.get_json("transport/link/tls/enable_mtls").unwrap(), "true");
-        assert_eq!(zenoh.get_json("transport/link/tls/connect_certificate").unwrap(), r#""node.pem""#);
-        assert_eq!(zenoh.get_json("access_control/default_permission").unwrap(), r#""deny""#);
-    }
-
-    #[test]
     fn each_permission_grants_its_rules_once() {
         let acl = access_control(&KeyLayout::default(), &guarded().access);
         let granted = |i: usize| acl["policies"][i]["rules"].clone();
@@ -424,23 +385,6 @@ mod tests {
             acl["subjects"][2],
             serde_json::json!({"id": "nodes", "cert_common_names": ["nodes"], "interfaces": ["lo"]})
         );
-    }
-
-    #[test]
-    fn a_reader_may_query_every_field_key_but_no_write_key() {
-        // The rules rely on this: `**` does not cover a chunk that starts with `@`.
-        let all = zenoh::key_expr::KeyExpr::try_from("**").unwrap();
-        let layout = KeyLayout::default();
-        assert!(all.includes(&zenoh::key_expr::KeyExpr::try_from(layout.field("m1", zmotor_msgs::Field::VAL)).unwrap()));
-        for key in [layout.write("m1", zmotor_msgs::Field::VAL), layout.hold("m1", "c"), layout.driver_cmd("m1")] {
-            assert!(!all.includes(&zenoh::key_expr::KeyExpr::try_from(key.clone()).unwrap()), "{key}");
-        }
-    }
-
-    #[test]
-    fn a_bad_endpoint_is_named() {
-        let config = ZenohConfig { listen: vec!["nonsense".into()], ..ZenohConfig::default() };
-        let error = config.zenoh().unwrap_err();
-        assert_eq!(error.key, "listen/endpoints");
+        assert!(guarded().guarded() && !ZenohConfig::default().guarded());
     }
 }

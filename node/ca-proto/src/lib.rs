@@ -1,0 +1,168 @@
+//! Channel Access for zmotor axes, sans-IO. A CA client (caget, pyepics, ophyd, CS-Studio) sees
+//! each live axis as a motor record: `<P><axis>` its VAL, `<P><axis>.<FIELD>` every field of the
+//! catalogue, `.RTYP` `motor`. The subset of the protocol served: name search (UDP), version,
+//! create and clear channel, read, write, write with notification (put-callback), subscribe and
+//! unsubscribe, echo, flow control, server disconnect. The runner (zmotor-zenoh's
+//! `channel_access`) moves the bytes and holds the values.
+
+pub mod circuit;
+pub mod codec;
+pub mod dbr;
+pub mod names;
+pub mod search;
+
+pub use circuit::{Circuit, Directory, Request, WriteAnswer};
+pub use dbr::{Base, Snapshot, Stamp};
+pub use names::{Pv, Target};
+
+#[cfg(test)]
+mod tests {
+    use super::codec::{self, command, Header, MINOR_VERSION};
+    use super::*;
+    use zmotor_msgs::{Field, Value};
+
+    /// One live axis, m1, whose VAL is 2.5 once fetched.
+    struct OneAxis {
+        fetched: bool,
+    }
+
+    impl Directory for OneAxis {
+        fn is_live(&self, axis: &str) -> bool {
+            axis == "m1"
+        }
+
+        fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
+            self.fetched.then(|| Snapshot {
+                value: Value::Float(2.5),
+                native: pv.native(),
+                status: 0,
+                severity: 0,
+                stamp: Stamp::default(),
+                units: "mm".into(),
+                precision: 2,
+                upper: 10.0,
+                lower: -10.0,
+                alarm: [f64::NAN; 4],
+                choices: &[],
+            })
+        }
+    }
+
+    /// Every message of some bytes.
+    fn messages(bytes: &[u8]) -> Vec<(Header, Vec<u8>)> {
+        let mut out = Vec::new();
+        let mut rest = bytes;
+        while let Ok(Some((header, payload, used))) = codec::parse(rest) {
+            out.push((header, payload.to_vec()));
+            rest = &rest[used..];
+        }
+        out
+    }
+
+    fn request(circuit: &mut Circuit, directory: &OneAxis, header: Header, payload: &[u8]) -> Vec<(Header, Vec<u8>)> {
+        circuit.handle_input(&codec::encode(header, payload), directory).unwrap();
+        messages(&circuit.poll_transmit().unwrap_or_default())
+    }
+
+    #[test]
+    fn a_channel_is_created_read_once_its_axis_is_fetched_and_monitored() {
+        let mut circuit = Circuit::new("");
+        let mut directory = OneAxis { fetched: false };
+        let version = request(&mut circuit, &directory, Header::new(command::VERSION, 0, 13, 0, 0), &[]);
+        assert_eq!(version[0].0.count, u32::from(MINOR_VERSION));
+        let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 7, 13), b"m1\0");
+        assert_eq!((created[0].0.command, created[0].0.p2), (command::ACCESS_RIGHTS, 3));
+        let (reply, _) = &created[1];
+        assert_eq!((reply.command, reply.data_type, reply.p1), (command::CREATE_CHAN, 6, 7));
+        let sid = reply.p2;
+        assert_eq!(circuit.poll_request(), Some(Request::Fetch { axis: "m1".into() }));
+
+        // A read before the values arrive waits for them.
+        assert!(request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, sid, 99), &[]).is_empty());
+        directory.fetched = true;
+        circuit.handle_change("m1", Field::VAL, &directory);
+        let read = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((read[0].0.command, read[0].0.p1, read[0].0.p2), (command::READ_NOTIFY, 1, 99));
+        assert_eq!(read[0].1, 2.5f64.to_be_bytes());
+
+        // A CTRL subscription gets the value at once and again when the limits change.
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&5u16.to_be_bytes());
+        let first = request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 34, 1, sid, 5), &add);
+        assert_eq!((first[0].0.command, first[0].0.p2, first[0].1.len()), (command::EVENT_ADD, 5, 88));
+        circuit.handle_change("m1", Field::HLM, &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1);
+        circuit.handle_change("m1", Field::VELO, &directory);
+        assert_eq!(circuit.poll_transmit(), None, "VELO is not VAL's metadata");
+
+        // The axis goes: the client hears its channel is disconnected.
+        circuit.axis_gone("m1");
+        let gone = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((gone[0].0.command, gone[0].0.p1), (command::SERVER_DISCONN, 7));
+    }
+
+    #[test]
+    fn writes_become_requests_and_their_outcomes_replies() {
+        let mut circuit = Circuit::new("bl:");
+        let directory = OneAxis { fetched: true };
+        let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 1, 13), b"bl:m1\0");
+        let sid = created[1].0.p2;
+        let rbv = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 2, 13), b"bl:m1.RBV\0");
+        assert_eq!(rbv[0].0.p2, 1, "RBV is read-only");
+        let rbv_sid = rbv[1].0.p2;
+
+        request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, sid, 42), &4.0f64.to_be_bytes());
+        let Some(Request::Write { pv, text, wait, hold, answer }) = circuit.poll_request() else { panic!("no write") };
+        assert_eq!((pv.name("bl:"), text.as_str(), wait, hold), ("bl:m1.VAL".into(), "4", true, false));
+        circuit.write_done(answer, Err("limit violation".into()));
+        let failed = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((failed[0].0.command, failed[0].0.p1, failed[0].0.p2), (command::WRITE_NOTIFY, 160, 42));
+
+        let refused = request(&mut circuit, &directory, Header::new(command::WRITE, 6, 1, rbv_sid, 3), &[0; 8]);
+        assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
+        assert!(codec::text(&refused[0].1[16..]).contains("read-only"));
+        assert_eq!(circuit.poll_request(), None, "nothing is written to a read-only field");
+    }
+
+    #[test]
+    fn a_monitor_made_before_the_values_arrive_gets_its_first_event_then_alarms_and_held_events() {
+        let mut circuit = Circuit::new("");
+        let mut directory = OneAxis { fetched: false };
+        let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 1, 13), b"m1.RBV\0");
+        let sid = created[1].0.p2;
+        // DBR_TIME_DOUBLE, DBE_VALUE | DBE_ALARM: nothing yet, the axis is fetched.
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&5u16.to_be_bytes());
+        assert!(request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 20, 1, sid, 9), &add).is_empty());
+        directory.fetched = true;
+        // The first change of the axis, whichever field, brings the first event.
+        circuit.handle_change("m1", Field::DESC, &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
+        circuit.handle_change("m1", Field::DESC, &directory);
+        assert_eq!(circuit.poll_transmit(), None, "DESC is not RBV's");
+        circuit.handle_change("m1", Field::SEVR, &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "an alarm change reaches DBE_ALARM");
+        // Events held back by EVENTS_OFF are posted at EVENTS_ON.
+        request(&mut circuit, &directory, Header::new(command::EVENTS_OFF, 0, 0, 0, 0), &[]);
+        circuit.handle_change("m1", Field::RBV, &directory);
+        assert_eq!(circuit.poll_transmit(), None);
+        let resumed = request(&mut circuit, &directory, Header::new(command::EVENTS_ON, 0, 0, 0, 0), &[]);
+        assert_eq!((resumed.len(), resumed[0].0.command), (1, command::EVENT_ADD));
+        // An unknown channel id is named as such.
+        let unknown = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, 999, 1), &[]);
+        assert_eq!((unknown[0].0.command, unknown[0].0.p2), (command::ERROR, 410));
+    }
+
+    #[test]
+    fn searches_are_answered_for_live_channels_only() {
+        let directory = OneAxis { fetched: false };
+        let mut datagram = codec::encode(Header::new(command::VERSION, 0, 13, 0, 0), &[]);
+        datagram.extend(codec::encode(Header::new(command::SEARCH, 5, 13, 11, 21), b"m1.RBV\0"));
+        datagram.extend(codec::encode(Header::new(command::SEARCH, 5, 13, 12, 12), b"m2\0"));
+        let answer = messages(&search::answer("", &datagram, 5064, &directory).unwrap());
+        assert_eq!(answer.len(), 2);
+        assert_eq!((answer[1].0.command, answer[1].0.data_type, answer[1].0.p2), (command::SEARCH, 5064, 21));
+        let unknown = codec::encode(Header::new(command::SEARCH, 5, 13, 12, 12), b"m2\0");
+        assert_eq!(search::answer("", &unknown, 5064, &directory), None);
+    }
+}

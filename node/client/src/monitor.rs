@@ -1,0 +1,127 @@
+//! Monitors, as camonitor makes them: the current value of each field first, then every
+//! change. The subscription is declared before the current values are asked for, and both
+//! arrive through one queue in the order the network delivered them, so no change between the
+//! two is lost and none is shown out of order.
+
+use crate::read::{field_of, sample_value};
+use crate::show::show;
+use crate::Client;
+use std::time::{Duration, SystemTime};
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
+use zenoh::pubsub::Subscriber;
+use zenoh::sample::Sample;
+use zmotor_msgs::{Field, Value};
+
+/// How long the current values may take to come.
+const PATIENCE: Duration = Duration::from_secs(5);
+
+/// One field's value, current or changed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Update {
+    /// The axis.
+    pub axis: String,
+    /// The field, when the key names one of the catalogue.
+    pub field: Option<Field>,
+    /// The field's name, as the key spells it.
+    pub name: String,
+    /// Its value.
+    pub value: Value,
+    /// When it arrived.
+    pub at: SystemTime,
+    /// The value as camonitor shows it (menus by name, doubles at the axis's precision).
+    pub shown: String,
+}
+
+/// A monitor of some fields of one axis; it ends when dropped.
+pub struct Monitor {
+    axis: String,
+    /// The fields followed; empty for every field.
+    wanted: Vec<Field>,
+    arrivals: UnboundedReceiver<Arrival>,
+    prec: Option<i16>,
+    _subscribers: Vec<Subscriber<()>>,
+}
+
+/// What reaches a monitor's queue.
+enum Arrival {
+    /// A value of a followed field, current or changed.
+    Value(Sample),
+    /// The axis's PREC, asked for first so the first values are shown at it.
+    Precision(Sample),
+}
+
+impl Client {
+    /// Follow `fields` of `axis` (every field when empty), starting with their current values.
+    pub async fn monitor(&self, axis: &str, fields: &[Field]) -> Result<Monitor, zenoh::Error> {
+        let layout = self.layout();
+        let (queue, arrivals) = unbounded_channel();
+        let mut followed: Vec<String> = match fields {
+            [] => vec![layout.axis_fields(axis)],
+            named => named.iter().map(|f| layout.field(axis, *f)).collect(),
+        };
+        let mut subscribed = followed.clone();
+        if !fields.is_empty() && !fields.contains(&Field::PREC) {
+            // PREC says how the values are shown: followed, not shown.
+            subscribed.push(layout.field(axis, Field::PREC));
+        }
+        let mut subscribers = Vec::new();
+        for key in &subscribed {
+            let queue = queue.clone();
+            let subscriber = self.session().declare_subscriber(key).callback(move |sample| {
+                let _ = queue.send(Arrival::Value(sample));
+            });
+            subscribers.push(subscriber.await?);
+        }
+        if fields.is_empty() {
+            followed = vec![layout.axis_all(axis)];
+        }
+        let precision = self.session().get(layout.field(axis, Field::PREC)).timeout(PATIENCE);
+        let to_queue = queue.clone();
+        precision
+            .callback(move |reply| {
+                if let Ok(sample) = reply.into_result() {
+                    let _ = to_queue.send(Arrival::Precision(sample));
+                }
+            })
+            .await?;
+        for key in followed {
+            let queue = queue.clone();
+            self.session()
+                .get(key)
+                .timeout(PATIENCE)
+                .callback(move |reply| {
+                    if let Ok(sample) = reply.into_result() {
+                        let _ = queue.send(Arrival::Value(sample));
+                    }
+                })
+                .await?;
+        }
+        Ok(Monitor { axis: axis.to_string(), wanted: fields.to_vec(), arrivals, prec: None, _subscribers: subscribers })
+    }
+}
+
+impl Monitor {
+    /// The next value, current or changed; None once the session is closed.
+    pub async fn next(&mut self) -> Option<Update> {
+        loop {
+            let (sample, shown) = match self.arrivals.recv().await? {
+                Arrival::Value(sample) => (sample, true),
+                Arrival::Precision(sample) => (sample, false),
+            };
+            let (field, name) = field_of(&sample);
+            let value = sample_value(&sample);
+            if field == Some(Field::PREC) {
+                self.prec = value.as_f64().map(|p| p as i16);
+            }
+            if !shown {
+                continue;
+            }
+            let wanted = self.wanted.is_empty() || field.is_some_and(|f| self.wanted.contains(&f));
+            if wanted {
+                let shown = field.map_or_else(|| value.to_string(), |f| show(f, &value, self.prec));
+                let at = SystemTime::now();
+                return Some(Update { axis: self.axis.clone(), field, name, value, at, shown });
+            }
+        }
+    }
+}

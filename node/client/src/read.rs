@@ -1,0 +1,111 @@
+//! Reads: one field, a pattern of fields or every field of an axis, each answer with the field
+//! it names, and the axis's PREC so the values can be shown as caget shows them.
+
+use crate::show::show;
+use crate::Client;
+use std::time::Duration;
+use zenoh::sample::Sample;
+use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::{Field, Refusal, Value};
+
+/// How long a read waits for its answers.
+const PATIENCE: Duration = Duration::from_secs(5);
+
+/// Which fields of an axis a read asks for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Selection<'a> {
+    /// One field.
+    Field(Field),
+    /// The fields whose names match a pattern with `*` (`D*`).
+    Pattern(&'a str),
+    /// Every field.
+    All,
+}
+
+/// One field's value, as read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Reading {
+    /// The field, when the answer's key names one of the catalogue.
+    pub field: Option<Field>,
+    /// The last chunk of the answer's key (the field's name).
+    pub name: String,
+    /// The value (a payload that is no CBOR value as text).
+    pub value: Value,
+}
+
+/// What a read of one axis brought.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AxisReading {
+    /// The fields' values, in catalogue order.
+    pub readings: Vec<Reading>,
+    /// Error answers.
+    pub refusals: Vec<Refusal>,
+    /// The axis's PREC, when it answered.
+    pub prec: Option<i16>,
+}
+
+impl AxisReading {
+    /// A reading's value as caget shows it (menus by name, doubles at the axis's precision).
+    pub fn shown(&self, reading: &Reading) -> String {
+        match reading.field {
+            Some(field) => show(field, &reading.value, self.prec),
+            None => reading.value.to_string(),
+        }
+    }
+}
+
+/// A sample's value: CBOR as published, anything else as text.
+pub(crate) fn sample_value(sample: &Sample) -> Value {
+    let payload = sample.payload().to_bytes();
+    decode_cbor_value(&payload).unwrap_or_else(|_| Value::Text(String::from_utf8_lossy(&payload).into_owned()))
+}
+
+/// The field a sample's key names, and that name.
+pub(crate) fn field_of(sample: &Sample) -> (Option<Field>, String) {
+    let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
+    (Field::from_name(&name), name)
+}
+
+impl Client {
+    /// Read `selection` of `axis`, and its PREC beside.
+    pub async fn read(&self, axis: &str, selection: Selection<'_>) -> Result<AxisReading, zenoh::Error> {
+        let layout = self.layout();
+        let key = match selection {
+            Selection::Field(field) => layout.field(axis, field),
+            Selection::Pattern(pattern) => layout.field_pattern(axis, pattern),
+            Selection::All => layout.axis_all(axis),
+        };
+        let session = self.session();
+        let answers = session.get(&key).timeout(PATIENCE).await?;
+        let precision = match selection {
+            Selection::All => None,
+            _ => Some(session.get(layout.field(axis, Field::PREC)).timeout(PATIENCE).await?),
+        };
+        let mut read = AxisReading::default();
+        while let Ok(reply) = answers.recv_async().await {
+            match reply.into_result() {
+                Ok(sample) => {
+                    let (field, name) = field_of(&sample);
+                    read.readings.push(Reading { field, name, value: sample_value(&sample) });
+                }
+                Err(error) => {
+                    read.refusals.push(Refusal::from_wire(&error.encoding().to_string(), &error.payload().to_bytes()))
+                }
+            }
+        }
+        read.readings.sort_by_key(|r| r.field);
+        let prec = |readings: &[Reading]| {
+            let prec = readings.iter().find(|r| r.field == Some(Field::PREC))?;
+            prec.value.as_f64().map(|p| p as i16)
+        };
+        read.prec = prec(&read.readings);
+        if let Some(answers) = precision {
+            while let Ok(reply) = answers.recv_async().await {
+                if let Ok(sample) = reply.into_result() {
+                    read.prec = sample_value(&sample).as_f64().map(|p| p as i16);
+                }
+            }
+        }
+        Ok(read)
+    }
+}

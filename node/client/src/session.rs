@@ -1,0 +1,117 @@
+//! Sessions from a configuration: a launch file's `[zenoh]` section or a client's settings
+//! (`zmotor_deploy::ZenohConfig`) become a Zenoh configuration and an open session.
+
+use zmotor_deploy::ZenohConfig;
+
+/// A Zenoh configuration entry that Zenoh refused (an endpoint it cannot parse, ...).
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+#[error("zenoh configuration {key}: {message}")]
+pub struct ConfigError {
+    /// The configuration key.
+    pub key: &'static str,
+    /// What Zenoh said.
+    pub message: String,
+}
+
+/// Why a session could not be opened.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SessionError {
+    /// The configuration is not one Zenoh takes.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// Nothing answered where the configuration connects (or it refused this process's
+    /// certificate or login).
+    #[error("nothing answers at {endpoints}{}", if *.tls { ", or it refused this client's certificate" } else { "" })]
+    Unreachable {
+        /// Where it tried, comma-separated.
+        endpoints: String,
+        /// Whether the connection was under TLS (a refused certificate looks the same).
+        tls: bool,
+        /// What Zenoh said.
+        #[source]
+        source: zenoh::Error,
+    },
+}
+
+/// The Zenoh configuration of `section`.
+pub fn zenoh_config(section: &ZenohConfig) -> Result<zenoh::Config, ConfigError> {
+    let mut config = zenoh::Config::default();
+    for (key, value) in section.entries() {
+        config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
+    }
+    Ok(config)
+}
+
+/// A session joined as `section` says.
+pub async fn open(section: &ZenohConfig) -> Result<zenoh::Session, SessionError> {
+    zenoh::open(zenoh_config(section)?).await.map_err(|source| SessionError::Unreachable {
+        endpoints: section.connect.join(", "),
+        tls: section.tls.is_some(),
+        source,
+    })
+}
+
+/// A TCP endpoint on 127.0.0.1 with a port that is free now, for tests and benchmarks.
+pub fn free_local_endpoint() -> std::io::Result<String> {
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    Ok(format!("tcp/127.0.0.1:{port}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use zmotor_deploy::{AccessRule, LoginConfig, Mode, Permission, TlsConfig};
+    use zmotor_msgs::{Field, KeyLayout};
+
+    #[test]
+    fn every_mode_makes_a_configuration_zenoh_takes() {
+        for mode in [Mode::Peer, Mode::Client, Mode::Router] {
+            let config = ZenohConfig { mode, ..ZenohConfig::default() };
+            assert!(zenoh_config(&config).is_ok(), "{mode}");
+        }
+    }
+
+    #[test]
+    fn tls_login_and_access_rules_make_a_configuration_zenoh_takes() {
+        let rule = |name: &str, may: Vec<Permission>| AccessRule {
+            name: name.into(),
+            may,
+            cert_common_names: vec![name.into()],
+            ..AccessRule::default()
+        };
+        let config = ZenohConfig {
+            tls: Some(TlsConfig {
+                ca: "ca.pem".into(),
+                certificate: Some("node.pem".into()),
+                key: Some("node.key".into()),
+                mutual: true,
+            }),
+            login: Some(LoginConfig { user: Some("node".into()), password: Some("pw".into()), users_file: None }),
+            access: vec![rule("viewer", vec![Permission::Read]), rule("nodes", vec![Permission::All])],
+            ..ZenohConfig::default()
+        };
+        let zenoh = zenoh_config(&config).unwrap();
+        assert_eq!(zenoh.get_json("transport/link/tls/enable_mtls").unwrap(), "true");
+        assert_eq!(zenoh.get_json("transport/link/tls/connect_certificate").unwrap(), r#""node.pem""#);
+        assert_eq!(zenoh.get_json("access_control/default_permission").unwrap(), r#""deny""#);
+    }
+
+    #[test]
+    fn a_reader_may_query_every_field_key_but_no_write_key() {
+        // The access rules rely on this: `**` does not cover a chunk that starts with `@`.
+        let all = zenoh::key_expr::KeyExpr::try_from("**").unwrap();
+        let layout = KeyLayout::default();
+        assert!(all.includes(&zenoh::key_expr::KeyExpr::try_from(layout.field("m1", Field::VAL)).unwrap()));
+        for key in [layout.write("m1", Field::VAL), layout.hold("m1", "c"), layout.driver_cmd("m1")] {
+            assert!(!all.includes(&zenoh::key_expr::KeyExpr::try_from(key.clone()).unwrap()), "{key}");
+        }
+    }
+
+    #[test]
+    fn a_bad_endpoint_is_named() {
+        let config = ZenohConfig { listen: vec!["nonsense".into()], ..ZenohConfig::default() };
+        assert_eq!(zenoh_config(&config).unwrap_err().key, "listen/endpoints");
+    }
+}

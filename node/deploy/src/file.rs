@@ -1,0 +1,510 @@
+//! A launch file as written: the TOML model serde reads (every section and its choices), and
+//! the errors that name the file, line and key at fault.
+
+use crate::front_ends::{CaConfig, WebConfig};
+use crate::network::{Mode, TlsConfig, ZenohConfig};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::Path;
+use zmotor_core::driver::sim::SimConfig;
+use zmotor_msgs::keys;
+
+/// Highest readback rate while moving, Hz.
+pub const MAX_READBACK_RATE: f64 = 1000.0;
+
+/// A launch file that cannot be used: where, and why.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{file}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+pub struct LaunchError {
+    /// The file at fault.
+    pub file: String,
+    /// The line, when it is known.
+    pub line: Option<usize>,
+    /// What is wrong, naming the key.
+    pub message: String,
+}
+
+/// The text of a launch or database file; an error names the file.
+pub(crate) fn read_text(path: &Path) -> Result<String, LaunchError> {
+    std::fs::read_to_string(path).map_err(|e| LaunchError {
+        file: path.display().to_string(),
+        line: None,
+        message: format!("cannot read: {e}"),
+    })
+}
+
+/// One launch file as written. Only the main file may configure the Zenoh side, the state
+/// directory and autosave; included files add hosts, axes, calc links and value holders.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct LaunchFile {
+    /// Further launch files, relative to this one.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub include: Vec<String>,
+    /// EPICS databases whose records join this launch (`[[database]]`); their asyn motors
+    /// (`OUT "@asyn(PORT,N)"`) run on this launch's `[[controller]]` named PORT.
+    #[serde(default, rename = "database", skip_serializing_if = "Vec::is_empty")]
+    pub databases: Vec<DatabaseSection>,
+    /// Where autosave keeps state (relative to this file); `ZMOTOR_STATE_DIR` overrides it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub state_dir: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Autosave settings.
+    pub autosave: Option<AutosaveSection>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// How the processes join the network.
+    pub zenoh: Option<ZenohConfig>,
+    /// Per-host overrides of `[zenoh]`; with hosts, every item names the host that runs it.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub hosts: BTreeMap<String, HostSection>,
+    /// A web server of motor screens (`[web]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub web: Option<WebSection>,
+    /// A Channel Access front-end serving the axes (`[channel_access]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel_access: Option<ChannelAccessSection>,
+    #[serde(default, rename = "controller", skip_serializing_if = "Vec::is_empty")]
+    /// The motor controllers (`[[controller]]`).
+    pub controllers: Vec<ControllerSection>,
+    #[serde(default, rename = "axis", skip_serializing_if = "Vec::is_empty")]
+    /// The axes (`[[axis]]`).
+    pub axes: Vec<AxisSection>,
+    #[serde(default, rename = "calc", skip_serializing_if = "Vec::is_empty")]
+    /// The calc links (`[[calc]]`).
+    pub calcs: Vec<CalcSection>,
+    #[serde(default, rename = "value", skip_serializing_if = "Vec::is_empty")]
+    /// The value holders (`[[value]]`).
+    pub values: Vec<ValueSection>,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+/// The `[autosave]` section.
+pub struct AutosaveSection {
+    /// Whether axes are saved and restored.
+    pub enabled: bool,
+    /// Seconds a change may wait before it is written (changes meanwhile are written together).
+    pub delay: f64,
+}
+
+impl Default for AutosaveSection {
+    fn default() -> Self {
+        Self { enabled: true, delay: 1.0 }
+    }
+}
+
+/// The `[channel_access]` section: `zmotor ca` run by the launch (on its host, when given).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct ChannelAccessSection {
+    /// `<P>`, prepended to every channel name.
+    pub pv_prefix: String,
+    /// Address to serve on.
+    pub address: std::net::IpAddr,
+    /// Port of searches and circuits.
+    pub port: u16,
+    /// The host that runs it (with `[hosts]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+}
+
+impl Default for ChannelAccessSection {
+    fn default() -> Self {
+        let CaConfig { pv_prefix, address, port } = CaConfig::default();
+        Self { pv_prefix, address, port, host: None }
+    }
+}
+
+/// The `[web]` section: `zmotor web` run by the launch (on its host, when given).
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct WebSection {
+    /// The HTTP address.
+    pub address: std::net::SocketAddr,
+    /// The host that runs it (with `[hosts]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+}
+
+impl Default for WebSection {
+    fn default() -> Self {
+        Self { address: WebConfig::default().address, host: None }
+    }
+}
+
+/// A `[[database]]` entry: an EPICS database loaded with its macros, as dbLoadRecords does.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct DatabaseSection {
+    /// The `.db` file, relative to this launch file.
+    pub file: String,
+    /// Macro definitions, e.g. `{ P = "bl1:" }`.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub macros: BTreeMap<String, String>,
+}
+
+/// What differs on one host: how it joins the network.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HostSection {
+    /// The host's Zenoh mode, instead of `[zenoh]`'s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mode: Option<Mode>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Endpoints the host listens on, instead of `[zenoh]`'s.
+    pub listen: Option<Vec<String>>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// Endpoints the host connects to, instead of `[zenoh]`'s.
+    pub connect: Option<Vec<String>>,
+    /// The host's TLS certificate and key, instead of `[zenoh.tls]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tls: Option<TlsConfig>,
+}
+
+/// Where an item was written: which file of the launch, and its index in that file's array.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Origin {
+    pub(crate) source: usize,
+    pub(crate) index: usize,
+}
+
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+/// An `[[axis]]` entry.
+pub struct AxisSection {
+    /// The axis's name: its key chunk.
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
+    pub host: Option<String>,
+    /// `sim` (the simulator), `soft` (Soft Channel: the axis drives other keys) or
+    /// `controller` (a channel of a `[[controller]]`).
+    #[serde(default)]
+    pub driver: DriverKind,
+    /// The controller (`driver = "controller"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub controller: Option<String>,
+    /// The controller's own number for the axis (`driver = "controller"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub channel: Option<usize>,
+    /// Readback publications per second while moving.
+    #[serde(default = "default_readback_rate")]
+    pub readback_rate: f64,
+    /// `required`: a jog is taken only under a hold (the jog deadman); `optional` (the default):
+    /// a plain jog too, as the record takes it.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub jog_hold: JogHoldChoice,
+    /// Initial field values, by EPICS field name.
+    #[serde(default)]
+    pub fields: BTreeMap<String, toml::Value>,
+    #[serde(default, skip_serializing_if = "is_default")]
+    /// The simulator's mechanics (`driver = "sim"`).
+    pub sim: SimConfig,
+    #[serde(skip)]
+    /// Where it was written.
+    pub origin: Origin,
+}
+
+fn is_default<T: Default + PartialEq>(value: &T) -> bool {
+    *value == T::default()
+}
+
+/// A name that is not one of a setting's choices.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct UnknownChoice(String);
+
+/// Declares an enum of a launch file's named choices: serde reads and writes it by name
+/// (ignoring case), and a name that is not a choice is refused with `$refusal`, in which
+/// `{given}` is the name written and `{known}` the choices.
+macro_rules! choices {
+    ($(#[$meta:meta])* $name:ident, $refusal:literal { $($(#[$vmeta:meta])* $variant:ident = $text:literal),+ $(,)? }) => {
+        $(#[$meta])*
+        #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+        pub enum $name {
+            $($(#[$vmeta])* $variant),+
+        }
+
+        impl $name {
+            /// The name a launch file uses.
+            pub fn name(self) -> &'static str {
+                match self {
+                    $($name::$variant => $text),+
+                }
+            }
+
+            /// The choice named `given`.
+            pub fn from_name(given: &str) -> Result<Self, UnknownChoice> {
+                [$($name::$variant),+].into_iter().find(|choice| choice.name().eq_ignore_ascii_case(given)).ok_or_else(|| {
+                    UnknownChoice(format!($refusal, given = given, known = [$($text),+].join(", ")))
+                })
+            }
+        }
+
+        impl Serialize for $name {
+            fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+                serializer.serialize_str(self.name())
+            }
+        }
+
+        impl<'de> Deserialize<'de> for $name {
+            fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+                $name::from_name(&String::deserialize(deserializer)?).map_err(serde::de::Error::custom)
+            }
+        }
+    };
+}
+
+choices!(
+    /// What drives an axis.
+    DriverKind, "'{given}' is not a known driver (known: {known})" {
+        /// The physical simulator.
+        #[default]
+        Sim = "sim",
+        /// Soft Channel: the axis drives other keys.
+        Soft = "soft",
+        /// A channel of a motor controller.
+        Controller = "controller",
+    }
+);
+
+choices!(
+    /// Whether an axis jogs only under a hold.
+    JogHoldChoice, "'{given}' is not one of {known}" {
+        /// A plain jog is taken too.
+        #[default]
+        Optional = "optional",
+        /// A jog without a hold is refused.
+        Required = "required",
+    }
+);
+
+choices!(
+    /// A serial line's parity.
+    ParityChoice, "'{given}' is not a parity (known: {known})" {
+        /// No parity bit.
+        #[default]
+        None = "none",
+        /// Odd.
+        Odd = "odd",
+        /// Even.
+        Even = "even",
+    }
+);
+
+choices!(
+    /// A serial line's flow control.
+    FlowControlChoice, "'{given}' is not a flow control (known: {known})" {
+        /// None.
+        #[default]
+        None = "none",
+        /// XON/XOFF.
+        Software = "software",
+        /// RTS/CTS.
+        Hardware = "hardware",
+    }
+);
+
+/// A `[[controller]]` entry: a motor controller, how to reach it, how to poll it.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ControllerSection {
+    /// The controller's name; its axes name it.
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`); its axes run there too.
+    pub host: Option<String>,
+    /// The protocol it speaks (`acs_mcb4b`, ...).
+    pub protocol: String,
+    /// `host:port` of a TCP connection (an Ethernet controller or a terminal server).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tcp: Option<String>,
+    /// A serial port, instead of `tcp`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub serial: Option<SerialSection>,
+    /// Seconds between polls while an axis moves.
+    #[serde(default = "default_moving_poll")]
+    pub moving_poll: f64,
+    /// Seconds between polls while every axis is idle.
+    #[serde(default = "default_idle_poll")]
+    pub idle_poll: f64,
+    /// Seconds a reply may take.
+    #[serde(default = "default_timeout")]
+    pub timeout: f64,
+    /// Times a query without a good reply is sent again.
+    #[serde(default = "default_retries")]
+    pub retries: u32,
+    /// The controller's units per record step, where the protocol has units (see README).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub units_per_step: Option<f64>,
+    #[serde(skip)]
+    /// Where it was written.
+    pub origin: Origin,
+}
+
+/// A serial port's settings.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct SerialSection {
+    /// The device, e.g. `/dev/ttyUSB0`.
+    pub device: String,
+    /// Bits per second.
+    #[serde(default = "default_baud")]
+    pub baud: u32,
+    /// `none`, `odd` or `even`.
+    #[serde(default)]
+    pub parity: ParityChoice,
+    /// 5 to 8.
+    #[serde(default = "default_data_bits")]
+    pub data_bits: u8,
+    /// 1 or 2.
+    #[serde(default = "default_stop_bits")]
+    pub stop_bits: u8,
+    /// `none`, `software` or `hardware`.
+    #[serde(default)]
+    pub flow_control: FlowControlChoice,
+}
+
+fn default_moving_poll() -> f64 {
+    0.1
+}
+
+fn default_idle_poll() -> f64 {
+    1.0
+}
+
+fn default_timeout() -> f64 {
+    1.0
+}
+
+fn default_retries() -> u32 {
+    1
+}
+
+fn default_baud() -> u32 {
+    9600
+}
+
+fn default_data_bits() -> u8 {
+    8
+}
+
+fn default_stop_bits() -> u8 {
+    1
+}
+
+choices!(
+    /// When a calc link writes its output (the calcout's OOPT).
+    CalcOption, "'{given}' is not one of {known}" {
+        /// Every time it is computed.
+        #[default]
+        Every = "every",
+        /// When the result changes.
+        OnChange = "on_change",
+    }
+);
+
+choices!(
+    /// What an update of a calc input does (the EPICS link's CP/NPP).
+    InputLinkMode, "'{given}' is not one of {known}" {
+        /// Recompute and write on each update.
+        #[default]
+        Cp = "cp",
+        /// Only keep the latest value.
+        Npp = "npp",
+    }
+);
+
+pub(crate) fn default_readback_rate() -> f64 {
+    10.0
+}
+
+/// A calc link, shaped like a calcout record.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CalcSection {
+    /// The calc link's name.
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
+    pub host: Option<String>,
+    /// The CALC expression.
+    pub expression: String,
+    /// Inputs A–L: a key (CP: recompute on each update) or `{ key = "...", mode = "npp" }`.
+    #[serde(default)]
+    pub inputs: BTreeMap<String, CalcInput>,
+    /// Values of inputs before any update, e.g. `{ B = 1000 }` (the record's fields A–L).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub constants: BTreeMap<String, f64>,
+    /// Key the result is written to.
+    pub output: String,
+    /// `every` (write every time, the default) or `on_change`.
+    #[serde(default)]
+    pub option: CalcOption,
+    #[serde(skip)]
+    /// Where it was written.
+    pub origin: Origin,
+}
+
+/// A calc input as written: a key (CP), or a key with its mode.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(untagged, try_from = "WrittenCalcInput")]
+pub enum CalcInput {
+    /// A key, CP.
+    Key(String),
+    /// A key and how its updates are taken.
+    Linked {
+        /// The key.
+        key: String,
+        /// cp or npp.
+        mode: InputLinkMode,
+    },
+}
+
+/// A calc input before its mode is checked, so that a mode that is not a choice is refused by
+/// name rather than lost in "no variant matched".
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum WrittenCalcInput {
+    Key(String),
+    Linked { key: String, mode: String },
+}
+
+impl TryFrom<WrittenCalcInput> for CalcInput {
+    type Error = UnknownChoice;
+
+    fn try_from(written: WrittenCalcInput) -> Result<Self, UnknownChoice> {
+        Ok(match written {
+            WrittenCalcInput::Key(key) => CalcInput::Key(key),
+            WrittenCalcInput::Linked { key, mode } => CalcInput::Linked { key, mode: InputLinkMode::from_name(&mode)? },
+        })
+    }
+}
+
+/// A value holder, like an EPICS ao/ai record that only holds a value: it keeps the latest
+/// number written to its key and answers reads of it.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ValueSection {
+    /// The value holder's name.
+    pub name: String,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    /// The host that runs it (with `[hosts]`).
+    pub host: Option<String>,
+    /// Its key; `bridge/<name>/VAL` when omitted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<String>,
+    /// The value before anything is written.
+    #[serde(default)]
+    pub value: f64,
+    #[serde(skip)]
+    /// Where it was written.
+    pub origin: Origin,
+}
+
+impl ValueSection {
+    /// Its key: `key`, or `bridge/<name>/VAL`.
+    pub fn key(&self) -> String {
+        self.key.clone().unwrap_or_else(|| format!("{}/{}/VAL", keys::BRIDGE_PREFIX, self.name))
+    }
+}

@@ -1,0 +1,353 @@
+//! A whole launch: the main file with its includes and databases merged, checked, and cut
+//! into a deployment per host.
+
+use crate::db::{import_db, Macros};
+use crate::deployment::{Deployment, NodeContents, ValueSpec};
+use crate::file::{
+    read_text, AxisSection, CalcSection, ControllerSection, LaunchError, LaunchFile, Origin, ValueSection,
+};
+use crate::front_ends::{CaConfig, WebConfig};
+use crate::locate::{self, line_of, Seg};
+use crate::network::ZenohConfig;
+use crate::plans::check_wiring;
+use crate::problem::{keys_path, Problem};
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use zmotor_controllers::ProtocolKind;
+use zmotor_msgs::{keys, KeyLayout};
+
+/// A file that took part in a launch, kept to point errors at their line.
+#[derive(Clone, Debug, PartialEq)]
+struct Source {
+    name: String,
+    text: String,
+}
+
+/// A whole launch: the main file with its includes merged, checked.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Launch {
+    /// Every item, the includes merged in.
+    pub file: LaunchFile,
+    /// Directory relative paths of the main file are resolved against.
+    base: PathBuf,
+    sources: Vec<Source>,
+    /// What importing its databases warned of.
+    warnings: Vec<String>,
+}
+
+impl Launch {
+    /// Read and check a launch file and everything it includes.
+    pub fn load(path: &Path) -> Result<Self, LaunchError> {
+        let name = path.display().to_string();
+        let text = read_text(path)?;
+        let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        Self::build(&name, &text, &base, std::fs::canonicalize(path).ok())
+    }
+
+    /// Check a launch file's text; includes are resolved against `base`.
+    pub fn from_text(name: &str, text: &str, base: &Path) -> Result<Self, LaunchError> {
+        Self::build(name, text, base, None)
+    }
+
+    /// `canonical`: the main file's own path, so that including it is found out.
+    fn build(name: &str, text: &str, base: &Path, canonical: Option<PathBuf>) -> Result<Self, LaunchError> {
+        let mut launch =
+            Self { file: LaunchFile::default(), base: base.to_path_buf(), sources: Vec::new(), warnings: Vec::new() };
+        let main = launch.read_source(name, text)?;
+        if let Some(zenoh) = main.zenoh.clone() {
+            launch.file.zenoh = Some(zenoh);
+        }
+        launch.file.state_dir = main.state_dir.clone();
+        launch.file.autosave = main.autosave.clone();
+        launch.file.channel_access = main.channel_access.clone();
+        launch.file.web = main.web.clone();
+        let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
+        launch.merge(main, base, &mut visited)?;
+        launch.check().map_err(|p| launch.error(p))?;
+        Ok(launch)
+    }
+
+    /// A launch built in memory (an imported database): checked like a file.
+    pub fn from_file(name: &str, file: LaunchFile) -> Result<Self, LaunchError> {
+        let text = toml::to_string(&file).unwrap_or_default();
+        Self::from_text(name, &text, Path::new(""))
+    }
+
+    /// Check a launch file's text with no includes and no name (tests, examples).
+    pub fn parse(text: &str) -> Result<Self, LaunchError> {
+        Self::from_text("<launch>", text, Path::new(""))
+    }
+
+    fn read_source(&mut self, name: &str, text: &str) -> Result<LaunchFile, LaunchError> {
+        self.sources.push(Source { name: name.to_string(), text: text.to_string() });
+        toml::from_str(text).map_err(|e: toml::de::Error| LaunchError {
+            file: name.to_string(),
+            line: e.span().map(|span| locate::line_at(text, span.start)),
+            message: e.message().trim().to_string(),
+        })
+    }
+
+    /// Append a file's items (and, depth first, those of its includes).
+    fn merge(&mut self, file: LaunchFile, dir: &Path, visited: &mut BTreeSet<PathBuf>) -> Result<(), LaunchError> {
+        let source = self.sources.len() - 1;
+        let origin = |index| Origin { source, index };
+        self.file.hosts.extend(file.hosts);
+        self.file.controllers.extend(
+            file.controllers.into_iter().enumerate().map(|(i, c)| ControllerSection { origin: origin(i), ..c }),
+        );
+        self.file.axes.extend(file.axes.into_iter().enumerate().map(|(i, a)| AxisSection { origin: origin(i), ..a }));
+        self.file.calcs.extend(file.calcs.into_iter().enumerate().map(|(i, c)| CalcSection { origin: origin(i), ..c }));
+        self.file
+            .values
+            .extend(file.values.into_iter().enumerate().map(|(i, v)| ValueSection { origin: origin(i), ..v }));
+        for database in &file.databases {
+            let path = dir.join(&database.file);
+            let definitions: Vec<String> = database.macros.iter().map(|(k, v)| format!("{k}={v}")).collect();
+            let macros =
+                Macros::parse(&definitions).map_err(|e| self.error(Problem::at(source, vec![], e.to_string())))?;
+            let (imported, warnings) = import_db(&path, &macros)?;
+            let name = path.display().to_string();
+            self.warnings.extend(warnings.into_iter().map(|w| format!("{name}: {w}")));
+            // Errors found later in its records name the database (its lines are its own).
+            self.sources.push(Source { name, text: String::new() });
+            let imported = LaunchFile { include: Vec::new(), databases: Vec::new(), ..imported };
+            self.merge(imported, dir, visited)?;
+        }
+        for (index, include) in file.include.iter().enumerate() {
+            let at = |message: String| {
+                self.error(Problem::at(source, vec![Seg::Key("include".into()), Seg::Index(index)], message))
+            };
+            let path = dir.join(include);
+            let canonical = std::fs::canonicalize(&path).map_err(|e| at(format!("{}: {e}", path.display())))?;
+            if !visited.insert(canonical) {
+                return Err(at(format!("{} is included twice (or includes itself)", path.display())));
+            }
+            let text = std::fs::read_to_string(&path).map_err(|e| at(format!("{}: {e}", path.display())))?;
+            let included = self.read_source(&path.display().to_string(), &text)?;
+            let included_source = self.sources.len() - 1;
+            for (key, present) in [
+                ("zenoh", included.zenoh.is_some()),
+                ("state_dir", included.state_dir.is_some()),
+                ("autosave", included.autosave.is_some()),
+            ] {
+                if present {
+                    let message = format!("{key} may only be set in the main launch file");
+                    return Err(self.error(Problem::at(included_source, vec![Seg::Key(key.into())], message)));
+                }
+            }
+            let included_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+            self.merge(included, &included_dir, visited)?;
+        }
+        Ok(())
+    }
+
+    fn error(&self, problem: Problem) -> LaunchError {
+        let source = &self.sources[problem.source];
+        LaunchError { file: source.name.clone(), line: line_of(&source.text, &problem.path), message: problem.message }
+    }
+
+    /// What importing the launch's databases warned of (hardware simulated, records skipped).
+    pub fn warnings(&self) -> &[String] {
+        &self.warnings
+    }
+
+    /// The `[zenoh]` section, or its defaults.
+    pub fn zenoh(&self) -> ZenohConfig {
+        self.file.zenoh.clone().unwrap_or_default()
+    }
+
+    fn check(&self) -> Result<(), Problem> {
+        let zenoh = self.zenoh();
+        if let Some(autosave) = &self.file.autosave {
+            if !(autosave.delay >= 0.0 && autosave.delay <= 3600.0) {
+                let message = format!("autosave.delay: {} s is outside [0, 3600]", autosave.delay);
+                return Err(Problem::at(0, keys_path(&["autosave", "delay"]), message));
+            }
+        }
+        for (index, rule) in zenoh.access.iter().enumerate() {
+            let at = |key: &str, message: String| {
+                let path =
+                    vec![Seg::Key("zenoh".into()), Seg::Key("access".into()), Seg::Index(index), Seg::Key(key.into())];
+                Problem::at(0, path, format!("zenoh.access '{}': {message}", rule.name))
+            };
+            if rule.may.is_empty() {
+                return Err(at("may", "grants nothing: say what its members may (read, drive, configure, all)".into()));
+            }
+            if rule.cert_common_names.is_empty() && rule.usernames.is_empty() && rule.interfaces.is_empty() {
+                let message = "has no members: name cert_common_names, usernames or interfaces".to_string();
+                return Err(at("name", message));
+            }
+            if zenoh.access[..index].iter().any(|r| r.name == rule.name) {
+                return Err(at("name", "is defined twice".into()));
+            }
+        }
+        let items = self.items();
+        let mut seen = BTreeMap::new();
+        for (table, name, host, origin) in &items {
+            if seen.insert((*table, *name), origin).is_some() {
+                return Err(Problem::in_item(table, *origin, &["name"], format!("{table} '{name}' is defined twice")));
+            }
+            match host {
+                Some(host) if !self.file.hosts.contains_key(*host) => {
+                    let known = self.file.hosts.keys().cloned().collect::<Vec<_>>().join(", ");
+                    let message =
+                        format!("{table} '{name}': host '{host}' is not declared under [hosts] (known: {known})");
+                    return Err(Problem::in_item(table, *origin, &["host"], message));
+                }
+                None if !self.file.hosts.is_empty() => {
+                    let message = format!("{table} '{name}': names no host, and this launch declares hosts");
+                    return Err(Problem::in_item(table, *origin, &["name"], message));
+                }
+                _ => {}
+            }
+        }
+        for controller in &self.file.controllers {
+            controller.spec(Vec::new())?;
+        }
+        let front_ends = [
+            ("channel_access", self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref())),
+            ("web", self.file.web.as_ref().and_then(|web| web.host.as_ref())),
+        ];
+        for (section, host) in front_ends {
+            if let Some(host) = host.filter(|h| !self.file.hosts.contains_key(*h)) {
+                let message = format!("{section}.host: '{host}' is not declared under [hosts]");
+                return Err(Problem::at(0, keys_path(&[section, "host"]), message));
+            }
+        }
+        self.check_axes_on_controllers()?;
+        let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
+        let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
+        for value in &self.file.values {
+            keys::validate_plain_key(&value.key())
+                .map_err(|e| Problem::in_item("value", value.origin, &["key"], e.to_string()))?;
+            if !value.value.is_finite() {
+                return Err(Problem::in_item("value", value.origin, &["value"], "must be a finite number"));
+            }
+        }
+        let axis_origins: Vec<Origin> = self.file.axes.iter().map(|a| a.origin).collect();
+        let calc_origins: Vec<Origin> = self.file.calcs.iter().map(|c| c.origin).collect();
+        check_wiring(&KeyLayout::new(&zenoh.prefix), &plans, &axis_origins, &calcs, &calc_origins)
+    }
+
+    /// (table, name, host, origin) of every item.
+    fn items(&self) -> Vec<(&'static str, &str, Option<&str>, Origin)> {
+        let f = &self.file;
+        let controllers = f.controllers.iter().map(|c| ("controller", c.name.as_str(), c.host.as_deref(), c.origin));
+        let axes = f.axes.iter().map(|a| ("axis", a.name.as_str(), a.host.as_deref(), a.origin));
+        let calcs = f.calcs.iter().map(|c| ("calc", c.name.as_str(), c.host.as_deref(), c.origin));
+        let values = f.values.iter().map(|v| ("value", v.name.as_str(), v.host.as_deref(), v.origin));
+        controllers.chain(axes).chain(calcs).chain(values).collect()
+    }
+
+    /// Every axis on a controller names one of this launch, on its host, by a channel the
+    /// protocol has and no other axis of that controller uses.
+    fn check_axes_on_controllers(&self) -> Result<(), Problem> {
+        let mut taken: BTreeMap<(&str, usize), &str> = BTreeMap::new();
+        for axis in &self.file.axes {
+            let at = |key: &str, message: String| {
+                Problem::in_item("axis", axis.origin, &[key], format!("axis '{}': {key}: {message}", axis.name))
+            };
+            let (Some(name), Some(channel)) = (&axis.controller, axis.channel) else { continue };
+            let Some(controller) = self.file.controllers.iter().find(|c| c.name == *name) else {
+                let known: Vec<&str> = self.file.controllers.iter().map(|c| c.name.as_str()).collect();
+                return Err(at("controller", format!("no [[controller]] '{name}' (known: {})", known.join(", "))));
+            };
+            if controller.host != axis.host {
+                let message = format!("controller '{name}' runs on another host: an axis runs where its controller is");
+                return Err(at("host", message));
+            }
+            if let Some(protocol) = ProtocolKind::from_name(&controller.protocol) {
+                protocol.check_channel(channel).map_err(|e| at("channel", e.to_string()))?;
+            }
+            if let Some(other) = taken.insert((name.as_str(), channel), axis.name.as_str()) {
+                return Err(at(
+                    "channel",
+                    format!("channel {channel} of controller '{name}' is already axis '{other}'"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The names of the hosts under `[hosts]`.
+    pub fn hosts(&self) -> impl Iterator<Item = &str> {
+        self.file.hosts.keys().map(String::as_str)
+    }
+
+    /// What the process for `host` runs (everything when `host` is None).
+    pub fn deployment(&self, host: Option<&str>) -> Result<Deployment, LaunchError> {
+        let mut zenoh = self.zenoh();
+        if let Some(host) = host {
+            let Some(section) = self.file.hosts.get(host) else {
+                let known = self.hosts().collect::<Vec<_>>().join(", ");
+                let message = if known.is_empty() {
+                    format!("--host {host}: this launch declares no hosts")
+                } else {
+                    format!("--host {host}: no such host (known: {known})")
+                };
+                return Err(LaunchError { file: self.sources[0].name.clone(), line: None, message });
+            };
+            zenoh.mode = section.mode.unwrap_or(zenoh.mode);
+            zenoh.listen = section.listen.clone().unwrap_or(zenoh.listen);
+            zenoh.connect = section.connect.clone().unwrap_or(zenoh.connect);
+            zenoh.tls = section.tls.clone().or(zenoh.tls);
+        }
+        self.resolve_files(&mut zenoh);
+        let runs_here = |item_host: &Option<String>| host.is_none() || item_host.as_deref() == host;
+        let plan = |a: &AxisSection| a.plan().map_err(|p| self.error(p));
+        let spec = |c: &CalcSection| c.spec().map_err(|p| self.error(p));
+        let controller = |c: &ControllerSection| {
+            let channels = self.file.axes.iter().filter(|a| a.controller.as_ref() == Some(&c.name));
+            c.spec(channels.filter_map(|a| a.channel).collect()).map_err(|p| self.error(p))
+        };
+        let contents = NodeContents {
+            plans: self.file.axes.iter().filter(|a| runs_here(&a.host)).map(plan).collect::<Result<_, _>>()?,
+            calcs: self.file.calcs.iter().filter(|c| runs_here(&c.host)).map(spec).collect::<Result<_, _>>()?,
+            values: self
+                .file
+                .values
+                .iter()
+                .filter(|v| runs_here(&v.host))
+                .map(|v| ValueSpec { key: v.key(), initial: v.value })
+                .collect(),
+            controllers: self
+                .file
+                .controllers
+                .iter()
+                .filter(|c| runs_here(&c.host))
+                .map(controller)
+                .collect::<Result<_, _>>()?,
+            guarded: zenoh.guarded(),
+        };
+        Ok(Deployment {
+            zenoh,
+            contents,
+            state_dir: self.file.state_dir.as_ref().map(|dir| self.base.join(dir)),
+            autosave: self.file.autosave.clone().unwrap_or_default(),
+            channel_access: self.file.channel_access.as_ref().filter(|ca| runs_here(&ca.host)).map(|ca| CaConfig {
+                pv_prefix: ca.pv_prefix.clone(),
+                address: ca.address,
+                port: ca.port,
+            }),
+            web: self.file.web.as_ref().filter(|w| runs_here(&w.host)).map(|w| WebConfig { address: w.address }),
+        })
+    }
+
+    /// The files `[zenoh]` names (certificates, keys, users), relative to the launch file.
+    fn resolve_files(&self, zenoh: &mut ZenohConfig) {
+        let resolve = |file: &mut String| *file = self.base.join(&*file).display().to_string();
+        if let Some(tls) = &mut zenoh.tls {
+            resolve(&mut tls.ca);
+            tls.certificate.iter_mut().chain(tls.key.iter_mut()).for_each(resolve);
+        }
+        if let Some(users) = zenoh.login.as_mut().and_then(|l| l.users_file.as_mut()) {
+            resolve(users);
+        }
+    }
+
+    /// The launch as one TOML file (includes merged).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(&self.file).expect("a checked launch serialises")
+    }
+}
+

@@ -1,0 +1,224 @@
+//! What the sections of a launch become: an axis's plan, a controller's spec, a calc link's
+//! spec; and the wiring between them, checked.
+
+use crate::file::{
+    AxisSection, CalcInput, CalcOption, CalcSection, ControllerSection, DriverKind, FlowControlChoice, InputLinkMode,
+    JogHoldChoice, Origin, ParityChoice, MAX_READBACK_RATE,
+};
+use crate::problem::Problem;
+use std::time::Duration;
+use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
+use zmotor_controllers::spec::{self, ControllerSpec, SerialSettings, Transport};
+use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
+use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
+use zmotor_core::service::JogHold;
+use zmotor_msgs::toml_value::field_value;
+use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
+
+impl AxisSection {
+    pub(crate) fn plan(&self) -> Result<AxisPlan, Problem> {
+        let at = |inner: &[&str], message: String| {
+            let key = inner.join(".");
+            Problem::in_item("axis", self.origin, inner, format!("axis '{}': {key}: {message}", self.name))
+        };
+        keys::validate_axis_name(&self.name).map_err(|e| at(&["name"], e.to_string()))?;
+        let driver = match (self.driver, &self.controller, self.channel) {
+            (DriverKind::Controller, Some(controller), Some(channel)) => {
+                DriverPlan::Controller { controller: controller.clone(), channel }
+            }
+            (DriverKind::Controller, None, _) => return Err(at(&["controller"], "names no [[controller]]".into())),
+            (DriverKind::Controller, _, None) => {
+                return Err(at(&["channel"], "the controller's number for the axis is missing".into()))
+            }
+            (_, Some(_), _) => return Err(at(&["controller"], "only with driver = \"controller\"".into())),
+            (_, _, Some(_)) => return Err(at(&["channel"], "only with driver = \"controller\"".into())),
+            (DriverKind::Sim, None, None) => DriverPlan::Sim(self.sim.clone()),
+            (DriverKind::Soft, None, None) => DriverPlan::Soft,
+        };
+        if !(self.readback_rate > 0.0 && self.readback_rate <= MAX_READBACK_RATE) {
+            let message = format!("{} Hz is outside (0, {MAX_READBACK_RATE}]", self.readback_rate);
+            return Err(at(&["readback_rate"], message));
+        }
+        let dtyp = match driver {
+            DriverPlan::Soft => "Soft Channel",
+            DriverPlan::Sim(_) => "Sim Motor",
+            DriverPlan::Controller { .. } => "asynMotor",
+        };
+        let mut fields = Fields { name: self.name.clone(), dtyp: dtyp.into(), ..Fields::default() };
+        for (name, raw) in &self.fields {
+            let inner = ["fields", name.as_str()];
+            let field = Field::from_name(name).ok_or_else(|| {
+                let hint = Field::from_name_any_case(name).map(|f| format!(" (field names are upper case: {f})"));
+                at(&inner, format!("no such field{}", hint.unwrap_or_default()))
+            })?;
+            // Raw soft limits may be given, as in a database file; other read-only fields not.
+            if field.def().access == Access::RO && !matches!(field, Field::RHLM | Field::RLLM) {
+                return Err(at(&inner, "read-only, cannot be configured".into()));
+            }
+            fields.set(field, &field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?);
+        }
+        let rates = PollRates { moving: Duration::from_secs_f64(1.0 / self.readback_rate), ..PollRates::default() };
+        let jog_hold = match self.jog_hold {
+            JogHoldChoice::Optional => JogHold::Optional,
+            JogHoldChoice::Required => JogHold::Required,
+        };
+        Ok(AxisPlan { name: self.name.clone(), fields, driver, rates, jog_hold })
+    }
+}
+
+impl ControllerSection {
+    /// The controller, driving `channels`; every setting checked.
+    pub(crate) fn spec(&self, channels: Vec<usize>) -> Result<ControllerSpec, Problem> {
+        let at = |inner: &[&str], message: String| {
+            let key = inner.join(".");
+            Problem::in_item("controller", self.origin, inner, format!("controller '{}': {key}: {message}", self.name))
+        };
+        if self.name.trim().is_empty() {
+            return Err(at(&["name"], "must not be empty".into()));
+        }
+        let protocol = ProtocolKind::from_name(&self.protocol).ok_or_else(|| {
+            at(&["protocol"], format!("'{}' is not a known protocol (known: {})", self.protocol, ProtocolKind::known()))
+        })?;
+        let transport = match (&self.tcp, &self.serial) {
+            (Some(address), None) => {
+                let (host, port) = address.rsplit_once(':').unwrap_or((address, ""));
+                if host.is_empty() || port.parse::<u16>().map_or(true, |p| p == 0) {
+                    return Err(at(&["tcp"], format!("'{address}' is not host:port")));
+                }
+                Transport::Tcp { address: address.clone() }
+            }
+            (None, Some(serial)) => {
+                let settings = SerialSettings {
+                    device: serial.device.clone(),
+                    baud: serial.baud,
+                    parity: match serial.parity {
+                        ParityChoice::None => spec::Parity::None,
+                        ParityChoice::Odd => spec::Parity::Odd,
+                        ParityChoice::Even => spec::Parity::Even,
+                    },
+                    data_bits: serial.data_bits,
+                    stop_bits: serial.stop_bits,
+                    flow_control: match serial.flow_control {
+                        FlowControlChoice::None => spec::FlowControl::None,
+                        FlowControlChoice::Software => spec::FlowControl::Software,
+                        FlowControlChoice::Hardware => spec::FlowControl::Hardware,
+                    },
+                };
+                settings.check().map_err(|e| at(&["serial"], e.to_string()))?;
+                Transport::Serial(settings)
+            }
+            _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),
+        };
+        let options = ProtocolOptions { units_per_step: self.units_per_step };
+        options.check().map_err(|e| at(&["units_per_step"], e.to_string()))?;
+        let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
+            spec::period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
+        };
+        let config = ControllerConfig {
+            moving_poll: period("moving_poll", self.moving_poll, 0.001, 10.0)?,
+            idle_poll: period("idle_poll", self.idle_poll, 0.001, 60.0)?,
+            timeout: period("timeout", self.timeout, 0.001, 60.0)?,
+            retries: self.retries,
+            ..ControllerConfig::for_channels(channels)
+        };
+        if self.retries > 10 {
+            return Err(at(&["retries"], format!("{} is more than 10", self.retries)));
+        }
+        Ok(ControllerSpec { name: self.name.clone(), protocol, options, transport, config })
+    }
+}
+
+impl CalcSection {
+    pub(crate) fn spec(&self) -> Result<CalcLinkSpec, Problem> {
+        let at = |inner: &[&str], message: String| {
+            let key = inner.join(".");
+            Problem::in_item("calc", self.origin, inner, format!("calc '{}': {key}: {message}", self.name))
+        };
+        let option = match self.option {
+            CalcOption::Every => OutputOption::EveryTime,
+            CalcOption::OnChange => OutputOption::OnChange,
+        };
+        let mut inputs = Vec::new();
+        for (letter, input) in &self.inputs {
+            let inner = ["inputs", letter.as_str()];
+            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to L".into()))?;
+            let (key, mode) = match input {
+                CalcInput::Key(key) => (key.clone(), InputMode::Process),
+                CalcInput::Linked { key, mode: InputLinkMode::Cp } => (key.clone(), InputMode::Process),
+                CalcInput::Linked { key, mode: InputLinkMode::Npp } => (key.clone(), InputMode::NoProcess),
+            };
+            keys::validate_plain_key(&key).map_err(|e| at(&inner, e.to_string()))?;
+            inputs.push(InputSpec { index, key, mode });
+        }
+        let mut constants = Vec::new();
+        for (letter, value) in &self.constants {
+            let inner = ["constants", letter.as_str()];
+            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to L".into()))?;
+            if !value.is_finite() {
+                return Err(at(&inner, "must be a finite number".into()));
+            }
+            constants.push((index, *value));
+        }
+        keys::validate_plain_key(&self.output).map_err(|e| at(&["output"], e.to_string()))?;
+        let spec = CalcLinkSpec {
+            name: self.name.clone(),
+            expression: self.expression.clone(),
+            inputs,
+            constants,
+            output: self.output.clone(),
+            option,
+        };
+        zmotor_bridge::CalcLink::new(spec.clone())
+            .map_err(|e| Problem::in_item("calc", self.origin, &["expression"], e.to_string()))?;
+        Ok(spec)
+    }
+}
+
+/// Refuse wiring that cannot work: calc links that feed themselves (a cycle of keys without a
+/// motor in between), links to unknown fields, and writes to read-only fields. `axes` and `calcs`
+/// are in the order of the launch's items, so each problem points at its item.
+pub(crate) fn check_wiring(
+    layout: &KeyLayout,
+    axes: &[AxisPlan],
+    axis_origins: &[Origin],
+    calcs: &[CalcLinkSpec],
+    calc_origins: &[Origin],
+) -> Result<(), Problem> {
+    if let Some(cycle) = find_cycle(calcs) {
+        let first = calcs.iter().position(|c| c.name == cycle[0]).unwrap_or(0);
+        let message = format!("calc links form a loop with no motor in between: {}", cycle.join(" → "));
+        return Err(Problem::in_item("calc", calc_origins[first], &[], message));
+    }
+    // The calc links' keys were checked to be plain where they were read.
+    for (calc, origin) in calcs.iter().zip(calc_origins) {
+        let problem = |who: String, e: LinkKeyError| Problem::in_item("calc", *origin, &[], format!("{who}: {e}"));
+        for input in &calc.inputs {
+            let letter = zmotor_bridge::link::input_name(input.index);
+            let who = format!("calc '{}' input {letter}", calc.name);
+            layout.check_link(&input.key, false, None).map_err(|e| problem(who, e))?;
+        }
+        let who = format!("calc '{}' output", calc.name);
+        layout.check_link(&calc.output, true, None).map_err(|e| problem(who, e))?;
+    }
+    for (axis, origin) in axes.iter().zip(axis_origins) {
+        for field in Field::all().filter(|f| f.def().kind == Kind::Link) {
+            let Value::Text(key) = axis.fields.get(field) else { continue };
+            if key.is_empty() {
+                continue;
+            }
+            match layout.check_link(&key, field.is_output_link(), Some(&axis.name)) {
+                Ok(()) => {}
+                Err(LinkKeyError::NotPlain(e)) => {
+                    let inner = ["fields", field.name()];
+                    let message = format!("axis '{}': fields.{field}: {e}", axis.name);
+                    return Err(Problem::in_item("axis", *origin, &inner, message));
+                }
+                Err(e) => {
+                    return Err(Problem::in_item("axis", *origin, &[], format!("axis '{}' {field}: {e}", axis.name)))
+                }
+            }
+        }
+    }
+    Ok(())
+}
+

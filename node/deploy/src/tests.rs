@@ -1,0 +1,374 @@
+//! The launch model checked against files as users write them.
+
+use crate::*;
+use std::path::Path;
+use std::time::Duration;
+use zmotor_bridge::link::InputMode;
+use zmotor_controllers::spec::{self, Transport};
+use zmotor_controllers::ProtocolKind;
+use zmotor_core::axis::DriverPlan;
+
+const WIRING: &str = r#"
+        [[axis]]
+        name = "lin"
+        [[axis]]
+        name = "rot"
+        driver = "soft"
+        [axis.fields]
+        OUT = "bridge/drive/A"
+        RDBL = "bridge/readback"
+        DINP = "motor/lin/DMOV"
+        STOO = "motor/lin/STOP"
+        URIP = "Yes"
+        [[calc]]
+        name = "drive"
+        expression = "TAN(A/57.296)*1000"
+        inputs = { A = "bridge/drive/A" }
+        output = "motor/lin/DVAL"
+        [[calc]]
+        name = "readback"
+        expression = "ATAN(A/1000)*57.296"
+        inputs = { A = "motor/lin/DRBV" }
+        output = "bridge/readback"
+    "#;
+
+#[test]
+fn the_tangent_arm_wiring_is_accepted() {
+    let deployment = Launch::parse(WIRING).unwrap().deployment(None).unwrap();
+    assert_eq!(deployment.contents.calcs[0].inputs[0].mode, InputMode::Process);
+    assert_eq!(deployment.contents.plans[1].driver, DriverPlan::Soft);
+    assert_eq!(deployment.contents.plans[1].fields.dtyp, "Soft Channel");
+}
+
+#[test]
+fn broken_wiring_is_refused_at_start() {
+    let cycle = WIRING
+        .replace(r#"inputs = { A = "motor/lin/DRBV" }"#, r#"inputs = { A = "motor/lin/DVAL" }"#)
+        .replace(r#"output = "bridge/readback""#, r#"output = "bridge/drive/A""#);
+    assert_eq!(
+        Launch::parse(&cycle).unwrap_err().message,
+        "calc links form a loop with no motor in between: drive → readback → drive"
+    );
+    let read_only = WIRING.replace(r#"output = "motor/lin/DVAL""#, r#"output = "motor/lin/RBV""#);
+    assert_eq!(Launch::parse(&read_only).unwrap_err().message, "calc 'drive' output: motor/lin/RBV: RBV is read-only");
+    let unknown = WIRING.replace("motor/lin/DRBV", "motor/lin/DRBX");
+    assert_eq!(
+        Launch::parse(&unknown).unwrap_err().message,
+        "calc 'readback' input A: motor/lin/DRBX: 'DRBX' is not a field of a motor"
+    );
+    let unknown_axis_link = WIRING.replace(r#"DINP = "motor/lin/DMOV""#, r#"DINP = "motor/lin/DONE""#);
+    assert!(Launch::parse(&unknown_axis_link).unwrap_err().message.starts_with("axis 'rot' DINP: motor/lin/DONE"));
+    let npp = WIRING.replace(
+        r#"inputs = { A = "motor/lin/DRBV" }"#,
+        r#"inputs = { A = { key = "motor/lin/DRBV", mode = "sometimes" } }"#,
+    );
+    assert!(Launch::parse(&npp).unwrap_err().message.contains("'sometimes' is not one of cp, npp"));
+}
+
+const GOOD: &str = r#"
+        [zenoh]
+        listen = ["tcp/127.0.0.1:7447"]
+        [[axis]]
+        name = "m1"
+        readback_rate = 50
+        [axis.fields]
+        MRES = 0.001
+        VELO = 10
+        DIR = "Neg"
+        EGU = "mm"
+        [axis.sim]
+        high_limit_switch = 105000
+    "#;
+
+#[test]
+fn a_good_file_builds_its_axes() {
+    let deployment = Launch::parse(GOOD).unwrap().deployment(None).unwrap();
+    assert_eq!(deployment.zenoh.mode, Mode::Peer);
+    assert!(!deployment.zenoh.multicast_scouting);
+    let plans = deployment.contents.plans;
+    let f = &plans[0].fields;
+    assert_eq!((f.mres, f.velo, f.dir, f.egu.as_str(), f.name.as_str()), (0.001, 10.0, 1, "mm", "m1"));
+    assert!(matches!(&plans[0].driver, DriverPlan::Sim(sim) if sim.high_limit_switch == Some(105000.0)));
+    assert_eq!(plans[0].rates.moving, Duration::from_millis(20));
+}
+
+#[test]
+fn access_rules_and_tls_files_are_checked_and_resolved_against_the_launch_file() {
+    let text = "[zenoh]\nlisten = [\"tls/127.0.0.1:7447\"]\n\
+                    [zenoh.tls]\nca = \"certs/ca.pem\"\ncertificate = \"/etc/node.pem\"\nkey = \"node.key\"\nmutual = true\n\
+                    [[zenoh.access]]\nname = \"operators\"\nmay = [\"drive\", \"configure\"]\ncert_common_names = [\"op\"]\n";
+    let launch = Launch::from_text("lab.toml", text, Path::new("/srv/lab")).unwrap();
+    let deployment = launch.deployment(None).unwrap();
+    let tls = deployment.zenoh.tls.as_ref().unwrap();
+    assert_eq!((tls.ca.as_str(), tls.certificate.as_deref()), ("/srv/lab/certs/ca.pem", Some("/etc/node.pem")));
+    assert!(deployment.contents.guarded);
+    assert!(!Launch::parse("").unwrap().deployment(None).unwrap().contents.guarded);
+
+    let bad = |rule: &str| Launch::parse(&format!("[[zenoh.access]]\n{rule}")).unwrap_err().to_string();
+    assert!(bad("name = \"x\"\nmay = []\nusernames = [\"u\"]").contains("zenoh.access 'x': grants nothing"));
+    assert!(bad("name = \"x\"\nmay = [\"read\"]").contains("zenoh.access 'x': has no members"));
+    assert!(bad("name = \"x\"\nmay = [\"fly\"]\nusernames = [\"u\"]").contains("unknown variant `fly`"));
+    let twice = "name = \"x\"\nmay = [\"read\"]\nusernames = [\"u\"]\n";
+    assert!(bad(&format!("{twice}[[zenoh.access]]\n{twice}")).contains("zenoh.access 'x': is defined twice"));
+}
+
+#[test]
+fn a_channel_access_section_runs_on_its_host() {
+    let text = "[hosts.a]\n[hosts.b]\n[channel_access]\npv_prefix = \"bl1:\"\nport = 5070\nhost = \"b\"\n";
+    let launch = Launch::parse(text).unwrap();
+    assert_eq!(launch.deployment(Some("a")).unwrap().channel_access, None);
+    let ca = launch.deployment(Some("b")).unwrap().channel_access.unwrap();
+    assert_eq!((ca.pv_prefix.as_str(), ca.port, ca.address.to_string()), ("bl1:", 5070, "127.0.0.1".into()));
+    let unknown = Launch::parse("[channel_access]\nhost = \"c\"\n").unwrap_err().to_string();
+    assert!(unknown.contains("channel_access.host: 'c' is not declared"), "{unknown}");
+    let web = Launch::parse("[web]\naddress = \"0.0.0.0:8081\"\n").unwrap().deployment(None).unwrap().web;
+    assert_eq!(web.map(|w| w.address.to_string()), Some("0.0.0.0:8081".into()));
+    let unknown = Launch::parse("[web]\nhost = \"c\"\n").unwrap_err().to_string();
+    assert!(unknown.contains("web.host: 'c' is not declared"), "{unknown}");
+}
+
+#[test]
+fn errors_name_the_axis_and_key() {
+    let bad = |text: &str| Launch::parse(text).unwrap_err().to_string();
+    assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nNOPE = 1").contains("axis 'm1': fields.NOPE: no such field"));
+    assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nRBV = 1").contains("fields.RBV: read-only"));
+    assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nDIR = \"Up\"").contains("'Up' is not a choice"));
+    assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nVELO = \"fast\"").contains("VELO: wrong type"));
+    assert!(bad("[[axis]]\nname = \"m/1\"").contains("axis 'm/1': name"));
+    assert!(bad("[[axis]]\nname = \"m1\"\ndriver = \"xps\"").contains("not a known driver"));
+    assert!(bad("[[calc]]\nname = \"c\"\nexpression = \"A+\"\noutput = \"x\"")
+        .contains("calc 'c': expression 'A+': column 3"));
+    assert!(bad("[[calc]]\nname = \"c\"\nexpression = \"A\"\noutput = \"x\"\ninputs = { M = \"y\" }")
+        .contains("inputs are A to L"));
+    assert!(bad("[[calc]]\nname = \"c\"\nexpression = \"A\"\noutput = \"x/*\"").contains("not a plain key"));
+    assert!(bad("[[axis]]\nname = \"m1\"\nreadback_rate = 5000").contains("readback_rate"));
+    assert!(bad("[[axis]]\nname = \"m1\"\n[[axis]]\nname = \"m1\"").contains("defined twice"));
+    assert!(bad("[zenoh]\nmode = \"server\"").contains("zenoh.mode"));
+    assert!(bad("[[axis]]\nname = \"m1\"\nspeed = 3").contains("unknown field"));
+    assert!(bad("[[axis]\nname = ").starts_with("<launch>:1: "));
+}
+
+#[test]
+fn errors_found_after_parsing_point_at_their_line() {
+    let text = "[zenoh]\nprefix = \"motor\"\n\n[[axis]]\nname = \"m1\"\n\n[[axis]]\nname = \"m2\"\n[axis.fields]\nVELO = 2\nNOPE = 1\n";
+    assert_eq!(Launch::parse(text).unwrap_err().to_string(), "<launch>:11: axis 'm2': fields.NOPE: no such field");
+    let wiring = WIRING.replace(r#"output = "motor/lin/DVAL""#, r#"output = "motor/lin/RBV""#);
+    let error = Launch::parse(&wiring).unwrap_err();
+    assert_eq!(error.line, Some(WIRING.lines().position(|l| l.contains("name = \"drive\"")).unwrap()));
+    let mode = Launch::parse("[zenoh]\nlisten = []\nmode = \"server\"").unwrap_err();
+    assert_eq!(mode.to_string(), "<launch>:3: zenoh.mode: 'server' is not one of peer, client, router");
+}
+
+const CONTROLLED: &str = r#"[[controller]]
+name = "mcb"
+protocol = "acs_mcb4b"
+tcp = "127.0.0.1:4001"
+moving_poll = 0.05
+
+[[axis]]
+name = "x"
+driver = "controller"
+controller = "mcb"
+channel = 2
+
+[[axis]]
+name = "y"
+driver = "controller"
+controller = "mcb"
+channel = 0
+"#;
+
+#[test]
+fn a_controller_drives_the_channels_of_its_axes() {
+    let deployment = Launch::parse(CONTROLLED).unwrap().deployment(None).unwrap();
+    let [mcb] = &deployment.contents.controllers[..] else { panic!("one controller") };
+    assert_eq!(
+        (mcb.protocol, &mcb.transport),
+        (ProtocolKind::AcsMcb4b, &Transport::Tcp { address: "127.0.0.1:4001".into() })
+    );
+    assert_eq!((mcb.config.channels.clone(), mcb.config.moving_poll), (vec![2, 0], Duration::from_millis(50)));
+    let x = &deployment.contents.plans[0];
+    assert_eq!(x.driver, DriverPlan::Controller { controller: "mcb".into(), channel: 2 });
+    assert_eq!(x.fields.dtyp, "asynMotor");
+    let serial = CONTROLLED.replace(
+        r#"tcp = "127.0.0.1:4001""#,
+        r#"serial = { device = "/dev/ttyS0", baud = 19200, parity = "even", stop_bits = 2 }"#,
+    );
+    let deployment = Launch::parse(&serial).unwrap().deployment(None).unwrap();
+    let Transport::Serial(line) = &deployment.contents.controllers[0].transport else { panic!("a serial line") };
+    assert_eq!((line.baud, line.parity, line.data_bits, line.stop_bits), (19200, spec::Parity::Even, 8, 2));
+}
+
+#[test]
+fn controller_errors_name_the_file_line_and_key() {
+    let refused = |from: &str, to: &str| Launch::parse(&CONTROLLED.replacen(from, to, 1)).unwrap_err().to_string();
+    assert_eq!(
+        refused("acs_mcb4b", "acme"),
+        format!(
+            "<launch>:3: controller 'mcb': protocol: 'acme' is not a known protocol (known: {})",
+            ProtocolKind::known()
+        )
+    );
+    assert_eq!(
+        refused("127.0.0.1:4001", "127.0.0.1"),
+        "<launch>:4: controller 'mcb': tcp: '127.0.0.1' is not host:port"
+    );
+    assert_eq!(
+        refused("moving_poll = 0.05", "moving_poll = 0"),
+        "<launch>:5: controller 'mcb': moving_poll: 0 s is outside [0.001, 10] s"
+    );
+    assert!(refused("moving_poll = 0.05", "parity = \"odd\"").starts_with("<launch>:5: unknown field `parity`"));
+    assert_eq!(
+        refused("tcp = \"127.0.0.1:4001\"", "tcp = \"h:1\"\nserial = { device = \"/dev/ttyS0\" }"),
+        "<launch>:2: controller 'mcb': name: give one of tcp = \"host:port\" or a [controller.serial] port"
+    );
+    assert_eq!(
+        refused("controller = \"mcb\"", "controller = \"other\""),
+        "<launch>:10: axis 'x': controller: no [[controller]] 'other' (known: mcb)"
+    );
+    assert_eq!(
+        refused("channel = 2", "channel = 4"),
+        "<launch>:11: axis 'x': channel: channel 4: acs_mcb4b numbers its axes 0 to 3"
+    );
+    assert_eq!(
+        refused("channel = 2", "channel = 0"),
+        "<launch>:17: axis 'y': channel: channel 0 of controller 'mcb' is already axis 'x'"
+    );
+    assert_eq!(
+        refused("driver = \"controller\"", "driver = \"sim\""),
+        "<launch>:10: axis 'x': controller: only with driver = \"controller\""
+    );
+    assert_eq!(
+        refused("channel = 2\n", ""),
+        "<launch>:7: axis 'x': channel: the controller's number for the axis is missing"
+    );
+}
+
+#[test]
+fn a_database_of_asyn_motors_runs_on_the_launch_files_controllers() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = r#"record(motor, "$(P)m1") { field(DTYP, "asynMotor") field(OUT, "@asyn(mcb,3)") field(MRES, "0.01") }"#;
+    std::fs::write(dir.path().join("motors.db"), db).unwrap();
+    let main = "[[database]]\nfile = \"motors.db\"\nmacros = { P = \"bl:\" }\n\n[[controller]]\nname = \"mcb\"\nprotocol = \"acs_mcb4b\"\ntcp = \"h:4001\"\n";
+    std::fs::write(dir.path().join("main.toml"), main).unwrap();
+    let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
+    let deployment = launch.deployment(None).unwrap();
+    let axis = &deployment.contents.plans[0];
+    assert_eq!((axis.name.as_str(), axis.fields.mres), ("bl:m1", 0.01));
+    assert_eq!(axis.driver, DriverPlan::Controller { controller: "mcb".into(), channel: 3 });
+    assert_eq!(deployment.contents.controllers[0].config.channels, [3]);
+    std::fs::write(dir.path().join("motors.db"), db.replace("mcb,3", "mcb,9")).unwrap();
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.file.ends_with("motors.db"), "the database is named: {error}");
+    assert!(error.message.contains("acs_mcb4b numbers its axes 0 to 3"), "{error}");
+}
+
+const HOSTS: &str = r#"
+        [zenoh]
+        connect = ["tcp/10.0.0.1:7447"]
+        [hosts.optics]
+        listen = ["tcp/10.0.0.2:7447"]
+        [hosts.detector]
+        mode = "client"
+        [[axis]]
+        name = "m1"
+        host = "optics"
+        [[axis]]
+        name = "m2"
+        host = "detector"
+        [[calc]]
+        name = "c"
+        host = "detector"
+        expression = "A*2"
+        inputs = { A = "motor/m1/RBV" }
+        output = "bridge/c/VAL"
+    "#;
+
+#[test]
+fn each_host_starts_only_its_part() {
+    let launch = Launch::parse(HOSTS).unwrap();
+    let optics = launch.deployment(Some("optics")).unwrap();
+    let names = |d: &Deployment| d.contents.plans.iter().map(|p| p.name.clone()).collect::<Vec<_>>();
+    assert_eq!((names(&optics), optics.contents.calcs.len()), (vec!["m1".to_string()], 0));
+    assert_eq!(optics.zenoh.listen, ["tcp/10.0.0.2:7447"]);
+    assert_eq!(
+        (optics.zenoh.mode.name(), optics.zenoh.connect.as_slice()),
+        ("peer", &["tcp/10.0.0.1:7447".to_string()][..])
+    );
+    let detector = launch.deployment(Some("detector")).unwrap();
+    assert_eq!(
+        (names(&detector), detector.contents.calcs.len(), detector.zenoh.mode.name()),
+        (vec!["m2".to_string()], 1, "client")
+    );
+    assert_eq!(names(&launch.deployment(None).unwrap()), ["m1", "m2"], "no --host: everything in one process");
+    assert_eq!(
+        launch.deployment(Some("sample")).unwrap_err().message,
+        "--host sample: no such host (known: detector, optics)"
+    );
+    let stray = HOSTS.replace("host = \"detector\"\n        [[calc]]", "[[calc]]");
+    assert!(Launch::parse(&stray).unwrap_err().message.contains("axis 'm2': names no host"));
+    let undeclared = HOSTS.replace("host = \"optics\"", "host = \"sample\"");
+    let error = Launch::parse(&undeclared).unwrap_err();
+    assert_eq!(error.message, "axis 'm1': host 'sample' is not declared under [hosts] (known: detector, optics)");
+    assert_eq!(error.line, Some(10));
+}
+
+#[test]
+fn included_files_add_items_and_errors_name_the_included_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, text: &str| std::fs::write(dir.path().join(name), text).unwrap();
+    write("main.toml", "include = [\"hutch/axes.toml\"]\n[[axis]]\nname = \"m0\"\n");
+    std::fs::create_dir(dir.path().join("hutch")).unwrap();
+    write("hutch/axes.toml", "include = [\"more.toml\"]\n[[axis]]\nname = \"m1\"\n");
+    write("hutch/more.toml", "[[axis]]\nname = \"m2\"\n[axis.fields]\nVELO = \"fast\"\n");
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.file.ends_with("hutch/more.toml"), "{error}");
+    assert_eq!(error.line, Some(4));
+    assert!(error.message.starts_with("axis 'm2': fields.VELO: "), "{error}");
+    write("hutch/more.toml", "[[axis]]\nname = \"m2\"\n");
+    let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
+    let names: Vec<String> = launch.deployment(None).unwrap().contents.plans.into_iter().map(|p| p.name).collect();
+    assert_eq!(names, ["m0", "m1", "m2"]);
+    write("hutch/more.toml", "[zenoh]\nmode = \"client\"\n");
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert_eq!((error.line, error.message.as_str()), (Some(1), "zenoh may only be set in the main launch file"));
+    write("hutch/more.toml", "include = [\"../main.toml\"]\n");
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.file.ends_with("more.toml") && error.message.contains("main.toml is included twice"), "{error}");
+    write("hutch/more.toml", "include = [\"missing.toml\"]\n");
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.file.ends_with("more.toml") && error.message.contains("missing.toml"), "{error}");
+}
+
+#[test]
+fn every_shipped_launch_file_loads() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../launch");
+    let mut loaded = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let launch = Launch::load(&path).unwrap_or_else(|e| panic!("{e}"));
+            for host in launch.hosts().map(str::to_string).collect::<Vec<_>>() {
+                launch.deployment(Some(&host)).unwrap();
+            }
+            loaded += 1;
+        }
+    }
+    assert!(loaded >= 4, "{loaded} launch files in {}", dir.display());
+    let reference = Launch::load(&dir.join("reference.toml")).unwrap();
+    let optics = reference.deployment(Some("optics")).unwrap();
+    let names: Vec<&str> = optics.contents.plans.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["m1", "slit_top", "slit_bottom"], "the included slits run on the optics host");
+    let user = reference.deployment(Some("user")).unwrap();
+    assert_eq!((user.contents.calcs.len(), user.contents.values.len(), user.zenoh.mode.name()), (1, 1, "client"));
+}
+
+#[test]
+fn state_dir_is_relative_to_the_launch_file() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("l.toml"), "state_dir = \"state\"\n[autosave]\ndelay = 0.2\n").unwrap();
+    let deployment = Launch::load(&dir.path().join("l.toml")).unwrap().deployment(None).unwrap();
+    assert_eq!(deployment.state_dir, Some(dir.path().join("state")));
+    assert_eq!(deployment.autosave, AutosaveSection { enabled: true, delay: 0.2 });
+    assert!(Launch::parse("[autosave]\ndelay = -1").unwrap_err().message.contains("autosave.delay"));
+}
