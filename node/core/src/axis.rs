@@ -101,7 +101,17 @@ pub struct AxisPlan {
     /// Status poll periods.
     pub rates: PollRates,
     /// Whether it jogs only under a hold (the jog deadman).
-    pub jog_hold: crate::service::JogHold,
+    pub jog_hold: JogHold,
+}
+
+/// Whether an axis jogs only under a hold (the jog deadman).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum JogHold {
+    /// A plain JOGF/JOGR = 1 is taken, as the record takes it (with a warning, once).
+    #[default]
+    Optional,
+    /// A JOGF/JOGR = 1 without a hold is refused.
+    Required,
 }
 
 /// What drives an axis.

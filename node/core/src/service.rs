@@ -6,7 +6,7 @@
 //! queries into these calls and sends what `poll_output` hands back; `R` is its reply handle
 //! (a Zenoh query), a plain value in tests.
 
-use crate::axis::{Axis, AxisEvent, WriteAccepted};
+use crate::axis::{Axis, AxisEvent, JogHold, WriteAccepted};
 use crate::driver::sim::{SimSetting, SimSettingError};
 use crate::driver::soft::InputLink;
 use crate::engine::{DeviceStatus, WriteError};
@@ -213,16 +213,6 @@ impl<'a> WriteRequest<'a> {
     pub fn held(self, hold: Option<Hold>) -> Self {
         Self { hold, ..self }
     }
-}
-
-/// Whether an axis jogs only under a hold (the jog deadman).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum JogHold {
-    /// A plain JOGF/JOGR = 1 is taken, as the record takes it (with a warning, once).
-    #[default]
-    Optional,
-    /// A JOGF/JOGR = 1 without a hold is refused.
-    Required,
 }
 
 /// How a held motion ends when its hold goes.
