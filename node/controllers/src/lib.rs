@@ -15,8 +15,9 @@ pub mod protocol;
 pub mod smaract_mcs2;
 pub mod spec;
 
-pub use controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
+pub use controller::{AnyController, Controller, ControllerConfig, ControllerEvent, Refusal};
 pub use protocol::{CommandError, Protocol, ProtocolOptions};
+use zmotor_core::Instant;
 
 /// The protocols zmotor speaks, by the names launch files give them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -96,14 +97,36 @@ impl ProtocolKind {
         }
     }
 
-    /// A driver side of the protocol.
-    pub fn protocol(self, options: &ProtocolOptions) -> Box<dyn Protocol> {
+    /// A controller speaking the protocol, not connected yet (see `Controller::new`).
+    pub fn controller(
+        self,
+        options: &ProtocolOptions,
+        config: ControllerConfig,
+        now: Instant,
+    ) -> Box<dyn AnyController> {
+        /// Builds the controller around whichever protocol it is given.
+        struct Build {
+            config: ControllerConfig,
+            now: Instant,
+        }
+        impl WithProtocol for Build {
+            type Output = Box<dyn AnyController>;
+            fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output {
+                Box::new(Controller::new(protocol, self.config, self.now))
+            }
+        }
+        self.with_protocol(options, Build { config, now })
+    }
+
+    /// `user` run on the driver side of the protocol: code generic over `Protocol` (which has
+    /// a type of its own per vendor) on a protocol chosen at run time.
+    pub fn with_protocol<U: WithProtocol>(self, options: &ProtocolOptions, user: U) -> U::Output {
         match self {
-            ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
-            ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
-            ProtocolKind::PiGcs2 => Box::new(pi_gcs2::PiGcs2::new(options)),
-            ProtocolKind::SmaractMcs2 => Box::new(smaract_mcs2::Mcs2::new(options)),
-            ProtocolKind::Phytron => Box::new(phytron::Phymotion::new(options)),
+            ProtocolKind::AcsMcb4b => user.with(acs::Mcb4b::new()),
+            ProtocolKind::NewportSmc100 => user.with(newport::Smc100::new(options.units_per_step)),
+            ProtocolKind::PiGcs2 => user.with(pi_gcs2::PiGcs2::new(options)),
+            ProtocolKind::SmaractMcs2 => user.with(smaract_mcs2::Mcs2::new(options)),
+            ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
         }
     }
 
@@ -146,6 +169,16 @@ impl ProtocolKind {
             }
         }
     }
+}
+
+/// Code generic over the protocol, run by `ProtocolKind::with_protocol` on the protocol of a
+/// kind chosen at run time.
+pub trait WithProtocol {
+    /// What it gives back.
+    type Output;
+
+    /// Run on `protocol`.
+    fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output;
 }
 
 #[cfg(test)]

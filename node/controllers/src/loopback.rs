@@ -1,9 +1,8 @@
 //! A controller wired to an emulated one, in virtual time: how every protocol is tested byte
 //! for byte, with the link's faults, without a socket or a clock.
 
-use crate::controller::{Controller, ControllerConfig, ControllerEvent};
+use crate::controller::{AnyController, ControllerEvent};
 use crate::emulator::{Emulator, Faults, WithFaults};
-use crate::protocol::Protocol;
 use std::time::Duration;
 use zmotor_core::engine::DeviceStatus;
 use zmotor_core::Instant;
@@ -15,7 +14,7 @@ const MAX_EXCHANGES: usize = 100_000;
 /// A controller and its emulated counterpart on one virtual clock.
 pub struct Loopback {
     /// The driver side.
-    pub controller: Controller,
+    pub controller: Box<dyn AnyController>,
     /// The controller side, behind its faults.
     pub link: WithFaults,
     now: Instant,
@@ -29,15 +28,10 @@ pub struct Loopback {
 }
 
 impl Loopback {
-    /// `protocol` driving `emulator` through `faults`, at time zero.
-    pub fn new(
-        protocol: Box<dyn Protocol>,
-        emulator: Box<dyn Emulator>,
-        config: ControllerConfig,
-        faults: Faults,
-    ) -> Self {
+    /// `controller`, made at time zero, driving `emulator` through `faults`.
+    pub fn new(controller: Box<dyn AnyController>, emulator: Box<dyn Emulator>, faults: Faults) -> Self {
         Self {
-            controller: Controller::new(protocol, config, Instant::ZERO),
+            controller,
             link: WithFaults::new(emulator, faults),
             now: Instant::ZERO,
             chunk: usize::MAX,

@@ -260,19 +260,43 @@ pub fn decimal(value: f64) -> String {
     format!("{value:.6}")
 }
 
-/// Which reading or step a request is.
-mod item {
-    /// A silent setter.
-    pub const SETTER: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const STATUS: u8 = 2;
-    /// `TE`, after a command (or at initialisation, to clear an error left from before).
-    pub const ERROR: u8 = 3;
+/// A request of the SMC100.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// `TE` at initialisation: an error stored before this connection, read and dropped.
+    StaleError,
+    /// A query of a poll or of a command, whose reply the protocol reads.
+    Query {
+        /// The controller asked.
+        channel: usize,
+        /// What it reads.
+        query: Query,
+    },
+    /// A setter of a command: silent.
+    Setter {
+        /// The controller commanded.
+        channel: usize,
+    },
+    /// Raw text: the user's own exchange, whatever the controller says.
+    Raw {
+        /// The controller it goes with.
+        channel: usize,
+    },
+}
+
+/// What a query reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Query {
+    /// `TP` of a poll: the position.
+    Position,
+    /// `TS` of a poll: the positioner errors and the controller state.
+    State,
+    /// `TE` after a command: its error letter.
+    Error,
     /// `TS` before a home: is a reset needed first?
-    pub const HOME_STATE: u8 = 4;
+    HomeState,
     /// `SR?` or `SL?`: where a jog runs to.
-    pub const JOG_LIMIT: u8 = 5;
-    pub const RAW: u8 = 6;
+    JogLimit,
 }
 
 /// A motion waiting for a reply before it can go on.
@@ -354,7 +378,7 @@ impl Smc100 {
         channel: usize,
         velocity: f64,
         acceleration: f64,
-    ) -> Result<Vec<Request>, CommandError> {
+    ) -> Result<Vec<Request<Step>>, CommandError> {
         let speed = self.rate("velocity", velocity.abs())?;
         let acceleration = self.rate("acceleration", acceleration)?;
         Ok(vec![
@@ -368,7 +392,7 @@ impl Smc100 {
         &self,
         channel: usize,
         command: &DriverCommand,
-    ) -> Result<(Vec<Request>, Option<Pending>), CommandError> {
+    ) -> Result<(Vec<Request<Step>>, Option<Pending>), CommandError> {
         let mut requests = match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
                 let (what, verb) = if *relative { ("distance", "PR") } else { ("target", "PA") };
@@ -380,12 +404,11 @@ impl Smc100 {
             DriverCommand::MoveVelocity { max_velocity, acceleration, .. } => {
                 let mut requests = self.speed_and_acceleration(channel, *max_velocity, *acceleration)?;
                 let limit = if *max_velocity > 0.0 { "SR?" } else { "SL?" };
-                requests
-                    .push(Request::query(line(channel, limit), Purpose::Command { channel, item: item::JOG_LIMIT }));
+                requests.push(Request::query(line(channel, limit), Step::Query { channel, query: Query::JogLimit }));
                 return Ok((requests, Some(Pending::Jog)));
             }
             DriverCommand::Home { .. } => {
-                let ask = Request::query(line(channel, "TS"), Purpose::Command { channel, item: item::HOME_STATE });
+                let ask = Request::query(line(channel, "TS"), Step::Query { channel, query: Query::HomeState });
                 return Ok((vec![ask], Some(Pending::Home)));
             }
             DriverCommand::Stop { .. } => vec![setter(channel, "ST")],
@@ -421,9 +444,9 @@ impl Smc100 {
             }
             DriverCommand::Raw { text } => {
                 let bytes = format!("{text}\r\n").into_bytes();
-                let purpose = Purpose::Command { channel, item: item::RAW };
+                let step = Step::Raw { channel };
                 let request =
-                    if raw_is_query(text) { Request::query(bytes, purpose) } else { Request::silent(bytes, purpose) };
+                    if raw_is_query(text) { Request::query(bytes, step) } else { Request::silent(bytes, step) };
                 return Ok((vec![request], None));
             }
             DriverCommand::SetEncoderRatio { .. } | DriverCommand::Poll => return Ok((Vec::new(), None)),
@@ -433,7 +456,7 @@ impl Smc100 {
     }
 
     /// The status of `channel` from its `TS`, and a fault newly reported.
-    fn status(&mut self, channel: usize, error_bits: u16, state_code: u8) -> (DeviceStatus, Option<Event>) {
+    fn status(&mut self, channel: usize, error_bits: u16, state_code: u8) -> (DeviceStatus, Option<Event<Step>>) {
         let memory = &mut self.channels[channel];
         let mut bits = msta_of(error_bits, state_code);
         if bits & msta::MOVING != 0 && memory.position > memory.reported.position {
@@ -460,7 +483,7 @@ impl Smc100 {
     }
 
     /// A poll's `TS`: the channel's status, and the `OR` of a home once its reset is over.
-    fn on_poll_state(&mut self, channel: usize, error_bits: u16, state_code: u8) -> Vec<Event> {
+    fn on_poll_state(&mut self, channel: usize, error_bits: u16, state_code: u8) -> Vec<Event<Step>> {
         let (mut status, fault) = self.status(channel, error_bits, state_code);
         let mut events = Vec::new();
         if self.channels[channel].pending == Some(Pending::HomeAfterReset) {
@@ -484,7 +507,7 @@ impl Smc100 {
     }
 
     /// The state before a home: `OR` at once when not referenced, else a reset first.
-    fn on_home_state(&mut self, channel: usize, state_code: u8) -> Vec<Event> {
+    fn on_home_state(&mut self, channel: usize, state_code: u8) -> Vec<Event<Step>> {
         if self.channels[channel].pending != Some(Pending::Home) {
             // A stop or another command came since: the home is called off.
             return Vec::new();
@@ -501,7 +524,7 @@ impl Smc100 {
     }
 
     /// The software limit a jog runs to: the move there.
-    fn on_jog_limit(&mut self, channel: usize, limit: f64) -> Vec<Event> {
+    fn on_jog_limit(&mut self, channel: usize, limit: f64) -> Vec<Event<Step>> {
         if self.channels[channel].pending != Some(Pending::Jog) {
             return Vec::new();
         }
@@ -523,12 +546,12 @@ fn line(channel: usize, command: &str) -> Vec<u8> {
     format!("{channel}{command}\r\n").into_bytes()
 }
 
-fn setter(channel: usize, command: &str) -> Request {
-    Request::silent(line(channel, command), Purpose::Command { channel, item: item::SETTER })
+fn setter(channel: usize, command: &str) -> Request<Step> {
+    Request::silent(line(channel, command), Step::Setter { channel })
 }
 
-fn error_query(channel: usize) -> Request {
-    Request::query(line(channel, "TE"), Purpose::Command { channel, item: item::ERROR })
+fn error_query(channel: usize) -> Request<Step> {
+    Request::query(line(channel, "TE"), Step::Query { channel, query: Query::Error })
 }
 
 /// Whether raw text is a query the controller answers.
@@ -539,7 +562,7 @@ fn raw_is_query(text: &str) -> bool {
 }
 
 /// The echo a reply to `request` starts with: its address and two-letter command.
-fn echo_of(request: &Request) -> String {
+fn echo_of(request: &Request<Step>) -> String {
     let text = line_text(&request.bytes, TERMINATOR);
     let digits = text.chars().take_while(char::is_ascii_digit).count();
     text.chars().take(digits + 2).collect::<String>().to_ascii_uppercase()
@@ -554,8 +577,20 @@ fn parse_state(value: &str) -> Option<(u16, u8)> {
 }
 
 impl Protocol for Smc100 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::StaleError => Purpose::Init,
+            Step::Query { channel, query: Query::Position | Query::State } => Purpose::Poll { channel },
+            Step::Query { channel, query: Query::Error | Query::HomeState | Query::JogLimit }
+            | Step::Setter { channel }
+            | Step::Raw { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -567,7 +602,7 @@ impl Protocol for Smc100 {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Nothing a previous connection left waiting goes on (no home after a reconnection);
         // an error stored before now is read and dropped, so that the first command's TE is
         // its own. Nothing moves, nothing is reset.
@@ -575,21 +610,21 @@ impl Protocol for Smc100 {
         channels
             .iter()
             .filter(|c| ADDRESSES.contains(c))
-            .map(|&c| Request::query(line(c, "TE"), Purpose::Init { item: item::ERROR }))
+            .map(|&c| Request::query(line(c, "TE"), Step::StaleError))
             .collect()
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels.iter().filter(|c| ADDRESSES.contains(c)) {
-            for (item, query) in [(item::POSITION, "TP"), (item::STATUS, "TS")] {
-                requests.push(Request::query(line(channel, query), Purpose::Poll { channel, item }));
+            for (query, letters) in [(Query::Position, "TP"), (Query::State, "TS")] {
+                requests.push(Request::query(line(channel, letters), Step::Query { channel, query }));
             }
         }
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         if !ADDRESSES.contains(&channel) {
             return Err(CommandError::OutOfRange { what: "controller address", value: channel as f64 });
         }
@@ -601,26 +636,25 @@ impl Protocol for Smc100 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
-        let (channel, item) = match request.purpose {
-            Purpose::Poll { channel, item } | Purpose::Command { channel, item } => (Some(channel), item),
-            Purpose::Init { item } | Purpose::PollMany { item } => (None, item),
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
+        let read = match request.step {
+            Step::Query { channel, query } => Some((channel, query)),
+            Step::StaleError => None,
+            // A setter is not answered; raw text is the user's own exchange: whatever the
+            // controller says.
+            Step::Setter { .. } | Step::Raw { .. } => return Ok(Vec::new()),
         };
-        if item == item::RAW {
-            // The user's own exchange: whatever the controller says.
-            return Ok(Vec::new());
-        }
         let text = line_text(frame, TERMINATOR);
         let value = text
             .strip_prefix(echo_of(request).as_str())
             .map(str::trim)
             .ok_or_else(|| ReplyError::new(request, frame, "not the echo of the request"))?;
-        let Some(channel) = channel.filter(|c| ADDRESSES.contains(c)) else {
+        let Some((channel, query)) = read.filter(|(channel, _)| ADDRESSES.contains(channel)) else {
             // The error read at initialisation was left from before: dropped.
             return Ok(Vec::new());
         };
-        match item {
-            item::POSITION => {
+        match query {
+            Query::Position => {
                 let mm: f64 = value.parse().map_err(|_| ReplyError::new(request, frame, "not a position"))?;
                 if !mm.is_finite() {
                     return Err(ReplyError::new(request, frame, "not a position"));
@@ -629,23 +663,23 @@ impl Protocol for Smc100 {
                 self.channels[channel].position = (mm / self.units_per_step * 1e6).round() / 1e6;
                 Ok(Vec::new())
             }
-            item::STATUS | item::HOME_STATE => {
+            Query::State | Query::HomeState => {
                 let (error_bits, state_code) =
                     parse_state(value).ok_or_else(|| ReplyError::new(request, frame, "not six hex digits"))?;
-                Ok(if item == item::STATUS {
+                Ok(if query == Query::State {
                     self.on_poll_state(channel, error_bits, state_code)
                 } else {
                     self.on_home_state(channel, state_code)
                 })
             }
-            item::JOG_LIMIT => {
+            Query::JogLimit => {
                 let limit: f64 = value.parse().map_err(|_| ReplyError::new(request, frame, "not a limit"))?;
                 if !limit.is_finite() {
                     return Err(ReplyError::new(request, frame, "not a limit"));
                 }
                 Ok(self.on_jog_limit(channel, limit))
             }
-            _ => {
+            Query::Error => {
                 let mut letters = value.chars();
                 let (Some(code), None) = (letters.next(), letters.next()) else {
                     return Err(ReplyError::new(request, frame, "not one error letter"));
@@ -668,11 +702,11 @@ impl Protocol for Smc100 {
 mod tests {
     use super::*;
 
-    fn sent(requests: &[Request]) -> Vec<String> {
+    fn sent(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
-    fn answered(requests: &[Request]) -> Vec<bool> {
+    fn answered(requests: &[Request<Step>]) -> Vec<bool> {
         requests.iter().map(|r| r.answered).collect()
     }
 
@@ -688,7 +722,7 @@ mod tests {
         DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 1000.0, acceleration: 1000.0 }
     }
 
-    fn follow_up(events: &[Event]) -> Vec<String> {
+    fn follow_up(events: &[Event<Step>]) -> Vec<String> {
         match events {
             [Event::FollowUp(requests), ..] => sent(requests),
             _ => panic!("no follow-up first: {events:?}"),
@@ -696,7 +730,7 @@ mod tests {
     }
 
     /// The status among `events`.
-    fn status_of(events: &[Event]) -> DeviceStatus {
+    fn status_of(events: &[Event<Step>]) -> DeviceStatus {
         events
             .iter()
             .find_map(|e| match e {
@@ -707,7 +741,7 @@ mod tests {
     }
 
     /// Run one poll of `channel` with these replies.
-    fn polled(p: &mut Smc100, channel: usize, tp: &[u8], ts: &[u8]) -> Vec<Event> {
+    fn polled(p: &mut Smc100, channel: usize, tp: &[u8], ts: &[u8]) -> Vec<Event<Step>> {
         let poll = p.poll(&[channel]);
         assert_eq!(p.reply(&poll[0], tp).unwrap(), []);
         p.reply(&poll[1], ts).unwrap()
@@ -739,7 +773,7 @@ mod tests {
     #[test]
     fn values_the_controller_cannot_take_are_refused_not_clamped() {
         let mut p = Smc100::default();
-        let refused = |r: Result<Vec<Request>, CommandError>| matches!(r, Err(CommandError::OutOfRange { .. }));
+        let refused = |r: Result<Vec<Request<Step>>, CommandError>| matches!(r, Err(CommandError::OutOfRange { .. }));
         assert!(refused(p.command(1, &go(1e16, false))), "beyond 1e12 mm");
         assert!(refused(p.command(1, &go(f64::NAN, true))));
         let crawl = DriverCommand::Move {

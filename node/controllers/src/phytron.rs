@@ -263,7 +263,7 @@ pub fn sub_replies(frame: &[u8]) -> Result<Vec<(bool, &str)>, &'static str> {
 }
 
 /// The commands a request frame of this protocol carries.
-fn commands_of(request: &Request) -> Vec<String> {
+fn commands_of(request: &Request<Step>) -> Vec<String> {
     // STX and the address before, `:XX` and ETX after.
     let payload = request.bytes.get(2..request.bytes.len().saturating_sub(4)).unwrap_or_default();
     String::from_utf8_lossy(payload).split(' ').map(str::to_string).collect()
@@ -299,8 +299,25 @@ fn ramp(acceleration: f64) -> Result<f64, CommandError> {
     }
 }
 
-/// The item of every command request (its replies are checked alike).
-const COMMAND_ITEM: u8 = 0;
+/// A request of the phyMOTION: one frame of commands, each answered in the reply frame. What
+/// the frame asks is in its bytes; the step tells readings from commands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// Readings at initialisation: which axes have an encoder.
+    EncoderTypes,
+    /// The readings of one channel's poll.
+    Poll {
+        /// The channel polled.
+        channel: usize,
+    },
+    /// The readings of a poll of several channels.
+    PollMany,
+    /// Commands to one channel (their replies are checked alike).
+    Command {
+        /// The channel commanded.
+        channel: usize,
+    },
+}
 
 /// A reading a poll or the initialisation asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -495,7 +512,7 @@ impl Phymotion {
     }
 
     /// A command frame's replies: the first refusal, if any, is the controller's error.
-    fn acknowledgements(channel: usize, asked: &[String], replies: &[(bool, &str)]) -> Vec<Event> {
+    fn acknowledgements(channel: usize, asked: &[String], replies: &[(bool, &str)]) -> Vec<Event<Step>> {
         asked
             .iter()
             .zip(replies)
@@ -513,7 +530,7 @@ impl Phymotion {
 
     /// A poll's or the initialisation's replies: the readings of every channel asked, and a
     /// status for each channel fully read.
-    fn readings(&mut self, asked: &[String], replies: &[(bool, &str)]) -> Result<Vec<Event>, &'static str> {
+    fn readings(&mut self, asked: &[String], replies: &[(bool, &str)]) -> Result<Vec<Event<Step>>, &'static str> {
         let mut events = Vec::new();
         let mut polled: Vec<(usize, Polled)> = Vec::new();
         for (command, (acknowledged, data)) in asked.iter().zip(replies) {
@@ -559,7 +576,7 @@ impl Phymotion {
 
     /// The status of `channel` from its status word and counters (controller units): a
     /// controller error first if an error bit is new.
-    fn status(&mut self, channel: usize, word: u32, position: f64, encoder: f64) -> Vec<Event> {
+    fn status(&mut self, channel: usize, word: u32, position: f64, encoder: f64) -> Vec<Event<Step>> {
         let units = self.units_per_step;
         let axis = self.axis(channel);
         let position = position / units;
@@ -633,8 +650,19 @@ fn batches(
 }
 
 impl Protocol for Phymotion {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::EncoderTypes => Purpose::Init,
+            Step::Poll { channel } => Purpose::Poll { channel },
+            Step::PollMany => Purpose::PollMany,
+            Step::Command { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -653,51 +681,46 @@ impl Protocol for Phymotion {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Reads only: the driver's `CR` at boot would lose every position.
         batches(channels, |token| format!("M{token}P34R"), 1)
             .into_iter()
-            .enumerate()
-            .map(|(n, (_, payload))| {
-                Request::query(request_frame(&payload), Purpose::Init { item: u8::try_from(n).unwrap_or(u8::MAX) })
-            })
+            .map(|(_, payload)| Request::query(request_frame(&payload), Step::EncoderTypes))
             .collect()
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         batches(channels, |token| format!("SE{token} M{token}P20R M{token}P22R"), 3)
             .into_iter()
-            .enumerate()
-            .map(|(n, (polled, payload))| {
-                let purpose = match polled[..] {
-                    [channel] => Purpose::Poll { channel, item: 0 },
-                    _ => Purpose::PollMany { item: u8::try_from(n).unwrap_or(u8::MAX) },
+            .map(|(polled, payload)| {
+                let step = match polled[..] {
+                    [channel] => Step::Poll { channel },
+                    _ => Step::PollMany,
                 };
-                Request::query(request_frame(&payload), purpose)
+                Request::query(request_frame(&payload), step)
             })
             .collect()
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let token = axis_token(channel)
             .ok_or(CommandError::OutOfRange { what: "channel (module × 10 + axis)", value: channel as f64 })?;
         let commands = self.commands(channel, &token, command)?;
         if commands.is_empty() {
             return Ok(Vec::new());
         }
-        let purpose = Purpose::Command { channel, item: COMMAND_ITEM };
-        Ok(vec![Request::query(request_frame(&commands.join(" ")), purpose)])
+        Ok(vec![Request::query(request_frame(&commands.join(" ")), Step::Command { channel })])
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
         let replies = sub_replies(frame).map_err(|why| ReplyError::new(request, frame, why))?;
         let asked = commands_of(request);
         if replies.len() != asked.len() {
             return Err(ReplyError::new(request, frame, "not one reply per command"));
         }
-        match request.purpose {
-            Purpose::Command { channel, .. } => Ok(Self::acknowledgements(channel, &asked, &replies)),
-            Purpose::Poll { .. } | Purpose::PollMany { .. } | Purpose::Init { .. } => {
+        match request.step {
+            Step::Command { channel } => Ok(Self::acknowledgements(channel, &asked, &replies)),
+            Step::EncoderTypes | Step::Poll { .. } | Step::PollMany => {
                 self.readings(&asked, &replies).map_err(|why| ReplyError::new(request, frame, why))
             }
         }
@@ -713,7 +736,7 @@ mod tests {
     }
 
     /// The payload of each request, checking its framing on the way.
-    fn payloads(requests: &[Request]) -> Vec<String> {
+    fn payloads(requests: &[Request<Step>]) -> Vec<String> {
         requests
             .iter()
             .map(|r| {
@@ -776,7 +799,7 @@ mod tests {
         let mut p = protocol();
         let requests = p.command(11, &go(1000.0, false)).unwrap();
         assert_eq!(requests.len(), 1);
-        assert_eq!(requests[0].purpose, Purpose::Command { channel: 11, item: 0 });
+        assert_eq!(requests[0].step, Step::Command { channel: 11 });
         assert_eq!(
             requests[0].bytes,
             request_frame("M1.1P14=2000.000000 M1.1P04=200.000000 M1.1P15=10000.000000 M1.1MA M1.1A1000")
@@ -857,7 +880,7 @@ mod tests {
         let mut p = protocol();
         let poll = p.poll(&[11, 12, 21]);
         assert_eq!(payloads(&poll), ["SE1.1 M1.1P20R M1.1P22R SE1.2 M1.2P20R M1.2P22R SE2.1 M2.1P20R M2.1P22R"]);
-        assert_eq!(poll[0].purpose, Purpose::PollMany { item: 0 });
+        assert_eq!(poll[0].step, Step::PollMany);
         // 11: running up, ready; 12: at rest on the + limit after hitting it, homed; 21: on the
         // center switch, power stage off.
         let reply = ack(&["66049", "1500", "1498", "529944", "200000", "200000", "524352", "0", "0"]);
@@ -876,7 +899,7 @@ mod tests {
         assert_eq!(statuses[2].1.msta, msta::DONE | msta::HOME);
         // The next poll of 11 sees the counter go up: DIRECTION, until done.
         let poll_one = p.poll(&[11]);
-        assert_eq!(poll_one[0].purpose, Purpose::Poll { channel: 11, item: 0 });
+        assert_eq!(poll_one[0].step, Step::Poll { channel: 11 });
         let events = p.reply(&poll_one[0], &ack(&["66049", "1600", "1600"])).unwrap();
         let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta, msta::MOVING | msta::POSITION | msta::DIRECTION);
@@ -893,7 +916,7 @@ mod tests {
         assert_eq!(poll.len(), 2);
         assert_eq!(payloads(&poll)[0].split(' ').count(), 42);
         assert_eq!(payloads(&poll)[1], "SE3.5 M3.5P20R M3.5P22R");
-        assert_eq!(poll[1].purpose, Purpose::Poll { channel: 35, item: 0 });
+        assert_eq!(poll[1].step, Step::Poll { channel: 35 });
         assert!(poll.iter().all(|r| r.bytes.len() <= MAX_PAYLOAD + 6));
     }
 
@@ -1030,7 +1053,7 @@ mod tests {
         let mut p = protocol();
         let init = p.init(&[11, 21]);
         assert_eq!(payloads(&init), ["M1.1P34R M2.1P34R"]);
-        assert_eq!(init[0].purpose, Purpose::Init { item: 0 });
+        assert_eq!(init[0].step, Step::EncoderTypes);
         assert_eq!(p.reply(&init[0], &ack(&["1", "0"])).unwrap(), []);
         let poll = p.poll(&[11, 21]);
         let events = p.reply(&poll[0], &ack(&["0", "0", "0", "0", "0", "0"])).unwrap();

@@ -189,28 +189,81 @@ pub fn error_meaning(code: i64) -> &'static str {
     }
 }
 
-/// What a request is for: the `item` of its `Purpose`.
-mod item {
-    // Init.
-    pub const IDENTITY: u8 = 0;
-    pub const AXES: u8 = 1;
-    pub const HAS_REFERENCE: u8 = 2;
-    pub const HAS_LIMIT_SWITCHES: u8 = 3;
-    pub const COUNTS_NUMERATOR: u8 = 4;
-    pub const COUNTS_DENOMINATOR: u8 = 5;
-    pub const TRAVEL_MIN: u8 = 6;
-    pub const TRAVEL_MAX: u8 = 7;
-    pub const SERVO_STARTED: u8 = 8;
-    // Poll.
-    pub const STATUS_REGISTER: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const REFERENCED: u8 = 2;
-    pub const ERROR: u8 = 3;
-    // Command.
-    pub const SETTER: u8 = 0;
-    pub const ERROR_CHECK: u8 = 1;
-    pub const STOP_CHECK: u8 = 2;
-    pub const RAW_QUERY: u8 = 3;
+/// A request of GCS 2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// `*IDN?` at initialisation: is it a controller of the class?
+    Identity,
+    /// `SAI?` at initialisation: the controller's axes.
+    Axes,
+    /// A setting of one axis, read at initialisation.
+    Setting {
+        /// The axis.
+        channel: usize,
+        /// Which setting.
+        setting: Setting,
+    },
+    /// `SVO` of every axis at the first connection: silent.
+    ServoStart,
+    /// `ERR?` after `SVO` at the first connection.
+    ServoStarted,
+    /// One reading of a channel's poll.
+    Read {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading.
+        reading: Reading,
+    },
+    /// `ERR?` at the end of a poll: the controller's error register, of no axis.
+    PollErrors,
+    /// A setter of a command: silent.
+    Setter {
+        /// The axis commanded.
+        channel: usize,
+    },
+    /// `ERR?` after a setter.
+    ErrorCheck {
+        /// The axis commanded.
+        channel: usize,
+    },
+    /// `ERR?` after `HLT`: the stop asked for is no error.
+    StopCheck {
+        /// The axis stopped.
+        channel: usize,
+    },
+    /// Raw text with a `?`: its reply is the user's to read.
+    RawQuery {
+        /// The axis it goes with.
+        channel: usize,
+    },
+}
+
+/// A setting of an axis read at initialisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Setting {
+    /// `TRS?`: whether it has a reference switch.
+    HasReference,
+    /// `LIM?`: whether it has limit switches.
+    HasLimitSwitches,
+    /// `SPA? <axis> 14`: the numerator of its counts per unit.
+    CountsNumerator,
+    /// `SPA? <axis> 15`: the denominator of its counts per unit.
+    CountsDenominator,
+    /// `TMN?`: the low end of its travel.
+    TravelMin,
+    /// `TMX?`: the high end of its travel.
+    TravelMax,
+}
+
+/// The readings of a channel's poll, in the order they are asked for: the last completes it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reading {
+    /// `SRG? <axis> 1`: the status register.
+    StatusRegister,
+    /// `POS?`: the position.
+    Position,
+    /// `FRF?`: whether it is referenced.
+    Referenced,
 }
 
 /// What the protocol knows of one axis.
@@ -324,7 +377,7 @@ impl PiGcs2 {
     }
 
     /// Velocity and acceleration, as every motion sets them first.
-    fn dynamics(&self, channel: usize, velocity: f64, acceleration: f64) -> Result<Vec<Request>, CommandError> {
+    fn dynamics(&self, channel: usize, velocity: f64, acceleration: f64) -> Result<Vec<Request<Step>>, CommandError> {
         let mut requests = Vec::new();
         if let Some(v) = self.rate_text(channel, "velocity", velocity)? {
             requests.extend(checked(channel, format!("VEL {channel} {v}")));
@@ -363,77 +416,60 @@ impl PiGcs2 {
         }
     }
 
-    fn on_init_reply(&mut self, request: &Request, frame: &[u8], item: u8) -> Result<Vec<Event>, ReplyError> {
+    /// An axis's setting read at initialisation.
+    fn on_setting(
+        &mut self,
+        request: &Request<Step>,
+        frame: &[u8],
+        channel: usize,
+        setting: Setting,
+    ) -> Result<(), ReplyError> {
         let text = reply_text(frame);
-        match item {
-            item::IDENTITY => {
-                let upper = text.to_ascii_uppercase();
-                if !MODELS.iter().any(|model| upper.contains(model)) {
-                    return Err(ReplyError::new(request, frame, "not a PI controller of the C-863/C-884 class"));
+        match setting {
+            Setting::HasReference => self.axis(channel).has_reference = flag(request, frame, &text, channel)?,
+            Setting::HasLimitSwitches => self.axis(channel).has_limit_switches = flag(request, frame, &text, channel)?,
+            Setting::CountsNumerator | Setting::CountsDenominator => {
+                let numerator = setting == Setting::CountsNumerator;
+                let id = if numerator {
+                    parameter::COUNTS_PER_UNIT_NUMERATOR
+                } else {
+                    parameter::COUNTS_PER_UNIT_DENOMINATOR
+                };
+                let value = parameter_value(request, frame, &text, channel, id)?;
+                let counts: f64 = value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a number"))?;
+                if !(counts.is_finite() && counts > 0.0) {
+                    return Err(ReplyError::new(request, frame, "counts per unit must be positive"));
+                }
+                let axis = self.axis(channel);
+                if numerator {
+                    axis.counts_numerator = Some(counts);
+                } else {
+                    axis.counts_denominator = Some(counts);
                 }
             }
-            item::AXES => {
-                let names: Vec<&str> = text.lines().map(str::trim).collect();
-                if !self.channels.iter().all(|channel| names.contains(&channel.to_string().as_str())) {
-                    return Err(ReplyError::new(request, frame, "a channel is not one of the controller's axes"));
-                }
-            }
-            item::SERVO_STARTED => {
-                self.servo_started = true;
-                return error_events(request, frame, None, &[]);
-            }
-            _ => {
-                let channel =
-                    channel_of(request).ok_or_else(|| ReplyError::new(request, frame, "not an axis query"))?;
-                match item {
-                    item::HAS_REFERENCE => self.axis(channel).has_reference = flag(request, frame, &text, channel)?,
-                    item::HAS_LIMIT_SWITCHES => {
-                        self.axis(channel).has_limit_switches = flag(request, frame, &text, channel)?
-                    }
-                    item::COUNTS_NUMERATOR | item::COUNTS_DENOMINATOR => {
-                        let id = if item == item::COUNTS_NUMERATOR {
-                            parameter::COUNTS_PER_UNIT_NUMERATOR
-                        } else {
-                            parameter::COUNTS_PER_UNIT_DENOMINATOR
-                        };
-                        let value = parameter_value(request, frame, &text, channel, id)?;
-                        let counts: f64 =
-                            value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a number"))?;
-                        if !(counts.is_finite() && counts > 0.0) {
-                            return Err(ReplyError::new(request, frame, "counts per unit must be positive"));
-                        }
-                        let axis = self.axis(channel);
-                        if item == item::COUNTS_NUMERATOR {
-                            axis.counts_numerator = Some(counts);
-                        } else {
-                            axis.counts_denominator = Some(counts);
-                        }
-                    }
-                    _ => {
-                        let limit = number(request, frame, axis_value(request, frame, &text, channel)?)?;
-                        let axis = self.axis(channel);
-                        if item == item::TRAVEL_MIN {
-                            axis.travel_min = Some(limit);
-                        } else {
-                            axis.travel_max = Some(limit);
-                        }
-                    }
+            Setting::TravelMin | Setting::TravelMax => {
+                let limit = number(request, frame, axis_value(request, frame, &text, channel)?)?;
+                let axis = self.axis(channel);
+                if setting == Setting::TravelMin {
+                    axis.travel_min = Some(limit);
+                } else {
+                    axis.travel_max = Some(limit);
                 }
             }
         }
-        Ok(Vec::new())
+        Ok(())
     }
 
-    fn on_poll_reply(
+    fn on_reading(
         &mut self,
-        request: &Request,
+        request: &Request<Step>,
         frame: &[u8],
         channel: usize,
-        item: u8,
-    ) -> Result<Vec<Event>, ReplyError> {
+        reading: Reading,
+    ) -> Result<Vec<Event<Step>>, ReplyError> {
         let text = reply_text(frame);
-        match item {
-            item::STATUS_REGISTER => {
+        match reading {
+            Reading::StatusRegister => {
                 let value = register_value(request, frame, &text, channel)?;
                 let register = parse_hex(value).ok_or_else(|| ReplyError::new(request, frame, "not a hex register"))?;
                 let axis = self.axis(channel);
@@ -445,7 +481,7 @@ impl PiGcs2 {
                 axis.servo_was_on = servo_on;
                 axis.register = register;
             }
-            item::POSITION => {
+            Reading::Position => {
                 let units = number(request, frame, axis_value(request, frame, &text, channel)?)?;
                 let steps = (units / self.units_per_step(channel)).round();
                 if !steps.is_finite() {
@@ -453,7 +489,7 @@ impl PiGcs2 {
                 }
                 self.axis(channel).position = steps;
             }
-            _ => {
+            Reading::Referenced => {
                 let referenced = flag(request, frame, &text, channel)?;
                 return Ok(vec![Event::Status { channel, status: self.status_of(channel, referenced) }]);
             }
@@ -463,10 +499,10 @@ impl PiGcs2 {
 }
 
 /// A setter of `channel`, then the error query that tells whether it was taken.
-fn checked(channel: usize, line: String) -> [Request; 2] {
+fn checked(channel: usize, line: String) -> [Request<Step>; 2] {
     [
-        Request::silent(format!("{line}\n"), Purpose::Command { channel, item: item::SETTER }),
-        Request::query("ERR?\n", Purpose::Command { channel, item: item::ERROR_CHECK }),
+        Request::silent(format!("{line}\n"), Step::Setter { channel }),
+        Request::query("ERR?\n", Step::ErrorCheck { channel }),
     ]
 }
 
@@ -475,15 +511,9 @@ fn reply_text(frame: &[u8]) -> String {
     line_text(frame, TERMINATOR).split('\n').map(str::trim_end).collect::<Vec<_>>().join("\n")
 }
 
-/// The axis a per-axis query names (`TRS? 3`: 3).
-fn channel_of(request: &Request) -> Option<usize> {
-    let text = String::from_utf8_lossy(&request.bytes);
-    text.split_whitespace().nth(1)?.parse().ok()
-}
-
 /// The value of a one-line reply `<key>=<value>` whose key, split at spaces, is `key`.
 fn keyed_value<'a>(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     text: &'a str,
     key_matches: impl Fn(&[&str]) -> bool,
@@ -500,20 +530,25 @@ fn keyed_value<'a>(
 }
 
 /// The value of `<axis>=<value>` for `channel`.
-fn axis_value<'a>(request: &Request, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
+fn axis_value<'a>(request: &Request<Step>, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
     let name = channel.to_string();
     keyed_value(request, frame, text, |key| key == [name.as_str()])
 }
 
 /// The value of `<axis> 1=<register>` for `channel`.
-fn register_value<'a>(request: &Request, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
+fn register_value<'a>(
+    request: &Request<Step>,
+    frame: &[u8],
+    text: &'a str,
+    channel: usize,
+) -> Result<&'a str, ReplyError> {
     let name = channel.to_string();
     keyed_value(request, frame, text, |key| key.len() == 2 && key[0] == name && parse_id(key[1]) == Some(1))
 }
 
 /// The value of `<axis> <parameter>=<value>` for `channel` (the ID echoed in decimal or hex).
 fn parameter_value<'a>(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     text: &'a str,
     channel: usize,
@@ -524,7 +559,7 @@ fn parameter_value<'a>(
 }
 
 /// A 0/1 answer for `channel`.
-fn flag(request: &Request, frame: &[u8], text: &str, channel: usize) -> Result<bool, ReplyError> {
+fn flag(request: &Request<Step>, frame: &[u8], text: &str, channel: usize) -> Result<bool, ReplyError> {
     match axis_value(request, frame, text, channel)? {
         "1" => Ok(true),
         "0" => Ok(false),
@@ -532,7 +567,7 @@ fn flag(request: &Request, frame: &[u8], text: &str, channel: usize) -> Result<b
     }
 }
 
-fn number(request: &Request, frame: &[u8], value: &str) -> Result<f64, ReplyError> {
+fn number(request: &Request<Step>, frame: &[u8], value: &str) -> Result<f64, ReplyError> {
     value.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| ReplyError::new(request, frame, "not a number"))
 }
 
@@ -552,11 +587,11 @@ fn parse_hex(text: &str) -> Option<u16> {
 
 /// The events of an `ERR?` reply: nothing for 0 and the `expected` codes, else the error.
 fn error_events(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     channel: Option<usize>,
     expected: &[i64],
-) -> Result<Vec<Event>, ReplyError> {
+) -> Result<Vec<Event<Step>>, ReplyError> {
     let text = reply_text(frame);
     let code: i64 = text.trim().parse().map_err(|_| ReplyError::new(request, frame, "not an error code"))?;
     if code == 0 || expected.contains(&code) {
@@ -570,8 +605,22 @@ fn error_events(
 }
 
 impl Protocol for PiGcs2 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::Identity | Step::Axes | Step::Setting { .. } | Step::ServoStart | Step::ServoStarted => Purpose::Init,
+            Step::Read { channel, .. } => Purpose::Poll { channel },
+            Step::PollErrors => Purpose::PollMany,
+            Step::Setter { channel }
+            | Step::ErrorCheck { channel }
+            | Step::StopCheck { channel }
+            | Step::RawQuery { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -592,44 +641,44 @@ impl Protocol for PiGcs2 {
         Frame::Incomplete
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         self.channels = channels.to_vec();
-        let init = |bytes: String, item: u8| Request::query(bytes, Purpose::Init { item });
-        let mut requests = vec![init("*IDN?\n".into(), item::IDENTITY), init("SAI?\n".into(), item::AXES)];
+        let mut requests = vec![Request::query("*IDN?\n", Step::Identity), Request::query("SAI?\n", Step::Axes)];
         for &channel in channels {
-            requests.push(init(format!("TRS? {channel}\n"), item::HAS_REFERENCE));
-            requests.push(init(format!("LIM? {channel}\n"), item::HAS_LIMIT_SWITCHES));
+            let read = |query: String, setting: Setting| Request::query(query, Step::Setting { channel, setting });
+            requests.push(read(format!("TRS? {channel}\n"), Setting::HasReference));
+            requests.push(read(format!("LIM? {channel}\n"), Setting::HasLimitSwitches));
             if self.units_per_step.is_none() {
-                requests.push(init(format!("SPA? {channel} 14\n"), item::COUNTS_NUMERATOR));
-                requests.push(init(format!("SPA? {channel} 15\n"), item::COUNTS_DENOMINATOR));
+                requests.push(read(format!("SPA? {channel} 14\n"), Setting::CountsNumerator));
+                requests.push(read(format!("SPA? {channel} 15\n"), Setting::CountsDenominator));
             }
-            requests.push(init(format!("TMN? {channel}\n"), item::TRAVEL_MIN));
-            requests.push(init(format!("TMX? {channel}\n"), item::TRAVEL_MAX));
+            requests.push(read(format!("TMN? {channel}\n"), Setting::TravelMin));
+            requests.push(read(format!("TMX? {channel}\n"), Setting::TravelMax));
         }
         if !self.servo_started && !channels.is_empty() {
             let pairs: Vec<String> = channels.iter().map(|c| format!("{c} 1")).collect();
-            requests.push(Request::silent(format!("SVO {}\n", pairs.join(" ")), Purpose::Init { item: item::SETTER }));
-            requests.push(init("ERR?\n".into(), item::SERVO_STARTED));
+            requests.push(Request::silent(format!("SVO {}\n", pairs.join(" ")), Step::ServoStart));
+            requests.push(Request::query("ERR?\n", Step::ServoStarted));
         }
         requests
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            for (item, query) in [
-                (item::STATUS_REGISTER, format!("SRG? {channel} 1\n")),
-                (item::POSITION, format!("POS? {channel}\n")),
-                (item::REFERENCED, format!("FRF? {channel}\n")),
+            for (reading, query) in [
+                (Reading::StatusRegister, format!("SRG? {channel} 1\n")),
+                (Reading::Position, format!("POS? {channel}\n")),
+                (Reading::Referenced, format!("FRF? {channel}\n")),
             ] {
-                requests.push(Request::query(query, Purpose::Poll { channel, item }));
+                requests.push(Request::query(query, Step::Read { channel, reading }));
             }
         }
-        requests.push(Request::query("ERR?\n", Purpose::PollMany { item: item::ERROR }));
+        requests.push(Request::query("ERR?\n", Step::PollErrors));
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         if channel == 0 {
             return Err(CommandError::Unsupported { protocol: NAME, what: "address channel 0 (axes count from 1)" });
         }
@@ -680,8 +729,8 @@ impl Protocol for PiGcs2 {
                 requests
             }
             DriverCommand::Stop { .. } => vec![
-                Request::silent(format!("HLT {channel}\n"), Purpose::Command { channel, item: item::SETTER }),
-                Request::query("ERR?\n", Purpose::Command { channel, item: item::STOP_CHECK }),
+                Request::silent(format!("HLT {channel}\n"), Step::Setter { channel }),
+                Request::query("ERR?\n", Step::StopCheck { channel }),
             ],
             DriverCommand::SetPosition { position } => {
                 let value = self.position_text(channel, "position", *position)?;
@@ -706,7 +755,7 @@ impl Protocol for PiGcs2 {
                 if text.trim().is_empty() {
                     Vec::new()
                 } else if text.contains('?') {
-                    vec![Request::query(format!("{text}\n"), Purpose::Command { channel, item: item::RAW_QUERY })]
+                    vec![Request::query(format!("{text}\n"), Step::RawQuery { channel })]
                 } else {
                     checked(channel, text.clone()).into()
                 }
@@ -722,18 +771,37 @@ impl Protocol for PiGcs2 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
-        match request.purpose {
-            Purpose::Init { item } => self.on_init_reply(request, frame, item),
-            Purpose::Poll { channel, item } => self.on_poll_reply(request, frame, channel, item),
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
+        match request.step {
+            Step::Identity => {
+                let upper = reply_text(frame).to_ascii_uppercase();
+                if !MODELS.iter().any(|model| upper.contains(model)) {
+                    return Err(ReplyError::new(request, frame, "not a PI controller of the C-863/C-884 class"));
+                }
+                Ok(Vec::new())
+            }
+            Step::Axes => {
+                let text = reply_text(frame);
+                let names: Vec<&str> = text.lines().map(str::trim).collect();
+                if !self.channels.iter().all(|channel| names.contains(&channel.to_string().as_str())) {
+                    return Err(ReplyError::new(request, frame, "a channel is not one of the controller's axes"));
+                }
+                Ok(Vec::new())
+            }
+            Step::Setting { channel, setting } => {
+                self.on_setting(request, frame, channel, setting).map(|()| Vec::new())
+            }
+            Step::ServoStarted => {
+                self.servo_started = true;
+                error_events(request, frame, None, &[])
+            }
+            Step::Read { channel, reading } => self.on_reading(request, frame, channel, reading),
             // The controller's error register names no axis.
-            Purpose::PollMany { .. } => error_events(request, frame, None, &[]),
-            Purpose::Command { channel, item } => match item {
-                item::STOP_CHECK => error_events(request, frame, Some(channel), &[STOPPED_BY_COMMAND]),
-                item::ERROR_CHECK => error_events(request, frame, Some(channel), &[]),
-                // A raw query's reply is the user's to read.
-                _ => Ok(Vec::new()),
-            },
+            Step::PollErrors => error_events(request, frame, None, &[]),
+            Step::StopCheck { channel } => error_events(request, frame, Some(channel), &[STOPPED_BY_COMMAND]),
+            Step::ErrorCheck { channel } => error_events(request, frame, Some(channel), &[]),
+            // A raw query's reply is the user's to read; setters are not answered.
+            Step::RawQuery { .. } | Step::Setter { .. } | Step::ServoStart => Ok(Vec::new()),
         }
     }
 }
@@ -742,7 +810,7 @@ impl Protocol for PiGcs2 {
 mod tests {
     use super::*;
 
-    fn sent(requests: &[Request]) -> Vec<String> {
+    fn sent(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
@@ -753,7 +821,7 @@ mod tests {
         let init = p.init(&[1, 3]);
         for request in init.iter().filter(|r| r.answered) {
             let text = String::from_utf8_lossy(&request.bytes).trim().to_string();
-            let channel = channel_of(request).unwrap_or(0);
+            let channel = if let Step::Setting { channel, .. } = request.step { channel } else { 0 };
             let reply = match text.split_whitespace().next().unwrap_or("") {
                 "*IDN?" => "(c)2019 Physik Instrumente (PI) GmbH & Co. KG, C-884.4DC, 119012345, 1.3.4.2\n".into(),
                 "SAI?" => "1 \n2 \n3 \n4\n".into(),

@@ -59,8 +59,9 @@
 //! and step settings of the EPICS driver's extra records. Replies carry no channel, so a reply
 //! is checked by its form only.
 
-use crate::protocol::{line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, VendorError};
-use crate::protocol::{ReplyError, Request};
+use crate::protocol::{
+    line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request, VendorError,
+};
 use std::collections::BTreeMap;
 use zmotor_core::engine::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -171,28 +172,55 @@ pub fn error_text(code: i64) -> Option<&'static str> {
     })
 }
 
-/// Which reading a poll request is.
-mod poll_item {
-    pub const STATE: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const AMPLIFIER: u8 = 2;
-    pub const ERRORS: u8 = 3;
+/// A request of the MCS2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Step {
+    /// `:DEV:SNUM?` at initialisation.
+    SerialNumber,
+    /// The error queue as a new connection finds it: entries from before it.
+    StaleErrors,
+    /// `:CHAN<n>:HOLD` at initialisation: silent.
+    Hold,
+    /// The error queue after the initialisation.
+    InitErrors,
+    /// One reading of a channel's poll.
+    Read {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading.
+        reading: Reading,
+    },
+    /// The error queue after a poll, read with the last channel's poll.
+    PollErrors {
+        /// The last channel polled.
+        channel: usize,
+    },
+    /// A setter of a command: silent.
+    Setter {
+        /// The channel commanded.
+        channel: usize,
+    },
+    /// Raw text with a `?`: only that its answer came counts.
+    RawQuery {
+        /// The channel it goes with.
+        channel: usize,
+    },
+    /// The error queue after a command: its errors are the channel's.
+    CommandErrors {
+        /// The channel commanded.
+        channel: usize,
+    },
 }
 
-/// Which step of the initialisation a request is.
-mod init_item {
-    pub const SERIAL_NUMBER: u8 = 0;
-    /// The queue as this connection finds it: entries from before it.
-    pub const STALE_ERRORS: u8 = 1;
-    pub const HOLD: u8 = 2;
-    pub const ERRORS: u8 = 3;
-}
-
-/// Which part of a command a request is.
-mod command_item {
-    pub const SETTER: u8 = 0;
-    pub const RAW_QUERY: u8 = 1;
-    pub const ERRORS: u8 = 2;
+/// The readings of a channel's poll.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reading {
+    /// `:CHAN<n>:STAT?`: the channel state word.
+    State,
+    /// `:CHAN<n>:POS?`, asked when the state says a sensor is present.
+    Position,
+    /// `:CHAN<n>:AMPL?`: the amplifier; it completes the poll.
+    Amplifier,
 }
 
 /// Which way a channel was last sent.
@@ -281,7 +309,7 @@ impl Mcs2 {
     }
 
     /// The requests of a closed-loop move: mode, acceleration, velocity, go.
-    fn closed_loop_move(channel: usize, mode: i64, acceleration: i64, velocity: i64, value: i64) -> Vec<Request> {
+    fn closed_loop_move(channel: usize, mode: i64, acceleration: i64, velocity: i64, value: i64) -> Vec<Request<Step>> {
         vec![
             setter(format!(":CHAN{channel}:MMOD {mode}"), channel),
             setter(format!(":CHAN{channel}:ACC {acceleration}"), channel),
@@ -294,10 +322,10 @@ impl Mcs2 {
     /// follow-up for the next, or the end of the queue.
     fn error_entry(
         &mut self,
-        request: &Request,
+        request: &Request<Step>,
         frame: &[u8],
         channel: Option<usize>,
-    ) -> Result<Vec<Event>, ReplyError> {
+    ) -> Result<Vec<Event<Step>>, ReplyError> {
         let (code, text) = parse_error_entry(&reply_text(frame))
             .ok_or_else(|| ReplyError::new(request, frame, "not code,\"text\""))?;
         if code == 0 {
@@ -307,7 +335,7 @@ impl Mcs2 {
         self.errors_in_a_row += 1;
         let meaning = if text.is_empty() { error_text(code).unwrap_or("unknown error").to_string() } else { text };
         let mut events = Vec::new();
-        if request.purpose == (Purpose::Init { item: init_item::STALE_ERRORS }) {
+        if request.step == Step::StaleErrors {
             tracing::warn!(code, meaning, "MCS2 error queue entry from before this connection");
         } else {
             events.push(Event::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
@@ -334,18 +362,28 @@ impl Mcs2 {
 }
 
 /// A silent request, part of a command to `channel`.
-fn setter(line: String, channel: usize) -> Request {
-    Request::silent(format!("{line}\r\n"), Purpose::Command { channel, item: command_item::SETTER })
+fn setter(line: String, channel: usize) -> Request<Step> {
+    Request::silent(format!("{line}\r\n"), Step::Setter { channel })
 }
 
 /// A query line.
-fn query(line: String, purpose: Purpose) -> Request {
-    Request::query(format!("{line}\r\n"), purpose)
+fn query(line: String, step: Step) -> Request<Step> {
+    Request::query(format!("{line}\r\n"), step)
+}
+
+/// One reading of `channel`'s poll.
+fn read(channel: usize, reading: Reading) -> Request<Step> {
+    let property = match reading {
+        Reading::State => "STAT",
+        Reading::Position => "POS",
+        Reading::Amplifier => "AMPL",
+    };
+    query(format!(":CHAN{channel}:{property}?"), Step::Read { channel, reading })
 }
 
 /// The error-queue read.
-fn error_query(purpose: Purpose) -> Request {
-    query(":SYST:ERR?".to_string(), purpose)
+fn error_query(step: Step) -> Request<Step> {
+    query(":SYST:ERR?".to_string(), step)
 }
 
 /// A reply's text, without its line end.
@@ -399,8 +437,20 @@ fn msta_of(word: u32, amplifier: bool, travel: Option<Travel>) -> u32 {
 }
 
 impl Protocol for Mcs2 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::SerialNumber | Step::StaleErrors | Step::Hold | Step::InitErrors => Purpose::Init,
+            Step::Read { channel, .. } | Step::PollErrors { channel } => Purpose::Poll { channel },
+            Step::Setter { channel } | Step::RawQuery { channel } | Step::CommandErrors { channel } => {
+                Purpose::Command { channel }
+            }
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -411,38 +461,32 @@ impl Protocol for Mcs2 {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // What the last connection knew may be stale: the controller may have been restarted.
         self.channels.clear();
         self.errors_in_a_row = 0;
-        let mut requests = vec![
-            query(":DEV:SNUM?".to_string(), Purpose::Init { item: init_item::SERIAL_NUMBER }),
-            error_query(Purpose::Init { item: init_item::STALE_ERRORS }),
-        ];
+        let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber), error_query(Step::StaleErrors)];
         for channel in channels {
             let line = format!(":CHAN{channel}:HOLD {HOLD_FOREVER}\r\n");
-            requests.push(Request::silent(line, Purpose::Init { item: init_item::HOLD }));
+            requests.push(Request::silent(line, Step::Hold));
         }
-        requests.push(error_query(Purpose::Init { item: init_item::ERRORS }));
+        requests.push(error_query(Step::InitErrors));
         requests
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            let read = |property: &str, item: u8| {
-                query(format!(":CHAN{channel}:{property}?"), Purpose::Poll { channel, item })
-            };
-            requests.push(read("STAT", poll_item::STATE));
-            requests.push(read("AMPL", poll_item::AMPLIFIER));
+            requests.push(read(channel, Reading::State));
+            requests.push(read(channel, Reading::Amplifier));
         }
-        if let Some(&last) = channels.last() {
-            requests.push(error_query(Purpose::Poll { channel: last, item: poll_item::ERRORS }));
+        if let Some(&channel) = channels.last() {
+            requests.push(error_query(Step::PollErrors { channel }));
         }
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let mut requests = match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
                 self.require_sensor(channel)?;
@@ -502,7 +546,7 @@ impl Protocol for Mcs2 {
                     return Err(CommandError::Unsupported { protocol: NAME, what: "send raw text of several lines" });
                 }
                 if text.trim_end().ends_with('?') {
-                    vec![query(text.clone(), Purpose::Command { channel, item: command_item::RAW_QUERY })]
+                    vec![query(text.clone(), Step::RawQuery { channel })]
                 } else {
                     vec![setter(text.clone(), channel)]
                 }
@@ -515,25 +559,22 @@ impl Protocol for Mcs2 {
             | DriverCommand::SetGain { .. }
             | DriverCommand::Poll => return Ok(Vec::new()),
         };
-        requests.push(error_query(Purpose::Command { channel, item: command_item::ERRORS }));
+        requests.push(error_query(Step::CommandErrors { channel }));
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
         let text = reply_text(frame);
-        match request.purpose {
-            Purpose::Init { item: init_item::SERIAL_NUMBER } => {
+        match request.step {
+            Step::SerialNumber => {
                 tracing::info!(serial = text, "MCS2 connected");
                 Ok(Vec::new())
             }
-            Purpose::Init { item: init_item::STALE_ERRORS | init_item::ERRORS } => {
-                self.error_entry(request, frame, None)
-            }
-            Purpose::Poll { item: poll_item::ERRORS, .. } => self.error_entry(request, frame, None),
-            Purpose::Command { channel, item: command_item::ERRORS } => self.error_entry(request, frame, Some(channel)),
+            Step::StaleErrors | Step::InitErrors | Step::PollErrors { .. } => self.error_entry(request, frame, None),
+            Step::CommandErrors { channel } => self.error_entry(request, frame, Some(channel)),
             // The answer is the user's to read in the controller's log; only that it came counts.
-            Purpose::Command { item: command_item::RAW_QUERY, .. } => Ok(Vec::new()),
-            Purpose::Poll { channel, item: poll_item::STATE } => {
+            Step::RawQuery { .. } => Ok(Vec::new()),
+            Step::Read { channel, reading: Reading::State } => {
                 let word = parse_integer(&text)
                     .and_then(|word| u32::try_from(word).ok())
                     .ok_or_else(|| ReplyError::new(request, frame, "not a channel state word"))?;
@@ -541,16 +582,14 @@ impl Protocol for Mcs2 {
                 if word & state::SENSOR_PRESENT == 0 {
                     return Ok(Vec::new());
                 }
-                let position =
-                    query(format!(":CHAN{channel}:POS?"), Purpose::Poll { channel, item: poll_item::POSITION });
-                Ok(vec![Event::FollowUp(vec![position])])
+                Ok(vec![Event::FollowUp(vec![read(channel, Reading::Position)])])
             }
-            Purpose::Poll { channel, item: poll_item::POSITION } => {
+            Step::Read { channel, reading: Reading::Position } => {
                 let pm = parse_integer(&text).ok_or_else(|| ReplyError::new(request, frame, "not a position in pm"))?;
                 self.channel(channel).position = Some(pm);
                 Ok(Vec::new())
             }
-            Purpose::Poll { channel, item: poll_item::AMPLIFIER } => {
+            Step::Read { channel, reading: Reading::Amplifier } => {
                 let amplifier = match text.as_str() {
                     "0" => false,
                     "1" => true,
@@ -558,7 +597,7 @@ impl Protocol for Mcs2 {
                 };
                 Ok(vec![Event::Status { channel, status: self.status(channel, amplifier) }])
             }
-            _ => Err(ReplyError::new(request, frame, "no reply was expected")),
+            Step::Hold | Step::Setter { .. } => Err(ReplyError::new(request, frame, "no reply was expected")),
         }
     }
 }
@@ -567,11 +606,11 @@ impl Protocol for Mcs2 {
 mod tests {
     use super::*;
 
-    fn lines(requests: &[Request]) -> Vec<String> {
+    fn lines(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
-    fn answered(requests: &[Request]) -> Vec<bool> {
+    fn answered(requests: &[Request<Step>]) -> Vec<bool> {
         requests.iter().map(|r| r.answered).collect()
     }
 
@@ -749,7 +788,7 @@ mod tests {
             lines(&p.poll(&[0, 2])),
             [":CHAN0:STAT?\r\n", ":CHAN0:AMPL?\r\n", ":CHAN2:STAT?\r\n", ":CHAN2:AMPL?\r\n", ":SYST:ERR?\r\n"]
         );
-        assert_eq!(p.poll(&[0, 2])[4].purpose, Purpose::Poll { channel: 2, item: poll_item::ERRORS });
+        assert_eq!(p.poll(&[0, 2])[4].step, Step::PollErrors { channel: 2 });
         // Idle, sensor present, calibrated, referenced, holding: 226.
         let idle = polled(&mut p, 0, "226", Some("-1500250"), "1");
         assert_eq!((idle.position, idle.encoder_position), (-1500.25, -1500.25));

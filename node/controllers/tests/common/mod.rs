@@ -9,6 +9,7 @@ use zmotor_controllers::loopback::Loopback;
 use zmotor_controllers::protocol::VendorError;
 use zmotor_controllers::{ProtocolKind, ProtocolOptions};
 use zmotor_core::engine::DeviceStatus;
+use zmotor_core::Instant;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 
@@ -17,7 +18,7 @@ use zmotor_msgs::{DriverCommand, Gain};
 pub fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
     let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
-    Loopback::new(kind.protocol(&ProtocolOptions::default()), emulator, config, faults)
+    Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
 }
 
 /// Run until the controller is up and has reported every channel; the events on the way.
