@@ -9,7 +9,7 @@
 use crate::protocol::{
     line_frame, line_text, whole_steps, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request,
 };
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

@@ -14,7 +14,7 @@
 use crate::protocol::{CommandError, Event, Frame, Protocol, Purpose, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;

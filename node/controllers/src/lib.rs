@@ -164,7 +164,7 @@ impl ProtocolKind {
             }
             ProtocolKind::Phytron => {
                 // Each axis reads an encoder of one count a step (I1EM modules).
-                let mechanics = zmotor_core::driver::sim::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
+                let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
                 Box::new(emulator::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
         }

@@ -4,7 +4,7 @@
 use crate::controller::{AnyController, ControllerEvent};
 use crate::emulator::{Emulator, Faults, WithFaults};
 use std::time::Duration;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::DriverCommand;
 

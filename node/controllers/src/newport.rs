@@ -72,7 +72,7 @@ use crate::protocol::{
     line_frame, line_text, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request, VendorError,
 };
 use std::ops::RangeInclusive;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 

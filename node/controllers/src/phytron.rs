@@ -89,7 +89,7 @@ use crate::protocol::{
 };
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

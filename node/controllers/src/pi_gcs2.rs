@@ -84,7 +84,7 @@ use crate::protocol::{
     VendorError,
 };
 use std::collections::BTreeMap;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

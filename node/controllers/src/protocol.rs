@@ -2,7 +2,7 @@
 //! and polls into request frames, splits the byte stream into reply frames, and turns replies
 //! into channel status. No I/O, no clock.
 
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::DriverCommand;
 
 /// What a protocol needs to know of the installation.

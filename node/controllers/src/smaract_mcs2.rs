@@ -63,7 +63,7 @@ use crate::protocol::{
     line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request, VendorError,
 };
 use std::collections::BTreeMap;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

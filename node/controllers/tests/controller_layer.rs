@@ -11,8 +11,8 @@ use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
 use zmotor_controllers::protocol::{line_frame, CommandError, Event, Frame, Purpose, ReplyError, Request};
 use zmotor_controllers::ProtocolKind;
-use zmotor_core::driver::Driver;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
+use zmotor_core::Driver;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -292,7 +292,7 @@ fn a_jog_running_when_the_link_is_lost_is_stopped_first_when_it_is_back() {
     assert_eq!(sent.iter().filter(|w| w.starts_with("#00Q")).count(), 0, "only the channel that moved");
     let now = lb.now();
     let axis = lb.link.emulator().axis(1).expect("channel 1");
-    zmotor_core::driver::Driver::advance(axis, now);
+    zmotor_core::Driver::advance(axis, now);
     assert!(!axis.is_moving());
 }
 
@@ -387,7 +387,7 @@ impl zmotor_controllers::emulator::Emulator for Answering {
     fn malformed(&self) -> usize {
         0
     }
-    fn axis(&mut self, _channel: usize) -> Option<&mut zmotor_core::driver::sim::SimAxis> {
+    fn axis(&mut self, _channel: usize) -> Option<&mut zmotor_core::SimAxis> {
         None
     }
     fn raise_error(&mut self, _channel: usize) -> bool {

@@ -12,9 +12,9 @@ use zmotor_controllers::controller::{ControllerConfig, ControllerEvent, Refusal}
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
 use zmotor_controllers::{CommandError, ProtocolKind, ProtocolOptions};
-use zmotor_core::driver::sim::SimSetting;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
+use zmotor_core::SimSetting;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain, Value};
 

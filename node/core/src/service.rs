@@ -20,6 +20,7 @@ use zmotor_msgs::{
 };
 
 /// Why a request was refused. The message says it in plain words and names the field.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RequestError {
     /// No field has this name.
@@ -109,7 +110,8 @@ impl RequestError {
     }
 }
 
-/// The answer to a confirmed write or a read.
+/// The answer to a confirmed write or a read. Not `#[non_exhaustive]`: the adapter must send
+/// every kind of answer, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Reply {
     /// A field's value: the result of a confirmed write, or one field of a read.
@@ -124,7 +126,8 @@ pub enum Reply {
     SimSetting(SimSetting, Value),
 }
 
-/// What the adapter must send, in order.
+/// What the adapter must send, in order. Not `#[non_exhaustive]`: each is an action the adapter
+/// must carry out, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ServiceOutput<R> {
     /// Publish a field's new value on `<prefix>/<axis>/<FIELD>`, with its state marker.
@@ -210,6 +213,7 @@ impl<'a> WriteRequest<'a> {
     }
 
     /// The same write, held by `hold`.
+    #[must_use]
     pub fn held(self, hold: Option<Hold>) -> Self {
         Self { hold, ..self }
     }
@@ -277,6 +281,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The same service, jogging only under a hold if `rule` says so.
+    #[must_use]
     pub fn with_jog_hold(self, rule: JogHold) -> Self {
         Self { jog_hold: rule, ..self }
     }
@@ -317,16 +322,19 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The next thing to send, if any.
+    #[must_use]
     pub fn poll_output(&mut self) -> Option<ServiceOutput<R>> {
         self.outputs.pop_front()
     }
 
     /// When `handle_timeout` is due next; None while nothing is.
+    #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
         self.axis.poll_timeout()
     }
 
     /// When the next event apart from the periodic polls is due (see `Axis::event_timeout`).
+    #[must_use]
     pub fn event_timeout(&self) -> Option<Instant> {
         self.axis.event_timeout()
     }
@@ -350,6 +358,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// Whether a field autosave keeps has changed since the last call.
+    #[must_use = "the change is forgotten once taken"]
     pub fn take_unsaved_change(&mut self) -> bool {
         std::mem::take(&mut self.unsaved)
     }
@@ -458,6 +467,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// Number a driver command for the trace (the adapter calls this only when it publishes).
+    #[must_use]
     pub fn stamp_trace(&mut self, command: DriverCommand, at: Instant) -> DriverTrace {
         DriverTrace { command, t: at.as_secs_f64(), seq: self.next_seq() }
     }

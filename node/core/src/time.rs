@@ -57,7 +57,7 @@ impl Sub<Instant> for Instant {
 
 /// A duration from a number of seconds as fields hold them (DLY, a PREM delay): negative and
 /// NaN give zero, and anything beyond `Duration::MAX` saturates, so no field value can panic.
-pub fn seconds(value: f64) -> Duration {
+pub(crate) fn seconds(value: f64) -> Duration {
     if value.is_nan() || value <= 0.0 {
         return Duration::ZERO;
     }

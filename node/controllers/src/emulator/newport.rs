@@ -26,9 +26,9 @@ use crate::newport::{
     error_meaning, errors, state, state_class, state_refusal, StateClass, ADDRESSES, LARGEST_VALUE, NAME, TERMINATOR,
 };
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
+use zmotor_core::Driver;
 use zmotor_core::Instant;
+use zmotor_core::{SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// The software limits at power-up (SL = −this, SR = +this), mm.
@@ -432,7 +432,7 @@ impl Emulator for Smc100Emulator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use zmotor_core::driver::sim::SimSetting;
+    use zmotor_core::SimSetting;
     use zmotor_msgs::Value;
 
     fn chain(controllers: usize) -> Smc100Emulator {

@@ -29,9 +29,9 @@ use crate::phytron::{
     RAMPS, STX,
 };
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
+use zmotor_core::Driver;
 use zmotor_core::Instant;
+use zmotor_core::{SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// Axes on each emulated module.

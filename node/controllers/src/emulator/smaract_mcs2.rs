@@ -13,9 +13,9 @@
 use super::{axes, Emulator};
 use crate::smaract_mcs2::{error_text, move_mode, reference_option, state, DEFAULT_PICOMETRES_PER_STEP, NAME};
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
+use zmotor_core::Driver;
 use zmotor_core::Instant;
+use zmotor_core::{SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// What `:DEV:SNUM?` answers.
@@ -395,7 +395,7 @@ impl Emulator for Mcs2Emulator {
 mod tests {
     use super::*;
     use crate::emulator::stage;
-    use zmotor_core::driver::sim::SimSetting;
+    use zmotor_core::SimSetting;
     use zmotor_msgs::Value;
 
     fn mcs2() -> Mcs2Emulator {

@@ -8,7 +8,7 @@ use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::loopback::Loopback;
 use zmotor_controllers::protocol::VendorError;
 use zmotor_controllers::{ProtocolKind, ProtocolOptions};
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};

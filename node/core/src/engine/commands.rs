@@ -3,7 +3,9 @@
 use std::time::Duration;
 use zmotor_msgs::{Field, RefusalKind, Value};
 
-/// A record-level device command (the reference's `motor_cmnd`), in raw units.
+/// A record-level device command (the reference's `motor_cmnd`), in raw units. Not
+/// `#[non_exhaustive]`: each is an action device support must carry out, and a new one must stop
+/// the build of one that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum MotorCommand {
     /// Stage an absolute move to this raw position (sent at GO).
@@ -65,7 +67,9 @@ pub struct DeviceStatus {
     pub readback: Option<f64>,
 }
 
-/// Something the engine asks of the world, in the order it happened.
+/// Something the engine asks of the world, in the order it happened. Not `#[non_exhaustive]`:
+/// each is an action the caller must carry out, and a new one must stop the build of a caller
+/// that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Output {
     /// A monitor post: the field changed (or must be re-posted).
@@ -81,6 +85,7 @@ pub enum Output {
 }
 
 /// Why a write was refused or changed.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum WriteError {
     /// The field cannot be written.
@@ -126,6 +131,7 @@ impl WriteError {
 }
 
 /// Why the record cannot take a value now (special() before the store).
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum Busy {
     /// Departure Z12: a target written while a jog takes out its backlash would be forgotten.
@@ -143,6 +149,7 @@ pub enum Busy {
 }
 
 /// What the record corrected instead of storing the value written.
+#[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum Adjustment {
     /// STUP takes ON only; anything else leaves it OFF.
@@ -154,6 +161,7 @@ pub enum Adjustment {
 }
 
 /// Why the record processed a write but did not act on it.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Inaction {
     /// The dial target is beyond the soft limits (or DLLM > DHLM).

@@ -86,6 +86,7 @@ impl MotorRecord {
     }
 
     /// Soft Channel device support refuses GET_INFO, so STUP snaps back to OFF.
+    #[must_use]
     pub fn without_status_refresh(mut self) -> Self {
         self.status_refresh = false;
         self
