@@ -7,23 +7,23 @@
 //! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does.
 
 use crate::protocol::{
-    line_frame, line_text, whole_steps, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request,
+    line_frame, line_text, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request,
 };
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "acs_mcb4b";
+pub(crate) const NAME: &str = "acs_mcb4b";
 
 /// The line terminator, both ways.
-pub const TERMINATOR: &[u8] = b"\r";
+pub(crate) const TERMINATOR: &[u8] = b"\r";
 
 /// The distance of a jog, in steps: the controller has no move at constant velocity.
-pub const JOG_STEPS: i32 = 1_000_000;
+pub(crate) const JOG_STEPS: i32 = 1_000_000;
 
 /// The speed index of `velocity` steps/s: speed = 115200 / V.
-pub fn speed_index(velocity: f64) -> u32 {
+pub(crate) fn speed_index(velocity: f64) -> u32 {
     if velocity == 0.0 || !velocity.is_finite() {
         return 255;
     }
@@ -31,12 +31,12 @@ pub fn speed_index(velocity: f64) -> u32 {
 }
 
 /// The speed, in steps/s, of a speed index.
-pub fn speed_of_index(index: u32) -> f64 {
+pub(crate) fn speed_of_index(index: u32) -> f64 {
     115_200.0 / f64::from(index.clamp(2, 255))
 }
 
 /// The ramp index of `acceleration` steps/s²: acceleration = 720000 / (256 − R).
-pub fn ramp_index(acceleration: f64) -> u32 {
+pub(crate) fn ramp_index(acceleration: f64) -> u32 {
     if acceleration <= 0.0 || !acceleration.is_finite() {
         return 255;
     }
@@ -44,13 +44,13 @@ pub fn ramp_index(acceleration: f64) -> u32 {
 }
 
 /// The acceleration, in steps/s², of a ramp index.
-pub fn acceleration_of_index(index: u32) -> f64 {
+pub(crate) fn acceleration_of_index(index: u32) -> f64 {
     720_000.0 / (256.0 - f64::from(index.clamp(1, 255)))
 }
 
 /// A request of the MCB-4B.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
+pub(crate) enum Step {
     /// One reading of a channel's poll.
     Read {
         /// The channel polled.
@@ -67,7 +67,7 @@ pub enum Step {
 
 /// The readings of a channel's poll, in the order they are asked for: the last completes it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reading {
+pub(crate) enum Reading {
     /// `P`: the position, steps.
     Position,
     /// `X`: moving or not.
@@ -80,13 +80,13 @@ pub enum Reading {
 
 /// The MCB-4B protocol, with the status of each channel being assembled from its poll.
 #[derive(Debug, Default)]
-pub struct Mcb4b {
+pub(crate) struct Mcb4b {
     partial: Vec<(usize, DeviceStatus)>,
 }
 
 impl Mcb4b {
     /// A protocol with nothing polled yet.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
@@ -195,7 +195,7 @@ impl Protocol for Mcb4b {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = line_text(frame, TERMINATOR);
         let (channel, reading) = match request.step {
             Step::Read { channel, reading } => (channel, reading),
@@ -237,7 +237,7 @@ impl Protocol for Mcb4b {
                 if status.msta & msta::DONE != 0 {
                     status.msta &= !msta::DIRECTION;
                 }
-                return Ok(vec![Event::Status { channel, status: *status }]);
+                return Ok(vec![ReplyEvent::Status { channel, status: *status }]);
             }
         }
         Ok(Vec::new())
@@ -311,7 +311,7 @@ mod tests {
         assert_eq!(p.reply(&poll[1], b"#01X=1\r").unwrap(), []);
         assert_eq!(p.reply(&poll[2], b"#01E=101\r").unwrap(), []);
         let events = p.reply(&poll[3], b"#01W=1\r").unwrap();
-        let [Event::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.position, 1500.0);
         let expected = msta::MOVING | msta::PLUS_LS | msta::HOME | msta::POSITION | msta::DIRECTION;
         assert_eq!(status.msta, expected);

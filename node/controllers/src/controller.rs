@@ -11,7 +11,7 @@
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
 //! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
 
-use crate::protocol::{CommandError, Event, Frame, Protocol, Purpose, Request, VendorError};
+use crate::protocol::{CommandError, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
 use zmotor_core::DeviceStatus;
@@ -61,6 +61,7 @@ impl ControllerConfig {
 }
 
 /// What the runner and the axes must hear about.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq)]
 pub enum ControllerEvent {
     /// Open the connection (the first time, or once the back-off after a loss has passed).
@@ -96,6 +97,7 @@ pub enum ControllerEvent {
 }
 
 /// Why a command was not sent.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Refusal {
     /// The protocol cannot express it.
@@ -251,12 +253,15 @@ pub trait AnyController: Send {
     fn handle_timeout(&mut self, now: Instant);
 
     /// When `handle_timeout` is due next.
+    #[must_use]
     fn poll_timeout(&self) -> Option<Instant>;
 
     /// The next bytes to write.
+    #[must_use]
     fn poll_transmit(&mut self) -> Option<Vec<u8>>;
 
     /// The next event.
+    #[must_use]
     fn poll_event(&mut self) -> Option<ControllerEvent>;
 }
 
@@ -603,7 +608,7 @@ impl<P: Protocol> Controller<P> {
             return;
         };
         match self.protocol.reply(&in_flight.request, frame) {
-            Ok(events) if events.iter().any(|e| matches!(e, Event::Status { status, .. } if !finite(status))) => {
+            Ok(events) if events.iter().any(|e| matches!(e, ReplyEvent::Status { status, .. } if !finite(status))) => {
                 self.on_failure(in_flight, "a position that is not a number");
             }
             Ok(events) => {
@@ -617,9 +622,9 @@ impl<P: Protocol> Controller<P> {
         }
     }
 
-    fn on_event(&mut self, event: Event<P::Step>, issued: u64) {
+    fn on_event(&mut self, event: ReplyEvent<P::Step>, issued: u64) {
         match event {
-            Event::Status { channel, mut status } => {
+            ReplyEvent::Status { channel, mut status } => {
                 let Some(state) = self.channels.get_mut(channel) else { return };
                 // A poll queued before the last motion command reports the state before it.
                 if issued < state.motion_issued {
@@ -635,7 +640,7 @@ impl<P: Protocol> Controller<P> {
                     self.events.push_back(ControllerEvent::Status { channel, status, motions });
                 }
             }
-            Event::ControllerError(error) => {
+            ReplyEvent::ControllerError(error) => {
                 let affected: Vec<usize> = match error.channel {
                     Some(channel) => vec![channel],
                     None => self.config.channels.clone(),
@@ -645,7 +650,7 @@ impl<P: Protocol> Controller<P> {
                 }
                 self.events.push_back(ControllerEvent::ControllerError(error));
             }
-            Event::FollowUp(requests) => {
+            ReplyEvent::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {
                     for request in requests.into_iter().rev() {
                         current.requests.push_front(request);

@@ -2,7 +2,7 @@
 //! for byte, with the link's faults, without a socket or a clock.
 
 use crate::controller::{AnyController, ControllerEvent};
-use crate::emulator::{Emulator, Faults, WithFaults};
+use crate::emulation::{Emulator, Faults, WithFaults};
 use std::time::Duration;
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
@@ -43,6 +43,7 @@ impl Loopback {
     }
 
     /// Replies are delivered `bytes` at a time.
+    #[must_use]
     pub fn with_chunks(mut self, bytes: usize) -> Self {
         self.chunk = bytes.max(1);
         self

@@ -7,7 +7,7 @@
 //! 1, so channel 0 has no axis). Setters (`MOV`, `MVR`, `VEL`, `ACC`, `DEC`, `SVO`, `RON`,
 //! `POS`, `SPA`, `HLT`, `FRF`, `FNL`, `FPL`) are silent: the controller answers nothing, keeps
 //! the code of the last error, and `ERR?` reads and clears it. So every setter is followed by
-//! `ERR?`; a code other than 0 is an `Event::ControllerError` with PI's meaning of the code
+//! `ERR?`; a code other than 0 is a `ReplyEvent::ControllerError` with PI's meaning of the code
 //! (`error_meaning`), e.g. 7 "Position out of limits". Queries answer `<axis>=<value>`
 //! (`SPA?` and `SRG?` answer `<axis> <id>=<value>`); a reply of several lines ends every line
 //! but the last with a space before the LF, so `frame` returns one whole reply, whatever its
@@ -80,7 +80,7 @@
 //! without `HAR?` would not answer it), macros, joystick, data recording, wave generator.
 
 use crate::protocol::{
-    line_text, whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request,
+    line_text, whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
     VendorError,
 };
 use std::collections::BTreeMap;
@@ -89,58 +89,61 @@ use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "pi_gcs2";
+pub(crate) const NAME: &str = "pi_gcs2";
 
 /// The line terminator, both ways.
-pub const TERMINATOR: &[u8] = b"\n";
+pub(crate) const TERMINATOR: &[u8] = b"\n";
 
 /// Units per step before the controller's counts per unit are read (EPICS: 1000 counts per
 /// unit).
-pub const DEFAULT_UNITS_PER_STEP: f64 = 0.001;
+pub(crate) const DEFAULT_UNITS_PER_STEP: f64 = 0.001;
 
 /// The error code `HLT` leaves: the controller was stopped by command.
-pub const STOPPED_BY_COMMAND: i64 = 10;
+pub(crate) const STOPPED_BY_COMMAND: i64 = 10;
 
 /// The models, as `*IDN?` names them, that speak GCS 2 the way this module drives it.
-pub const MODELS: [&str; 7] = ["C-663", "C-863", "C-867", "C-884", "E-861", "E-871", "E-873"];
+pub(crate) const MODELS: [&str; 7] = ["C-663", "C-863", "C-867", "C-884", "E-861", "E-871", "E-873"];
 
 /// Bits of an axis's status register (`SRG? <ax> 1`, `#4`).
-pub mod register {
+// The whole register, as the manual defines it: a reference of what a reply may carry, the bits
+// the driver does not read included.
+#[allow(dead_code)]
+pub(crate) mod register {
     /// The negative limit switch is active.
-    pub const NEGATIVE_LIMIT: u16 = 1 << 0;
+    pub(crate) const NEGATIVE_LIMIT: u16 = 1 << 0;
     /// The reference switch signal is high (the stage is on its positive side).
-    pub const REFERENCE_SIGNAL: u16 = 1 << 1;
+    pub(crate) const REFERENCE_SIGNAL: u16 = 1 << 1;
     /// The positive limit switch is active.
-    pub const POSITIVE_LIMIT: u16 = 1 << 2;
+    pub(crate) const POSITIVE_LIMIT: u16 = 1 << 2;
     /// An error occurred.
-    pub const ERROR: u16 = 1 << 8;
+    pub(crate) const ERROR: u16 = 1 << 8;
     /// Servo (closed loop) on.
-    pub const SERVO_ON: u16 = 1 << 12;
+    pub(crate) const SERVO_ON: u16 = 1 << 12;
     /// In motion.
-    pub const IN_MOTION: u16 = 1 << 13;
+    pub(crate) const IN_MOTION: u16 = 1 << 13;
     /// A referencing (FRF, FNL, FPL) is running.
-    pub const REFERENCING: u16 = 1 << 14;
+    pub(crate) const REFERENCING: u16 = 1 << 14;
     /// On target.
-    pub const ON_TARGET: u16 = 1 << 15;
+    pub(crate) const ON_TARGET: u16 = 1 << 15;
 }
 
 /// Parameter IDs (`SPA`, `SPA?`).
-pub mod parameter {
+pub(crate) mod parameter {
     /// Current acceleration, units/s².
-    pub const ACCELERATION: u32 = 0x0B;
+    pub(crate) const ACCELERATION: u32 = 0x0B;
     /// Current deceleration, units/s².
-    pub const DECELERATION: u32 = 0x0C;
+    pub(crate) const DECELERATION: u32 = 0x0C;
     /// Counts per unit, numerator.
-    pub const COUNTS_PER_UNIT_NUMERATOR: u32 = 0x0E;
+    pub(crate) const COUNTS_PER_UNIT_NUMERATOR: u32 = 0x0E;
     /// Counts per unit, denominator.
-    pub const COUNTS_PER_UNIT_DENOMINATOR: u32 = 0x0F;
+    pub(crate) const COUNTS_PER_UNIT_DENOMINATOR: u32 = 0x0F;
     /// Velocity of the reference move, units/s.
-    pub const REFERENCE_VELOCITY: u32 = 0x50;
+    pub(crate) const REFERENCE_VELOCITY: u32 = 0x50;
 }
 
 /// PI's meaning of a controller error code (the codes of the C-863/C-884 class and the GCS
 /// codes a driver meets).
-pub fn error_meaning(code: i64) -> &'static str {
+pub(crate) fn error_meaning(code: i64) -> &'static str {
     match code {
         0 => "No error",
         1 => "Parameter syntax error",
@@ -191,7 +194,7 @@ pub fn error_meaning(code: i64) -> &'static str {
 
 /// A request of GCS 2.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
+pub(crate) enum Step {
     /// `*IDN?` at initialisation: is it a controller of the class?
     Identity,
     /// `SAI?` at initialisation: the controller's axes.
@@ -240,7 +243,7 @@ pub enum Step {
 
 /// A setting of an axis read at initialisation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Setting {
+pub(crate) enum Setting {
     /// `TRS?`: whether it has a reference switch.
     HasReference,
     /// `LIM?`: whether it has limit switches.
@@ -257,7 +260,7 @@ pub enum Setting {
 
 /// The readings of a channel's poll, in the order they are asked for: the last completes it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reading {
+pub(crate) enum Reading {
     /// `SRG? <axis> 1`: the status register.
     StatusRegister,
     /// `POS?`: the position.
@@ -310,7 +313,7 @@ impl Default for Axis {
 
 /// The GCS 2 protocol (see the module documentation).
 #[derive(Debug, Default)]
-pub struct PiGcs2 {
+pub(crate) struct PiGcs2 {
     /// Units per step given by the installation, for every channel.
     units_per_step: Option<f64>,
     /// The channels of the connection being initialised.
@@ -323,7 +326,7 @@ pub struct PiGcs2 {
 impl PiGcs2 {
     /// A protocol with nothing read yet; `options.units_per_step`, when given (finite and
     /// positive), replaces the counts per unit read from the controller.
-    pub fn new(options: &ProtocolOptions) -> Self {
+    pub(crate) fn new(options: &ProtocolOptions) -> Self {
         let units_per_step = options.units_per_step.filter(|u| u.is_finite() && *u > 0.0);
         if units_per_step.is_none() && options.units_per_step.is_some() {
             tracing::warn!(
@@ -466,7 +469,7 @@ impl PiGcs2 {
         frame: &[u8],
         channel: usize,
         reading: Reading,
-    ) -> Result<Vec<Event<Step>>, ReplyError> {
+    ) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = reply_text(frame);
         match reading {
             Reading::StatusRegister => {
@@ -491,7 +494,7 @@ impl PiGcs2 {
             }
             Reading::Referenced => {
                 let referenced = flag(request, frame, &text, channel)?;
-                return Ok(vec![Event::Status { channel, status: self.status_of(channel, referenced) }]);
+                return Ok(vec![ReplyEvent::Status { channel, status: self.status_of(channel, referenced) }]);
             }
         }
         Ok(Vec::new())
@@ -572,7 +575,7 @@ fn number(request: &Request<Step>, frame: &[u8], value: &str) -> Result<f64, Rep
 }
 
 /// A parameter or register ID, decimal or `0x` hex.
-pub fn parse_id(text: &str) -> Option<u32> {
+pub(crate) fn parse_id(text: &str) -> Option<u32> {
     match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
         Some(hex) => u32::from_str_radix(hex, 16).ok(),
         None => text.parse().ok(),
@@ -591,13 +594,13 @@ fn error_events(
     frame: &[u8],
     channel: Option<usize>,
     expected: &[i64],
-) -> Result<Vec<Event<Step>>, ReplyError> {
+) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
     let text = reply_text(frame);
     let code: i64 = text.trim().parse().map_err(|_| ReplyError::new(request, frame, "not an error code"))?;
     if code == 0 || expected.contains(&code) {
         return Ok(Vec::new());
     }
-    Ok(vec![Event::ControllerError(VendorError {
+    Ok(vec![ReplyEvent::ControllerError(VendorError {
         channel,
         code: code.to_string(),
         meaning: error_meaning(code).to_string(),
@@ -771,7 +774,7 @@ impl Protocol for PiGcs2 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         match request.step {
             Step::Identity => {
                 let upper = reply_text(frame).to_ascii_uppercase();
@@ -993,7 +996,7 @@ mod tests {
         assert_eq!(p.reply(&poll[0], b"1 1=0x3005\n").unwrap(), []);
         assert_eq!(p.reply(&poll[1], b"1=12.3456000\n").unwrap(), []);
         let events = p.reply(&poll[2], b"1=1\n").unwrap();
-        let [Event::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.position, 123_456.0);
         let expected =
             msta::MOVING | msta::PLUS_LS | msta::MINUS_LS | msta::POSITION | msta::HOMED | msta::GAIN_SUPPORT;
@@ -1001,11 +1004,11 @@ mod tests {
         // Referencing is motion too; at rest on target, done.
         p.reply(&poll[0], b"1 1=0x4000\n").unwrap();
         let events = p.reply(&poll[2], b"1=0\n").unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & (msta::DONE | msta::MOVING | msta::HOMED | msta::POSITION), msta::MOVING);
         p.reply(&poll[0], b"1 0x1=0x9000\n").unwrap();
         let events = p.reply(&poll[2], b"1=1\n").unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & (msta::DONE | msta::MOVING | msta::POSITION), msta::DONE | msta::POSITION);
     }
 
@@ -1014,7 +1017,7 @@ mod tests {
         let mut p = initialised();
         let poll = p.poll(&[1]);
         let direction = |p: &mut PiGcs2| match &p.reply(&poll[2], b"1=1\n").unwrap()[..] {
-            [Event::Status { status, .. }] => status.msta & msta::DIRECTION != 0,
+            [ReplyEvent::Status { status, .. }] => status.msta & msta::DIRECTION != 0,
             other => panic!("{other:?}"),
         };
         p.reply(&poll[1], b"1=1.0\n").unwrap();
@@ -1031,7 +1034,7 @@ mod tests {
         assert_eq!(p.reply(&moved[7], b"0\n").unwrap(), []);
         assert_eq!(
             p.reply(&moved[7], b"7\n").unwrap(),
-            [Event::ControllerError(VendorError {
+            [ReplyEvent::ControllerError(VendorError {
                 channel: Some(3),
                 code: "7".into(),
                 meaning: "Position out of limits".into()
@@ -1039,10 +1042,10 @@ mod tests {
         );
         let stop = p.command(3, &DriverCommand::Stop { acceleration: 1.0 }).unwrap();
         assert_eq!(p.reply(&stop[1], b"10\n").unwrap(), [], "a stop leaves 10");
-        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [Event::ControllerError(VendorError { .. })]));
+        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [ReplyEvent::ControllerError(VendorError { .. })]));
         let poll = p.poll(&[1]);
         let events = p.reply(&poll[3], b"1024\n").unwrap();
-        let [Event::ControllerError(VendorError { channel: None, code, meaning })] = &events[..] else {
+        let [ReplyEvent::ControllerError(VendorError { channel: None, code, meaning })] = &events[..] else {
             panic!("{events:?}")
         };
         assert_eq!((code.as_str(), meaning.starts_with("Motion error")), ("1024", true));
@@ -1056,7 +1059,7 @@ mod tests {
         let problem = |p: &mut PiGcs2, register: &[u8]| {
             p.reply(&poll[0], register).unwrap();
             match &p.reply(&poll[2], b"1=1\n").unwrap()[..] {
-                [Event::Status { status, .. }] => status.msta & msta::PROBLEM != 0,
+                [ReplyEvent::Status { status, .. }] => status.msta & msta::PROBLEM != 0,
                 other => panic!("{other:?}"),
             }
         };

@@ -80,8 +80,9 @@ pub enum Frame {
 }
 
 /// What a reply says.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq)]
-pub enum Event<S> {
+pub enum ReplyEvent<S> {
     /// The full status of a channel: its poll is complete.
     Status {
         /// The channel.
@@ -108,6 +109,7 @@ pub struct VendorError {
 }
 
 /// A reply that cannot be understood.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("unexpected reply to {request}: {reply:?} ({why})")]
 pub struct ReplyError {
@@ -127,6 +129,7 @@ impl ReplyError {
 }
 
 /// Why a driver command cannot be sent; nothing is sent then.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum CommandError {
     /// The controller has nothing that does it.
@@ -162,20 +165,25 @@ pub trait Protocol: Send {
     fn purpose(step: Self::Step) -> Purpose;
 
     /// Where the first reply frame in `buffer` ends.
+    #[must_use]
     fn frame(&self, buffer: &[u8]) -> Frame;
 
     /// What a new connection sends before the channels are polled.
+    #[must_use = "the requests are to be sent"]
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Self::Step>>;
 
     /// One complete poll of `channels`: every reading a channel's status needs, batched into
     /// fewer requests where the controller allows it.
+    #[must_use = "the requests are to be sent"]
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Self::Step>>;
 
     /// The requests that carry out one driver command on `channel`, in order.
+    #[must_use = "the requests are to be sent"]
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Self::Step>>, CommandError>;
 
     /// What the reply `frame` to `request` says.
-    fn reply(&mut self, request: &Request<Self::Step>, frame: &[u8]) -> Result<Vec<Event<Self::Step>>, ReplyError>;
+    fn reply(&mut self, request: &Request<Self::Step>, frame: &[u8])
+        -> Result<Vec<ReplyEvent<Self::Step>>, ReplyError>;
 }
 
 /// Frames that end with a terminator (`\r`, `\r\n`, `\n`): the length of the first line.
@@ -188,19 +196,19 @@ pub fn line_frame(buffer: &[u8], terminator: &[u8]) -> Frame {
 
 /// A frame's bytes without the trailing terminator, as text (replies are ASCII; anything
 /// else is replaced).
-pub fn line_text(frame: &[u8], terminator: &[u8]) -> String {
+pub(crate) fn line_text(frame: &[u8], terminator: &[u8]) -> String {
     let body = frame.strip_suffix(terminator).unwrap_or(frame);
     String::from_utf8_lossy(body).into_owned()
 }
 
 /// Bytes as readable text for messages: control bytes escaped.
-pub fn printable(bytes: &[u8]) -> String {
+pub(crate) fn printable(bytes: &[u8]) -> String {
     bytes.iter().flat_map(|b| std::ascii::escape_default(*b)).map(char::from).collect()
 }
 
 /// A step count as a controller counts it: C-style NINT, in 32 bits. A value beyond is
 /// refused, never clamped (a clamped target drives the carriage somewhere nobody asked).
-pub fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {
+pub(crate) fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {
     let rounded = steps.round();
     if rounded.is_finite() && rounded >= f64::from(i32::MIN) && rounded <= f64::from(i32::MAX) {
         Ok(rounded as i32)

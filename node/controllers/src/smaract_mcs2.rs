@@ -60,7 +60,7 @@
 //! is checked by its form only.
 
 use crate::protocol::{
-    line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request, VendorError,
+    line_frame, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
 use std::collections::BTreeMap;
 use zmotor_core::DeviceStatus;
@@ -68,90 +68,90 @@ use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "smaract_mcs2";
-
-/// The end of every request line (the EPICS driver's output EOS) and of every reply line.
-pub const TERMINATOR: &[u8] = b"\r\n";
+pub(crate) const NAME: &str = "smaract_mcs2";
 
 /// Picometres per record step unless the launch file says otherwise: one step is one nanometre.
-pub const DEFAULT_PICOMETRES_PER_STEP: f64 = 1000.0;
+pub(crate) const DEFAULT_PICOMETRES_PER_STEP: f64 = 1000.0;
 
 /// How far a jog goes, in picometres (100 mm, beyond any positioner's travel): the controller
 /// has no move at constant velocity.
-pub const JOG_DISTANCE_PM: i64 = 100_000_000_000;
+pub(crate) const JOG_DISTANCE_PM: i64 = 100_000_000_000;
 
 /// `:CHAN<n>:HOLD` value that keeps the control loop holding the target forever.
-pub const HOLD_FOREVER: i64 = -1;
+pub(crate) const HOLD_FOREVER: i64 = -1;
 
 /// Error-queue entries read one after another before the rest waits for the next read: a
 /// controller that never answered 0 would otherwise hold the line forever.
-pub const MAX_ERRORS_PER_DRAIN: u32 = 32;
+pub(crate) const MAX_ERRORS_PER_DRAIN: u32 = 32;
 
 /// Bits of the channel state word (`:CHAN<n>:STAT?`).
-pub mod state {
+// The whole word, as the manual defines it: a reference of what a reply may carry, the bits
+// the driver does not read included.
+#[allow(dead_code)]
+pub(crate) mod state {
     /// Any motion: a move, a calibration or a reference search.
-    pub const ACTIVELY_MOVING: u32 = 1 << 0;
+    pub(crate) const ACTIVELY_MOVING: u32 = 1 << 0;
     /// The control loop is active (moving closed loop, or holding).
-    pub const CLOSED_LOOP_ACTIVE: u32 = 1 << 1;
+    pub(crate) const CLOSED_LOOP_ACTIVE: u32 = 1 << 1;
     /// A sensor calibration is running.
-    pub const CALIBRATING: u32 = 1 << 2;
+    pub(crate) const CALIBRATING: u32 = 1 << 2;
     /// A reference mark search is running.
-    pub const REFERENCING: u32 = 1 << 3;
+    pub(crate) const REFERENCING: u32 = 1 << 3;
     /// The start of a move is delayed (waiting for the sensor or a trigger).
-    pub const MOVE_DELAYED: u32 = 1 << 4;
+    pub(crate) const MOVE_DELAYED: u32 = 1 << 4;
     /// A positioner with a position sensor is connected.
-    pub const SENSOR_PRESENT: u32 = 1 << 5;
+    pub(crate) const SENSOR_PRESENT: u32 = 1 << 5;
     /// The sensor's calibration data are valid.
-    pub const IS_CALIBRATED: u32 = 1 << 6;
+    pub(crate) const IS_CALIBRATED: u32 = 1 << 6;
     /// The physical position is known (a reference mark was found).
-    pub const IS_REFERENCED: u32 = 1 << 7;
+    pub(crate) const IS_REFERENCED: u32 = 1 << 7;
     /// A mechanical end stop stopped the last closed-loop move.
-    pub const END_STOP_REACHED: u32 = 1 << 8;
+    pub(crate) const END_STOP_REACHED: u32 = 1 << 8;
     /// The software range limit stopped the last move.
-    pub const RANGE_LIMIT_REACHED: u32 = 1 << 9;
+    pub(crate) const RANGE_LIMIT_REACHED: u32 = 1 << 9;
     /// The following error exceeded its limit.
-    pub const FOLLOWING_LIMIT_REACHED: u32 = 1 << 10;
+    pub(crate) const FOLLOWING_LIMIT_REACHED: u32 = 1 << 10;
     /// The last movement failed (`:CHAN<n>:ERR?` tells why).
-    pub const MOVEMENT_FAILED: u32 = 1 << 11;
+    pub(crate) const MOVEMENT_FAILED: u32 = 1 << 11;
     /// The channel takes part in trajectory streaming.
-    pub const IS_STREAMING: u32 = 1 << 12;
+    pub(crate) const IS_STREAMING: u32 = 1 << 12;
     /// Overload of an electromagnetic drive; the control loop is off.
-    pub const POSITIONER_OVERLOAD: u32 = 1 << 13;
+    pub(crate) const POSITIONER_OVERLOAD: u32 = 1 << 13;
     /// Over temperature; the amplifier is off until it cools.
-    pub const OVER_TEMPERATURE: u32 = 1 << 14;
+    pub(crate) const OVER_TEMPERATURE: u32 = 1 << 14;
     /// The positioner stands at a reference mark.
-    pub const REFERENCE_MARK: u32 = 1 << 15;
+    pub(crate) const REFERENCE_MARK: u32 = 1 << 15;
     /// An electromagnetic positioner is phased.
-    pub const IS_PHASED: u32 = 1 << 16;
+    pub(crate) const IS_PHASED: u32 = 1 << 16;
     /// A positioner fault (electrical).
-    pub const POSITIONER_FAULT: u32 = 1 << 17;
+    pub(crate) const POSITIONER_FAULT: u32 = 1 << 17;
     /// The amplifier is enabled.
-    pub const AMPLIFIER_ENABLED: u32 = 1 << 18;
+    pub(crate) const AMPLIFIER_ENABLED: u32 = 1 << 18;
     /// Within the in-position window.
-    pub const IN_POSITION: u32 = 1 << 19;
+    pub(crate) const IN_POSITION: u32 = 1 << 19;
     /// The brake is engaged.
-    pub const BRAKE_ENABLED: u32 = 1 << 20;
+    pub(crate) const BRAKE_ENABLED: u32 = 1 << 20;
 }
 
 /// Move modes (`:CHAN<n>:MMOD`) this protocol uses.
-pub mod move_mode {
+pub(crate) mod move_mode {
     /// `:MOVE` takes the absolute target, pm.
-    pub const CLOSED_LOOP_ABSOLUTE: i64 = 0;
+    pub(crate) const CLOSED_LOOP_ABSOLUTE: i64 = 0;
     /// `:MOVE` takes the distance, pm.
-    pub const CLOSED_LOOP_RELATIVE: i64 = 1;
+    pub(crate) const CLOSED_LOOP_RELATIVE: i64 = 1;
 }
 
 /// Reference search options (`:CHAN<n>:REF:OPT`) this protocol uses.
-pub mod reference_option {
+pub(crate) mod reference_option {
     /// Start the search backwards (towards negative positions).
-    pub const START_DIRECTION: i64 = 0x01;
+    pub(crate) const START_DIRECTION: i64 = 0x01;
     /// Set the position to 0 at the reference mark.
-    pub const AUTO_ZERO: i64 = 0x04;
+    pub(crate) const AUTO_ZERO: i64 = 0x04;
 }
 
 /// What an MCS2 error code means, for the codes the EPICS driver decodes and those the emulator
 /// reports (negative: SCPI parser errors; positive: the device's own, as the SDK numbers them).
-pub fn error_text(code: i64) -> Option<&'static str> {
+pub(crate) fn error_text(code: i64) -> Option<&'static str> {
     Some(match code {
         0 => "No error",
         -101 => "Invalid character",
@@ -174,7 +174,7 @@ pub fn error_text(code: i64) -> Option<&'static str> {
 
 /// A request of the MCS2.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Step {
+pub(crate) enum Step {
     /// `:DEV:SNUM?` at initialisation.
     SerialNumber,
     /// The error queue as a new connection finds it: entries from before it.
@@ -214,7 +214,7 @@ pub enum Step {
 
 /// The readings of a channel's poll.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reading {
+pub(crate) enum Reading {
     /// `:CHAN<n>:STAT?`: the channel state word.
     State,
     /// `:CHAN<n>:POS?`, asked when the state says a sensor is present.
@@ -253,7 +253,7 @@ struct Channel {
 
 /// The MCS2 protocol (see the module documentation).
 #[derive(Debug)]
-pub struct Mcs2 {
+pub(crate) struct Mcs2 {
     picometres_per_step: f64,
     channels: BTreeMap<usize, Channel>,
     /// Error-queue entries read in a row without reaching 0.
@@ -262,7 +262,7 @@ pub struct Mcs2 {
 
 impl Mcs2 {
     /// A protocol with the installation's scale (`units_per_step`: picometres per step).
-    pub fn new(options: &ProtocolOptions) -> Self {
+    pub(crate) fn new(options: &ProtocolOptions) -> Self {
         Self {
             picometres_per_step: options.units_per_step.unwrap_or(DEFAULT_PICOMETRES_PER_STEP),
             channels: BTreeMap::new(),
@@ -325,7 +325,7 @@ impl Mcs2 {
         request: &Request<Step>,
         frame: &[u8],
         channel: Option<usize>,
-    ) -> Result<Vec<Event<Step>>, ReplyError> {
+    ) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let (code, text) = parse_error_entry(&reply_text(frame))
             .ok_or_else(|| ReplyError::new(request, frame, "not code,\"text\""))?;
         if code == 0 {
@@ -338,10 +338,10 @@ impl Mcs2 {
         if request.step == Step::StaleErrors {
             tracing::warn!(code, meaning, "MCS2 error queue entry from before this connection");
         } else {
-            events.push(Event::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
+            events.push(ReplyEvent::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
         }
         if self.errors_in_a_row < MAX_ERRORS_PER_DRAIN {
-            events.push(Event::FollowUp(vec![request.clone()]));
+            events.push(ReplyEvent::FollowUp(vec![request.clone()]));
         } else {
             self.errors_in_a_row = 0;
         }
@@ -563,7 +563,7 @@ impl Protocol for Mcs2 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<Event<Step>>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = reply_text(frame);
         match request.step {
             Step::SerialNumber => {
@@ -582,7 +582,7 @@ impl Protocol for Mcs2 {
                 if word & state::SENSOR_PRESENT == 0 {
                     return Ok(Vec::new());
                 }
-                Ok(vec![Event::FollowUp(vec![read(channel, Reading::Position)])])
+                Ok(vec![ReplyEvent::FollowUp(vec![read(channel, Reading::Position)])])
             }
             Step::Read { channel, reading: Reading::Position } => {
                 let pm = parse_integer(&text).ok_or_else(|| ReplyError::new(request, frame, "not a position in pm"))?;
@@ -595,7 +595,7 @@ impl Protocol for Mcs2 {
                     "1" => true,
                     _ => return Err(ReplyError::new(request, frame, "not 0 or 1")),
                 };
-                Ok(vec![Event::Status { channel, status: self.status(channel, amplifier) }])
+                Ok(vec![ReplyEvent::Status { channel, status: self.status(channel, amplifier) }])
             }
             Step::Hold | Step::Setter { .. } => Err(ReplyError::new(request, frame, "no reply was expected")),
         }
@@ -627,14 +627,14 @@ mod tests {
         let poll = p.poll(&[channel]);
         let events = p.reply(&poll[0], format!("{state_word}\r\n").as_bytes()).unwrap();
         if let Some(position) = position {
-            let [Event::FollowUp(follow)] = &events[..] else { panic!("{events:?}") };
+            let [ReplyEvent::FollowUp(follow)] = &events[..] else { panic!("{events:?}") };
             assert_eq!(lines(follow), [format!(":CHAN{channel}:POS?\r\n")]);
             assert_eq!(p.reply(&follow[0], format!("{position}\r\n").as_bytes()).unwrap(), []);
         } else {
             assert_eq!(events, [], "no position without a sensor");
         }
         let events = p.reply(&poll[1], format!("{amplifier}\r\n").as_bytes()).unwrap();
-        let [Event::Status { channel: c, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: c, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(*c, channel);
         *status
     }
@@ -767,13 +767,13 @@ mod tests {
         // Entries from before the connection are read to the end but not reported.
         assert_eq!(
             p.reply(&init[1], b"-113,\"Undefined header\"\r\n").unwrap(),
-            [Event::FollowUp(vec![init[1].clone()])]
+            [ReplyEvent::FollowUp(vec![init[1].clone()])]
         );
         assert_eq!(p.reply(&init[1], b"0,\"No error\"\r\n").unwrap(), []);
         let events = p.reply(&init[4], b"34,\"Invalid channel index\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: None,
                 code: "34".into(),
                 meaning: "Invalid channel index".into()
@@ -860,19 +860,19 @@ mod tests {
         assert_eq!(
             p.reply(read, b"262,\"Amplifier disabled\"\r\n").unwrap(),
             [
-                Event::ControllerError(VendorError {
+                ReplyEvent::ControllerError(VendorError {
                     channel: Some(3),
                     code: "262".into(),
                     meaning: "Amplifier disabled".into()
                 }),
-                Event::FollowUp(vec![read.clone()])
+                ReplyEvent::FollowUp(vec![read.clone()])
             ]
         );
         // No text from the controller: the code's own meaning.
         let events = p.reply(read, b"-113,\"\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: Some(3),
                 code: "-113".into(),
                 meaning: "Undefined header".into()
@@ -883,7 +883,7 @@ mod tests {
         let events = p.reply(&poll[2], b"272,\"Movement overridden\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: None,
                 code: "272".into(),
                 meaning: "Movement overridden".into()
@@ -894,7 +894,7 @@ mod tests {
         let followed: Vec<bool> = (0..MAX_ERRORS_PER_DRAIN)
             .map(|_| {
                 let events = p.reply(read, b"-350,\"Queue overflow\"\r\n").unwrap();
-                events.iter().any(|e| matches!(e, Event::FollowUp(_)))
+                events.iter().any(|e| matches!(e, ReplyEvent::FollowUp(_)))
             })
             .collect();
         assert!(followed[..followed.len() - 1].iter().all(|f| *f));
@@ -909,7 +909,7 @@ mod tests {
             assert!(p.reply(&poll[0], format!("{bad}\r\n").as_bytes()).is_err(), "state {bad:?}");
         }
         let events = p.reply(&poll[0], b"32\r\n").unwrap();
-        let [Event::FollowUp(position)] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::FollowUp(position)] = &events[..] else { panic!("{events:?}") };
         for bad in ["12.5", "x", "0,\"No error\"", "--5"] {
             assert!(p.reply(&position[0], format!("{bad}\r\n").as_bytes()).is_err(), "position {bad:?}");
         }

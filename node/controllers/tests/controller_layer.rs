@@ -6,11 +6,11 @@ mod common;
 
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
-use zmotor_controllers::controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::protocol::{line_frame, CommandError, Event, Frame, Purpose, ReplyError, Request};
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{
+    line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
+    Refusal, ReplyError, ReplyEvent, Request,
+};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Driver;
 use zmotor_msgs::bits::msta;
@@ -357,10 +357,10 @@ impl zmotor_controllers::Protocol for Picky {
     fn command(&mut self, _channel: usize, _command: &DriverCommand) -> Result<Vec<Request<PickyStep>>, CommandError> {
         Ok(Vec::new())
     }
-    fn reply(&mut self, request: &Request<PickyStep>, frame: &[u8]) -> Result<Vec<Event<PickyStep>>, ReplyError> {
+    fn reply(&mut self, request: &Request<PickyStep>, frame: &[u8]) -> Result<Vec<ReplyEvent<PickyStep>>, ReplyError> {
         match request.step {
             PickyStep::Identify => Err(ReplyError::new(request, frame, "not the controller expected")),
-            PickyStep::Poll { channel } => Ok(vec![Event::Status {
+            PickyStep::Poll { channel } => Ok(vec![ReplyEvent::Status {
                 channel,
                 status: DeviceStatus { msta: msta::DONE, ..DeviceStatus::default() },
             }]),

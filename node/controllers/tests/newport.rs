@@ -8,10 +8,10 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerConfig, ControllerEvent, Refusal};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::{CommandError, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{
+    CommandError, ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, Refusal,
+};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_core::SimSetting;

@@ -8,8 +8,7 @@ use common::{bring_up, command, controller_errors, last_status, loopback, run_un
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{Loopback, ProtocolKind};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

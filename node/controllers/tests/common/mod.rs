@@ -3,11 +3,8 @@
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::protocol::VendorError;
-use zmotor_controllers::{ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::bits::msta;
