@@ -14,8 +14,7 @@
 use crate::protocol::{CommandError, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
-use zmotor_core::DeviceStatus;
-use zmotor_core::Instant;
+use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

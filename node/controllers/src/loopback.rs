@@ -4,8 +4,7 @@
 use crate::controller::{AnyController, ControllerEvent};
 use crate::emulation::{Emulator, Faults, WithFaults};
 use std::time::Duration;
-use zmotor_core::DeviceStatus;
-use zmotor_core::Instant;
+use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::DriverCommand;
 
 /// Exchanges at one instant before the loop is declared runaway.

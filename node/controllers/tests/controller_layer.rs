@@ -11,8 +11,7 @@ use zmotor_controllers::{
     line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
     Refusal, ReplyError, ReplyEvent, Request,
 };
-use zmotor_core::DeviceStatus;
-use zmotor_core::Driver;
+use zmotor_core::{DeviceStatus, Driver};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

@@ -12,9 +12,7 @@ use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{
     CommandError, ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, Refusal,
 };
-use zmotor_core::DeviceStatus;
-use zmotor_core::Instant;
-use zmotor_core::SimSetting;
+use zmotor_core::{DeviceStatus, Instant, SimSetting};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain, Value};
 

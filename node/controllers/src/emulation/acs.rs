@@ -4,9 +4,7 @@
 use super::{axes, Emulator};
 use crate::acs::{acceleration_of_index, speed_of_index, JOG_STEPS, NAME, TERMINATOR};
 use std::collections::VecDeque;
-use zmotor_core::Driver;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// An MCB-4B with `channels` axes (`#00` …).

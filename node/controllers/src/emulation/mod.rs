@@ -12,8 +12,7 @@ pub(crate) mod smaract_mcs2;
 
 use std::collections::VecDeque;
 use std::time::Duration;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Instant, SimAxis, SimConfig};
 
 /// A controller's side of the wire, sans-IO: bytes in at a time, bytes out.
 pub trait Emulator: Send {

@@ -26,9 +26,7 @@ use crate::newport::{
     error_meaning, errors, state, state_class, state_refusal, StateClass, ADDRESSES, LARGEST_VALUE, NAME, TERMINATOR,
 };
 use std::collections::VecDeque;
-use zmotor_core::Driver;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// The software limits at power-up (SL = −this, SR = +this), mm.

@@ -29,9 +29,7 @@ use crate::phytron::{
     RAMPS, STX,
 };
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_core::Driver;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// Axes on each emulated module.

@@ -14,9 +14,7 @@
 use super::Emulator;
 use crate::pi_gcs2::{parameter, parse_id, register, MODELS, NAME};
 use std::collections::VecDeque;
-use zmotor_core::Driver;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// Counts per unit, numerator and denominator (parameters 0x0E and 0x0F).

@@ -13,9 +13,7 @@
 use super::{axes, Emulator};
 use crate::smaract_mcs2::{error_text, move_mode, reference_option, state, DEFAULT_PICOMETRES_PER_STEP, NAME};
 use std::collections::VecDeque;
-use zmotor_core::Driver;
-use zmotor_core::Instant;
-use zmotor_core::{SimAxis, SimConfig};
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// What `:DEV:SNUM?` answers.
