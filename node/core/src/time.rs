@@ -18,7 +18,8 @@ impl Instant {
         Self(elapsed)
     }
 
-    /// The instant `seconds` after the origin (saturating, see [`seconds`]).
+    /// The instant `seconds_after_origin` after the origin: negative and NaN give the origin,
+    /// anything beyond `Duration::MAX` saturates.
     pub fn from_secs_f64(seconds_after_origin: f64) -> Self {
         Self(seconds(seconds_after_origin))
     }
