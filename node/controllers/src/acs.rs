@@ -6,23 +6,24 @@
 //! of a million steps. Status is polled per axis: `P` (position), `X` (moving), `E` (limit
 //! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does.
 
-use crate::protocol::ReplyError;
-use crate::protocol::{line_frame, line_text, whole_steps, CommandError, Event, Frame, Protocol, Purpose, Request};
-use zmotor_core::engine::DeviceStatus;
+use crate::protocol::{
+    line_frame, line_text, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request,
+};
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "acs_mcb4b";
+pub(crate) const NAME: &str = "acs_mcb4b";
 
 /// The line terminator, both ways.
-pub const TERMINATOR: &[u8] = b"\r";
+pub(crate) const TERMINATOR: &[u8] = b"\r";
 
 /// The distance of a jog, in steps: the controller has no move at constant velocity.
-pub const JOG_STEPS: i32 = 1_000_000;
+pub(crate) const JOG_STEPS: i32 = 1_000_000;
 
 /// The speed index of `velocity` steps/s: speed = 115200 / V.
-pub fn speed_index(velocity: f64) -> u32 {
+pub(crate) fn speed_index(velocity: f64) -> u32 {
     if velocity == 0.0 || !velocity.is_finite() {
         return 255;
     }
@@ -30,12 +31,12 @@ pub fn speed_index(velocity: f64) -> u32 {
 }
 
 /// The speed, in steps/s, of a speed index.
-pub fn speed_of_index(index: u32) -> f64 {
+pub(crate) fn speed_of_index(index: u32) -> f64 {
     115_200.0 / f64::from(index.clamp(2, 255))
 }
 
 /// The ramp index of `acceleration` steps/s²: acceleration = 720000 / (256 − R).
-pub fn ramp_index(acceleration: f64) -> u32 {
+pub(crate) fn ramp_index(acceleration: f64) -> u32 {
     if acceleration <= 0.0 || !acceleration.is_finite() {
         return 255;
     }
@@ -43,27 +44,49 @@ pub fn ramp_index(acceleration: f64) -> u32 {
 }
 
 /// The acceleration, in steps/s², of a ramp index.
-pub fn acceleration_of_index(index: u32) -> f64 {
+pub(crate) fn acceleration_of_index(index: u32) -> f64 {
     720_000.0 / (256.0 - f64::from(index.clamp(1, 255)))
 }
 
-/// Which reading a poll request is.
-mod item {
-    pub const POSITION: u8 = 0;
-    pub const MOVING: u8 = 1;
-    pub const SWITCHES: u8 = 2;
-    pub const POWER: u8 = 3;
+/// A request of the MCB-4B.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    /// One reading of a channel's poll.
+    Read {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading.
+        reading: Reading,
+    },
+    /// A command, acknowledged by a line whose text means nothing.
+    Command {
+        /// The channel commanded.
+        channel: usize,
+    },
+}
+
+/// The readings of a channel's poll, in the order they are asked for: the last completes it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Reading {
+    /// `P`: the position, steps.
+    Position,
+    /// `X`: moving or not.
+    Moving,
+    /// `E`: the limit switches and the home switch.
+    Switches,
+    /// `W`: drive power.
+    Power,
 }
 
 /// The MCB-4B protocol, with the status of each channel being assembled from its poll.
 #[derive(Debug, Default)]
-pub struct Mcb4b {
+pub(crate) struct Mcb4b {
     partial: Vec<(usize, DeviceStatus)>,
 }
 
 impl Mcb4b {
     /// A protocol with nothing polled yet.
-    pub fn new() -> Self {
+    pub(crate) fn new() -> Self {
         Self::default()
     }
 
@@ -83,12 +106,12 @@ fn line(channel: usize, rest: &str) -> Vec<u8> {
     format!("#{channel:02}{rest}\r").into_bytes()
 }
 
-fn command_request(channel: usize, rest: &str) -> Request {
-    Request::query(line(channel, rest), Purpose::Command { channel, item: 0 })
+fn command_request(channel: usize, rest: &str) -> Request<Step> {
+    Request::query(line(channel, rest), Step::Command { channel })
 }
 
 /// Speed and ramp, as every motion sets them first.
-fn speed_and_ramp(channel: usize, velocity: f64, acceleration: f64) -> Vec<Request> {
+fn speed_and_ramp(channel: usize, velocity: f64, acceleration: f64) -> Vec<Request<Step>> {
     vec![
         command_request(channel, &format!("V={}", speed_index(velocity))),
         command_request(channel, &format!("R={}", ramp_index(acceleration))),
@@ -96,8 +119,17 @@ fn speed_and_ramp(channel: usize, velocity: f64, acceleration: f64) -> Vec<Reque
 }
 
 impl Protocol for Mcb4b {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::Read { channel, .. } => Purpose::Poll { channel },
+            Step::Command { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -108,24 +140,24 @@ impl Protocol for Mcb4b {
         }
     }
 
-    fn init(&mut self, _channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, _channels: &[usize]) -> Vec<Request<Step>> {
         // The EPICS driver sends nothing but the first poll: nothing moves, nothing powers up.
         Vec::new()
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            for (item, letter) in
-                [(item::POSITION, "P"), (item::MOVING, "X"), (item::SWITCHES, "E"), (item::POWER, "W")]
+            for (reading, letter) in
+                [(Reading::Position, "P"), (Reading::Moving, "X"), (Reading::Switches, "E"), (Reading::Power, "W")]
             {
-                requests.push(Request::query(line(channel, letter), Purpose::Poll { channel, item }));
+                requests.push(Request::query(line(channel, letter), Step::Read { channel, reading }));
             }
         }
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let requests = match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
                 let steps = whole_steps("target", *position)?;
@@ -151,7 +183,7 @@ impl Protocol for Mcb4b {
             }
             DriverCommand::Enable { on } => vec![command_request(channel, if *on { "W=1" } else { "W=0" })],
             DriverCommand::Raw { text } => {
-                vec![Request::query(format!("{text}\r"), Purpose::Command { channel, item: 0 })]
+                vec![Request::query(format!("{text}\r"), Step::Command { channel })]
             }
             // The MCB-4B keeps no soft limits, gains or encoder ratio; a status refresh is a poll.
             DriverCommand::SetEncoderRatio { .. }
@@ -163,11 +195,12 @@ impl Protocol for Mcb4b {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = line_text(frame, TERMINATOR);
-        let Purpose::Poll { channel, item } = request.purpose else {
+        let (channel, reading) = match request.step {
+            Step::Read { channel, reading } => (channel, reading),
             // A command's acknowledgement: its text is not defined, only that it comes.
-            return Ok(Vec::new());
+            Step::Command { .. } => return Ok(Vec::new()),
         };
         let asked = line_text(&request.bytes, TERMINATOR);
         let value = text
@@ -176,20 +209,20 @@ impl Protocol for Mcb4b {
             .ok_or_else(|| ReplyError::new(request, frame, "not the echo of the query"))?;
         let flag = |at: usize| value.as_bytes().get(at).map(|b| *b == b'1');
         let status = self.partial(channel);
-        match item {
-            item::POSITION => {
+        match reading {
+            Reading::Position => {
                 let steps: f64 = value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a position"))?;
                 let moved_up = steps > status.position;
                 status.msta = if moved_up { status.msta | msta::DIRECTION } else { status.msta & !msta::DIRECTION };
                 status.position = steps;
                 status.encoder_position = steps;
             }
-            item::MOVING => {
+            Reading::Moving => {
                 let moving = value.as_bytes().first().ok_or_else(|| ReplyError::new(request, frame, "empty"))? != &b'0';
                 set(&mut status.msta, msta::DONE, !moving);
                 set(&mut status.msta, msta::MOVING, moving);
             }
-            item::SWITCHES => {
+            Reading::Switches => {
                 let (Some(plus), Some(minus), Some(home)) = (flag(0), flag(1), flag(2)) else {
                     return Err(ReplyError::new(request, frame, "fewer than three switch flags"));
                 };
@@ -197,14 +230,14 @@ impl Protocol for Mcb4b {
                 set(&mut status.msta, msta::MINUS_LS, minus);
                 set(&mut status.msta, msta::HOME, home);
             }
-            _ => {
+            Reading::Power => {
                 let powered = flag(0).ok_or_else(|| ReplyError::new(request, frame, "empty"))?;
                 set(&mut status.msta, msta::POSITION, powered);
                 // The direction bit tells the current motion, not the last one.
                 if status.msta & msta::DONE != 0 {
                     status.msta &= !msta::DIRECTION;
                 }
-                return Ok(vec![Event::Status { channel, status: *status }]);
+                return Ok(vec![ReplyEvent::Status { channel, status: *status }]);
             }
         }
         Ok(Vec::new())
@@ -223,7 +256,7 @@ fn set(bits: &mut u32, bit: u32, on: bool) {
 mod tests {
     use super::*;
 
-    fn sent(requests: &[Request]) -> Vec<String> {
+    fn sent(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
@@ -278,7 +311,7 @@ mod tests {
         assert_eq!(p.reply(&poll[1], b"#01X=1\r").unwrap(), []);
         assert_eq!(p.reply(&poll[2], b"#01E=101\r").unwrap(), []);
         let events = p.reply(&poll[3], b"#01W=1\r").unwrap();
-        let [Event::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.position, 1500.0);
         let expected = msta::MOVING | msta::PLUS_LS | msta::HOME | msta::POSITION | msta::DIRECTION;
         assert_eq!(status.msta, expected);

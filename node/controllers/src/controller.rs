@@ -11,11 +11,10 @@
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
 //! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
 
-use crate::protocol::{CommandError, Event, Frame, Protocol, Purpose, Request, VendorError};
+use crate::protocol::{CommandError, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
 use std::collections::VecDeque;
 use std::time::Duration;
-use zmotor_core::engine::DeviceStatus;
-use zmotor_core::Instant;
+use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -61,6 +60,7 @@ impl ControllerConfig {
 }
 
 /// What the runner and the axes must hear about.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq)]
 pub enum ControllerEvent {
     /// Open the connection (the first time, or once the back-off after a loss has passed).
@@ -96,6 +96,7 @@ pub enum ControllerEvent {
 }
 
 /// Why a command was not sent.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Refusal {
     /// The protocol cannot express it.
@@ -144,10 +145,10 @@ impl Kind {
 
 /// Requests that belong together, sent one after the other.
 #[derive(Debug)]
-struct Transaction {
+struct Transaction<S> {
     priority: Priority,
     kind: Kind,
-    requests: VecDeque<Request>,
+    requests: VecDeque<Request<S>>,
     /// When it was queued, in the controller's sequence: a poll queued before a motion command
     /// of its channel reports a status that motion has made stale.
     issued: u64,
@@ -155,8 +156,8 @@ struct Transaction {
 
 /// The request waiting for its reply.
 #[derive(Debug)]
-struct InFlight {
-    request: Request,
+struct InFlight<S> {
+    request: Request<S>,
     deadline: Instant,
     attempts: u32,
 }
@@ -200,21 +201,22 @@ struct Channel {
     stop_owed: bool,
 }
 
-/// One controller (see the module documentation).
-pub struct Controller {
-    protocol: Box<dyn Protocol>,
+/// One controller speaking the protocol `P` (see the module documentation). Its API is
+/// `AnyController`, which a runner holds for a protocol chosen at run time.
+pub struct Controller<P: Protocol> {
+    protocol: P,
     config: ControllerConfig,
     link: Link,
     channels: Vec<Channel>,
-    queue: Vec<Transaction>,
+    queue: Vec<Transaction<P::Step>>,
     /// The transaction being carried out, and its request waiting for a reply.
-    current: Option<Transaction>,
-    in_flight: Option<InFlight>,
+    current: Option<Transaction<P::Step>>,
+    in_flight: Option<InFlight<P::Step>>,
     /// After a timeout nothing is sent until then: a reply still on its way must not be taken
     /// for the next request's.
     quiet_until: Option<Instant>,
     /// A request whose reply did not come in time, sent again once the quiet is over.
-    retry: Option<InFlight>,
+    retry: Option<InFlight<P::Step>>,
     received: Vec<u8>,
     next_poll: Option<Instant>,
     fast_polls_left: u32,
@@ -225,9 +227,46 @@ pub struct Controller {
     events: VecDeque<ControllerEvent>,
 }
 
-impl Controller {
+/// A controller of any protocol (see the module documentation): what a runner holds when the
+/// protocol is chosen at run time (`ProtocolKind::controller`). Every `Controller` is one.
+pub trait AnyController: Send {
+    /// The protocol's name.
+    fn protocol(&self) -> &'static str;
+
+    /// Whether the link is up and initialised.
+    fn is_up(&self) -> bool;
+
+    /// A driver command for `channel` (from its axis's record).
+    fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand);
+
+    /// The runner opened the connection.
+    fn handle_connected(&mut self, now: Instant);
+
+    /// The connection failed to open, or closed.
+    fn handle_disconnected(&mut self, now: Instant);
+
+    /// Bytes read from the connection.
+    fn handle_input(&mut self, now: Instant, bytes: &[u8]);
+
+    /// Time passed to `now`: a reply overdue, a poll due, a reconnection due.
+    fn handle_timeout(&mut self, now: Instant);
+
+    /// When `handle_timeout` is due next.
+    #[must_use]
+    fn poll_timeout(&self) -> Option<Instant>;
+
+    /// The next bytes to write.
+    #[must_use]
+    fn poll_transmit(&mut self) -> Option<Vec<u8>>;
+
+    /// The next event.
+    #[must_use]
+    fn poll_event(&mut self) -> Option<ControllerEvent>;
+}
+
+impl<P: Protocol> Controller<P> {
     /// A controller not connected yet: the first `handle_timeout` asks for the connection.
-    pub fn new(protocol: Box<dyn Protocol>, config: ControllerConfig, now: Instant) -> Self {
+    pub fn new(protocol: P, config: ControllerConfig, now: Instant) -> Self {
         let channels = vec![Channel::default(); config.channels.iter().max().map_or(0, |c| c + 1)];
         let backoff = config.reconnect_first;
         Self {
@@ -250,19 +289,18 @@ impl Controller {
             events: VecDeque::new(),
         }
     }
+}
 
-    /// The protocol's name.
-    pub fn protocol(&self) -> &'static str {
+impl<P: Protocol> AnyController for Controller<P> {
+    fn protocol(&self) -> &'static str {
         self.protocol.name()
     }
 
-    /// Whether the link is up and initialised.
-    pub fn is_up(&self) -> bool {
+    fn is_up(&self) -> bool {
         self.link == Link::Up
     }
 
-    /// A driver command for `channel` (from its axis's record).
-    pub fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand) {
+    fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand) {
         self.advance(now);
         if !self.config.channels.contains(&channel) {
             self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::UnknownChannel(channel) });
@@ -326,8 +364,7 @@ impl Controller {
         self.pump();
     }
 
-    /// The runner opened the connection.
-    pub fn handle_connected(&mut self, now: Instant) {
+    fn handle_connected(&mut self, now: Instant) {
         self.advance(now);
         let Link::Connecting { backoff } = self.link else { return };
         self.link = Link::Initialising { backoff };
@@ -365,8 +402,7 @@ impl Controller {
         self.pump();
     }
 
-    /// The connection failed to open, or closed.
-    pub fn handle_disconnected(&mut self, now: Instant) {
+    fn handle_disconnected(&mut self, now: Instant) {
         self.advance(now);
         match self.link {
             Link::Down { .. } => {}
@@ -376,8 +412,7 @@ impl Controller {
         }
     }
 
-    /// Bytes read from the connection.
-    pub fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
+    fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
         self.advance(now);
         if !matches!(self.link, Link::Initialising { .. } | Link::Up) {
             return;
@@ -405,8 +440,7 @@ impl Controller {
         self.pump();
     }
 
-    /// Time passed to `now`: a reply overdue, a poll due, a reconnection due.
-    pub fn handle_timeout(&mut self, now: Instant) {
+    fn handle_timeout(&mut self, now: Instant) {
         self.advance(now);
         if let Link::Down { at, backoff } = self.link {
             if self.now >= at {
@@ -435,8 +469,7 @@ impl Controller {
         self.pump();
     }
 
-    /// When `handle_timeout` is due next.
-    pub fn poll_timeout(&self) -> Option<Instant> {
+    fn poll_timeout(&self) -> Option<Instant> {
         match self.link {
             Link::Down { at, .. } => Some(at),
             Link::Connecting { .. } => None,
@@ -448,16 +481,16 @@ impl Controller {
         }
     }
 
-    /// The next bytes to write.
-    pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         self.transmit.pop_front()
     }
 
-    /// The next event.
-    pub fn poll_event(&mut self) -> Option<ControllerEvent> {
+    fn poll_event(&mut self) -> Option<ControllerEvent> {
         self.events.pop_front()
     }
+}
 
+impl<P: Protocol> Controller<P> {
     fn advance(&mut self, now: Instant) {
         self.now = self.now.max(now);
     }
@@ -466,11 +499,11 @@ impl Controller {
     /// that motion waits for one channel's poll at most, and a stop for one exchange.
     fn queue_poll_of(&mut self, channels: &[usize], priority: Priority) {
         self.seq += 1;
-        let mut transactions: Vec<Transaction> = Vec::new();
+        let mut transactions: Vec<Transaction<P::Step>> = Vec::new();
         for request in self.protocol.poll(channels) {
-            let channel = request.purpose.channel();
+            let channel = P::purpose(request.step).channel();
             match transactions.last_mut() {
-                Some(t) if t.requests.back().is_some_and(|r| r.purpose.channel() == channel) => {
+                Some(t) if t.requests.back().is_some_and(|r| P::purpose(r.step).channel() == channel) => {
                     t.requests.push_back(request)
                 }
                 _ => transactions.push(Transaction {
@@ -525,7 +558,7 @@ impl Controller {
     }
 
     /// Write `request` (its `attempts`-th time); wait for its reply if it has one.
-    fn send(&mut self, request: Request, attempts: u32) {
+    fn send(&mut self, request: Request<P::Step>, attempts: u32) {
         // What arrived before this request belongs to nothing: a late reply to an exchange
         // given up must not pass for this one's.
         self.received.clear();
@@ -540,23 +573,23 @@ impl Controller {
     /// become a motion transaction of their own, behind the stop, unless the stop is theirs.
     fn preempt_poll(&mut self) {
         let Some(poll) = self.current.as_mut() else { return };
-        let commands: VecDeque<Request> =
-            poll.requests.drain(..).filter(|r| matches!(r.purpose, Purpose::Command { .. })).collect();
+        let commands: VecDeque<Request<P::Step>> =
+            poll.requests.drain(..).filter(|r| matches!(P::purpose(r.step), Purpose::Command { .. })).collect();
         let issued = poll.issued;
-        let Some(channel) = commands.front().and_then(|r| r.purpose.channel()) else { return };
+        let Some(channel) = commands.front().and_then(|r| P::purpose(r.step).channel()) else { return };
         if !self.queue.iter().any(|t| t.kind == Kind::Stop { channel }) {
             let kind = Kind::Command { channel, motion: true };
             self.queue.push(Transaction { priority: Priority::Motion, kind, requests: commands, issued });
         }
     }
 
-    fn next_transaction(&mut self) -> Option<Transaction> {
+    fn next_transaction(&mut self) -> Option<Transaction<P::Step>> {
         let (index, _) = self.queue.iter().enumerate().min_by_key(|(i, t)| (t.priority, *i))?;
         Some(self.queue.remove(index))
     }
 
     /// A transaction has sent all its requests and had all its replies.
-    fn finished(&mut self, transaction: Transaction) {
+    fn finished(&mut self, transaction: Transaction<P::Step>) {
         let initialising = matches!(self.link, Link::Initialising { .. });
         let last = self.queue.iter().all(|t| t.kind != Kind::Init && t.kind != Kind::Poll);
         if initialising && matches!(transaction.kind, Kind::Init | Kind::Poll) && last {
@@ -574,7 +607,7 @@ impl Controller {
             return;
         };
         match self.protocol.reply(&in_flight.request, frame) {
-            Ok(events) if events.iter().any(|e| matches!(e, Event::Status { status, .. } if !finite(status))) => {
+            Ok(events) if events.iter().any(|e| matches!(e, ReplyEvent::Status { status, .. } if !finite(status))) => {
                 self.on_failure(in_flight, "a position that is not a number");
             }
             Ok(events) => {
@@ -588,9 +621,9 @@ impl Controller {
         }
     }
 
-    fn on_event(&mut self, event: Event, issued: u64) {
+    fn on_event(&mut self, event: ReplyEvent<P::Step>, issued: u64) {
         match event {
-            Event::Status { channel, mut status } => {
+            ReplyEvent::Status { channel, mut status } => {
                 let Some(state) = self.channels.get_mut(channel) else { return };
                 // A poll queued before the last motion command reports the state before it.
                 if issued < state.motion_issued {
@@ -606,7 +639,7 @@ impl Controller {
                     self.events.push_back(ControllerEvent::Status { channel, status, motions });
                 }
             }
-            Event::ControllerError(error) => {
+            ReplyEvent::ControllerError(error) => {
                 let affected: Vec<usize> = match error.channel {
                     Some(channel) => vec![channel],
                     None => self.config.channels.clone(),
@@ -616,7 +649,7 @@ impl Controller {
                 }
                 self.events.push_back(ControllerEvent::ControllerError(error));
             }
-            Event::FollowUp(requests) => {
+            ReplyEvent::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {
                     for request in requests.into_iter().rev() {
                         current.requests.push_front(request);
@@ -628,7 +661,7 @@ impl Controller {
 
     /// An exchange failed: retry a query, drop a command's remaining requests, and lose the
     /// controller after too many failures in a row.
-    fn on_failure(&mut self, in_flight: InFlight, why: &str) {
+    fn on_failure(&mut self, in_flight: InFlight<P::Step>, why: &str) {
         let what = format!("{} ({why})", crate::protocol::printable(&in_flight.request.bytes));
         self.events.push_back(ControllerEvent::Failed { what });
         self.failures += 1;

@@ -1,22 +1,43 @@
-//! zmotor-controllers: real motor controllers, sans-IO. `controller` is the controller layer
-//! (one connection, a priority queue, polls, the link and its loss); `protocol` what a vendor's
-//! protocol provides; one module per vendor; `emulator` the vendors' controllers emulated on
-//! zmotor-core's physical simulator; `spec` a controller as a deployment describes it. A runner
-//! (zmotor-zenoh) moves the bytes.
+//! zmotor-controllers: real motor controllers, sans-IO. `Controller` is the controller layer
+//! (one connection, a priority queue, polls, the link and its loss) over a `Protocol`, what a
+//! vendor's protocol provides; `ProtocolKind` names the vendors' protocols and makes their
+//! controllers (`AnyController`); `ControllerSpec` is a controller as a deployment describes it;
+//! `emulator` holds the vendors' controllers emulated on zmotor-core's physical simulator. A
+//! runner (zmotor-zenoh) moves the bytes.
+//!
+//! Everything a caller uses is named here, at the root (the emulators apart); the modules are
+//! the crate's own. The feature `testing` adds `Loopback`, the test bench of every protocol.
+#![deny(unreachable_pub, missing_docs)]
 
-pub mod acs;
-pub mod controller;
-pub mod emulator;
-pub mod loopback;
-pub mod newport;
-pub mod phytron;
-pub mod pi_gcs2;
-pub mod protocol;
-pub mod smaract_mcs2;
-pub mod spec;
+mod acs;
+mod controller;
+mod emulation;
+#[cfg(feature = "testing")]
+mod loopback;
+mod newport;
+mod phytron;
+mod pi_gcs2;
+mod protocol;
+mod smaract_mcs2;
+mod spec;
 
-pub use controller::{Controller, ControllerConfig, ControllerEvent, Refusal};
-pub use protocol::{CommandError, Protocol, ProtocolOptions};
+pub use controller::{AnyController, Controller, ControllerConfig, ControllerEvent, Refusal};
+#[cfg(feature = "testing")]
+pub use loopback::Loopback;
+pub use protocol::{
+    line_frame, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+};
+pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
+use zmotor_core::Instant;
+
+/// The vendors' controllers emulated: each speaks its vendor's bytes over zmotor-core's physical
+/// simulator (`ProtocolKind::emulator` makes one), behind a link with faults if wished. A module
+/// of its own, that only re-exports: the emulators are a test bench and a demo, not part of
+/// driving a controller, and their names (`stage`, `Faults`) would read as the crate's at the
+/// root; they are to move to a crate of their own.
+pub mod emulator {
+    pub use crate::emulation::{stage, Emulator, Faults, WithFaults};
+}
 
 /// The protocols zmotor speaks, by the names launch files give them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -79,7 +100,7 @@ impl ProtocolKind {
     }
 
     /// Whether `channel` numbers an axis of this protocol's controllers.
-    pub fn check_channel(self, channel: usize) -> Result<(), spec::SpecError> {
+    pub fn check_channel(self, channel: usize) -> Result<(), SpecError> {
         let (valid, allowed) = match self {
             ProtocolKind::AcsMcb4b => (channel <= 3, "0 to 3"),
             ProtocolKind::NewportSmc100 => ((1..=31).contains(&channel), "by their address, 1 to 31"),
@@ -92,18 +113,40 @@ impl ProtocolKind {
         if valid {
             Ok(())
         } else {
-            Err(spec::SpecError::Channel { channel, protocol: self.name(), allowed })
+            Err(SpecError::Channel { channel, protocol: self.name(), allowed })
         }
     }
 
-    /// A driver side of the protocol.
-    pub fn protocol(self, options: &ProtocolOptions) -> Box<dyn Protocol> {
+    /// A controller speaking the protocol, not connected yet (see `Controller::new`).
+    pub fn controller(
+        self,
+        options: &ProtocolOptions,
+        config: ControllerConfig,
+        now: Instant,
+    ) -> Box<dyn AnyController> {
+        /// Builds the controller around whichever protocol it is given.
+        struct Build {
+            config: ControllerConfig,
+            now: Instant,
+        }
+        impl WithProtocol for Build {
+            type Output = Box<dyn AnyController>;
+            fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output {
+                Box::new(Controller::new(protocol, self.config, self.now))
+            }
+        }
+        self.with_protocol(options, Build { config, now })
+    }
+
+    /// `user` run on the driver side of the protocol: code generic over `Protocol` (which has
+    /// a type of its own per vendor) on a protocol chosen at run time.
+    pub fn with_protocol<U: WithProtocol>(self, options: &ProtocolOptions, user: U) -> U::Output {
         match self {
-            ProtocolKind::AcsMcb4b => Box::new(acs::Mcb4b::new()),
-            ProtocolKind::NewportSmc100 => Box::new(newport::Smc100::new(options.units_per_step)),
-            ProtocolKind::PiGcs2 => Box::new(pi_gcs2::PiGcs2::new(options)),
-            ProtocolKind::SmaractMcs2 => Box::new(smaract_mcs2::Mcs2::new(options)),
-            ProtocolKind::Phytron => Box::new(phytron::Phymotion::new(options)),
+            ProtocolKind::AcsMcb4b => user.with(acs::Mcb4b::new()),
+            ProtocolKind::NewportSmc100 => user.with(newport::Smc100::new(options.units_per_step)),
+            ProtocolKind::PiGcs2 => user.with(pi_gcs2::PiGcs2::new(options)),
+            ProtocolKind::SmaractMcs2 => user.with(smaract_mcs2::Mcs2::new(options)),
+            ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
         }
     }
 
@@ -124,28 +167,38 @@ impl ProtocolKind {
     /// axes 1 to `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules
     /// at least).
     pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
-        let mechanics = emulator::stage();
+        let mechanics = emulation::stage();
         match self {
-            ProtocolKind::AcsMcb4b => Box::new(emulator::acs::Mcb4bEmulator::new(channels, &mechanics)),
-            ProtocolKind::NewportSmc100 => Box::new(emulator::newport::Smc100Emulator::new(
+            ProtocolKind::AcsMcb4b => Box::new(emulation::acs::Mcb4bEmulator::new(channels, &mechanics)),
+            ProtocolKind::NewportSmc100 => Box::new(emulation::newport::Smc100Emulator::new(
                 channels.saturating_sub(1).max(1),
-                &emulator::newport::stage(),
+                &emulation::newport::stage(),
             )),
             ProtocolKind::PiGcs2 => {
                 let axes = channels.saturating_sub(1).max(4);
-                Box::new(emulator::pi_gcs2::Gcs2Emulator::new(axes, &emulator::pi_gcs2::mechanics()))
+                Box::new(emulation::pi_gcs2::Gcs2Emulator::new(axes, &emulation::pi_gcs2::mechanics()))
             }
             ProtocolKind::SmaractMcs2 => {
-                let positioner = emulator::smaract_mcs2::positioner(&mechanics);
-                Box::new(emulator::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
+                let positioner = emulation::smaract_mcs2::positioner(&mechanics);
+                Box::new(emulation::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
             }
             ProtocolKind::Phytron => {
                 // Each axis reads an encoder of one count a step (I1EM modules).
-                let mechanics = zmotor_core::driver::sim::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
-                Box::new(emulator::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
+                let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
+                Box::new(emulation::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
         }
     }
+}
+
+/// Code generic over the protocol, run by `ProtocolKind::with_protocol` on the protocol of a
+/// kind chosen at run time.
+pub trait WithProtocol {
+    /// What it gives back.
+    type Output;
+
+    /// Run on `protocol`.
+    fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output;
 }
 
 #[cfg(test)]

@@ -1,12 +1,10 @@
 //! A controller wired to an emulated one, in virtual time: how every protocol is tested byte
 //! for byte, with the link's faults, without a socket or a clock.
 
-use crate::controller::{Controller, ControllerConfig, ControllerEvent};
-use crate::emulator::{Emulator, Faults, WithFaults};
-use crate::protocol::Protocol;
+use crate::controller::{AnyController, ControllerEvent};
+use crate::emulation::{Emulator, Faults, WithFaults};
 use std::time::Duration;
-use zmotor_core::engine::DeviceStatus;
-use zmotor_core::Instant;
+use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::DriverCommand;
 
 /// Exchanges at one instant before the loop is declared runaway.
@@ -15,7 +13,7 @@ const MAX_EXCHANGES: usize = 100_000;
 /// A controller and its emulated counterpart on one virtual clock.
 pub struct Loopback {
     /// The driver side.
-    pub controller: Controller,
+    pub controller: Box<dyn AnyController>,
     /// The controller side, behind its faults.
     pub link: WithFaults,
     now: Instant,
@@ -29,15 +27,10 @@ pub struct Loopback {
 }
 
 impl Loopback {
-    /// `protocol` driving `emulator` through `faults`, at time zero.
-    pub fn new(
-        protocol: Box<dyn Protocol>,
-        emulator: Box<dyn Emulator>,
-        config: ControllerConfig,
-        faults: Faults,
-    ) -> Self {
+    /// `controller`, made at time zero, driving `emulator` through `faults`.
+    pub fn new(controller: Box<dyn AnyController>, emulator: Box<dyn Emulator>, faults: Faults) -> Self {
         Self {
-            controller: Controller::new(protocol, config, Instant::ZERO),
+            controller,
             link: WithFaults::new(emulator, faults),
             now: Instant::ZERO,
             chunk: usize::MAX,
@@ -49,6 +42,7 @@ impl Loopback {
     }
 
     /// Replies are delivered `bytes` at a time.
+    #[must_use]
     pub fn with_chunks(mut self, bytes: usize) -> Self {
         self.chunk = bytes.max(1);
         self

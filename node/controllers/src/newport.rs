@@ -10,7 +10,7 @@
 //! `?`): `1TP12.4999`, `1TS000033`, `1SR12.5`. Setters (`PA`, `VA`, `OR`, `MM`, `SR`, ...) are
 //! silent: they are sent as `Request::silent`, and every command this driver builds ends with
 //! `TE` (the last command error, `@` for none), whose letter becomes
-//! `Event::ControllerError` with the manual's meaning (`H`: "Command not allowed in NOT
+//! `ReplyEvent::ControllerError` with the manual's meaning (`H`: "Command not allowed in NOT
 //! REFERENCED state"). Every reply must start with the echo of its request, or it is a
 //! `ReplyError` (another controller's reply, a garbled line).
 //!
@@ -62,83 +62,83 @@
 //! error state, or a state code the manual does not list; GAIN_SUPPORT always. DIRECTION is the
 //! direction of the position's change while moving. The encoder is the stage's and is what TP
 //! reads: encoder position = position, PRESENT unset. A positioner error bit that appears is
-//! also reported once as `Event::ControllerError` (code: the four hex digits).
+//! also reported once as `ReplyEvent::ControllerError` (code: the four hex digits).
 //!
 //! **Left out.** The keypad jog and CONEX-CC tracking modes (reported, never started), the
 //! CONFIGURATION state's settings (home type and speed, stage parameters: raw text can reach
 //! them), the SMC100PP's stepper specifics, and the CONEX-AGP/AGAP and DL variants.
 
 use crate::protocol::{
-    line_frame, line_text, CommandError, Event, Frame, Protocol, Purpose, ReplyError, Request, VendorError,
+    line_frame, line_text, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
 use std::ops::RangeInclusive;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "newport_smc100";
+pub(crate) const NAME: &str = "newport_smc100";
 
 /// The line terminator, both ways.
-pub const TERMINATOR: &[u8] = b"\r\n";
+pub(crate) const TERMINATOR: &[u8] = b"\r\n";
 
 /// Millimetres per record step unless the launch file says otherwise.
-pub const DEFAULT_UNITS_PER_STEP: f64 = 0.0001;
+pub(crate) const DEFAULT_UNITS_PER_STEP: f64 = 0.0001;
 
 /// The addresses a controller can have on the RS-485 chain.
-pub const ADDRESSES: RangeInclusive<usize> = 1..=31;
+pub(crate) const ADDRESSES: RangeInclusive<usize> = 1..=31;
 
 /// The controller takes numbers of magnitude below this.
-pub const LARGEST_VALUE: f64 = 1e12;
+pub(crate) const LARGEST_VALUE: f64 = 1e12;
 
 /// What a record gain of 1 is in the controller's KP, KI and KD.
-pub const GAIN_SCALE: f64 = 1e6;
+pub(crate) const GAIN_SCALE: f64 = 1e6;
 
 /// Controller state codes (the last two hex digits of `TS`).
-pub mod state {
+pub(crate) mod state {
     /// NOT REFERENCED after a reset or power-up.
-    pub const NOT_REFERENCED_FROM_RESET: u8 = 0x0A;
+    pub(crate) const NOT_REFERENCED_FROM_RESET: u8 = 0x0A;
     /// NOT REFERENCED after a home search that was stopped or failed.
-    pub const NOT_REFERENCED_FROM_HOMING: u8 = 0x0B;
+    pub(crate) const NOT_REFERENCED_FROM_HOMING: u8 = 0x0B;
     /// NOT REFERENCED after leaving CONFIGURATION.
-    pub const NOT_REFERENCED_FROM_CONFIGURATION: u8 = 0x0C;
+    pub(crate) const NOT_REFERENCED_FROM_CONFIGURATION: u8 = 0x0C;
     /// NOT REFERENCED after a motion that ran into an end-of-run switch.
-    pub const NOT_REFERENCED_FROM_MOVING: u8 = 0x0F;
+    pub(crate) const NOT_REFERENCED_FROM_MOVING: u8 = 0x0F;
     /// NOT REFERENCED with an ESP stage error (CONEX-CC: no parameters in memory).
-    pub const NOT_REFERENCED_ESP_STAGE_ERROR: u8 = 0x10;
+    pub(crate) const NOT_REFERENCED_ESP_STAGE_ERROR: u8 = 0x10;
     /// CONFIGURATION (entered with `PW1`).
-    pub const CONFIGURATION: u8 = 0x14;
+    pub(crate) const CONFIGURATION: u8 = 0x14;
     /// HOMING, started by `OR`.
-    pub const HOMING: u8 = 0x1E;
+    pub(crate) const HOMING: u8 = 0x1E;
     /// MOVING.
-    pub const MOVING: u8 = 0x28;
+    pub(crate) const MOVING: u8 = 0x28;
     /// READY after a home search.
-    pub const READY_FROM_HOMING: u8 = 0x32;
+    pub(crate) const READY_FROM_HOMING: u8 = 0x32;
     /// READY after a motion.
-    pub const READY_FROM_MOVING: u8 = 0x33;
+    pub(crate) const READY_FROM_MOVING: u8 = 0x33;
     /// READY after DISABLE.
-    pub const READY_FROM_DISABLE: u8 = 0x34;
+    pub(crate) const READY_FROM_DISABLE: u8 = 0x34;
     /// DISABLE from READY.
-    pub const DISABLE_FROM_READY: u8 = 0x3C;
+    pub(crate) const DISABLE_FROM_READY: u8 = 0x3C;
     /// DISABLE from MOVING (a following error, for one).
-    pub const DISABLE_FROM_MOVING: u8 = 0x3D;
+    pub(crate) const DISABLE_FROM_MOVING: u8 = 0x3D;
 }
 
 /// Positioner error bits (the first four hex digits of `TS`).
-pub mod errors {
+pub(crate) mod errors {
     /// The stage is on its negative end-of-run switch.
-    pub const NEGATIVE_END_OF_RUN: u16 = 0x0001;
+    pub(crate) const NEGATIVE_END_OF_RUN: u16 = 0x0001;
     /// The stage is on its positive end-of-run switch.
-    pub const POSITIVE_END_OF_RUN: u16 = 0x0002;
+    pub(crate) const POSITIVE_END_OF_RUN: u16 = 0x0002;
     /// Following error.
-    pub const FOLLOWING_ERROR: u16 = 0x0020;
+    pub(crate) const FOLLOWING_ERROR: u16 = 0x0020;
     /// Every bit that is a fault (all but the end-of-run switches).
-    pub const FAULTS: u16 = 0x03FC;
+    pub(crate) const FAULTS: u16 = 0x03FC;
 }
 
 /// What a state code means for motion, as a family of states.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum StateClass {
+pub(crate) enum StateClass {
     /// Not homed since power-up, reset, a failed home or an end of run: only `OR` moves it.
     NotReferenced,
     /// Stage parameters being edited.
@@ -156,7 +156,7 @@ pub enum StateClass {
 }
 
 /// The family of a state code; None for a code the manual does not list.
-pub fn state_class(code: u8) -> Option<StateClass> {
+pub(crate) fn state_class(code: u8) -> Option<StateClass> {
     match code {
         0x0A..=0x11 => Some(StateClass::NotReferenced),
         0x14 => Some(StateClass::Configuration),
@@ -170,7 +170,7 @@ pub fn state_class(code: u8) -> Option<StateClass> {
 }
 
 /// The TE letter of a command refused in a state of `class`.
-pub fn state_refusal(class: StateClass) -> char {
+pub(crate) fn state_refusal(class: StateClass) -> char {
     match class {
         StateClass::NotReferenced => 'H',
         StateClass::Configuration => 'I',
@@ -183,7 +183,7 @@ pub fn state_refusal(class: StateClass) -> char {
 }
 
 /// What a TE error letter means, as the manual words it.
-pub fn error_meaning(code: char) -> Option<&'static str> {
+pub(crate) fn error_meaning(code: char) -> Option<&'static str> {
     Some(match code {
         '@' => "No error",
         'A' => "Unknown message code or floating point controller address",
@@ -211,7 +211,7 @@ pub fn error_meaning(code: char) -> Option<&'static str> {
 }
 
 /// The positioner faults set in `bits`, in words.
-pub fn fault_names(bits: u16) -> String {
+pub(crate) fn fault_names(bits: u16) -> String {
     const NAMES: [(u16, &str); 8] = [
         (0x0200, "80 W output power exceeded"),
         (0x0100, "DC voltage too low"),
@@ -227,7 +227,7 @@ pub fn fault_names(bits: u16) -> String {
 }
 
 /// The MSTA bits of a `TS` reply (see the module documentation).
-pub fn msta_of(error_bits: u16, state_code: u8) -> u32 {
+pub(crate) fn msta_of(error_bits: u16, state_code: u8) -> u32 {
     use StateClass::*;
     let class = state_class(state_code);
     let moving = matches!(class, Some(Homing | Moving | Jogging));
@@ -256,23 +256,47 @@ pub fn msta_of(error_bits: u16, state_code: u8) -> u32 {
 }
 
 /// A number as the driver writes it: six decimals, as C's `%f`.
-pub fn decimal(value: f64) -> String {
+pub(crate) fn decimal(value: f64) -> String {
     format!("{value:.6}")
 }
 
-/// Which reading or step a request is.
-mod item {
-    /// A silent setter.
-    pub const SETTER: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const STATUS: u8 = 2;
-    /// `TE`, after a command (or at initialisation, to clear an error left from before).
-    pub const ERROR: u8 = 3;
+/// A request of the SMC100.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    /// `TE` at initialisation: an error stored before this connection, read and dropped.
+    StaleError,
+    /// A query of a poll or of a command, whose reply the protocol reads.
+    Query {
+        /// The controller asked.
+        channel: usize,
+        /// What it reads.
+        query: Query,
+    },
+    /// A setter of a command: silent.
+    Setter {
+        /// The controller commanded.
+        channel: usize,
+    },
+    /// Raw text: the user's own exchange, whatever the controller says.
+    Raw {
+        /// The controller it goes with.
+        channel: usize,
+    },
+}
+
+/// What a query reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Query {
+    /// `TP` of a poll: the position.
+    Position,
+    /// `TS` of a poll: the positioner errors and the controller state.
+    State,
+    /// `TE` after a command: its error letter.
+    Error,
     /// `TS` before a home: is a reset needed first?
-    pub const HOME_STATE: u8 = 4;
+    HomeState,
     /// `SR?` or `SL?`: where a jog runs to.
-    pub const JOG_LIMIT: u8 = 5;
-    pub const RAW: u8 = 6;
+    JogLimit,
 }
 
 /// A motion waiting for a reply before it can go on.
@@ -300,7 +324,7 @@ struct ChannelState {
 
 /// The SMC100 / CONEX-CC protocol (see the module documentation).
 #[derive(Debug)]
-pub struct Smc100 {
+pub(crate) struct Smc100 {
     units_per_step: f64,
     /// Indexed by address.
     channels: Vec<ChannelState>,
@@ -309,7 +333,7 @@ pub struct Smc100 {
 impl Smc100 {
     /// A protocol at `units_per_step` millimetres per record step (None: the default). A value
     /// that is not a positive number cannot scale anything: the default is used, and said.
-    pub fn new(units_per_step: Option<f64>) -> Self {
+    pub(crate) fn new(units_per_step: Option<f64>) -> Self {
         let units_per_step = match units_per_step {
             None => DEFAULT_UNITS_PER_STEP,
             Some(u) if u.is_finite() && u > 0.0 => u,
@@ -321,11 +345,6 @@ impl Smc100 {
             }
         };
         Self { units_per_step, channels: vec![ChannelState::default(); ADDRESSES.end() + 1] }
-    }
-
-    /// Millimetres per record step.
-    pub fn units_per_step(&self) -> f64 {
-        self.units_per_step
     }
 
     /// Steps as millimetres, if the controller can take them.
@@ -354,7 +373,7 @@ impl Smc100 {
         channel: usize,
         velocity: f64,
         acceleration: f64,
-    ) -> Result<Vec<Request>, CommandError> {
+    ) -> Result<Vec<Request<Step>>, CommandError> {
         let speed = self.rate("velocity", velocity.abs())?;
         let acceleration = self.rate("acceleration", acceleration)?;
         Ok(vec![
@@ -368,7 +387,7 @@ impl Smc100 {
         &self,
         channel: usize,
         command: &DriverCommand,
-    ) -> Result<(Vec<Request>, Option<Pending>), CommandError> {
+    ) -> Result<(Vec<Request<Step>>, Option<Pending>), CommandError> {
         let mut requests = match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
                 let (what, verb) = if *relative { ("distance", "PR") } else { ("target", "PA") };
@@ -380,12 +399,11 @@ impl Smc100 {
             DriverCommand::MoveVelocity { max_velocity, acceleration, .. } => {
                 let mut requests = self.speed_and_acceleration(channel, *max_velocity, *acceleration)?;
                 let limit = if *max_velocity > 0.0 { "SR?" } else { "SL?" };
-                requests
-                    .push(Request::query(line(channel, limit), Purpose::Command { channel, item: item::JOG_LIMIT }));
+                requests.push(Request::query(line(channel, limit), Step::Query { channel, query: Query::JogLimit }));
                 return Ok((requests, Some(Pending::Jog)));
             }
             DriverCommand::Home { .. } => {
-                let ask = Request::query(line(channel, "TS"), Purpose::Command { channel, item: item::HOME_STATE });
+                let ask = Request::query(line(channel, "TS"), Step::Query { channel, query: Query::HomeState });
                 return Ok((vec![ask], Some(Pending::Home)));
             }
             DriverCommand::Stop { .. } => vec![setter(channel, "ST")],
@@ -421,9 +439,9 @@ impl Smc100 {
             }
             DriverCommand::Raw { text } => {
                 let bytes = format!("{text}\r\n").into_bytes();
-                let purpose = Purpose::Command { channel, item: item::RAW };
+                let step = Step::Raw { channel };
                 let request =
-                    if raw_is_query(text) { Request::query(bytes, purpose) } else { Request::silent(bytes, purpose) };
+                    if raw_is_query(text) { Request::query(bytes, step) } else { Request::silent(bytes, step) };
                 return Ok((vec![request], None));
             }
             DriverCommand::SetEncoderRatio { .. } | DriverCommand::Poll => return Ok((Vec::new(), None)),
@@ -433,7 +451,7 @@ impl Smc100 {
     }
 
     /// The status of `channel` from its `TS`, and a fault newly reported.
-    fn status(&mut self, channel: usize, error_bits: u16, state_code: u8) -> (DeviceStatus, Option<Event>) {
+    fn status(&mut self, channel: usize, error_bits: u16, state_code: u8) -> (DeviceStatus, Option<ReplyEvent<Step>>) {
         let memory = &mut self.channels[channel];
         let mut bits = msta_of(error_bits, state_code);
         if bits & msta::MOVING != 0 && memory.position > memory.reported.position {
@@ -450,7 +468,7 @@ impl Smc100 {
         let appeared = faults & !memory.faults;
         memory.faults = faults;
         let fault = (appeared != 0).then(|| {
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: Some(channel),
                 code: format!("{error_bits:04X}"),
                 meaning: fault_names(faults),
@@ -460,17 +478,17 @@ impl Smc100 {
     }
 
     /// A poll's `TS`: the channel's status, and the `OR` of a home once its reset is over.
-    fn on_poll_state(&mut self, channel: usize, error_bits: u16, state_code: u8) -> Vec<Event> {
+    fn on_poll_state(&mut self, channel: usize, error_bits: u16, state_code: u8) -> Vec<ReplyEvent<Step>> {
         let (mut status, fault) = self.status(channel, error_bits, state_code);
         let mut events = Vec::new();
         if self.channels[channel].pending == Some(Pending::HomeAfterReset) {
             self.channels[channel].pending = None;
             if state_class(state_code) == Some(StateClass::NotReferenced) {
-                events.push(Event::FollowUp(vec![setter(channel, "OR"), error_query(channel)]));
+                events.push(ReplyEvent::FollowUp(vec![setter(channel, "OR"), error_query(channel)]));
                 // The home search starts now: the motion is not over.
                 status.msta = (status.msta | msta::MOVING) & !msta::DONE;
             } else {
-                events.push(Event::ControllerError(VendorError {
+                events.push(ReplyEvent::ControllerError(VendorError {
                     channel: Some(channel),
                     code: "RS".to_string(),
                     meaning: format!("the controller did not reset (state {state_code:02X}): the home was not started"),
@@ -478,13 +496,13 @@ impl Smc100 {
             }
         }
         self.channels[channel].reported = status;
-        events.push(Event::Status { channel, status });
+        events.push(ReplyEvent::Status { channel, status });
         events.extend(fault);
         events
     }
 
     /// The state before a home: `OR` at once when not referenced, else a reset first.
-    fn on_home_state(&mut self, channel: usize, state_code: u8) -> Vec<Event> {
+    fn on_home_state(&mut self, channel: usize, state_code: u8) -> Vec<ReplyEvent<Step>> {
         if self.channels[channel].pending != Some(Pending::Home) {
             // A stop or another command came since: the home is called off.
             return Vec::new();
@@ -492,23 +510,23 @@ impl Smc100 {
         let referenced = matches!(state_class(state_code), Some(StateClass::Ready | StateClass::Disable));
         if referenced {
             self.channels[channel].pending = Some(Pending::HomeAfterReset);
-            vec![Event::FollowUp(vec![setter(channel, "RS")])]
+            vec![ReplyEvent::FollowUp(vec![setter(channel, "RS")])]
         } else {
             // Not referenced, or a state in which the controller's own refusal says why not.
             self.channels[channel].pending = None;
-            vec![Event::FollowUp(vec![setter(channel, "OR"), error_query(channel)])]
+            vec![ReplyEvent::FollowUp(vec![setter(channel, "OR"), error_query(channel)])]
         }
     }
 
     /// The software limit a jog runs to: the move there.
-    fn on_jog_limit(&mut self, channel: usize, limit: f64) -> Vec<Event> {
+    fn on_jog_limit(&mut self, channel: usize, limit: f64) -> Vec<ReplyEvent<Step>> {
         if self.channels[channel].pending != Some(Pending::Jog) {
             return Vec::new();
         }
         self.channels[channel].pending = None;
         // Six decimals towards zero: never a hair beyond the limit, which the controller refuses.
         let target = (limit * 1e6).trunc() / 1e6;
-        vec![Event::FollowUp(vec![setter(channel, &format!("PA{}", decimal(target))), error_query(channel)])]
+        vec![ReplyEvent::FollowUp(vec![setter(channel, &format!("PA{}", decimal(target))), error_query(channel)])]
     }
 }
 
@@ -523,12 +541,12 @@ fn line(channel: usize, command: &str) -> Vec<u8> {
     format!("{channel}{command}\r\n").into_bytes()
 }
 
-fn setter(channel: usize, command: &str) -> Request {
-    Request::silent(line(channel, command), Purpose::Command { channel, item: item::SETTER })
+fn setter(channel: usize, command: &str) -> Request<Step> {
+    Request::silent(line(channel, command), Step::Setter { channel })
 }
 
-fn error_query(channel: usize) -> Request {
-    Request::query(line(channel, "TE"), Purpose::Command { channel, item: item::ERROR })
+fn error_query(channel: usize) -> Request<Step> {
+    Request::query(line(channel, "TE"), Step::Query { channel, query: Query::Error })
 }
 
 /// Whether raw text is a query the controller answers.
@@ -539,7 +557,7 @@ fn raw_is_query(text: &str) -> bool {
 }
 
 /// The echo a reply to `request` starts with: its address and two-letter command.
-fn echo_of(request: &Request) -> String {
+fn echo_of(request: &Request<Step>) -> String {
     let text = line_text(&request.bytes, TERMINATOR);
     let digits = text.chars().take_while(char::is_ascii_digit).count();
     text.chars().take(digits + 2).collect::<String>().to_ascii_uppercase()
@@ -554,8 +572,20 @@ fn parse_state(value: &str) -> Option<(u16, u8)> {
 }
 
 impl Protocol for Smc100 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::StaleError => Purpose::Init,
+            Step::Query { channel, query: Query::Position | Query::State } => Purpose::Poll { channel },
+            Step::Query { channel, query: Query::Error | Query::HomeState | Query::JogLimit }
+            | Step::Setter { channel }
+            | Step::Raw { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -567,7 +597,7 @@ impl Protocol for Smc100 {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Nothing a previous connection left waiting goes on (no home after a reconnection);
         // an error stored before now is read and dropped, so that the first command's TE is
         // its own. Nothing moves, nothing is reset.
@@ -575,21 +605,21 @@ impl Protocol for Smc100 {
         channels
             .iter()
             .filter(|c| ADDRESSES.contains(c))
-            .map(|&c| Request::query(line(c, "TE"), Purpose::Init { item: item::ERROR }))
+            .map(|&c| Request::query(line(c, "TE"), Step::StaleError))
             .collect()
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels.iter().filter(|c| ADDRESSES.contains(c)) {
-            for (item, query) in [(item::POSITION, "TP"), (item::STATUS, "TS")] {
-                requests.push(Request::query(line(channel, query), Purpose::Poll { channel, item }));
+            for (query, letters) in [(Query::Position, "TP"), (Query::State, "TS")] {
+                requests.push(Request::query(line(channel, letters), Step::Query { channel, query }));
             }
         }
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         if !ADDRESSES.contains(&channel) {
             return Err(CommandError::OutOfRange { what: "controller address", value: channel as f64 });
         }
@@ -601,26 +631,25 @@ impl Protocol for Smc100 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
-        let (channel, item) = match request.purpose {
-            Purpose::Poll { channel, item } | Purpose::Command { channel, item } => (Some(channel), item),
-            Purpose::Init { item } | Purpose::PollMany { item } => (None, item),
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
+        let read = match request.step {
+            Step::Query { channel, query } => Some((channel, query)),
+            Step::StaleError => None,
+            // A setter is not answered; raw text is the user's own exchange: whatever the
+            // controller says.
+            Step::Setter { .. } | Step::Raw { .. } => return Ok(Vec::new()),
         };
-        if item == item::RAW {
-            // The user's own exchange: whatever the controller says.
-            return Ok(Vec::new());
-        }
         let text = line_text(frame, TERMINATOR);
         let value = text
             .strip_prefix(echo_of(request).as_str())
             .map(str::trim)
             .ok_or_else(|| ReplyError::new(request, frame, "not the echo of the request"))?;
-        let Some(channel) = channel.filter(|c| ADDRESSES.contains(c)) else {
+        let Some((channel, query)) = read.filter(|(channel, _)| ADDRESSES.contains(channel)) else {
             // The error read at initialisation was left from before: dropped.
             return Ok(Vec::new());
         };
-        match item {
-            item::POSITION => {
+        match query {
+            Query::Position => {
                 let mm: f64 = value.parse().map_err(|_| ReplyError::new(request, frame, "not a position"))?;
                 if !mm.is_finite() {
                     return Err(ReplyError::new(request, frame, "not a position"));
@@ -629,23 +658,23 @@ impl Protocol for Smc100 {
                 self.channels[channel].position = (mm / self.units_per_step * 1e6).round() / 1e6;
                 Ok(Vec::new())
             }
-            item::STATUS | item::HOME_STATE => {
+            Query::State | Query::HomeState => {
                 let (error_bits, state_code) =
                     parse_state(value).ok_or_else(|| ReplyError::new(request, frame, "not six hex digits"))?;
-                Ok(if item == item::STATUS {
+                Ok(if query == Query::State {
                     self.on_poll_state(channel, error_bits, state_code)
                 } else {
                     self.on_home_state(channel, state_code)
                 })
             }
-            item::JOG_LIMIT => {
+            Query::JogLimit => {
                 let limit: f64 = value.parse().map_err(|_| ReplyError::new(request, frame, "not a limit"))?;
                 if !limit.is_finite() {
                     return Err(ReplyError::new(request, frame, "not a limit"));
                 }
                 Ok(self.on_jog_limit(channel, limit))
             }
-            _ => {
+            Query::Error => {
                 let mut letters = value.chars();
                 let (Some(code), None) = (letters.next(), letters.next()) else {
                     return Err(ReplyError::new(request, frame, "not one error letter"));
@@ -654,7 +683,7 @@ impl Protocol for Smc100 {
                     return Ok(Vec::new());
                 }
                 let meaning = error_meaning(code).unwrap_or("an error code the manual does not list");
-                Ok(vec![Event::ControllerError(VendorError {
+                Ok(vec![ReplyEvent::ControllerError(VendorError {
                     channel: Some(channel),
                     code: code.to_string(),
                     meaning: meaning.into(),
@@ -668,11 +697,11 @@ impl Protocol for Smc100 {
 mod tests {
     use super::*;
 
-    fn sent(requests: &[Request]) -> Vec<String> {
+    fn sent(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
-    fn answered(requests: &[Request]) -> Vec<bool> {
+    fn answered(requests: &[Request<Step>]) -> Vec<bool> {
         requests.iter().map(|r| r.answered).collect()
     }
 
@@ -688,26 +717,26 @@ mod tests {
         DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 1000.0, acceleration: 1000.0 }
     }
 
-    fn follow_up(events: &[Event]) -> Vec<String> {
+    fn follow_up(events: &[ReplyEvent<Step>]) -> Vec<String> {
         match events {
-            [Event::FollowUp(requests), ..] => sent(requests),
+            [ReplyEvent::FollowUp(requests), ..] => sent(requests),
             _ => panic!("no follow-up first: {events:?}"),
         }
     }
 
     /// The status among `events`.
-    fn status_of(events: &[Event]) -> DeviceStatus {
+    fn status_of(events: &[ReplyEvent<Step>]) -> DeviceStatus {
         events
             .iter()
             .find_map(|e| match e {
-                Event::Status { status, .. } => Some(*status),
+                ReplyEvent::Status { status, .. } => Some(*status),
                 _ => None,
             })
             .unwrap_or_else(|| panic!("no status: {events:?}"))
     }
 
     /// Run one poll of `channel` with these replies.
-    fn polled(p: &mut Smc100, channel: usize, tp: &[u8], ts: &[u8]) -> Vec<Event> {
+    fn polled(p: &mut Smc100, channel: usize, tp: &[u8], ts: &[u8]) -> Vec<ReplyEvent<Step>> {
         let poll = p.poll(&[channel]);
         assert_eq!(p.reply(&poll[0], tp).unwrap(), []);
         p.reply(&poll[1], ts).unwrap()
@@ -729,17 +758,17 @@ mod tests {
 
     #[test]
     fn millimetres_per_step_default_to_a_tenth_of_a_micrometre_and_nonsense_is_not_taken() {
-        assert_eq!(Smc100::new(None).units_per_step(), 0.0001);
-        assert_eq!(Smc100::new(Some(0.00005)).units_per_step(), 0.00005);
+        assert_eq!(Smc100::new(None).units_per_step, 0.0001);
+        assert_eq!(Smc100::new(Some(0.00005)).units_per_step, 0.00005);
         for nonsense in [0.0, -0.0001, f64::NAN, f64::INFINITY] {
-            assert_eq!(Smc100::new(Some(nonsense)).units_per_step(), DEFAULT_UNITS_PER_STEP, "{nonsense}");
+            assert_eq!(Smc100::new(Some(nonsense)).units_per_step, DEFAULT_UNITS_PER_STEP, "{nonsense}");
         }
     }
 
     #[test]
     fn values_the_controller_cannot_take_are_refused_not_clamped() {
         let mut p = Smc100::default();
-        let refused = |r: Result<Vec<Request>, CommandError>| matches!(r, Err(CommandError::OutOfRange { .. }));
+        let refused = |r: Result<Vec<Request<Step>>, CommandError>| matches!(r, Err(CommandError::OutOfRange { .. }));
         assert!(refused(p.command(1, &go(1e16, false))), "beyond 1e12 mm");
         assert!(refused(p.command(1, &go(f64::NAN, true))));
         let crawl = DriverCommand::Move {
@@ -834,7 +863,7 @@ mod tests {
         assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING, "the home is under way");
         // Once only.
         let events = polled(&mut p, 2, b"2TP3.2\r\n", b"2TS00001E\r\n");
-        assert!(!matches!(events[0], Event::FollowUp(_)), "{events:?}");
+        assert!(!matches!(events[0], ReplyEvent::FollowUp(_)), "{events:?}");
     }
 
     #[test]
@@ -843,8 +872,10 @@ mod tests {
         let ask = p.command(1, &home()).unwrap();
         p.reply(&ask[0], b"1TS000032\r\n").unwrap();
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS000032\r\n");
-        assert!(events.iter().all(|e| !matches!(e, Event::FollowUp(_))), "{events:?}");
-        assert!(events.iter().any(|e| matches!(e, Event::ControllerError(VendorError { code, .. }) if code == "RS")));
+        assert!(events.iter().all(|e| !matches!(e, ReplyEvent::FollowUp(_))), "{events:?}");
+        assert!(events
+            .iter()
+            .any(|e| matches!(e, ReplyEvent::ControllerError(VendorError { code, .. }) if code == "RS")));
     }
 
     #[test]
@@ -856,7 +887,7 @@ mod tests {
         assert_eq!(sent(&init), ["1TE\r\n", "4TE\r\n"], "an error left from before is read; address 0 is none");
         assert_eq!(p.reply(&init[0], b"1TEK\r\n").unwrap(), [], "and dropped");
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS00000A\r\n");
-        assert!(events.iter().all(|e| !matches!(e, Event::FollowUp(_))), "no home after a reconnection");
+        assert!(events.iter().all(|e| !matches!(e, ReplyEvent::FollowUp(_))), "no home after a reconnection");
     }
 
     #[test]
@@ -903,7 +934,7 @@ mod tests {
     fn a_fault_is_reported_once_when_it_appears() {
         let mut p = Smc100::default();
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS00203D\r\n");
-        let [Event::Status { .. }, Event::ControllerError(VendorError { channel: Some(1), code, meaning })] =
+        let [ReplyEvent::Status { .. }, ReplyEvent::ControllerError(VendorError { channel: Some(1), code, meaning })] =
             &events[..]
         else {
             panic!("{events:?}")
@@ -923,7 +954,7 @@ mod tests {
         let events = p.reply(te, b"5TEH\r\n").unwrap();
         assert_eq!(
             events,
-            [Event::ControllerError(VendorError {
+            [ReplyEvent::ControllerError(VendorError {
                 channel: Some(5),
                 code: "H".into(),
                 meaning: "Command not allowed in NOT REFERENCED state".into()

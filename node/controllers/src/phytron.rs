@@ -13,7 +13,7 @@
 //! and including the `:`; a checksum of `XX` means none, and a reply without one is taken as
 //! the EPICS driver takes it. A wrong checksum, a reply whose count of sub-replies is not the
 //! count of commands, or data that does not parse is a `ReplyError`; a NAK is the controller
-//! refusing a command (`Event::ControllerError`, code `NAK`). Replies name no axis: they are
+//! refusing a command (`ReplyEvent::ControllerError`, code `NAK`). Replies name no axis: they are
 //! checked against the commands asked, one by one.
 //!
 //! # Channels and units
@@ -60,7 +60,7 @@
 //! driver's "controller-parallel" method: one frame for every axis,
 //! `SE1.1 M1.1P20R M1.1P22R SE1.2 M1.2P20R M1.2P22R …` (14 axes a frame at most), answered by
 //! the extended status word, the position counter P20 and the encoder counter P22 of each;
-//! one `Event::Status` per channel. The status word maps to MSTA as follows:
+//! one `ReplyEvent::Status` per channel. The status word maps to MSTA as follows:
 //!
 //! | SE bit | meaning | MSTA |
 //! |---|---|---|
@@ -85,78 +85,78 @@
 //! the I/O modules; velocity readback.
 
 use crate::protocol::{
-    whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request, VendorError,
+    whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "phytron";
+pub(crate) const NAME: &str = "phytron";
 
 /// Start of a frame.
-pub const STX: u8 = 0x02;
+pub(crate) const STX: u8 = 0x02;
 /// End of a frame.
-pub const ETX: u8 = 0x03;
+pub(crate) const ETX: u8 = 0x03;
 /// A sub-reply's mark: the command was carried out.
-pub const ACK: u8 = 0x06;
+pub(crate) const ACK: u8 = 0x06;
 /// A sub-reply's mark: the command was refused.
-pub const NAK: u8 = 0x15;
+pub(crate) const NAK: u8 = 0x15;
 /// The address character of a phyMOTION (always 0).
-pub const ADDRESS: u8 = b'0';
+pub(crate) const ADDRESS: u8 = b'0';
 
 /// Commands in one request frame at most, as the EPICS driver batches them.
-pub const MAX_COMMANDS: usize = 42;
+pub(crate) const MAX_COMMANDS: usize = 42;
 /// Payload bytes in one request frame at most (the controller takes 1000 bytes with framing).
-pub const MAX_PAYLOAD: usize = 994;
+pub(crate) const MAX_PAYLOAD: usize = 994;
 /// Bytes of a reply frame at most (the controller sends up to 2000): a longer run without ETX
 /// is noise.
-pub const MAX_REPLY: usize = 2010;
+pub(crate) const MAX_REPLY: usize = 2010;
 
 /// Run and start/stop frequencies the controller takes, Hz (steps/s).
-pub const FREQUENCIES: RangeInclusive<f64> = 1.0..=500_000.0;
+pub(crate) const FREQUENCIES: RangeInclusive<f64> = 1.0..=500_000.0;
 /// Ramps the controller takes, Hz/s (steps/s²).
-pub const RAMPS: RangeInclusive<f64> = 4_000.0..=500_000.0;
+pub(crate) const RAMPS: RangeInclusive<f64> = 4_000.0..=500_000.0;
 
 /// Controller units per record step unless the launch file says otherwise: P02 = steps.
-pub const DEFAULT_UNITS_PER_STEP: f64 = 1.0;
+pub(crate) const DEFAULT_UNITS_PER_STEP: f64 = 1.0;
 
 /// Bits of the extended axis status word `SE<m.a>` (decimal on the wire).
-pub mod status_bit {
+pub(crate) mod status_bit {
     /// The axis is busy (running, or in its recovery time).
-    pub const BUSY: u32 = 1 << 0;
+    pub(crate) const BUSY: u32 = 1 << 0;
     /// The axis is initialised: a reference run completed.
-    pub const INITIALISED: u32 = 1 << 3;
+    pub(crate) const INITIALISED: u32 = 1 << 3;
     /// The + limit switch is active.
-    pub const PLUS_LIMIT: u32 = 1 << 4;
+    pub(crate) const PLUS_LIMIT: u32 = 1 << 4;
     /// The − limit switch is active.
-    pub const MINUS_LIMIT: u32 = 1 << 5;
+    pub(crate) const MINUS_LIMIT: u32 = 1 << 5;
     /// The center (reference, home) switch is active.
-    pub const CENTER_SWITCH: u32 = 1 << 6;
+    pub(crate) const CENTER_SWITCH: u32 = 1 << 6;
     /// The power stage is ready (switched on, no error).
-    pub const POWER_STAGE_READY: u32 = 1 << 9;
+    pub(crate) const POWER_STAGE_READY: u32 = 1 << 9;
     /// Axis internal error.
-    pub const INTERNAL_ERROR: u32 = 1 << 11;
+    pub(crate) const INTERNAL_ERROR: u32 = 1 << 11;
     /// A limit switch was hit; cleared by `SEC<m.a>`.
-    pub const LIMIT_SWITCH_ERROR: u32 = 1 << 12;
+    pub(crate) const LIMIT_SWITCH_ERROR: u32 = 1 << 12;
     /// Power-stage error.
-    pub const POWER_STAGE_ERROR: u32 = 1 << 13;
+    pub(crate) const POWER_STAGE_ERROR: u32 = 1 << 13;
     /// SFI error: motor and encoder positions differ by more than P37.
-    pub const SFI_ERROR: u32 = 1 << 14;
+    pub(crate) const SFI_ERROR: u32 = 1 << 14;
     /// EnDat (absolute encoder) error.
-    pub const ENDAT_ERROR: u32 = 1 << 15;
+    pub(crate) const ENDAT_ERROR: u32 = 1 << 15;
     /// The axis is running.
-    pub const RUNNING: u32 = 1 << 16;
+    pub(crate) const RUNNING: u32 = 1 << 16;
     /// The axis is in position.
-    pub const IN_POSITION: u32 = 1 << 19;
+    pub(crate) const IN_POSITION: u32 = 1 << 19;
     /// The errors that make a problem (the EPICS driver's mask 0xE800).
-    pub const PROBLEMS: u32 = INTERNAL_ERROR | POWER_STAGE_ERROR | SFI_ERROR | ENDAT_ERROR;
+    pub(crate) const PROBLEMS: u32 = INTERNAL_ERROR | POWER_STAGE_ERROR | SFI_ERROR | ENDAT_ERROR;
 }
 
 /// What the error bits of a status word mean, in words.
-pub fn error_meaning(bits: u32) -> String {
+pub(crate) fn error_meaning(bits: u32) -> String {
     let names = [
         (status_bit::INTERNAL_ERROR, "axis internal error"),
         (status_bit::POWER_STAGE_ERROR, "power-stage error"),
@@ -168,7 +168,7 @@ pub fn error_meaning(bits: u32) -> String {
 }
 
 /// The XOR of `bytes`, the protocol's checksum.
-pub fn checksum(bytes: &[u8]) -> u8 {
+pub(crate) fn checksum(bytes: &[u8]) -> u8 {
     bytes.iter().fold(0, |sum, byte| sum ^ byte)
 }
 
@@ -181,7 +181,7 @@ fn with_checksum(mut bytes: Vec<u8>) -> Vec<u8> {
 }
 
 /// The request frame that carries `payload` (commands separated by spaces).
-pub fn request_frame(payload: &str) -> Vec<u8> {
+pub(crate) fn request_frame(payload: &str) -> Vec<u8> {
     let mut content = vec![ADDRESS];
     content.extend_from_slice(payload.as_bytes());
     let mut frame = vec![STX];
@@ -192,7 +192,7 @@ pub fn request_frame(payload: &str) -> Vec<u8> {
 
 /// The reply frame that carries `sub_replies` (each an ACK or NAK and its data), as the
 /// controller sends it.
-pub fn reply_frame(sub_replies: &[u8]) -> Vec<u8> {
+pub(crate) fn reply_frame(sub_replies: &[u8]) -> Vec<u8> {
     let mut frame = vec![STX];
     frame.extend(with_checksum(sub_replies.to_vec()));
     frame.push(ETX);
@@ -201,7 +201,7 @@ pub fn reply_frame(sub_replies: &[u8]) -> Vec<u8> {
 
 /// The content of a frame (between STX and ETX) without its checksum, which is checked. A
 /// content without one is taken as it is; `XX` stands for no checksum.
-pub fn without_checksum(content: &[u8]) -> Result<&[u8], &'static str> {
+pub(crate) fn without_checksum(content: &[u8]) -> Result<&[u8], &'static str> {
     let Some(colon) = content.len().checked_sub(3).filter(|at| content[*at] == b':') else {
         return Ok(content);
     };
@@ -221,14 +221,14 @@ pub fn without_checksum(content: &[u8]) -> Result<&[u8], &'static str> {
 
 /// The axis of `channel` as commands name it, without the `M`: `1.1` for channel 11. None when
 /// the channel names no axis (module or axis digit 0).
-pub fn axis_token(channel: usize) -> Option<String> {
+pub(crate) fn axis_token(channel: usize) -> Option<String> {
     let (module, axis) = (channel / 10, channel % 10);
     (module >= 1 && axis >= 1).then(|| format!("{module}.{axis}"))
 }
 
 /// The channel an axis token at the start of `text` names, and the rest: `1.1P20R` → (11,
 /// `P20R`).
-pub fn split_axis(text: &str) -> Option<(usize, &str)> {
+pub(crate) fn split_axis(text: &str) -> Option<(usize, &str)> {
     let dot = text.find('.')?;
     let module_digits = &text[..dot];
     if module_digits.is_empty() || !module_digits.bytes().all(|b| b.is_ascii_digit()) {
@@ -241,7 +241,7 @@ pub fn split_axis(text: &str) -> Option<(usize, &str)> {
 }
 
 /// The sub-replies of a reply frame: whether each was acknowledged, and its data.
-pub fn sub_replies(frame: &[u8]) -> Result<Vec<(bool, &str)>, &'static str> {
+pub(crate) fn sub_replies(frame: &[u8]) -> Result<Vec<(bool, &str)>, &'static str> {
     let content =
         frame.strip_prefix(&[STX]).and_then(|rest| rest.strip_suffix(&[ETX])).ok_or("not one STX … ETX frame")?;
     let body = without_checksum(content)?;
@@ -263,7 +263,7 @@ pub fn sub_replies(frame: &[u8]) -> Result<Vec<(bool, &str)>, &'static str> {
 }
 
 /// The commands a request frame of this protocol carries.
-fn commands_of(request: &Request) -> Vec<String> {
+fn commands_of(request: &Request<Step>) -> Vec<String> {
     // STX and the address before, `:XX` and ETX after.
     let payload = request.bytes.get(2..request.bytes.len().saturating_sub(4)).unwrap_or_default();
     String::from_utf8_lossy(payload).split(' ').map(str::to_string).collect()
@@ -299,8 +299,25 @@ fn ramp(acceleration: f64) -> Result<f64, CommandError> {
     }
 }
 
-/// The item of every command request (its replies are checked alike).
-const COMMAND_ITEM: u8 = 0;
+/// A request of the phyMOTION: one frame of commands, each answered in the reply frame. What
+/// the frame asks is in its bytes; the step tells readings from commands.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    /// Readings at initialisation: which axes have an encoder.
+    EncoderTypes,
+    /// The readings of one channel's poll.
+    Poll {
+        /// The channel polled.
+        channel: usize,
+    },
+    /// The readings of a poll of several channels.
+    PollMany,
+    /// Commands to one channel (their replies are checked alike).
+    Command {
+        /// The channel commanded.
+        channel: usize,
+    },
+}
 
 /// A reading a poll or the initialisation asks for.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -370,14 +387,14 @@ impl Default for Axis {
 
 /// The phyMOTION protocol (see the module documentation).
 #[derive(Debug)]
-pub struct Phymotion {
+pub(crate) struct Phymotion {
     units_per_step: f64,
     axes: HashMap<usize, Axis>,
 }
 
 impl Phymotion {
     /// The protocol with the installation's options (`units_per_step` defaults to 1).
-    pub fn new(options: &ProtocolOptions) -> Self {
+    pub(crate) fn new(options: &ProtocolOptions) -> Self {
         let units_per_step = match options.units_per_step {
             Some(units) if units.is_finite() && units > 0.0 => units,
             Some(units) => {
@@ -495,13 +512,13 @@ impl Phymotion {
     }
 
     /// A command frame's replies: the first refusal, if any, is the controller's error.
-    fn acknowledgements(channel: usize, asked: &[String], replies: &[(bool, &str)]) -> Vec<Event> {
+    fn acknowledgements(channel: usize, asked: &[String], replies: &[(bool, &str)]) -> Vec<ReplyEvent<Step>> {
         asked
             .iter()
             .zip(replies)
             .find(|(_, (acknowledged, _))| !acknowledged)
             .map(|(command, _)| {
-                Event::ControllerError(VendorError {
+                ReplyEvent::ControllerError(VendorError {
                     channel: Some(channel),
                     code: "NAK".to_string(),
                     meaning: format!("the controller refused {command}"),
@@ -513,7 +530,7 @@ impl Phymotion {
 
     /// A poll's or the initialisation's replies: the readings of every channel asked, and a
     /// status for each channel fully read.
-    fn readings(&mut self, asked: &[String], replies: &[(bool, &str)]) -> Result<Vec<Event>, &'static str> {
+    fn readings(&mut self, asked: &[String], replies: &[(bool, &str)]) -> Result<Vec<ReplyEvent<Step>>, &'static str> {
         let mut events = Vec::new();
         let mut polled: Vec<(usize, Polled)> = Vec::new();
         for (command, (acknowledged, data)) in asked.iter().zip(replies) {
@@ -528,7 +545,7 @@ impl Phymotion {
             let entry = &mut polled[at].1;
             if !acknowledged {
                 if !std::mem::replace(&mut entry.refused, true) {
-                    events.push(Event::ControllerError(VendorError {
+                    events.push(ReplyEvent::ControllerError(VendorError {
                         channel: Some(channel),
                         code: "NAK".to_string(),
                         meaning: format!("the controller refused {command}: no such axis?"),
@@ -559,7 +576,7 @@ impl Phymotion {
 
     /// The status of `channel` from its status word and counters (controller units): a
     /// controller error first if an error bit is new.
-    fn status(&mut self, channel: usize, word: u32, position: f64, encoder: f64) -> Vec<Event> {
+    fn status(&mut self, channel: usize, word: u32, position: f64, encoder: f64) -> Vec<ReplyEvent<Step>> {
         let units = self.units_per_step;
         let axis = self.axis(channel);
         let position = position / units;
@@ -605,13 +622,13 @@ impl Phymotion {
         };
         let mut events = Vec::new();
         if new_errors != 0 {
-            events.push(Event::ControllerError(VendorError {
+            events.push(ReplyEvent::ControllerError(VendorError {
                 channel: Some(channel),
                 code: format!("SE 0x{new_errors:04X}"),
                 meaning: error_meaning(new_errors),
             }));
         }
-        events.push(Event::Status { channel, status });
+        events.push(ReplyEvent::Status { channel, status });
         events
     }
 }
@@ -633,8 +650,19 @@ fn batches(
 }
 
 impl Protocol for Phymotion {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::EncoderTypes => Purpose::Init,
+            Step::Poll { channel } => Purpose::Poll { channel },
+            Step::PollMany => Purpose::PollMany,
+            Step::Command { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -653,51 +681,46 @@ impl Protocol for Phymotion {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Reads only: the driver's `CR` at boot would lose every position.
         batches(channels, |token| format!("M{token}P34R"), 1)
             .into_iter()
-            .enumerate()
-            .map(|(n, (_, payload))| {
-                Request::query(request_frame(&payload), Purpose::Init { item: u8::try_from(n).unwrap_or(u8::MAX) })
-            })
+            .map(|(_, payload)| Request::query(request_frame(&payload), Step::EncoderTypes))
             .collect()
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         batches(channels, |token| format!("SE{token} M{token}P20R M{token}P22R"), 3)
             .into_iter()
-            .enumerate()
-            .map(|(n, (polled, payload))| {
-                let purpose = match polled[..] {
-                    [channel] => Purpose::Poll { channel, item: 0 },
-                    _ => Purpose::PollMany { item: u8::try_from(n).unwrap_or(u8::MAX) },
+            .map(|(polled, payload)| {
+                let step = match polled[..] {
+                    [channel] => Step::Poll { channel },
+                    _ => Step::PollMany,
                 };
-                Request::query(request_frame(&payload), purpose)
+                Request::query(request_frame(&payload), step)
             })
             .collect()
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let token = axis_token(channel)
             .ok_or(CommandError::OutOfRange { what: "channel (module × 10 + axis)", value: channel as f64 })?;
         let commands = self.commands(channel, &token, command)?;
         if commands.is_empty() {
             return Ok(Vec::new());
         }
-        let purpose = Purpose::Command { channel, item: COMMAND_ITEM };
-        Ok(vec![Request::query(request_frame(&commands.join(" ")), purpose)])
+        Ok(vec![Request::query(request_frame(&commands.join(" ")), Step::Command { channel })])
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let replies = sub_replies(frame).map_err(|why| ReplyError::new(request, frame, why))?;
         let asked = commands_of(request);
         if replies.len() != asked.len() {
             return Err(ReplyError::new(request, frame, "not one reply per command"));
         }
-        match request.purpose {
-            Purpose::Command { channel, .. } => Ok(Self::acknowledgements(channel, &asked, &replies)),
-            Purpose::Poll { .. } | Purpose::PollMany { .. } | Purpose::Init { .. } => {
+        match request.step {
+            Step::Command { channel } => Ok(Self::acknowledgements(channel, &asked, &replies)),
+            Step::EncoderTypes | Step::Poll { .. } | Step::PollMany => {
                 self.readings(&asked, &replies).map_err(|why| ReplyError::new(request, frame, why))
             }
         }
@@ -713,7 +736,7 @@ mod tests {
     }
 
     /// The payload of each request, checking its framing on the way.
-    fn payloads(requests: &[Request]) -> Vec<String> {
+    fn payloads(requests: &[Request<Step>]) -> Vec<String> {
         requests
             .iter()
             .map(|r| {
@@ -776,7 +799,7 @@ mod tests {
         let mut p = protocol();
         let requests = p.command(11, &go(1000.0, false)).unwrap();
         assert_eq!(requests.len(), 1);
-        assert_eq!(requests[0].purpose, Purpose::Command { channel: 11, item: 0 });
+        assert_eq!(requests[0].step, Step::Command { channel: 11 });
         assert_eq!(
             requests[0].bytes,
             request_frame("M1.1P14=2000.000000 M1.1P04=200.000000 M1.1P15=10000.000000 M1.1MA M1.1A1000")
@@ -857,7 +880,7 @@ mod tests {
         let mut p = protocol();
         let poll = p.poll(&[11, 12, 21]);
         assert_eq!(payloads(&poll), ["SE1.1 M1.1P20R M1.1P22R SE1.2 M1.2P20R M1.2P22R SE2.1 M2.1P20R M2.1P22R"]);
-        assert_eq!(poll[0].purpose, Purpose::PollMany { item: 0 });
+        assert_eq!(poll[0].step, Step::PollMany);
         // 11: running up, ready; 12: at rest on the + limit after hitting it, homed; 21: on the
         // center switch, power stage off.
         let reply = ack(&["66049", "1500", "1498", "529944", "200000", "200000", "524352", "0", "0"]);
@@ -865,7 +888,7 @@ mod tests {
         let statuses: Vec<(usize, DeviceStatus)> = events
             .iter()
             .map(|e| match e {
-                Event::Status { channel, status } => (*channel, *status),
+                ReplyEvent::Status { channel, status } => (*channel, *status),
                 other => panic!("{other:?}"),
             })
             .collect();
@@ -876,12 +899,12 @@ mod tests {
         assert_eq!(statuses[2].1.msta, msta::DONE | msta::HOME);
         // The next poll of 11 sees the counter go up: DIRECTION, until done.
         let poll_one = p.poll(&[11]);
-        assert_eq!(poll_one[0].purpose, Purpose::Poll { channel: 11, item: 0 });
+        assert_eq!(poll_one[0].step, Step::Poll { channel: 11 });
         let events = p.reply(&poll_one[0], &ack(&["66049", "1600", "1600"])).unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta, msta::MOVING | msta::POSITION | msta::DIRECTION);
         let events = p.reply(&poll_one[0], &ack(&["524800", "1700", "1700"])).unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta, msta::DONE | msta::POSITION);
     }
 
@@ -893,7 +916,7 @@ mod tests {
         assert_eq!(poll.len(), 2);
         assert_eq!(payloads(&poll)[0].split(' ').count(), 42);
         assert_eq!(payloads(&poll)[1], "SE3.5 M3.5P20R M3.5P22R");
-        assert_eq!(poll[1].purpose, Purpose::Poll { channel: 35, item: 0 });
+        assert_eq!(poll[1].step, Step::Poll { channel: 35 });
         assert!(poll.iter().all(|r| r.bytes.len() <= MAX_PAYLOAD + 6));
     }
 
@@ -902,7 +925,7 @@ mod tests {
         let mut p = protocol();
         let poll = p.poll(&[22]);
         let events = p.reply(&poll[0], &ack(&["8704", "10", "10"])).unwrap();
-        let [Event::ControllerError(VendorError { channel: Some(22), code, meaning }), Event::Status { status, .. }] =
+        let [ReplyEvent::ControllerError(VendorError { channel: Some(22), code, meaning }), ReplyEvent::Status { status, .. }] =
             &events[..]
         else {
             panic!("{events:?}")
@@ -910,10 +933,11 @@ mod tests {
         assert_eq!((code.as_str(), meaning.as_str()), ("SE 0x2000", "power-stage error"));
         assert_eq!(status.msta & msta::PROBLEM, msta::PROBLEM);
         let events = p.reply(&poll[0], &ack(&["8704", "10", "10"])).unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & msta::PROBLEM, msta::PROBLEM, "still a problem, not reported again");
         let events = p.reply(&poll[0], &ack(&["16896", "10", "10"])).unwrap();
-        let [Event::ControllerError(VendorError { code, .. }), Event::Status { status, .. }] = &events[..] else {
+        let [ReplyEvent::ControllerError(VendorError { code, .. }), ReplyEvent::Status { status, .. }] = &events[..]
+        else {
             panic!("{events:?}")
         };
         assert_eq!(code, "SE 0x4000");
@@ -940,7 +964,7 @@ mod tests {
         let events = p.reply(&requests[0], &refused).unwrap();
         assert_eq!(
             events,
-            [Event::ControllerError(VendorError {
+            [ReplyEvent::ControllerError(VendorError {
                 channel: Some(11),
                 code: "NAK".into(),
                 meaning: "the controller refused M1.1A100".into()
@@ -955,9 +979,9 @@ mod tests {
         let reply = reply_frame(b"\x060\x060\x060\x15\x15\x15");
         let events = p.reply(&poll[0], &reply).unwrap();
         assert!(
-            matches!(&events[0], Event::ControllerError(VendorError { channel: Some(31), code, .. }) if code == "NAK")
+            matches!(&events[0], ReplyEvent::ControllerError(VendorError { channel: Some(31), code, .. }) if code == "NAK")
         );
-        assert!(matches!(&events[1], Event::Status { channel: 11, .. }));
+        assert!(matches!(&events[1], ReplyEvent::Status { channel: 11, .. }));
         assert_eq!(events.len(), 2);
     }
 
@@ -1030,14 +1054,14 @@ mod tests {
         let mut p = protocol();
         let init = p.init(&[11, 21]);
         assert_eq!(payloads(&init), ["M1.1P34R M2.1P34R"]);
-        assert_eq!(init[0].purpose, Purpose::Init { item: 0 });
+        assert_eq!(init[0].step, Step::EncoderTypes);
         assert_eq!(p.reply(&init[0], &ack(&["1", "0"])).unwrap(), []);
         let poll = p.poll(&[11, 21]);
         let events = p.reply(&poll[0], &ack(&["0", "0", "0", "0", "0", "0"])).unwrap();
         let present: Vec<bool> = events
             .iter()
             .filter_map(|e| match e {
-                Event::Status { status, .. } => Some(status.msta & msta::PRESENT != 0),
+                ReplyEvent::Status { status, .. } => Some(status.msta & msta::PRESENT != 0),
                 _ => None,
             })
             .collect();
@@ -1056,7 +1080,7 @@ mod tests {
         p.command(11, &DriverCommand::SetEncoderRatio { ratio: 2.0 }).unwrap();
         let poll = p.poll(&[11]);
         let events = p.reply(&poll[0], &ack(&["0", "6.17", "3.085"])).unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert!((status.position - 1234.0).abs() < 1e-9);
         assert!((status.encoder_position - 1234.0).abs() < 1e-9, "counts: P22 in units × ratio");
     }

@@ -7,7 +7,7 @@
 //! 1, so channel 0 has no axis). Setters (`MOV`, `MVR`, `VEL`, `ACC`, `DEC`, `SVO`, `RON`,
 //! `POS`, `SPA`, `HLT`, `FRF`, `FNL`, `FPL`) are silent: the controller answers nothing, keeps
 //! the code of the last error, and `ERR?` reads and clears it. So every setter is followed by
-//! `ERR?`; a code other than 0 is an `Event::ControllerError` with PI's meaning of the code
+//! `ERR?`; a code other than 0 is a `ReplyEvent::ControllerError` with PI's meaning of the code
 //! (`error_meaning`), e.g. 7 "Position out of limits". Queries answer `<axis>=<value>`
 //! (`SPA?` and `SRG?` answer `<axis> <id>=<value>`); a reply of several lines ends every line
 //! but the last with a space before the LF, so `frame` returns one whole reply, whatever its
@@ -80,67 +80,70 @@
 //! without `HAR?` would not answer it), macros, joystick, data recording, wave generator.
 
 use crate::protocol::{
-    line_text, whole_steps, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, Request,
+    line_text, whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
     VendorError,
 };
 use std::collections::BTreeMap;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "pi_gcs2";
+pub(crate) const NAME: &str = "pi_gcs2";
 
 /// The line terminator, both ways.
-pub const TERMINATOR: &[u8] = b"\n";
+pub(crate) const TERMINATOR: &[u8] = b"\n";
 
 /// Units per step before the controller's counts per unit are read (EPICS: 1000 counts per
 /// unit).
-pub const DEFAULT_UNITS_PER_STEP: f64 = 0.001;
+pub(crate) const DEFAULT_UNITS_PER_STEP: f64 = 0.001;
 
 /// The error code `HLT` leaves: the controller was stopped by command.
-pub const STOPPED_BY_COMMAND: i64 = 10;
+pub(crate) const STOPPED_BY_COMMAND: i64 = 10;
 
 /// The models, as `*IDN?` names them, that speak GCS 2 the way this module drives it.
-pub const MODELS: [&str; 7] = ["C-663", "C-863", "C-867", "C-884", "E-861", "E-871", "E-873"];
+pub(crate) const MODELS: [&str; 7] = ["C-663", "C-863", "C-867", "C-884", "E-861", "E-871", "E-873"];
 
 /// Bits of an axis's status register (`SRG? <ax> 1`, `#4`).
-pub mod register {
+// The whole register, as the manual defines it: a reference of what a reply may carry, the bits
+// the driver does not read included.
+#[allow(dead_code)]
+pub(crate) mod register {
     /// The negative limit switch is active.
-    pub const NEGATIVE_LIMIT: u16 = 1 << 0;
+    pub(crate) const NEGATIVE_LIMIT: u16 = 1 << 0;
     /// The reference switch signal is high (the stage is on its positive side).
-    pub const REFERENCE_SIGNAL: u16 = 1 << 1;
+    pub(crate) const REFERENCE_SIGNAL: u16 = 1 << 1;
     /// The positive limit switch is active.
-    pub const POSITIVE_LIMIT: u16 = 1 << 2;
+    pub(crate) const POSITIVE_LIMIT: u16 = 1 << 2;
     /// An error occurred.
-    pub const ERROR: u16 = 1 << 8;
+    pub(crate) const ERROR: u16 = 1 << 8;
     /// Servo (closed loop) on.
-    pub const SERVO_ON: u16 = 1 << 12;
+    pub(crate) const SERVO_ON: u16 = 1 << 12;
     /// In motion.
-    pub const IN_MOTION: u16 = 1 << 13;
+    pub(crate) const IN_MOTION: u16 = 1 << 13;
     /// A referencing (FRF, FNL, FPL) is running.
-    pub const REFERENCING: u16 = 1 << 14;
+    pub(crate) const REFERENCING: u16 = 1 << 14;
     /// On target.
-    pub const ON_TARGET: u16 = 1 << 15;
+    pub(crate) const ON_TARGET: u16 = 1 << 15;
 }
 
 /// Parameter IDs (`SPA`, `SPA?`).
-pub mod parameter {
+pub(crate) mod parameter {
     /// Current acceleration, units/s².
-    pub const ACCELERATION: u32 = 0x0B;
+    pub(crate) const ACCELERATION: u32 = 0x0B;
     /// Current deceleration, units/s².
-    pub const DECELERATION: u32 = 0x0C;
+    pub(crate) const DECELERATION: u32 = 0x0C;
     /// Counts per unit, numerator.
-    pub const COUNTS_PER_UNIT_NUMERATOR: u32 = 0x0E;
+    pub(crate) const COUNTS_PER_UNIT_NUMERATOR: u32 = 0x0E;
     /// Counts per unit, denominator.
-    pub const COUNTS_PER_UNIT_DENOMINATOR: u32 = 0x0F;
+    pub(crate) const COUNTS_PER_UNIT_DENOMINATOR: u32 = 0x0F;
     /// Velocity of the reference move, units/s.
-    pub const REFERENCE_VELOCITY: u32 = 0x50;
+    pub(crate) const REFERENCE_VELOCITY: u32 = 0x50;
 }
 
 /// PI's meaning of a controller error code (the codes of the C-863/C-884 class and the GCS
 /// codes a driver meets).
-pub fn error_meaning(code: i64) -> &'static str {
+pub(crate) fn error_meaning(code: i64) -> &'static str {
     match code {
         0 => "No error",
         1 => "Parameter syntax error",
@@ -189,28 +192,81 @@ pub fn error_meaning(code: i64) -> &'static str {
     }
 }
 
-/// What a request is for: the `item` of its `Purpose`.
-mod item {
-    // Init.
-    pub const IDENTITY: u8 = 0;
-    pub const AXES: u8 = 1;
-    pub const HAS_REFERENCE: u8 = 2;
-    pub const HAS_LIMIT_SWITCHES: u8 = 3;
-    pub const COUNTS_NUMERATOR: u8 = 4;
-    pub const COUNTS_DENOMINATOR: u8 = 5;
-    pub const TRAVEL_MIN: u8 = 6;
-    pub const TRAVEL_MAX: u8 = 7;
-    pub const SERVO_STARTED: u8 = 8;
-    // Poll.
-    pub const STATUS_REGISTER: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const REFERENCED: u8 = 2;
-    pub const ERROR: u8 = 3;
-    // Command.
-    pub const SETTER: u8 = 0;
-    pub const ERROR_CHECK: u8 = 1;
-    pub const STOP_CHECK: u8 = 2;
-    pub const RAW_QUERY: u8 = 3;
+/// A request of GCS 2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    /// `*IDN?` at initialisation: is it a controller of the class?
+    Identity,
+    /// `SAI?` at initialisation: the controller's axes.
+    Axes,
+    /// A setting of one axis, read at initialisation.
+    Setting {
+        /// The axis.
+        channel: usize,
+        /// Which setting.
+        setting: Setting,
+    },
+    /// `SVO` of every axis at the first connection: silent.
+    ServoStart,
+    /// `ERR?` after `SVO` at the first connection.
+    ServoStarted,
+    /// One reading of a channel's poll.
+    Read {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading.
+        reading: Reading,
+    },
+    /// `ERR?` at the end of a poll: the controller's error register, of no axis.
+    PollErrors,
+    /// A setter of a command: silent.
+    Setter {
+        /// The axis commanded.
+        channel: usize,
+    },
+    /// `ERR?` after a setter.
+    ErrorCheck {
+        /// The axis commanded.
+        channel: usize,
+    },
+    /// `ERR?` after `HLT`: the stop asked for is no error.
+    StopCheck {
+        /// The axis stopped.
+        channel: usize,
+    },
+    /// Raw text with a `?`: its reply is the user's to read.
+    RawQuery {
+        /// The axis it goes with.
+        channel: usize,
+    },
+}
+
+/// A setting of an axis read at initialisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Setting {
+    /// `TRS?`: whether it has a reference switch.
+    HasReference,
+    /// `LIM?`: whether it has limit switches.
+    HasLimitSwitches,
+    /// `SPA? <axis> 14`: the numerator of its counts per unit.
+    CountsNumerator,
+    /// `SPA? <axis> 15`: the denominator of its counts per unit.
+    CountsDenominator,
+    /// `TMN?`: the low end of its travel.
+    TravelMin,
+    /// `TMX?`: the high end of its travel.
+    TravelMax,
+}
+
+/// The readings of a channel's poll, in the order they are asked for: the last completes it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Reading {
+    /// `SRG? <axis> 1`: the status register.
+    StatusRegister,
+    /// `POS?`: the position.
+    Position,
+    /// `FRF?`: whether it is referenced.
+    Referenced,
 }
 
 /// What the protocol knows of one axis.
@@ -257,7 +313,7 @@ impl Default for Axis {
 
 /// The GCS 2 protocol (see the module documentation).
 #[derive(Debug, Default)]
-pub struct PiGcs2 {
+pub(crate) struct PiGcs2 {
     /// Units per step given by the installation, for every channel.
     units_per_step: Option<f64>,
     /// The channels of the connection being initialised.
@@ -270,7 +326,7 @@ pub struct PiGcs2 {
 impl PiGcs2 {
     /// A protocol with nothing read yet; `options.units_per_step`, when given (finite and
     /// positive), replaces the counts per unit read from the controller.
-    pub fn new(options: &ProtocolOptions) -> Self {
+    pub(crate) fn new(options: &ProtocolOptions) -> Self {
         let units_per_step = options.units_per_step.filter(|u| u.is_finite() && *u > 0.0);
         if units_per_step.is_none() && options.units_per_step.is_some() {
             tracing::warn!(
@@ -324,7 +380,7 @@ impl PiGcs2 {
     }
 
     /// Velocity and acceleration, as every motion sets them first.
-    fn dynamics(&self, channel: usize, velocity: f64, acceleration: f64) -> Result<Vec<Request>, CommandError> {
+    fn dynamics(&self, channel: usize, velocity: f64, acceleration: f64) -> Result<Vec<Request<Step>>, CommandError> {
         let mut requests = Vec::new();
         if let Some(v) = self.rate_text(channel, "velocity", velocity)? {
             requests.extend(checked(channel, format!("VEL {channel} {v}")));
@@ -363,77 +419,60 @@ impl PiGcs2 {
         }
     }
 
-    fn on_init_reply(&mut self, request: &Request, frame: &[u8], item: u8) -> Result<Vec<Event>, ReplyError> {
+    /// An axis's setting read at initialisation.
+    fn on_setting(
+        &mut self,
+        request: &Request<Step>,
+        frame: &[u8],
+        channel: usize,
+        setting: Setting,
+    ) -> Result<(), ReplyError> {
         let text = reply_text(frame);
-        match item {
-            item::IDENTITY => {
-                let upper = text.to_ascii_uppercase();
-                if !MODELS.iter().any(|model| upper.contains(model)) {
-                    return Err(ReplyError::new(request, frame, "not a PI controller of the C-863/C-884 class"));
+        match setting {
+            Setting::HasReference => self.axis(channel).has_reference = flag(request, frame, &text, channel)?,
+            Setting::HasLimitSwitches => self.axis(channel).has_limit_switches = flag(request, frame, &text, channel)?,
+            Setting::CountsNumerator | Setting::CountsDenominator => {
+                let numerator = setting == Setting::CountsNumerator;
+                let id = if numerator {
+                    parameter::COUNTS_PER_UNIT_NUMERATOR
+                } else {
+                    parameter::COUNTS_PER_UNIT_DENOMINATOR
+                };
+                let value = parameter_value(request, frame, &text, channel, id)?;
+                let counts: f64 = value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a number"))?;
+                if !(counts.is_finite() && counts > 0.0) {
+                    return Err(ReplyError::new(request, frame, "counts per unit must be positive"));
+                }
+                let axis = self.axis(channel);
+                if numerator {
+                    axis.counts_numerator = Some(counts);
+                } else {
+                    axis.counts_denominator = Some(counts);
                 }
             }
-            item::AXES => {
-                let names: Vec<&str> = text.lines().map(str::trim).collect();
-                if !self.channels.iter().all(|channel| names.contains(&channel.to_string().as_str())) {
-                    return Err(ReplyError::new(request, frame, "a channel is not one of the controller's axes"));
-                }
-            }
-            item::SERVO_STARTED => {
-                self.servo_started = true;
-                return error_events(request, frame, None, &[]);
-            }
-            _ => {
-                let channel =
-                    channel_of(request).ok_or_else(|| ReplyError::new(request, frame, "not an axis query"))?;
-                match item {
-                    item::HAS_REFERENCE => self.axis(channel).has_reference = flag(request, frame, &text, channel)?,
-                    item::HAS_LIMIT_SWITCHES => {
-                        self.axis(channel).has_limit_switches = flag(request, frame, &text, channel)?
-                    }
-                    item::COUNTS_NUMERATOR | item::COUNTS_DENOMINATOR => {
-                        let id = if item == item::COUNTS_NUMERATOR {
-                            parameter::COUNTS_PER_UNIT_NUMERATOR
-                        } else {
-                            parameter::COUNTS_PER_UNIT_DENOMINATOR
-                        };
-                        let value = parameter_value(request, frame, &text, channel, id)?;
-                        let counts: f64 =
-                            value.trim().parse().map_err(|_| ReplyError::new(request, frame, "not a number"))?;
-                        if !(counts.is_finite() && counts > 0.0) {
-                            return Err(ReplyError::new(request, frame, "counts per unit must be positive"));
-                        }
-                        let axis = self.axis(channel);
-                        if item == item::COUNTS_NUMERATOR {
-                            axis.counts_numerator = Some(counts);
-                        } else {
-                            axis.counts_denominator = Some(counts);
-                        }
-                    }
-                    _ => {
-                        let limit = number(request, frame, axis_value(request, frame, &text, channel)?)?;
-                        let axis = self.axis(channel);
-                        if item == item::TRAVEL_MIN {
-                            axis.travel_min = Some(limit);
-                        } else {
-                            axis.travel_max = Some(limit);
-                        }
-                    }
+            Setting::TravelMin | Setting::TravelMax => {
+                let limit = number(request, frame, axis_value(request, frame, &text, channel)?)?;
+                let axis = self.axis(channel);
+                if setting == Setting::TravelMin {
+                    axis.travel_min = Some(limit);
+                } else {
+                    axis.travel_max = Some(limit);
                 }
             }
         }
-        Ok(Vec::new())
+        Ok(())
     }
 
-    fn on_poll_reply(
+    fn on_reading(
         &mut self,
-        request: &Request,
+        request: &Request<Step>,
         frame: &[u8],
         channel: usize,
-        item: u8,
-    ) -> Result<Vec<Event>, ReplyError> {
+        reading: Reading,
+    ) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = reply_text(frame);
-        match item {
-            item::STATUS_REGISTER => {
+        match reading {
+            Reading::StatusRegister => {
                 let value = register_value(request, frame, &text, channel)?;
                 let register = parse_hex(value).ok_or_else(|| ReplyError::new(request, frame, "not a hex register"))?;
                 let axis = self.axis(channel);
@@ -445,7 +484,7 @@ impl PiGcs2 {
                 axis.servo_was_on = servo_on;
                 axis.register = register;
             }
-            item::POSITION => {
+            Reading::Position => {
                 let units = number(request, frame, axis_value(request, frame, &text, channel)?)?;
                 let steps = (units / self.units_per_step(channel)).round();
                 if !steps.is_finite() {
@@ -453,9 +492,9 @@ impl PiGcs2 {
                 }
                 self.axis(channel).position = steps;
             }
-            _ => {
+            Reading::Referenced => {
                 let referenced = flag(request, frame, &text, channel)?;
-                return Ok(vec![Event::Status { channel, status: self.status_of(channel, referenced) }]);
+                return Ok(vec![ReplyEvent::Status { channel, status: self.status_of(channel, referenced) }]);
             }
         }
         Ok(Vec::new())
@@ -463,10 +502,10 @@ impl PiGcs2 {
 }
 
 /// A setter of `channel`, then the error query that tells whether it was taken.
-fn checked(channel: usize, line: String) -> [Request; 2] {
+fn checked(channel: usize, line: String) -> [Request<Step>; 2] {
     [
-        Request::silent(format!("{line}\n"), Purpose::Command { channel, item: item::SETTER }),
-        Request::query("ERR?\n", Purpose::Command { channel, item: item::ERROR_CHECK }),
+        Request::silent(format!("{line}\n"), Step::Setter { channel }),
+        Request::query("ERR?\n", Step::ErrorCheck { channel }),
     ]
 }
 
@@ -475,15 +514,9 @@ fn reply_text(frame: &[u8]) -> String {
     line_text(frame, TERMINATOR).split('\n').map(str::trim_end).collect::<Vec<_>>().join("\n")
 }
 
-/// The axis a per-axis query names (`TRS? 3`: 3).
-fn channel_of(request: &Request) -> Option<usize> {
-    let text = String::from_utf8_lossy(&request.bytes);
-    text.split_whitespace().nth(1)?.parse().ok()
-}
-
 /// The value of a one-line reply `<key>=<value>` whose key, split at spaces, is `key`.
 fn keyed_value<'a>(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     text: &'a str,
     key_matches: impl Fn(&[&str]) -> bool,
@@ -500,20 +533,25 @@ fn keyed_value<'a>(
 }
 
 /// The value of `<axis>=<value>` for `channel`.
-fn axis_value<'a>(request: &Request, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
+fn axis_value<'a>(request: &Request<Step>, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
     let name = channel.to_string();
     keyed_value(request, frame, text, |key| key == [name.as_str()])
 }
 
 /// The value of `<axis> 1=<register>` for `channel`.
-fn register_value<'a>(request: &Request, frame: &[u8], text: &'a str, channel: usize) -> Result<&'a str, ReplyError> {
+fn register_value<'a>(
+    request: &Request<Step>,
+    frame: &[u8],
+    text: &'a str,
+    channel: usize,
+) -> Result<&'a str, ReplyError> {
     let name = channel.to_string();
     keyed_value(request, frame, text, |key| key.len() == 2 && key[0] == name && parse_id(key[1]) == Some(1))
 }
 
 /// The value of `<axis> <parameter>=<value>` for `channel` (the ID echoed in decimal or hex).
 fn parameter_value<'a>(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     text: &'a str,
     channel: usize,
@@ -524,7 +562,7 @@ fn parameter_value<'a>(
 }
 
 /// A 0/1 answer for `channel`.
-fn flag(request: &Request, frame: &[u8], text: &str, channel: usize) -> Result<bool, ReplyError> {
+fn flag(request: &Request<Step>, frame: &[u8], text: &str, channel: usize) -> Result<bool, ReplyError> {
     match axis_value(request, frame, text, channel)? {
         "1" => Ok(true),
         "0" => Ok(false),
@@ -532,12 +570,12 @@ fn flag(request: &Request, frame: &[u8], text: &str, channel: usize) -> Result<b
     }
 }
 
-fn number(request: &Request, frame: &[u8], value: &str) -> Result<f64, ReplyError> {
+fn number(request: &Request<Step>, frame: &[u8], value: &str) -> Result<f64, ReplyError> {
     value.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| ReplyError::new(request, frame, "not a number"))
 }
 
 /// A parameter or register ID, decimal or `0x` hex.
-pub fn parse_id(text: &str) -> Option<u32> {
+pub(crate) fn parse_id(text: &str) -> Option<u32> {
     match text.strip_prefix("0x").or_else(|| text.strip_prefix("0X")) {
         Some(hex) => u32::from_str_radix(hex, 16).ok(),
         None => text.parse().ok(),
@@ -552,17 +590,17 @@ fn parse_hex(text: &str) -> Option<u16> {
 
 /// The events of an `ERR?` reply: nothing for 0 and the `expected` codes, else the error.
 fn error_events(
-    request: &Request,
+    request: &Request<Step>,
     frame: &[u8],
     channel: Option<usize>,
     expected: &[i64],
-) -> Result<Vec<Event>, ReplyError> {
+) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
     let text = reply_text(frame);
     let code: i64 = text.trim().parse().map_err(|_| ReplyError::new(request, frame, "not an error code"))?;
     if code == 0 || expected.contains(&code) {
         return Ok(Vec::new());
     }
-    Ok(vec![Event::ControllerError(VendorError {
+    Ok(vec![ReplyEvent::ControllerError(VendorError {
         channel,
         code: code.to_string(),
         meaning: error_meaning(code).to_string(),
@@ -570,8 +608,22 @@ fn error_events(
 }
 
 impl Protocol for PiGcs2 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::Identity | Step::Axes | Step::Setting { .. } | Step::ServoStart | Step::ServoStarted => Purpose::Init,
+            Step::Read { channel, .. } => Purpose::Poll { channel },
+            Step::PollErrors => Purpose::PollMany,
+            Step::Setter { channel }
+            | Step::ErrorCheck { channel }
+            | Step::StopCheck { channel }
+            | Step::RawQuery { channel } => Purpose::Command { channel },
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -592,44 +644,44 @@ impl Protocol for PiGcs2 {
         Frame::Incomplete
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         self.channels = channels.to_vec();
-        let init = |bytes: String, item: u8| Request::query(bytes, Purpose::Init { item });
-        let mut requests = vec![init("*IDN?\n".into(), item::IDENTITY), init("SAI?\n".into(), item::AXES)];
+        let mut requests = vec![Request::query("*IDN?\n", Step::Identity), Request::query("SAI?\n", Step::Axes)];
         for &channel in channels {
-            requests.push(init(format!("TRS? {channel}\n"), item::HAS_REFERENCE));
-            requests.push(init(format!("LIM? {channel}\n"), item::HAS_LIMIT_SWITCHES));
+            let read = |query: String, setting: Setting| Request::query(query, Step::Setting { channel, setting });
+            requests.push(read(format!("TRS? {channel}\n"), Setting::HasReference));
+            requests.push(read(format!("LIM? {channel}\n"), Setting::HasLimitSwitches));
             if self.units_per_step.is_none() {
-                requests.push(init(format!("SPA? {channel} 14\n"), item::COUNTS_NUMERATOR));
-                requests.push(init(format!("SPA? {channel} 15\n"), item::COUNTS_DENOMINATOR));
+                requests.push(read(format!("SPA? {channel} 14\n"), Setting::CountsNumerator));
+                requests.push(read(format!("SPA? {channel} 15\n"), Setting::CountsDenominator));
             }
-            requests.push(init(format!("TMN? {channel}\n"), item::TRAVEL_MIN));
-            requests.push(init(format!("TMX? {channel}\n"), item::TRAVEL_MAX));
+            requests.push(read(format!("TMN? {channel}\n"), Setting::TravelMin));
+            requests.push(read(format!("TMX? {channel}\n"), Setting::TravelMax));
         }
         if !self.servo_started && !channels.is_empty() {
             let pairs: Vec<String> = channels.iter().map(|c| format!("{c} 1")).collect();
-            requests.push(Request::silent(format!("SVO {}\n", pairs.join(" ")), Purpose::Init { item: item::SETTER }));
-            requests.push(init("ERR?\n".into(), item::SERVO_STARTED));
+            requests.push(Request::silent(format!("SVO {}\n", pairs.join(" ")), Step::ServoStart));
+            requests.push(Request::query("ERR?\n", Step::ServoStarted));
         }
         requests
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            for (item, query) in [
-                (item::STATUS_REGISTER, format!("SRG? {channel} 1\n")),
-                (item::POSITION, format!("POS? {channel}\n")),
-                (item::REFERENCED, format!("FRF? {channel}\n")),
+            for (reading, query) in [
+                (Reading::StatusRegister, format!("SRG? {channel} 1\n")),
+                (Reading::Position, format!("POS? {channel}\n")),
+                (Reading::Referenced, format!("FRF? {channel}\n")),
             ] {
-                requests.push(Request::query(query, Purpose::Poll { channel, item }));
+                requests.push(Request::query(query, Step::Read { channel, reading }));
             }
         }
-        requests.push(Request::query("ERR?\n", Purpose::PollMany { item: item::ERROR }));
+        requests.push(Request::query("ERR?\n", Step::PollErrors));
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         if channel == 0 {
             return Err(CommandError::Unsupported { protocol: NAME, what: "address channel 0 (axes count from 1)" });
         }
@@ -680,8 +732,8 @@ impl Protocol for PiGcs2 {
                 requests
             }
             DriverCommand::Stop { .. } => vec![
-                Request::silent(format!("HLT {channel}\n"), Purpose::Command { channel, item: item::SETTER }),
-                Request::query("ERR?\n", Purpose::Command { channel, item: item::STOP_CHECK }),
+                Request::silent(format!("HLT {channel}\n"), Step::Setter { channel }),
+                Request::query("ERR?\n", Step::StopCheck { channel }),
             ],
             DriverCommand::SetPosition { position } => {
                 let value = self.position_text(channel, "position", *position)?;
@@ -706,7 +758,7 @@ impl Protocol for PiGcs2 {
                 if text.trim().is_empty() {
                     Vec::new()
                 } else if text.contains('?') {
-                    vec![Request::query(format!("{text}\n"), Purpose::Command { channel, item: item::RAW_QUERY })]
+                    vec![Request::query(format!("{text}\n"), Step::RawQuery { channel })]
                 } else {
                     checked(channel, text.clone()).into()
                 }
@@ -722,18 +774,37 @@ impl Protocol for PiGcs2 {
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
-        match request.purpose {
-            Purpose::Init { item } => self.on_init_reply(request, frame, item),
-            Purpose::Poll { channel, item } => self.on_poll_reply(request, frame, channel, item),
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
+        match request.step {
+            Step::Identity => {
+                let upper = reply_text(frame).to_ascii_uppercase();
+                if !MODELS.iter().any(|model| upper.contains(model)) {
+                    return Err(ReplyError::new(request, frame, "not a PI controller of the C-863/C-884 class"));
+                }
+                Ok(Vec::new())
+            }
+            Step::Axes => {
+                let text = reply_text(frame);
+                let names: Vec<&str> = text.lines().map(str::trim).collect();
+                if !self.channels.iter().all(|channel| names.contains(&channel.to_string().as_str())) {
+                    return Err(ReplyError::new(request, frame, "a channel is not one of the controller's axes"));
+                }
+                Ok(Vec::new())
+            }
+            Step::Setting { channel, setting } => {
+                self.on_setting(request, frame, channel, setting).map(|()| Vec::new())
+            }
+            Step::ServoStarted => {
+                self.servo_started = true;
+                error_events(request, frame, None, &[])
+            }
+            Step::Read { channel, reading } => self.on_reading(request, frame, channel, reading),
             // The controller's error register names no axis.
-            Purpose::PollMany { .. } => error_events(request, frame, None, &[]),
-            Purpose::Command { channel, item } => match item {
-                item::STOP_CHECK => error_events(request, frame, Some(channel), &[STOPPED_BY_COMMAND]),
-                item::ERROR_CHECK => error_events(request, frame, Some(channel), &[]),
-                // A raw query's reply is the user's to read.
-                _ => Ok(Vec::new()),
-            },
+            Step::PollErrors => error_events(request, frame, None, &[]),
+            Step::StopCheck { channel } => error_events(request, frame, Some(channel), &[STOPPED_BY_COMMAND]),
+            Step::ErrorCheck { channel } => error_events(request, frame, Some(channel), &[]),
+            // A raw query's reply is the user's to read; setters are not answered.
+            Step::RawQuery { .. } | Step::Setter { .. } | Step::ServoStart => Ok(Vec::new()),
         }
     }
 }
@@ -742,7 +813,7 @@ impl Protocol for PiGcs2 {
 mod tests {
     use super::*;
 
-    fn sent(requests: &[Request]) -> Vec<String> {
+    fn sent(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
@@ -753,7 +824,7 @@ mod tests {
         let init = p.init(&[1, 3]);
         for request in init.iter().filter(|r| r.answered) {
             let text = String::from_utf8_lossy(&request.bytes).trim().to_string();
-            let channel = channel_of(request).unwrap_or(0);
+            let channel = if let Step::Setting { channel, .. } = request.step { channel } else { 0 };
             let reply = match text.split_whitespace().next().unwrap_or("") {
                 "*IDN?" => "(c)2019 Physik Instrumente (PI) GmbH & Co. KG, C-884.4DC, 119012345, 1.3.4.2\n".into(),
                 "SAI?" => "1 \n2 \n3 \n4\n".into(),
@@ -925,7 +996,7 @@ mod tests {
         assert_eq!(p.reply(&poll[0], b"1 1=0x3005\n").unwrap(), []);
         assert_eq!(p.reply(&poll[1], b"1=12.3456000\n").unwrap(), []);
         let events = p.reply(&poll[2], b"1=1\n").unwrap();
-        let [Event::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.position, 123_456.0);
         let expected =
             msta::MOVING | msta::PLUS_LS | msta::MINUS_LS | msta::POSITION | msta::HOMED | msta::GAIN_SUPPORT;
@@ -933,11 +1004,11 @@ mod tests {
         // Referencing is motion too; at rest on target, done.
         p.reply(&poll[0], b"1 1=0x4000\n").unwrap();
         let events = p.reply(&poll[2], b"1=0\n").unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & (msta::DONE | msta::MOVING | msta::HOMED | msta::POSITION), msta::MOVING);
         p.reply(&poll[0], b"1 0x1=0x9000\n").unwrap();
         let events = p.reply(&poll[2], b"1=1\n").unwrap();
-        let [Event::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { status, .. }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(status.msta & (msta::DONE | msta::MOVING | msta::POSITION), msta::DONE | msta::POSITION);
     }
 
@@ -946,7 +1017,7 @@ mod tests {
         let mut p = initialised();
         let poll = p.poll(&[1]);
         let direction = |p: &mut PiGcs2| match &p.reply(&poll[2], b"1=1\n").unwrap()[..] {
-            [Event::Status { status, .. }] => status.msta & msta::DIRECTION != 0,
+            [ReplyEvent::Status { status, .. }] => status.msta & msta::DIRECTION != 0,
             other => panic!("{other:?}"),
         };
         p.reply(&poll[1], b"1=1.0\n").unwrap();
@@ -963,7 +1034,7 @@ mod tests {
         assert_eq!(p.reply(&moved[7], b"0\n").unwrap(), []);
         assert_eq!(
             p.reply(&moved[7], b"7\n").unwrap(),
-            [Event::ControllerError(VendorError {
+            [ReplyEvent::ControllerError(VendorError {
                 channel: Some(3),
                 code: "7".into(),
                 meaning: "Position out of limits".into()
@@ -971,10 +1042,10 @@ mod tests {
         );
         let stop = p.command(3, &DriverCommand::Stop { acceleration: 1.0 }).unwrap();
         assert_eq!(p.reply(&stop[1], b"10\n").unwrap(), [], "a stop leaves 10");
-        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [Event::ControllerError(VendorError { .. })]));
+        assert!(matches!(&p.reply(&stop[1], b"5\n").unwrap()[..], [ReplyEvent::ControllerError(VendorError { .. })]));
         let poll = p.poll(&[1]);
         let events = p.reply(&poll[3], b"1024\n").unwrap();
-        let [Event::ControllerError(VendorError { channel: None, code, meaning })] = &events[..] else {
+        let [ReplyEvent::ControllerError(VendorError { channel: None, code, meaning })] = &events[..] else {
             panic!("{events:?}")
         };
         assert_eq!((code.as_str(), meaning.starts_with("Motion error")), ("1024", true));
@@ -988,7 +1059,7 @@ mod tests {
         let problem = |p: &mut PiGcs2, register: &[u8]| {
             p.reply(&poll[0], register).unwrap();
             match &p.reply(&poll[2], b"1=1\n").unwrap()[..] {
-                [Event::Status { status, .. }] => status.msta & msta::PROBLEM != 0,
+                [ReplyEvent::Status { status, .. }] => status.msta & msta::PROBLEM != 0,
                 other => panic!("{other:?}"),
             }
         };

@@ -2,7 +2,7 @@
 //! and polls into request frames, splits the byte stream into reply frames, and turns replies
 //! into channel status. No I/O, no clock.
 
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::DriverCommand;
 
 /// What a protocol needs to know of the installation.
@@ -14,65 +14,56 @@ pub struct ProtocolOptions {
 }
 
 /// One exchange with the controller: the bytes to write, and whether one reply frame answers
-/// them.
+/// them. `S` is the protocol's name for the step it is (`Protocol::Step`).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Request {
+pub struct Request<S> {
     /// The bytes, terminator or frame included.
     pub bytes: Vec<u8>,
     /// The controller answers with one reply frame (a query, or a command it acknowledges).
     pub answered: bool,
-    /// What it is for, handed back with the reply.
-    pub purpose: Purpose,
+    /// Which step it is, handed back with the reply.
+    pub step: S,
 }
 
-impl Request {
+impl<S> Request<S> {
     /// A request the controller answers.
-    pub fn query(bytes: impl Into<Vec<u8>>, purpose: Purpose) -> Self {
-        Self { bytes: bytes.into(), answered: true, purpose }
+    pub fn query(bytes: impl Into<Vec<u8>>, step: S) -> Self {
+        Self { bytes: bytes.into(), answered: true, step }
     }
 
     /// A request the controller does not answer (a setter of a protocol whose setters are
     /// silent).
-    pub fn silent(bytes: impl Into<Vec<u8>>, purpose: Purpose) -> Self {
-        Self { bytes: bytes.into(), answered: false, purpose }
+    pub fn silent(bytes: impl Into<Vec<u8>>, step: S) -> Self {
+        Self { bytes: bytes.into(), answered: false, step }
     }
 }
 
-/// What a request is for.
+/// What a request is for, as the controller layer sorts requests (`Protocol::purpose`): a
+/// poll's requests are grouped by channel and may be cut short by a stop; a command's are not.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Purpose {
-    /// Part of the poll of one channel; `item` tells the protocol which reading it is.
+    /// Part of the poll of one channel.
     Poll {
         /// The channel polled.
         channel: usize,
-        /// Which reading (position, status, ...), as the protocol numbers them.
-        item: u8,
     },
     /// Part of a poll of several channels in one request (a batched poll).
-    PollMany {
-        /// Which reading, as the protocol numbers them.
-        item: u8,
-    },
+    PollMany,
     /// Part of a command to one channel.
     Command {
         /// The channel commanded.
         channel: usize,
-        /// Which step of the command, as the protocol numbers them.
-        item: u8,
     },
     /// Part of the initialisation of a new connection.
-    Init {
-        /// Which step, as the protocol numbers them.
-        item: u8,
-    },
+    Init,
 }
 
 impl Purpose {
     /// The channel the request concerns, if one.
     pub fn channel(self) -> Option<usize> {
         match self {
-            Purpose::Poll { channel, .. } | Purpose::Command { channel, .. } => Some(channel),
-            Purpose::PollMany { .. } | Purpose::Init { .. } => None,
+            Purpose::Poll { channel } | Purpose::Command { channel } => Some(channel),
+            Purpose::PollMany | Purpose::Init => None,
         }
     }
 }
@@ -89,8 +80,9 @@ pub enum Frame {
 }
 
 /// What a reply says.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq)]
-pub enum Event {
+pub enum ReplyEvent<S> {
     /// The full status of a channel: its poll is complete.
     Status {
         /// The channel.
@@ -102,7 +94,7 @@ pub enum Event {
     ControllerError(VendorError),
     /// Requests to send right after this one, before anything else (an error query after a
     /// setter, the next entry of an error queue).
-    FollowUp(Vec<Request>),
+    FollowUp(Vec<Request<S>>),
 }
 
 /// An error a controller reported.
@@ -117,6 +109,7 @@ pub struct VendorError {
 }
 
 /// A reply that cannot be understood.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("unexpected reply to {request}: {reply:?} ({why})")]
 pub struct ReplyError {
@@ -130,12 +123,13 @@ pub struct ReplyError {
 
 impl ReplyError {
     /// A reply to `request` that the protocol cannot use.
-    pub fn new(request: &Request, reply: &[u8], why: &'static str) -> Self {
+    pub fn new<S>(request: &Request<S>, reply: &[u8], why: &'static str) -> Self {
         Self { request: printable(&request.bytes), reply: printable(reply), why }
     }
 }
 
 /// Why a driver command cannot be sent; nothing is sent then.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum CommandError {
     /// The controller has nothing that does it.
@@ -159,24 +153,37 @@ pub enum CommandError {
 /// A vendor's wire protocol (see the module documentation). Channels are the controller's own
 /// axis numbers as the launch file gives them.
 pub trait Protocol: Send {
+    /// The protocol's own name for each request: which reading of a poll, which step of a
+    /// command or of the initialisation. Handed back with the reply, it tells `reply` what the
+    /// reply is.
+    type Step: Copy + Eq + std::fmt::Debug + Send;
+
     /// The protocol's name, as launch files write it.
     fn name(&self) -> &'static str;
 
+    /// What a request of `step` is for, as the controller layer sorts requests.
+    fn purpose(step: Self::Step) -> Purpose;
+
     /// Where the first reply frame in `buffer` ends.
+    #[must_use]
     fn frame(&self, buffer: &[u8]) -> Frame;
 
     /// What a new connection sends before the channels are polled.
-    fn init(&mut self, channels: &[usize]) -> Vec<Request>;
+    #[must_use = "the requests are to be sent"]
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Self::Step>>;
 
     /// One complete poll of `channels`: every reading a channel's status needs, batched into
     /// fewer requests where the controller allows it.
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request>;
+    #[must_use = "the requests are to be sent"]
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Self::Step>>;
 
     /// The requests that carry out one driver command on `channel`, in order.
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError>;
+    #[must_use = "the requests are to be sent"]
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Self::Step>>, CommandError>;
 
     /// What the reply `frame` to `request` says.
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError>;
+    fn reply(&mut self, request: &Request<Self::Step>, frame: &[u8])
+        -> Result<Vec<ReplyEvent<Self::Step>>, ReplyError>;
 }
 
 /// Frames that end with a terminator (`\r`, `\r\n`, `\n`): the length of the first line.
@@ -189,19 +196,19 @@ pub fn line_frame(buffer: &[u8], terminator: &[u8]) -> Frame {
 
 /// A frame's bytes without the trailing terminator, as text (replies are ASCII; anything
 /// else is replaced).
-pub fn line_text(frame: &[u8], terminator: &[u8]) -> String {
+pub(crate) fn line_text(frame: &[u8], terminator: &[u8]) -> String {
     let body = frame.strip_suffix(terminator).unwrap_or(frame);
     String::from_utf8_lossy(body).into_owned()
 }
 
 /// Bytes as readable text for messages: control bytes escaped.
-pub fn printable(bytes: &[u8]) -> String {
+pub(crate) fn printable(bytes: &[u8]) -> String {
     bytes.iter().flat_map(|b| std::ascii::escape_default(*b)).map(char::from).collect()
 }
 
 /// A step count as a controller counts it: C-style NINT, in 32 bits. A value beyond is
 /// refused, never clamped (a clamped target drives the carriage somewhere nobody asked).
-pub fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {
+pub(crate) fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {
     let rounded = steps.round();
     if rounded.is_finite() && rounded >= f64::from(i32::MIN) && rounded <= f64::from(i32::MAX) {
         Ok(rounded as i32)

@@ -59,98 +59,99 @@
 //! and step settings of the EPICS driver's extra records. Replies carry no channel, so a reply
 //! is checked by its form only.
 
-use crate::protocol::{line_frame, CommandError, Event, Frame, Protocol, ProtocolOptions, Purpose, VendorError};
-use crate::protocol::{ReplyError, Request};
+use crate::protocol::{
+    line_frame, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+};
 use std::collections::BTreeMap;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// The protocol's name in launch files.
-pub const NAME: &str = "smaract_mcs2";
-
-/// The end of every request line (the EPICS driver's output EOS) and of every reply line.
-pub const TERMINATOR: &[u8] = b"\r\n";
+pub(crate) const NAME: &str = "smaract_mcs2";
 
 /// Picometres per record step unless the launch file says otherwise: one step is one nanometre.
-pub const DEFAULT_PICOMETRES_PER_STEP: f64 = 1000.0;
+pub(crate) const DEFAULT_PICOMETRES_PER_STEP: f64 = 1000.0;
 
 /// How far a jog goes, in picometres (100 mm, beyond any positioner's travel): the controller
 /// has no move at constant velocity.
-pub const JOG_DISTANCE_PM: i64 = 100_000_000_000;
+pub(crate) const JOG_DISTANCE_PM: i64 = 100_000_000_000;
 
 /// `:CHAN<n>:HOLD` value that keeps the control loop holding the target forever.
-pub const HOLD_FOREVER: i64 = -1;
+pub(crate) const HOLD_FOREVER: i64 = -1;
 
 /// Error-queue entries read one after another before the rest waits for the next read: a
 /// controller that never answered 0 would otherwise hold the line forever.
-pub const MAX_ERRORS_PER_DRAIN: u32 = 32;
+pub(crate) const MAX_ERRORS_PER_DRAIN: u32 = 32;
 
 /// Bits of the channel state word (`:CHAN<n>:STAT?`).
-pub mod state {
+// The whole word, as the manual defines it: a reference of what a reply may carry, the bits
+// the driver does not read included.
+#[allow(dead_code)]
+pub(crate) mod state {
     /// Any motion: a move, a calibration or a reference search.
-    pub const ACTIVELY_MOVING: u32 = 1 << 0;
+    pub(crate) const ACTIVELY_MOVING: u32 = 1 << 0;
     /// The control loop is active (moving closed loop, or holding).
-    pub const CLOSED_LOOP_ACTIVE: u32 = 1 << 1;
+    pub(crate) const CLOSED_LOOP_ACTIVE: u32 = 1 << 1;
     /// A sensor calibration is running.
-    pub const CALIBRATING: u32 = 1 << 2;
+    pub(crate) const CALIBRATING: u32 = 1 << 2;
     /// A reference mark search is running.
-    pub const REFERENCING: u32 = 1 << 3;
+    pub(crate) const REFERENCING: u32 = 1 << 3;
     /// The start of a move is delayed (waiting for the sensor or a trigger).
-    pub const MOVE_DELAYED: u32 = 1 << 4;
+    pub(crate) const MOVE_DELAYED: u32 = 1 << 4;
     /// A positioner with a position sensor is connected.
-    pub const SENSOR_PRESENT: u32 = 1 << 5;
+    pub(crate) const SENSOR_PRESENT: u32 = 1 << 5;
     /// The sensor's calibration data are valid.
-    pub const IS_CALIBRATED: u32 = 1 << 6;
+    pub(crate) const IS_CALIBRATED: u32 = 1 << 6;
     /// The physical position is known (a reference mark was found).
-    pub const IS_REFERENCED: u32 = 1 << 7;
+    pub(crate) const IS_REFERENCED: u32 = 1 << 7;
     /// A mechanical end stop stopped the last closed-loop move.
-    pub const END_STOP_REACHED: u32 = 1 << 8;
+    pub(crate) const END_STOP_REACHED: u32 = 1 << 8;
     /// The software range limit stopped the last move.
-    pub const RANGE_LIMIT_REACHED: u32 = 1 << 9;
+    pub(crate) const RANGE_LIMIT_REACHED: u32 = 1 << 9;
     /// The following error exceeded its limit.
-    pub const FOLLOWING_LIMIT_REACHED: u32 = 1 << 10;
+    pub(crate) const FOLLOWING_LIMIT_REACHED: u32 = 1 << 10;
     /// The last movement failed (`:CHAN<n>:ERR?` tells why).
-    pub const MOVEMENT_FAILED: u32 = 1 << 11;
+    pub(crate) const MOVEMENT_FAILED: u32 = 1 << 11;
     /// The channel takes part in trajectory streaming.
-    pub const IS_STREAMING: u32 = 1 << 12;
+    pub(crate) const IS_STREAMING: u32 = 1 << 12;
     /// Overload of an electromagnetic drive; the control loop is off.
-    pub const POSITIONER_OVERLOAD: u32 = 1 << 13;
+    pub(crate) const POSITIONER_OVERLOAD: u32 = 1 << 13;
     /// Over temperature; the amplifier is off until it cools.
-    pub const OVER_TEMPERATURE: u32 = 1 << 14;
+    pub(crate) const OVER_TEMPERATURE: u32 = 1 << 14;
     /// The positioner stands at a reference mark.
-    pub const REFERENCE_MARK: u32 = 1 << 15;
+    pub(crate) const REFERENCE_MARK: u32 = 1 << 15;
     /// An electromagnetic positioner is phased.
-    pub const IS_PHASED: u32 = 1 << 16;
+    pub(crate) const IS_PHASED: u32 = 1 << 16;
     /// A positioner fault (electrical).
-    pub const POSITIONER_FAULT: u32 = 1 << 17;
+    pub(crate) const POSITIONER_FAULT: u32 = 1 << 17;
     /// The amplifier is enabled.
-    pub const AMPLIFIER_ENABLED: u32 = 1 << 18;
+    pub(crate) const AMPLIFIER_ENABLED: u32 = 1 << 18;
     /// Within the in-position window.
-    pub const IN_POSITION: u32 = 1 << 19;
+    pub(crate) const IN_POSITION: u32 = 1 << 19;
     /// The brake is engaged.
-    pub const BRAKE_ENABLED: u32 = 1 << 20;
+    pub(crate) const BRAKE_ENABLED: u32 = 1 << 20;
 }
 
 /// Move modes (`:CHAN<n>:MMOD`) this protocol uses.
-pub mod move_mode {
+pub(crate) mod move_mode {
     /// `:MOVE` takes the absolute target, pm.
-    pub const CLOSED_LOOP_ABSOLUTE: i64 = 0;
+    pub(crate) const CLOSED_LOOP_ABSOLUTE: i64 = 0;
     /// `:MOVE` takes the distance, pm.
-    pub const CLOSED_LOOP_RELATIVE: i64 = 1;
+    pub(crate) const CLOSED_LOOP_RELATIVE: i64 = 1;
 }
 
 /// Reference search options (`:CHAN<n>:REF:OPT`) this protocol uses.
-pub mod reference_option {
+pub(crate) mod reference_option {
     /// Start the search backwards (towards negative positions).
-    pub const START_DIRECTION: i64 = 0x01;
+    pub(crate) const START_DIRECTION: i64 = 0x01;
     /// Set the position to 0 at the reference mark.
-    pub const AUTO_ZERO: i64 = 0x04;
+    pub(crate) const AUTO_ZERO: i64 = 0x04;
 }
 
 /// What an MCS2 error code means, for the codes the EPICS driver decodes and those the emulator
 /// reports (negative: SCPI parser errors; positive: the device's own, as the SDK numbers them).
-pub fn error_text(code: i64) -> Option<&'static str> {
+pub(crate) fn error_text(code: i64) -> Option<&'static str> {
     Some(match code {
         0 => "No error",
         -101 => "Invalid character",
@@ -171,28 +172,55 @@ pub fn error_text(code: i64) -> Option<&'static str> {
     })
 }
 
-/// Which reading a poll request is.
-mod poll_item {
-    pub const STATE: u8 = 0;
-    pub const POSITION: u8 = 1;
-    pub const AMPLIFIER: u8 = 2;
-    pub const ERRORS: u8 = 3;
+/// A request of the MCS2.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    /// `:DEV:SNUM?` at initialisation.
+    SerialNumber,
+    /// The error queue as a new connection finds it: entries from before it.
+    StaleErrors,
+    /// `:CHAN<n>:HOLD` at initialisation: silent.
+    Hold,
+    /// The error queue after the initialisation.
+    InitErrors,
+    /// One reading of a channel's poll.
+    Read {
+        /// The channel polled.
+        channel: usize,
+        /// Which reading.
+        reading: Reading,
+    },
+    /// The error queue after a poll, read with the last channel's poll.
+    PollErrors {
+        /// The last channel polled.
+        channel: usize,
+    },
+    /// A setter of a command: silent.
+    Setter {
+        /// The channel commanded.
+        channel: usize,
+    },
+    /// Raw text with a `?`: only that its answer came counts.
+    RawQuery {
+        /// The channel it goes with.
+        channel: usize,
+    },
+    /// The error queue after a command: its errors are the channel's.
+    CommandErrors {
+        /// The channel commanded.
+        channel: usize,
+    },
 }
 
-/// Which step of the initialisation a request is.
-mod init_item {
-    pub const SERIAL_NUMBER: u8 = 0;
-    /// The queue as this connection finds it: entries from before it.
-    pub const STALE_ERRORS: u8 = 1;
-    pub const HOLD: u8 = 2;
-    pub const ERRORS: u8 = 3;
-}
-
-/// Which part of a command a request is.
-mod command_item {
-    pub const SETTER: u8 = 0;
-    pub const RAW_QUERY: u8 = 1;
-    pub const ERRORS: u8 = 2;
+/// The readings of a channel's poll.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Reading {
+    /// `:CHAN<n>:STAT?`: the channel state word.
+    State,
+    /// `:CHAN<n>:POS?`, asked when the state says a sensor is present.
+    Position,
+    /// `:CHAN<n>:AMPL?`: the amplifier; it completes the poll.
+    Amplifier,
 }
 
 /// Which way a channel was last sent.
@@ -225,7 +253,7 @@ struct Channel {
 
 /// The MCS2 protocol (see the module documentation).
 #[derive(Debug)]
-pub struct Mcs2 {
+pub(crate) struct Mcs2 {
     picometres_per_step: f64,
     channels: BTreeMap<usize, Channel>,
     /// Error-queue entries read in a row without reaching 0.
@@ -234,7 +262,7 @@ pub struct Mcs2 {
 
 impl Mcs2 {
     /// A protocol with the installation's scale (`units_per_step`: picometres per step).
-    pub fn new(options: &ProtocolOptions) -> Self {
+    pub(crate) fn new(options: &ProtocolOptions) -> Self {
         Self {
             picometres_per_step: options.units_per_step.unwrap_or(DEFAULT_PICOMETRES_PER_STEP),
             channels: BTreeMap::new(),
@@ -281,7 +309,7 @@ impl Mcs2 {
     }
 
     /// The requests of a closed-loop move: mode, acceleration, velocity, go.
-    fn closed_loop_move(channel: usize, mode: i64, acceleration: i64, velocity: i64, value: i64) -> Vec<Request> {
+    fn closed_loop_move(channel: usize, mode: i64, acceleration: i64, velocity: i64, value: i64) -> Vec<Request<Step>> {
         vec![
             setter(format!(":CHAN{channel}:MMOD {mode}"), channel),
             setter(format!(":CHAN{channel}:ACC {acceleration}"), channel),
@@ -294,10 +322,10 @@ impl Mcs2 {
     /// follow-up for the next, or the end of the queue.
     fn error_entry(
         &mut self,
-        request: &Request,
+        request: &Request<Step>,
         frame: &[u8],
         channel: Option<usize>,
-    ) -> Result<Vec<Event>, ReplyError> {
+    ) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let (code, text) = parse_error_entry(&reply_text(frame))
             .ok_or_else(|| ReplyError::new(request, frame, "not code,\"text\""))?;
         if code == 0 {
@@ -307,13 +335,13 @@ impl Mcs2 {
         self.errors_in_a_row += 1;
         let meaning = if text.is_empty() { error_text(code).unwrap_or("unknown error").to_string() } else { text };
         let mut events = Vec::new();
-        if request.purpose == (Purpose::Init { item: init_item::STALE_ERRORS }) {
+        if request.step == Step::StaleErrors {
             tracing::warn!(code, meaning, "MCS2 error queue entry from before this connection");
         } else {
-            events.push(Event::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
+            events.push(ReplyEvent::ControllerError(VendorError { channel, code: code.to_string(), meaning }));
         }
         if self.errors_in_a_row < MAX_ERRORS_PER_DRAIN {
-            events.push(Event::FollowUp(vec![request.clone()]));
+            events.push(ReplyEvent::FollowUp(vec![request.clone()]));
         } else {
             self.errors_in_a_row = 0;
         }
@@ -334,18 +362,28 @@ impl Mcs2 {
 }
 
 /// A silent request, part of a command to `channel`.
-fn setter(line: String, channel: usize) -> Request {
-    Request::silent(format!("{line}\r\n"), Purpose::Command { channel, item: command_item::SETTER })
+fn setter(line: String, channel: usize) -> Request<Step> {
+    Request::silent(format!("{line}\r\n"), Step::Setter { channel })
 }
 
 /// A query line.
-fn query(line: String, purpose: Purpose) -> Request {
-    Request::query(format!("{line}\r\n"), purpose)
+fn query(line: String, step: Step) -> Request<Step> {
+    Request::query(format!("{line}\r\n"), step)
+}
+
+/// One reading of `channel`'s poll.
+fn read(channel: usize, reading: Reading) -> Request<Step> {
+    let property = match reading {
+        Reading::State => "STAT",
+        Reading::Position => "POS",
+        Reading::Amplifier => "AMPL",
+    };
+    query(format!(":CHAN{channel}:{property}?"), Step::Read { channel, reading })
 }
 
 /// The error-queue read.
-fn error_query(purpose: Purpose) -> Request {
-    query(":SYST:ERR?".to_string(), purpose)
+fn error_query(step: Step) -> Request<Step> {
+    query(":SYST:ERR?".to_string(), step)
 }
 
 /// A reply's text, without its line end.
@@ -399,8 +437,20 @@ fn msta_of(word: u32, amplifier: bool, travel: Option<Travel>) -> u32 {
 }
 
 impl Protocol for Mcs2 {
+    type Step = Step;
+
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::SerialNumber | Step::StaleErrors | Step::Hold | Step::InitErrors => Purpose::Init,
+            Step::Read { channel, .. } | Step::PollErrors { channel } => Purpose::Poll { channel },
+            Step::Setter { channel } | Step::RawQuery { channel } | Step::CommandErrors { channel } => {
+                Purpose::Command { channel }
+            }
+        }
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
@@ -411,38 +461,32 @@ impl Protocol for Mcs2 {
         }
     }
 
-    fn init(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // What the last connection knew may be stale: the controller may have been restarted.
         self.channels.clear();
         self.errors_in_a_row = 0;
-        let mut requests = vec![
-            query(":DEV:SNUM?".to_string(), Purpose::Init { item: init_item::SERIAL_NUMBER }),
-            error_query(Purpose::Init { item: init_item::STALE_ERRORS }),
-        ];
+        let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber), error_query(Step::StaleErrors)];
         for channel in channels {
             let line = format!(":CHAN{channel}:HOLD {HOLD_FOREVER}\r\n");
-            requests.push(Request::silent(line, Purpose::Init { item: init_item::HOLD }));
+            requests.push(Request::silent(line, Step::Hold));
         }
-        requests.push(error_query(Purpose::Init { item: init_item::ERRORS }));
+        requests.push(error_query(Step::InitErrors));
         requests
     }
 
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            let read = |property: &str, item: u8| {
-                query(format!(":CHAN{channel}:{property}?"), Purpose::Poll { channel, item })
-            };
-            requests.push(read("STAT", poll_item::STATE));
-            requests.push(read("AMPL", poll_item::AMPLIFIER));
+            requests.push(read(channel, Reading::State));
+            requests.push(read(channel, Reading::Amplifier));
         }
-        if let Some(&last) = channels.last() {
-            requests.push(error_query(Purpose::Poll { channel: last, item: poll_item::ERRORS }));
+        if let Some(&channel) = channels.last() {
+            requests.push(error_query(Step::PollErrors { channel }));
         }
         requests
     }
 
-    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let mut requests = match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
                 self.require_sensor(channel)?;
@@ -502,7 +546,7 @@ impl Protocol for Mcs2 {
                     return Err(CommandError::Unsupported { protocol: NAME, what: "send raw text of several lines" });
                 }
                 if text.trim_end().ends_with('?') {
-                    vec![query(text.clone(), Purpose::Command { channel, item: command_item::RAW_QUERY })]
+                    vec![query(text.clone(), Step::RawQuery { channel })]
                 } else {
                     vec![setter(text.clone(), channel)]
                 }
@@ -515,25 +559,22 @@ impl Protocol for Mcs2 {
             | DriverCommand::SetGain { .. }
             | DriverCommand::Poll => return Ok(Vec::new()),
         };
-        requests.push(error_query(Purpose::Command { channel, item: command_item::ERRORS }));
+        requests.push(error_query(Step::CommandErrors { channel }));
         Ok(requests)
     }
 
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
         let text = reply_text(frame);
-        match request.purpose {
-            Purpose::Init { item: init_item::SERIAL_NUMBER } => {
+        match request.step {
+            Step::SerialNumber => {
                 tracing::info!(serial = text, "MCS2 connected");
                 Ok(Vec::new())
             }
-            Purpose::Init { item: init_item::STALE_ERRORS | init_item::ERRORS } => {
-                self.error_entry(request, frame, None)
-            }
-            Purpose::Poll { item: poll_item::ERRORS, .. } => self.error_entry(request, frame, None),
-            Purpose::Command { channel, item: command_item::ERRORS } => self.error_entry(request, frame, Some(channel)),
+            Step::StaleErrors | Step::InitErrors | Step::PollErrors { .. } => self.error_entry(request, frame, None),
+            Step::CommandErrors { channel } => self.error_entry(request, frame, Some(channel)),
             // The answer is the user's to read in the controller's log; only that it came counts.
-            Purpose::Command { item: command_item::RAW_QUERY, .. } => Ok(Vec::new()),
-            Purpose::Poll { channel, item: poll_item::STATE } => {
+            Step::RawQuery { .. } => Ok(Vec::new()),
+            Step::Read { channel, reading: Reading::State } => {
                 let word = parse_integer(&text)
                     .and_then(|word| u32::try_from(word).ok())
                     .ok_or_else(|| ReplyError::new(request, frame, "not a channel state word"))?;
@@ -541,24 +582,22 @@ impl Protocol for Mcs2 {
                 if word & state::SENSOR_PRESENT == 0 {
                     return Ok(Vec::new());
                 }
-                let position =
-                    query(format!(":CHAN{channel}:POS?"), Purpose::Poll { channel, item: poll_item::POSITION });
-                Ok(vec![Event::FollowUp(vec![position])])
+                Ok(vec![ReplyEvent::FollowUp(vec![read(channel, Reading::Position)])])
             }
-            Purpose::Poll { channel, item: poll_item::POSITION } => {
+            Step::Read { channel, reading: Reading::Position } => {
                 let pm = parse_integer(&text).ok_or_else(|| ReplyError::new(request, frame, "not a position in pm"))?;
                 self.channel(channel).position = Some(pm);
                 Ok(Vec::new())
             }
-            Purpose::Poll { channel, item: poll_item::AMPLIFIER } => {
+            Step::Read { channel, reading: Reading::Amplifier } => {
                 let amplifier = match text.as_str() {
                     "0" => false,
                     "1" => true,
                     _ => return Err(ReplyError::new(request, frame, "not 0 or 1")),
                 };
-                Ok(vec![Event::Status { channel, status: self.status(channel, amplifier) }])
+                Ok(vec![ReplyEvent::Status { channel, status: self.status(channel, amplifier) }])
             }
-            _ => Err(ReplyError::new(request, frame, "no reply was expected")),
+            Step::Hold | Step::Setter { .. } => Err(ReplyError::new(request, frame, "no reply was expected")),
         }
     }
 }
@@ -567,11 +606,11 @@ impl Protocol for Mcs2 {
 mod tests {
     use super::*;
 
-    fn lines(requests: &[Request]) -> Vec<String> {
+    fn lines(requests: &[Request<Step>]) -> Vec<String> {
         requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
     }
 
-    fn answered(requests: &[Request]) -> Vec<bool> {
+    fn answered(requests: &[Request<Step>]) -> Vec<bool> {
         requests.iter().map(|r| r.answered).collect()
     }
 
@@ -588,14 +627,14 @@ mod tests {
         let poll = p.poll(&[channel]);
         let events = p.reply(&poll[0], format!("{state_word}\r\n").as_bytes()).unwrap();
         if let Some(position) = position {
-            let [Event::FollowUp(follow)] = &events[..] else { panic!("{events:?}") };
+            let [ReplyEvent::FollowUp(follow)] = &events[..] else { panic!("{events:?}") };
             assert_eq!(lines(follow), [format!(":CHAN{channel}:POS?\r\n")]);
             assert_eq!(p.reply(&follow[0], format!("{position}\r\n").as_bytes()).unwrap(), []);
         } else {
             assert_eq!(events, [], "no position without a sensor");
         }
         let events = p.reply(&poll[1], format!("{amplifier}\r\n").as_bytes()).unwrap();
-        let [Event::Status { channel: c, status }] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::Status { channel: c, status }] = &events[..] else { panic!("{events:?}") };
         assert_eq!(*c, channel);
         *status
     }
@@ -728,13 +767,13 @@ mod tests {
         // Entries from before the connection are read to the end but not reported.
         assert_eq!(
             p.reply(&init[1], b"-113,\"Undefined header\"\r\n").unwrap(),
-            [Event::FollowUp(vec![init[1].clone()])]
+            [ReplyEvent::FollowUp(vec![init[1].clone()])]
         );
         assert_eq!(p.reply(&init[1], b"0,\"No error\"\r\n").unwrap(), []);
         let events = p.reply(&init[4], b"34,\"Invalid channel index\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: None,
                 code: "34".into(),
                 meaning: "Invalid channel index".into()
@@ -749,7 +788,7 @@ mod tests {
             lines(&p.poll(&[0, 2])),
             [":CHAN0:STAT?\r\n", ":CHAN0:AMPL?\r\n", ":CHAN2:STAT?\r\n", ":CHAN2:AMPL?\r\n", ":SYST:ERR?\r\n"]
         );
-        assert_eq!(p.poll(&[0, 2])[4].purpose, Purpose::Poll { channel: 2, item: poll_item::ERRORS });
+        assert_eq!(p.poll(&[0, 2])[4].step, Step::PollErrors { channel: 2 });
         // Idle, sensor present, calibrated, referenced, holding: 226.
         let idle = polled(&mut p, 0, "226", Some("-1500250"), "1");
         assert_eq!((idle.position, idle.encoder_position), (-1500.25, -1500.25));
@@ -821,19 +860,19 @@ mod tests {
         assert_eq!(
             p.reply(read, b"262,\"Amplifier disabled\"\r\n").unwrap(),
             [
-                Event::ControllerError(VendorError {
+                ReplyEvent::ControllerError(VendorError {
                     channel: Some(3),
                     code: "262".into(),
                     meaning: "Amplifier disabled".into()
                 }),
-                Event::FollowUp(vec![read.clone()])
+                ReplyEvent::FollowUp(vec![read.clone()])
             ]
         );
         // No text from the controller: the code's own meaning.
         let events = p.reply(read, b"-113,\"\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: Some(3),
                 code: "-113".into(),
                 meaning: "Undefined header".into()
@@ -844,7 +883,7 @@ mod tests {
         let events = p.reply(&poll[2], b"272,\"Movement overridden\"\r\n").unwrap();
         assert_eq!(
             events[0],
-            Event::ControllerError(VendorError {
+            ReplyEvent::ControllerError(VendorError {
                 channel: None,
                 code: "272".into(),
                 meaning: "Movement overridden".into()
@@ -855,7 +894,7 @@ mod tests {
         let followed: Vec<bool> = (0..MAX_ERRORS_PER_DRAIN)
             .map(|_| {
                 let events = p.reply(read, b"-350,\"Queue overflow\"\r\n").unwrap();
-                events.iter().any(|e| matches!(e, Event::FollowUp(_)))
+                events.iter().any(|e| matches!(e, ReplyEvent::FollowUp(_)))
             })
             .collect();
         assert!(followed[..followed.len() - 1].iter().all(|f| *f));
@@ -870,7 +909,7 @@ mod tests {
             assert!(p.reply(&poll[0], format!("{bad}\r\n").as_bytes()).is_err(), "state {bad:?}");
         }
         let events = p.reply(&poll[0], b"32\r\n").unwrap();
-        let [Event::FollowUp(position)] = &events[..] else { panic!("{events:?}") };
+        let [ReplyEvent::FollowUp(position)] = &events[..] else { panic!("{events:?}") };
         for bad in ["12.5", "x", "0,\"No error\"", "--5"] {
             assert!(p.reply(&position[0], format!("{bad}\r\n").as_bytes()).is_err(), "position {bad:?}");
         }

@@ -96,6 +96,7 @@ pub enum FlowControl {
 }
 
 /// A controller setting that cannot be used.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SpecError {
     /// A period or timeout outside what makes sense.
@@ -135,12 +136,14 @@ pub enum SpecError {
     },
 }
 
-/// A period in seconds, checked against its bounds.
-pub fn period(what: &'static str, seconds: f64, min: f64, max: f64) -> Result<Duration, SpecError> {
-    if seconds.is_finite() && (min..=max).contains(&seconds) {
-        Ok(Duration::from_secs_f64(seconds))
-    } else {
-        Err(SpecError::Period { what, seconds, min, max })
+impl ControllerConfig {
+    /// A period or timeout of `what` in seconds, checked against its bounds.
+    pub fn checked_period(what: &'static str, seconds: f64, min: f64, max: f64) -> Result<Duration, SpecError> {
+        if seconds.is_finite() && (min..=max).contains(&seconds) {
+            Ok(Duration::from_secs_f64(seconds))
+        } else {
+            Err(SpecError::Period { what, seconds, min, max })
+        }
     }
 }
 

@@ -6,13 +6,12 @@ mod common;
 
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerConfig, ControllerEvent, Refusal};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::protocol::{line_frame, CommandError, Event, Frame, Purpose, ReplyError, Request};
-use zmotor_controllers::ProtocolKind;
-use zmotor_core::driver::Driver;
-use zmotor_core::engine::DeviceStatus;
+use zmotor_controllers::{
+    line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
+    Refusal, ReplyError, ReplyEvent, Request,
+};
+use zmotor_core::{DeviceStatus, Driver};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -292,7 +291,7 @@ fn a_jog_running_when_the_link_is_lost_is_stopped_first_when_it_is_back() {
     assert_eq!(sent.iter().filter(|w| w.starts_with("#00Q")).count(), 0, "only the channel that moved");
     let now = lb.now();
     let axis = lb.link.emulator().axis(1).expect("channel 1");
-    zmotor_core::driver::Driver::advance(axis, now);
+    zmotor_core::Driver::advance(axis, now);
     assert!(!axis.is_moving());
 }
 
@@ -327,30 +326,43 @@ fn a_stop_is_taken_while_the_link_initialises_and_owed_while_it_is_down() {
 /// answers polls: the link must not come up on a controller that is not what it should be.
 struct Picky;
 
+/// Picky's requests.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum PickyStep {
+    Identify,
+    Poll { channel: usize },
+}
+
 impl zmotor_controllers::Protocol for Picky {
+    type Step = PickyStep;
     fn name(&self) -> &'static str {
         "picky"
+    }
+    fn purpose(step: PickyStep) -> Purpose {
+        match step {
+            PickyStep::Identify => Purpose::Init,
+            PickyStep::Poll { channel } => Purpose::Poll { channel },
+        }
     }
     fn frame(&self, buffer: &[u8]) -> Frame {
         line_frame(buffer, b"\r")
     }
-    fn init(&mut self, _channels: &[usize]) -> Vec<Request> {
-        vec![Request::query(&b"ID?\r"[..], Purpose::Init { item: 0 })]
+    fn init(&mut self, _channels: &[usize]) -> Vec<Request<PickyStep>> {
+        vec![Request::query(&b"ID?\r"[..], PickyStep::Identify)]
     }
-    fn poll(&mut self, channels: &[usize]) -> Vec<Request> {
-        channels.iter().map(|&channel| Request::query(&b"P?\r"[..], Purpose::Poll { channel, item: 0 })).collect()
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<PickyStep>> {
+        channels.iter().map(|&channel| Request::query(&b"P?\r"[..], PickyStep::Poll { channel })).collect()
     }
-    fn command(&mut self, _channel: usize, _command: &DriverCommand) -> Result<Vec<Request>, CommandError> {
+    fn command(&mut self, _channel: usize, _command: &DriverCommand) -> Result<Vec<Request<PickyStep>>, CommandError> {
         Ok(Vec::new())
     }
-    fn reply(&mut self, request: &Request, frame: &[u8]) -> Result<Vec<Event>, ReplyError> {
-        match request.purpose {
-            Purpose::Init { .. } => Err(ReplyError::new(request, frame, "not the controller expected")),
-            Purpose::Poll { channel, .. } => Ok(vec![Event::Status {
+    fn reply(&mut self, request: &Request<PickyStep>, frame: &[u8]) -> Result<Vec<ReplyEvent<PickyStep>>, ReplyError> {
+        match request.step {
+            PickyStep::Identify => Err(ReplyError::new(request, frame, "not the controller expected")),
+            PickyStep::Poll { channel } => Ok(vec![ReplyEvent::Status {
                 channel,
                 status: DeviceStatus { msta: msta::DONE, ..DeviceStatus::default() },
             }]),
-            _ => Ok(Vec::new()),
         }
     }
 }
@@ -374,7 +386,7 @@ impl zmotor_controllers::emulator::Emulator for Answering {
     fn malformed(&self) -> usize {
         0
     }
-    fn axis(&mut self, _channel: usize) -> Option<&mut zmotor_core::driver::sim::SimAxis> {
+    fn axis(&mut self, _channel: usize) -> Option<&mut zmotor_core::SimAxis> {
         None
     }
     fn raise_error(&mut self, _channel: usize) -> bool {
@@ -385,7 +397,8 @@ impl zmotor_controllers::emulator::Emulator for Answering {
 #[test]
 fn a_controller_that_does_not_initialise_is_not_used() {
     let config = ControllerConfig::for_channels(vec![0]);
-    let mut lb = Loopback::new(Box::new(Picky), Box::new(Answering::default()), config, Faults::default());
+    let controller = Box::new(Controller::new(Picky, config, zmotor_core::Instant::ZERO));
+    let mut lb = Loopback::new(controller, Box::new(Answering::default()), Faults::default());
     lb.run_for(Duration::from_secs(5));
     assert!(!lb.controller.is_up());
     let events = lb.take_events();

@@ -8,8 +8,7 @@ use common::{bring_up, command, controller_errors, last_status, loopback, run_un
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{Loopback, ProtocolKind};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -226,7 +225,7 @@ fn a_power_stage_error_reaches_the_record_with_its_meaning_until_cleared() {
 }
 
 /// A script of every kind of command on two axes, and the statuses it yields.
-fn script(lb: &mut Loopback) -> Vec<Vec<zmotor_core::engine::DeviceStatus>> {
+fn script(lb: &mut Loopback) -> Vec<Vec<zmotor_core::DeviceStatus>> {
     bring_up(lb);
     lb.command(11, &go(3000.0, false));
     lb.command(22, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 8000.0, acceleration: 80_000.0 });

@@ -7,11 +7,9 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::protocol::VendorError;
-use zmotor_controllers::{ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
+use zmotor_core::Instant;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -231,12 +229,8 @@ fn connecting_and_reconnecting_move_nothing() {
 #[test]
 fn the_scale_is_the_launch_files() {
     let options = ProtocolOptions { units_per_step: Some(1.0) };
-    let mut lb = Loopback::new(
-        MCS2.protocol(&options),
-        MCS2.emulator(1),
-        ControllerConfig::for_channels(vec![0]),
-        Faults::default(),
-    );
+    let controller = MCS2.controller(&options, ControllerConfig::for_channels(vec![0]), Instant::ZERO);
+    let mut lb = Loopback::new(controller, MCS2.emulator(1), Faults::default());
     bring_up(&mut lb);
     lb.command(0, &go(1500.0, false));
     let statuses = run_until_done(&mut lb, 0, TICK, Duration::from_secs(2));

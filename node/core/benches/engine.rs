@@ -3,10 +3,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
-use zmotor_core::axis::{Axis, PollRates};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::engine::{DeviceStatus, MotorRecord};
-use zmotor_core::Instant;
+use zmotor_core::{Axis, DeviceStatus, Instant, MotorRecord, PollRates, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{Field, Fields, Value};
 

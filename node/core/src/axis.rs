@@ -44,6 +44,7 @@ impl WriteAccepted {
 }
 
 /// Something the outside world must hear about.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq)]
 pub enum AxisEvent {
     /// A field's new value.
@@ -101,7 +102,17 @@ pub struct AxisPlan {
     /// Status poll periods.
     pub rates: PollRates,
     /// Whether it jogs only under a hold (the jog deadman).
-    pub jog_hold: crate::service::JogHold,
+    pub jog_hold: JogHold,
+}
+
+/// Whether an axis jogs only under a hold (the jog deadman).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum JogHold {
+    /// A plain JOGF/JOGR = 1 is taken, as the record takes it (with a warning, once).
+    #[default]
+    Optional,
+    /// A JOGF/JOGR = 1 without a hold is refused.
+    Required,
 }
 
 /// What drives an axis.
@@ -288,6 +299,7 @@ impl Axis {
     /// "done" still settling ends the motion before it, as the reference processes the DINP
     /// callback before a later put), and the write acts on the readback of this moment, not
     /// of the last poll: a relative move from a stale readback would miss by the distance since.
+    #[must_use = "a refusal is to be reported, and the WriteAccepted tells the end of the write's own motion"]
     pub fn write(&mut self, now: Instant, field: Field, value: &Value) -> Result<WriteAccepted, WriteError> {
         self.advance(now);
         if self.done_due.take().is_some() {
@@ -417,6 +429,7 @@ impl Axis {
 
     /// When `handle_timeout` should be called next; None when nothing is due (a Soft Channel
     /// axis waiting for its links).
+    #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
         let due =
             [self.next_poll, self.delay_deadline, self.next_event(), self.held.as_ref().map(|h| h.due), self.done_due];
@@ -426,6 +439,7 @@ impl Axis {
     /// When something happens by itself next, apart from the periodic polls: the simulator's
     /// end of motion, the DLY deadline, a PREM delay, a Soft Channel "done". A runner may keep
     /// these on a finer clock than the polls (the end of a motion is reported when it happens).
+    #[must_use]
     pub fn event_timeout(&self) -> Option<Instant> {
         let due = [self.delay_deadline, self.next_event(), self.held.as_ref().map(|h| h.due), self.done_due];
         due.into_iter().flatten().min().map(|t| t.max(self.now))

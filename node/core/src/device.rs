@@ -15,7 +15,7 @@ enum Staged {
 /// Per-axis device-support state: the last base velocity, velocity and acceleration written
 /// (a transaction without SET_VEL_BASE reuses the last one) and a staged move or home.
 #[derive(Clone, Debug, Default)]
-pub struct DeviceSupport {
+pub(crate) struct DeviceSupport {
     vel_base: f64,
     velocity: f64,
     accel: f64,
@@ -25,7 +25,7 @@ pub struct DeviceSupport {
 /// The driver commands of one transaction, and whether the record must then be processed with
 /// fresh status.
 #[derive(Debug, Default, PartialEq)]
-pub struct Translation {
+pub(crate) struct Translation {
     /// The driver commands, in order.
     pub commands: Vec<DriverCommand>,
     /// The record must be processed with fresh status after them.
@@ -34,7 +34,7 @@ pub struct Translation {
 
 impl DeviceSupport {
     /// Translate one transaction of the record into driver commands.
-    pub fn translate(&mut self, transaction: &[MotorCommand]) -> Translation {
+    pub(crate) fn translate(&mut self, transaction: &[MotorCommand]) -> Translation {
         let mut out = Translation::default();
         for command in transaction {
             let driver_command = match *command {

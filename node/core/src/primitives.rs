@@ -7,7 +7,7 @@ use std::time::Duration;
 
 /// One `PUT` directive.
 #[derive(Clone, Debug, PartialEq)]
-pub struct DirectivePut {
+pub(crate) struct DirectivePut {
     /// The key written to.
     pub key: String,
     /// The value written, as text.
@@ -18,7 +18,7 @@ pub struct DirectivePut {
 
 /// A parsed primitive string.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Primitive {
+pub(crate) struct Primitive {
     /// The `@PUT(...)@` directives, in order.
     pub puts: Vec<DirectivePut>,
     /// The controller command, if any text remains.
@@ -27,14 +27,14 @@ pub struct Primitive {
 
 impl Primitive {
     /// The longest PUT delay.
-    pub fn delay(&self) -> Duration {
+    pub(crate) fn delay(&self) -> Duration {
         self.puts.iter().map(|p| p.delay).max().unwrap_or_default()
     }
 }
 
 /// Parse INIT/PREM/POST text. Anything between `@`s that is not a valid directive stays in the
 /// text, as the manual says only valid directives are stripped.
-pub fn parse(source: &str) -> Primitive {
+pub(crate) fn parse(source: &str) -> Primitive {
     let mut primitive = Primitive::default();
     let mut text = String::new();
     let mut rest = source;

@@ -6,7 +6,7 @@
 //! queries into these calls and sends what `poll_output` hands back; `R` is its reply handle
 //! (a Zenoh query), a plain value in tests.
 
-use crate::axis::{Axis, AxisEvent, WriteAccepted};
+use crate::axis::{Axis, AxisEvent, JogHold, WriteAccepted};
 use crate::driver::sim::{SimSetting, SimSettingError};
 use crate::driver::soft::InputLink;
 use crate::engine::{DeviceStatus, WriteError};
@@ -16,10 +16,11 @@ use zmotor_msgs::keys::PlainKeyError;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
     decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout, Kind,
-    LinkKeyError, MalformedPayload, PayloadEncoding, SimState, StateMarker, Value,
+    LinkKeyError, MalformedPayload, PayloadEncoding, RefusalKind, SimState, StateMarker, Value,
 };
 
 /// Why a request was refused. The message says it in plain words and names the field.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RequestError {
     /// No field has this name.
@@ -92,7 +93,25 @@ pub enum RequestError {
     },
 }
 
-/// The answer to a confirmed write or a read.
+impl RequestError {
+    /// What kind of refusal this is, as clients are told.
+    pub fn kind(&self) -> RefusalKind {
+        match self {
+            RequestError::UnknownField(_) | RequestError::WrongCase { .. } => RefusalKind::UnknownField,
+            RequestError::Payload(_)
+            | RequestError::SimPayload { .. }
+            | RequestError::SimSetting { .. }
+            | RequestError::Link { .. } => RefusalKind::BadValue,
+            RequestError::Record(e) => e.kind(),
+            RequestError::NotSimulated(_) => RefusalKind::NotSimulated,
+            RequestError::HoldRequired(_) => RefusalKind::HoldRequired,
+            RequestError::HoldToken { .. } | RequestError::HoldElsewhere { .. } => RefusalKind::BadHold,
+        }
+    }
+}
+
+/// The answer to a confirmed write or a read. Not `#[non_exhaustive]`: the adapter must send
+/// every kind of answer, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Reply {
     /// A field's value: the result of a confirmed write, or one field of a read.
@@ -107,7 +126,8 @@ pub enum Reply {
     SimSetting(SimSetting, Value),
 }
 
-/// What the adapter must send, in order.
+/// What the adapter must send, in order. Not `#[non_exhaustive]`: each is an action the adapter
+/// must carry out, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum ServiceOutput<R> {
     /// Publish a field's new value on `<prefix>/<axis>/<FIELD>`, with its state marker.
@@ -119,8 +139,11 @@ pub enum ServiceOutput<R> {
         /// The attachment that marks the sample as state.
         marker: StateMarker,
     },
-    /// Publish why a write was refused on `<prefix>/<axis>/ERR`.
+    /// Publish why a write was refused on `<prefix>/<axis>/ERR`, the kind as the schema of its
+    /// encoding (`RefusalKind::mime`).
     Refusal {
+        /// What kind of refusal.
+        kind: RefusalKind,
         /// The reason, in plain words.
         message: String,
         /// The attachment that marks the sample as state.
@@ -190,19 +213,10 @@ impl<'a> WriteRequest<'a> {
     }
 
     /// The same write, held by `hold`.
+    #[must_use]
     pub fn held(self, hold: Option<Hold>) -> Self {
         Self { hold, ..self }
     }
-}
-
-/// Whether an axis jogs only under a hold (the jog deadman).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum JogHold {
-    /// A plain JOGF/JOGR = 1 is taken, as the record takes it (with a warning, once).
-    #[default]
-    Optional,
-    /// A JOGF/JOGR = 1 without a hold is refused.
-    Required,
 }
 
 /// How a held motion ends when its hold goes.
@@ -267,6 +281,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The same service, jogging only under a hold if `rule` says so.
+    #[must_use]
     pub fn with_jog_hold(self, rule: JogHold) -> Self {
         Self { jog_hold: rule, ..self }
     }
@@ -307,16 +322,19 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The next thing to send, if any.
+    #[must_use]
     pub fn poll_output(&mut self) -> Option<ServiceOutput<R>> {
         self.outputs.pop_front()
     }
 
     /// When `handle_timeout` is due next; None while nothing is.
+    #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
         self.axis.poll_timeout()
     }
 
     /// When the next event apart from the periodic polls is due (see `Axis::event_timeout`).
+    #[must_use]
     pub fn event_timeout(&self) -> Option<Instant> {
         self.axis.event_timeout()
     }
@@ -340,6 +358,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// Whether a field autosave keeps has changed since the last call.
+    #[must_use = "the change is forgotten once taken"]
     pub fn take_unsaved_change(&mut self) -> bool {
         std::mem::take(&mut self.unsaved)
     }
@@ -448,6 +467,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// Number a driver command for the trace (the adapter calls this only when it publishes).
+    #[must_use]
     pub fn stamp_trace(&mut self, command: DriverCommand, at: Instant) -> DriverTrace {
         DriverTrace { command, t: at.as_secs_f64(), seq: self.next_seq() }
     }
@@ -505,7 +525,7 @@ impl<R: Clone> AxisService<R> {
 
     fn refuse(&mut self, refusal: &RequestError) {
         let marker = self.marker();
-        self.outputs.push_back(ServiceOutput::Refusal { message: refusal.to_string(), marker });
+        self.outputs.push_back(ServiceOutput::Refusal { kind: refusal.kind(), message: refusal.to_string(), marker });
     }
 
     fn next_seq(&mut self) -> u64 {
@@ -583,6 +603,7 @@ mod tests {
     use super::*;
     use crate::axis::PollRates;
     use crate::driver::sim::{SimAxis, SimConfig};
+    use zmotor_msgs::menus::choice;
     use PayloadEncoding::Text;
 
     /// Requests in these tests are told apart by a number.
@@ -592,9 +613,16 @@ mod tests {
         Instant::from_secs_f64(seconds)
     }
 
+    fn demo_fields() -> Fields {
+        Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() }
+    }
+
     fn service() -> Service {
-        let fields = Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() };
-        let axis = Axis::new(fields, Box::new(SimAxis::new(SimConfig::default())), PollRates::default(), Instant::ZERO);
+        service_on(demo_fields(), SimConfig::default())
+    }
+
+    fn service_on(fields: Fields, sim: SimConfig) -> Service {
+        let axis = Axis::new(fields, Box::new(SimAxis::new(sim)), PollRates::default(), Instant::ZERO);
         AxisService::new(&KeyLayout::default(), "m1", axis)
     }
 
@@ -728,8 +756,152 @@ mod tests {
         let [(1, Reply::Refused(RequestError::Record(WriteError::NotActedUpon { reason, .. })))] = &answers[..] else {
             panic!("{answers:?}")
         };
-        assert!(reason.starts_with("limit violation"), "{reason}");
+        assert!(reason.to_string().starts_with("limit violation"), "{reason}");
         assert_eq!(published(&outputs, Field::DMOV), vec![Value::Int(0), Value::Int(1)]);
+    }
+
+    /// What a client does in `every_refusal_says_its_kind_in_the_words_it_always_had`.
+    enum Act {
+        /// A plain put of text, to prepare the case.
+        Put(&'static str, &'static str),
+        /// A confirmed write of text.
+        Write(&'static str, &'static str),
+        /// A confirmed write of text under a hold naming this token.
+        Held(&'static str, &'static str, &'static str),
+        /// A put of text to a simulator key.
+        Sim(&'static str, &'static str),
+    }
+
+    #[test]
+    fn every_refusal_says_its_kind_in_the_words_it_always_had() {
+        use Act::*;
+        use RefusalKind::*;
+        let unlimited = || service_on(Fields { dhlm: 0.0, dllm: 0.0, ..demo_fields() }, SimConfig::default());
+        let near_the_high_limit =
+            service_on(Fields { jvel: 1.0, ..demo_fields() }, SimConfig { position: 99_500.0, ..SimConfig::default() });
+        let servo = service_on(demo_fields(), SimConfig { servo: true, ..SimConfig::default() });
+        let beyond_the_high_switch =
+            SimConfig { high_limit_switch: Some(1000.0), position: 2000.0, ..SimConfig::default() };
+        let reading_rdbl = Fields { urip: choice::YES, rdbl: "lab/encoder".into(), ..demo_fields() };
+        let soft = Axis::new_soft(demo_fields(), PollRates::default(), Instant::ZERO);
+        let cases: Vec<(Service, &[Act], RefusalKind, &str)> = vec![
+            (service(), &[Write("NOPE", "3")], UnknownField, "NOPE: unknown field"),
+            (service(), &[Write("val", "3")], UnknownField, "val: unknown field; field names are upper case: VAL"),
+            (service(), &[Write("RBV", "3")], ReadOnly, "RBV is read-only"),
+            (service(), &[Write("VAL", "ten")], BadValue, "VAL: wrong type: expected a number, got text 'ten'"),
+            (
+                service(),
+                &[Write("RDBL", "a//b")],
+                BadValue,
+                "RDBL: 'a//b' is not a plain key: it has an empty chunk (a leading, trailing or doubled '/')",
+            ),
+            (
+                service(),
+                &[Sim("fraction", "x")],
+                BadValue,
+                "sim/m1/fraction: fraction: a finite number is required, got 'x'",
+            ),
+            (service(), &[Sim("fraction", "3")], BadValue, "sim/m1/fraction: fraction 3 is outside [0, 2]"),
+            (service(), &[Write("HOMF", "0")], Busy, "HOMF refused: writing 0 does not abort a home; write STOP 1"),
+            (service(), &[Write("STUP", "0")], Adjusted, "STUP adjusted: only ON may be written; STUP stays OFF"),
+            (service(), &[Write("NTMF", "1")], Adjusted, "NTMF adjusted: NTMF must be at least 2; set to 2"),
+            (
+                service(),
+                &[Write("VAL", "500")],
+                LimitViolation,
+                "VAL: limit violation: dial target 500 is outside the soft limits [-100, 100] (DLLM, DHLM)",
+            ),
+            (
+                near_the_high_limit,
+                &[Write("JOGF", "1")],
+                LimitViolation,
+                "JOGF: limit violation: jog refused within one second of travel of a soft limit",
+            ),
+            (
+                servo,
+                &[Put("CNEN", "0"), Write("VAL", "1")],
+                Disabled,
+                "VAL: motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first",
+            ),
+            (
+                service_on(demo_fields(), beyond_the_high_switch),
+                &[Write("HOMF", "1")],
+                SwitchActive,
+                "HOMF: home (HOMF) refused: the high limit switch is active",
+            ),
+            (
+                unlimited(),
+                &[Write("VAL", "1e10")],
+                BeyondRawRange,
+                "VAL: target out of range: dial target 10000000000 at MRES 0.001 is 10000000000000 steps, beyond the \
+                 32-bit raw position",
+            ),
+            (
+                unlimited(),
+                &[Put("SET", "1"), Write("DVAL", "1e10")],
+                BeyondRawRange,
+                "DVAL: the position is not set: dial 10000000000 at MRES 0.001 is 10000000000000 steps, beyond the \
+                 32-bit raw position",
+            ),
+            (
+                service_on(reading_rdbl, SimConfig::default()),
+                &[Write("VAL", "1")],
+                ReadbackUnreadable,
+                "VAL: the readback link RDBL (lab/encoder) cannot be read",
+            ),
+            (
+                AxisService::new(&KeyLayout::default(), "m1", soft),
+                &[Sim("position", "1")],
+                NotSimulated,
+                "sim/m1/position: this axis is not simulated",
+            ),
+            (
+                service().with_jog_hold(JogHold::Required),
+                &[Write("JOGF", "1")],
+                HoldRequired,
+                "JOGF: this axis jogs only under a hold (the jog deadman): attach {kind: \"hold\", token: <your \
+                 liveliness token>} to the write (README: Holding a motion)",
+            ),
+            (
+                service(),
+                &[Held("VAL", "1", "motor/*/x")],
+                BadHold,
+                "VAL: the hold's token: 'motor/*/x' is not a plain key: wildcards select many keys",
+            ),
+            (
+                service(),
+                &[Held("JOGF", "1", "motor/m1")],
+                BadHold,
+                "JOGF: the hold's token motor/m1 is not under motor/m1/@hold/ (a hold names a token of this axis's \
+                 hold space)",
+            ),
+        ];
+        for (mut s, acts, kind, words) in cases {
+            for act in acts {
+                match act {
+                    Put(name, text) => s.put(at(0.0), WriteRequest::new(name, text.as_bytes(), Text)),
+                    Write(name, text) => s.write(at(0.0), WriteRequest::new(name, text.as_bytes(), Text), false, 1),
+                    Held(name, text, token) => {
+                        let request = WriteRequest::new(name, text.as_bytes(), Text).held(Some(Hold::new(token)));
+                        s.write(at(0.0), request, false, 1);
+                    }
+                    Sim(name, text) => s.sim_write(at(0.0), name, text.as_bytes(), Text),
+                }
+            }
+            let outputs = drain(&mut s);
+            let published: Vec<(RefusalKind, &str)> = outputs
+                .iter()
+                .filter_map(|o| match o {
+                    ServiceOutput::Refusal { kind, message, .. } => Some((*kind, message.as_str())),
+                    _ => None,
+                })
+                .collect();
+            assert_eq!(published, [(kind, words)], "on ERR");
+            for (_, reply) in replies(&outputs) {
+                let Reply::Refused(refusal) = reply else { panic!("{words}: answered {reply:?}") };
+                assert_eq!((refusal.kind(), refusal.to_string().as_str()), (kind, words), "in the reply");
+            }
+        }
     }
 
     #[test]

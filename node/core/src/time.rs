@@ -18,7 +18,8 @@ impl Instant {
         Self(elapsed)
     }
 
-    /// The instant `seconds` after the origin (saturating, see [`seconds`]).
+    /// The instant `seconds_after_origin` after the origin: negative and NaN give the origin,
+    /// anything beyond `Duration::MAX` saturates.
     pub fn from_secs_f64(seconds_after_origin: f64) -> Self {
         Self(seconds(seconds_after_origin))
     }
@@ -57,7 +58,7 @@ impl Sub<Instant> for Instant {
 
 /// A duration from a number of seconds as fields hold them (DLY, a PREM delay): negative and
 /// NaN give zero, and anything beyond `Duration::MAX` saturates, so no field value can panic.
-pub fn seconds(value: f64) -> Duration {
+pub(crate) fn seconds(value: f64) -> Duration {
     if value.is_nan() || value <= 0.0 {
         return Duration::ZERO;
     }

@@ -3,9 +3,7 @@
 //! that says the motion is over. A controller not reached puts the axis in COMM alarm and its
 //! autosaved position is not restored onto a stage nobody can see.
 
-use zmotor_core::axis::{Axis, AxisEvent, PollRates};
-use zmotor_core::engine::DeviceStatus;
-use zmotor_core::Instant;
+use zmotor_core::{Axis, AxisEvent, DeviceStatus, Instant, PollRates};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::menus::{severity, status};
 use zmotor_msgs::{DriverCommand, Field, Fields, Value};

@@ -5,10 +5,7 @@
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_core::axis::{Axis, AxisEvent, PollRates};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Axis, AxisEvent, Driver, Instant, PollRates, SimAxis, SimConfig};
 use zmotor_msgs::{DriverCommand, Field, Fields, Value};
 
 const MRES: f64 = 0.01;
@@ -125,7 +122,7 @@ fn check_idle_coordinates(axis: &Axis) -> Result<(), TestCaseError> {
             f.diff,
             diff
         );
-        prop_assert_eq!(f.rdif, zmotor_core::engine::nint(f.diff / f.mres), "idle RDIF ≠ NINT(DIFF/MRES)");
+        prop_assert_eq!(f.rdif, zmotor_core::nint(f.diff / f.mres), "idle RDIF ≠ NINT(DIFF/MRES)");
         let dirsign = if f.dir == 0 { 1.0 } else { -1.0 };
         let expected = f.dval * dirsign + f.off;
         prop_assert!(

@@ -1,10 +1,7 @@
 //! Soft Channel device support and the input/output links, through the sans-IO axis
 //! (spec §16 and worked scenarios W58 and W62).
 
-use zmotor_core::axis::{Axis, AxisEvent, PollRates, SOFT_DONE_SETTLE};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::soft::InputLink;
-use zmotor_core::Instant;
+use zmotor_core::{Axis, AxisEvent, InputLink, Instant, PollRates, SimAxis, SimConfig, SOFT_DONE_SETTLE};
 use zmotor_msgs::{Field, Fields, Value};
 
 fn at(seconds: f64) -> Instant {

@@ -4,9 +4,7 @@
 //! virtual time on the physical simulator.
 
 use std::time::Duration;
-use zmotor_core::axis::{Axis, AxisEvent, PollRates};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::Instant;
+use zmotor_core::{Axis, AxisEvent, Instant, PollRates, SimAxis, SimConfig};
 use zmotor_msgs::{Field, Fields, Value};
 
 /// The demo's stage (launch/sim-axis.toml): 1 µm steps, 10 mm/s, 0.2 s ramps, ±100 mm.

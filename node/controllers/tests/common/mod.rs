@@ -3,12 +3,9 @@
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::controller::{ControllerConfig, ControllerEvent};
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::loopback::Loopback;
-use zmotor_controllers::protocol::VendorError;
-use zmotor_controllers::{ProtocolKind, ProtocolOptions};
-use zmotor_core::engine::DeviceStatus;
+use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
+use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 
@@ -17,7 +14,7 @@ use zmotor_msgs::{DriverCommand, Gain};
 pub fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
     let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
-    Loopback::new(kind.protocol(&ProtocolOptions::default()), emulator, config, faults)
+    Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
 }
 
 /// Run until the controller is up and has reported every channel; the events on the way.

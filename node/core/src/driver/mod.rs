@@ -1,8 +1,8 @@
 //! The driver trait: the shape of the motor record's driver interface, in raw units (steps,
 //! steps/s, steps/s²). Time is injected: a driver is told the clock advanced, never reads it.
 
-pub mod sim;
-pub mod soft;
+pub(crate) mod sim;
+pub(crate) mod soft;
 
 use crate::engine::DeviceStatus;
 use crate::time::Instant;
@@ -46,7 +46,7 @@ pub trait Driver: Send + Sync {
 }
 
 /// Deliver one command to a driver.
-pub fn execute(driver: &mut dyn Driver, command: &DriverCommand) {
+pub(crate) fn execute(driver: &mut dyn Driver, command: &DriverCommand) {
     match command {
         DriverCommand::Move { position, relative, min_velocity, max_velocity, acceleration } => {
             driver.move_to(*position, *relative, *min_velocity, *max_velocity, *acceleration)

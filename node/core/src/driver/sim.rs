@@ -86,6 +86,7 @@ impl SimSetting {
 }
 
 /// Why a simulator setting was not changed.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SimSettingError {
     /// No setting has that name.

@@ -9,7 +9,7 @@ use zmotor_msgs::Field;
 
 /// Where the driven motor stands, as DINP tells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DriveState {
+pub(crate) enum DriveState {
     /// We started a motion of the driven motor.
     SoftMove,
     /// The driven motor moves, started by someone else.
@@ -53,7 +53,7 @@ impl InputLink {
 
 #[derive(Clone, Debug)]
 /// Soft Channel device support of one axis (see the module documentation).
-pub struct SoftChannel {
+pub(crate) struct SoftChannel {
     out: String,
     stop_out: String,
     has_done_input: bool,
@@ -65,7 +65,7 @@ pub struct SoftChannel {
 
 /// What the axis must do after a link update.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Reaction {
+pub(crate) enum Reaction {
     /// Process the record with the new status.
     Callback,
     /// The driven motor started moving on its own: mark an external motion, then nothing.
@@ -79,7 +79,7 @@ pub enum Reaction {
 impl SoftChannel {
     /// `out`, `stop_out` and `done_input` are the OUT, STOO and DINP keys ("" when unset);
     /// `dmov` is DMOV at boot.
-    pub fn new(out: &str, stop_out: &str, done_input: &str, dmov: i16) -> Self {
+    pub(crate) fn new(out: &str, stop_out: &str, done_input: &str, dmov: i16) -> Self {
         Self {
             out: out.to_string(),
             stop_out: stop_out.to_string(),
@@ -91,21 +91,21 @@ impl SoftChannel {
     }
 
     /// The OUT, STOO and DINP keys changed at run time ("" when unset).
-    pub fn relink(&mut self, out: &str, stop_out: &str, done_input: &str) {
+    pub(crate) fn relink(&mut self, out: &str, stop_out: &str, done_input: &str) {
         self.out = out.to_string();
         self.stop_out = stop_out.to_string();
         self.has_done_input = !done_input.is_empty();
     }
 
     /// The status the record reads: the raw position and, from DINP, whether it is done.
-    pub fn status(&self) -> DeviceStatus {
+    pub(crate) fn status(&self) -> DeviceStatus {
         let done = !self.has_done_input || self.state == DriveState::Done;
         DeviceStatus { position: self.raw_position, msta: if done { msta::DONE } else { 0 }, ..DeviceStatus::default() }
     }
 
     /// The puts one transaction makes (key, value) and whether a callback follows (LOAD_POS).
     /// Every move leg writes the final dial target: intermediate positions are never sent.
-    pub fn translate(&mut self, transaction: &[MotorCommand], dval: f64) -> (Vec<(String, f64)>, bool) {
+    pub(crate) fn translate(&mut self, transaction: &[MotorCommand], dval: f64) -> (Vec<(String, f64)>, bool) {
         let mut puts = Vec::new();
         let mut callback = false;
         for command in transaction {
@@ -122,7 +122,7 @@ impl SoftChannel {
     }
 
     /// A link update (§16.2). `dmov` and `locked` are the record's DMOV and LOCK, `mres` its MRES.
-    pub fn update(&mut self, link: InputLink, value: f64, dmov: i16, locked: bool, mres: f64) -> Reaction {
+    pub(crate) fn update(&mut self, link: InputLink, value: f64, dmov: i16, locked: bool, mres: f64) -> Reaction {
         match link {
             InputLink::Readback => {
                 self.raw_position = (value / mres).round();

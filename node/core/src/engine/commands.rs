@@ -1,9 +1,11 @@
 //! What flows into and out of the engine, as plain data.
 
 use std::time::Duration;
-use zmotor_msgs::{Field, Value};
+use zmotor_msgs::{Field, RefusalKind, Value};
 
-/// A record-level device command (the reference's `motor_cmnd`), in raw units.
+/// A record-level device command (the reference's `motor_cmnd`), in raw units. Not
+/// `#[non_exhaustive]`: each is an action device support must carry out, and a new one must stop
+/// the build of one that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum MotorCommand {
     /// Stage an absolute move to this raw position (sent at GO).
@@ -65,7 +67,9 @@ pub struct DeviceStatus {
     pub readback: Option<f64>,
 }
 
-/// Something the engine asks of the world, in the order it happened.
+/// Something the engine asks of the world, in the order it happened. Not `#[non_exhaustive]`:
+/// each is an action the caller must carry out, and a new one must stop the build of a caller
+/// that would drop it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Output {
     /// A monitor post: the field changed (or must be re-posted).
@@ -81,6 +85,7 @@ pub enum Output {
 }
 
 /// Why a write was refused or changed.
+#[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum WriteError {
     /// The field cannot be written.
@@ -92,7 +97,7 @@ pub enum WriteError {
         /// The field written.
         field: Field,
         /// Why.
-        reason: String,
+        reason: Busy,
     },
     /// The record stored a corrected value instead, and did not process.
     #[error("{field} adjusted: {reason}")]
@@ -100,7 +105,7 @@ pub enum WriteError {
         /// The field written.
         field: Field,
         /// What was corrected.
-        reason: String,
+        reason: Adjustment,
     },
     /// Accepted and processed, but the record would not act on it (a soft-limit violation,
     /// a home against an active switch, ...); the drive fields went back.
@@ -109,6 +114,140 @@ pub enum WriteError {
         /// The field written.
         field: Field,
         /// Why the record did not act.
-        reason: String,
+        reason: Inaction,
     },
+}
+
+impl WriteError {
+    /// What kind of refusal this is, as clients are told.
+    pub fn kind(&self) -> RefusalKind {
+        match self {
+            WriteError::ReadOnly(_) => RefusalKind::ReadOnly,
+            WriteError::Refused { .. } => RefusalKind::Busy,
+            WriteError::Adjusted { .. } => RefusalKind::Adjusted,
+            WriteError::NotActedUpon { reason, .. } => reason.kind(),
+        }
+    }
+}
+
+/// Why the record cannot take a value now (special() before the store).
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Busy {
+    /// Departure Z12: a target written while a jog takes out its backlash would be forgotten.
+    #[error("a jog is finishing its backlash takeout; write the target once DMOV is 1")]
+    JogBacklashTakeout,
+    /// A home button written while a home runs.
+    #[error("a home is in progress")]
+    HomeInProgress,
+    /// Departure Z15: 0 written to a home button; a home is aborted with STOP.
+    #[error("writing 0 does not abort a home; write STOP 1")]
+    ZeroDoesNotAbortHome,
+    /// STUP written while a status update runs.
+    #[error("a status update is in progress")]
+    StatusUpdateInProgress,
+}
+
+/// What the record corrected instead of storing the value written.
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Adjustment {
+    /// STUP takes ON only; anything else leaves it OFF.
+    #[error("only ON may be written; STUP stays OFF")]
+    StupStaysOff,
+    /// NTMF below 2 became 2.
+    #[error("NTMF must be at least 2; set to 2")]
+    NtmfRaisedTo2,
+}
+
+/// Why the record processed a write but did not act on it.
+#[non_exhaustive]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum Inaction {
+    /// The dial target is beyond the soft limits (or DLLM > DHLM).
+    #[error("limit violation: dial target {dial_target} is outside the soft limits [{dllm}, {dhlm}] (DLLM, DHLM)")]
+    SoftLimits {
+        /// The dial target written.
+        dial_target: f64,
+        /// The dial low limit.
+        dllm: f64,
+        /// The dial high limit.
+        dhlm: f64,
+    },
+    /// A jog would reach a soft limit within one second of travel.
+    #[error("limit violation: jog refused within one second of travel of a soft limit")]
+    JogNearSoftLimit,
+    /// Departure Z11: a servo whose closed-loop control is off (CNEN = Disable).
+    #[error("motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first")]
+    Disabled,
+    /// Departure Z6: a home toward a limit switch that is active.
+    #[error("home ({button}) refused: the {switch} limit switch is active")]
+    SwitchActive {
+        /// The home button written (HOMF or HOMR).
+        button: Field,
+        /// The switch in its way.
+        switch: LimitSwitch,
+    },
+    /// Departure Z20: a target whose raw position the driver cannot hold (32 bits, as RVAL).
+    #[error(
+        "target out of range: dial target {dial_target} at MRES {mres} is {steps} steps, beyond the 32-bit raw \
+         position"
+    )]
+    TargetBeyondRawRange {
+        /// The dial target written.
+        dial_target: f64,
+        /// The motor resolution.
+        mres: f64,
+        /// The target in whole steps.
+        steps: f64,
+    },
+    /// Departure Z20: a position to set that the driver cannot hold.
+    #[error("the position is not set: dial {dial} at MRES {mres} is {steps} steps, beyond the 32-bit raw position")]
+    PositionBeyondRawRange {
+        /// The dial position to set.
+        dial: f64,
+        /// The motor resolution.
+        mres: f64,
+        /// The position in whole steps.
+        steps: f64,
+    },
+    /// The move depends on the readback link, which has no value.
+    #[error("the readback link RDBL ({link}) cannot be read")]
+    ReadbackUnreadable {
+        /// The key RDBL names.
+        link: String,
+    },
+}
+
+impl Inaction {
+    /// What kind of refusal this is, as clients are told.
+    pub fn kind(&self) -> RefusalKind {
+        match self {
+            Inaction::SoftLimits { .. } | Inaction::JogNearSoftLimit => RefusalKind::LimitViolation,
+            Inaction::Disabled => RefusalKind::Disabled,
+            Inaction::SwitchActive { .. } => RefusalKind::SwitchActive,
+            Inaction::TargetBeyondRawRange { .. } | Inaction::PositionBeyondRawRange { .. } => {
+                RefusalKind::BeyondRawRange
+            }
+            Inaction::ReadbackUnreadable { .. } => RefusalKind::ReadbackUnreadable,
+        }
+    }
+}
+
+/// One of the two limit switches.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LimitSwitch {
+    /// The high limit switch (HLS).
+    High,
+    /// The low limit switch (LLS).
+    Low,
+}
+
+impl std::fmt::Display for LimitSwitch {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            LimitSwitch::High => "high",
+            LimitSwitch::Low => "low",
+        })
+    }
 }

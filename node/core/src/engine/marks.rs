@@ -5,26 +5,26 @@ use zmotor_msgs::Field;
 const WORDS: usize = Field::COUNT.div_ceil(64);
 
 #[derive(Clone, Debug, Default)]
-pub struct Marks([u64; WORDS]);
+pub(super) struct Marks([u64; WORDS]);
 
 impl Marks {
-    pub fn insert(&mut self, field: Field) {
+    pub(super) fn insert(&mut self, field: Field) {
         let i = field as usize;
         self.0[i / 64] |= 1 << (i % 64);
     }
 
-    pub fn clear(&mut self, field: Field) {
+    pub(super) fn clear(&mut self, field: Field) {
         let i = field as usize;
         self.0[i / 64] &= !(1 << (i % 64));
     }
 
-    pub fn contains(&self, field: Field) -> bool {
+    pub(super) fn contains(&self, field: Field) -> bool {
         let i = field as usize;
         self.0[i / 64] & (1 << (i % 64)) != 0
     }
 
     /// The marked fields in catalogue order; the set is left empty.
-    pub fn take(&mut self) -> Vec<Field> {
+    pub(super) fn take(&mut self) -> Vec<Field> {
         let marked: Vec<Field> = Field::all().filter(|f| self.contains(*f)).collect();
         self.0 = [0; WORDS];
         marked

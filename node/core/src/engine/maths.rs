@@ -10,14 +10,14 @@ pub fn nint(x: f64) -> i32 {
 
 /// A raw position (steps) as the driver holds it: NINT in 32 bits, or None when `x` is not a
 /// number or beyond (never clamped: a clamped target drives the carriage somewhere unasked).
-pub fn raw_position(x: f64) -> Option<i32> {
+pub(super) fn raw_position(x: f64) -> Option<i32> {
     let rounded = x.round();
     (rounded.abs() <= f64::from(i32::MAX)).then_some(rounded as i32)
 }
 
 /// Everything a move, jog or home needs in raw units, computed from the current fields.
 #[derive(Clone, Copy, Debug)]
-pub struct MoveMaths {
+pub(super) struct MoveMaths {
     pub rbvpos: f64,
     /// The previous target (LDVL), not the readback: absolute maths start from it.
     pub currpos: f64,
@@ -40,7 +40,7 @@ pub struct MoveMaths {
 }
 
 impl MoveMaths {
-    pub fn new(f: &Fields) -> Self {
+    pub(super) fn new(f: &Fields) -> Self {
         let m = f.mres.abs();
         let vbase = f.vbas / m;
         let vel = f.velo / m;

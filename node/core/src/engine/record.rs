@@ -7,7 +7,7 @@
 //! Outputs: `Output`s (monitor posts, device transactions, timer requests, completion), drained
 //! by the caller. The engine never reads a clock and performs no I/O.
 
-use super::commands::{DeviceStatus, MotorCommand, Output, WriteError};
+use super::commands::{DeviceStatus, Inaction, MotorCommand, Output, WriteError};
 use super::marks::Marks;
 use super::maths::nint;
 use zmotor_msgs::bits::{mip, msta};
@@ -48,7 +48,7 @@ pub struct MotorRecord {
     /// Device data delivered by `callback`, consumed by the next `update_values`.
     pending_status: Option<DeviceStatus>,
     /// Why the last move request was refused, reported to the writer.
-    refusal: Option<String>,
+    refusal: Option<Inaction>,
     /// Departure Z9: a move was paused; its target is held and resumed by Go or Move.
     resume_on_go: bool,
     /// Departure Z17: a new target was accepted while a motion ran; the retry that goes to it
@@ -86,6 +86,7 @@ impl MotorRecord {
     }
 
     /// Soft Channel device support refuses GET_INFO, so STUP snaps back to OFF.
+    #[must_use]
     pub fn without_status_refresh(mut self) -> Self {
         self.status_refresh = false;
         self
@@ -194,9 +195,8 @@ impl MotorRecord {
 
     /// Departure Z11: a servo whose control is disabled (CNEN = Disable) is not asked to move;
     /// the reference sends the move to a dead amplifier.
-    fn disabled_refusal(&self) -> Option<String> {
-        (self.f.msta & msta::GAIN_SUPPORT != 0 && self.f.cnen == 0)
-            .then(|| "motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first".to_string())
+    fn disabled_refusal(&self) -> Option<Inaction> {
+        (self.f.msta & msta::GAIN_SUPPORT != 0 && self.f.cnen == 0).then_some(Inaction::Disabled)
     }
 
     /// Departure Z12: a target held by SPMG Stop/Pause (or behind a held home) shows in VAL,

@@ -3,7 +3,7 @@
 
 use super::legs::{at_least_one_step, Leg};
 use super::{MotorRecord, Reason};
-use crate::engine::commands::MotorCommand;
+use crate::engine::commands::{Inaction, LimitSwitch, MotorCommand};
 use crate::engine::maths::{nint, raw_position, MoveMaths};
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
@@ -199,11 +199,12 @@ impl MotorRecord {
         let rev_blocked = if dir_pos { self.f.lls } else { self.f.hls } != 0;
         // Departure Z6: a home refused by an active switch is reset and reported, never
         // started later (the reference latches it, Q25).
-        for (button, blocked, switch) in [(HOMF, fwd_blocked, "high"), (HOMR, rev_blocked, "low")] {
+        for (button, blocked, switch) in [(HOMF, fwd_blocked, LimitSwitch::High), (HOMR, rev_blocked, LimitSwitch::Low)]
+        {
             if blocked && self.f.get(button) != Value::Int(0) && self.f.mip & mip::HOME_GROUP == 0 {
                 self.f.set(button, &Value::Int(0));
                 self.mark(button);
-                self.refusal = Some(format!("home ({button}) refused: the {switch} limit switch is active"));
+                self.refusal = Some(Inaction::SwitchActive { button, switch });
             }
         }
         let home_requested = (self.f.homf != 0 && self.f.mip & mip::HOMF == 0 && !fwd_blocked)
@@ -257,7 +258,7 @@ impl MotorRecord {
                 }
                 // Departure Z1: no request is left behind (the reference keeps JOG_REQ, Q1).
                 self.set_mip(self.f.mip & !mip::JOG_REQ);
-                self.refusal = Some("limit violation: jog refused within one second of travel of a soft limit".into());
+                self.refusal = Some(Inaction::JogNearSoftLimit);
                 return true;
             }
             self.set_mip(if self.f.jogf != 0 { mip::JOGF } else { mip::JOGR });
@@ -399,19 +400,15 @@ impl MotorRecord {
         // refused; the reference clamps it and drives the carriage towards the clamped position.
         let raw_target = self.f.dval / self.f.mres;
         let refusal = if lvio {
-            Some(format!(
-                "limit violation: dial target {} is outside the soft limits [{}, {}] (DLLM, DHLM)",
-                self.f.dval, self.f.dllm, self.f.dhlm
-            ))
+            Some(Inaction::SoftLimits { dial_target: self.f.dval, dllm: self.f.dllm, dhlm: self.f.dhlm })
         } else if raw_position(raw_target).is_none() {
-            Some(format!(
-                "target out of range: dial target {} at MRES {} is {} steps, beyond the 32-bit raw position",
-                self.f.dval,
-                self.f.mres,
-                raw_target.round()
-            ))
+            Some(Inaction::TargetBeyondRawRange {
+                dial_target: self.f.dval,
+                mres: self.f.mres,
+                steps: raw_target.round(),
+            })
         } else if self.f.urip == choice::YES && self.readback_link.is_none() {
-            Some(format!("the readback link RDBL ({}) cannot be read", self.f.rdbl))
+            Some(Inaction::ReadbackUnreadable { link: self.f.rdbl.clone() })
         } else {
             self.disabled_refusal()
         };

@@ -2,7 +2,7 @@
 //! positions, limits, range checks, acceleration bookkeeping.
 
 use super::MotorRecord;
-use crate::engine::commands::MotorCommand;
+use crate::engine::commands::{Inaction, MotorCommand};
 use crate::engine::maths::{nint, raw_position};
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
@@ -143,12 +143,8 @@ impl MotorRecord {
         let newpos = self.f.dval / self.f.mres;
         // Departure Z20: a position the driver cannot hold (MRES 0, beyond 32 bits) is not sent.
         if raw_position(newpos).is_none() {
-            self.refusal = Some(format!(
-                "the position is not set: dial {} at MRES {} is {} steps, beyond the 32-bit raw position",
-                self.f.dval,
-                self.f.mres,
-                newpos.round()
-            ));
+            self.refusal =
+                Some(Inaction::PositionBeyondRawRange { dial: self.f.dval, mres: self.f.mres, steps: newpos.round() });
             return;
         }
         self.f.ldvl = self.f.dval;

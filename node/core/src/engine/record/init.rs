@@ -11,6 +11,7 @@ impl MotorRecord {
     /// §6.4 step 3–4: what device support writes before the record reads any status: the encoder
     /// ratio, and the restored dial position if RSTM says so. `controller_steps` is the motor
     /// position the controller reports at boot.
+    #[must_use = "the commands are to be delivered to the device"]
     pub fn restore_commands(&self, controller_steps: f64) -> Vec<MotorCommand> {
         let f = &self.f;
         let mut cmds = vec![if f.eres == 0.0 {

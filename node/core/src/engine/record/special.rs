@@ -1,7 +1,7 @@
 //! §7 special(): what a write to each field does before and after it is stored.
 
 use super::MotorRecord;
-use crate::engine::commands::{MotorCommand, WriteError};
+use crate::engine::commands::{Adjustment, Busy, MotorCommand, WriteError};
 use crate::engine::maths::MoveMaths;
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
@@ -17,10 +17,7 @@ impl MotorRecord {
                 // Departure Z12: the reference accepts a target during the backlash takeout after
                 // a jog and then forgets it, leaving VAL away from the position; refuse it instead.
                 if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
-                    return Err(WriteError::Refused {
-                        field,
-                        reason: "a jog is finishing its backlash takeout; write the target once DMOV is 1".into(),
-                    });
+                    return Err(WriteError::Refused { field, reason: Busy::JogBacklashTakeout });
                 }
                 if self.f.dmov == 1 {
                     self.f.dmov = 0;
@@ -28,18 +25,15 @@ impl MotorRecord {
                 }
             }
             HOMF | HOMR if self.f.mip & mip::HOME_GROUP != 0 => {
-                return Err(WriteError::Refused { field, reason: "a home is in progress".into() });
+                return Err(WriteError::Refused { field, reason: Busy::HomeInProgress });
             }
             // Departure Z15: as the manual says, writing 0 is an error (the reference accepts
             // it, D7); a home is aborted with STOP.
             HOMF | HOMR if value.as_f64() == Some(0.0) => {
-                return Err(WriteError::Refused {
-                    field,
-                    reason: "writing 0 does not abort a home; write STOP 1".into(),
-                });
+                return Err(WriteError::Refused { field, reason: Busy::ZeroDoesNotAbortHome });
             }
             STUP if self.f.stup != choice::STUP_OFF => {
-                return Err(WriteError::Refused { field, reason: "a status update is in progress".into() });
+                return Err(WriteError::Refused { field, reason: Busy::StatusUpdateInProgress });
             }
             _ => {}
         }
@@ -270,17 +264,14 @@ impl MotorRecord {
                 if self.f.stup != choice::STUP_ON {
                     self.f.stup = choice::STUP_OFF;
                     self.post(STUP);
-                    return Err(WriteError::Adjusted {
-                        field,
-                        reason: "only ON may be written; STUP stays OFF".into(),
-                    });
+                    return Err(WriteError::Adjusted { field, reason: Adjustment::StupStaysOff });
                 }
             }
             NTMF => {
                 if self.f.ntmf < 2 {
                     self.f.ntmf = 2;
                     self.post(NTMF);
-                    return Err(WriteError::Adjusted { field, reason: "NTMF must be at least 2; set to 2".into() });
+                    return Err(WriteError::Adjusted { field, reason: Adjustment::NtmfRaisedTo2 });
                 }
             }
             _ => {}

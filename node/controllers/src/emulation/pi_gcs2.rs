@@ -14,54 +14,52 @@
 use super::Emulator;
 use crate::pi_gcs2::{parameter, parse_id, register, MODELS, NAME};
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// Counts per unit, numerator and denominator (parameters 0x0E and 0x0F).
-pub const COUNTS_PER_UNIT: (f64, f64) = (10_000.0, 1.0);
+pub(crate) const COUNTS_PER_UNIT: (f64, f64) = (10_000.0, 1.0);
 
 /// The travel range, mm (`TMN?`, `TMX?`): targets beyond are refused with error 7.
-pub const TRAVEL: (f64, f64) = (-19.5, 19.5);
+pub(crate) const TRAVEL: (f64, f64) = (-19.5, 19.5);
 
 /// The highest velocity, mm/s.
-pub const MAX_VELOCITY: f64 = 50.0;
+pub(crate) const MAX_VELOCITY: f64 = 50.0;
 
 /// The highest acceleration and deceleration, mm/s² (parameters 0x4A and 0x4B).
-pub const MAX_ACCELERATION: f64 = 1000.0;
+pub(crate) const MAX_ACCELERATION: f64 = 1000.0;
 
 /// The controller's error codes (`crate::pi_gcs2::error_meaning` says what they mean).
-pub mod code {
+pub(crate) mod code {
     /// Parameter syntax error.
-    pub const PARAMETER_SYNTAX: u32 = 1;
+    pub(crate) const PARAMETER_SYNTAX: u32 = 1;
     /// Unknown command.
-    pub const UNKNOWN_COMMAND: u32 = 2;
+    pub(crate) const UNKNOWN_COMMAND: u32 = 2;
     /// A move of an unreferenced axis, or with servo off.
-    pub const MOVE_REFUSED: u32 = 5;
+    pub(crate) const MOVE_REFUSED: u32 = 5;
     /// Position out of limits.
-    pub const POSITION_OUT_OF_LIMITS: u32 = 7;
+    pub(crate) const POSITION_OUT_OF_LIMITS: u32 = 7;
     /// Velocity out of limits.
-    pub const VELOCITY_OUT_OF_LIMITS: u32 = 8;
+    pub(crate) const VELOCITY_OUT_OF_LIMITS: u32 = 8;
     /// Stopped by command (HLT, STP, #24).
-    pub const STOPPED: u32 = 10;
+    pub(crate) const STOPPED: u32 = 10;
     /// Invalid axis identifier.
-    pub const INVALID_AXIS: u32 = 15;
+    pub(crate) const INVALID_AXIS: u32 = 15;
     /// Parameter out of range.
-    pub const PARAMETER_OUT_OF_RANGE: u32 = 17;
+    pub(crate) const PARAMETER_OUT_OF_RANGE: u32 = 17;
     /// Incorrect number of parameters.
-    pub const PARAMETER_COUNT: u32 = 24;
+    pub(crate) const PARAMETER_COUNT: u32 = 24;
     /// Referencing with reference mode off.
-    pub const REFERENCING_DISABLED: u32 = 50;
+    pub(crate) const REFERENCING_DISABLED: u32 = 50;
     /// Unknown parameter.
-    pub const UNKNOWN_PARAMETER: u32 = 54;
+    pub(crate) const UNKNOWN_PARAMETER: u32 = 54;
     /// A parameter protected at the user's command level.
-    pub const PROTECTED_PARAMETER: u32 = 60;
+    pub(crate) const PROTECTED_PARAMETER: u32 = 60;
     /// POS with reference mode on ("move without referenced stage"; the code PI names
     /// REF_MODE_IS_ON).
-    pub const REFERENCE_MODE_ON: u32 = 88;
+    pub(crate) const REFERENCE_MODE_ON: u32 = 88;
     /// Motion error: the position error grew too large and the servo switched itself off.
-    pub const MOTION_ERROR: u32 = 1024;
+    pub(crate) const MOTION_ERROR: u32 = 1024;
 }
 
 /// Error codes that mean the request itself was wrong: a driver's fault, counted as malformed.
@@ -75,7 +73,7 @@ const READY_STATUS: u8 = 0x07;
 const STOP_ALL: u8 = 0x18;
 
 /// The stage behind every axis, in millimetres (see the module documentation).
-pub fn mechanics() -> SimConfig {
+pub(crate) fn mechanics() -> SimConfig {
     SimConfig {
         position: 5.0,
         high_limit_switch: Some(20.0),
@@ -221,7 +219,7 @@ impl EmulatedAxis {
 }
 
 /// A PI C-884 of some axes (`"1"` …), behind one connection.
-pub struct Gcs2Emulator {
+pub(crate) struct Gcs2Emulator {
     axes: Vec<EmulatedAxis>,
     /// The last error, until `ERR?` reads it.
     error: u32,
@@ -235,7 +233,7 @@ type Outcome = Result<Option<String>, u32>;
 
 impl Gcs2Emulator {
     /// A controller with `axes` axes on `mechanics` (mm), as at power-up.
-    pub fn new(axes: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn new(axes: usize, mechanics: &SimConfig) -> Self {
         Self {
             axes: (0..axes).map(|_| EmulatedAxis::new(mechanics)).collect(),
             error: 0,

@@ -29,13 +29,11 @@ use crate::phytron::{
     RAMPS, STX,
 };
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// Axes on each emulated module.
-pub const AXES_PER_MODULE: usize = 2;
+pub(crate) const AXES_PER_MODULE: usize = 2;
 
 /// Parameters that are read, never written.
 const READ_ONLY: [u32; 4] = [21, 22, 49, 54];
@@ -258,7 +256,7 @@ fn number_text(value: f64) -> String {
 }
 
 /// A phyMOTION with modules of [`AXES_PER_MODULE`] axes.
-pub struct PhymotionEmulator {
+pub(crate) struct PhymotionEmulator {
     axes: Vec<Axis>,
     input: Vec<u8>,
     output: VecDeque<Vec<u8>>,
@@ -268,7 +266,7 @@ pub struct PhymotionEmulator {
 impl PhymotionEmulator {
     /// A controller of `modules` modules on `mechanics` (an encoder if the mechanics have one),
     /// power stages on.
-    pub fn new(modules: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn new(modules: usize, mechanics: &SimConfig) -> Self {
         let axes = (1..=modules)
             .flat_map(|module| (1..=AXES_PER_MODULE).map(move |axis| module * 10 + axis))
             .map(|channel| Axis::new(channel, mechanics))
@@ -278,7 +276,7 @@ impl PhymotionEmulator {
 
     /// A controller with every channel below `channels` that its modules have, two modules at
     /// least (channels 11, 12, 21, 22).
-    pub fn with_channels_below(channels: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn with_channels_below(channels: usize, mechanics: &SimConfig) -> Self {
         Self::new((channels.saturating_sub(1) / 10).max(2), mechanics)
     }
 

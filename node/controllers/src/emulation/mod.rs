@@ -4,16 +4,15 @@
 //! drivers be tested against the bytes of their protocol. `WithFaults` adds what real links
 //! do: replies lost, late or garbled, a connection that closes.
 
-pub mod acs;
-pub mod newport;
-pub mod phytron;
-pub mod pi_gcs2;
-pub mod smaract_mcs2;
+pub(crate) mod acs;
+pub(crate) mod newport;
+pub(crate) mod phytron;
+pub(crate) mod pi_gcs2;
+pub(crate) mod smaract_mcs2;
 
 use std::collections::VecDeque;
 use std::time::Duration;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::Instant;
+use zmotor_core::{Instant, SimAxis, SimConfig};
 
 /// A controller's side of the wire, sans-IO: bytes in at a time, bytes out.
 pub trait Emulator: Send {
@@ -22,6 +21,7 @@ pub trait Emulator: Send {
     /// Bytes from the driver, at `now`; the replies are queued.
     fn handle_input(&mut self, now: Instant, bytes: &[u8]);
     /// The next bytes to send to the driver.
+    #[must_use]
     fn poll_transmit(&mut self) -> Option<Vec<u8>>;
     /// How many requests so far were not well-formed in the protocol (a driver's fault).
     fn malformed(&self) -> usize;
@@ -44,7 +44,7 @@ pub fn stage() -> SimConfig {
 }
 
 /// One simulated axis per channel, `channels` of them.
-pub fn axes(channels: usize, mechanics: &SimConfig) -> Vec<SimAxis> {
+pub(crate) fn axes(channels: usize, mechanics: &SimConfig) -> Vec<SimAxis> {
     (0..channels).map(|_| SimAxis::new(mechanics.clone())).collect()
 }
 
@@ -110,6 +110,7 @@ impl WithFaults {
     }
 
     /// The next reply due by now.
+    #[must_use]
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         if self.late.front().is_some_and(|(due, _)| *due <= self.now) {
             return self.late.pop_front().map(|(_, bytes)| bytes);
@@ -118,6 +119,7 @@ impl WithFaults {
     }
 
     /// When the next late reply is due.
+    #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
         self.late.front().map(|(due, _)| *due)
     }

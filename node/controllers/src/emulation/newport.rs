@@ -26,33 +26,31 @@ use crate::newport::{
     error_meaning, errors, state, state_class, state_refusal, StateClass, ADDRESSES, LARGEST_VALUE, NAME, TERMINATOR,
 };
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// The software limits at power-up (SL = −this, SR = +this), mm.
-pub const SOFT_LIMIT: f64 = 12.5;
+pub(crate) const SOFT_LIMIT: f64 = 12.5;
 
 /// Where the end-of-run switches are (− and +), mm: just beyond the software limits, as on a
 /// real stage.
-pub const END_OF_RUN: f64 = 13.0;
+pub(crate) const END_OF_RUN: f64 = 13.0;
 
 /// `VA` at power-up, mm/s.
-pub const DEFAULT_VELOCITY: f64 = 2.5;
+pub(crate) const DEFAULT_VELOCITY: f64 = 2.5;
 
 /// `AC` at power-up, mm/s².
-pub const DEFAULT_ACCELERATION: f64 = 10.0;
+pub(crate) const DEFAULT_ACCELERATION: f64 = 10.0;
 
 /// The home search's speed (`OH`), mm/s.
-pub const HOME_VELOCITY: f64 = 2.5;
+pub(crate) const HOME_VELOCITY: f64 = 2.5;
 
 /// Targets this close beyond a software limit are on it (decimal millimetres in binary).
 const LIMIT_TOLERANCE: f64 = 1e-9;
 
 /// The mechanics of one stage, in millimetres: a 25 mm DC servo stage with its home switch in
 /// the middle, the carriage at 0 at power-up.
-pub fn stage() -> SimConfig {
+pub(crate) fn stage() -> SimConfig {
     SimConfig {
         high_limit_switch: Some(END_OF_RUN),
         low_limit_switch: Some(-END_OF_RUN),
@@ -312,7 +310,7 @@ fn millimetres(value: f64) -> String {
 }
 
 /// A chain of SMC100 controllers at addresses 1, 2, … (see the module documentation).
-pub struct Smc100Emulator {
+pub(crate) struct Smc100Emulator {
     units: Vec<Unit>,
     input: Vec<u8>,
     output: VecDeque<Vec<u8>>,
@@ -322,7 +320,7 @@ pub struct Smc100Emulator {
 impl Smc100Emulator {
     /// A chain of `controllers` controllers (at most 31), addresses 1 to `controllers`, each
     /// on `mechanics` (in millimetres), all just powered up.
-    pub fn new(controllers: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn new(controllers: usize, mechanics: &SimConfig) -> Self {
         let controllers = controllers.min(*ADDRESSES.end());
         Self {
             units: axes(controllers, mechanics).into_iter().map(Unit::new).collect(),
@@ -432,7 +430,7 @@ impl Emulator for Smc100Emulator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use zmotor_core::driver::sim::SimSetting;
+    use zmotor_core::SimSetting;
     use zmotor_msgs::Value;
 
     fn chain(controllers: usize) -> Smc100Emulator {

@@ -13,25 +13,23 @@
 use super::{axes, Emulator};
 use crate::smaract_mcs2::{error_text, move_mode, reference_option, state, DEFAULT_PICOMETRES_PER_STEP, NAME};
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// What `:DEV:SNUM?` answers.
-pub const SERIAL_NUMBER: &str = "MCS2-00001234";
+pub(crate) const SERIAL_NUMBER: &str = "MCS2-00001234";
 
 /// The speed of a move with velocity control off (`VEL 0`), pm/s: 10 mm/s.
-pub const FULL_SPEED: f64 = 10_000_000_000.0;
+pub(crate) const FULL_SPEED: f64 = 10_000_000_000.0;
 
 /// The highest `:CHAN<n>:VEL`, pm/s (100 mm/s).
-pub const MAX_VELOCITY: i64 = 100_000_000_000;
+pub(crate) const MAX_VELOCITY: i64 = 100_000_000_000;
 
 /// The highest `:CHAN<n>:ACC`, pm/s² (10 m/s²).
-pub const MAX_ACCELERATION: i64 = 10_000_000_000_000;
+pub(crate) const MAX_ACCELERATION: i64 = 10_000_000_000_000;
 
 /// What `raise_error` queues: a move of the channel was overridden.
-pub const RAISED_ERROR: i64 = 272;
+pub(crate) const RAISED_ERROR: i64 = 272;
 
 /// Entries the error queue holds.
 const QUEUE_CAPACITY: usize = 20;
@@ -41,7 +39,7 @@ const QUEUE_OVERFLOW: i64 = -350;
 
 /// A linear positioner with a sensor counting picometres, on `stage`'s mechanics (given in record
 /// steps of [`DEFAULT_PICOMETRES_PER_STEP`] pm).
-pub fn positioner(stage: &SimConfig) -> SimConfig {
+pub(crate) fn positioner(stage: &SimConfig) -> SimConfig {
     let pm = |steps: f64| steps * DEFAULT_PICOMETRES_PER_STEP;
     SimConfig {
         position: pm(stage.position),
@@ -263,7 +261,7 @@ fn channel_number(text: &str) -> Option<(usize, &str)> {
 }
 
 /// An MCS2 with `channels` positioners (channels 0 …).
-pub struct Mcs2Emulator {
+pub(crate) struct Mcs2Emulator {
     channels: Vec<Channel>,
     errors: VecDeque<i64>,
     input: Vec<u8>,
@@ -274,7 +272,7 @@ pub struct Mcs2Emulator {
 impl Mcs2Emulator {
     /// A controller of `channels` positioners on `mechanics` (in picometres, see
     /// [`positioner`]), amplifiers on, not referenced.
-    pub fn new(channels: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn new(channels: usize, mechanics: &SimConfig) -> Self {
         Self {
             channels: axes(channels, mechanics).into_iter().map(Channel::new).collect(),
             errors: VecDeque::new(),
@@ -394,8 +392,8 @@ impl Emulator for Mcs2Emulator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::emulator::stage;
-    use zmotor_core::driver::sim::SimSetting;
+    use crate::emulation::stage;
+    use zmotor_core::SimSetting;
     use zmotor_msgs::Value;
 
     fn mcs2() -> Mcs2Emulator {

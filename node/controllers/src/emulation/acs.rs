@@ -4,13 +4,11 @@
 use super::{axes, Emulator};
 use crate::acs::{acceleration_of_index, speed_of_index, JOG_STEPS, NAME, TERMINATOR};
 use std::collections::VecDeque;
-use zmotor_core::driver::sim::{SimAxis, SimConfig};
-use zmotor_core::driver::Driver;
-use zmotor_core::Instant;
+use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 use zmotor_msgs::bits::msta;
 
 /// An MCB-4B with `channels` axes (`#00` …).
-pub struct Mcb4bEmulator {
+pub(crate) struct Mcb4bEmulator {
     axes: Vec<SimAxis>,
     speed: Vec<u32>,
     ramp: Vec<u32>,
@@ -22,7 +20,7 @@ pub struct Mcb4bEmulator {
 
 impl Mcb4bEmulator {
     /// A controller of `channels` axes on `mechanics`, drives powered.
-    pub fn new(channels: usize, mechanics: &SimConfig) -> Self {
+    pub(crate) fn new(channels: usize, mechanics: &SimConfig) -> Self {
         Self {
             axes: axes(channels, mechanics),
             speed: vec![58; channels],
@@ -128,7 +126,7 @@ impl Emulator for Mcb4bEmulator {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::emulator::stage;
+    use crate::emulation::stage;
 
     #[test]
     fn garbage_from_a_client_is_refused_never_a_panic() {
