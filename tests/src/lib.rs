@@ -4,12 +4,13 @@
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::Session;
-use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
-use zmotor_core::driver::sim::SimConfig;
-use zmotor_launch::Launch;
+use zmotor_core::{AxisPlan, DriverPlan, PollRates};
+use zmotor_core::SimConfig;
+use zmotor_client::free_local_endpoint;
+use zmotor_deploy::{Launch, NodeContents, ZenohConfig};
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
-use zmotor_zenoh::{free_local_endpoint, Node, NodeContents, ZenohConfig};
+use zmotor_node::Node;
 
 /// Longest any single expectation waits before the test fails.
 pub const PATIENCE: Duration = Duration::from_secs(10);
@@ -35,7 +36,7 @@ pub fn fast_axis(name: &str) -> AxisPlan {
             ..SimConfig::default()
         }),
         rates: PollRates { moving: Duration::from_millis(20), idle: Duration::from_secs(1) },
-        jog_hold: zmotor_core::service::JogHold::Optional,
+        jog_hold: zmotor_core::JogHold::Optional,
     }
 }
 
@@ -56,7 +57,7 @@ impl TestNode {
     pub async fn start(plans: Vec<AxisPlan>) -> Self {
         let endpoint = free_local_endpoint().unwrap();
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..ZenohConfig::default() };
-        let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
+        let session = zmotor_client::open(&config).await.unwrap();
         let layout = KeyLayout::default();
         let node =
             Node::start(session.clone(), layout.clone(), NodeContents { plans, ..NodeContents::default() }, None)
@@ -70,7 +71,7 @@ impl TestNode {
         let endpoint = free_local_endpoint().unwrap();
         let deployment = Launch::parse(text).unwrap().deployment(None).unwrap();
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
-        let session = zenoh::open(config.zenoh().unwrap()).await.unwrap();
+        let session = zmotor_client::open(&config).await.unwrap();
         let layout = KeyLayout::new(&deployment.zenoh.prefix);
         let node = Node::start(session.clone(), layout.clone(), deployment.contents, None).await.unwrap();
         Self { node: Some(node), session, endpoint, layout }
@@ -78,7 +79,7 @@ impl TestNode {
 
     /// A client session connected to this node.
     pub async fn client(&self) -> Session {
-        zenoh::open(ZenohConfig::client(&self.endpoint).zenoh().unwrap()).await.unwrap()
+        zmotor_client::open(&ZenohConfig::client(&self.endpoint)).await.unwrap()
     }
 
     /// The key of one field of an axis of this node.

@@ -9,9 +9,9 @@ use std::time::{Duration, Instant};
 use zenoh::bytes::Encoding;
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
-use zmotor_core::axis::{AxisEvent, AxisPlan, DriverPlan, PollRates};
-use zmotor_core::driver::sim::SimConfig;
-use zmotor_core::service::JogHold;
+use zmotor_core::{AxisEvent, AxisPlan, DriverPlan, PollRates};
+use zmotor_core::SimConfig;
+use zmotor_core::JogHold;
 use zmotor_msgs::codec::{decode_cbor_value, encode_cbor};
 use zmotor_msgs::wire::StateMarker;
 use zmotor_msgs::{Field, Fields, KeyLayout, Value};
@@ -242,7 +242,7 @@ const LATENCY_TARGETS: [f64; 2] = [0.01, 0.02];
 fn demo_motion() -> Duration {
     let start = zmotor_core::Instant::ZERO;
     let mut axis = demo_axes(1).remove(0).build(start, None);
-    let at_first = |axis: &mut zmotor_core::axis::Axis| {
+    let at_first = |axis: &mut zmotor_core::Axis| {
         for _ in 0..100_000 {
             if !axis.is_busy() {
                 return axis.now();

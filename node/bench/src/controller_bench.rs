@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::protocol::{Event, Frame, Request};
+use zmotor_controllers::{Event, Frame, Request};
 use zmotor_controllers::{ProtocolKind, ProtocolOptions};
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::Value;

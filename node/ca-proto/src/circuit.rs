@@ -4,32 +4,23 @@
 
 use crate::codec::{self, command, Header, MINOR_VERSION};
 use crate::dbr::{self, Base, Class, DbrType, Snapshot};
+use crate::directory::Directory;
 use crate::names::{Pv, Target};
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_msgs::{Field, WriteClass};
-
-/// What a circuit asks of the values the runner holds.
-pub trait Directory {
-    /// Whether an axis is live now.
-    fn is_live(&self, axis: &str) -> bool;
-    /// What a channel shows now; `None` until the axis's values have been fetched.
-    fn snapshot(&self, pv: &Pv) -> Option<Snapshot>;
-}
+use zmotor_msgs::{Field, Refusal, RefusalKind, WriteClass};
 
 /// ECA status codes (`caerr.h`): message number << 3 | severity.
-pub mod status {
+pub(crate) mod status {
     /// Success.
-    pub const NORMAL: u32 = 1;
+    pub(crate) const NORMAL: u32 = 1;
     /// The write failed (refused, or nobody answered).
-    pub const PUTFAIL: u32 = 160;
+    pub(crate) const PUTFAIL: u32 = 160;
     /// A type the server cannot convert to.
-    pub const BADTYPE: u32 = 114;
+    pub(crate) const BADTYPE: u32 = 114;
     /// No write access.
-    pub const NO_WRITE_ACCESS: u32 = 376;
-    /// The channel's server side is gone.
-    pub const DISCONNECTED: u32 = 192;
+    pub(crate) const NO_WRITE_ACCESS: u32 = 376;
     /// No such channel on this circuit.
-    pub const BAD_CHANNEL_ID: u32 = 410;
+    pub(crate) const BAD_CHANNEL_ID: u32 = 410;
 }
 
 /// Access rights bits.
@@ -58,6 +49,49 @@ pub enum Request {
         /// How to answer the client, given back in `write_done`.
         answer: WriteAnswer,
     },
+}
+
+/// How a write ended, as the runner learnt it from the network.
+#[derive(Clone, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum WriteEnd {
+    /// The node took it.
+    Done,
+    /// The node refused it: its kind and words.
+    Refused(Refusal),
+    /// Nothing answered: `denied` when the axis is served but the network gave no answer (as
+    /// access control does to a write it refuses), else the node is gone or too slow.
+    Unanswered {
+        /// The axis is served, and the write was met with silence.
+        denied: bool,
+        /// Why, in words.
+        why: String,
+    },
+}
+
+impl WriteEnd {
+    /// The ECA code an IOC would answer. A refusal of the record's own processing (a limit
+    /// violation, a motor disabled, a home against a switch) is a put the record took: it says
+    /// ECA_NORMAL, and LVIO or MSTA tell the rest; a read-only field (or a write access control
+    /// denies) is ECA_NOWTACCESS; every other failure ECA_PUTFAIL, as rsrv maps a failed
+    /// dbPutField or put-notify.
+    pub fn eca_code(&self) -> u32 {
+        match self {
+            WriteEnd::Done => status::NORMAL,
+            WriteEnd::Refused(refusal) if refusal.kind.was_processed() => status::NORMAL,
+            WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, .. }) => status::NO_WRITE_ACCESS,
+            WriteEnd::Unanswered { denied: true, .. } => status::NO_WRITE_ACCESS,
+            WriteEnd::Refused(_) | WriteEnd::Unanswered { .. } => status::PUTFAIL,
+        }
+    }
+
+    fn words(&self) -> &str {
+        match self {
+            WriteEnd::Done => "",
+            WriteEnd::Refused(refusal) => &refusal.message,
+            WriteEnd::Unanswered { why, .. } => why,
+        }
+    }
 }
 
 /// How a write's outcome is told to the client.
@@ -210,24 +244,15 @@ impl Circuit {
         }
     }
 
-    /// A write ended: `Err` says why it failed.
-    pub fn write_done(&mut self, answer: WriteAnswer, outcome: Result<(), String>) {
-        match (answer, outcome) {
-            (WriteAnswer::Notify { ioid, data_type, count }, Ok(())) => {
-                self.send(Header::new(command::WRITE_NOTIFY, data_type, count, status::NORMAL, ioid), &[]);
-            }
-            (WriteAnswer::OnFailure { .. }, Ok(())) => {}
-            (answer, Err(message)) => self.refuse_write(answer, status::PUTFAIL, &message),
-        }
-    }
-
-    /// A write's failure, with its ECA code.
-    fn refuse_write(&mut self, answer: WriteAnswer, code: u32, message: &str) {
+    /// A write ended.
+    pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd) {
+        let code = end.eca_code();
         match answer {
             WriteAnswer::Notify { ioid, data_type, count } => {
                 self.send(Header::new(command::WRITE_NOTIFY, data_type, count, code, ioid), &[]);
             }
-            WriteAnswer::OnFailure { request, cid } => self.error(request, cid, code, message),
+            WriteAnswer::OnFailure { .. } if code == status::NORMAL => {}
+            WriteAnswer::OnFailure { request, cid } => self.error(request, cid, code, end.words()),
         }
     }
 
@@ -371,7 +396,7 @@ impl Circuit {
         };
         if !pv.writable() {
             let message = format!("{}: read-only", pv.name(&self.prefix));
-            return self.refuse_write(answer, status::NO_WRITE_ACCESS, &message);
+            return self.write_done(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
         match dbr::written_text(header.data_type, payload) {
             Ok(text) => {
@@ -380,7 +405,10 @@ impl Circuit {
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }
-            Err(e) => self.write_done(answer, Err(e.to_string())),
+            Err(e) => {
+                let refusal = Refusal { kind: RefusalKind::BadValue, message: e.to_string() };
+                self.write_done(answer, WriteEnd::Refused(refusal));
+            }
         }
     }
 

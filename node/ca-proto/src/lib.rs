@@ -2,18 +2,21 @@
 //! each live axis as a motor record: `<P><axis>` its VAL, `<P><axis>.<FIELD>` every field of the
 //! catalogue, `.RTYP` `motor`. The subset of the protocol served: name search (UDP), version,
 //! create and clear channel, read, write, write with notification (put-callback), subscribe and
-//! unsubscribe, echo, flow control, server disconnect. The runner (zmotor-zenoh's
-//! `channel_access`) moves the bytes and holds the values.
+//! unsubscribe, echo, flow control, server disconnect. The gateway (zmotor-ca) moves the bytes
+//! and holds the values. The message codec is public: a client (the benchmark's) speaks it too.
 
-pub mod circuit;
+mod circuit;
 pub mod codec;
-pub mod dbr;
-pub mod names;
-pub mod search;
+mod dbr;
+mod directory;
+mod names;
+mod search;
 
-pub use circuit::{Circuit, Directory, Request, WriteAnswer};
+pub use circuit::{Circuit, Request, WriteAnswer, WriteEnd};
 pub use dbr::{Base, Snapshot, Stamp};
+pub use directory::Directory;
 pub use names::{Pv, Target};
+pub use search::answer as answer_search;
 
 #[cfg(test)]
 mod tests {
@@ -114,9 +117,21 @@ mod tests {
         request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, sid, 42), &4.0f64.to_be_bytes());
         let Some(Request::Write { pv, text, wait, hold, answer }) = circuit.poll_request() else { panic!("no write") };
         assert_eq!((pv.name("bl:"), text.as_str(), wait, hold), ("bl:m1.VAL".into(), "4", true, false));
-        circuit.write_done(answer, Err("limit violation".into()));
+        let refused = |kind| WriteEnd::Refused(zmotor_msgs::Refusal { kind, message: "words".into() });
+        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::Busy));
         let failed = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((failed[0].0.command, failed[0].0.p1, failed[0].0.p2), (command::WRITE_NOTIFY, 160, 42));
+        // A limit violation is a put the record took, as an IOC answers it: LVIO tells.
+        request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, sid, 43), &500f64.to_be_bytes());
+        let Some(Request::Write { answer, .. }) = circuit.poll_request() else { panic!("no write") };
+        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::LimitViolation));
+        let taken = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((taken[0].0.p1, taken[0].0.p2), (1, 43), "ECA_NORMAL");
+        let denied = WriteEnd::Unanswered { denied: true, why: "silence".into() };
+        assert_eq!(denied.eca_code(), 376, "ECA_NOWTACCESS: access control answers nothing");
+        assert_eq!(refused(zmotor_msgs::RefusalKind::ReadOnly).eca_code(), 376);
+        assert_eq!(refused(zmotor_msgs::RefusalKind::Disabled).eca_code(), 1);
+        assert_eq!(WriteEnd::Unanswered { denied: false, why: "gone".into() }.eca_code(), 160);
 
         let refused = request(&mut circuit, &directory, Header::new(command::WRITE, 6, 1, rbv_sid, 3), &[0; 8]);
         assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");

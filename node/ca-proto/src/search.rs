@@ -2,12 +2,12 @@
 //! name is answered with this server's TCP port; others are left unanswered, as EPICS servers
 //! do.
 
-use crate::circuit::Directory;
 use crate::codec::{self, command, Header, MINOR_VERSION};
+use crate::directory::Directory;
 use crate::names::Pv;
 
 /// The reply to one SEARCH message, if the name is ours and live.
-pub fn reply(
+pub(crate) fn reply(
     prefix: &str,
     request: Header,
     payload: &[u8],

@@ -1,20 +1,16 @@
 //! `zmotor`: start deployments and talk to axes from the command line. This is the edge where
 //! errors become the plain words a user reads.
 
-mod bench;
-mod ca_bench;
-mod controller_bench;
 mod sim_controller;
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
-use zenoh::bytes::Encoding;
-use zmotor_launch::{import_db, Launch, Macros};
-use zmotor_msgs::{codec::decode_cbor_value, Field, KeyLayout, FIELDS};
-use zmotor_zenoh::autosave::{state_dir, StateStore};
-use zmotor_zenoh::{AutosaveConfig, LoginConfig, Mode, Node, TlsConfig, ZenohConfig};
+use zmotor_client::{show, Client, NoAnswer, Selection, WriteOptions, WriteOutcome};
+use zmotor_deploy::{import_db, CaConfig, Launch, LoginConfig, Macros, Mode, TlsConfig, WebConfig, ZenohConfig};
+use zmotor_msgs::{Field, KeyLayout, Value, FIELDS};
+use zmotor_node::{state_dir, AutosaveConfig, Node, StateStore};
 
 /// Any failure, as the user will read it.
 type Error = Box<dyn std::error::Error + Send + Sync>;
@@ -213,27 +209,14 @@ enum Command {
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
     Fields,
-    /// Measure latency, engine cost, scale and start-up, and print the figures.
+    /// Measure latency, scale, start-up, controllers, storms of writes and Channel Access, each
+    /// beside Zenoh's own floor, and print the figures (runs `zmotor-bench`, built beside
+    /// `zmotor`; `zmotor bench --help` lists its options).
+    #[command(disable_help_flag = true)]
     Bench {
-        /// A run of seconds that only proves every part works.
-        #[arg(long)]
-        smoke: bool,
-        /// Moves for the latency figures (default 2000).
-        #[arg(long)]
-        moves: Option<usize>,
-        /// Axis counts for the scale figures, comma-separated (default 1,100,1000,10000).
-        #[arg(long, value_delimiter = ',')]
-        scales: Option<Vec<usize>>,
-        /// Most axes set moving for the scale figures (default 2000; beyond, start and idle
-        /// memory only).
-        #[arg(long)]
-        moving_up_to: Option<usize>,
-        /// Measure only these parts, comma-separated (default: all).
-        #[arg(long, value_delimiter = ',', value_enum)]
-        parts: Option<Vec<bench::Part>>,
-        /// Seconds each storm of writes lasts (default 60).
-        #[arg(long)]
-        storm: Option<f64>,
+        /// The benchmark's own arguments.
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true)]
+        args: Vec<String>,
     },
     /// Emulate a motor controller on the physical simulator, speaking its protocol on a TCP
     /// socket or a pseudo-terminal, so that a launch file for real hardware runs with none.
@@ -251,18 +234,6 @@ enum Command {
         channels: Option<usize>,
         #[command(flatten)]
         faults: sim_controller::FaultArgs,
-    },
-    /// The benchmark's node process (started by `zmotor bench`).
-    #[command(hide = true)]
-    BenchServe {
-        #[arg(long)]
-        listen: String,
-        #[arg(long, default_value_t = 1)]
-        axes: usize,
-        #[arg(long, value_enum, default_value_t = bench::Serve::Demo)]
-        serve: bench::Serve,
-        #[arg(long, default_value_t = 100.0)]
-        readback_hz: f64,
     },
 }
 
@@ -320,7 +291,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
                 login: security.login,
                 access: security.access,
             };
-            let session = zenoh::open(section.zenoh()?).await?;
+            let session = zmotor_client::open(&section).await?;
             tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
             interrupted().await?;
             session.close().await?;
@@ -328,10 +299,9 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
         Command::Put { axis, field, value, plain: true, client, .. } => {
-            let session = connect(&client).await?;
-            let key = KeyLayout::new(&client.prefix).field(&axis, field_named(&field)?);
-            session.put(key, value).encoding(Encoding::TEXT_PLAIN).await?;
-            session.close().await?;
+            let zmotor = connect(&client).await?;
+            zmotor.put(&axis, field_named(&field)?, value).await?;
+            zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Put { axis, field, value, wait, timeout, client, .. } => {
@@ -340,41 +310,25 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         Command::Monitor { axis, fields, json, client } => monitor(&client, &axis, &fields, json).await,
         Command::List { client } => list(&client).await,
         Command::Web { address, client } => {
-            let session = connect(&client).await?;
-            let config = zmotor_web::WebConfig { address };
-            let served = zmotor_web::Web::start(session.clone(), KeyLayout::new(&client.prefix), &config).await?;
+            let zmotor = connect(&client).await?;
+            let served = zmotor_web::Web::start(zmotor.clone(), &WebConfig { address }).await?;
             eprintln!("motor screens at http://{}/ ; Ctrl-C to stop", served.address);
             interrupted().await?;
             drop(served);
-            session.close().await?;
+            zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Ca { pv_prefix, address, port, client } => {
-            let session = connect(&client).await?;
-            let config = zmotor_zenoh::channel_access::CaConfig { pv_prefix, address, port };
-            let layout = KeyLayout::new(&client.prefix);
-            let served = zmotor_zenoh::channel_access::ChannelAccess::start(session.clone(), layout, &config).await?;
+            let zmotor = connect(&client).await?;
+            let served = zmotor_ca::ChannelAccess::start(zmotor.clone(), &CaConfig { pv_prefix, address, port }).await?;
             interrupted().await?;
             drop(served);
-            session.close().await?;
+            zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
-        Command::Bench { smoke, moves, scales, moving_up_to, parts, storm } => {
-            let mut options = if smoke { bench::BenchOptions::smoke() } else { bench::BenchOptions::full() };
-            options.parts = parts.unwrap_or(options.parts);
-            options.storm = storm.unwrap_or(options.storm);
-            options.moves = moves.unwrap_or(options.moves);
-            options.scales = scales.unwrap_or(options.scales);
-            options.moving_up_to = moving_up_to.unwrap_or(options.moving_up_to);
-            bench::run(&options).await?;
-            Ok(ExitCode::SUCCESS)
-        }
-        Command::BenchServe { listen, axes, serve, readback_hz } => {
-            bench::serve(&listen, axes, serve, readback_hz).await?;
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Bench { args } => bench(&args),
         Command::SimController { protocol, listen, pty, channels, faults } => {
             let endpoint = match (listen, pty) {
                 (Some(address), _) => sim_controller::Endpoint::Tcp(address),
@@ -398,6 +352,22 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+/// `zmotor bench ARGS`: the benchmark is a program of its own, `zmotor-bench`, found beside this
+/// one (as cargo finds its subcommands); it starts nodes as a user does, with this `zmotor`.
+fn bench(args: &[String]) -> Result<ExitCode, Error> {
+    let here = std::env::current_exe()?;
+    let bench = here.with_file_name("zmotor-bench");
+    if !bench.exists() {
+        return Err(format!(
+            "{} is not built: `cargo build --release -p zmotor-bench` builds it beside zmotor",
+            bench.display()
+        )
+        .into());
+    }
+    let status = std::process::Command::new(&bench).args(args).arg("--zmotor").arg(&here).status()?;
+    Ok(if status.success() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// A launch file, or an EPICS database converted into one (with what the conversion warns of).
@@ -447,39 +417,34 @@ async fn launch(
     } else {
         None
     };
-    let mut config = deployment.zenoh.zenoh()?;
-    // A node may start before the router or peers it connects to: it keeps trying (clients
-    // otherwise give up at once) and serves from the first connection.
-    config.insert_json5("connect/timeout_ms", "-1")?;
     if !deployment.zenoh.connect.is_empty() {
         tracing::info!(connect = ?deployment.zenoh.connect, "connecting");
     }
-    let session = zenoh::open(config).await?;
+    let session = zmotor_client::open(&deployment.zenoh).await?;
     let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
     // The front-ends are clients of the node's own network, on a session of their own: a node's
     // publications leave its session only for others.
-    let front_session = match deployment.channel_access.is_some() || deployment.web.is_some() {
-        true => Some(front_end_session(&deployment.zenoh).await?),
+    let front_client = match deployment.channel_access.is_some() || deployment.web.is_some() {
+        true => Some(front_end_client(&deployment.zenoh).await?),
         false => None,
     };
     let mut front_ends = (None, None);
-    if let Some(session) = &front_session {
+    if let Some(client) = &front_client {
         if let Some(config) = &deployment.channel_access {
-            let start = zmotor_zenoh::channel_access::ChannelAccess::start(session.clone(), layout.clone(), config);
-            front_ends.0 = Some(start.await?);
+            front_ends.0 = Some(zmotor_ca::ChannelAccess::start(client.clone(), config).await?);
         }
         if let Some(config) = &deployment.web {
-            front_ends.1 = Some(zmotor_web::Web::start(session.clone(), layout.clone(), config).await?);
+            front_ends.1 = Some(zmotor_web::Web::start(client.clone(), config).await?);
         }
     }
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
         connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
     interrupted().await?;
     drop(front_ends);
-    if let Some(session) = front_session {
-        session.close().await?;
+    if let Some(client) = front_client {
+        client.session().close().await?;
     }
     tracing::info!("stopping: moving axes stop, state is saved");
     node.shutdown().await;
@@ -498,28 +463,26 @@ fn warn_if_open(section: &ZenohConfig) {
     }
 }
 
-/// A client session of the network a node's `section` joins: to where it listens (or else
-/// connects), with its TLS and login.
-async fn front_end_session(section: &ZenohConfig) -> Result<zenoh::Session, Error> {
+/// A client of the network a node's `section` joins: to where it listens (or else connects),
+/// with its TLS and login.
+async fn front_end_client(section: &ZenohConfig) -> Result<Client, Error> {
     let reach = section.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
     let Some(endpoint) = reach.or_else(|| section.connect.first().cloned()) else {
         return Err("[channel_access] and [web] need the node to listen or connect somewhere".into());
     };
-    let client =
-        ZenohConfig { tls: section.tls.clone(), login: section.login.clone(), ..ZenohConfig::client(&endpoint) };
-    zenoh::open(client.zenoh()?).await
+    let client = ZenohConfig {
+        tls: section.tls.clone(),
+        login: section.login.clone(),
+        prefix: section.prefix.clone(),
+        ..ZenohConfig::client(&endpoint)
+    };
+    Ok(Client::connect(&client).await?)
 }
 
-/// A client session connected where `client` says.
-async fn connect(client: &ClientArgs) -> Result<zenoh::Session, Error> {
-    let endpoint = &client.connect;
-    zenoh::open(client.zenoh()?.zenoh()?).await.map_err(|_| {
-        let tls = if client.ca.is_some() { ", or it refused this client's certificate" } else { "" };
-        format!(
-            "nothing answers at {endpoint}{tls}: start a node there (zmotor launch launch/sim-axis.toml) or point \
-             --connect at one"
-        )
-        .into()
+/// A client connected where `client` says.
+async fn connect(client: &ClientArgs) -> Result<Client, Error> {
+    Client::connect(&client.zenoh()?).await.map_err(|e| {
+        format!("{e}: start a node there (zmotor launch launch/sim-axis.toml) or point --connect at one").into()
     })
 }
 
@@ -539,70 +502,51 @@ fn print_lines(lines: impl IntoIterator<Item = String>) {
     }
 }
 
-/// A published value, or the outcome map of a `?wait` write as `NAME=value` pairs.
-fn show(payload: &[u8]) -> String {
-    if let Ok(value) = decode_cbor_value(payload) {
-        return value.to_string();
-    }
-    match ciborium::from_reader::<std::collections::BTreeMap<String, zmotor_msgs::Value>, _>(payload) {
-        Ok(map) => map.iter().map(|(k, v)| format!("{k}={v}")).collect::<Vec<_>>().join(" "),
-        Err(_) => String::from_utf8_lossy(payload).into_owned(),
-    }
-}
+/// What an unanswered client may also be told: Zenoh answers a query its access rules deny
+/// with nothing at all.
+const UNANSWERED_UNDER_ACCESS_CONTROL: &str = " Under access control, a request the rules deny gets no answer either.";
 
 async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<ExitCode, Error> {
-    let session = connect(client).await?;
-    let layout = KeyLayout::new(&client.prefix);
+    let zmotor = connect(client).await?;
     let axes: Vec<&str> = axes.split(',').filter(|a| !a.is_empty()).collect();
     let several = axes.len() > 1;
     let mut code = ExitCode::SUCCESS;
     for axis in axes {
         // One field by name, or a pattern such as D* or the whole axis.
-        let (key, single) = match field {
-            Some(pattern) if pattern.contains('*') => (layout.field_pattern(axis, pattern), false),
-            Some(name) => (layout.field(axis, field_named(name)?), true),
-            None => (layout.axis_all(axis), false),
+        let selection = match field {
+            Some(pattern) if pattern.contains('*') => Selection::Pattern(pattern),
+            Some(name) => Selection::Field(field_named(name)?),
+            None => Selection::All,
         };
-        let mut values = read(&session, &key).await?;
-        values.sort_by_key(|(field, ..)| *field);
-        print_lines(values.iter().map(|(_, name, value)| match (several, single) {
-            (true, _) => format!("{axis}.{name} {value}"),
-            (false, true) => value.clone(),
-            (false, false) => format!("{name:<6} {value}"),
+        let read = zmotor.read(axis, selection).await?;
+        for refusal in &read.refusals {
+            eprintln!("zmotor: {refusal}");
+        }
+        let single = matches!(selection, Selection::Field(_));
+        print_lines(read.readings.iter().map(|reading| {
+            let (name, value) = (&reading.name, read.shown(reading));
+            match (several, single) {
+                (true, _) => format!("{axis}.{name} {value}"),
+                (false, true) => value,
+                (false, false) => format!("{name:<6} {value}"),
+            }
         }));
-        if values.is_empty() {
+        if read.readings.is_empty() {
             code = ExitCode::FAILURE;
             eprintln!(
-                "zmotor: no answer for {key} (is the axis running, and is {} reachable?{})",
+                "zmotor: no answer for {axis} (is the axis running, and is {} reachable?{})",
                 client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
             );
         }
     }
-    session.close().await?;
+    zmotor.session().close().await?;
     Ok(code)
-}
-
-/// The replies to a read of `key`: (field, the last chunk of the reply's key, value as text).
-/// An error reply is printed.
-async fn read(session: &zenoh::Session, key: &str) -> Result<Vec<(Option<Field>, String, String)>, Error> {
-    let replies = session.get(key).timeout(Duration::from_secs(5)).await?;
-    let mut values = Vec::new();
-    while let Ok(reply) = replies.recv_async().await {
-        match reply.result() {
-            Ok(sample) => {
-                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
-                values.push((Field::from_name(&name), name, show(&sample.payload().to_bytes())));
-            }
-            Err(err) => eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes())),
-        }
-    }
-    Ok(values)
 }
 
 /// The live axes (their liveliness tokens), with DESC, EGU, RBV and whether they move.
 async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
-    let session = connect(client).await?;
-    let axes = zmotor_zenoh::summary::live_axes(&session, &KeyLayout::new(&client.prefix)).await?;
+    let zmotor = connect(client).await?;
+    let axes = zmotor.live_axes().await?;
     let text = |t: &Option<String>| t.clone().unwrap_or_else(|| "?".into());
     let rows: Vec<[String; 5]> = axes
         .iter()
@@ -627,23 +571,8 @@ async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
     } else {
         print_lines(std::iter::once(line(&header)).chain(rows.iter().map(line)).map(|l| l.trim_end().to_string()));
     }
-    session.close().await?;
+    zmotor.session().close().await?;
     Ok(ExitCode::SUCCESS)
-}
-
-/// What an unanswered client may also be told: Zenoh answers a query its access rules deny
-/// with nothing at all.
-const UNANSWERED_UNDER_ACCESS_CONTROL: &str = " Under access control, a request the rules deny gets no answer either.";
-
-/// How long a `put --wait` whose query ended unanswered waits to see the axis's token go.
-const VANISHING: Duration = Duration::from_secs(3);
-
-/// How a confirmed write ended.
-enum Ending {
-    Reply(zenoh::query::Reply),
-    /// The axis's liveliness token went away first.
-    Vanished,
-    NoReply,
 }
 
 async fn put(
@@ -654,112 +583,68 @@ async fn put(
     wait: bool,
     timeout: f64,
 ) -> Result<ExitCode, Error> {
-    let session = connect(client).await?;
-    let layout = KeyLayout::new(&client.prefix);
+    let zmotor = connect(client).await?;
     let field = field_named(field)?;
-    let selector = layout.write_selector(axis, field, wait);
-    // The axis's liveliness token tells a node that vanished from one that never was.
-    let token = session.liveliness().declare_subscriber(layout.axis(axis)).history(true).await?;
-    let asked = std::time::Instant::now();
-    let replies = session
-        .get(&selector)
-        .payload(value.to_string())
-        .encoding(Encoding::TEXT_PLAIN)
-        .timeout(Duration::from_secs_f64(timeout))
-        .await?;
-    let mut alive = false;
-    let ending = loop {
-        tokio::select! {
-            reply = replies.recv_async() => break reply.map_or(Ending::NoReply, Ending::Reply),
-            change = token.recv_async() => match change {
-                Ok(sample) if sample.kind() == zenoh::sample::SampleKind::Put => alive = true,
-                Ok(_) if wait => break Ending::Vanished,
-                _ => {}
-            },
+    let patience = Duration::from_secs_f64(timeout);
+    let options = if wait { WriteOptions::waiting(patience) } else { WriteOptions::confirmed(patience) };
+    let outcome = zmotor.write(axis, field, value, options).await?.outcome().await;
+    let code = match outcome {
+        WriteOutcome::Accepted(value) => {
+            println!("{}", show(field, &value, None));
+            ExitCode::SUCCESS
         }
-    };
-    // A node that dies ends the query before its token is seen to go: wait a little for that.
-    let ending = match ending {
-        Ending::NoReply if alive && wait => {
-            let gone = tokio::time::timeout(VANISHING, async {
-                while let Ok(sample) = token.recv_async().await {
-                    if sample.kind() == zenoh::sample::SampleKind::Delete {
-                        return true;
-                    }
-                }
-                false
-            });
-            if gone.await.unwrap_or(false) {
-                Ending::Vanished
-            } else {
-                Ending::NoReply
-            }
+        WriteOutcome::Completed(completion) => {
+            println!("{}", WriteOutcome::Completed(completion));
+            ExitCode::SUCCESS
         }
-        other => other,
-    };
-    let code = match ending {
-        Ending::Reply(reply) => match reply.into_result() {
-            Ok(sample) => {
-                println!("{}", show(&sample.payload().to_bytes()));
-                ExitCode::SUCCESS
-            }
-            Err(err) => {
-                eprintln!("zmotor: {}", String::from_utf8_lossy(&err.payload().to_bytes()));
-                ExitCode::FAILURE
-            }
-        },
-        Ending::Vanished => {
-            let token = layout.axis(axis);
+        WriteOutcome::Refused(refusal) => {
+            eprintln!("zmotor: {refusal}");
+            ExitCode::FAILURE
+        }
+        WriteOutcome::Vanished => {
+            let token = zmotor.layout().axis(axis);
             eprintln!(
                 "zmotor: the node serving {axis} vanished before answering (its liveliness token {token} went away): \
                  the write's outcome is unknown"
             );
             ExitCode::FAILURE
         }
-        Ending::NoReply if alive && asked.elapsed().as_secs_f64() >= timeout => {
+        WriteOutcome::NoAnswer(NoAnswer::TimedOut) => {
             eprintln!("zmotor: {axis} is served but did not answer within {timeout} s");
             ExitCode::FAILURE
         }
-        Ending::NoReply if alive => {
+        WriteOutcome::NoAnswer(NoAnswer::Silent) => {
             eprintln!("zmotor: {axis} is served but its node gave no answer.{UNANSWERED_UNDER_ACCESS_CONTROL}");
             ExitCode::FAILURE
         }
-        Ending::NoReply => {
+        other => {
             eprintln!(
-                "zmotor: no axis {axis} answers at {} (is its node running and reachable?{})",
+                "zmotor: no axis {axis} answers at {} ({other}: is its node running and reachable?{})",
                 client.connect, UNANSWERED_UNDER_ACCESS_CONTROL
             );
             ExitCode::FAILURE
         }
     };
-    session.close().await?;
+    zmotor.session().close().await?;
     Ok(code)
 }
 
 /// Jog `axis` under a hold until Ctrl-C (or SIGTERM), or until the jog ends by itself (a limit).
 async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode, Error> {
-    let session = connect(client).await?;
-    let layout = KeyLayout::new(&client.prefix);
+    let zmotor = connect(client).await?;
     let button = if forward { Field::JOGF } else { Field::JOGR };
-    let token = layout.hold(axis, &session.zid().to_string());
-    let _token = session.liveliness().declare_token(&token).await?;
-    let dmov = session.declare_subscriber(layout.field(axis, Field::DMOV)).await?;
-    let write = |value: &'static str| {
-        session
-            .get(layout.write_selector(axis, button, false))
-            .payload(value)
-            .encoding(Encoding::TEXT_PLAIN)
-            .attachment(zmotor_msgs::Hold::new(&token).encode())
-            .timeout(Duration::from_secs(5))
-    };
-    let started = write("1").await?.recv_async().await;
-    match started.map(zenoh::query::Reply::into_result) {
-        Ok(Ok(_)) => eprintln!("jogging {axis} {}; Ctrl-C to stop", if forward { "forward" } else { "in reverse" }),
-        Ok(Err(err)) => return Err(String::from_utf8_lossy(&err.payload().to_bytes()).into_owned().into()),
-        Err(_) => {
-            return Err(format!("no axis {axis} answers at {}.{UNANSWERED_UNDER_ACCESS_CONTROL}", client.connect).into())
+    let token = zmotor.hold(axis, &zmotor.session().zid().to_string()).await?;
+    let options = WriteOptions::confirmed(Duration::from_secs(5)).held_by(Some(token.key().to_string()));
+    match zmotor.write(axis, button, "1", options.clone()).await?.outcome().await {
+        WriteOutcome::Accepted(_) => {
+            eprintln!("jogging {axis} {}; Ctrl-C to stop", if forward { "forward" } else { "in reverse" })
         }
+        WriteOutcome::Refused(refusal) => return Err(refusal.into()),
+        other => return Err(format!("{axis}: {other}").into()),
     }
+    // DMOV, from now: 0 while the jog runs; 1 once it ended, also before this monitor began.
+    let mut dmov = zmotor.monitor(axis, &[Field::DMOV]).await?;
+    let ended = |update: &zmotor_client::Update| update.value == Value::Int(1);
     let interrupted = interrupted();
     tokio::pin!(interrupted);
     loop {
@@ -768,68 +653,62 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
                 result?;
                 break;
             }
-            sample = dmov.recv_async() => match sample.map(|s| decode_cbor_value(&s.payload().to_bytes())) {
-                Ok(Ok(zmotor_msgs::Value::Int(1))) => {
+            update = dmov.next() => match update {
+                Some(update) if ended(&update) => {
                     eprintln!("the jog ended by itself (a limit, or someone stopped it)");
                     break;
                 }
-                Ok(_) => {}
-                Err(_) => break,
+                Some(_) => {}
+                None => break,
             },
         }
     }
-    let _ = write("0").await?.recv_async().await;
+    let _ = zmotor.write(axis, button, "0", options).await?.outcome().await;
     // The jog decelerates (and takes out its backlash) before it is over.
     let settled = async {
-        while let Ok(sample) = dmov.recv_async().await {
-            if decode_cbor_value(&sample.payload().to_bytes()) == Ok(zmotor_msgs::Value::Int(1)) {
+        while let Some(update) = dmov.next().await {
+            if ended(&update) {
                 return;
             }
         }
     };
     let _ = tokio::time::timeout(Duration::from_secs(30), settled).await;
-    let replies = session.get(layout.field(axis, Field::RBV)).timeout(Duration::from_secs(5)).await?;
-    if let Ok(Ok(sample)) = replies.recv_async().await.map(zenoh::query::Reply::into_result) {
-        println!("{}", show(&sample.payload().to_bytes()));
+    let read = zmotor.read(axis, Selection::Field(Field::RBV)).await?;
+    if let Some(rbv) = read.readings.first() {
+        println!("{}", read.shown(rbv));
     }
-    session.close().await?;
+    zmotor.session().close().await?;
     Ok(ExitCode::SUCCESS)
 }
 
+/// A monitor that starts with the current values, then every change, as camonitor does.
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool) -> Result<ExitCode, Error> {
-    let session = connect(client).await?;
-    let layout = KeyLayout::new(&client.prefix);
-    let wanted: Vec<&str> = fields.iter().map(|f| field_named(f).map(Field::name)).collect::<Result<_, _>>()?;
-    let subscriber = session.declare_subscriber(layout.axis_fields(axis)).await?;
+    let zmotor = connect(client).await?;
+    let wanted: Vec<Field> = fields.iter().map(|f| field_named(f)).collect::<Result<_, _>>()?;
+    let mut updates = zmotor.monitor(axis, &wanted).await?;
     loop {
         tokio::select! {
-            sample = subscriber.recv_async() => {
-                let Ok(sample) = sample else { break };
-                let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
-                if wanted.is_empty() || wanted.contains(&name.as_str()) {
-                    let payload = sample.payload().to_bytes();
-                    let value = match decode_cbor_value(&payload) {
-                        Ok(value) => value,
-                        // ERR's refusals are text.
-                        Err(_) => zmotor_msgs::Value::Text(String::from_utf8_lossy(&payload).into_owned()),
-                    };
-                    print_lines([monitor_line(axis, &name, std::time::SystemTime::now(), &value, json)]);
-                }
+            update = updates.next() => {
+                let Some(update) = update else { break };
+                print_lines([monitor_line(&update, json)]);
             }
             _ = tokio::signal::ctrl_c() => break,
         }
     }
-    session.close().await?;
+    drop(updates);
+    zmotor.session().close().await?;
     Ok(ExitCode::SUCCESS)
 }
 
-/// A monitor's line: camonitor's `m1.RBV 2026-12-01 12:00:00.123456 10`, or a JSON object.
-fn monitor_line(axis: &str, field: &str, at: std::time::SystemTime, value: &zmotor_msgs::Value, json: bool) -> String {
-    let time = humantime::format_rfc3339_micros(at).to_string();
+/// A monitor's line: camonitor's `m1.RBV 2026-12-01 12:00:00.123456 10`, or a JSON object with
+/// the value as published.
+fn monitor_line(update: &zmotor_client::Update, json: bool) -> String {
+    let time = humantime::format_rfc3339_micros(update.at).to_string();
+    let (axis, field) = (&update.axis, &update.name);
     if json {
-        serde_json::json!({ "axis": axis, "field": field, "time": time, "value": value }).to_string()
+        serde_json::json!({ "axis": axis, "field": field, "time": time, "value": update.value }).to_string()
     } else {
-        format!("{axis}.{field} {} {value}", time.trim_end_matches('Z').replacen('T', " ", 1))
+        format!("{axis}.{field} {} {}", time.trim_end_matches('Z').replacen('T', " ", 1), update.shown)
     }
 }
 

@@ -7,7 +7,7 @@ use common::{repo_file, time_to_release, Host, Lines, Namespaces, Running};
 use std::process::Command;
 use std::process::Stdio;
 use std::time::Duration;
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 /// The client script at `stage`, pointed at the front-end on `port`.
 fn script(port: u16, stage: &str) -> Command {

@@ -5,7 +5,7 @@ mod common;
 
 use common::{Host, Lines, Running, PATIENCE};
 use std::process::Stdio;
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 const TWO_AXES: &str = r#"
 [[axis]]

@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 /// A process of this test, killed when dropped.
 struct Running(Child);

@@ -10,7 +10,7 @@ use common::{repo_file, slow_stage, Host, Namespaces, Pki, Running, PATIENCE};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 /// The saved position of an axis, read from its autosave file.
 fn saved_dval(state_dir: &Path, axis: &str) -> f64 {

@@ -8,7 +8,7 @@ mod common;
 use common::{time_to_release, Host, Namespaces, Running};
 use std::process::{Command, Stdio};
 use std::time::Duration;
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 /// A slow jog (1 mm/s) on a long stage, jog_hold as given.
 fn jog_stage(jog_hold: &str) -> String {

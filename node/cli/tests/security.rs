@@ -38,7 +38,7 @@ DLLM = -100
 
 /// A guarded node on 127.0.0.1 and its endpoint.
 fn guarded_node(pki: &Pki) -> (Running, String) {
-    let endpoint = zmotor_zenoh::free_local_endpoint().unwrap().replace("tcp/", "tls/");
+    let endpoint = zmotor_client::free_local_endpoint().unwrap().replace("tcp/", "tls/");
     let node = pki.issue("node", &["127.0.0.1"]);
     let text = format!("[zenoh]\nlisten = [\"{endpoint}\"]\n{}{RULES}", pki.launch_section(&node));
     let file = pki.dir.path().join("guarded.toml");
@@ -154,7 +154,7 @@ fn users_log_in_with_a_password_and_their_rule_says_what_they_may() {
     let dir = tempfile::tempdir().unwrap();
     let users = dir.path().join("users.txt");
     std::fs::write(&users, "alice:wonderland\nbob:builder\n").unwrap();
-    let endpoint = zmotor_zenoh::free_local_endpoint().unwrap();
+    let endpoint = zmotor_client::free_local_endpoint().unwrap();
     let text = format!(
         "[zenoh]\nlisten = [\"{endpoint}\"]\n[zenoh.login]\nusers_file = {users:?}\n\
          [[zenoh.access]]\nname = \"operators\"\nmay = [\"drive\"]\nusernames = [\"alice\"]\n\

@@ -6,7 +6,7 @@ mod common;
 
 use common::{monitor_jogf, time_to_release, Host, Namespaces};
 use std::process::Command;
-use zmotor_zenoh::free_local_endpoint;
+use zmotor_client::free_local_endpoint;
 
 const AXIS: &str = r#"
 [autosave]

@@ -22,6 +22,7 @@ pub use write::{NoAnswer, SentWrite, WriteOptions, WriteOutcome};
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
 use zenoh::Session;
+use zmotor_deploy::ZenohConfig;
 use zmotor_msgs::{Field, KeyLayout};
 
 /// A client of the axes under one key prefix, on a Zenoh session.
@@ -46,6 +47,11 @@ impl HoldToken {
 }
 
 impl Client {
+    /// A client session joined as `section` says, of the axes under its prefix.
+    pub async fn connect(section: &ZenohConfig) -> Result<Self, SessionError> {
+        Ok(Self::new(open(section).await?, KeyLayout::new(&section.prefix)))
+    }
+
     /// A client of the axes `layout` names, on `session`.
     pub fn new(session: Session, layout: KeyLayout) -> Self {
         Self { session, layout }

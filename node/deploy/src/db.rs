@@ -587,7 +587,7 @@ mod tests {
     use super::*;
     use crate::Launch;
     use zmotor_bridge::link::InputMode;
-    use zmotor_core::axis::DriverPlan;
+    use zmotor_core::DriverPlan;
 
     fn macros(text: &str) -> Macros {
         Macros::parse(&[text.to_string()]).unwrap()

@@ -5,8 +5,8 @@ use crate::front_ends::{CaConfig, WebConfig};
 use crate::network::ZenohConfig;
 use std::path::PathBuf;
 use zmotor_bridge::CalcLinkSpec;
-use zmotor_controllers::spec::ControllerSpec;
-use zmotor_core::axis::AxisPlan;
+use zmotor_controllers::ControllerSpec;
+use zmotor_core::AxisPlan;
 
 /// What one process runs: the Zenoh side for its host, and its part of the items.
 #[derive(Clone, Debug, PartialEq)]

@@ -6,7 +6,7 @@ use crate::network::{Mode, TlsConfig, ZenohConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
-use zmotor_core::driver::sim::SimConfig;
+use zmotor_core::SimConfig;
 use zmotor_msgs::keys;
 
 /// Highest readback rate while moving, Hz.

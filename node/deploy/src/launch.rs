@@ -350,4 +350,3 @@ impl Launch {
         toml::to_string(&self.file).expect("a checked launch serialises")
     }
 }
-

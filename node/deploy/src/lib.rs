@@ -22,8 +22,8 @@ pub use db::{import_db, import_db_text, MacroError, Macros};
 pub use deployment::{Deployment, NodeContents, ValueSpec};
 pub use file::{
     AutosaveSection, AxisSection, CalcInput, CalcOption, CalcSection, ChannelAccessSection, ControllerSection,
-    DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, LaunchError,
-    LaunchFile, Origin, ParityChoice, SerialSection, UnknownChoice, ValueSection, WebSection, MAX_READBACK_RATE,
+    DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, LaunchError, LaunchFile,
+    Origin, ParityChoice, SerialSection, UnknownChoice, ValueSection, WebSection, MAX_READBACK_RATE,
 };
 pub use front_ends::{CaConfig, WebConfig};
 pub use launch::Launch;

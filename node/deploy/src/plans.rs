@@ -8,10 +8,10 @@ use crate::file::{
 use crate::problem::Problem;
 use std::time::Duration;
 use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
-use zmotor_controllers::spec::{self, ControllerSpec, SerialSettings, Transport};
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
-use zmotor_core::axis::{AxisPlan, DriverPlan, PollRates};
-use zmotor_core::service::JogHold;
+use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
+use zmotor_core::JogHold;
+use zmotor_core::{AxisPlan, DriverPlan, PollRates};
 use zmotor_msgs::toml_value::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
 
@@ -92,16 +92,16 @@ impl ControllerSection {
                     device: serial.device.clone(),
                     baud: serial.baud,
                     parity: match serial.parity {
-                        ParityChoice::None => spec::Parity::None,
-                        ParityChoice::Odd => spec::Parity::Odd,
-                        ParityChoice::Even => spec::Parity::Even,
+                        ParityChoice::None => Parity::None,
+                        ParityChoice::Odd => Parity::Odd,
+                        ParityChoice::Even => Parity::Even,
                     },
                     data_bits: serial.data_bits,
                     stop_bits: serial.stop_bits,
                     flow_control: match serial.flow_control {
-                        FlowControlChoice::None => spec::FlowControl::None,
-                        FlowControlChoice::Software => spec::FlowControl::Software,
-                        FlowControlChoice::Hardware => spec::FlowControl::Hardware,
+                        FlowControlChoice::None => FlowControl::None,
+                        FlowControlChoice::Software => FlowControl::Software,
+                        FlowControlChoice::Hardware => FlowControl::Hardware,
                     },
                 };
                 settings.check().map_err(|e| at(&["serial"], e.to_string()))?;
@@ -112,7 +112,7 @@ impl ControllerSection {
         let options = ProtocolOptions { units_per_step: self.units_per_step };
         options.check().map_err(|e| at(&["units_per_step"], e.to_string()))?;
         let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
-            spec::period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
+            ControllerConfig::checked_period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
         };
         let config = ControllerConfig {
             moving_poll: period("moving_poll", self.moving_poll, 0.001, 10.0)?,
@@ -221,4 +221,3 @@ pub(crate) fn check_wiring(
     }
     Ok(())
 }
-

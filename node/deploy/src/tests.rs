@@ -4,9 +4,9 @@ use crate::*;
 use std::path::Path;
 use std::time::Duration;
 use zmotor_bridge::link::InputMode;
-use zmotor_controllers::spec::{self, Transport};
 use zmotor_controllers::ProtocolKind;
-use zmotor_core::axis::DriverPlan;
+use zmotor_controllers::{Parity, Transport};
+use zmotor_core::DriverPlan;
 
 const WIRING: &str = r#"
         [[axis]]
@@ -196,7 +196,7 @@ fn a_controller_drives_the_channels_of_its_axes() {
     );
     let deployment = Launch::parse(&serial).unwrap().deployment(None).unwrap();
     let Transport::Serial(line) = &deployment.contents.controllers[0].transport else { panic!("a serial line") };
-    assert_eq!((line.baud, line.parity, line.data_bits, line.stop_bits), (19200, spec::Parity::Even, 8, 2));
+    assert_eq!((line.baud, line.parity, line.data_bits, line.stop_bits), (19200, Parity::Even, 8, 2));
 }
 
 #[test]

@@ -8,6 +8,8 @@
 use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::time::Duration;
+use zmotor_core::AxisPlan;
 use zmotor_msgs::toml_value::{field_value, to_toml};
 use zmotor_msgs::{Autosave, CodecError, Field, Fields};
 
@@ -187,6 +189,63 @@ impl StateStore {
         std::fs::rename(&temporary, &path)?;
         // The rename itself must reach the disk before the save counts as done.
         std::fs::File::open(&self.dir)?.sync_all()
+    }
+}
+
+/// Autosave of a node's axes: where state is kept, and how long a change may wait before it
+/// is written (changes within that time are written together).
+#[derive(Clone, Debug)]
+pub struct AutosaveConfig {
+    /// The state files.
+    pub store: StateStore,
+    /// How long a change waits before it is written.
+    pub delay: Duration,
+}
+
+/// The autosave of one axis: a change arms a deadline `delay` ahead; at the deadline the
+/// saved fields are written if they differ from what the file holds. Writes run off the
+/// runtime's threads; the axis waits for each (a few milliseconds, at most once per `delay`).
+pub(crate) struct Saver {
+    store: StateStore,
+    delay: Duration,
+    /// What the file holds.
+    written: SavedAxis,
+    due: Option<tokio::time::Instant>,
+}
+
+impl Saver {
+    /// Lay the saved state over the plan's fields, and be ready to save the axis.
+    pub(crate) fn restore(config: &AutosaveConfig, plan: &mut AxisPlan) -> Result<Self, AutosaveError> {
+        let saved = config.store.restore(&plan.name, &mut plan.fields)?;
+        if saved.is_some() {
+            tracing::info!(axis = %plan.name, file = %config.store.path(&plan.name).display(), "restored saved state");
+        }
+        Ok(Self { store: config.store.clone(), delay: config.delay, written: saved.unwrap_or_default(), due: None })
+    }
+
+    /// When the next write is due, if a change waits.
+    pub(crate) fn due(&self) -> Option<tokio::time::Instant> {
+        self.due
+    }
+
+    pub(crate) fn changed(&mut self, now: tokio::time::Instant) {
+        self.due.get_or_insert(now + self.delay);
+    }
+
+    /// Write `saved` now if it differs from the file, and wait until it is written.
+    pub(crate) async fn flush(&mut self, axis: &str, saved: SavedAxis) {
+        self.due = None;
+        if saved == self.written {
+            return;
+        }
+        self.written = saved.clone();
+        let (store, axis) = (self.store.clone(), axis.to_string());
+        let write = tokio::task::spawn_blocking(move || {
+            if let Err(e) = store.save(&axis, &saved) {
+                tracing::error!(axis, file = %store.path(&axis).display(), "autosave failed: {e}");
+            }
+        });
+        let _ = write.await;
     }
 }
 

@@ -9,10 +9,10 @@ use std::pin::Pin;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
-use zmotor_controllers::protocol::VendorError;
-use zmotor_controllers::spec::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
-use zmotor_controllers::{Controller, ControllerEvent};
-use zmotor_core::engine::DeviceStatus;
+use zmotor_controllers::VendorError;
+use zmotor_controllers::{AnyController, ControllerEvent};
+use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
+use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::DriverCommand;
 
@@ -64,7 +64,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
     let (sender, commands) = mpsc::unbounded_channel();
     let (first_in, first) = oneshot::channel();
     let origin = tokio::time::Instant::now();
-    let controller = Controller::new(spec.protocol.protocol(&spec.options), spec.config.clone(), Instant::ZERO);
+    let controller = spec.protocol.controller(&spec.options, spec.config.clone(), Instant::ZERO);
     let name = spec.name.clone();
     let mut runner = Runner {
         name: spec.name,
@@ -88,7 +88,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
 struct Runner {
     name: String,
     transport: Transport,
-    controller: Controller,
+    controller: Box<dyn AnyController>,
     origin: tokio::time::Instant,
     reader: Option<ReadHalf<Stream>>,
     writer: Option<WriteHalf<Stream>>,
@@ -212,6 +212,7 @@ impl Runner {
                 tracing::warn!(controller = %self.name, "channel {channel}: command not sent: {why}");
             }
             ControllerEvent::Failed { what } => tracing::warn!(controller = %self.name, "exchange failed: {what}"),
+            other => tracing::debug!(controller = %self.name, "an event this runner does not act on: {other:?}"),
         }
     }
 

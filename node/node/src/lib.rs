@@ -1,20 +1,26 @@
-//! zmotor-zenoh: serves zmotor's sans-IO axes on a Zenoh session. It only moves bytes: samples
-//! and queries become calls of each axis's `AxisService` (zmotor-core), the wall clock becomes
-//! ticks, and what the services hand back becomes publications, replies and puts. Calc links
-//! (zmotor-bridge) and value holders run beside the axes; autosave keeps each axis's state in a
-//! file.
+//! zmotor-node: serves zmotor's sans-IO axes on a Zenoh session. It only moves bytes: samples
+//! and queries become inputs of each axis's `AxisService` (zmotor-core), the wall clock becomes
+//! ticks, and what the services hand back becomes publications, replies and puts. Each axis
+//! takes its inputs, from any thread, one at a time and in order (`zmotor_inbox`). Controllers
+//! (zmotor-controllers) run on their TCP sockets or serial ports; calc links (zmotor-bridge)
+//! and value holders run beside the axes; autosave keeps each axis's state in a file. What to
+//! serve comes from a deployment (`zmotor_deploy::NodeContents`); a node is no client.
 
-pub mod autosave;
-pub mod channel_access;
-pub mod client;
-pub mod config;
+mod autosave;
+mod axis_core;
+mod axis_task;
 mod controllers;
+mod demand;
 mod holds;
+mod input;
 mod links;
 mod node;
-pub mod summary;
+mod refusal;
+mod router;
+mod routes;
 mod timer;
+mod tokens;
+mod writer;
 
-pub use config::{free_local_endpoint, AccessRule, ConfigError, LoginConfig, Mode, Permission, TlsConfig, ZenohConfig};
-pub use links::ValueSpec;
-pub use node::{AutosaveConfig, Node, NodeContents, NodeError};
+pub use autosave::{state_dir, AutosaveConfig, AutosaveError, RestoreError, SavedAxis, StateStore, STATE_DIR_ENV};
+pub use node::{Node, NodeError};

@@ -1,7 +1,7 @@
 //! What follows keys besides the axes: input links (as EPICS links follow PVs), calc links and
 //! value holders.
 
-use crate::node::Writer;
+use crate::writer::Writer;
 use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
@@ -9,6 +9,7 @@ use zenoh::bytes::Encoding;
 use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
+use zmotor_deploy::ValueSpec;
 use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
 
 /// Where one follower wants a key's values: its channel and the key's index there.
@@ -149,15 +150,6 @@ impl CalcTask {
             }
         }
     }
-}
-
-/// A value holder ready to start: its key and the value it holds before any write.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ValueSpec {
-    /// The key it holds the value of.
-    pub key: String,
-    /// The value before anything is written.
-    pub initial: f64,
 }
 
 /// A value holder (an ao/ai record that only holds a value): keeps the latest number put on

@@ -36,6 +36,11 @@ function receive(message) {
     show(message.field, message.value);
   } else if ("live" in message) {
     badge("live", message.live ? "live" : "gone", message.live ? "" : "gone");
+    document.getElementById("unserved").hidden = true;
+  } else if (message.served === false) {
+    // Nobody serves this axis: say so rather than "connecting" over empty cells.
+    badge("live", "not served", "gone");
+    document.getElementById("unserved").hidden = false;
   } else if (message.error) {
     showError(message.error);
   } else if (message.ok) {

@@ -21,25 +21,14 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::mpsc;
 use zenoh::sample::{Sample, SampleKind};
-use zenoh::Session;
+use zmotor_client::{Client, HoldToken, WriteOptions, WriteOutcome};
+use zmotor_deploy::WebConfig;
 use zmotor_msgs::codec::decode_cbor_value;
-use zmotor_msgs::{keys, Field, KeyLayout};
-
-/// Where the screen is served.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct WebConfig {
-    /// The HTTP address (127.0.0.1:8080 by default: only this host's browsers).
-    pub address: SocketAddr,
-}
-
-impl Default for WebConfig {
-    fn default() -> Self {
-        Self { address: SocketAddr::from(([127, 0, 0, 1], 8080)) }
-    }
-}
+use zmotor_msgs::{keys, Field};
 
 /// The server could not start.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum WebError {
     /// Its address could not be bound.
     #[error("cannot listen on {address}: {source}")]
@@ -59,8 +48,7 @@ const ANSWER_PATIENCE: Duration = Duration::from_secs(10);
 
 #[derive(Clone)]
 struct AppState {
-    session: Session,
-    layout: KeyLayout,
+    client: Client,
 }
 
 /// A running web server; dropping it stops it.
@@ -77,8 +65,8 @@ impl Drop for Web {
 }
 
 impl Web {
-    /// Serve the screens of the axes under `layout` that `session` reaches.
-    pub async fn start(session: Session, layout: KeyLayout, config: &WebConfig) -> Result<Self, WebError> {
+    /// Serve the screens of the axes `client` reaches.
+    pub async fn start(client: Client, config: &WebConfig) -> Result<Self, WebError> {
         let bind = |source| WebError::Bind { address: config.address, source };
         let listener = tokio::net::TcpListener::bind(config.address).await.map_err(bind)?;
         let address = listener.local_addr().map_err(bind)?;
@@ -89,7 +77,7 @@ impl Web {
             .route("/api/axes", get(axes))
             .route("/api/fields", get(|| async { Json(zmotor_msgs::schema::catalogue_json()) }))
             .route("/ws/{axis}", get(socket))
-            .with_state(AppState { session, layout });
+            .with_state(AppState { client });
         let task = tokio::spawn(async move {
             if let Err(e) = axum::serve(listener, router).await {
                 tracing::error!("the web server stopped: {e}");
@@ -114,7 +102,7 @@ async fn asset(Path(file): Path<String>) -> Response {
 }
 
 async fn axes(State(state): State<AppState>) -> Response {
-    match zmotor_zenoh::summary::live_axes(&state.session, &state.layout).await {
+    match state.client.live_axes().await {
         Ok(axes) => Json(axes).into_response(),
         Err(e) => (StatusCode::BAD_GATEWAY, e.to_string()).into_response(),
     }
@@ -195,7 +183,8 @@ impl ToPage {
 
 /// One page's socket, until it closes; its jogs end with it.
 async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> Result<(), axum::Error> {
-    let AppState { session, layout } = state;
+    let AppState { client } = state;
+    let (session, layout) = (client.session(), client.layout());
     let (sender, mut outgoing) = mpsc::channel::<String>(PAGE_QUEUE);
     let out = ToPage { sender, overflowed: Arc::default() };
     let zenoh_error = |e: zenoh::Error| axum::Error::new(e);
@@ -219,6 +208,11 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
         })
         .await
         .map_err(zenoh_error)?;
+    // An axis nobody serves would show "connecting" forever over empty cells: the page is told.
+    let served = session.liveliness().get(layout.axis(&axis)).timeout(ANSWER_PATIENCE).await.map_err(zenoh_error)?;
+    if served.recv_async().await.is_err() {
+        out.send(serde_json::json!({ "served": false }).to_string());
+    }
     let replies = session.get(layout.axis_all(&axis)).timeout(ANSWER_PATIENCE).await.map_err(zenoh_error)?;
     let to_page = out.clone();
     tokio::spawn(async move {
@@ -229,8 +223,8 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
         }
     });
     // The token this page holds its jogs by, declared at its first jog.
-    let client = format!("web-{}-{}", session.zid(), SOCKETS.fetch_add(1, Ordering::Relaxed));
-    let mut hold: Option<(String, zenoh::liveliness::LivelinessToken)> = None;
+    let holder = format!("web-{}-{}", session.zid(), SOCKETS.fetch_add(1, Ordering::Relaxed));
+    let mut hold: Option<HoldToken> = None;
     let mut heard = Instant::now();
     let mut pings = tokio::time::interval(HELD_PING);
     loop {
@@ -249,15 +243,13 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
                         let held = match Field::from_name(&write.field).filter(|f| f.is_jog()) {
                             Some(_) => {
                                 if hold.is_none() {
-                                    let key = layout.hold(&axis, &client);
-                                    let token = session.liveliness().declare_token(&key).await.map_err(zenoh_error)?;
-                                    hold = Some((key, token));
+                                    hold = Some(client.hold(&axis, &holder).await.map_err(zenoh_error)?);
                                 }
-                                hold.as_ref().map(|(key, _)| key.clone())
+                                hold.as_ref().map(|token| token.key().to_string())
                             }
                             _ => None,
                         };
-                        confirmed_write(&session, &layout, &axis, write, held, out.clone()).await;
+                        confirmed_write(&client, &axis, write, held, out.clone()).await;
                     }
                     Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return Ok(()),
                     Some(Ok(_)) => {}
@@ -275,30 +267,27 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
 }
 
 /// A page's write as a confirmed write to the axis's write key, sent now (in the page's
-/// order: VELO then VAL, or JOGF 1 then 0, reach the node so); the answer goes to the page.
-async fn confirmed_write(
-    session: &Session,
-    layout: &KeyLayout,
-    axis: &str,
-    write: PageWrite,
-    hold: Option<String>,
-    out: ToPage,
-) {
+/// order: VELO then VAL, or JOGF 1 then 0, reach the node so); the answer goes to the page, a
+/// refusal with its words and kind.
+async fn confirmed_write(client: &Client, axis: &str, write: PageWrite, hold: Option<String>, out: ToPage) {
     let PageWrite { id, field, value } = write;
     let sent = match Field::from_name(&field) {
         None => Err(format!("{field}: unknown field")),
         Some(field) => {
-            let how = (false, hold.as_deref());
-            Ok(zmotor_zenoh::client::confirmed_write(session, layout, (axis, field), value, how, ANSWER_PATIENCE).await)
+            let options = WriteOptions::confirmed(ANSWER_PATIENCE).held_by(hold);
+            client.write(axis, field, value, options).await.map_err(|e| e.to_string())
         }
     };
+    let axis = axis.to_string();
     tokio::spawn(async move {
-        let outcome = match sent {
-            Ok(sent) => sent.outcome().await,
-            Err(error) => Err(error),
-        };
-        let answer = match outcome {
-            Ok(()) => serde_json::json!({ "id": id, "ok": true }),
+        let answer = match sent {
+            Ok(sent) => match sent.outcome().await {
+                WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => serde_json::json!({ "id": id, "ok": true }),
+                WriteOutcome::Refused(refusal) => {
+                    serde_json::json!({ "id": id, "error": refusal.message, "kind": refusal.kind.name() })
+                }
+                other => serde_json::json!({ "id": id, "error": format!("{axis}: {other}") }),
+            },
             Err(error) => serde_json::json!({ "id": id, "error": error }),
         };
         out.send(answer.to_string());

@@ -7,7 +7,7 @@
 use std::time::Duration;
 use zmotor_bridge::calc::INPUTS;
 use zmotor_bridge::Expression;
-use zmotor_controllers::{Controller, ControllerConfig, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
 use zmotor_msgs::{decode_write, Hold, PayloadEncoding, StateMarker, FIELDS};
 
@@ -54,7 +54,7 @@ pub fn calc(data: &[u8]) {
 /// A launch file.
 pub fn launch_toml(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else { return };
-    if let Ok(launch) = zmotor_launch::Launch::parse(text) {
+    if let Ok(launch) = zmotor_deploy::Launch::parse(text) {
         let _ = launch.deployment(None);
         let _ = launch.to_toml();
     }
@@ -63,8 +63,8 @@ pub fn launch_toml(data: &[u8]) {
 /// An EPICS database, with a macro defined.
 pub fn epics_db(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else { return };
-    let macros = zmotor_launch::Macros::parse(&["P=fz:".to_string()]).expect("a macro definition");
-    let _ = zmotor_launch::import_db_text("fuzz.db", text, &macros);
+    let macros = zmotor_deploy::Macros::parse(&["P=fz:".to_string()]).expect("a macro definition");
+    let _ = zmotor_deploy::import_db_text("fuzz.db", text, &macros);
 }
 
 /// Bytes from a controller: byte 0 picks the protocol, byte 1 how many bytes arrive at a time;
@@ -75,7 +75,7 @@ pub fn controller_replies(data: &[u8]) {
     let kind = ProtocolKind::ALL[usize::from(*kind) % ProtocolKind::ALL.len()];
     let channels: Vec<usize> = (0..100).filter(|c| kind.check_channel(*c).is_ok()).take(2).collect();
     let config = ControllerConfig::for_channels(channels);
-    let mut controller = Controller::new(kind.protocol(&ProtocolOptions::default()), config, Instant::ZERO);
+    let mut controller = kind.controller(&ProtocolOptions::default(), config, Instant::ZERO);
     let mut now = Instant::ZERO;
     controller.handle_timeout(now);
     controller.handle_connected(now);

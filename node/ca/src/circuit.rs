@@ -1,0 +1,106 @@
+//! One CA client's TCP circuit, until it closes: its bytes to and from the sans-IO `Circuit`,
+//! the network's changes to it, its requests to the network. A circuit holds the jogs it
+//! starts by a liveliness token of its own, so a client that dies or is cut off has its jogs
+//! ended.
+
+use crate::values::Change;
+use crate::{Done, Shared, Write};
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::{broadcast, mpsc};
+use zmotor_ca_proto::{Circuit, Request};
+use zmotor_client::HoldToken;
+
+/// Circuits served so far by this process: each holds its jogs by a token of its own.
+static CIRCUITS: AtomicU64 = AtomicU64::new(0);
+
+/// One client's circuit until it closes.
+pub(crate) async fn serve_circuit(
+    stream: tokio::net::TcpStream,
+    shared: &Shared,
+    mut stopped: tokio::sync::watch::Receiver<()>,
+) -> std::io::Result<()> {
+    stream.set_nodelay(true)?;
+    let (mut reader, mut writer) = stream.into_split();
+    let mut changes = shared.changes.subscribe();
+    let (done, mut finished) = mpsc::unbounded_channel::<Done>();
+    let mut circuit = Circuit::new(&shared.prefix);
+    // The tokens this circuit holds its jogs by, per axis: they go when the circuit closes (the
+    // client quit, died or was cut off), and the node then ends the jogs.
+    let mut holds: HashMap<String, HoldToken> = HashMap::new();
+    let client = format!("ca-{}-{}", shared.client.session().zid(), CIRCUITS.fetch_add(1, Ordering::Relaxed));
+    let mut buffer = vec![0; 16 * 1024];
+    loop {
+        tokio::select! {
+            _ = stopped.changed() => return Ok(()),
+            read = reader.read(&mut buffer) => {
+                let length = read?;
+                if length == 0 {
+                    return Ok(());
+                }
+                let handled = circuit.handle_input(&buffer[..length], &*shared.values());
+                handled.map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
+            }
+            change = changes.recv() => match change {
+                Ok(Change::Field(axis, field)) => circuit.handle_change(&axis, field, &*shared.values()),
+                Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
+                Err(broadcast::error::RecvError::Lagged(missed)) => {
+                    tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");
+                    circuit.repost(&*shared.values());
+                }
+                Err(broadcast::error::RecvError::Closed) => return Ok(()),
+            },
+            Some((answer, outcome)) = finished.recv() => circuit.write_done(answer, outcome),
+        }
+        while let Some(request) = circuit.poll_request() {
+            match request {
+                Request::Fetch { axis } => shared.fetch(axis),
+                Request::Write { pv, text, wait, hold, answer } => {
+                    let hold = match hold {
+                        true => {
+                            // A circuit that holds a jog must notice a client cut off within a
+                            // second, not TCP's quarter of an hour.
+                            watch_closely(writer.as_ref())?;
+                            Some(hold_token(shared, &mut holds, &pv.axis, &client).await?)
+                        }
+                        false => None,
+                    };
+                    shared.write(Write { pv, text, wait, hold, answer }, done.clone()).await;
+                }
+            }
+        }
+        while let Some(bytes) = circuit.poll_transmit() {
+            writer.write_all(&bytes).await?;
+        }
+    }
+}
+
+/// The key of the token a circuit holds an axis's jogs by, declared at its first jog.
+async fn hold_token(
+    shared: &Shared,
+    holds: &mut HashMap<String, HoldToken>,
+    axis: &str,
+    client: &str,
+) -> std::io::Result<String> {
+    if let Some(token) = holds.get(axis) {
+        return Ok(token.key().to_string());
+    }
+    let token = shared.client.hold(axis, client).await.map_err(std::io::Error::other)?;
+    let key = token.key().to_string();
+    holds.insert(axis.to_string(), token);
+    Ok(key)
+}
+
+/// Keep-alive probes after a second of silence, and at most half a second for sent data to be
+/// acknowledged: a client cut off (no FIN, no RST) is then dropped, and its holds with it.
+fn watch_closely(stream: &tokio::net::TcpStream) -> std::io::Result<()> {
+    let socket = socket2::SockRef::from(stream);
+    let probes = socket2::TcpKeepalive::new()
+        .with_time(Duration::from_secs(1))
+        .with_interval(Duration::from_secs(1))
+        .with_retries(1);
+    socket.set_tcp_keepalive(&probes)?;
+    socket.set_tcp_user_timeout(Some(Duration::from_millis(500)))
+}

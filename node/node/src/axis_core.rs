@@ -1,0 +1,319 @@
+//! One axis and its Zenoh side: whatever reaches the axis (a write, a query, a link update, a
+//! tick) is applied to its `AxisService` and what the service hands back is sent before the
+//! next input is taken. It only moves bytes: it decodes the key and encoding, calls the
+//! service, and sends publications, replies, puts and traces. Everything is sent without
+//! awaiting (`wait`), so a Zenoh callback can run it.
+
+use crate::controllers::ControllerPort;
+use crate::demand::FieldDemand;
+use crate::holds::Holds;
+use crate::input::{AxisInput, Deliver};
+use crate::links::{Follows, LocalFollowers};
+use crate::refusal::{self, refuse};
+use crate::writer::Writer;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
+use tokio::sync::Notify;
+use zenoh::bytes::{Encoding, ZBytes};
+use zenoh::key_expr::KeyExpr;
+use zenoh::query::Query;
+use zenoh::sample::Locality;
+use zenoh::{Session, Wait};
+use zmotor_core::{AxisService, Instant, Reply, ServiceOutput, WriteRequest};
+use zmotor_inbox::{Handler, Inbox};
+use zmotor_msgs::{encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, RefusalKind, StateMarker, Value};
+
+/// Publishers one node declares at most (fields and traces). Zenoh numbers a session's
+/// declarations with 16 bits and remaps them beyond (logging "Remapping unsupported"); 10,000
+/// moving axes with 30,000 field publishers went past it, so the budget is kept well inside,
+/// with room for every axis's liveliness token and trace. Past it, fields are published with
+/// session puts: slower, always correct. (1,000 axes moving back and forth declare about 17,000.)
+pub(crate) const PUBLISHER_BUDGET: usize = 20_000;
+
+/// An axis behind its inbox: inputs from any thread, handled one at a time, in order.
+pub(crate) type AxisInbox = Inbox<AxisCore, AxisInput>;
+
+impl Deliver for AxisInbox {
+    fn deliver(&self, input: AxisInput) {
+        Inbox::deliver(self, input);
+    }
+}
+
+/// What every axis of a node shares.
+#[derive(Clone)]
+pub(crate) struct NodeSide {
+    pub(crate) session: Session,
+    pub(crate) layout: KeyLayout,
+    /// The node's plain writes to keys.
+    pub(crate) writer: Writer,
+    /// Links of this node that follow its axes' fields.
+    pub(crate) followers: Arc<LocalFollowers>,
+    /// Which fields anyone on the network subscribes to.
+    pub(crate) demand: Arc<FieldDemand>,
+    /// Declarations the node may still make (`PUBLISHER_BUDGET`).
+    pub(crate) budget: Arc<AtomicUsize>,
+    /// Whether confirmed writes are taken on write keys only (`NodeContents::guarded`).
+    pub(crate) guarded: bool,
+    /// The origin of the axes' clocks.
+    pub(crate) clock: tokio::time::Instant,
+}
+
+/// One axis's service and its Zenoh side.
+pub(crate) struct AxisCore {
+    pub(crate) service: AxisService<Query>,
+    node: NodeSide,
+    /// The controller behind the axis, if it has one: its driver commands go there.
+    controller: Option<ControllerPort>,
+    /// The keys this axis's input links follow, by `InputLink` index.
+    follows: Follows,
+    /// The liveliness tokens its held motions depend on.
+    holds: Holds,
+    /// Declared at the first driver command, so idle axes cost no publisher.
+    trace: Option<zenoh::pubsub::Publisher<'static>>,
+    /// Publishers of the fields this axis posts again and again, declared at their second post:
+    /// a declared publisher's put costs a fraction of a session put (the key is resolved once).
+    hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
+    /// Fields posted once so far (with a session put).
+    posted_once: Vec<Field>,
+    /// Wakes the axis's task when an input handled elsewhere may have moved its deadlines.
+    pub(crate) rearm: Arc<Notify>,
+    /// A field autosave keeps changed since the task last looked.
+    pub(crate) unsaved: Arc<AtomicBool>,
+    /// A tick the task delivered is not handled yet (`AxisTask::tick_pending`).
+    pub(crate) tick_pending: Arc<AtomicBool>,
+}
+
+impl AxisCore {
+    pub(crate) fn new(
+        service: AxisService<Query>,
+        node: NodeSide,
+        controller: Option<ControllerPort>,
+        follows: Follows,
+        holds: Holds,
+    ) -> Self {
+        Self {
+            service,
+            node,
+            controller,
+            follows,
+            holds,
+            trace: None,
+            hot: Vec::new(),
+            posted_once: Vec::new(),
+            rearm: Arc::default(),
+            unsaved: Arc::default(),
+            tick_pending: Arc::default(),
+        }
+    }
+
+    /// The axis's clock.
+    pub(crate) fn now(&self) -> Instant {
+        Instant::after(self.node.clock.elapsed())
+    }
+
+    fn name(&self) -> &str {
+        self.service.name()
+    }
+
+    fn field_key(&self, field: Field) -> KeyExpr<'static> {
+        KeyExpr::try_from(self.node.layout.field(self.name(), field)).expect("axis names are checked at launch")
+    }
+
+    fn on_query(&mut self, now: Instant, query: Query) {
+        let layout = &self.node.layout;
+        let key = query.key_expr().as_str();
+        let written = layout.written_field_name(self.service.name(), key);
+        let name = written.or_else(|| layout.field_name(self.service.name(), key)).map(str::to_string);
+        match (name, query.payload().map(|p| p.to_bytes().into_owned())) {
+            (Some(name), Some(_)) if self.node.guarded && written.is_none() => {
+                // Here a query on a field key is a read: the access rules let readers make it.
+                let message = format!(
+                    "{key}: this node is under access control; a confirmed write goes to {}/@write/{name}",
+                    layout.axis(self.service.name())
+                );
+                refuse(&query, RefusalKind::WriteKeyRequired, message);
+            }
+            (Some(name), Some(payload)) => {
+                let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
+                let wait = query.parameters().contains_key(keys::WAIT_PARAMETER);
+                let hold = query.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
+                let request = WriteRequest::new(&name, &payload, encoding).held(hold);
+                self.service.write(now, request, wait, query);
+            }
+            (Some(name), None) if !name.contains('*') => self.service.read(&name, query),
+            _ => {
+                // A read of a key expression that may cover several fields.
+                let selected = query.key_expr().clone();
+                let keys: Vec<KeyExpr<'static>> = Field::all().map(|f| self.field_key(f)).collect();
+                self.service.read_selected(|f| selected.intersects(&keys[f as usize]), query);
+            }
+        }
+    }
+
+    fn on_sim_query(&mut self, now: Instant, query: Query) {
+        let selected = query.key_expr().clone();
+        let axis = self.name().to_string();
+        let selects =
+            |name: &str| KeyExpr::try_from(keys::sim_key(&axis, name)).is_ok_and(|key| selected.intersects(&key));
+        self.service.sim_read(now, selects, query);
+    }
+
+    /// Send everything the service has for the network.
+    fn flush(&mut self) {
+        let mut traced = None;
+        while let Some(output) = self.service.poll_output() {
+            match output {
+                ServiceOutput::Publish { field, value, marker } => self.publish(field, &value, &marker),
+                ServiceOutput::Refusal { kind, message, marker } => {
+                    let key = self.node.layout.err(self.name());
+                    let attachment = ZBytes::from(marker.encode());
+                    let put = self.node.session.put(key, message).encoding(refusal::encoding(kind));
+                    let _ = put.attachment(attachment).wait();
+                }
+                ServiceOutput::Reply { to, reply } => self.reply(&to, reply),
+                ServiceOutput::DriverCommand { command, at } => {
+                    if let Some(controller) = &self.controller {
+                        controller.send(command.clone());
+                    }
+                    let trace_publisher = self.trace_publisher();
+                    let listening = *traced.get_or_insert_with(|| {
+                        trace_publisher.is_some_and(|p| p.matching_status().wait().is_ok_and(|m| m.matching()))
+                    });
+                    if listening {
+                        let trace = self.service.stamp_trace(command, at);
+                        if let Some(publisher) = &self.trace {
+                            let _ = publisher.put(encode_cbor(&trace)).wait();
+                        }
+                    }
+                }
+                // A link's or directive's put is a command: a plain write, no marker.
+                ServiceOutput::Put { key, value } => self.node.writer.put(&key, value),
+                ServiceOutput::WatchHold { token } => self.holds.watch(&token),
+                ServiceOutput::ForgetHold { token } => self.holds.forget(&token),
+                ServiceOutput::Follow { link, key } => {
+                    if let Err(e) = self.follows.follow(link as usize, &key) {
+                        tracing::error!(axis = %self.name(), key, "cannot follow the link: {e}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// The trace publisher, declared at the first driver command; it must exist whatever the
+    /// budget, and counts against it all the same.
+    fn trace_publisher(&mut self) -> Option<&zenoh::pubsub::Publisher<'static>> {
+        if self.trace.is_none() {
+            let key = self.node.layout.driver_cmd(self.name());
+            self.trace = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).wait().ok();
+            let _ = self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1));
+        }
+        self.trace.as_ref()
+    }
+
+    fn reply(&self, query: &Query, reply: Reply) {
+        // A reply to a write key carries that key: Zenoh drops replies outside the query's.
+        let written = self.node.layout.written_field_name(self.name(), query.key_expr().as_str()).is_some();
+        let key_of = |field| if written { query.key_expr().clone().into_owned() } else { self.field_key(field) };
+        let (key, payload) = match reply {
+            Reply::Value(field, value) => (key_of(field), encode_cbor(&value)),
+            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion)),
+            Reply::SimState(state) => match KeyExpr::try_from(keys::sim_key(self.name(), keys::SIM_STATE_KEY)) {
+                Ok(key) => (key, encode_cbor(&state)),
+                Err(_) => return,
+            },
+            Reply::SimSetting(setting, value) => match KeyExpr::try_from(keys::sim_key(self.name(), setting.name())) {
+                Ok(key) => (key, encode_cbor(&value)),
+                Err(_) => return,
+            },
+            Reply::Refused(refusal) => {
+                refuse(query, refusal.kind(), refusal.to_string());
+                return;
+            }
+        };
+        let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).wait();
+    }
+
+    /// Publish a field's new value: to the links of this node that follow it, and to the
+    /// network when a subscriber there wants that field (as the record posts a monitor only to
+    /// those who asked). Publications go to other processes only: the node hears itself
+    /// in-process.
+    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker) {
+        self.node.followers.deliver(self.service.name(), field, value);
+        if !self.node.demand.wanted(field) {
+            return;
+        }
+        let declared = match self.hot.iter().position(|(f, _)| *f == field) {
+            Some(index) => Some(index),
+            None if !self.posted_once.contains(&field) => {
+                self.posted_once.push(field);
+                None
+            }
+            None if self
+                .node
+                .budget
+                .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
+                .is_ok() =>
+            {
+                let declared = self
+                    .node
+                    .session
+                    .declare_publisher(self.field_key(field))
+                    .encoding(Encoding::APPLICATION_CBOR)
+                    .allowed_destination(Locality::Remote)
+                    .wait();
+                match declared {
+                    Ok(publisher) => {
+                        self.hot.push((field, publisher));
+                        Some(self.hot.len() - 1)
+                    }
+                    Err(e) => {
+                        tracing::warn!(axis = %self.name(), %field, "cannot declare a publisher: {e}");
+                        None
+                    }
+                }
+            }
+            None => None,
+        };
+        let attachment = ZBytes::from(marker.encode());
+        let _ = match declared {
+            Some(index) => self.hot[index].1.put(encode_cbor(value)).attachment(attachment).wait(),
+            None => self
+                .node
+                .session
+                .put(self.field_key(field), encode_cbor(value))
+                .encoding(Encoding::APPLICATION_CBOR)
+                .allowed_destination(Locality::Remote)
+                .attachment(attachment)
+                .wait(),
+        };
+    }
+}
+
+impl Handler<AxisInput> for AxisCore {
+    fn handle(&mut self, input: AxisInput) {
+        let now = self.now();
+        match input {
+            AxisInput::Write(w) => {
+                self.service.put(now, WriteRequest::new(&w.name, &w.payload, w.encoding).held(w.hold))
+            }
+            AxisInput::Query(query) => self.on_query(now, query),
+            AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
+            AxisInput::SimQuery(query) => self.on_sim_query(now, query),
+            AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
+            AxisInput::Tick => {
+                self.tick_pending.store(false, Ordering::Release);
+                self.service.handle_timeout(now);
+            }
+            AxisInput::LinkUpdate(link, value) => self.service.link_update(now, link, value),
+            AxisInput::HoldReleased(token) => self.service.hold_released(now, &token),
+            AxisInput::StopMotion => self.service.stop_motion(now),
+        }
+        self.flush();
+        if self.service.take_unsaved_change() {
+            self.unsaved.store(true, Ordering::Release);
+        }
+        // Only a task waiting right now is woken: the task computes its deadlines after it
+        // registers, so an input handled before that is already in what it computes.
+        self.rearm.notify_waiters();
+    }
+}

@@ -1,0 +1,43 @@
+//! What reaches one axis, from the network, from this node itself, or from its own task; and
+//! how an axis is reached.
+
+use zenoh::query::Query;
+use zmotor_core::{DeviceStatus, InputLink};
+use zmotor_msgs::{Hold, PayloadEncoding};
+
+/// One input of an axis, handled in the order it was delivered (`zmotor_inbox::Inbox`).
+pub(crate) enum AxisInput {
+    /// A plain write to a field.
+    Write(Written),
+    /// A query on a field key, the axis's keys or a write key: a read or a confirmed write.
+    Query(Query),
+    /// A plain write to a simulator key.
+    SimWrite(Written),
+    /// A read of simulator keys.
+    SimQuery(Query),
+    /// What the axis's controller reported for its channel, after how many motion commands.
+    ControllerStatus(DeviceStatus, u64),
+    /// The axis's own time came: a poll, the end of a motion, DLY.
+    Tick,
+    /// An input link's key took a value.
+    LinkUpdate(InputLink, f64),
+    /// The liveliness token a held motion depends on went.
+    HoldReleased(String),
+    /// The node is shutting down: a moving axis stops.
+    StopMotion,
+}
+
+/// A plain write to one key of an axis: the field (or simulator setting) named, the payload.
+pub(crate) struct Written {
+    pub(crate) name: String,
+    pub(crate) payload: Vec<u8>,
+    pub(crate) encoding: PayloadEncoding,
+    /// The hold its attachment names, if any.
+    pub(crate) hold: Option<Hold>,
+}
+
+/// How an input reaches an axis: its inbox, whatever the axis holds behind it.
+pub(crate) trait Deliver: Send + Sync {
+    /// Hand `input` to the axis: handled now if the axis is free, queued in order otherwise.
+    fn deliver(&self, input: AxisInput);
+}
