@@ -4,9 +4,9 @@
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::Session;
-use zmotor_core::{AxisPlan, DriverPlan, PollRates};
-use zmotor_core::SimConfig;
 use zmotor_client::free_local_endpoint;
+use zmotor_core::SimConfig;
+use zmotor_core::{AxisPlan, DriverPlan, PollRates};
 use zmotor_deploy::{Launch, NodeContents, ZenohConfig};
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};

@@ -3,24 +3,32 @@
 //! here, a CA client (the protocol of `zmotor-ca`, as caget and `caput -c` send it) and a Zenoh
 //! client: a read's round trip, and a put-callback of a one-step move answered at its end.
 
-use crate::bench::{client_when_ready, Percentiles};
-use crate::controller_bench::NodeProcess;
+use crate::process::{client_when_ready, Programs};
+use crate::stats::Percentiles;
 use crate::Error;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::bytes::Encoding;
-use zmotor_ca::codec::{self, command, Header, MINOR_VERSION};
+use zmotor_ca_proto::codec::{self, command, Header, MINOR_VERSION};
 
 /// The figures of one run.
 pub(crate) struct Figures {
     /// caget of RBV through the front-end.
-    pub ca_read: Percentiles,
+    pub(crate) ca_read: Percentiles,
     /// A Zenoh `get` of RBV.
-    pub zenoh_read: Percentiles,
+    pub(crate) zenoh_read: Percentiles,
     /// `caput -c` of a one-step move through the front-end.
-    pub ca_move: Percentiles,
+    pub(crate) ca_move: Percentiles,
     /// The same move as a Zenoh `?wait` write.
-    pub zenoh_move: Percentiles,
+    pub(crate) zenoh_move: Percentiles,
+    /// pyepics's caget and put-callback, or why they were not measured.
+    pub(crate) pyepics: Result<StockClient, String>,
+}
+
+/// A stock client's figures, µs.
+pub(crate) struct StockClient {
+    pub(crate) read: [f64; 3],
+    pub(crate) move_: [f64; 3],
 }
 
 const DBR_DOUBLE: u16 = 6;
@@ -91,14 +99,12 @@ impl CaClient {
 }
 
 /// `reads` read round trips and `moves` one-step moves each way.
-pub(crate) async fn run(reads: usize, moves: usize) -> Result<Figures, Error> {
-    let dir = tempfile::tempdir()?;
+pub(crate) async fn run(programs: &Programs, reads: usize, moves: usize) -> Result<Figures, Error> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
     let launch = format!("{}\n[channel_access]\nport = {port}\n", include_str!("../../../launch/sim-axis.toml"));
-    let file = dir.path().join("axis.toml");
-    std::fs::write(&file, launch)?;
-    let (_node, endpoint) = NodeProcess::launch(&file, dir.path())?;
-    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    let (_node, endpoint) = programs.launch("channel-access", &launch)?;
+    let client = client_when_ready(&endpoint).await?;
+    let session = client.session().clone();
     let mut ca = CaClient::connect(port).await?;
     let rbv = ca.channel("m1.RBV", 1).await?;
     let val = ca.channel("m1", 2).await?;
@@ -140,11 +146,45 @@ pub(crate) async fn run(reads: usize, moves: usize) -> Result<Figures, Error> {
         replies.recv_async().await?.result().map_err(|e| format!("VAL {next}: {:?}", e.payload()))?;
         zenoh_move.push(start.elapsed());
     }
+    let pyepics = stock_client(programs, port, reads, moves).await;
     session.close().await?;
     Ok(Figures {
+        pyepics,
         ca_read: Percentiles::of(ca_read),
         zenoh_read: Percentiles::of(zenoh_read),
         ca_move: Percentiles::of(ca_move),
         zenoh_move: Percentiles::of(zenoh_move),
     })
+}
+
+/// The Python that has the stock clients: `ZMOTOR_PYTHON`, or the one the test suite's setup
+/// installs beside the build (`target/test-env`).
+fn python(programs: &Programs) -> Option<std::path::PathBuf> {
+    if let Some(python) = std::env::var_os("ZMOTOR_PYTHON") {
+        return Some(python.into());
+    }
+    let target = programs.bench.parent()?.parent()?;
+    let python = target.join("test-env/python/bin/python3");
+    python.exists().then_some(python)
+}
+
+/// pyepics against the gateway on `port` (its script is `python/ca_timing.py`).
+async fn stock_client(programs: &Programs, port: u16, reads: usize, moves: usize) -> Result<StockClient, String> {
+    let Some(python) = python(programs) else {
+        return Err("no Python with pyepics: tests/run installs one in target/test-env, or set ZMOTOR_PYTHON".into());
+    };
+    let script = programs.dir.join("ca_timing.py");
+    std::fs::write(&script, include_str!("../python/ca_timing.py")).map_err(|e| e.to_string())?;
+    let mut command = std::process::Command::new(&python);
+    command.arg(&script).args([port.to_string(), reads.to_string(), moves.to_string()]);
+    let output = tokio::task::spawn_blocking(move || command.output())
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| format!("{}: {e}", python.display()))?;
+    if !output.status.success() {
+        return Err(String::from_utf8_lossy(&output.stderr).trim().to_string());
+    }
+    let figures: serde_json::Value = serde_json::from_slice(&output.stdout).map_err(|e| e.to_string())?;
+    let three = |what: &str| ["p50", "p90", "p99"].map(|p| figures[what][p].as_f64().unwrap_or(f64::NAN));
+    Ok(StockClient { read: three("read"), move_: three("move") })
 }

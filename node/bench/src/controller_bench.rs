@@ -1,23 +1,24 @@
 //! The controllers' figures of `zmotor bench`, per protocol against its emulator (played here,
-//! as the hardware would be, by `sim_controller::Emulated`): request/reply round trips per
+//! as the hardware would be, by `zmotor_sim_controller::Emulated`): request/reply round trips per
 //! second over one TCP connection, the time of a full poll of 1 and 8 axes (as many as the
 //! controller has, if fewer), and the delay from the emulated stage's end of motion to DMOV 1
 //! at a client, beside the moving-poll period. That last one runs the vendor's ready launch
 //! file in a node process of its own, reaching the emulator over the launch file's transport
 //! (a pseudo-terminal for the serial SMC100), with the client in this process.
 
-use crate::bench::{client_when_ready, Percentiles};
-use crate::sim_controller::{pseudo_terminal, Emulated};
+use crate::process::{client_when_ready, Programs};
+use crate::stats::Percentiles;
 use crate::Error;
-use std::process::{Child, Command, Stdio};
+use std::future::Future;
+use std::pin::Pin;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
 use zmotor_controllers::emulator::Faults;
-use zmotor_controllers::{Event, Frame, Request};
-use zmotor_controllers::{ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{Frame, Protocol, ProtocolKind, ProtocolOptions, ReplyEvent, Request, WithProtocol};
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::Value;
+use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 
 /// How a ready launch file reaches its controller.
 enum Reach {
@@ -81,40 +82,66 @@ const READY: [Ready; 5] = [
 
 /// What one protocol measured.
 pub(crate) struct ProtocolFigures {
-    pub name: &'static str,
-    pub round_trips_per_s: f64,
-    pub poll_one: Duration,
-    pub poll_many: (usize, Duration),
+    pub(crate) name: &'static str,
+    pub(crate) round_trips_per_s: f64,
+    pub(crate) poll_one: Duration,
+    pub(crate) poll_many: (usize, Duration),
     /// End of motion → DMOV 1 at the client, µs.
-    pub end_to_done: Percentiles,
-    pub moving_poll: Duration,
+    pub(crate) end_to_done: Percentiles,
+    pub(crate) moving_poll: Duration,
 }
 
 /// Every protocol's figures: `window` seconds of round trips, `moves` moves for the delay.
-pub(crate) async fn run(window: f64, moves: usize) -> Result<Vec<ProtocolFigures>, Error> {
+pub(crate) async fn run(programs: &Programs, window: f64, moves: usize) -> Result<Vec<ProtocolFigures>, Error> {
     let mut figures = Vec::new();
     for ready in &READY {
-        figures.push(measure(ready, window, moves).await.map_err(|e| format!("{}: {e}", ready.kind.name()))?);
+        let measured = measure(programs, ready, window, moves).await;
+        figures.push(measured.map_err(|e| format!("{}: {e}", ready.kind.name()))?);
     }
     Ok(figures)
 }
 
-async fn measure(ready: &Ready, window: f64, moves: usize) -> Result<ProtocolFigures, Error> {
+/// Round trips and poll times of one protocol, over a connection to `address`.
+struct Exchanges {
+    address: String,
+    channels: Vec<usize>,
+    window: Duration,
+}
+
+/// Round trips in `window` (with the time they took), and the median poll of one and of all
+/// the channels.
+type ExchangeFigures = (usize, Duration, Duration, Duration);
+
+impl WithProtocol for Exchanges {
+    type Output = Pin<Box<dyn Future<Output = Result<ExchangeFigures, Error>> + Send>>;
+
+    fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output {
+        Box::pin(async move {
+            let Exchanges { address, channels, window } = self;
+            let mut exchange = Exchange::open(protocol, &address).await?;
+            exchange.init(&channels).await?;
+            let (round_trips, elapsed) = exchange.poll_for(&channels[..1], window).await?;
+            let poll_one = exchange.poll_time(&channels[..1]).await?;
+            let poll_many = exchange.poll_time(&channels).await?;
+            Ok((round_trips, elapsed, poll_one, poll_many))
+        })
+    }
+}
+
+async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) -> Result<ProtocolFigures, Error> {
     let kind = ready.kind;
     let many = up_to_eight_channels(kind);
     let emulated = Emulated::new(kind, many.iter().max().map_or(1, |c| c + 1), Faults::default());
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let address = listener.local_addr()?;
+    let address = listener.local_addr()?.to_string();
     let serving = emulated.clone();
     let server = tokio::spawn(async move { serving.serve_tcp(listener).await });
-    let mut exchange = Exchange::open(kind, &address.to_string()).await?;
-    exchange.init(&many).await?;
-    let (round_trips, elapsed) = exchange.poll_for(&many[..1], Duration::from_secs_f64(window)).await?;
-    let poll_one = exchange.poll_time(&many[..1]).await?;
-    let poll_many = (many.len(), exchange.poll_time(&many).await?);
-    drop(exchange);
+    let exchanges = Exchanges { address, channels: many.clone(), window: Duration::from_secs_f64(window) };
+    let (round_trips, elapsed, poll_one, poll_many) =
+        kind.with_protocol(&ProtocolOptions::default(), exchanges).await?;
+    let poll_many = (many.len(), poll_many);
     server.abort();
-    let (end_to_done, moving_poll) = end_of_motion_to_done(ready, moves).await?;
+    let (end_to_done, moving_poll) = end_of_motion_to_done(programs, ready, moves).await?;
     Ok(ProtocolFigures {
         name: kind.name(),
         round_trips_per_s: round_trips as f64 / elapsed.as_secs_f64(),
@@ -133,17 +160,17 @@ fn up_to_eight_channels(kind: ProtocolKind) -> Vec<usize> {
 
 /// A protocol driven by hand over one connection: each request sent once its predecessor is
 /// answered, replies parsed, follow-ups sent as the controller layer sends them.
-struct Exchange {
-    protocol: Box<dyn zmotor_controllers::Protocol>,
+struct Exchange<P> {
+    protocol: P,
     stream: tokio::net::TcpStream,
     received: Vec<u8>,
 }
 
-impl Exchange {
-    async fn open(kind: ProtocolKind, address: &str) -> Result<Self, Error> {
+impl<P: Protocol> Exchange<P> {
+    async fn open(protocol: P, address: &str) -> Result<Self, Error> {
         let stream = tokio::net::TcpStream::connect(address).await?;
         stream.set_nodelay(true)?;
-        Ok(Self { protocol: kind.protocol(&ProtocolOptions::default()), stream, received: Vec::new() })
+        Ok(Self { protocol, stream, received: Vec::new() })
     }
 
     async fn init(&mut self, channels: &[usize]) -> Result<usize, Error> {
@@ -177,8 +204,8 @@ impl Exchange {
 
     /// Send `requests` one after the other, each answered one waiting for its reply; the number
     /// of exchanges (follow-ups included).
-    async fn carry_out(&mut self, requests: Vec<Request>) -> Result<usize, Error> {
-        let mut queue: std::collections::VecDeque<Request> = requests.into();
+    async fn carry_out(&mut self, requests: Vec<Request<P::Step>>) -> Result<usize, Error> {
+        let mut queue: std::collections::VecDeque<Request<P::Step>> = requests.into();
         let mut exchanges = 0;
         while let Some(request) = queue.pop_front() {
             self.stream.write_all(&request.bytes).await?;
@@ -189,7 +216,7 @@ impl Exchange {
             let frame = self.next_frame().await?;
             let events = self.protocol.reply(&request, &frame)?;
             for event in events {
-                if let Event::FollowUp(more) = event {
+                if let ReplyEvent::FollowUp(more) = event {
                     for follow in more.into_iter().rev() {
                         queue.push_front(follow);
                     }
@@ -219,35 +246,14 @@ impl Exchange {
     }
 }
 
-/// A `zmotor launch` child process; killed when dropped.
-pub(crate) struct NodeProcess(Child);
-
-impl NodeProcess {
-    /// `zmotor launch FILE` in a process of its own, listening on a free local endpoint (which
-    /// it returns), its state in `state_dir`.
-    pub(crate) fn launch(file: &std::path::Path, state_dir: &std::path::Path) -> Result<(Self, String), Error> {
-        let endpoint = zmotor_zenoh::free_local_endpoint()?;
-        let node = Command::new(std::env::current_exe()?)
-            .args(["launch", &file.to_string_lossy(), "--listen", &endpoint])
-            .env("ZMOTOR_STATE_DIR", state_dir)
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .spawn()?;
-        Ok((Self(node), endpoint))
-    }
-}
-
-impl Drop for NodeProcess {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 /// Run the ready launch file in a node process against the emulator; move its axis `moves`
 /// times and time, at this client, DMOV 1 after the emulated stage's end of motion.
-async fn end_of_motion_to_done(ready: &Ready, moves: usize) -> Result<(Percentiles, Duration), Error> {
-    let dir = tempfile::tempdir()?;
+async fn end_of_motion_to_done(
+    programs: &Programs,
+    ready: &Ready,
+    moves: usize,
+) -> Result<(Percentiles, Duration), Error> {
+    let dir = tempfile::tempdir_in(&programs.dir)?;
     let emulated = Emulated::new(ready.kind, ready.kind.emulated_size(), Faults::default());
     let serving = emulated.clone();
     let (named, here, server) = match ready.reach {
@@ -262,18 +268,18 @@ async fn end_of_motion_to_done(ready: &Ready, moves: usize) -> Result<(Percentil
             let here = path.to_string_lossy().into_owned();
             let server = tokio::spawn(async move {
                 let _slave = slave;
-                let mut connection: Option<Box<dyn crate::sim_controller::Io>> = Some(Box::new(master));
-                Err(serving.serve(&mut connection).await.into())
+                let mut connection: Option<Box<dyn Io>> = Some(Box::new(master));
+                Err(std::io::Error::other(serving.serve(&mut connection).await))
             });
             (device, here, server)
         }
     };
     let file = dir.path().join("launch.toml");
     std::fs::write(&file, ready.launch.replace(named, &here))?;
-    let launch = zmotor_launch::Launch::load(&file)?;
+    let launch = zmotor_deploy::Launch::load(&file)?;
     let moving_poll = launch.deployment(None)?.contents.controllers[0].config.moving_poll;
-    let (_node, endpoint) = NodeProcess::launch(&file, dir.path())?;
-    let session = client_when_ready(&endpoint, Instant::now()).await?;
+    let (_node, endpoint) = programs.launch_file(&file)?;
+    let session = client_when_ready(&endpoint).await?.session().clone();
     let result = time_moves(&session, ready, &emulated, moves).await;
     server.abort();
     session.close().await?;

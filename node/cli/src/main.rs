@@ -49,7 +49,7 @@ impl ClientArgs {
     /// How this client joins the network.
     fn zenoh(&self) -> Result<ZenohConfig, Error> {
         let path = |p: &PathBuf| p.display().to_string();
-        let mut section = ZenohConfig::client(&self.connect);
+        let mut section = ZenohConfig { prefix: self.prefix.clone(), ..ZenohConfig::client(&self.connect) };
         section.tls = self.ca.as_ref().map(|ca| TlsConfig {
             ca: path(ca),
             certificate: self.cert.as_ref().map(path),
@@ -291,7 +291,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
                 login: security.login,
                 access: security.access,
             };
-            let session = zmotor_client::open(&section).await?;
+            let session = zmotor_client::open_waiting(&section).await?;
             tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
             interrupted().await?;
             session.close().await?;
@@ -320,7 +320,8 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Ca { pv_prefix, address, port, client } => {
             let zmotor = connect(&client).await?;
-            let served = zmotor_ca::ChannelAccess::start(zmotor.clone(), &CaConfig { pv_prefix, address, port }).await?;
+            let served =
+                zmotor_ca::ChannelAccess::start(zmotor.clone(), &CaConfig { pv_prefix, address, port }).await?;
             interrupted().await?;
             drop(served);
             zmotor.session().close().await?;
@@ -420,7 +421,7 @@ async fn launch(
     if !deployment.zenoh.connect.is_empty() {
         tracing::info!(connect = ?deployment.zenoh.connect, "connecting");
     }
-    let session = zmotor_client::open(&deployment.zenoh).await?;
+    let session = zmotor_client::open_waiting(&deployment.zenoh).await?;
     let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;

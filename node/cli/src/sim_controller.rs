@@ -45,7 +45,12 @@ impl FaultArgs {
 }
 
 /// Serve the emulated controller until SIGINT or SIGTERM.
-pub(crate) async fn run(protocol: &str, endpoint: Endpoint, channels: Option<usize>, faults: &FaultArgs) -> Result<(), Error> {
+pub(crate) async fn run(
+    protocol: &str,
+    endpoint: Endpoint,
+    channels: Option<usize>,
+    faults: &FaultArgs,
+) -> Result<(), Error> {
     let kind = ProtocolKind::from_name(protocol)
         .ok_or_else(|| format!("'{protocol}' is not a known protocol (known: {})", ProtocolKind::known()))?;
     let emulated = Emulated::new(kind, channels.unwrap_or(kind.emulated_size()), faults.faults());
@@ -74,4 +79,3 @@ pub(crate) async fn run(protocol: &str, endpoint: Endpoint, channels: Option<usi
         }
     }
 }
-

@@ -53,6 +53,21 @@ pub async fn open(section: &ZenohConfig) -> Result<zenoh::Session, SessionError>
     })
 }
 
+/// A session joined as `section` says, that keeps trying to connect: a node or a router may
+/// start before the routers or peers it connects to, and serves from the first connection (a
+/// client's session gives up at once).
+pub async fn open_waiting(section: &ZenohConfig) -> Result<zenoh::Session, SessionError> {
+    let mut config = zenoh_config(section)?;
+    config
+        .insert_json5("connect/timeout_ms", "-1")
+        .map_err(|e| ConfigError { key: "connect/timeout_ms", message: e.to_string() })?;
+    zenoh::open(config).await.map_err(|source| SessionError::Unreachable {
+        endpoints: section.connect.join(", "),
+        tls: section.tls.is_some(),
+        source,
+    })
+}
+
 /// A TCP endpoint on 127.0.0.1 with a port that is free now, for tests and benchmarks.
 pub fn free_local_endpoint() -> std::io::Result<String> {
     let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();

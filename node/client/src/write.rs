@@ -144,7 +144,11 @@ impl SentWrite {
         }
         // The query ended unanswered: was the node there, and did it go?
         while let Ok(Some(sample)) = self.token.try_recv() {
-            served |= sample.kind() == SampleKind::Put;
+            match sample.kind() {
+                SampleKind::Put => served = true,
+                SampleKind::Delete if self.wait => return WriteOutcome::Vanished,
+                SampleKind::Delete => {}
+            }
         }
         if !served {
             return WriteOutcome::NoAnswer(NoAnswer::NotServed);

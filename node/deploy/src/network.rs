@@ -211,11 +211,7 @@ impl ZenohConfig {
             // monitors and links resume soon after it is back.
             ("connect/retry", r#"{ period_max_ms: 1000 }"#.to_string()),
         ];
-        if self.mode != Mode::Client {
-            // A node or router may start before the routers or peers it connects to: it keeps
-            // trying and serves from the first connection. A client gives up at once.
-            entries.push(("connect/timeout_ms", "-1".to_string()));
-        }
+
         if let Some(tls) = &self.tls {
             entries.push(("transport/link/tls", json(tls.zenoh())));
         }

@@ -135,7 +135,9 @@ impl Node {
                 }
                 None => (None, None),
             };
-            let service = AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status));
+            let jog_hold = plan.jog_hold;
+            let service =
+                AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status)).with_jog_hold(jog_hold);
             let core = AxisCore::new(service, side.clone(), controller, follows, holds);
             let (rearm, unsaved, tick_pending) = (core.rearm.clone(), core.unsaved.clone(), core.tick_pending.clone());
             let axis = Arc::new(Inbox::new(core));

@@ -1,0 +1,143 @@
+//! The floor beside every figure: Zenoh alone, in processes of this program with no zmotor
+//! code on the measured path. `zmotor-bench floor echo` answers pings as Zenoh's z_pong does
+//! (from the subscriber's callback, through a declared publisher) and gets of one value;
+//! `floor publish` publishes what as many moving axes publish, at the same rate; `floor get`
+//! is a one-shot client, as a stock tool's `get` is.
+
+use crate::Error;
+use std::time::Duration;
+use zenoh::bytes::Encoding;
+use zenoh::qos::CongestionControl;
+use zenoh::{Session, Wait};
+use zmotor_core::{AxisEvent, AxisPlan, DriverPlan, Instant, JogHold, PollRates, SimConfig};
+use zmotor_deploy::ZenohConfig;
+use zmotor_msgs::{encode_cbor, Field, Fields, KeyLayout, StateMarker, Value};
+
+/// The echo's keys.
+pub(crate) const PING: &str = "bench/ping";
+pub(crate) const PONG: &str = "bench/pong";
+/// The key `floor echo` answers gets of.
+pub(crate) const VALUE: &str = "bench/value";
+
+/// What a floor process does.
+#[derive(clap::Subcommand, Clone, Debug)]
+pub(crate) enum Floor {
+    /// Answer pings and gets, listening on ENDPOINT.
+    Echo {
+        #[arg(long)]
+        listen: String,
+    },
+    /// Publish what AXES moving axes publish, RATE polls a second, listening on ENDPOINT.
+    Publish {
+        #[arg(long)]
+        listen: String,
+        #[arg(long)]
+        axes: usize,
+        #[arg(long)]
+        rate: f64,
+    },
+    /// One get of `bench/value` from ENDPOINT, then exit (a stock client's one-shot get).
+    Get {
+        #[arg(long)]
+        connect: String,
+    },
+}
+
+/// Run a floor process until it is killed (or, for `get`, until it has its answer).
+pub(crate) async fn run(floor: Floor) -> Result<(), Error> {
+    match floor {
+        Floor::Echo { listen } => {
+            let session = listening(&listen).await?;
+            let pong = session.declare_publisher(PONG).congestion_control(CongestionControl::Block).await?;
+            let _echo = session
+                .declare_subscriber(PING)
+                .callback(move |sample| {
+                    let _ = pong.put(sample.payload().clone()).wait();
+                })
+                .await?;
+            let _value = session
+                .declare_queryable(VALUE)
+                .callback(|query| {
+                    let reply = query.reply(VALUE, encode_cbor(&Value::Float(1.0)));
+                    let _ = reply.encoding(Encoding::APPLICATION_CBOR).wait();
+                })
+                .await?;
+            std::future::pending::<()>().await;
+            Ok(())
+        }
+        Floor::Publish { listen, axes, rate } => {
+            let session = listening(&listen).await?;
+            publish_like_moving_axes(&session, axes, rate).await
+        }
+        Floor::Get { connect } => {
+            let session = zmotor_client::open(&ZenohConfig::client(&connect)).await?;
+            let replies = session.get(VALUE).timeout(Duration::from_secs(5)).await?;
+            replies.recv_async().await?.result().map_err(|_| "the floor's value was not answered")?;
+            session.close().await?;
+            Ok(())
+        }
+    }
+}
+
+async fn listening(endpoint: &str) -> Result<Session, Error> {
+    let config = ZenohConfig { listen: vec![endpoint.to_string()], ..ZenohConfig::default() };
+    Ok(zmotor_client::open(&config).await?)
+}
+
+/// The fields a moving axis posts at one readback poll (RBV, DRBV, RRBV, RMP, DIFF, RDIF), as
+/// the engine says: a bench axis half a second into a long move, at its next poll.
+pub(crate) fn fields_posted_per_poll() -> Vec<Field> {
+    let start = Instant::ZERO;
+    let plan = AxisPlan {
+        name: "b0".into(),
+        fields: Fields { mres: 0.001, velo: 10.0, accl: 0.1, ..Fields::default() },
+        driver: DriverPlan::Sim(SimConfig::default()),
+        rates: PollRates { moving: Duration::from_millis(10), idle: Duration::from_secs(1) },
+        jog_hold: JogHold::Optional,
+    };
+    let mut axis = plan.build(start, None);
+    axis.write(start, Field::VAL, &Value::Float(1000.0)).expect("a bench move is accepted");
+    while axis.now() < start + Duration::from_millis(500) {
+        axis.drain_events().count();
+        let t = axis.poll_timeout().expect("a simulated axis is polled");
+        axis.handle_timeout(t);
+    }
+    axis.drain_events().filter_map(|e| if let AxisEvent::Post(field, _) = e { Some(field) } else { None }).collect()
+}
+
+/// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second from one task:
+/// each field of `fields_posted_per_poll` through a declared publisher, a CBOR number with a state
+/// marker, as the node sends it.
+async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
+    let fields = fields_posted_per_poll();
+    let layout = KeyLayout::default();
+    let mut publishers = Vec::with_capacity(n * fields.len());
+    for i in 0..n {
+        for &field in &fields {
+            let key = layout.field(&crate::bench::bench_axis(i), field);
+            publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
+        }
+    }
+    let mut polls = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
+    let mut seq = 0;
+    loop {
+        polls.tick().await;
+        for publisher in &publishers {
+            seq += 1;
+            let value = Value::Float(seq as f64 * 1e-3);
+            publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_moving_axis_posts_its_six_readback_fields_per_poll() {
+        let mut fields = fields_posted_per_poll();
+        fields.sort_by_key(|f| f.name());
+        assert_eq!(fields, [Field::DIFF, Field::DRBV, Field::RBV, Field::RDIF, Field::RMP, Field::RRBV]);
+    }
+}
