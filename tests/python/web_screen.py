@@ -17,6 +17,8 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support.ui import WebDriverWait
 
+import os
+
 url, axis, screenshot = sys.argv[1:4]
 mode = (sys.argv[4:] or ["screen"])[0]
 
@@ -25,11 +27,16 @@ def ok(check):
     print("ok", check, flush=True)
 
 
+def d_text(driver, element):
+    return driver.find_element(By.ID, element).text
+
+
 options = Options()
-options.binary_location = "/usr/bin/chromium"
+options.binary_location = os.environ.get("ZMOTOR_CHROMIUM", "/usr/bin/chromium")
 for argument in ["--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage", "--window-size=1400,1300"]:
     options.add_argument(argument)
-driver = webdriver.Chrome(service=Service("/usr/bin/chromedriver"), options=options)
+service = Service(os.environ.get("ZMOTOR_CHROMEDRIVER", "/usr/bin/chromedriver"))
+driver = webdriver.Chrome(service=service, options=options)
 try:
     wait = WebDriverWait(driver, 20)
     if mode in ("jog", "hold"):
@@ -94,5 +101,13 @@ try:
     ok("a target beyond the soft limit is refused with the node's words, and nothing moves")
     driver.save_screenshot(screenshot)
     ok("screenshot")
+
+    # The screen of an axis nobody serves says so, and leads back to the index.
+    driver.get(url + "axis/nosuch")
+    wait.until(lambda d: d.find_element(By.ID, "unserved").is_displayed())
+    assert d_text(driver, "live") == "not served", d_text(driver, "live")
+    driver.find_element(By.CSS_SELECTOR, "#unserved a").click()
+    wait.until(lambda d: d.find_elements(By.LINK_TEXT, axis))
+    ok("an axis nobody serves is said to be not served, with a link to the index")
 finally:
     driver.quit()

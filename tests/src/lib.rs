@@ -1,8 +1,12 @@
 //! Helpers for end-to-end tests: a node on a free 127.0.0.1 port with multicast scouting off,
-//! client sessions connected to it, and a recorder of published fields.
+//! client sessions connected to it, and a recorder of published fields; and what the tests
+//! need beyond Rust (`environment`).
+
+pub mod environment;
 
 use std::time::Duration;
 use zenoh::bytes::Encoding;
+use zenoh::sample::Locality;
 use zenoh::Session;
 use zmotor_client::free_local_endpoint;
 use zmotor_core::SimConfig;
@@ -82,6 +86,21 @@ impl TestNode {
         zmotor_client::open(&ZenohConfig::client(&self.endpoint)).await.unwrap()
     }
 
+    /// Wait until a subscriber of another session covers `key_expr`, as this node sees it: the
+    /// condition under which its publications reach that subscriber.
+    pub async fn until_subscribed(&self, key_expr: &str) {
+        let probe = self.session.declare_publisher(key_expr.to_string()).allowed_destination(Locality::Remote);
+        let probe = probe.await.unwrap();
+        let deadline = tokio::time::Instant::now() + PATIENCE;
+        while !probe.matching_status().await.unwrap().matching() {
+            assert!(
+                tokio::time::Instant::now() < deadline,
+                "no subscriber of {key_expr} reached the node in {PATIENCE:?}"
+            );
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+    }
+
     /// The key of one field of an axis of this node.
     pub fn key(&self, axis: &str, field: Field) -> String {
         self.layout.field(axis, field)
@@ -143,11 +162,11 @@ pub struct Recorder {
 }
 
 impl Recorder {
-    /// Subscribe to `key_expr` and give the subscription time to reach the node.
-    pub async fn new(session: &Session, key_expr: &str) -> Self {
+    /// Subscribe `session` to `key_expr`, and return once `node` sees the subscription (a
+    /// publisher of its own on `key_expr` matches it), so nothing it publishes is missed.
+    pub async fn new(node: &TestNode, session: &Session, key_expr: &str) -> Self {
         let subscriber = session.declare_subscriber(key_expr.to_string()).await.unwrap();
-        // Let the subscription reach the node before anything is written.
-        tokio::time::sleep(Duration::from_millis(200)).await;
+        node.until_subscribed(key_expr).await;
         Self { subscriber, seen: Vec::new(), unmarked: 0 }
     }
 

@@ -13,7 +13,7 @@ async fn a_dol_written_at_run_time_drives_the_axis_in_closed_loop() {
     let client = node.client().await;
     confirmed_write(&client, &node.key("m1", Field::DOL), "lab/setpoint", PATIENCE).await.unwrap();
     confirmed_write(&client, &node.key("m1", Field::OMSL), "closed_loop", PATIENCE).await.unwrap();
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     // Twelve defined positions put on the linked key, each reached before the next.
     for (i, position) in [1.0, 2.5, -3.0, 10.0, 0.5, 7.25, -1.0, 4.0, 4.5, -8.0, 6.0, 2.0].into_iter().enumerate() {
         put_text(&client, "lab/setpoint", &position.to_string()).await;
@@ -37,10 +37,12 @@ async fn rdbl_switched_at_run_time_changes_where_the_readback_comes_from() {
     confirmed_write(&client, &node.key("m1", Field::RDBL), "lab/encoder2", PATIENCE).await.unwrap();
     put_text(&client, "lab/encoder2", "0.5").await;
     wait_until(&client, &rbv, 0.5).await;
-    // The old key is no longer followed.
+    // The old key is no longer followed: its value, written before the new key's, never shows.
+    let mut readbacks = Recorder::new(&node, &client, &rbv).await;
     put_text(&client, "lab/encoder1", "0.9").await;
-    tokio::time::sleep(Duration::from_millis(1500)).await;
-    assert_eq!(get_f64(&client, &rbv).await, 0.5);
+    put_text(&client, "lab/encoder2", "0.6").await;
+    readbacks.wait_for("RBV", |v| *v == Value::Float(0.6)).await;
+    assert!(!readbacks.values("RBV").contains(&Value::Float(0.9)), "{:?}", readbacks.values("RBV"));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -64,7 +66,7 @@ async fn a_link_change_that_cannot_be_wired_is_refused_and_changes_nothing() {
     assert_eq!(get_value(&client, &dol).await, Value::Text("lab/setpoint".into()));
     // Still following the link it had.
     confirmed_write(&client, &node.key("m1", Field::OMSL), "closed_loop", PATIENCE).await.unwrap();
-    let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;
     put_text(&client, "lab/setpoint", "3").await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
     wait_until(&client, &node.key("m1", Field::RBV), 3.0).await;

@@ -14,7 +14,7 @@ fn near(v: &Value, target: f64) -> bool {
 async fn a_move_pulses_dmov_and_publishes_the_readback() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     put_text(&client, &node.key("m1", Field::VAL), "5").await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
     assert_eq!(rec.values("DMOV"), vec![int(0), int(1)]);
@@ -33,7 +33,7 @@ async fn a_move_pulses_dmov_and_publishes_the_readback() {
 async fn a_move_to_the_current_position_still_pulses_dmov() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     put_text(&client, &node.key("m1", Field::VAL), "0").await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
     assert_eq!(rec.values("DMOV"), vec![int(0), int(1)]);
@@ -43,7 +43,7 @@ async fn a_move_to_the_current_position_still_pulses_dmov() {
 async fn a_read_only_write_is_refused_with_an_error_reply() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/ERR").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/ERR").await;
     let err = confirmed_write(&client, &node.key("m1", Field::RBV), "3", PATIENCE).await.unwrap_err();
     assert_eq!(err, "RBV is read-only");
     assert_eq!(rec.wait_for("ERR", |_| true).await, Value::Text("RBV is read-only".into()));
@@ -57,7 +57,7 @@ async fn garbage_is_refused_and_the_node_keeps_working() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
     let key = node.key("m1", Field::VAL);
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     client.put(&key, vec![0xff_u8, 0x13, 0x00]).encoding(Encoding::APPLICATION_CBOR).await.unwrap();
     let err = rec.wait_for("ERR", |_| true).await;
     assert!(matches!(&err, Value::Text(t) if t.starts_with("VAL: malformed CBOR payload")), "{err:?}");
@@ -81,7 +81,7 @@ async fn stop_mid_move_leaves_val_at_the_readback() {
     plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     put_text(&client, &node.key("m1", Field::VAL), "50").await;
     rec.wait_for("RBV", |v| v.as_f64().unwrap() > 2.0).await;
     put_text(&client, &node.key("m1", Field::STOP), "1").await;
@@ -99,7 +99,7 @@ async fn pause_holds_the_motion_and_go_resumes_it() {
     plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     put_text(&client, &node.key("m1", Field::VAL), "10").await;
     rec.wait_for("RBV", |v| v.as_f64().unwrap() > 2.0).await;
     put_text(&client, &node.key("m1", Field::SPMG), "Pause").await;
@@ -117,7 +117,7 @@ async fn pause_holds_the_motion_and_go_resumes_it() {
 async fn a_limit_violation_moves_nothing_and_says_why() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     let err = confirmed_write(&client, &node.key("m1", Field::VAL), "150", PATIENCE).await.unwrap_err();
     assert!(err.starts_with("VAL: limit violation"), "{err}");
     assert_eq!(get_value(&client, &node.key("m1", Field::LVIO)).await, int(1));
@@ -133,7 +133,7 @@ async fn put_with_wait_replies_only_when_motion_has_ended() {
     plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;
     let started = Instant::now();
     // 10 mm at 20 mm/s with 50 ms ramps: about 0.55 s.
     let reply = confirmed_write(&client, "motor/m1/VAL?wait", "10", PATIENCE).await.unwrap();
@@ -154,7 +154,7 @@ async fn put_with_wait_replies_only_when_motion_has_ended() {
 async fn two_axes_in_one_process_have_no_cross_talk_and_no_echo() {
     let node = TestNode::start(vec![fast_axis("m1"), fast_axis("m10")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/**").await;
+    let mut rec = Recorder::new(&node, &client, "motor/**").await;
     put_text(&client, &node.key("m1", Field::VAL), "3").await;
     rec.wait_for("m1/DMOV", |v| *v == int(1)).await;
     // Long enough for any echo of the node's own publications to show up as new motion.
@@ -184,7 +184,7 @@ async fn driver_commands_are_traced_in_raw_units() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
     let trace = client.declare_subscriber("motor/m1/@driver/cmd").await.unwrap();
-    tokio::time::sleep(Duration::from_millis(200)).await;
+    node.until_subscribed("motor/m1/@driver/cmd").await;
     put_text(&client, &node.key("m1", Field::VAL), "2").await;
     let sample = tokio::time::timeout(PATIENCE, trace.recv_async()).await.unwrap().unwrap();
     let cmd: serde_json::Value = ciborium::from_reader(&sample.payload().to_bytes()[..]).unwrap();
@@ -199,7 +199,7 @@ async fn driver_commands_are_traced_in_raw_units() {
 async fn simulator_faults_are_reachable_under_sim_keys() {
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     put_text(&client, "sim/m1/problem", "1").await;
     rec.wait_for("SEVR", |v| *v == int(2)).await;
     assert_eq!(get_value(&client, &node.key("m1", Field::STAT)).await, int(7));
@@ -222,7 +222,7 @@ async fn device_directives_become_zenoh_puts_around_a_move() {
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let shutter = client.declare_subscriber("lab/shutter/OPEN").await.unwrap();
-    let mut rec = Recorder::new(&client, "motor/m1/DMOV").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;
     put_text(&client, &node.key("m1", Field::VAL), "1").await;
     let mut seen = Vec::new();
     for _ in 0..2 {
@@ -270,7 +270,7 @@ async fn dmov_1_comes_at_the_end_of_the_motion_not_at_the_next_readback_poll() {
     plan.rates.moving = Duration::from_secs(2);
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/*").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
     let started = Instant::now();
     put_text(&client, &node.key("m1", Field::VAL), "0.01").await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
@@ -294,7 +294,7 @@ async fn a_subscriber_of_one_field_gets_it_from_the_first_move() {
     // Nobody subscribes to DRBV until this client does: the node must start publishing it.
     let node = TestNode::start(vec![fast_axis("m1")]).await;
     let client = node.client().await;
-    let mut rec = Recorder::new(&client, "motor/m1/DRBV").await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/DRBV").await;
     put_text(&client, &node.key("m1", Field::VAL), "3").await;
     rec.wait_for("DRBV", |v| near(v, 3.0)).await;
 }

@@ -46,8 +46,8 @@ async fn a_rotary_move_drives_the_linear_stage_and_reads_back() {
     let node = TestNode::launch(&tangent_arm("")).await;
     let client = node.client().await;
     ready(&node, &client).await;
-    let mut rotary = Recorder::new(&client, "motor/rotary/DMOV").await;
-    let mut linear = Recorder::new(&client, "motor/linear/DMOV").await;
+    let mut rotary = Recorder::new(&node, &client, "motor/rotary/DMOV").await;
+    let mut linear = Recorder::new(&node, &client, "motor/linear/DMOV").await;
     put_text(&client, &node.key("rotary", Field::VAL), "30").await;
     linear.wait_for("DMOV", |v| *v == int(1)).await;
     rotary.wait_for("DMOV", |v| *v == int(1)).await;
@@ -65,7 +65,7 @@ async fn stop_on_the_rotary_stops_the_linear_stage() {
     let node = TestNode::launch(&tangent_arm("").replace("VELO = 2500.0", "VELO = 100.0")).await;
     let client = node.client().await;
     ready(&node, &client).await;
-    let mut linear = Recorder::new(&client, "motor/linear/*").await;
+    let mut linear = Recorder::new(&node, &client, "motor/linear/*").await;
     put_text(&client, &node.key("rotary", Field::VAL), "30").await;
     linear.wait_for("RBV", |v| v.as_f64().unwrap() > 5.0).await;
     put_text(&client, &node.key("rotary", Field::STOP), "1").await;
@@ -100,7 +100,7 @@ async fn the_rotary_limits_refuse_fifty_degrees() {
     let node = TestNode::launch(&tangent_arm("")).await;
     let client = node.client().await;
     ready(&node, &client).await;
-    let mut linear = Recorder::new(&client, "motor/linear/DVAL").await;
+    let mut linear = Recorder::new(&node, &client, "motor/linear/DVAL").await;
     let err = confirmed_write(&client, &node.key("rotary", Field::VAL), "50", PATIENCE).await.unwrap_err();
     assert!(err.starts_with("VAL: limit violation"), "{err}");
     assert_eq!(get_value(&client, &node.key("rotary", Field::LVIO)).await, int(1));
@@ -121,7 +121,7 @@ async fn restarting_the_bridge_moves_nothing() {
     ready(&node, &client).await;
     let _ = confirmed_write(&client, "motor/rotary/VAL?wait", "10", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("rotary", Field::RBV), |v| near(v, 10.0, 0.002)).await;
-    let mut watch = Recorder::new(&client, "motor/*/*").await;
+    let mut watch = Recorder::new(&node, &client, "motor/*/*").await;
     drop(bridge);
     watch.drain_for(Duration::from_millis(300)).await;
     let restarted = TestNode::launch(&bridge_text(&node.endpoint)).await;

@@ -1,5 +1,6 @@
-//! What a user at the command line sees: the live axes listed, several axes read at once, and a
-//! monitor that prints as camonitor does or one JSON object a line.
+//! What a user at the command line sees: the live axes listed, several axes read at once, values
+//! shown as caget shows them, and a monitor that starts with the current values and prints as
+//! camonitor does or one JSON object a line.
 
 mod common;
 
@@ -23,6 +24,8 @@ driver = "sim"
 [axis.fields]
 DESC = "slit bottom"
 EGU = "deg"
+VELO = 10
+MRES = 0.001
 "#;
 
 fn stdout(host: &Host, args: &[&str]) -> String {
@@ -50,6 +53,15 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
         stdout(&here, &["get", "m1,m2", "DESC", "--connect", &endpoint]),
         "m1.DESC slit top\nm2.DESC slit bottom\n"
     );
+    // As caget shows them: a menu by its choice, a double at the axis's precision.
+    assert_eq!(stdout(&here, &["get", "m1", "SPMG", "--connect", &endpoint]), "Go\n");
+    here.put(&endpoint, "m1", "SPMG", "Pause", false).unwrap();
+    assert_eq!(stdout(&here, &["get", "m1", "SPMG", "--connect", &endpoint]), "Pause\n");
+    here.put(&endpoint, "m1", "SPMG", "Go", false).unwrap();
+    here.put(&endpoint, "m2", "PREC", "3", false).unwrap();
+    here.put(&endpoint, "m2", "VAL", "6.991", true).unwrap();
+    assert_eq!(stdout(&here, &["get", "m2", "RBV", "--connect", &endpoint]), "6.991\n");
+    assert_eq!(stdout(&here, &["get", "m2", "VELO", "--connect", &endpoint]), "10.000\n");
 
     // A move seen by a camonitor-style monitor and a JSON one.
     let monitor = |json: bool| {
@@ -62,7 +74,9 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
         (Running(Some(child)), lines)
     };
     let ((_plain, plain), (_json, json)) = (monitor(false), monitor(true));
-    std::thread::sleep(std::time::Duration::from_millis(500));
+    // A monitor starts with the current values, as camonitor does, once it follows the axis.
+    assert!(plain.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.DMOV", "1"))).is_some(), "current DMOV");
+    assert!(json.wait_for(PATIENCE, |l| l.contains(r#""field":"DMOV""#)).is_some(), "current DMOV, as JSON");
     let moving = stdout(&here, &["list", "--connect", &endpoint]);
     assert!(!moving.contains("moving"), "{moving}");
     here.put(&endpoint, "m1", "VAL", "0.2", false).unwrap();

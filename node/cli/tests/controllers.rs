@@ -7,6 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use zmotor_client::free_local_endpoint;
+use zmotor_tests::environment;
 
 /// A process of this test, killed when dropped.
 struct Running(Child);
@@ -33,14 +34,9 @@ fn zmotor(args: &[&str]) -> Running {
     Running(child)
 }
 
-fn python_has_zenoh() -> bool {
-    Command::new("python3").args(["-c", "import zenoh, cbor2"]).output().is_ok_and(|o| o.status.success())
-}
-
 /// One phase of tests/python/controller_client.py; panics with what it said if it failed.
 fn client(phase: &str, endpoint: &str, axis: &str) {
-    let script = repo_file("tests/python/controller_client.py");
-    let output = Command::new("python3").arg(script).args([phase, endpoint, axis]).output().expect("python3 runs");
+    let output = environment::python_script("controller_client.py").args([phase, endpoint, axis]).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains(&format!("{phase} ok")), "{said}");
 }
@@ -53,11 +49,6 @@ enum Reach {
 
 /// The launch file `launch`, whose controller is reached as `reach` says, against its emulator.
 fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, axis: &str) {
-    if !python_has_zenoh() {
-        assert!(std::env::var_os("CI").is_none(), "CI must install eclipse-zenoh and cbor2 for Python (see .ci/run)");
-        eprintln!("SKIPPED: python3 with eclipse-zenoh and cbor2 is not installed");
-        return;
-    }
     let dir = tempfile::tempdir().unwrap();
     let (named, here, flag) = match reach {
         Reach::Tcp(address) => {

@@ -8,7 +8,7 @@ mod common;
 
 use common::{repo_file, slow_stage, Host, Namespaces, Pki, Running, PATIENCE};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 use zmotor_client::free_local_endpoint;
 
@@ -110,8 +110,8 @@ fn a_node_killed_mid_move_restarts_from_its_saved_state_under_each_restore_mode(
 fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     let hosts = [("zmr", "10.77.0.1"), ("zma", "10.77.0.2"), ("zmb", "10.77.0.3"), ("zmc", "10.77.0.4")];
     let Some(net) = Namespaces::create(&hosts) else {
-        eprintln!("SKIPPED: network namespaces cannot be created here (needs root and `ip netns`)");
-        return;
+        let test = "a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm";
+        return zmotor_tests::environment::untestable(test, "network namespaces", common::NETNS_NEEDS);
     };
     let (router, host_a, host_b, mut client) = (net.host(0), net.host(1), net.host(2), net.host(3));
     let router_endpoint = "tls/10.77.0.1:7447";
@@ -137,24 +137,21 @@ fn a_deployment_split_across_hosts_moves_monitors_and_runs_the_tangent_arm() {
     client.wait_for(router_endpoint, "rotary", "DMOV", |v| v == 1.0);
 
     // Monitor from the client host while moving the hard axis.
-    let monitor = client
+    let mut monitor = client
         .zmotor(&["monitor", "linear", "DMOV", "RBV", "--connect", router_endpoint])
         .args(&client.client_args)
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .unwrap();
-    let monitor = Running(Some(monitor));
-    std::thread::sleep(Duration::from_millis(500));
+    let lines = common::Lines::of(&mut monitor);
+    let _monitor = Running(Some(monitor));
+    let dmov = |value| move |line: &str| common::monitored(line) == Some(("linear.DMOV", value));
+    assert!(lines.wait_for(PATIENCE, dmov("1")).is_some(), "the monitor starts with the current DMOV");
     let answer = client.put(router_endpoint, "linear", "VAL", "5", true).unwrap();
     assert!(answer.contains("reached=1"), "{answer}");
-    let pid = monitor.pid();
-    Command::new("kill").args(["-INT", &pid.to_string()]).status().unwrap();
-    let mut monitor = monitor;
-    let seen = monitor.0.take().unwrap().wait_with_output().unwrap();
-    let seen = String::from_utf8_lossy(&seen.stdout);
-    let saw = |value| seen.lines().any(|line| common::monitored(line) == Some(("linear.DMOV", value)));
-    assert!(saw("0") && saw("1"), "monitor saw: {seen}");
+    assert!(lines.wait_for(PATIENCE, dmov("0")).is_some(), "the monitor saw the move start");
+    assert!(lines.wait_for(PATIENCE, dmov("1")).is_some(), "the monitor saw the move end");
 
     // The composite motor across hosts: rotary (host b) drives linear (host a), commanded
     // right after the linear's own move, while the rotary may still be following it.
@@ -214,7 +211,10 @@ fn monitor_rbv(endpoint: &str) -> (Running, common::Lines) {
         .spawn()
         .unwrap();
     let lines = common::Lines::of(&mut child);
-    std::thread::sleep(Duration::from_millis(500));
+    // A monitor prints the current value first, once it follows the axis.
+    let first =
+        lines.wait_for(PATIENCE, |line| common::monitored(line).is_some_and(|(channel, _)| channel == "m1.RBV"));
+    assert!(first.is_some(), "the monitor printed m1.RBV's current value");
     (Running(Some(child)), lines)
 }
 

@@ -94,11 +94,8 @@ impl Client {
             }
         }
         read.readings.sort_by_key(|r| r.field);
-        let prec = |readings: &[Reading]| {
-            let prec = readings.iter().find(|r| r.field == Some(Field::PREC))?;
-            prec.value.as_f64().map(|p| p as i16)
-        };
-        read.prec = prec(&read.readings);
+        let prec = read.readings.iter().find(|r| r.field == Some(Field::PREC));
+        read.prec = prec.and_then(|prec| prec.value.as_f64()).map(|p| p as i16);
         if let Some(answers) = precision {
             while let Ok(reply) = answers.recv_async().await {
                 if let Ok(sample) = reply.into_result() {

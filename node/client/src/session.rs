@@ -1,7 +1,7 @@
 //! Sessions from a configuration: a launch file's `[zenoh]` section or a client's settings
 //! (`zmotor_deploy::ZenohConfig`) become a Zenoh configuration and an open session.
 
-use zmotor_deploy::ZenohConfig;
+use zmotor_deploy::{ZenohConfig, NODE_LEASE};
 
 /// A Zenoh configuration entry that Zenoh refused (an endpoint it cannot parse, ...).
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -53,14 +53,15 @@ pub async fn open(section: &ZenohConfig) -> Result<zenoh::Session, SessionError>
     })
 }
 
-/// A session joined as `section` says, that keeps trying to connect: a node or a router may
-/// start before the routers or peers it connects to, and serves from the first connection (a
-/// client's session gives up at once).
+/// A node's or router's session, joined as `section` says: it keeps trying to connect (it may
+/// start before the routers or peers it connects to, and serves from the first connection),
+/// and has a node's lease whatever its mode (a busy node must not be taken for gone).
 pub async fn open_waiting(section: &ZenohConfig) -> Result<zenoh::Session, SessionError> {
     let mut config = zenoh_config(section)?;
-    config
-        .insert_json5("connect/timeout_ms", "-1")
-        .map_err(|e| ConfigError { key: "connect/timeout_ms", message: e.to_string() })?;
+    let lease = NODE_LEASE.as_millis().to_string();
+    for (key, value) in [("connect/timeout_ms", "-1"), ("transport/link/tx/lease", lease.as_str())] {
+        config.insert_json5(key, value).map_err(|e| ConfigError { key, message: e.to_string() })?;
+    }
     zenoh::open(config).await.map_err(|source| SessionError::Unreachable {
         endpoints: section.connect.join(", "),
         tls: section.tls.is_some(),

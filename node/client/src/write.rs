@@ -128,7 +128,9 @@ impl Client {
 impl SentWrite {
     /// How the write ended.
     pub async fn outcome(self) -> WriteOutcome {
-        let mut served = false;
+        // A token that goes and comes back (its node's link to a router flapped) is no vanished
+        // node: the write's answer, if it comes, says how it ended.
+        let (mut served, mut went) = (false, false);
         loop {
             tokio::select! {
                 reply = self.replies.recv_async() => match reply {
@@ -137,8 +139,8 @@ impl SentWrite {
                 },
                 change = self.token.recv_async() => match change {
                     Ok(sample) if sample.kind() == SampleKind::Put => served = true,
-                    Ok(_) if self.wait => return WriteOutcome::Vanished,
-                    _ => {}
+                    Ok(_) => went = true,
+                    Err(_) => {}
                 },
             }
         }
@@ -146,14 +148,13 @@ impl SentWrite {
         while let Ok(Some(sample)) = self.token.try_recv() {
             match sample.kind() {
                 SampleKind::Put => served = true,
-                SampleKind::Delete if self.wait => return WriteOutcome::Vanished,
-                SampleKind::Delete => {}
+                SampleKind::Delete => went = true,
             }
         }
         if !served {
             return WriteOutcome::NoAnswer(NoAnswer::NotServed);
         }
-        if self.wait && self.vanishes().await {
+        if self.wait && (went || self.vanishes().await) {
             return WriteOutcome::Vanished;
         }
         if self.sent.elapsed() >= self.patience {
