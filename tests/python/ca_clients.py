@@ -8,6 +8,7 @@ The environment names the server (EPICS_CA_ADDR_LIST=127.0.0.1:PORT, EPICS_CA_AU
 The axis m1 is launch/sim-axis.toml's: mm, PREC 3, dial limits ±100, 10 mm/s.
 """
 import math
+import os
 import subprocess
 import sys
 import time
@@ -82,19 +83,28 @@ def refused():
     from caproto.sync.client import write
 
     before = epics.caget("m1.RBV")
+    # Beyond the soft limits: the record takes the put and does not move, as an IOC answers it
+    # (ECA_NORMAL); LVIO says why.
     reply = write("m1", 500.0, notify=True, repeater=False, timeout=10)
+    assert reply.status.name == "ECA_NORMAL", reply
+    assert epics.caget("m1.LVIO") == 1
+    # A value the record refuses (NTMF below 2: set to 2, not processed) fails the put.
+    reply = write("m1.NTMF", 1, notify=True, repeater=False, timeout=10)
     assert reply.status.name == "ECA_PUTFAIL", reply
+    assert epics.caget("m1.NTMF") == 2
     reply = write("m1.RBV", 1.0, notify=True, repeater=False, timeout=10)
     assert reply.status.name == "ECA_NOWTACCESS", reply
     time.sleep(0.3)
     assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
     assert epics.caget("m1") == before
-    ok("a refused write reports failure and moves nothing")
+    ok("refused writes answer as an IOC would (a limit violation taken, a refused value failed) and move nothing")
 
 
 def caproto_tools():
-    def run(*args):
-        out = subprocess.run(args, capture_output=True, text=True, timeout=30)
+    def run(tool, *args):
+        # caproto's tools beside this Python (a virtual environment's bin is not on PATH).
+        tool = os.path.join(os.path.dirname(sys.executable), tool)
+        out = subprocess.run([tool, *args], capture_output=True, text=True, timeout=30)
         assert out.returncode == 0, out.stderr
         return out.stdout
 

@@ -3,6 +3,7 @@
 //! as a user starts it (`zmotor launch FILE`), and every figure is printed beside its floor,
 //! measured in the same run: Zenoh alone, with no zmotor code on its path.
 
+use crate::axes::{bench_axis, bench_key};
 use crate::floor::{PING, PONG};
 use crate::process::{client_when_ready, wait_for_axes, Process, Programs};
 use crate::stats::{cpu_seconds, percent, rss_kb, Percentiles};
@@ -21,16 +22,6 @@ use zmotor_core::{Axis, Instant as Virtual};
 use zmotor_deploy::{AutosaveSection, Launch, LaunchFile};
 use zmotor_msgs::codec::decode_cbor_value;
 use zmotor_msgs::{Field, KeyLayout, Value};
-
-/// The name of bench axis `i`.
-pub(crate) fn bench_axis(i: usize) -> String {
-    format!("b{i}")
-}
-
-/// The key of `field` on bench axis `i`.
-fn bench_key(i: usize, field: Field) -> String {
-    KeyLayout::default().field(&bench_axis(i), field)
-}
 
 /// A launch file of `n` simulated axes b0, b1, … whose moves take real time (10 mm/s),
 /// read back `readback_hz` times a second while moving; no autosave.

@@ -114,7 +114,7 @@ async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Res
     let mut publishers = Vec::with_capacity(n * fields.len());
     for i in 0..n {
         for &field in &fields {
-            let key = layout.field(&crate::bench::bench_axis(i), field);
+            let key = layout.field(&crate::axes::bench_axis(i), field);
             publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
         }
     }

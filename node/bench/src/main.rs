@@ -5,6 +5,7 @@
 //! of this program (`zmotor-bench floor ...`). The engine's own cost per event is measured by
 //! criterion: `cargo bench -p zmotor-core --bench engine`.
 
+mod axes;
 mod bench;
 mod ca_bench;
 mod controller_bench;

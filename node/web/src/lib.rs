@@ -198,6 +198,11 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
         })
         .await
         .map_err(zenoh_error)?;
+    // An axis nobody serves would show "connecting" forever over empty cells: the page is told.
+    let served = session.liveliness().get(layout.axis(&axis)).timeout(ANSWER_PATIENCE).await.map_err(zenoh_error)?;
+    if served.recv_async().await.is_err() {
+        out.send(serde_json::json!({ "served": false }).to_string());
+    }
     let to_page = out.clone();
     let _token = session
         .liveliness()
@@ -208,11 +213,6 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
         })
         .await
         .map_err(zenoh_error)?;
-    // An axis nobody serves would show "connecting" forever over empty cells: the page is told.
-    let served = session.liveliness().get(layout.axis(&axis)).timeout(ANSWER_PATIENCE).await.map_err(zenoh_error)?;
-    if served.recv_async().await.is_err() {
-        out.send(serde_json::json!({ "served": false }).to_string());
-    }
     let replies = session.get(layout.axis_all(&axis)).timeout(ANSWER_PATIENCE).await.map_err(zenoh_error)?;
     let to_page = out.clone();
     tokio::spawn(async move {
