@@ -14,6 +14,7 @@ pub const INPUTS: usize = 12;
 /// Why an expression does not parse, and where.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("column {column}: {message}")]
+#[non_exhaustive]
 pub struct CalcError {
     /// 1-based column of the offending text.
     pub column: usize,

@@ -1,9 +1,9 @@
-//! zmotor-bridge: soft-channel wiring between keys, beside the engine on top of `msgs`.
-//! `calc` is the EPICS calc expression language; `link` the calcout-like links between keys.
-//! Both are sans-IO: the node's Zenoh adapter runs them.
+//! zmotor-bridge: soft-channel wiring between keys, beside the engine on top of `msgs`: the
+//! EPICS calc expression language (`Expression`) and the calcout-like links between keys
+//! (`CalcLink`). Both are sans-IO: the node runs them.
 
-pub mod calc;
-pub mod link;
+mod calc;
+mod link;
 
-pub use calc::{CalcError, Expression};
-pub use link::{CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption};
+pub use calc::{CalcError, Expression, INPUTS, MAX_LENGTH, MAX_NESTING};
+pub use link::{find_cycle, input_index, input_name, CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption};

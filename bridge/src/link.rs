@@ -52,6 +52,7 @@ pub struct CalcLinkSpec {
 
 /// Why a calc link's configuration was refused.
 #[derive(Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum LinkError {
     /// The expression does not parse.
     #[error("calc '{name}': expression '{expression}': {error}")]

@@ -41,6 +41,7 @@ impl PayloadEncoding {
 /// A payload that is not one well-formed scalar (number or text) in its encoding.
 #[derive(Clone, Debug, thiserror::Error, PartialEq)]
 #[error("malformed {} payload: {detail}", encoding.name())]
+#[non_exhaustive]
 pub struct MalformedPayload {
     /// The encoding the payload claimed.
     pub encoding: PayloadEncoding,
@@ -50,6 +51,7 @@ pub struct MalformedPayload {
 
 /// Why a write's payload was refused for its field; every message names the field.
 #[derive(Clone, Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
 pub enum CodecError {
     /// The payload does not decode in its encoding.
     #[error("{field}: malformed {encoding} payload: {detail}")]

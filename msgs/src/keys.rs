@@ -186,6 +186,7 @@ pub fn sim_axis_chunk(key: &str) -> Option<&str> {
 /// Why a link's text is not a plain key (one key, no wildcards), as every link must be.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("'{key}' is not a plain key: {reason}")]
+#[non_exhaustive]
 pub struct PlainKeyError {
     /// The text given.
     pub key: String,
@@ -217,6 +218,7 @@ pub fn validate_plain_key(key: &str) -> Result<(), PlainKeyError> {
 
 /// Why a link cannot be wired to its key.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
 pub enum LinkKeyError {
     /// The text is not one plain key.
     #[error(transparent)]
@@ -251,6 +253,7 @@ pub enum LinkKeyError {
 
 /// Why a name cannot be an axis's key chunk.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
 pub enum AxisNameError {
     /// The name is empty.
     #[error("an axis name must not be empty")]

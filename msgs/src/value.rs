@@ -39,7 +39,7 @@ impl std::fmt::Display for Value {
 
 /// A Rust storage type of a field; conversions are exact because the codec has already
 /// validated the value against the field's kind and range.
-pub trait FieldStorage: Sized {
+pub(crate) trait FieldStorage: Sized {
     /// The stored value as it travels on the wire.
     fn to_value(&self) -> Value;
     /// The storage form of a value already validated for the field.

@@ -12,7 +12,7 @@ use zmotor_client::free_local_endpoint;
 use zmotor_core::SimConfig;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
 use zmotor_deploy::{Launch, NodeContents, ZenohConfig};
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
 use zmotor_node::Node;
 

@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 use zenoh::bytes::Encoding;
-use zmotor_msgs::{codec::decode_cbor_value, Field, Value};
+use zmotor_msgs::{decode_cbor_value, Field, Value};
 use zmotor_tests::*;
 
 fn near(v: &Value, target: f64) -> bool {

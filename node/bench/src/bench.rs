@@ -20,7 +20,7 @@ use zenoh::Session;
 use zmotor_client::{free_local_endpoint, Client, WriteOptions, WriteOutcome};
 use zmotor_core::{Axis, Instant as Virtual};
 use zmotor_deploy::{AutosaveSection, Launch, LaunchFile};
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{Field, KeyLayout, Value};
 
 /// A launch file of `n` simulated axes b0, b1, … whose moves take real time (10 mm/s),

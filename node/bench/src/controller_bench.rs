@@ -16,7 +16,7 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
 use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{Frame, Protocol, ProtocolKind, ProtocolOptions, ReplyEvent, Request, WithProtocol};
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::Value;
 use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 

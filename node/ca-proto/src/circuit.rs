@@ -178,11 +178,13 @@ impl Circuit {
     }
 
     /// Bytes to send the client, if any.
+    #[must_use]
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         (!self.transmit.is_empty()).then(|| std::mem::take(&mut self.transmit))
     }
 
     /// A request to the network, if any.
+    #[must_use]
     pub fn poll_request(&mut self) -> Option<Request> {
         self.requests.pop_front()
     }

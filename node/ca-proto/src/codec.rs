@@ -72,6 +72,7 @@ impl Header {
 
 /// Bytes that cannot be a message.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
 pub enum FrameError {
     /// The payload is larger than a circuit accepts.
     #[error("a message of {0} bytes is larger than the {MAX_PAYLOAD} a circuit accepts")]

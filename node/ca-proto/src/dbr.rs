@@ -6,10 +6,10 @@
 use zmotor_msgs::{Kind, Value};
 
 /// Seconds from the POSIX epoch to the EPICS epoch (1990-01-01).
-pub const EPICS_EPOCH_OFFSET: u64 = 631_152_000;
+pub(crate) const EPICS_EPOCH_OFFSET: u64 = 631_152_000;
 
 /// Length of a DBR_STRING, its NUL included.
-pub const STRING_SIZE: usize = 40;
+pub(crate) const STRING_SIZE: usize = 40;
 
 /// The base types, by their DBR code.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -76,9 +76,9 @@ pub struct DbrType {
 }
 
 /// DBR_STSACK_STRING: alarm, acknowledgement and the value as text.
-pub const DBR_STSACK_STRING: u16 = 37;
+pub(crate) const DBR_STSACK_STRING: u16 = 37;
 /// DBR_CLASS_NAME: the record type's name.
-pub const DBR_CLASS_NAME: u16 = 38;
+pub(crate) const DBR_CLASS_NAME: u16 = 38;
 
 impl DbrType {
     /// The type of a DBR code from 0 to 34; others are served apart (or refused).
@@ -253,7 +253,7 @@ impl Writer {
 
 /// A write a client sent that cannot be read.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
-pub enum WriteError {
+pub(crate) enum WriteError {
     /// The DBR type is not one a value is written as.
     #[error("DBR type {0} is not a type a value is written as")]
     BadType(u16),
@@ -264,7 +264,7 @@ pub enum WriteError {
 
 /// The first element of a client's write, as the text a zmotor node takes (a number, a menu
 /// index or choice, a string).
-pub fn written_text(data_type: u16, payload: &[u8]) -> Result<String, WriteError> {
+pub(crate) fn written_text(data_type: u16, payload: &[u8]) -> Result<String, WriteError> {
     let dbr =
         DbrType::from_code(data_type).filter(|d| d.class == Class::Plain).ok_or(WriteError::BadType(data_type))?;
     let size = match dbr.base {

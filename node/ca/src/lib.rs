@@ -20,7 +20,7 @@ use zenoh::sample::{Sample, SampleKind};
 use zmotor_ca_proto::{answer_search, Pv, Stamp, Target, WriteAnswer, WriteEnd};
 use zmotor_client::{Client, NoAnswer, WriteOptions, WriteOutcome};
 use zmotor_deploy::CaConfig;
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::Field;
 
 /// The gateway could not start.

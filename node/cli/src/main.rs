@@ -715,12 +715,12 @@ fn monitor_line(update: &zmotor_client::Update, json: bool) -> String {
 
 fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
     std::fs::create_dir_all(dir)?;
-    for (name, schema) in zmotor_msgs::schema::message_schemas() {
+    for (name, schema) in zmotor_msgs::message_schemas() {
         std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
     }
     std::fs::write(
         dir.join("fields.json"),
-        serde_json::to_string_pretty(&zmotor_msgs::schema::catalogue_json())? + "\n",
+        serde_json::to_string_pretty(&zmotor_msgs::catalogue_json())? + "\n",
     )?;
     println!("wrote the schemas and fields.json to {}", dir.display());
     Ok(ExitCode::SUCCESS)

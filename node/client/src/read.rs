@@ -5,7 +5,7 @@ use crate::show::show;
 use crate::Client;
 use std::time::Duration;
 use zenoh::sample::Sample;
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{Field, Refusal, Value};
 
 /// How long a read waits for its answers.

@@ -5,7 +5,7 @@ use crate::Client;
 use serde::Serialize;
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{Field, Value};
 
 /// One live axis at a glance.

@@ -12,7 +12,7 @@ use zenoh::handlers::FifoChannelHandler;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Reply;
 use zenoh::sample::{Sample, SampleKind};
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{encode_cbor, Completion, Field, Hold, Refusal, Value};
 
 /// How a write is sent.

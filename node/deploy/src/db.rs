@@ -13,7 +13,7 @@ use crate::file::{
 };
 use std::collections::BTreeMap;
 use std::path::Path;
-use zmotor_msgs::toml_value::to_toml;
+use zmotor_msgs::to_toml;
 use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
@@ -35,6 +35,7 @@ impl Macros {
 /// A macro definition that is not `name=value`.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("macro definition '{0}' is not name=value")]
+#[non_exhaustive]
 pub struct MacroError(pub String);
 
 /// Import a database file; the warnings say what was simulated or ignored.
@@ -260,7 +261,7 @@ fn note_calc_write(
     written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
 ) {
     let is_calc = matches!(linker.kinds.get(record), Some(&"calcout") | Some(&"calc"));
-    if is_calc && zmotor_bridge::link::input_index(field).is_some() {
+    if is_calc && zmotor_bridge::input_index(field).is_some() {
         written_inputs.insert(
             (record.to_string(), field.to_string()),
             if process { InputLinkMode::Cp } else { InputLinkMode::Npp },
@@ -287,7 +288,7 @@ fn calc(
     for (name, text, line) in &record.fields {
         let at =
             |message: String| Failure::at(*line, format!("{} '{}': field {name}: {message}", record.kind, record.name));
-        let input = name.strip_prefix("INP").filter(|l| zmotor_bridge::link::input_index(l).is_some());
+        let input = name.strip_prefix("INP").filter(|l| zmotor_bridge::input_index(l).is_some());
         match name.as_str() {
             "CALC" => section.expression = text.clone(),
             "OUT" => match linker.link(text, *line, warnings)? {
@@ -329,7 +330,7 @@ fn calc(
                     Link::Hardware => return Err(at(format!("'{text}' is not a link to a record"))),
                 }
             }
-            _ if zmotor_bridge::link::input_index(name).is_some() => {
+            _ if zmotor_bridge::input_index(name).is_some() => {
                 let x = text.trim().parse::<f64>().map_err(|_| at(format!("'{text}' is not a number")))?;
                 section.constants.insert(name.clone(), x);
             }
@@ -586,7 +587,7 @@ fn describe(token: &Token) -> String {
 mod tests {
     use super::*;
     use crate::Launch;
-    use zmotor_bridge::link::InputMode;
+    use zmotor_bridge::InputMode;
     use zmotor_core::DriverPlan;
 
     fn macros(text: &str) -> Macros {

@@ -15,6 +15,7 @@ pub const MAX_READBACK_RATE: f64 = 1000.0;
 /// A launch file that cannot be used: where, and why.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{file}{}: {message}", line.map(|l| format!(":{l}")).unwrap_or_default())]
+#[non_exhaustive]
 pub struct LaunchError {
     /// The file at fault.
     pub file: String,
@@ -212,6 +213,7 @@ fn is_default<T: Default + PartialEq>(value: &T) -> bool {
 /// A name that is not one of a setting's choices.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("{0}")]
+#[non_exhaustive]
 pub struct UnknownChoice(String);
 
 /// Declares an enum of a launch file's named choices: serde reads and writes it by name

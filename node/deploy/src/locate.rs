@@ -5,19 +5,19 @@ use toml_edit::{ImDocument, Item, TableLike};
 
 /// One step of a path into a TOML document.
 #[derive(Clone, Debug, PartialEq)]
-pub enum Seg {
+pub(crate) enum Seg {
     Key(String),
     Index(usize),
 }
 
 /// 1-based line of a byte offset.
-pub fn line_at(text: &str, offset: usize) -> usize {
+pub(crate) fn line_at(text: &str, offset: usize) -> usize {
     text[..offset.min(text.len())].matches('\n').count() + 1
 }
 
 /// The line of the deepest part of `path` found in `text` (the key itself when it is there,
 /// else the table that should hold it).
-pub fn line_of(text: &str, path: &[Seg]) -> Option<usize> {
+pub(crate) fn line_of(text: &str, path: &[Seg]) -> Option<usize> {
     let document = ImDocument::parse(text).ok()?;
     let mut span = None;
     let mut table: &dyn TableLike = document.as_table();

@@ -49,6 +49,7 @@ impl<'de> Deserialize<'de> for Mode {
 /// A mode name that is not one of peer, client, router.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("'{0}' is not one of peer, client, router")]
+#[non_exhaustive]
 pub struct UnknownMode(pub String);
 
 impl std::str::FromStr for Mode {

@@ -7,12 +7,12 @@ use crate::file::{
 };
 use crate::problem::Problem;
 use std::time::Duration;
-use zmotor_bridge::link::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
+use zmotor_bridge::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_core::JogHold;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
-use zmotor_msgs::toml_value::field_value;
+use zmotor_msgs::field_value;
 use zmotor_msgs::{keys, Access, Field, Fields, KeyLayout, Kind, LinkKeyError, Value};
 
 impl AxisSection {
@@ -193,7 +193,7 @@ pub(crate) fn check_wiring(
     for (calc, origin) in calcs.iter().zip(calc_origins) {
         let problem = |who: String, e: LinkKeyError| Problem::in_item("calc", *origin, &[], format!("{who}: {e}"));
         for input in &calc.inputs {
-            let letter = zmotor_bridge::link::input_name(input.index);
+            let letter = zmotor_bridge::input_name(input.index);
             let who = format!("calc '{}' input {letter}", calc.name);
             layout.check_link(&input.key, false, None).map_err(|e| problem(who, e))?;
         }

@@ -3,7 +3,7 @@
 use crate::*;
 use std::path::Path;
 use std::time::Duration;
-use zmotor_bridge::link::InputMode;
+use zmotor_bridge::InputMode;
 use zmotor_controllers::ProtocolKind;
 use zmotor_controllers::{Parity, Transport};
 use zmotor_core::DriverPlan;

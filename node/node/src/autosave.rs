@@ -10,7 +10,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 use zmotor_core::AxisPlan;
-use zmotor_msgs::toml_value::{field_value, to_toml};
+use zmotor_msgs::{field_value, to_toml};
 use zmotor_msgs::{Autosave, CodecError, Field, Fields};
 
 /// The environment variable that overrides the launch file's `state_dir`.
@@ -18,6 +18,7 @@ pub const STATE_DIR_ENV: &str = "ZMOTOR_STATE_DIR";
 
 /// Why state could not be found, read or restored.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum AutosaveError {
     /// Neither the environment nor the launch file names a state directory, and there is no home.
     #[error("no state directory: set state_dir in the launch file or {STATE_DIR_ENV}")]
@@ -58,6 +59,7 @@ pub enum AutosaveError {
 
 /// An entry of a saved state that cannot be laid over the fields.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum RestoreError {
     /// The name is not a field autosave keeps.
     #[error("{0}: not a field autosave keeps")]

@@ -23,7 +23,7 @@ use tokio::sync::mpsc;
 use zenoh::sample::{Sample, SampleKind};
 use zmotor_client::{Client, HoldToken, WriteOptions, WriteOutcome};
 use zmotor_deploy::WebConfig;
-use zmotor_msgs::codec::decode_cbor_value;
+use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{keys, Field};
 
 /// The server could not start.
@@ -75,7 +75,7 @@ impl Web {
             .route("/axis/{axis}", get(|| async { Html(SCREEN) }))
             .route("/assets/{file}", get(asset))
             .route("/api/axes", get(axes))
-            .route("/api/fields", get(|| async { Json(zmotor_msgs::schema::catalogue_json()) }))
+            .route("/api/fields", get(|| async { Json(zmotor_msgs::catalogue_json()) }))
             .route("/ws/{axis}", get(socket))
             .with_state(AppState { client });
         let task = tokio::spawn(async move {

@@ -5,7 +5,7 @@
 //! stable toolchain, in the test suite.
 
 use std::time::Duration;
-use zmotor_bridge::calc::INPUTS;
+use zmotor_bridge::INPUTS;
 use zmotor_bridge::Expression;
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;

@@ -6,18 +6,18 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-pub const PATIENCE: Duration = Duration::from_secs(15);
+pub(crate) const PATIENCE: Duration = Duration::from_secs(15);
 
 /// Where a process runs: this host, or inside a network namespace.
 #[derive(Clone, Default)]
-pub struct Host {
+pub(crate) struct Host {
     pub netns: Option<String>,
     /// Arguments every client command of this host adds (its certificate, ...).
     pub client_args: Vec<String>,
 }
 
 impl Host {
-    pub fn zmotor(&self, args: &[&str]) -> Command {
+    pub(crate) fn zmotor(&self, args: &[&str]) -> Command {
         let mut command = match &self.netns {
             Some(ns) => {
                 let mut c = Command::new("ip");
@@ -31,7 +31,7 @@ impl Host {
     }
 
     /// A long-running `zmotor` (launch, router), killed when dropped.
-    pub fn spawn(&self, args: &[&str], state_dir: &Path) -> Running {
+    pub(crate) fn spawn(&self, args: &[&str], state_dir: &Path) -> Running {
         let child = self
             .zmotor(args)
             .env("ZMOTOR_STATE_DIR", state_dir)
@@ -42,29 +42,29 @@ impl Host {
         Running(Some(child))
     }
 
-    pub fn run(&self, args: &[&str]) -> Output {
+    pub(crate) fn run(&self, args: &[&str]) -> Output {
         self.zmotor(args).output().unwrap()
     }
 
     /// A client command, with this host's client arguments.
-    pub fn client(&self, args: &[&str]) -> Output {
+    pub(crate) fn client(&self, args: &[&str]) -> Output {
         self.zmotor(args).args(&self.client_args).output().unwrap()
     }
 
     /// A field's value, or None while the axis does not answer.
-    pub fn get(&self, endpoint: &str, axis: &str, field: &str) -> Option<f64> {
+    pub(crate) fn get(&self, endpoint: &str, axis: &str, field: &str) -> Option<f64> {
         let output = self.client(&["get", axis, field, "--connect", endpoint]);
         String::from_utf8_lossy(&output.stdout).trim().parse().ok()
     }
 
     /// A field's value: the first answer (a loaded host may need a second get); panics after
     /// PATIENCE.
-    pub fn answer(&self, endpoint: &str, axis: &str, field: &str) -> f64 {
+    pub(crate) fn answer(&self, endpoint: &str, axis: &str, field: &str) -> f64 {
         self.wait_for(endpoint, axis, field, |_| true)
     }
 
     /// Poll a field until `accept` holds; panics after PATIENCE.
-    pub fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
+    pub(crate) fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
         let deadline = Instant::now() + PATIENCE;
         let mut last = None;
         while Instant::now() < deadline {
@@ -78,7 +78,7 @@ impl Host {
     }
 
     /// A confirmed write; Ok(the node's answer) or Err(its refusal).
-    pub fn put(&self, endpoint: &str, axis: &str, field: &str, value: &str, wait: bool) -> Result<String, String> {
+    pub(crate) fn put(&self, endpoint: &str, axis: &str, field: &str, value: &str, wait: bool) -> Result<String, String> {
         let mut args = vec!["put", axis, field, value, "--connect", endpoint, "--timeout", "30"];
         if wait {
             args.push("--wait");
@@ -93,7 +93,7 @@ impl Host {
 }
 
 /// A `zmotor monitor` line (`m1.RBV 2026-12-01 12:00:00.123456 10`): the channel and value.
-pub fn monitored(line: &str) -> Option<(&str, &str)> {
+pub(crate) fn monitored(line: &str) -> Option<(&str, &str)> {
     let words: Vec<&str> = line.split_whitespace().collect();
     match words[..] {
         [channel, date, time, value] if date.len() == 10 && time.len() == 15 => Some((channel, value)),
@@ -101,22 +101,22 @@ pub fn monitored(line: &str) -> Option<(&str, &str)> {
     }
 }
 
-pub struct Running(pub Option<Child>);
+pub(crate) struct Running(pub Option<Child>);
 
 impl Running {
-    pub fn pid(&self) -> u32 {
+    pub(crate) fn pid(&self) -> u32 {
         self.0.as_ref().unwrap().id()
     }
 
     /// SIGTERM, then the exit status and what the process logged.
-    pub fn terminate(mut self) -> (std::process::ExitStatus, String) {
+    pub(crate) fn terminate(mut self) -> (std::process::ExitStatus, String) {
         Command::new("kill").args(["-TERM", &self.pid().to_string()]).status().unwrap();
         let output = self.0.take().unwrap().wait_with_output().unwrap();
         (output.status, String::from_utf8_lossy(&output.stderr).into_owned())
     }
 
     /// SIGKILL: no chance to save anything.
-    pub fn kill(mut self) {
+    pub(crate) fn kill(mut self) {
         let mut child = self.0.take().unwrap();
         child.kill().unwrap();
         child.wait().unwrap();
@@ -132,12 +132,12 @@ impl Drop for Running {
     }
 }
 
-pub fn repo_file(path: &str) -> PathBuf {
+pub(crate) fn repo_file(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
 }
 
 /// A slow stage (1 mm/s), its restore mode and autosave delay as given.
-pub fn slow_stage(rstm: &str, delay: f64) -> String {
+pub(crate) fn slow_stage(rstm: &str, delay: f64) -> String {
     format!(
         "[autosave]\ndelay = {delay}\n[[axis]]\nname = \"m1\"\n[axis.fields]\n\
          MRES = 0.001\nVELO = 1\nACCL = 0.1\nDHLM = 100\nDLLM = -100\nRSTM = \"{rstm}\"\n"
@@ -145,16 +145,16 @@ pub fn slow_stage(rstm: &str, delay: f64) -> String {
 }
 
 /// What network namespaces need, for the list of what was not tested.
-pub const NETNS_NEEDS: &str = "`ip netns add` needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and iproute2";
+pub(crate) const NETNS_NEEDS: &str = "`ip netns add` needs root (CAP_SYS_ADMIN and CAP_NET_ADMIN) and iproute2";
 
 /// Network namespaces joined by veth pairs to a bridge in a namespace of their own, removed
 /// when dropped. None where namespaces cannot be made (not root, no CAP_NET_ADMIN, no `ip`).
-pub struct Namespaces {
+pub(crate) struct Namespaces {
     names: Vec<String>,
 }
 
 impl Namespaces {
-    pub fn create(hosts: &[(&str, &str)]) -> Option<Self> {
+    pub(crate) fn create(hosts: &[(&str, &str)]) -> Option<Self> {
         let tag = std::process::id() % 100_000;
         let switch = format!("zms{tag}");
         let mut made = Self { names: vec![switch.clone()] };
@@ -189,12 +189,12 @@ impl Namespaces {
         Some(made)
     }
 
-    pub fn host(&self, index: usize) -> Host {
+    pub(crate) fn host(&self, index: usize) -> Host {
         Host { netns: Some(self.names[index + 1].clone()), client_args: Vec::new() }
     }
 
     /// Pull the cable of host `index`: its link to the switch goes down, nothing is closed.
-    pub fn cut(&self, index: usize) -> bool {
+    pub(crate) fn cut(&self, index: usize) -> bool {
         let tag = std::process::id() % 100_000;
         let ns = &self.names[index + 1];
         let inside = format!("zmi{tag}x{index}");
@@ -214,11 +214,11 @@ impl Drop for Namespaces {
 }
 
 /// Lines a process prints, each with when it arrived, read on a thread of their own.
-pub struct Lines(std::sync::mpsc::Receiver<(Instant, String)>);
+pub(crate) struct Lines(std::sync::mpsc::Receiver<(Instant, String)>);
 
 impl Lines {
     /// The lines of `child`'s standard output (which must be piped).
-    pub fn of(child: &mut Child) -> Self {
+    pub(crate) fn of(child: &mut Child) -> Self {
         let stdout = child.stdout.take().expect("stdout is piped");
         let (sender, receiver) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
@@ -233,7 +233,7 @@ impl Lines {
     }
 
     /// When the first line for which `accept` holds arrives, within `patience`.
-    pub fn wait_for(&self, patience: Duration, accept: impl Fn(&str) -> bool) -> Option<Instant> {
+    pub(crate) fn wait_for(&self, patience: Duration, accept: impl Fn(&str) -> bool) -> Option<Instant> {
         let deadline = Instant::now() + patience;
         while let Some(left) = deadline.checked_duration_since(Instant::now()) {
             match self.0.recv_timeout(left) {
@@ -248,19 +248,19 @@ impl Lines {
 
 /// A certificate authority made for one test (never a committed key), and the certificates it
 /// signs, as PEM files in a temporary directory.
-pub struct Pki {
+pub(crate) struct Pki {
     pub dir: tempfile::TempDir,
     issuer: rcgen::Issuer<'static, rcgen::KeyPair>,
 }
 
 /// A certificate and its key, as files.
-pub struct Identity {
+pub(crate) struct Identity {
     pub certificate: PathBuf,
     pub key: PathBuf,
 }
 
 impl Pki {
-    pub fn new(name: &str) -> Self {
+    pub(crate) fn new(name: &str) -> Self {
         let dir = tempfile::tempdir().unwrap();
         let key = rcgen::KeyPair::generate().unwrap();
         let mut params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
@@ -273,12 +273,12 @@ impl Pki {
     }
 
     /// The authority's certificate file.
-    pub fn ca(&self) -> PathBuf {
+    pub(crate) fn ca(&self) -> PathBuf {
         self.dir.path().join("ca.pem")
     }
 
     /// A certificate for `common_name`, valid for the addresses given (a listener's).
-    pub fn issue(&self, common_name: &str, addresses: &[&str]) -> Identity {
+    pub(crate) fn issue(&self, common_name: &str, addresses: &[&str]) -> Identity {
         let key = rcgen::KeyPair::generate().unwrap();
         let mut names = vec!["localhost".to_string()];
         names.extend(addresses.iter().map(|a| a.to_string()));
@@ -297,7 +297,7 @@ impl Pki {
     }
 
     /// The `[zenoh.tls]` section of a launch file that shows `identity`, under mutual TLS.
-    pub fn launch_section(&self, identity: &Identity) -> String {
+    pub(crate) fn launch_section(&self, identity: &Identity) -> String {
         format!(
             "\n[zenoh.tls]\nca = {:?}\ncertificate = {:?}\nkey = {:?}\nmutual = true\n",
             self.ca(),
@@ -307,7 +307,7 @@ impl Pki {
     }
 
     /// The command-line arguments of a client that shows `identity`.
-    pub fn client_args(&self, identity: &Identity) -> Vec<String> {
+    pub(crate) fn client_args(&self, identity: &Identity) -> Vec<String> {
         [
             "--ca",
             self.ca().to_str().unwrap(),
@@ -323,7 +323,7 @@ impl Pki {
 
 /// A monitor of m1's JOGF, its lines as they come, once it runs: a monitor starts with the
 /// current value, printed once its subscription is in place.
-pub fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
+pub(crate) fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
     let mut child = host
         .zmotor(&["monitor", "m1", "JOGF", "--connect", endpoint])
         .stdout(Stdio::piped())
@@ -337,7 +337,7 @@ pub fn monitor_jogf(host: &Host, endpoint: &str) -> (Running, Lines) {
 }
 
 /// The time from `vanish` (called once the jog runs: JOGF 1) to JOGF 0 on the node.
-pub fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Duration {
+pub(crate) fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Duration {
     let (_monitor, lines) = monitor_jogf(host, endpoint);
     host.wait_for(endpoint, "m1", "JOGF", |v| v == 1.0);
     let gone = std::time::Instant::now();
@@ -353,7 +353,7 @@ pub fn time_to_release(host: &Host, endpoint: &str, vanish: impl FnOnce()) -> Du
 /// What the deadman promises (README): a held jog ends within a second of its client going.
 /// Tests allow several times the promise, so a loaded machine does not fail them; the promise
 /// itself is a figure of `zmotor bench --parts holds`.
-pub const RELEASE_PROMISE: Duration = Duration::from_secs(1);
+pub(crate) const RELEASE_PROMISE: Duration = Duration::from_secs(1);
 
 /// The margin tests give the promise.
-pub const RELEASE_MARGIN: Duration = Duration::from_secs(4);
+pub(crate) const RELEASE_MARGIN: Duration = Duration::from_secs(4);

@@ -11,21 +11,21 @@ use zmotor_msgs::{DriverCommand, Gain};
 
 /// `kind` driving its emulator with `channels` (the emulator has every channel up to the
 /// highest), through `faults`.
-pub fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
+pub(crate) fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
     let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
     Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
 }
 
 /// Run until the controller is up and has reported every channel; the events on the way.
-pub fn bring_up(lb: &mut Loopback) -> Vec<ControllerEvent> {
+pub(crate) fn bring_up(lb: &mut Loopback) -> Vec<ControllerEvent> {
     lb.run_for(Duration::from_millis(100));
     assert!(lb.controller.is_up(), "the controller came up: {:?}", lb.take_events());
     lb.take_events()
 }
 
 /// The controller errors among `events`: (channel, code, meaning).
-pub fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
+pub(crate) fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, String, String)> {
     events
         .iter()
         .filter_map(|e| match e {
@@ -38,22 +38,22 @@ pub fn controller_errors(events: &[ControllerEvent]) -> Vec<(Option<usize>, Stri
 }
 
 /// Bytes as text, for assertions on ASCII protocols.
-pub fn text(bytes: &[u8]) -> String {
+pub(crate) fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
 /// What the driver wrote from request number `from` on, as text.
-pub fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
+pub(crate) fn written_since(lb: &Loopback, from: usize) -> Vec<String> {
     lb.written()[from..].iter().map(|b| text(b)).collect()
 }
 
 /// The last status of `channel` among `events`.
-pub fn last_status(events: &[ControllerEvent], channel: usize) -> DeviceStatus {
+pub(crate) fn last_status(events: &[ControllerEvent], channel: usize) -> DeviceStatus {
     *Loopback::statuses(events, channel).last().unwrap_or_else(|| panic!("a status of channel {channel}: {events:?}"))
 }
 
 /// Run in steps of `step` until `channel` reports done, at most `limit`; the statuses seen.
-pub fn run_until_done(lb: &mut Loopback, channel: usize, step: Duration, limit: Duration) -> Vec<DeviceStatus> {
+pub(crate) fn run_until_done(lb: &mut Loopback, channel: usize, step: Duration, limit: Duration) -> Vec<DeviceStatus> {
     let end = lb.now() + limit;
     let mut seen = Vec::new();
     while lb.now() < end {
@@ -69,7 +69,7 @@ pub fn run_until_done(lb: &mut Loopback, channel: usize, step: Duration, limit: 
 }
 
 /// A motion command in the ranges a record sends (steps, steps/s, steps/s²).
-pub fn motion() -> impl Strategy<Value = DriverCommand> {
+pub(crate) fn motion() -> impl Strategy<Value = DriverCommand> {
     let speed = 10.0..50_000.0f64;
     let accel = 100.0..500_000.0f64;
     prop_oneof![
@@ -98,7 +98,7 @@ pub fn motion() -> impl Strategy<Value = DriverCommand> {
 }
 
 /// Any command a record's device support sends, raw text excepted (it is the user's own).
-pub fn command() -> impl Strategy<Value = DriverCommand> {
+pub(crate) fn command() -> impl Strategy<Value = DriverCommand> {
     prop_oneof![
         4 => motion(),
         1 => (-150_000.0..150_000.0f64).prop_map(|position| DriverCommand::SetPosition { position }),
@@ -114,7 +114,7 @@ pub fn command() -> impl Strategy<Value = DriverCommand> {
 
 /// Feed `commands` to `channels` in turn, a little apart, and check that every frame the driver
 /// wrote was well-formed for the emulator.
-pub fn no_malformed_frames(kind: ProtocolKind, channels: &[usize], commands: &[(usize, DriverCommand, u64)]) {
+pub(crate) fn no_malformed_frames(kind: ProtocolKind, channels: &[usize], commands: &[(usize, DriverCommand, u64)]) {
     let mut lb = loopback(kind, channels, Faults::default());
     bring_up(&mut lb);
     for (pick, command, gap_ms) in commands {
