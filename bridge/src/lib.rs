@@ -6,4 +6,6 @@ mod calc;
 mod link;
 
 pub use calc::{CalcError, Expression, INPUTS, MAX_LENGTH, MAX_NESTING};
-pub use link::{find_cycle, input_index, input_name, CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption};
+pub use link::{
+    find_cycle, input_index, input_name, CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption,
+};

@@ -718,10 +718,7 @@ fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
     for (name, schema) in zmotor_msgs::message_schemas() {
         std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
     }
-    std::fs::write(
-        dir.join("fields.json"),
-        serde_json::to_string_pretty(&zmotor_msgs::catalogue_json())? + "\n",
-    )?;
+    std::fs::write(dir.join("fields.json"), serde_json::to_string_pretty(&zmotor_msgs::catalogue_json())? + "\n")?;
     println!("wrote the schemas and fields.json to {}", dir.display());
     Ok(ExitCode::SUCCESS)
 }

@@ -78,7 +78,7 @@ pub fn free_local_endpoint() -> std::io::Result<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use zmotor_deploy::{AccessRule, LoginConfig, Mode, Permission, TlsConfig};
+    use zmotor_deploy::Mode;
     use zmotor_msgs::{Field, KeyLayout};
 
     #[test]
@@ -90,25 +90,27 @@ mod tests {
     }
 
     #[test]
-    fn tls_login_and_access_rules_make_a_configuration_zenoh_takes() {
-        let rule = |name: &str, may: Vec<Permission>| AccessRule {
-            name: name.into(),
-            may,
-            cert_common_names: vec![name.into()],
-            ..AccessRule::default()
-        };
-        let config = ZenohConfig {
-            tls: Some(TlsConfig {
-                ca: "ca.pem".into(),
-                certificate: Some("node.pem".into()),
-                key: Some("node.key".into()),
-                mutual: true,
-            }),
-            login: Some(LoginConfig { user: Some("node".into()), password: Some("pw".into()), users_file: None }),
-            access: vec![rule("viewer", vec![Permission::Read]), rule("nodes", vec![Permission::All])],
-            ..ZenohConfig::default()
-        };
-        let zenoh = zenoh_config(&config).unwrap();
+    fn tls_login_and_access_rules_of_a_launch_file_make_a_configuration_zenoh_takes() {
+        let launch = zmotor_deploy::Launch::parse(
+            r#"
+            [zenoh]
+            listen = ["tls/127.0.0.1:7447"]
+            [zenoh.tls]
+            ca = "ca.pem"
+            certificate = "node.pem"
+            key = "node.key"
+            mutual = true
+            [zenoh.login]
+            user = "node"
+            password = "pw"
+            [[zenoh.access]]
+            name = "viewer"
+            may = ["read"]
+            cert_common_names = ["viewer"]
+            "#,
+        )
+        .unwrap();
+        let zenoh = zenoh_config(&launch.deployment(None).unwrap().zenoh).unwrap();
         assert_eq!(zenoh.get_json("transport/link/tls/enable_mtls").unwrap(), "true");
         assert_eq!(zenoh.get_json("transport/link/tls/connect_certificate").unwrap(), r#""node.pem""#);
         assert_eq!(zenoh.get_json("access_control/default_permission").unwrap(), r#""deny""#);

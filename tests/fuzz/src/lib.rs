@@ -5,8 +5,8 @@
 //! stable toolchain, in the test suite.
 
 use std::time::Duration;
-use zmotor_bridge::INPUTS;
 use zmotor_bridge::Expression;
+use zmotor_bridge::INPUTS;
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
 use zmotor_msgs::{decode_write, Hold, PayloadEncoding, StateMarker, FIELDS};

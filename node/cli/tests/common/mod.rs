@@ -78,7 +78,14 @@ impl Host {
     }
 
     /// A confirmed write; Ok(the node's answer) or Err(its refusal).
-    pub(crate) fn put(&self, endpoint: &str, axis: &str, field: &str, value: &str, wait: bool) -> Result<String, String> {
+    pub(crate) fn put(
+        &self,
+        endpoint: &str,
+        axis: &str,
+        field: &str,
+        value: &str,
+        wait: bool,
+    ) -> Result<String, String> {
         let mut args = vec!["put", axis, field, value, "--connect", endpoint, "--timeout", "30"];
         if wait {
             args.push("--wait");
