@@ -39,6 +39,67 @@ impl Deliver for AxisInbox {
     }
 }
 
+/// Where an axis's input links (RDBL, RINP, DINP, DOL) deliver their values: straight into its
+/// inbox, from the thread that received the value, so that a value is handled before a write
+/// that came after it (a soft motor's DINP "done" before the next move's write). The first
+/// values, asked for when the links connect, may come before the inbox exists: they wait for
+/// it, in order.
+#[derive(Default)]
+pub(crate) struct LinkInbox {
+    state: std::sync::Mutex<LinkState>,
+}
+
+enum LinkState {
+    Waiting(Vec<(usize, f64)>),
+    Attached(std::sync::Weak<AxisInbox>),
+}
+
+impl Default for LinkState {
+    fn default() -> Self {
+        LinkState::Waiting(Vec::new())
+    }
+}
+
+impl LinkInbox {
+    /// The value of link number `index` (`InputLink` order).
+    pub(crate) fn deliver(&self, index: usize, value: f64) {
+        let inbox = match &mut *lock(&self.state) {
+            LinkState::Waiting(waiting) => return waiting.push((index, value)),
+            LinkState::Attached(inbox) => inbox.clone(),
+        };
+        if let Some(inbox) = inbox.upgrade() {
+            inbox.deliver(link_update(index, value));
+        }
+    }
+
+    /// The inbox exists: what waited goes in first (values arriving meanwhile wait behind it).
+    pub(crate) fn attach(&self, inbox: &Arc<AxisInbox>) {
+        loop {
+            let waiting = {
+                let mut state = lock(&self.state);
+                match &mut *state {
+                    LinkState::Waiting(waiting) if !waiting.is_empty() => std::mem::take(waiting),
+                    _ => {
+                        *state = LinkState::Attached(Arc::downgrade(inbox));
+                        return;
+                    }
+                }
+            };
+            for (index, value) in waiting {
+                inbox.deliver(link_update(index, value));
+            }
+        }
+    }
+}
+
+fn link_update(index: usize, value: f64) -> AxisInput {
+    AxisInput::LinkUpdate(zmotor_core::InputLink::ALL[index], value)
+}
+
+fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
 /// What every axis of a node shares.
 #[derive(Clone)]
 pub(crate) struct NodeSide {

@@ -1,6 +1,7 @@
 //! The task of one axis: its clock (periodic polls on tokio's timer, events such as the end of a
-//! motion on the precise `Timer`), its input links, the holds that went, autosave and shutdown.
-//! Each of these is an input to the axis's inbox, like a write from the network.
+//! motion on the precise `Timer`), the holds that went, autosave and shutdown. Each of these is
+//! an input to the axis's inbox, like a write from the network (and like its input links'
+//! values, which their senders deliver themselves: `LinkInbox`).
 
 use crate::autosave::{SavedAxis, Saver};
 use crate::axis_core::AxisInbox;
@@ -12,7 +13,6 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::mpsc::UnboundedReceiver;
 use tokio::sync::Notify;
-use zmotor_core::InputLink;
 
 /// How long a shutdown waits for moving axes to stop before saving anyway.
 const STOP_GRACE: Duration = Duration::from_secs(5);
@@ -26,8 +26,6 @@ pub(crate) struct AxisTask {
     pub(crate) unsaved: Arc<AtomicBool>,
     /// Set while a tick this task delivered waits for the thread handling the axis.
     pub(crate) tick_pending: Arc<AtomicBool>,
-    /// Values of the record's input links (RDBL, RINP, DINP, DOL), by `InputLink` index.
-    pub(crate) links: UnboundedReceiver<(usize, f64)>,
     /// Liveliness tokens of held motions that went.
     pub(crate) released: UnboundedReceiver<String>,
     pub(crate) saver: Option<Saver>,
@@ -71,9 +69,6 @@ impl AxisTask {
             }
             let other = [next, stopping, self.saver.as_ref().and_then(Saver::due)].into_iter().flatten().min();
             tokio::select! {
-                Some((index, value)) = self.links.recv() => {
-                    self.axis.deliver(AxisInput::LinkUpdate(InputLink::ALL[index], value));
-                }
                 Some(token) = self.released.recv() => self.axis.deliver(AxisInput::HoldReleased(token)),
                 _ = &mut woken => {}
                 _ = tokio::time::sleep_until(other.unwrap_or(clock)), if other.is_some() => {}

@@ -12,8 +12,17 @@ use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
 use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
 
-/// Where one follower wants a key's values: its channel and the key's index there.
-type Follower = (tokio::sync::mpsc::UnboundedSender<(usize, f64)>, usize);
+/// Where a follower's values go, as (the key's index, its value): a calc link's channel, or an
+/// axis's inbox (so that a link's value and a write reach the axis in the order they came).
+pub(crate) type LinkSink = Arc<dyn Fn(usize, f64) + Send + Sync>;
+
+/// Where one follower wants a key's values: its sink and the key's index there.
+type Follower = (LinkSink, usize);
+
+/// Whether two sinks are the same one.
+fn same_sink(a: &LinkSink, b: &LinkSink) -> bool {
+    std::ptr::addr_eq(Arc::as_ptr(a), Arc::as_ptr(b))
+}
 
 /// The node's followers of its own axes' fields. An axis publishes to the network only (other
 /// processes, and only when someone there subscribes); a link in this very node that follows
@@ -41,17 +50,23 @@ impl LocalFollowers {
     fn unregister(&self, follower: &Follower) {
         let mut by_axis = self.by_axis.write().unwrap_or_else(|e| e.into_inner());
         for followers in by_axis.values_mut() {
-            followers.retain(|(_, (tx, index))| !(tx.same_channel(&follower.0) && *index == follower.1));
+            followers.retain(|(_, (sink, index))| !(same_sink(sink, &follower.0) && *index == follower.1));
         }
     }
 
-    /// A field of `axis` took `value`.
+    /// A field of `axis` took `value`. Called while `axis` handles an input: a following axis
+    /// gets the value before anything `axis` sends after it (a `?wait` reply, say) can lead to a
+    /// write of the follower.
     pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) {
-        let by_axis = self.by_axis.read().unwrap_or_else(|e| e.into_inner());
-        let Some(followers) = by_axis.get(axis) else { return };
         let Some(number) = value.as_f64() else { return };
-        for (_, (tx, index)) in followers.iter().filter(|(f, _)| *f == field) {
-            let _ = tx.send((*index, number));
+        // Taken out of the lock: a follower may handle the value at once, and post in turn.
+        let sinks: Vec<(LinkSink, usize)> = {
+            let by_axis = self.by_axis.read().unwrap_or_else(|e| e.into_inner());
+            let Some(followers) = by_axis.get(axis) else { return };
+            followers.iter().filter(|(f, _)| *f == field).map(|(_, follower)| follower.clone()).collect()
+        };
+        for (sink, index) in sinks {
+            sink(index, number);
         }
     }
 }
@@ -63,25 +78,32 @@ pub(crate) struct Follows {
     session: Session,
     runtime: tokio::runtime::Handle,
     local: Arc<LocalFollowers>,
-    tx: tokio::sync::mpsc::UnboundedSender<(usize, f64)>,
+    sink: LinkSink,
     subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
 }
 
 impl Follows {
-    /// Nothing followed yet; the values arrive on the receiver, as (index, value).
-    pub(crate) fn new(
+    /// Nothing followed yet; the values will go to `sink`.
+    pub(crate) fn new(session: &Session, local: Arc<LocalFollowers>, sink: LinkSink) -> Self {
+        Self {
+            session: session.clone(),
+            runtime: tokio::runtime::Handle::current(),
+            local,
+            sink,
+            subscribers: Vec::new(),
+        }
+    }
+
+    /// Nothing followed yet; the values will arrive on the receiver, as (index, value).
+    pub(crate) fn to_channel(
         session: &Session,
         local: Arc<LocalFollowers>,
     ) -> (Self, tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>) {
         let (tx, values) = tokio::sync::mpsc::unbounded_channel();
-        let follows = Self {
-            session: session.clone(),
-            runtime: tokio::runtime::Handle::current(),
-            local,
-            tx,
-            subscribers: Vec::new(),
-        };
-        (follows, values)
+        let sink: LinkSink = Arc::new(move |index, value| {
+            let _ = tx.send((index, value));
+        });
+        (Self::new(session, local, sink), values)
     }
 
     /// Follow `key` at `index` instead of what was followed there; "" follows nothing.
@@ -90,29 +112,29 @@ impl Follows {
             self.subscribers.resize_with(index + 1, || None);
         }
         self.subscribers[index] = None;
-        let follower = (self.tx.clone(), index);
+        let follower = (self.sink.clone(), index);
         self.local.unregister(&follower);
         if key.is_empty() {
             return Ok(());
         }
         self.local.register(key, follower);
-        let updates = self.tx.clone();
+        let updates = self.sink.clone();
         let subscriber = self
             .session
             .declare_subscriber(key.to_string())
             .callback(move |sample| {
                 if let Some(value) = sample_number(&sample) {
-                    let _ = updates.send((index, value));
+                    updates(index, value);
                 }
             })
             .wait()?;
         self.subscribers[index] = Some(subscriber);
         let replies = self.session.get(key.to_string()).timeout(Duration::from_secs(5)).wait()?;
-        let first = self.tx.clone();
+        let first = self.sink.clone();
         self.runtime.spawn(async move {
             while let Ok(reply) = replies.recv_async().await {
                 if let Some(value) = reply.result().ok().and_then(sample_number) {
-                    let _ = first.send((index, value));
+                    first(index, value);
                 }
             }
         });

@@ -2,7 +2,7 @@
 //! session, and stopped in the order that moves nothing and loses nothing.
 
 use crate::autosave::{AutosaveConfig, AutosaveError, Saver};
-use crate::axis_core::{AxisCore, AxisInbox, NodeSide, PUBLISHER_BUDGET};
+use crate::axis_core::{AxisCore, AxisInbox, LinkInbox, NodeSide, PUBLISHER_BUDGET};
 use crate::axis_task::AxisTask;
 use crate::controllers::{ControllerPort, RunningController, ToController};
 use crate::demand::FieldDemand;
@@ -114,7 +114,9 @@ impl Node {
                 Some(config) => Some(Saver::restore(config, &mut plan)?),
                 None => None,
             };
-            let (mut follows, links) = Follows::new(&session, side.followers.clone());
+            let links = Arc::new(LinkInbox::default());
+            let sink = links.clone();
+            let mut follows = Follows::new(&session, side.followers.clone(), Arc::new(move |i, v| sink.deliver(i, v)));
             for (link, key) in plan.input_links() {
                 follows.follow(link as usize, &key)?;
             }
@@ -141,6 +143,7 @@ impl Node {
             let core = AxisCore::new(service, side.clone(), controller, follows, holds);
             let (rearm, unsaved, tick_pending) = (core.rearm.clone(), core.unsaved.clone(), core.tick_pending.clone());
             let axis = Arc::new(Inbox::new(core));
+            links.attach(&axis);
             routes.insert(name.clone(), axis.clone() as Arc<dyn Deliver>);
             if let Some((controller, channel)) = on_controller {
                 on_controllers.entry(controller).or_default().push((channel, axis.clone()));
@@ -150,7 +153,6 @@ impl Node {
                 rearm,
                 unsaved,
                 tick_pending,
-                links,
                 released,
                 saver,
                 timer: timer.clone(),
@@ -180,7 +182,7 @@ impl Node {
         let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
-            let (mut follows, inputs) = Follows::new(&session, side.followers.clone());
+            let (mut follows, inputs) = Follows::to_channel(&session, side.followers.clone());
             for (index, key) in link.input_keys().enumerate() {
                 follows.follow(index, key)?;
             }
