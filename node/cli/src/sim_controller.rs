@@ -4,8 +4,8 @@
 use crate::Error;
 use std::path::PathBuf;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::ProtocolKind;
+use zmotor_emulators::Faults;
 use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 
 /// Where the emulated controller listens.

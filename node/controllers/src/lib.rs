@@ -29,15 +29,6 @@ pub use protocol::{
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
 
-/// The vendors' controllers emulated: each speaks its vendor's bytes over zmotor-core's physical
-/// simulator (`ProtocolKind::emulator` makes one), behind a link with faults if wished. A module
-/// of its own, that only re-exports: the emulators are a test bench and a demo, not part of
-/// driving a controller, and their names (`stage`, `Faults`) would read as the crate's at the
-/// root; they are to move to a crate of their own.
-pub mod emulator {
-    pub use crate::emulation::{stage, Emulator, Faults, WithFaults};
-}
-
 /// The protocols zmotor speaks, by the names launch files give them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ProtocolKind {
@@ -165,7 +156,7 @@ impl ProtocolKind {
     /// SMC100 chain has the addresses 1 to `channels` − 1 (one at least), a PI controller the
     /// axes 1 to `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules
     /// at least).
-    pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
+    pub fn emulator(self, channels: usize) -> Box<dyn zmotor_emulators::Emulator> {
         let mechanics = emulation::stage();
         match self {
             ProtocolKind::AcsMcb4b => Box::new(emulation::acs::Mcb4bEmulator::new(channels, &mechanics)),

@@ -6,12 +6,12 @@ mod common;
 
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{
     line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
     Refusal, ReplyError, ReplyEvent, Request,
 };
 use zmotor_core::{DeviceStatus, Driver};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -371,7 +371,7 @@ impl zmotor_controllers::Protocol for Picky {
 #[derive(Default)]
 struct Answering(Vec<Vec<u8>>);
 
-impl zmotor_controllers::emulator::Emulator for Answering {
+impl zmotor_emulators::Emulator for Answering {
     fn name(&self) -> &'static str {
         "picky"
     }

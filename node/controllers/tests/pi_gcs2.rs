@@ -9,9 +9,9 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

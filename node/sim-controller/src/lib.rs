@@ -8,9 +8,9 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use zmotor_controllers::emulator::{Faults, WithFaults};
 use zmotor_controllers::ProtocolKind;
 use zmotor_core::{Driver, Instant};
+use zmotor_emulators::{Faults, WithFaults};
 
 /// A pseudo-terminal that cannot be made.
 #[derive(Debug, thiserror::Error)]

@@ -3,9 +3,9 @@
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
 use zmotor_core::{DeviceStatus, Instant};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 

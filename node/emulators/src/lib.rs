@@ -1,0 +1,18 @@
+//! zmotor-emulators: the vendors' motor controllers, emulated. Each speaks its vendor's bytes
+//! as the vendor's manual gives them (including what the vendor's own software sends:
+//! identification, version and help queries, status bytes, error codes, the answer to an
+//! unknown command) and moves zmotor-core's physical simulator behind every channel.
+//!
+//! An emulator is a witness, not a mirror: this crate depends on no driver, so a misreading of
+//! a manual in a driver shows up as a disagreement with its emulator instead of being shared.
+//! Emulators let a launch file for real hardware run with none attached (`zmotor
+//! sim-controller`) and the drivers be tested byte for byte; `WithFaults` adds what real links
+//! do: replies lost, late or garbled, a connection that closes.
+
+mod emulator;
+mod faults;
+mod framing;
+
+pub use emulator::{stage, Emulator};
+pub use faults::{Faults, WithFaults};
+pub use framing::Lines;
