@@ -12,7 +12,9 @@
 mod emulator;
 mod faults;
 mod framing;
+mod smaract_mcs2;
 
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};
