@@ -169,8 +169,8 @@ impl ProtocolKind {
                 Box::new(emulation::pi_gcs2::Gcs2Emulator::new(axes, &emulation::pi_gcs2::mechanics()))
             }
             ProtocolKind::SmaractMcs2 => {
-                let positioner = emulation::smaract_mcs2::positioner(&mechanics);
-                Box::new(emulation::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
+                let positioner = zmotor_emulators::mcs2_positioner(&mechanics);
+                Box::new(zmotor_emulators::Mcs2Emulator::new(channels, &positioner))
             }
             ProtocolKind::Phytron => {
                 // Each axis reads an encoder of one count a step (I1EM modules).
