@@ -159,7 +159,7 @@ impl ProtocolKind {
     pub fn emulator(self, channels: usize) -> Box<dyn zmotor_emulators::Emulator> {
         let mechanics = emulation::stage();
         match self {
-            ProtocolKind::AcsMcb4b => Box::new(emulation::acs::Mcb4bEmulator::new(channels, &mechanics)),
+            ProtocolKind::AcsMcb4b => Box::new(zmotor_emulators::Mcb4bEmulator::new(channels, &mechanics)),
             ProtocolKind::NewportSmc100 => Box::new(emulation::newport::Smc100Emulator::new(
                 channels.saturating_sub(1).max(1),
                 &emulation::newport::stage(),

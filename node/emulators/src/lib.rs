@@ -9,11 +9,13 @@
 //! sim-controller`) and the drivers be tested byte for byte; `WithFaults` adds what real links
 //! do: replies lost, late or garbled, a connection that closes.
 
+mod acs_mcb4b;
 mod emulator;
 mod faults;
 mod framing;
 mod smaract_mcs2;
 
+pub use acs_mcb4b::Mcb4bEmulator;
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
