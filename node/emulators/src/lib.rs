@@ -12,7 +12,9 @@
 mod emulator;
 mod faults;
 mod framing;
+mod newport_smc100;
 
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use newport_smc100::Smc100Emulator;
