@@ -594,7 +594,9 @@ impl Smc100Emulator {
             let outcome = controller.execute(now, &command, parameter);
             controller.update(now);
             match outcome {
-                Outcome::Reply(values) => (values.into_iter().map(|v| format!("{address}{command}{v}\r\n")).collect(), None),
+                Outcome::Reply(values) => {
+                    (values.into_iter().map(|v| format!("{address}{command}{v}\r\n")).collect(), None)
+                }
                 Outcome::Lines(values) => (values.into_iter().map(|v| format!("{address}{v}\r\n")).collect(), None),
                 Outcome::Done => (Vec::new(), None),
                 Outcome::Error(letter) => (Vec::new(), Some(letter)),

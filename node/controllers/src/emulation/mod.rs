@@ -5,7 +5,6 @@
 //! do: replies lost, late or garbled, a connection that closes.
 
 pub(crate) mod acs;
-pub(crate) mod newport;
 pub(crate) mod phytron;
 pub(crate) mod pi_gcs2;
 pub(crate) mod smaract_mcs2;
