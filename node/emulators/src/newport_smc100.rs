@@ -1,5 +1,5 @@
-//! A chain of Newport SMC100CC controllers (a CONEX-CC is the same controller alone at
-//! address 1), written from Newport's "SMC100CC & SMC100PP Single-Axis DC or Stepper Motion
+//! A chain of Newport SMC100CC controllers (a CONEX-CC speaks the same command set alone at
+//! address 1; its TRACKING mode is not emulated), written from Newport's "SMC100CC & SMC100PP Single-Axis DC or Stepper Motion
 //! Controller/Driver User's Manual" (EDH0206En, chapter 6 "Controller Commands"; its pages
 //! are at <https://www.manualslib.com/manual/1238858/Newport-Smc100cc.html>).
 //!
@@ -17,9 +17,13 @@
 //! (enter / leave CONFIGURATION), `RS` (reset), `SL` `SR` (software limits), `ST` (stop),
 //! `TB` (error string), `TE` (last command error), `TH` (set-point position), `TP`
 //! (position), `TS` (positioner errors and state), `VE` (version), `ZT` (all parameters).
-//! The manual's other commands (`BA` `BH` `DV` `FD` `FE` `FF` `JD` `JM` `JR` `KV` `PT` `QI` `RA`
-//! `RB` `SA` `SC` `SE` `SU` `ZX`, `RS##`) are not emulated: a line with one of them is
-//! memorised as `A`, as an unknown command would be, and counted in `malformed()`.
+//! `BA` `BH` `DV` `FD` `FE` `FF` `JR` `KV` `SU` (the stage's other parameters) are kept, read
+//! in any state and set in CONFIGURATION only, without acting on the motion. `VB` and `FR`,
+//! the manual's "Not for CC" commands, are memorised as `X` ("Command not allowed for CC
+//! version"). The manual's remaining commands (`JD` `JM` `PT` `QI` `RA` `RB` `SA` `SB` `SC`
+//! `SE` `ZX`) are not emulated: a line with one of them is memorised as `A`, as an unknown
+//! command would be, and counted in `malformed()`; `RS##` (reset the RS-485 address) is taken
+//! as `RS`, the address of an emulated controller being its place on the chain.
 //!
 //! **States** (`TS`, last two hex digits): power-up and `RS` give NOT REFERENCED from reset
 //! (0A). `OR` → HOMING (1E) → READY from HOMING (32) at the stage's home switch, whose
@@ -61,7 +65,9 @@
 //!   the switches).
 //! - `MM?` answers the state code (as `TS`'s last two digits); `PW?` answers 1 in
 //!   CONFIGURATION, else 0.
-//! - `ZT` answers one line per emulated parameter, `nnXXvalue`, in alphabetical order.
+//! - `ZT` answers one line per emulated parameter, `nnXXvalue`, in alphabetical order (the
+//!   form of the dump is not given in the pages at hand).
+//! - `PA?` and `PR?` answer the set-point, as `TH` does.
 //! - `VE` answers `SMC_CC - Version 2.0.0 (emulated)`: the wording of the version text is the
 //!   firmware's, so no driver should read more than its start.
 //! - The stage (see [`Smc100Emulator::stage`]) is a 25 mm DC stage, home switch mid-travel;
@@ -187,7 +193,23 @@ struct Parameters {
     home_time_out: f64,
     gains: [f64; 3],
     stage: String,
+    /// The stage's other parameters, set in CONFIGURATION only, in `STAGE_PARAMETERS` order.
+    other: [f64; STAGE_PARAMETERS.len()],
 }
+
+/// The manual's other settable parameters of an SMC100CC that this emulator keeps without
+/// acting on them (`ZT` lists them): command, the emulated stage's value, the least value.
+const STAGE_PARAMETERS: [(&str, f64, f64); 9] = [
+    ("BA", 0.0, 0.0),     // backlash compensation
+    ("BH", 0.0, 0.0),     // hysteresis compensation
+    ("DV", 12.0, 12.0),   // driver voltage
+    ("FD", 1000.0, 1e-6), // low pass filter for Kd
+    ("FE", 0.05, 1e-6),   // following error limit
+    ("FF", 0.0, 0.0),     // friction compensation
+    ("JR", 0.05, 1e-3),   // jerk time
+    ("KV", 0.0, 0.0),     // velocity feed forward
+    ("SU", 0.0001, 1e-6), // encoder increment value
+];
 
 impl Default for Parameters {
     fn default() -> Self {
@@ -201,6 +223,7 @@ impl Default for Parameters {
             home_time_out: 100.0,
             gains: [1500.0, 300.0, 0.0],
             stage: "TRA25CC".to_string(),
+            other: STAGE_PARAMETERS.map(|(_, value, _)| value),
         }
     }
 }
@@ -444,8 +467,26 @@ impl Controller {
                 self.set_parameter(command, value);
                 Outcome::Done
             }
-            _ => Outcome::Error('A'),
+            "VB" | "FR" => Outcome::Error('X'),
+            _ => match STAGE_PARAMETERS.iter().position(|(name, _, _)| *name == command) {
+                Some(index) => self.stage_parameter(index, family, query, value),
+                None => Outcome::Error('A'),
+            },
         }
+    }
+
+    /// One of `STAGE_PARAMETERS`: read in any state, set in CONFIGURATION only.
+    fn stage_parameter(&mut self, index: usize, family: Family, query: bool, value: Option<f64>) -> Outcome {
+        if query {
+            return Outcome::Reply(vec![number(self.working.other[index])]);
+        }
+        let least = STAGE_PARAMETERS[index].2;
+        let Some(value) = value.filter(|v| *v >= least) else { return Outcome::Error('C') };
+        if family != Family::Configuration {
+            return Outcome::Error(family.refusal());
+        }
+        self.working.other[index] = value;
+        Outcome::Done
     }
 
     fn parameter(&self, command: &str) -> f64 {
@@ -487,12 +528,16 @@ impl Controller {
 
     /// `ZT`: every emulated parameter, alphabetically.
     fn all_parameters(&self) -> Vec<String> {
-        let mut lines: Vec<String> = ["AC", "HT", "KD", "KI", "KP", "OH", "OT", "SL", "SR", "VA"]
+        let mut lines: Vec<(String, String)> = ["AC", "HT", "KD", "KI", "KP", "OH", "OT", "SL", "SR", "VA"]
             .iter()
-            .map(|command| format!("{command}{}", number(self.parameter(command))))
+            .map(|command| (command.to_string(), number(self.parameter(command))))
             .collect();
-        lines.insert(2, format!("ID{}", self.working.stage));
-        lines
+        lines.push(("ID".to_string(), self.working.stage.clone()));
+        for ((command, _, _), value) in STAGE_PARAMETERS.iter().zip(self.working.other) {
+            lines.push((command.to_string(), number(value)));
+        }
+        lines.sort();
+        lines.into_iter().map(|(command, value)| format!("{command}{value}")).collect()
     }
 
     /// A following error: the servo drops out.
@@ -685,6 +730,7 @@ mod tests {
         let zt = ask(&mut e, 0.0, "1ZT");
         assert!(zt.contains(&"1SL-12.5\r\n".to_string()) && zt.contains(&"1VA2.5\r\n".to_string()), "{zt:?}");
         assert!(zt.iter().all(|l| l.starts_with('1') && l.ends_with("\r\n")));
+        assert!(zt.contains(&"1FE0.05\r\n".to_string()), "{zt:?}");
         assert_eq!(e.malformed(), 0);
     }
 
@@ -698,6 +744,13 @@ mod tests {
         assert_eq!(one(&mut e, 0.0, "1TB"), "1TBA Unknown message code or floating point controller address");
         assert_eq!(one(&mut e, 0.0, "1TBG"), "1TBG Displacement out of limits");
         assert_eq!(e.malformed(), 2);
+        assert!(ask(&mut e, 0.0, "1VB1").is_empty());
+        assert_eq!(one(&mut e, 0.0, "1TE"), "1TEX", "VB is not for a CC controller");
+        ask(&mut e, 0.0, "1FE0.1");
+        assert_eq!(one(&mut e, 0.0, "1TE"), "1TEH", "stage parameters in CONFIGURATION only");
+        ask(&mut e, 0.0, "1PW1");
+        ask(&mut e, 0.0, "1FE0.1");
+        assert_eq!(one(&mut e, 0.0, "1FE?"), "1FE0.1");
     }
 
     #[test]
