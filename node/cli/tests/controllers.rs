@@ -107,3 +107,21 @@ fn smaract_mcs2() {
 fn phytron() {
     drive_through_loss_and_recovery("phytron", "launch/phytron.toml", Reach::Tcp("127.0.0.1:22222"), "phy11");
 }
+
+/// A stock third-party SMC100 client, yaqd-newport's daemon (tests/python/smc100_workflow.py),
+/// resets, homes and moves a stage of the emulator served on a pseudo-terminal: the emulator
+/// speaks the controller's bytes to software that was written for the real one.
+#[test]
+fn newport_smc100_for_a_third_party_client() {
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("tty");
+    let _emulator = zmotor(&["sim-controller", "newport_smc100", "--pty", tty.to_str().unwrap()]);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while !tty.exists() {
+        assert!(std::time::Instant::now() < deadline, "the emulator made no pseudo-terminal at {}", tty.display());
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let output = environment::python_script("smc100_workflow.py").arg(&tty).output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success() && said.contains("smc100 workflow ok"), "{said}");
+}

@@ -160,9 +160,9 @@ impl ProtocolKind {
         let mechanics = emulation::stage();
         match self {
             ProtocolKind::AcsMcb4b => Box::new(zmotor_emulators::Mcb4bEmulator::new(channels, &mechanics)),
-            ProtocolKind::NewportSmc100 => Box::new(emulation::newport::Smc100Emulator::new(
+            ProtocolKind::NewportSmc100 => Box::new(zmotor_emulators::Smc100Emulator::new(
                 channels.saturating_sub(1).max(1),
-                &emulation::newport::stage(),
+                &zmotor_emulators::Smc100Emulator::stage(),
             )),
             ProtocolKind::PiGcs2 => {
                 let axes = channels.saturating_sub(1).max(4);

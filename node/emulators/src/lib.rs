@@ -13,10 +13,12 @@ mod acs_mcb4b;
 mod emulator;
 mod faults;
 mod framing;
+mod newport_smc100;
 mod smaract_mcs2;
 
 pub use acs_mcb4b::Mcb4bEmulator;
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use newport_smc100::Smc100Emulator;
 pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};
