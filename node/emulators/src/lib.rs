@@ -12,7 +12,9 @@
 mod emulator;
 mod faults;
 mod framing;
+mod phytron;
 
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use phytron::PhymotionEmulator;
