@@ -175,7 +175,7 @@ impl ProtocolKind {
             ProtocolKind::Phytron => {
                 // Each axis reads an encoder of one count a step (I1EM modules).
                 let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
-                Box::new(emulation::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
+                Box::new(zmotor_emulators::PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
         }
     }

@@ -14,6 +14,7 @@ mod emulator;
 mod faults;
 mod framing;
 mod newport_smc100;
+mod phytron;
 mod smaract_mcs2;
 
 pub use acs_mcb4b::Mcb4bEmulator;
@@ -21,4 +22,5 @@ pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
 pub use newport_smc100::Smc100Emulator;
+pub use phytron::PhymotionEmulator;
 pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};

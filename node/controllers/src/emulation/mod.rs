@@ -4,7 +4,6 @@
 //! drivers be tested against the bytes of their protocol. `WithFaults` adds what real links
 //! do: replies lost, late or garbled, a connection that closes.
 
-pub(crate) mod phytron;
 pub(crate) mod pi_gcs2;
 
 use zmotor_core::{SimAxis, SimConfig};
