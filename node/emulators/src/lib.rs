@@ -12,7 +12,9 @@
 mod emulator;
 mod faults;
 mod framing;
+mod pi_gcs2;
 
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use pi_gcs2::Gcs2Emulator;
