@@ -166,7 +166,7 @@ impl ProtocolKind {
             )),
             ProtocolKind::PiGcs2 => {
                 let axes = channels.saturating_sub(1).max(4);
-                Box::new(emulation::pi_gcs2::Gcs2Emulator::new(axes, &emulation::pi_gcs2::mechanics()))
+                Box::new(zmotor_emulators::Gcs2Emulator::new(axes, &zmotor_emulators::Gcs2Emulator::mechanics()))
             }
             ProtocolKind::SmaractMcs2 => {
                 let positioner = emulation::smaract_mcs2::positioner(&mechanics);

@@ -209,8 +209,8 @@ struct Axis {
 }
 
 impl Axis {
-    fn new(mechanics: &SimConfig) -> Self {
-        let mut stage = SimAxis::new(mechanics.clone());
+    /// An axis at power-up on `stage`: the position counts from 0 where it stands.
+    fn power_up(mut stage: SimAxis) -> Self {
         stage.set_position(0.0);
         stage.enable(false);
         Axis {
@@ -363,7 +363,7 @@ impl Gcs2Emulator {
     /// A controller of `axes` axes on `mechanics` (mm), as at power-up.
     pub fn new(axes: usize, mechanics: &SimConfig) -> Self {
         Gcs2Emulator {
-            axes: (0..axes).map(|_| Axis::new(mechanics)).collect(),
+            axes: crate::emulator::axes(axes, mechanics).into_iter().map(Axis::power_up).collect(),
             error: code::NONE,
             line: Vec::new(),
             output: VecDeque::new(),
@@ -576,8 +576,11 @@ impl Gcs2Emulator {
 
     fn set_motion(&mut self, mnemonic: &str, args: &[&str]) -> Outcome {
         let values = self.axis_values(args)?;
-        let (limit, refusal) =
-            if mnemonic == "VEL" { (VELOCITY_LIMIT, code::VEL_OUT_OF_LIMITS) } else { (ACCELERATION_LIMIT, code::PARAM_OUT_OF_RANGE) };
+        let (limit, refusal) = if mnemonic == "VEL" {
+            (VELOCITY_LIMIT, code::VEL_OUT_OF_LIMITS)
+        } else {
+            (ACCELERATION_LIMIT, code::PARAM_OUT_OF_RANGE)
+        };
         if values.iter().any(|(_, v)| *v <= 0.0 || *v > limit) {
             return Err(refusal);
         }

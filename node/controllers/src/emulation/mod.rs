@@ -7,7 +7,6 @@
 pub(crate) mod acs;
 pub(crate) mod newport;
 pub(crate) mod phytron;
-pub(crate) mod pi_gcs2;
 pub(crate) mod smaract_mcs2;
 
 use zmotor_core::{SimAxis, SimConfig};
