@@ -389,7 +389,7 @@ impl Gcs2Emulator {
 
     /// `{<axis> <value>}`.
     fn axis_values(&self, args: &[&str]) -> Result<Vec<(usize, f64)>, u32> {
-        if args.is_empty() || args.len() % 2 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(2) {
             return Err(code::PARAM_NR);
         }
         args.chunks(2).map(|pair| Ok((self.axis_index(pair[0])?, real(pair[1])?))).collect()
@@ -513,7 +513,7 @@ impl Gcs2Emulator {
         let axes = if args.is_empty() {
             (0..self.axes.len()).collect()
         } else {
-            if args.len() % 2 != 0 {
+            if !args.len().is_multiple_of(2) {
                 return Err(code::PARAM_NR);
             }
             let mut axes = Vec::new();
@@ -531,7 +531,7 @@ impl Gcs2Emulator {
     }
 
     fn parameters(&self, args: &[&str]) -> Outcome {
-        if args.is_empty() || args.len() % 2 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(2) {
             return Err(code::PARAM_NR);
         }
         let mut lines = Vec::new();
@@ -544,7 +544,7 @@ impl Gcs2Emulator {
     }
 
     fn set_parameters(&mut self, args: &[&str]) -> Outcome {
-        if args.is_empty() || args.len() % 3 != 0 {
+        if args.is_empty() || !args.len().is_multiple_of(3) {
             return Err(code::PARAM_NR);
         }
         let mut changes = Vec::new();
