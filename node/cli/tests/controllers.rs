@@ -125,3 +125,26 @@ fn newport_smc100_for_a_third_party_client() {
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("smc100 workflow ok"), "{said}");
 }
+
+/// PI's own Python library (pipython) runs a PI user's workflow against `zmotor sim-controller
+/// pi_gcs2`: the emulator answers what PI's software sends and parses (tests/python/pi_workflow.py).
+#[test]
+fn pi_gcs2_through_pipython() {
+    let address = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
+    let (host, port) = address.rsplit_once(':').expect("host:port");
+    let _emulator = zmotor(&["sim-controller", "pi_gcs2", "--listen", &address]);
+    let mut said = String::new();
+    // The emulator takes a moment to listen.
+    for _ in 0..50 {
+        let output = environment::python_script("pi_workflow.py").args([host, port]).output().unwrap();
+        said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+        if output.status.success() && said.contains("pi workflow ok") {
+            return;
+        }
+        if !said.contains("Connection refused") {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    panic!("{said}");
+}

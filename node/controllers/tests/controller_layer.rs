@@ -405,3 +405,14 @@ fn a_controller_that_does_not_initialise_is_not_used() {
     assert!(events.contains(&ControllerEvent::Disconnect), "dropped and opened again: {events:?}");
     assert!(Loopback::statuses(&events, 0).iter().all(|s| s.msta & msta::COMM_ERR != 0), "{events:?}");
 }
+
+#[test]
+fn every_protocol_has_its_witness_and_every_witness_a_protocol() {
+    for kind in ProtocolKind::ALL {
+        let model = zmotor_emulators::Model::speaking(kind.name());
+        assert!(model.is_some_and(|m| m.protocol() == kind.name()), "{} has an emulator", kind.name());
+    }
+    for model in zmotor_emulators::Model::ALL {
+        assert!(ProtocolKind::from_name(model.protocol()).is_some(), "{} has a driver", model.protocol());
+    }
+}

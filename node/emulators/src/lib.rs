@@ -13,14 +13,18 @@ mod acs_mcb4b;
 mod emulator;
 mod faults;
 mod framing;
+mod models;
 mod newport_smc100;
 mod phytron;
+mod pi_gcs2;
 mod smaract_mcs2;
 
 pub use acs_mcb4b::Mcb4bEmulator;
 pub use emulator::{stage, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
+pub use models::Model;
 pub use newport_smc100::Smc100Emulator;
 pub use phytron::PhymotionEmulator;
+pub use pi_gcs2::Gcs2Emulator;
 pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};

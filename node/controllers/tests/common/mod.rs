@@ -12,9 +12,15 @@ use zmotor_msgs::{DriverCommand, Gain};
 /// `kind` driving its emulator with `channels` (the emulator has every channel up to the
 /// highest), through `faults`.
 pub(crate) fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
-    let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
+    let emulator = emulator(kind, channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
     Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
+}
+
+/// The emulator of `kind`'s controllers, with every channel below `channels`.
+pub(crate) fn emulator(kind: ProtocolKind, channels: usize) -> Box<dyn zmotor_emulators::Emulator> {
+    let model = zmotor_emulators::Model::speaking(kind.name()).expect("every protocol has its emulator");
+    model.emulator(channels)
 }
 
 /// Run until the controller is up and has reported every channel; the events on the way.
