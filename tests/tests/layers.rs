@@ -12,7 +12,10 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-msgs", "msgs", &[]),
     ("zmotor-bridge", "bridge", &[]),
     ("zmotor-core", "node/core", &["zmotor-msgs"]),
-    ("zmotor-controllers", "node/controllers", &["zmotor-msgs", "zmotor-core"]),
+    // The emulators are witnesses: they owe nothing to the drivers (and the test below says so
+    // of their dev-dependencies too); the drivers' test bench (`testing`) uses them.
+    ("zmotor-emulators", "node/emulators", &["zmotor-msgs", "zmotor-core"]),
+    ("zmotor-controllers", "node/controllers", &["zmotor-msgs", "zmotor-core", "zmotor-emulators"]),
     ("zmotor-ca-proto", "node/ca-proto", &["zmotor-msgs"]),
     ("zmotor-inbox", "node/inbox", &[]),
     ("zmotor-deploy", "node/deploy", &["zmotor-msgs", "zmotor-bridge", "zmotor-core", "zmotor-controllers"]),
@@ -24,7 +27,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-client", "node/client", &["zmotor-msgs", "zmotor-deploy"]),
     ("zmotor-ca", "node/ca", &["zmotor-msgs", "zmotor-ca-proto", "zmotor-client", "zmotor-deploy"]),
     ("zmotor-web", "node/web", &["zmotor-msgs", "zmotor-client", "zmotor-deploy"]),
-    ("zmotor-sim-controller", "node/sim-controller", &["zmotor-core", "zmotor-controllers"]),
+    ("zmotor-sim-controller", "node/sim-controller", &["zmotor-core", "zmotor-emulators"]),
     (
         "zmotor",
         "node/cli",
@@ -36,6 +39,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
             "zmotor-client",
             "zmotor-ca",
             "zmotor-web",
+            "zmotor-emulators",
             "zmotor-sim-controller",
         ],
     ),
@@ -49,6 +53,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
             "zmotor-deploy",
             "zmotor-client",
             "zmotor-ca-proto",
+            "zmotor-emulators",
             "zmotor-sim-controller",
         ],
     ),
@@ -61,6 +66,7 @@ const BELOW_THE_GATEWAYS: &[&str] = &[
     "zmotor-msgs",
     "zmotor-bridge",
     "zmotor-core",
+    "zmotor-emulators",
     "zmotor-controllers",
     "zmotor-ca-proto",
     "zmotor-inbox",
@@ -97,6 +103,21 @@ fn each_crate_uses_only_the_crates_below_it_and_the_core_no_runtime() {
     let listed: BTreeSet<&str> = LAYERS.iter().map(|(_, folder, _)| *folder).collect();
     for member in members.iter().filter(|m| m.starts_with("node/") || ["msgs", "bridge"].contains(m)) {
         assert!(listed.contains(member), "{member} has no place in the layers (this test and ARCHITECTURE.md)");
+    }
+}
+
+#[test]
+fn the_emulators_owe_nothing_to_the_drivers() {
+    let manifest = std::fs::read_to_string(repo_root().join("node/emulators/Cargo.toml")).unwrap();
+    let toml: toml::Table = toml::from_str(&manifest).unwrap();
+    for section in ["dependencies", "dev-dependencies", "build-dependencies"] {
+        let names = toml.get(section).and_then(|d| d.as_table()).map(|d| d.keys().cloned().collect::<Vec<_>>());
+        for name in names.unwrap_or_default() {
+            assert!(
+                ["zmotor-msgs", "zmotor-core"].contains(&name.as_str()) || !name.starts_with("zmotor"),
+                "zmotor-emulators' {section} name {name}: a witness may not lean on what it witnesses"
+            );
+        }
     }
 }
 

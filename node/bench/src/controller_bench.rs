@@ -14,8 +14,8 @@ use std::pin::Pin;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{Frame, Protocol, ProtocolKind, ProtocolOptions, ReplyEvent, Request, WithProtocol};
+use zmotor_emulators::{Faults, Model};
 use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::Value;
 use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
@@ -131,7 +131,7 @@ impl WithProtocol for Exchanges {
 async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) -> Result<ProtocolFigures, Error> {
     let kind = ready.kind;
     let many = up_to_eight_channels(kind);
-    let emulated = Emulated::new(kind, many.iter().max().map_or(1, |c| c + 1), Faults::default());
+    let emulated = Emulated::new(model(kind)?, many.iter().max().map_or(1, |c| c + 1), Faults::default());
     let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
     let address = listener.local_addr()?.to_string();
     let serving = emulated.clone();
@@ -152,9 +152,15 @@ async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) 
     })
 }
 
+/// The emulated model of a protocol's controllers.
+fn model(kind: ProtocolKind) -> Result<Model, Error> {
+    Model::speaking(kind.name()).ok_or_else(|| format!("{} has no emulator", kind.name()).into())
+}
+
 /// The first eight channels the kind numbers and its emulator has (fewer if it has fewer).
 fn up_to_eight_channels(kind: ProtocolKind) -> Vec<usize> {
-    let mut probe = kind.emulator(100);
+    let Ok(model) = model(kind) else { return Vec::new() };
+    let mut probe = model.emulator(100);
     (0..100).filter(|&c| kind.check_channel(c).is_ok() && probe.axis(c).is_some()).take(8).collect()
 }
 
@@ -254,7 +260,8 @@ async fn end_of_motion_to_done(
     moves: usize,
 ) -> Result<(Percentiles, Duration), Error> {
     let dir = tempfile::tempdir_in(&programs.dir)?;
-    let emulated = Emulated::new(ready.kind, ready.kind.emulated_size(), Faults::default());
+    let model = model(ready.kind)?;
+    let emulated = Emulated::new(model, model.typical_channels(), Faults::default());
     let serving = emulated.clone();
     let (named, here, server) = match ready.reach {
         Reach::Tcp(address) => {

@@ -4,8 +4,8 @@
 use crate::Error;
 use std::path::PathBuf;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::ProtocolKind;
+use zmotor_emulators::{Faults, Model};
 use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 
 /// Where the emulated controller listens.
@@ -53,7 +53,8 @@ pub(crate) async fn run(
 ) -> Result<(), Error> {
     let kind = ProtocolKind::from_name(protocol)
         .ok_or_else(|| format!("'{protocol}' is not a known protocol (known: {})", ProtocolKind::known()))?;
-    let emulated = Emulated::new(kind, channels.unwrap_or(kind.emulated_size()), faults.faults());
+    let model = Model::speaking(kind.name()).ok_or_else(|| format!("'{}' has no emulator", kind.name()))?;
+    let emulated = Emulated::new(model, channels.unwrap_or(model.typical_channels()), faults.faults());
     let interrupted = crate::interrupted();
     tokio::pin!(interrupted);
     match endpoint {

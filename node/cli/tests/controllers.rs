@@ -107,3 +107,44 @@ fn smaract_mcs2() {
 fn phytron() {
     drive_through_loss_and_recovery("phytron", "launch/phytron.toml", Reach::Tcp("127.0.0.1:22222"), "phy11");
 }
+
+/// A stock third-party SMC100 client, yaqd-newport's daemon (tests/python/smc100_workflow.py),
+/// resets, homes and moves a stage of the emulator served on a pseudo-terminal: the emulator
+/// speaks the controller's bytes to software that was written for the real one.
+#[test]
+fn newport_smc100_for_a_third_party_client() {
+    let dir = tempfile::tempdir().unwrap();
+    let tty = dir.path().join("tty");
+    let _emulator = zmotor(&["sim-controller", "newport_smc100", "--pty", tty.to_str().unwrap()]);
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+    while !tty.exists() {
+        assert!(std::time::Instant::now() < deadline, "the emulator made no pseudo-terminal at {}", tty.display());
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let output = environment::python_script("smc100_workflow.py").arg(&tty).output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success() && said.contains("smc100 workflow ok"), "{said}");
+}
+
+/// PI's own Python library (pipython) runs a PI user's workflow against `zmotor sim-controller
+/// pi_gcs2`: the emulator answers what PI's software sends and parses (tests/python/pi_workflow.py).
+#[test]
+fn pi_gcs2_through_pipython() {
+    let address = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
+    let (host, port) = address.rsplit_once(':').expect("host:port");
+    let _emulator = zmotor(&["sim-controller", "pi_gcs2", "--listen", &address]);
+    let mut said = String::new();
+    // The emulator takes a moment to listen.
+    for _ in 0..50 {
+        let output = environment::python_script("pi_workflow.py").args([host, port]).output().unwrap();
+        said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+        if output.status.success() && said.contains("pi workflow ok") {
+            return;
+        }
+        if !said.contains("Connection refused") {
+            break;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    panic!("{said}");
+}

@@ -30,22 +30,12 @@ pub(crate) fn speed_index(velocity: f64) -> u32 {
     (115_200.0 / velocity.abs()).round().clamp(2.0, 255.0) as u32
 }
 
-/// The speed, in steps/s, of a speed index.
-pub(crate) fn speed_of_index(index: u32) -> f64 {
-    115_200.0 / f64::from(index.clamp(2, 255))
-}
-
 /// The ramp index of `acceleration` steps/s²: acceleration = 720000 / (256 − R).
 pub(crate) fn ramp_index(acceleration: f64) -> u32 {
     if acceleration <= 0.0 || !acceleration.is_finite() {
         return 255;
     }
     (256.0 - 720_000.0 / acceleration).round().clamp(1.0, 255.0) as u32
-}
-
-/// The acceleration, in steps/s², of a ramp index.
-pub(crate) fn acceleration_of_index(index: u32) -> f64 {
-    720_000.0 / (256.0 - f64::from(index.clamp(1, 255)))
 }
 
 /// A request of the MCB-4B.
@@ -264,7 +254,6 @@ mod tests {
     fn indexes_follow_the_controller_formulas_and_its_ranges() {
         assert_eq!((speed_index(2000.0), ramp_index(9500.0)), (58, 180));
         assert_eq!((speed_index(1.0), speed_index(1e9), ramp_index(1.0), ramp_index(1e9)), (255, 2, 1, 255));
-        assert!((speed_of_index(58) - 1986.2).abs() < 0.1);
     }
 
     #[test]

@@ -1,16 +1,15 @@
 //! zmotor-controllers: real motor controllers, sans-IO. `Controller` is the controller layer
 //! (one connection, a priority queue, polls, the link and its loss) over a `Protocol`, what a
 //! vendor's protocol provides; `ProtocolKind` names the vendors' protocols and makes their
-//! controllers (`AnyController`); `ControllerSpec` is a controller as a deployment describes it;
-//! `emulator` holds the vendors' controllers emulated on zmotor-core's physical simulator. A
-//! runner (zmotor-zenoh) moves the bytes.
+//! controllers (`AnyController`); `ControllerSpec` is a controller as a deployment describes it.
+//! A runner (zmotor-node) moves the bytes.
 //!
-//! Everything a caller uses is named here, at the root (the emulators apart); the modules are
-//! the crate's own. The feature `testing` adds `Loopback`, the test bench of every protocol.
+//! Everything a caller uses is named here, at the root; the modules are the crate's own. The
+//! feature `testing` adds `Loopback`, the test bench of every protocol: a controller wired to a
+//! witness of zmotor-emulators, which owes nothing to the drivers here.
 
 mod acs;
 mod controller;
-mod emulation;
 #[cfg(feature = "testing")]
 mod loopback;
 mod newport;
@@ -28,15 +27,6 @@ pub use protocol::{
 };
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
-
-/// The vendors' controllers emulated: each speaks its vendor's bytes over zmotor-core's physical
-/// simulator (`ProtocolKind::emulator` makes one), behind a link with faults if wished. A module
-/// of its own, that only re-exports: the emulators are a test bench and a demo, not part of
-/// driving a controller, and their names (`stage`, `Faults`) would read as the crate's at the
-/// root; they are to move to a crate of their own.
-pub mod emulator {
-    pub use crate::emulation::{stage, Emulator, Faults, WithFaults};
-}
 
 /// The protocols zmotor speaks, by the names launch files give them.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -146,46 +136,6 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => user.with(pi_gcs2::PiGcs2::new(options)),
             ProtocolKind::SmaractMcs2 => user.with(smaract_mcs2::Mcs2::new(options)),
             ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
-        }
-    }
-
-    /// The argument to `emulator` that `zmotor sim-controller` gives: a typical controller of
-    /// the kind.
-    pub fn emulated_size(self) -> usize {
-        match self {
-            ProtocolKind::AcsMcb4b => 4,
-            ProtocolKind::NewportSmc100 => 3,
-            ProtocolKind::PiGcs2 => 5,
-            ProtocolKind::SmaractMcs2 => 3,
-            ProtocolKind::Phytron => 23,
-        }
-    }
-
-    /// An emulated controller with every channel below `channels` that the kind has: an
-    /// SMC100 chain has the addresses 1 to `channels` − 1 (one at least), a PI controller the
-    /// axes 1 to `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules
-    /// at least).
-    pub fn emulator(self, channels: usize) -> Box<dyn emulator::Emulator> {
-        let mechanics = emulation::stage();
-        match self {
-            ProtocolKind::AcsMcb4b => Box::new(emulation::acs::Mcb4bEmulator::new(channels, &mechanics)),
-            ProtocolKind::NewportSmc100 => Box::new(emulation::newport::Smc100Emulator::new(
-                channels.saturating_sub(1).max(1),
-                &emulation::newport::stage(),
-            )),
-            ProtocolKind::PiGcs2 => {
-                let axes = channels.saturating_sub(1).max(4);
-                Box::new(emulation::pi_gcs2::Gcs2Emulator::new(axes, &emulation::pi_gcs2::mechanics()))
-            }
-            ProtocolKind::SmaractMcs2 => {
-                let positioner = emulation::smaract_mcs2::positioner(&mechanics);
-                Box::new(emulation::smaract_mcs2::Mcs2Emulator::new(channels, &positioner))
-            }
-            ProtocolKind::Phytron => {
-                // Each axis reads an encoder of one count a step (I1EM modules).
-                let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
-                Box::new(emulation::phytron::PhymotionEmulator::with_channels_below(channels, &mechanics))
-            }
         }
     }
 }

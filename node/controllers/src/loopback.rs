@@ -2,9 +2,9 @@
 //! for byte, with the link's faults, without a socket or a clock.
 
 use crate::controller::{AnyController, ControllerEvent};
-use crate::emulation::{Emulator, Faults, WithFaults};
 use std::time::Duration;
 use zmotor_core::{DeviceStatus, Instant};
+use zmotor_emulators::{Emulator, Faults, WithFaults};
 use zmotor_msgs::DriverCommand;
 
 /// Exchanges at one instant before the loop is declared runaway.

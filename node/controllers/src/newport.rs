@@ -94,34 +94,12 @@ pub(crate) const LARGEST_VALUE: f64 = 1e12;
 /// What a record gain of 1 is in the controller's KP, KI and KD.
 pub(crate) const GAIN_SCALE: f64 = 1e6;
 
-/// Controller state codes (the last two hex digits of `TS`).
+/// The controller state codes the driver tells apart (the last two hex digits of `TS`).
 pub(crate) mod state {
-    /// NOT REFERENCED after a reset or power-up.
-    pub(crate) const NOT_REFERENCED_FROM_RESET: u8 = 0x0A;
-    /// NOT REFERENCED after a home search that was stopped or failed.
-    pub(crate) const NOT_REFERENCED_FROM_HOMING: u8 = 0x0B;
-    /// NOT REFERENCED after leaving CONFIGURATION.
-    pub(crate) const NOT_REFERENCED_FROM_CONFIGURATION: u8 = 0x0C;
-    /// NOT REFERENCED after a motion that ran into an end-of-run switch.
-    pub(crate) const NOT_REFERENCED_FROM_MOVING: u8 = 0x0F;
     /// NOT REFERENCED with an ESP stage error (CONEX-CC: no parameters in memory).
     pub(crate) const NOT_REFERENCED_ESP_STAGE_ERROR: u8 = 0x10;
-    /// CONFIGURATION (entered with `PW1`).
-    pub(crate) const CONFIGURATION: u8 = 0x14;
-    /// HOMING, started by `OR`.
-    pub(crate) const HOMING: u8 = 0x1E;
-    /// MOVING.
-    pub(crate) const MOVING: u8 = 0x28;
     /// READY after a home search.
     pub(crate) const READY_FROM_HOMING: u8 = 0x32;
-    /// READY after a motion.
-    pub(crate) const READY_FROM_MOVING: u8 = 0x33;
-    /// READY after DISABLE.
-    pub(crate) const READY_FROM_DISABLE: u8 = 0x34;
-    /// DISABLE from READY.
-    pub(crate) const DISABLE_FROM_READY: u8 = 0x3C;
-    /// DISABLE from MOVING (a following error, for one).
-    pub(crate) const DISABLE_FROM_MOVING: u8 = 0x3D;
 }
 
 /// Positioner error bits (the first four hex digits of `TS`).
@@ -166,19 +144,6 @@ pub(crate) fn state_class(code: u8) -> Option<StateClass> {
         0x3C..=0x3F => Some(StateClass::Disable),
         0x46 | 0x47 => Some(StateClass::Jogging),
         _ => None,
-    }
-}
-
-/// The TE letter of a command refused in a state of `class`.
-pub(crate) fn state_refusal(class: StateClass) -> char {
-    match class {
-        StateClass::NotReferenced => 'H',
-        StateClass::Configuration => 'I',
-        StateClass::Disable => 'J',
-        StateClass::Ready => 'K',
-        StateClass::Homing => 'L',
-        StateClass::Moving => 'M',
-        StateClass::Jogging => 'P',
     }
 }
 

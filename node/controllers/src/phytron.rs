@@ -147,10 +147,6 @@ pub(crate) mod status_bit {
     pub(crate) const SFI_ERROR: u32 = 1 << 14;
     /// EnDat (absolute encoder) error.
     pub(crate) const ENDAT_ERROR: u32 = 1 << 15;
-    /// The axis is running.
-    pub(crate) const RUNNING: u32 = 1 << 16;
-    /// The axis is in position.
-    pub(crate) const IN_POSITION: u32 = 1 << 19;
     /// The errors that make a problem (the EPICS driver's mask 0xE800).
     pub(crate) const PROBLEMS: u32 = INTERNAL_ERROR | POWER_STAGE_ERROR | SFI_ERROR | ENDAT_ERROR;
 }
@@ -191,7 +187,8 @@ pub(crate) fn request_frame(payload: &str) -> Vec<u8> {
 }
 
 /// The reply frame that carries `sub_replies` (each an ACK or NAK and its data), as the
-/// controller sends it.
+/// controller sends it (for the tests: the emulator frames its own).
+#[cfg(test)]
 pub(crate) fn reply_frame(sub_replies: &[u8]) -> Vec<u8> {
     let mut frame = vec![STX];
     frame.extend(with_checksum(sub_replies.to_vec()));

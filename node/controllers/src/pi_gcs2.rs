@@ -129,10 +129,6 @@ pub(crate) mod register {
 
 /// Parameter IDs (`SPA`, `SPA?`).
 pub(crate) mod parameter {
-    /// Current acceleration, units/s².
-    pub(crate) const ACCELERATION: u32 = 0x0B;
-    /// Current deceleration, units/s².
-    pub(crate) const DECELERATION: u32 = 0x0C;
     /// Counts per unit, numerator.
     pub(crate) const COUNTS_PER_UNIT_NUMERATOR: u32 = 0x0E;
     /// Counts per unit, denominator.
@@ -721,7 +717,8 @@ impl Protocol for PiGcs2 {
                 };
                 let mut requests = Vec::new();
                 if let Some(v) = self.rate_text(channel, "home velocity", *max_velocity)? {
-                    requests.extend(checked(channel, format!("SPA {channel} 0x50 {v}")));
+                    requests
+                        .extend(checked(channel, format!("SPA {channel} 0x{:X} {v}", parameter::REFERENCE_VELOCITY)));
                 }
                 requests.extend(checked(channel, format!("SVO {channel} 1")));
                 requests.extend(checked(channel, format!("{verb} {channel}")));

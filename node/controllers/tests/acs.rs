@@ -6,8 +6,8 @@ mod common;
 use common::{bring_up, command, last_status, loopback, run_until_done};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{Loopback, ProtocolKind};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 

@@ -6,12 +6,12 @@ mod common;
 
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{
     line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
     Refusal, ReplyError, ReplyEvent, Request,
 };
 use zmotor_core::{DeviceStatus, Driver};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -371,7 +371,7 @@ impl zmotor_controllers::Protocol for Picky {
 #[derive(Default)]
 struct Answering(Vec<Vec<u8>>);
 
-impl zmotor_controllers::emulator::Emulator for Answering {
+impl zmotor_emulators::Emulator for Answering {
     fn name(&self) -> &'static str {
         "picky"
     }
@@ -404,4 +404,15 @@ fn a_controller_that_does_not_initialise_is_not_used() {
     let events = lb.take_events();
     assert!(events.contains(&ControllerEvent::Disconnect), "dropped and opened again: {events:?}");
     assert!(Loopback::statuses(&events, 0).iter().all(|s| s.msta & msta::COMM_ERR != 0), "{events:?}");
+}
+
+#[test]
+fn every_protocol_has_its_witness_and_every_witness_a_protocol() {
+    for kind in ProtocolKind::ALL {
+        let model = zmotor_emulators::Model::speaking(kind.name());
+        assert!(model.is_some_and(|m| m.protocol() == kind.name()), "{} has an emulator", kind.name());
+    }
+    for model in zmotor_emulators::Model::ALL {
+        assert!(ProtocolKind::from_name(model.protocol()).is_some(), "{} has a driver", model.protocol());
+    }
 }

@@ -8,11 +8,11 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{
     CommandError, ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, Refusal,
 };
 use zmotor_core::{DeviceStatus, Instant, SimSetting};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain, Value};
 
@@ -293,7 +293,7 @@ fn millimetres_per_step_follow_the_launch_file() {
     let options = ProtocolOptions { units_per_step: Some(0.00005) };
     let config = ControllerConfig::for_channels(vec![1]);
     let controller = SMC.controller(&options, config, Instant::ZERO);
-    let mut lb = Loopback::new(controller, SMC.emulator(2), Faults::default());
+    let mut lb = Loopback::new(controller, common::emulator(SMC, 2), Faults::default());
     bring_up(&mut lb);
     homed(&mut lb, 1);
     let statuses = carry_out(&mut lb, 1, &go(100_000.0, false));

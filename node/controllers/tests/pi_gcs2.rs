@@ -9,9 +9,9 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -253,7 +253,7 @@ fn units_given_by_the_installation_replace_the_controllers() {
     let options = ProtocolOptions { units_per_step: Some(0.001) };
     let config = ControllerConfig::for_channels(vec![1]);
     let controller = PI.controller(&options, config, Instant::ZERO);
-    let mut lb = Loopback::new(controller, PI.emulator(2), Faults::default());
+    let mut lb = Loopback::new(controller, common::emulator(PI, 2), Faults::default());
     bring_up(&mut lb);
     assert!(!written_since(&lb, 0).iter().any(|s| s.starts_with("SPA?")));
     lb.command(1, &DriverCommand::SetPosition { position: 0.0 });

@@ -7,9 +7,9 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
 use zmotor_core::Instant;
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
@@ -230,7 +230,7 @@ fn connecting_and_reconnecting_move_nothing() {
 fn the_scale_is_the_launch_files() {
     let options = ProtocolOptions { units_per_step: Some(1.0) };
     let controller = MCS2.controller(&options, ControllerConfig::for_channels(vec![0]), Instant::ZERO);
-    let mut lb = Loopback::new(controller, MCS2.emulator(1), Faults::default());
+    let mut lb = Loopback::new(controller, common::emulator(MCS2, 1), Faults::default());
     bring_up(&mut lb);
     lb.command(0, &go(1500.0, false));
     let statuses = run_until_done(&mut lb, 0, TICK, Duration::from_secs(2));

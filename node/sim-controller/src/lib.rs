@@ -1,5 +1,5 @@
 //! zmotor-sim-controller: a vendor's controller emulated on the physical simulator
-//! (`zmotor_controllers::emulator`), served on the wall clock: its bytes on a TCP socket or on a
+//! (`zmotor_emulators`), served on the wall clock: its bytes on a TCP socket or on a
 //! pseudo-terminal, with the link's faults on request. It lets a launch file written for real
 //! hardware run with none attached (`zmotor sim-controller`), and the benchmark watch the
 //! emulated stages. One connection at a time; a new one replaces the old (the controller, its
@@ -8,9 +8,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use zmotor_controllers::emulator::{Faults, WithFaults};
-use zmotor_controllers::ProtocolKind;
 use zmotor_core::{Driver, Instant};
+use zmotor_emulators::{Faults, Model, WithFaults};
 
 /// A pseudo-terminal that cannot be made.
 #[derive(Debug, thiserror::Error)]
@@ -45,9 +44,9 @@ pub struct Emulated {
 }
 
 impl Emulated {
-    /// A controller of `kind` with every channel below `channels`, behind `faults`.
-    pub fn new(kind: ProtocolKind, channels: usize, faults: Faults) -> Self {
-        let link = WithFaults::new(kind.emulator(channels), faults);
+    /// A controller of `model` with every channel below `channels`, behind `faults`.
+    pub fn new(model: Model, channels: usize, faults: Faults) -> Self {
+        let link = WithFaults::new(model.emulator(channels), faults);
         Self { link: Arc::new(Mutex::new(link)), origin: tokio::time::Instant::now() }
     }
 

@@ -3,18 +3,24 @@
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::emulator::Faults;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
 use zmotor_core::{DeviceStatus, Instant};
+use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::{DriverCommand, Gain};
 
 /// `kind` driving its emulator with `channels` (the emulator has every channel up to the
 /// highest), through `faults`.
 pub(crate) fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -> Loopback {
-    let emulator = kind.emulator(channels.iter().max().map_or(1, |c| c + 1));
+    let emulator = emulator(kind, channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
     Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
+}
+
+/// The emulator of `kind`'s controllers, with every channel below `channels`.
+pub(crate) fn emulator(kind: ProtocolKind, channels: usize) -> Box<dyn zmotor_emulators::Emulator> {
+    let model = zmotor_emulators::Model::speaking(kind.name()).expect("every protocol has its emulator");
+    model.emulator(channels)
 }
 
 /// Run until the controller is up and has reported every channel; the events on the way.

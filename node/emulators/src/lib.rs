@@ -1,0 +1,30 @@
+//! zmotor-emulators: the vendors' motor controllers, emulated. Each speaks its vendor's bytes
+//! as the vendor's manual gives them (including what the vendor's own software sends:
+//! identification, version and help queries, status bytes, error codes, the answer to an
+//! unknown command) and moves zmotor-core's physical simulator behind every channel.
+//!
+//! An emulator is a witness, not a mirror: this crate depends on no driver, so a misreading of
+//! a manual in a driver shows up as a disagreement with its emulator instead of being shared.
+//! Emulators let a launch file for real hardware run with none attached (`zmotor
+//! sim-controller`) and the drivers be tested byte for byte; `WithFaults` adds what real links
+//! do: replies lost, late or garbled, a connection that closes.
+
+mod acs_mcb4b;
+mod emulator;
+mod faults;
+mod framing;
+mod models;
+mod newport_smc100;
+mod phytron;
+mod pi_gcs2;
+mod smaract_mcs2;
+
+pub use acs_mcb4b::Mcb4bEmulator;
+pub use emulator::{stage, Emulator};
+pub use faults::{Faults, WithFaults};
+pub use framing::Lines;
+pub use models::Model;
+pub use newport_smc100::Smc100Emulator;
+pub use phytron::PhymotionEmulator;
+pub use pi_gcs2::Gcs2Emulator;
+pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};

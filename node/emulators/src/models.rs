@@ -1,0 +1,90 @@
+//! The controllers emulated, by the protocol names launch files give them (the wire's
+//! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
+
+use crate::{
+    mcs2_positioner, stage, Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator, Smc100Emulator,
+};
+
+/// A controller model this crate emulates.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum Model {
+    /// ACS MCB-4B.
+    AcsMcb4b,
+    /// A chain of Newport SMC100CC controllers.
+    NewportSmc100,
+    /// A PI C-884 class controller (GCS 2.0).
+    PiGcs2,
+    /// A SmarAct MCS2.
+    SmaractMcs2,
+    /// A Phytron phyMOTION.
+    Phytron,
+}
+
+impl Model {
+    /// Every model.
+    pub const ALL: [Model; 5] =
+        [Model::AcsMcb4b, Model::NewportSmc100, Model::PiGcs2, Model::SmaractMcs2, Model::Phytron];
+
+    /// The protocol it speaks, as launch files name it.
+    pub fn protocol(self) -> &'static str {
+        match self {
+            Model::AcsMcb4b => "acs_mcb4b",
+            Model::NewportSmc100 => "newport_smc100",
+            Model::PiGcs2 => "pi_gcs2",
+            Model::SmaractMcs2 => "smaract_mcs2",
+            Model::Phytron => "phytron",
+        }
+    }
+
+    /// The model speaking `protocol` (a launch file's name for it, exactly).
+    pub fn speaking(protocol: &str) -> Option<Model> {
+        Model::ALL.into_iter().find(|model| model.protocol() == protocol)
+    }
+
+    /// The channels a typical controller of the model has (what `zmotor sim-controller` makes
+    /// when not told): one more than its highest channel number.
+    pub fn typical_channels(self) -> usize {
+        match self {
+            Model::AcsMcb4b => 4,
+            Model::NewportSmc100 => 3,
+            Model::PiGcs2 => 5,
+            Model::SmaractMcs2 => 3,
+            Model::Phytron => 23,
+        }
+    }
+
+    /// An emulated controller with every channel below `channels` the model has: an SMC100
+    /// chain the addresses 1 to `channels` − 1 (one at least), a PI controller the axes 1 to
+    /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least).
+    pub fn emulator(self, channels: usize) -> Box<dyn Emulator> {
+        let mechanics = stage();
+        match self {
+            Model::AcsMcb4b => Box::new(Mcb4bEmulator::new(channels, &mechanics)),
+            Model::NewportSmc100 => {
+                Box::new(Smc100Emulator::new(channels.saturating_sub(1).max(1), &Smc100Emulator::stage()))
+            }
+            Model::PiGcs2 => Box::new(Gcs2Emulator::new(channels.saturating_sub(1).max(4), &Gcs2Emulator::mechanics())),
+            Model::SmaractMcs2 => Box::new(Mcs2Emulator::new(channels, &mcs2_positioner(&mechanics))),
+            Model::Phytron => {
+                // Each axis reads an encoder of one count a step (I1EM modules).
+                let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
+                Box::new(PhymotionEmulator::with_channels_below(channels, &mechanics))
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_model_is_found_by_its_protocol_and_speaks_it() {
+        for model in Model::ALL {
+            assert_eq!(Model::speaking(model.protocol()), Some(model));
+            assert_eq!(model.emulator(model.typical_channels()).name(), model.protocol());
+        }
+        assert_eq!(Model::speaking("pi"), None, "aliases are the driver's business");
+    }
+}
