@@ -1,6 +1,8 @@
 //! What every protocol's tests share: a loopback in virtual time, and arbitrary record commands.
 #![allow(dead_code)] // each test file uses its own part
 
+pub(crate) mod golden;
+
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
