@@ -39,6 +39,9 @@ pub struct ControllerConfig {
     pub reconnect_first: Duration,
     /// Longest wait between attempts to reconnect.
     pub reconnect_max: Duration,
+    /// Only observed (`observe = true`): connected, initialised read-only and polled; every
+    /// command but a status refresh refused, so nothing moves, powers up or is reconfigured.
+    pub observe: bool,
 }
 
 impl ControllerConfig {
@@ -55,6 +58,7 @@ impl ControllerConfig {
             fast_polls: 2,
             reconnect_first: Duration::from_millis(500),
             reconnect_max: Duration::from_secs(10),
+            observe: false,
         }
     }
 }
@@ -108,6 +112,9 @@ pub enum Refusal {
     /// The channel has no axis on this controller.
     #[error("channel {0} has no axis on this controller")]
     UnknownChannel(usize),
+    /// The controller is only observed.
+    #[error("the controller is only observed (observe = true in its [[controller]]): nothing is sent that moves, enables or reconfigures")]
+    Observed,
 }
 
 /// Queue classes, most urgent first.
@@ -319,6 +326,12 @@ impl<P: Protocol> AnyController for Controller<P> {
         {
             state.acceleration = *acceleration;
         }
+        if self.config.observe && !matches!(command, DriverCommand::Poll) {
+            // Not even a stop, and none owed: beside a running IOC, that IOC drives the axes.
+            self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::Observed });
+            self.report_problem(channel);
+            return;
+        }
         let open = matches!(self.link, Link::Initialising { .. } | Link::Up);
         if !(self.link == Link::Up || (stop && open)) {
             // Never kept for later: a move must not run minutes after it was asked for. A stop
@@ -369,7 +382,10 @@ impl<P: Protocol> AnyController for Controller<P> {
         let Link::Connecting { backoff } = self.link else { return };
         self.link = Link::Initialising { backoff };
         self.received.clear();
-        let init = self.protocol.init(&self.config.channels);
+        let mut init = self.protocol.init(&self.config.channels);
+        if self.config.observe {
+            init.retain(|request| P::purpose(request.step) != Purpose::Setup);
+        }
         self.seq += 1;
         self.queue.push(Transaction {
             priority: Priority::Stop,

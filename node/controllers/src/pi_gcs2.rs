@@ -612,7 +612,8 @@ impl Protocol for PiGcs2 {
 
     fn purpose(step: Step) -> Purpose {
         match step {
-            Step::Identity | Step::Axes | Step::Setting { .. } | Step::ServoStart | Step::ServoStarted => Purpose::Init,
+            Step::Identity | Step::Axes | Step::Setting { .. } => Purpose::Init,
+            Step::ServoStart | Step::ServoStarted => Purpose::Setup,
             Step::Read { channel, .. } => Purpose::Poll { channel },
             Step::PollErrors => Purpose::PollMany,
             Step::Setter { channel }

@@ -54,8 +54,11 @@ pub enum Purpose {
         /// The channel commanded.
         channel: usize,
     },
-    /// Part of the initialisation of a new connection.
+    /// Part of the initialisation of a new connection: a reading.
     Init,
+    /// Part of the initialisation of a new connection that changes the controller (a servo
+    /// switched on, a holding time): left out when the controller is only observed.
+    Setup,
 }
 
 impl Purpose {
@@ -63,7 +66,7 @@ impl Purpose {
     pub fn channel(self) -> Option<usize> {
         match self {
             Purpose::Poll { channel } | Purpose::Command { channel } => Some(channel),
-            Purpose::PollMany | Purpose::Init => None,
+            Purpose::PollMany | Purpose::Init | Purpose::Setup => None,
         }
     }
 }

@@ -445,7 +445,8 @@ impl Protocol for Mcs2 {
 
     fn purpose(step: Step) -> Purpose {
         match step {
-            Step::SerialNumber | Step::StaleErrors | Step::Hold | Step::InitErrors => Purpose::Init,
+            Step::SerialNumber | Step::StaleErrors | Step::InitErrors => Purpose::Init,
+            Step::Hold => Purpose::Setup,
             Step::Read { channel, .. } | Step::PollErrors { channel } => Purpose::Poll { channel },
             Step::Setter { channel } | Step::RawQuery { channel } | Step::CommandErrors { channel } => {
                 Purpose::Command { channel }

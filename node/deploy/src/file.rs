@@ -339,6 +339,10 @@ pub struct ControllerSection {
     /// The controller's units per record step, where the protocol has units (see README).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub units_per_step: Option<f64>,
+    /// Only observe it: connect, initialise read-only and poll; refuse every command that
+    /// would move, enable or reconfigure (commissioning, or beside a running IOC).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub observe: bool,
     #[serde(skip)]
     /// Where it was written.
     pub origin: Origin,

@@ -119,6 +119,7 @@ impl ControllerSection {
             idle_poll: period("idle_poll", self.idle_poll, 0.001, 60.0)?,
             timeout: period("timeout", self.timeout, 0.001, 60.0)?,
             retries: self.retries,
+            observe: self.observe,
             ..ControllerConfig::for_channels(channels)
         };
         if self.retries > 10 {

@@ -197,6 +197,10 @@ fn a_controller_drives_the_channels_of_its_axes() {
     let deployment = Launch::parse(&serial).unwrap().deployment(None).unwrap();
     let Transport::Serial(line) = &deployment.contents.controllers[0].transport else { panic!("a serial line") };
     assert_eq!((line.baud, line.parity, line.data_bits, line.stop_bits), (19200, Parity::Even, 8, 2));
+    assert!(!mcb.config.observe, "a controller is driven unless said otherwise");
+    let observed = CONTROLLED.replace("moving_poll = 0.05", "moving_poll = 0.05\nobserve = true");
+    let deployment = Launch::parse(&observed).unwrap().deployment(None).unwrap();
+    assert!(deployment.contents.controllers[0].config.observe);
 }
 
 #[test]

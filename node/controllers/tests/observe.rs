@@ -1,0 +1,101 @@
+//! `observe = true`: a controller connected, initialised read-only and polled, and nothing
+//! else, whatever the record commands: no motion, no power, no setting. A lab connects zmotor
+//! beside its running IOC, or to new hardware before its first move, and compares readbacks.
+
+mod common;
+
+use common::{bring_up, command};
+use proptest::prelude::*;
+use std::collections::BTreeSet;
+use std::time::Duration;
+use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, Refusal};
+use zmotor_core::Instant;
+use zmotor_emulators::Faults;
+use zmotor_msgs::DriverCommand;
+
+/// Each protocol with two of its channels.
+const CASES: [(ProtocolKind, [usize; 2]); 5] = [
+    (ProtocolKind::AcsMcb4b, [0, 2]),
+    (ProtocolKind::NewportSmc100, [1, 2]),
+    (ProtocolKind::PiGcs2, [1, 4]),
+    (ProtocolKind::SmaractMcs2, [0, 2]),
+    (ProtocolKind::Phytron, [11, 22]),
+];
+
+fn observed(kind: ProtocolKind, channels: &[usize]) -> Loopback {
+    let emulator = common::emulator(kind, channels.iter().max().map_or(1, |c| c + 1));
+    let config = ControllerConfig { observe: true, ..ControllerConfig::for_channels(channels.to_vec()) };
+    Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, Faults::default())
+}
+
+/// Every request an observed controller sends when left alone and asked for status refreshes:
+/// its readings.
+fn readings(kind: ProtocolKind, channels: &[usize]) -> BTreeSet<Vec<u8>> {
+    let mut lb = observed(kind, channels);
+    bring_up(&mut lb);
+    for &channel in channels {
+        lb.command(channel, &DriverCommand::Poll);
+        lb.run_for(Duration::from_millis(200));
+    }
+    lb.run_for(Duration::from_secs(3));
+    lb.written().iter().cloned().collect()
+}
+
+#[test]
+fn an_observed_controller_is_initialised_without_a_setting() {
+    // PI's servo is not switched on, SmarAct's holding time not set: only readings go out.
+    for (kind, channels) in CASES {
+        let mut plain = common::loopback(kind, &channels, Faults::default());
+        bring_up(&mut plain);
+        let observed_requests = readings(kind, &channels);
+        let setup: Vec<String> = plain
+            .written()
+            .iter()
+            .filter(|r| !observed_requests.contains(*r))
+            .map(|r| String::from_utf8_lossy(r).into_owned())
+            .collect();
+        match kind {
+            ProtocolKind::PiGcs2 => assert!(setup.iter().any(|r| r.starts_with("SVO")), "{setup:?}"),
+            ProtocolKind::SmaractMcs2 => assert!(setup.iter().any(|r| r.contains(":HOLD")), "{setup:?}"),
+            _ => assert!(setup.is_empty(), "{}: an observed init leaves out {setup:?}", kind.name()),
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    #[test]
+    fn an_observed_controller_moves_nothing_under_any_command(
+        case in 0..CASES.len(),
+        commands in proptest::collection::vec((0..2usize, command(), 0..300u64), 1..16),
+    ) {
+        let (kind, channels) = CASES[case];
+        let allowed = readings(kind, &channels);
+        let mut lb = observed(kind, &channels);
+        bring_up(&mut lb);
+        let before: Vec<f64> =
+            channels.iter().map(|&c| lb.link.emulator().axis(c).expect("an emulated channel").physical_position()).collect();
+        for (pick, command, gap_ms) in &commands {
+            lb.command(channels[*pick], command);
+            lb.run_for(Duration::from_millis(*gap_ms));
+        }
+        lb.run_for(Duration::from_secs(2));
+        for event in lb.take_events() {
+            if let ControllerEvent::Refused { why, .. } = event {
+                prop_assert!(matches!(why, Refusal::Observed), "{}: refused for another reason: {why}", kind.name());
+            }
+        }
+        let unexpected: Vec<String> = lb
+            .written()
+            .iter()
+            .filter(|r| !allowed.contains(*r))
+            .map(|r| String::from_utf8_lossy(r).into_owned())
+            .collect();
+        prop_assert!(unexpected.is_empty(), "{}: an observed controller was sent {unexpected:?}", kind.name());
+        for (&channel, position) in channels.iter().zip(before) {
+            let axis = lb.link.emulator().axis(channel).expect("an emulated channel");
+            prop_assert!(!axis.is_moving() && axis.physical_position() == position, "{} channel {channel} moved", kind.name());
+        }
+    }
+}
