@@ -41,13 +41,16 @@ pub enum RefusalKind {
     WriteKeyRequired,
     /// A write to a key with wildcards: a write names one field of one axis.
     Wildcard,
+    /// The axis's controller reported an error, or a command to it was not sent (published on
+    /// ERR with the vendor's code and meaning; not a write's refusal).
+    Controller,
     /// A refusal whose kind the node did not say (a node of another make or version).
     Other,
 }
 
 impl RefusalKind {
     /// Every kind.
-    pub const ALL: [RefusalKind; 16] = [
+    pub const ALL: [RefusalKind; 17] = [
         RefusalKind::UnknownField,
         RefusalKind::ReadOnly,
         RefusalKind::BadValue,
@@ -63,6 +66,7 @@ impl RefusalKind {
         RefusalKind::BadHold,
         RefusalKind::WriteKeyRequired,
         RefusalKind::Wildcard,
+        RefusalKind::Controller,
         RefusalKind::Other,
     ];
 
@@ -84,6 +88,7 @@ impl RefusalKind {
             RefusalKind::BadHold => "bad_hold",
             RefusalKind::WriteKeyRequired => "write_key_required",
             RefusalKind::Wildcard => "wildcard",
+            RefusalKind::Controller => "controller",
             RefusalKind::Other => "other",
         }
     }

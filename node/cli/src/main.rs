@@ -685,8 +685,29 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
 /// A monitor that starts with the current values, then every change, as camonitor does.
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool) -> Result<ExitCode, Error> {
     let zmotor = connect(client).await?;
-    let wanted: Vec<Field> = fields.iter().map(|f| field_named(f)).collect::<Result<_, _>>()?;
-    let mut updates = zmotor.monitor(axis, &wanted).await?;
+    // ERR is no field but the axis's messages: refused writes, its controller's errors.
+    let is_err = |name: &String| name.eq_ignore_ascii_case(zmotor_msgs::keys::ERR_KEY);
+    let wanted: Vec<Field> = fields.iter().filter(|f| !is_err(f)).map(|f| field_named(f)).collect::<Result<_, _>>()?;
+    let messages = fields.iter().any(is_err);
+    if messages && wanted.is_empty() {
+        // Only messages: follow nothing else (PREC still comes, for the shape of the values).
+        let mut updates = zmotor.monitor_with_messages(axis, &[Field::PREC], true).await?;
+        loop {
+            tokio::select! {
+                update = updates.next() => {
+                    let Some(update) = update else { break };
+                    if update.field.is_none() {
+                        print_lines([monitor_line(&update, json)]);
+                    }
+                }
+                _ = tokio::signal::ctrl_c() => break,
+            }
+        }
+        drop(updates);
+        zmotor.session().close().await?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let mut updates = zmotor.monitor_with_messages(axis, &wanted, messages).await?;
     loop {
         tokio::select! {
             update = updates.next() => {

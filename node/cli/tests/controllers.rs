@@ -4,7 +4,8 @@
 //! COMM alarm, a move goes nowhere) and started again (the alarm clears, nothing moves by
 //! itself). Separate processes, 127.0.0.1 only, a free port for everything.
 
-use std::path::{Path, PathBuf};
+mod common;
+
 use std::process::{Child, Command, Stdio};
 use zmotor_client::free_local_endpoint;
 use zmotor_tests::environment;
@@ -17,10 +18,6 @@ impl Drop for Running {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
-}
-
-fn repo_file(path: &str) -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
 }
 
 fn zmotor(args: &[&str]) -> Running {
@@ -57,7 +54,7 @@ fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, a
         }
         Reach::Pty(device) => (device, dir.path().join("tty").to_str().unwrap().to_string(), "--pty"),
     };
-    let text = std::fs::read_to_string(repo_file(launch)).unwrap();
+    let text = std::fs::read_to_string(common::repo_file(launch)).unwrap();
     assert!(text.contains(named), "{launch} names its controller at {named}");
     let file = dir.path().join("launch.toml");
     std::fs::write(&file, text.replace(named, &here)).unwrap();
@@ -147,4 +144,48 @@ fn pi_gcs2_through_pipython() {
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
     panic!("{said}");
+}
+
+/// A controller's error reaches the client, not only the node's log: a move of a PI axis that
+/// was never referenced is refused by the controller (error 5), and `zmotor monitor pi1 ERR`
+/// shows it with its code and meaning.
+#[test]
+fn a_controllers_error_reaches_the_axis_err() {
+    let dir = tempfile::tempdir().unwrap();
+    let here = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
+    let text =
+        std::fs::read_to_string(common::repo_file("launch/pi-gcs2.toml")).unwrap().replace("127.0.0.1:50000", &here);
+    let file = dir.path().join("launch.toml");
+    std::fs::write(&file, text).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let _emulator = zmotor(&["sim-controller", "pi_gcs2", "--listen", &here]);
+    let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["launch", file.to_str().unwrap(), "--listen", &endpoint])
+        .env("ZMOTOR_STATE_DIR", dir.path())
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let _node = Running(node);
+    // Served, and its controller reached (the emulator may start listening after the node).
+    const COMM_ERR: u32 = 0x1000;
+    common::Host::default().wait_for(&endpoint, "pi1", "MSTA", |msta| (msta as u32) & COMM_ERR == 0);
+    let mut monitor = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["monitor", "pi1", "DMOV", "ERR", "--connect", &endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let lines = common::Lines::of(&mut monitor);
+    let _monitor = Running(monitor);
+    // The monitor is live once it showed DMOV's current value.
+    assert!(lines.wait_for(common::PATIENCE, |l| l.starts_with("pi1.DMOV")).is_some(), "the monitor started");
+    let put = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["put", "pi1", "VAL", "1", "--wait", "--connect", &endpoint])
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&put.stdout).into_owned() + &String::from_utf8_lossy(&put.stderr);
+    let err = |l: &str| l.starts_with("pi1.ERR") && l.contains("controller error 5") && l.contains("unreferenced");
+    assert!(lines.wait_for(common::PATIENCE, err).is_some(), "ERR named PI's error 5; the put said {said}");
 }

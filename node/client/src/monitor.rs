@@ -37,6 +37,8 @@ pub struct Monitor {
     axis: String,
     /// The fields followed; empty for every field.
     wanted: Vec<Field>,
+    /// Whether the axis's messages (ERR: refused writes, its controller's errors) are followed.
+    messages: bool,
     arrivals: UnboundedReceiver<Arrival>,
     prec: Option<i16>,
     _subscribers: Vec<Subscriber<()>>,
@@ -53,6 +55,17 @@ enum Arrival {
 impl Client {
     /// Follow `fields` of `axis` (every field when empty), starting with their current values.
     pub async fn monitor(&self, axis: &str, fields: &[Field]) -> Result<Monitor, zenoh::Error> {
+        self.monitor_with_messages(axis, fields, false).await
+    }
+
+    /// `monitor`, and with `messages` the axis's messages too (its ERR key: refused writes and
+    /// its controller's errors, as they come; a message has no current value).
+    pub async fn monitor_with_messages(
+        &self,
+        axis: &str,
+        fields: &[Field],
+        messages: bool,
+    ) -> Result<Monitor, zenoh::Error> {
         let layout = self.layout();
         let (queue, arrivals) = unbounded_channel();
         let mut followed: Vec<String> = match fields {
@@ -60,6 +73,9 @@ impl Client {
             named => named.iter().map(|f| layout.field(axis, *f)).collect(),
         };
         let mut subscribed = followed.clone();
+        if messages && !fields.is_empty() {
+            subscribed.push(layout.err(axis));
+        }
         if !fields.is_empty() && !fields.contains(&Field::PREC) {
             // PREC says how the values are shown: followed, not shown.
             subscribed.push(layout.field(axis, Field::PREC));
@@ -96,7 +112,8 @@ impl Client {
                 })
                 .await?;
         }
-        Ok(Monitor { axis: axis.to_string(), wanted: fields.to_vec(), arrivals, prec: None, _subscribers: subscribers })
+        let wanted = fields.to_vec();
+        Ok(Monitor { axis: axis.to_string(), wanted, messages, arrivals, prec: None, _subscribers: subscribers })
     }
 }
 
@@ -116,7 +133,8 @@ impl Monitor {
             if !shown {
                 continue;
             }
-            let wanted = self.wanted.is_empty() || field.is_some_and(|f| self.wanted.contains(&f));
+            let message = self.messages && name == zmotor_msgs::keys::ERR_KEY;
+            let wanted = self.wanted.is_empty() || message || field.is_some_and(|f| self.wanted.contains(&f));
             if wanted {
                 let shown = field.map_or_else(|| value.to_string(), |f| show(f, &value, self.prec));
                 let at = SystemTime::now();

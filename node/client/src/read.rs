@@ -57,7 +57,12 @@ impl AxisReading {
 /// A sample's value: CBOR as published, anything else as text.
 pub(crate) fn sample_value(sample: &Sample) -> Value {
     let payload = sample.payload().to_bytes();
-    decode_cbor_value(&payload).unwrap_or_else(|_| Value::Text(String::from_utf8_lossy(&payload).into_owned()))
+    let text = || Value::Text(String::from_utf8_lossy(&payload).into_owned());
+    // Text says it is (ERR's messages): read as CBOR, "c884: ..." would be the string "884".
+    if sample.encoding().to_string().starts_with("text/plain") {
+        return text();
+    }
+    decode_cbor_value(&payload).unwrap_or_else(|_| text())
 }
 
 /// The field a sample's key names, and that name.

@@ -351,6 +351,13 @@ impl<R: Clone> AxisService<R> {
         self.collect();
     }
 
+    /// The axis's controller reported an error, or did not send a command (`message` names
+    /// the vendor's code and meaning): published on ERR, as a refused write is.
+    pub fn controller_message(&mut self, message: String) {
+        let marker = self.marker();
+        self.outputs.push_back(ServiceOutput::Refusal { kind: RefusalKind::Controller, message, marker });
+    }
+
     /// A new value on one of the record's input links.
     pub fn link_update(&mut self, now: Instant, link: InputLink, value: f64) {
         self.axis.link_update(now, link, value);

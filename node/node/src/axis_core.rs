@@ -361,6 +361,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
             AxisInput::SimQuery(query) => self.on_sim_query(now, query),
             AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
+            AxisInput::ControllerMessage(message) => self.service.controller_message(message),
             AxisInput::Tick => {
                 self.tick_pending.store(false, Ordering::Release);
                 self.service.handle_timeout(now);

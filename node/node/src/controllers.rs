@@ -26,15 +26,20 @@ impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
 type Stream = Box<dyn Io>;
 type Opening = Pin<Box<dyn Future<Output = std::io::Result<Stream>> + Send>>;
 
-/// Where a controller's statuses go once its axes exist: (channel, status, motions received).
-pub(crate) type StatusSink = Box<dyn FnMut(usize, DeviceStatus, u64) + Send>;
+/// A controller's axes, once they exist: where its statuses and its messages go.
+pub(crate) trait ControllerAxes: Send {
+    /// The status of `channel`, after `motions` motion commands received.
+    fn status(&mut self, channel: usize, status: DeviceStatus, motions: u64);
+    /// A controller error, or a command not sent, for `channel` (None: every channel).
+    fn message(&mut self, channel: Option<usize>, message: &str);
+}
 
 /// What reaches a controller's runner.
 pub(crate) enum ToController {
     /// A driver command of the axis on `channel`.
     Command { channel: usize, command: DriverCommand },
-    /// The axes exist: statuses go to them from now on.
-    Attach(StatusSink),
+    /// The axes exist: statuses and messages go to them from now on.
+    Attach(Box<dyn ControllerAxes>),
 }
 
 /// How an axis reaches its controller.
@@ -74,7 +79,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         reader: None,
         writer: None,
         opening: None,
-        sink: None,
+        axes: None,
         latest: BTreeMap::new(),
         first: Some(first_in),
         write_timeout: spec.config.timeout,
@@ -93,7 +98,7 @@ struct Runner {
     reader: Option<ReadHalf<Stream>>,
     writer: Option<WriteHalf<Stream>>,
     opening: Option<Opening>,
-    sink: Option<StatusSink>,
+    axes: Option<Box<dyn ControllerAxes>>,
     /// Each channel's latest status (and motions received), for axes not attached yet.
     latest: BTreeMap<usize, (DeviceStatus, u64)>,
     first: Option<oneshot::Sender<BTreeMap<usize, DeviceStatus>>>,
@@ -118,11 +123,11 @@ impl Runner {
             tokio::select! {
                 Some(message) = commands.recv() => match message {
                     ToController::Command { channel, command } => self.controller.command(self.now(), channel, &command),
-                    ToController::Attach(mut sink) => {
+                    ToController::Attach(mut axes) => {
                         for (channel, (status, motions)) in std::mem::take(&mut self.latest) {
-                            sink(channel, status, motions);
+                            axes.status(channel, status, motions);
                         }
-                        self.sink = Some(sink);
+                        self.axes = Some(axes);
                     }
                 },
                 read = read_some(&mut self.reader, &mut buffer) => match read {
@@ -198,18 +203,25 @@ impl Runner {
                 (self.reader, self.writer) = (None, None);
                 self.ready();
             }
-            ControllerEvent::Status { channel, status, motions } => match &mut self.sink {
-                Some(sink) => sink(channel, status, motions),
+            ControllerEvent::Status { channel, status, motions } => match &mut self.axes {
+                Some(axes) => axes.status(channel, status, motions),
                 None => {
                     self.latest.insert(channel, (status, motions));
                 }
             },
             ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
-                let channel = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
-                tracing::error!(controller = %self.name, "{channel}: controller error {code}: {meaning}");
+                let message = format!("controller error {code}: {meaning}");
+                let on = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
+                tracing::error!(controller = %self.name, "{on}: {message}");
+                if let Some(axes) = &mut self.axes {
+                    axes.message(channel, &format!("{}: {message}", self.name));
+                }
             }
             ControllerEvent::Refused { channel, why } => {
                 tracing::warn!(controller = %self.name, "channel {channel}: command not sent: {why}");
+                if let Some(axes) = &mut self.axes {
+                    axes.message(Some(channel), &format!("{}: command not sent: {why}", self.name));
+                }
             }
             ControllerEvent::Failed { what } => tracing::warn!(controller = %self.name, "exchange failed: {what}"),
             other => tracing::debug!(controller = %self.name, "an event this runner does not act on: {other:?}"),

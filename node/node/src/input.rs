@@ -17,6 +17,8 @@ pub(crate) enum AxisInput {
     SimQuery(Query),
     /// What the axis's controller reported for its channel, after how many motion commands.
     ControllerStatus(DeviceStatus, u64),
+    /// The axis's controller reported an error, or did not send a command: for ERR.
+    ControllerMessage(String),
     /// The axis's own time came: a poll, the end of a motion, DLY.
     Tick,
     /// An input link's key took a value.

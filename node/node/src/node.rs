@@ -4,7 +4,7 @@
 use crate::autosave::{AutosaveConfig, AutosaveError, Saver};
 use crate::axis_core::{AxisCore, AxisInbox, LinkInbox, NodeSide, PUBLISHER_BUDGET};
 use crate::axis_task::AxisTask;
-use crate::controllers::{ControllerPort, RunningController, ToController};
+use crate::controllers::{ControllerAxes, ControllerPort, RunningController, ToController};
 use crate::demand::FieldDemand;
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
@@ -163,12 +163,7 @@ impl Node {
         }
         for controller in &running {
             let axes = on_controllers.remove(&controller.name).unwrap_or_default();
-            let sink = move |channel: usize, status: DeviceStatus, motions: u64| {
-                for (_, axis) in axes.iter().filter(|(c, _)| *c == channel) {
-                    axis.deliver(AxisInput::ControllerStatus(status, motions));
-                }
-            };
-            let _ = controller.sender.send(ToController::Attach(Box::new(sink)));
+            let _ = controller.sender.send(ToController::Attach(Box::new(AxesOfController(axes))));
         }
         let controller_tasks = running.into_iter().map(|r| r.task).collect();
         let router = Router::declare(&session, &layout, routes, &side.writer).await?;
@@ -216,6 +211,23 @@ impl Drop for Node {
         let _ = self.stop_controllers.send(true);
         for task in &self.calc_tasks {
             task.abort();
+        }
+    }
+}
+
+/// A controller's axes, by channel.
+struct AxesOfController(Vec<(usize, Arc<AxisInbox>)>);
+
+impl ControllerAxes for AxesOfController {
+    fn status(&mut self, channel: usize, status: DeviceStatus, motions: u64) {
+        for (_, axis) in self.0.iter().filter(|(c, _)| *c == channel) {
+            axis.deliver(AxisInput::ControllerStatus(status, motions));
+        }
+    }
+
+    fn message(&mut self, channel: Option<usize>, message: &str) {
+        for (_, axis) in self.0.iter().filter(|(c, _)| channel.is_none_or(|channel| *c == channel)) {
+            axis.deliver(AxisInput::ControllerMessage(message.to_string()));
         }
     }
 }
