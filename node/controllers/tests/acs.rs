@@ -15,6 +15,16 @@ const ACS: ProtocolKind = ProtocolKind::AcsMcb4b;
 const TICK: Duration = Duration::from_millis(10);
 
 #[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(ACS)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(ACS)
+}
+
+#[test]
 fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
     let mut lb = loopback(ACS, &[1], Faults::default());
     bring_up(&mut lb);
