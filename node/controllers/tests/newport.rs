@@ -326,6 +326,16 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
     assert_eq!(run(1), whole);
 }
 
+#[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(SMC)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(SMC)
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
     #[test]
