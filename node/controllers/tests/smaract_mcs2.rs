@@ -264,3 +264,13 @@ fn an_error_reported_during_a_motion_shows_a_problem_but_does_not_end_it() {
     assert!(statuses.iter().any(|s| s.msta & msta::PROBLEM != 0), "{statuses:?}");
     assert!(statuses.iter().all(|s| s.msta & msta::DONE == 0), "the motion goes on: {statuses:?}");
 }
+
+#[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(MCS2)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(MCS2)
+}
