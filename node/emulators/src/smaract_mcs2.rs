@@ -50,6 +50,7 @@
 //! | `:CHANnel<n>:ACCeleration[?]` | pm/s²; 0: acceleration control off, no ramps |
 //! | `:CHANnel<n>:HOLDtime[?]` | ms the control loop holds a reached target; 0 none, -1 forever |
 //! | `:CHANnel<n>:AMPLifier[?]` | the power amplifier, 1 on (power-up) or 0 off |
+//! | `:CHANnel<n>:MCLFrequency[:CURRent][?]` | the maximum closed-loop frequency, Hz (`SA_CTL_PKEY_MAX_CL_FREQUENCY`); kept, it does not change the simulated speed; the power-up value [`POWER_UP_MCLF`] is this emulator's choice, 50 to 20,000 Hz taken |
 //! | `:CHANnel<n>:REFerence:OPTions[?]` | the reference search options (see [`reference_option`]) |
 //! | `:CHANnel<n>:PTYPe[?]`, `:CHANnel<n>:PTYPe:NAME?` | the positioner type, 300 `"SL...S1SS"` |
 //! | `:CHANnel<n>:ERRor?` | why the last movement failed (0: it did not) |
@@ -310,6 +311,8 @@ struct Channel {
     velocity: i64,
     acceleration: i64,
     hold_ms: i64,
+    /// `:CHAN<n>:MCLF`, Hz.
+    max_closed_loop_hz: i64,
     reference_options: i64,
     amplifier: bool,
     calibrated: bool,
@@ -332,6 +335,7 @@ impl Channel {
             velocity: 0,
             acceleration: 0,
             hold_ms: 0,
+            max_closed_loop_hz: POWER_UP_MCLF,
             reference_options: 0,
             amplifier: true,
             calibrated: true,
@@ -500,6 +504,7 @@ enum Property {
     Acceleration,
     HoldTime,
     Amplifier,
+    MaxClosedLoopFrequency,
     ReferenceOptions,
     PositionerType,
     PositionerName,
@@ -597,11 +602,15 @@ const NUMBERED: [(&[Pattern], Numbered); 5] = [
     (&[numbered("MODule"), n("STATe")], Target::ModuleState),
 ];
 
+/// The maximum closed-loop frequency at power-up, Hz (not documented where this emulator's
+/// sources could be read: a choice).
+const POWER_UP_MCLF: i64 = 15_000;
+
 /// A channel's node.
 const CHANNEL: Pattern = numbered("CHANnel");
 
 /// A channel's properties.
-const PROPERTIES: [(&[Pattern], Property); 12] = [
+const PROPERTIES: [(&[Pattern], Property); 13] = [
     (&[CHANNEL, n("STATe")], Property::State),
     (&[CHANNEL, n("POSition"), optional("CURRent")], Property::Position),
     (&[CHANNEL, n("POSition"), n("TARGet")], Property::TargetPosition),
@@ -610,6 +619,7 @@ const PROPERTIES: [(&[Pattern], Property); 12] = [
     (&[CHANNEL, n("ACCeleration")], Property::Acceleration),
     (&[CHANNEL, n("HOLDtime")], Property::HoldTime),
     (&[CHANNEL, n("AMPLifier")], Property::Amplifier),
+    (&[CHANNEL, n("MCLFrequency"), optional("CURRent")], Property::MaxClosedLoopFrequency),
     (&[CHANNEL, n("REFerence"), n("OPTions")], Property::ReferenceOptions),
     (&[CHANNEL, n("PTYPe")], Property::PositionerType),
     (&[CHANNEL, n("PTYPe"), n("NAME")], Property::PositionerName),
@@ -772,6 +782,7 @@ impl Mcs2Emulator {
                     Property::Acceleration => channel.acceleration.to_string(),
                     Property::HoldTime => channel.hold_ms.to_string(),
                     Property::Amplifier => u8::from(channel.amplifier).to_string(),
+                    Property::MaxClosedLoopFrequency => channel.max_closed_loop_hz.to_string(),
                     Property::ReferenceOptions => channel.reference_options.to_string(),
                     Property::PositionerType => POSITIONER_TYPE.to_string(),
                     Property::PositionerName => format!("\"{POSITIONER_NAME}\""),
@@ -836,6 +847,7 @@ impl Mcs2Emulator {
                     Property::Acceleration => channel.acceleration = within(value?, 0, MAX_ACCELERATION)?,
                     Property::HoldTime => channel.hold_ms = within(value?, -1, i64::from(i32::MAX))?,
                     Property::Amplifier => channel.set_amplifier(within(value?, 0, 1)? == 1),
+                    Property::MaxClosedLoopFrequency => channel.max_closed_loop_hz = within(value?, 50, 20_000)?,
                     Property::ReferenceOptions => channel.reference_options = within(value?, 0, 0x3f)?,
                     Property::PositionerType => {
                         within(value?, POSITIONER_TYPE, POSITIONER_TYPE)?;
