@@ -34,7 +34,8 @@
 //! - `M<m.a>==H`: `E` at standstill, `N` running;
 //! - `SE<m.a>`: the extended axis status (decimal); `SEC<m.a>`: clears its error bits;
 //! - `IVR`: the firmware version; `IM0`: the main module's type, `MCM01`;
-//! - `ST`: the controller status (decimal), `STC` clears it, `CR` resets the controller.
+//! - `ST`: the controller status (decimal), `STC` clears it, `CR` resets the controller, a bare
+//!   `S` is acknowledged (read as the stop of every axis: see `answer`).
 //!
 //! | SE bit | meaning |
 //! |---|---|
@@ -446,6 +447,15 @@ impl PhymotionEmulator {
             "IM0" => return Answer::Ack("MCM01".into()),
             "ST" => return Answer::Ack("0".into()),
             "STC" => return done(),
+            // A bare `S`: the EPICS driver sends it after `CR` until it is acknowledged, so the
+            // controller acknowledges it once it is back. Read as the controller-level stop (an
+            // axis's own is `M<m.a>S`): every axis stops; after a reset none moves anyway.
+            "S" => {
+                for axis in &mut self.axes {
+                    axis.sim.stop(axis.p(7));
+                }
+                return done();
+            }
             "CR" => {
                 self.reset();
                 return done();
