@@ -289,3 +289,13 @@ proptest! {
         common::no_malformed_frames(PI, &[1, 4], &commands);
     }
 }
+
+#[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(ProtocolKind::PiGcs2)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(ProtocolKind::PiGcs2)
+}
