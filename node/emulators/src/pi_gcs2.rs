@@ -132,8 +132,11 @@ mod status {
     pub(super) const ON_TARGET: u16 = 1 << 15;
 }
 
+/// The stage type `CST?` names for every axis.
+const STAGE: &str = "ZMOTOR-EMULATED-STAGE";
+
 /// The commands `HLP?` lists, with what they do.
-const COMMANDS: [(&str, &str); 36] = [
+const COMMANDS: [(&str, &str); 37] = [
     ("#4", "Request Status Register"),
     ("#5", "Request Motion Status"),
     ("#7", "Request Controller Ready Status"),
@@ -141,6 +144,7 @@ const COMMANDS: [(&str, &str); 36] = [
     ("*IDN?", "Get Device Identification"),
     ("ACC", "Set Closed-Loop Acceleration"),
     ("ACC?", "Get Closed-Loop Acceleration"),
+    ("CST?", "Get Assignment Of Stages To Axes"),
     ("CSV?", "Get Current Syntax Version"),
     ("DEC", "Set Closed-Loop Deceleration"),
     ("DEC?", "Get Closed-Loop Deceleration"),
@@ -434,6 +438,9 @@ impl Gcs2Emulator {
             "ACC?" => self.per_axis(&args, |a| number(a.acceleration)),
             "DEC?" => self.per_axis(&args, |a| number(a.deceleration)),
             "TMN?" => self.per_axis(&args, |_| number(TRAVEL_MIN)),
+            // The stage type assigned to each axis; the name is this emulator's (EPICS only
+            // logs it).
+            "CST?" => self.per_axis(&args, |_| STAGE.into()),
             "TMX?" => self.per_axis(&args, |_| number(TRAVEL_MAX)),
             "SVO?" => self.per_axis(&args, |a| u8::from(a.servo).to_string()),
             "RON?" => self.per_axis(&args, |a| u8::from(a.reference_mode).to_string()),
