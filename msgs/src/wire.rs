@@ -224,6 +224,10 @@ pub struct Completion {
     pub sevr: i64,
     /// 1 when the target was reached: MISS 0, LVIO 0 and no MAJOR or INVALID alarm.
     pub reached: i64,
+    /// What the axis's controller reported while the motion ran (its errors with the vendor's
+    /// code and meaning, commands it did not send), each once; absent when nothing.
+    #[serde(rename = "ERR", default, skip_serializing_if = "Vec::is_empty")]
+    pub err: Vec<String>,
 }
 
 /// The simulator's physical state, published on `sim/<axis>/state`.
@@ -281,6 +285,7 @@ mod tests {
             stat: 0,
             sevr: 0,
             reached: 1,
+            err: Vec::new(),
         };
         let bytes = crate::codec::encode_cbor(&completion);
         let map: std::collections::BTreeMap<String, crate::Value> = ciborium::from_reader(&bytes[..]).unwrap();

@@ -147,8 +147,8 @@ fn pi_gcs2_through_pipython() {
 }
 
 /// A controller's error reaches the client, not only the node's log: a move of a PI axis that
-/// was never referenced is refused by the controller (error 5), and `zmotor monitor pi1 ERR`
-/// shows it with its code and meaning.
+/// was never referenced is refused by the controller (error 5); `zmotor monitor pi1 ERR` shows
+/// it with its code and meaning, and so does the answer of `zmotor put pi1 VAL 1 --wait`.
 #[test]
 fn a_controllers_error_reaches_the_axis_err() {
     let dir = tempfile::tempdir().unwrap();
@@ -188,4 +188,8 @@ fn a_controllers_error_reaches_the_axis_err() {
     let said = String::from_utf8_lossy(&put.stdout).into_owned() + &String::from_utf8_lossy(&put.stderr);
     let err = |l: &str| l.starts_with("pi1.ERR") && l.contains("controller error 5") && l.contains("unreferenced");
     assert!(lines.wait_for(common::PATIENCE, err).is_some(), "ERR named PI's error 5; the put said {said}");
+    // And the answer of the write that caused it says why the target was not reached, once.
+    assert!(said.contains("reached=0"), "{said}");
+    let told = said.lines().filter(|l| l.starts_with("ERR: c884: controller error 5")).count();
+    assert_eq!(told, 1, "the put's answer names PI's error once: {said}");
 }

@@ -13,7 +13,7 @@ use zenoh::pubsub::Subscriber;
 use zenoh::query::Reply;
 use zenoh::sample::{Sample, SampleKind};
 use zmotor_msgs::decode_cbor_value;
-use zmotor_msgs::{encode_cbor, Completion, Field, Hold, Refusal, Value};
+use zmotor_msgs::{Completion, Field, Hold, Refusal, Value};
 
 /// How a write is sent.
 #[derive(Clone, Debug, PartialEq)]
@@ -202,12 +202,23 @@ impl std::fmt::Display for WriteOutcome {
         match self {
             WriteOutcome::Accepted(value) => write!(f, "{value}"),
             WriteOutcome::Completed(completion) => {
-                // Every entry of the completion map, in the map's order (names in order: DMOV, LVIO, ...,
-                // the written field, reached), as the command line has always printed it.
-                let map: BTreeMap<String, Value> =
-                    ciborium::from_reader(&encode_cbor(completion)[..]).expect("a completion is a map of values");
-                let pairs: Vec<String> = map.iter().map(|(name, value)| format!("{name}={value}")).collect();
-                f.write_str(&pairs.join(" "))
+                // Every value of the completion, by name in order (DMOV, LVIO, ..., the written
+                // field, reached), as the command line has always printed it; then what the
+                // controller reported, a line each.
+                let c = completion;
+                let mut pairs: BTreeMap<&str, Value> = c.written.iter().map(|(n, v)| (n.as_str(), v.clone())).collect();
+                pairs.extend([
+                    ("RBV", Value::Float(c.rbv)),
+                    ("DMOV", Value::Int(c.dmov)),
+                    ("MISS", Value::Int(c.miss)),
+                    ("LVIO", Value::Int(c.lvio)),
+                    ("STAT", Value::Int(c.stat)),
+                    ("SEVR", Value::Int(c.sevr)),
+                    ("reached", Value::Int(c.reached)),
+                ]);
+                let line: Vec<String> = pairs.iter().map(|(name, value)| format!("{name}={value}")).collect();
+                f.write_str(&line.join(" "))?;
+                c.err.iter().try_for_each(|message| write!(f, "\nERR: {message}"))
             }
             WriteOutcome::Refused(refusal) => write!(f, "{refusal}"),
             WriteOutcome::Vanished => {

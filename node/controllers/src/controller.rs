@@ -660,10 +660,12 @@ impl<P: Protocol> Controller<P> {
                     Some(channel) => vec![channel],
                     None => self.config.channels.clone(),
                 };
+                // The error first: an axis that ends its motion on the problem's status then
+                // knows why (a `?wait` answer carries it).
+                self.events.push_back(ControllerEvent::ControllerError(error));
                 for channel in affected {
                     self.report_problem(channel);
                 }
-                self.events.push_back(ControllerEvent::ControllerError(error));
             }
             ReplyEvent::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {

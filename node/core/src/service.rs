@@ -240,7 +240,12 @@ struct Waiter<R> {
     to: R,
     field: Field,
     accepted: WriteAccepted,
+    /// What the controller reported while the motion ran, each once.
+    controller_messages: Vec<String>,
 }
+
+/// Distinct controller messages a completion carries at most.
+const MESSAGES_PER_COMPLETION: usize = 8;
 
 /// One axis behind the wire contract (see the module documentation).
 pub struct AxisService<R> {
@@ -354,6 +359,13 @@ impl<R: Clone> AxisService<R> {
     /// The axis's controller reported an error, or did not send a command (`message` names
     /// the vendor's code and meaning): published on ERR, as a refused write is.
     pub fn controller_message(&mut self, message: String) {
+        // The writes waiting for the motion's end carry it in their answer.
+        for waiter in &mut self.waiting {
+            let known = waiter.controller_messages.contains(&message);
+            if !known && waiter.controller_messages.len() < MESSAGES_PER_COMPLETION {
+                waiter.controller_messages.push(message.clone());
+            }
+        }
         let marker = self.marker();
         self.outputs.push_back(ServiceOutput::Refusal { kind: RefusalKind::Controller, message, marker });
     }
@@ -392,10 +404,10 @@ impl<R: Clone> AxisService<R> {
                 self.outputs.push_back(ServiceOutput::Reply { to, reply: Reply::Refused(refusal) });
             }
             Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
-                self.waiting.push(Waiter { to, field, accepted });
+                self.waiting.push(Waiter { to, field, accepted, controller_messages: Vec::new() });
             }
             Ok((field, _)) if wait => {
-                let reply = Reply::Completion(field, self.completion(field));
+                let reply = Reply::Completion(field, self.completion(field, Vec::new()));
                 self.outputs.push_back(ServiceOutput::Reply { to, reply });
             }
             Ok((field, _)) => {
@@ -547,7 +559,7 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
-    fn completion(&self, field: Field) -> Completion {
+    fn completion(&self, field: Field, controller_messages: Vec<String>) -> Completion {
         let f = self.axis.fields();
         let reached = f.miss == 0 && f.lvio == 0 && f.sevr < severity::MAJOR;
         Completion {
@@ -559,6 +571,7 @@ impl<R: Clone> AxisService<R> {
             stat: f.stat.into(),
             sevr: f.sevr.into(),
             reached: reached.into(),
+            err: controller_messages,
         }
     }
 
@@ -588,7 +601,8 @@ impl<R: Clone> AxisService<R> {
                         .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
                     self.waiting = waiting;
                     for waiter in ended {
-                        let reply = Reply::Completion(waiter.field, self.completion(waiter.field));
+                        let reply =
+                            Reply::Completion(waiter.field, self.completion(waiter.field, waiter.controller_messages));
                         self.outputs.push_back(ServiceOutput::Reply { to: waiter.to, reply });
                     }
                 }
