@@ -85,6 +85,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         write_timeout: spec.config.timeout,
         was_up: false,
         unreachable: false,
+        repeats: Repeats::default(),
     };
     let task = tokio::spawn(async move { runner.run(commands, stopped).await });
     RunningController { name, sender, first, task }
@@ -107,6 +108,48 @@ struct Runner {
     was_up: bool,
     /// Opening the connection failed, and has not succeeded since.
     unreachable: bool,
+    /// The controller's last error message and its repeats, so the log names it once.
+    repeats: Repeats,
+}
+
+/// A controller's error named once, its repeats counted: a move the controller refuses is
+/// refused again at each of the record's retries, and the log says so in two lines, not ten.
+#[derive(Debug, Default)]
+struct Repeats {
+    /// The last error: its channel (None: every channel) and its line.
+    last: Option<(Option<usize>, String)>,
+    repeated: u32,
+}
+
+/// What an error is to the log.
+#[derive(Debug, PartialEq)]
+enum Noted {
+    /// New: log it; the one before it came `repeated` more times (0: none).
+    New { before: Option<(String, u32)> },
+    /// The same as the last: counted.
+    Repeat,
+}
+
+impl Repeats {
+    fn note(&mut self, channel: Option<usize>, line: &str) -> Noted {
+        if self.last.as_ref().is_some_and(|(c, l)| *c == channel && l == line) {
+            self.repeated += 1;
+            return Noted::Repeat;
+        }
+        let before =
+            self.last.replace((channel, line.to_string())).map(|(_, l)| (l, std::mem::take(&mut self.repeated)));
+        Noted::New { before: before.filter(|(_, n)| *n > 0) }
+    }
+
+    /// `channel` reported without a problem: the last error, if it was that channel's, is over;
+    /// its repeats not said yet.
+    fn settle(&mut self, channel: usize) -> Option<(String, u32)> {
+        if !self.last.as_ref().is_some_and(|(c, _)| c.is_none_or(|c| c == channel)) {
+            return None;
+        }
+        let repeated = std::mem::take(&mut self.repeated);
+        self.last.take().map(|(_, line)| (line, repeated)).filter(|(_, n)| *n > 0)
+    }
 }
 
 impl Runner {
@@ -203,16 +246,32 @@ impl Runner {
                 (self.reader, self.writer) = (None, None);
                 self.ready();
             }
-            ControllerEvent::Status { channel, status, motions } => match &mut self.axes {
-                Some(axes) => axes.status(channel, status, motions),
-                None => {
-                    self.latest.insert(channel, (status, motions));
+            ControllerEvent::Status { channel, status, motions } => {
+                if status.msta & zmotor_msgs::bits::msta::PROBLEM == 0 {
+                    if let Some((before, times)) = self.repeats.settle(channel) {
+                        tracing::warn!(controller = %self.name, "{before} (and {times} more times)");
+                    }
                 }
-            },
+                match &mut self.axes {
+                    Some(axes) => axes.status(channel, status, motions),
+                    None => {
+                        self.latest.insert(channel, (status, motions));
+                    }
+                }
+            }
             ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
                 let message = format!("controller error {code}: {meaning}");
                 let on = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
-                tracing::error!(controller = %self.name, "{on}: {message}");
+                let line = format!("{on}: {message}");
+                match self.repeats.note(channel, &line) {
+                    Noted::New { before } => {
+                        if let Some((before, times)) = before {
+                            tracing::warn!(controller = %self.name, "{before} (and {times} more times)");
+                        }
+                        tracing::error!(controller = %self.name, "{line}");
+                    }
+                    Noted::Repeat => tracing::debug!(controller = %self.name, "{line} (again)"),
+                }
                 if let Some(axes) = &mut self.axes {
                     axes.message(channel, &format!("{}: {message}", self.name));
                 }
@@ -299,4 +358,24 @@ fn open_serial(settings: &SerialSettings) -> std::io::Result<Stream> {
         .open_native_async()
         .map_err(std::io::Error::from)?;
     Ok(Box::new(port))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_repeated_error_is_named_once_and_counted() {
+        let mut repeats = Repeats::default();
+        let five = "channel 1: error 5";
+        assert_eq!(repeats.note(Some(1), five), Noted::New { before: None });
+        assert_eq!(repeats.note(Some(1), five), Noted::Repeat);
+        assert_eq!(repeats.settle(2), None, "another channel's good status ends nothing");
+        assert_eq!(repeats.note(Some(1), five), Noted::Repeat);
+        assert_eq!(repeats.note(Some(2), "channel 2: error 7"), Noted::New { before: Some((five.into(), 2)) });
+        assert_eq!(repeats.settle(2), None, "error 7 came once");
+        assert_eq!(repeats.note(Some(2), "channel 2: error 7"), Noted::New { before: None }, "new after a good answer");
+        assert_eq!(repeats.note(Some(2), "channel 2: error 7"), Noted::Repeat);
+        assert_eq!(repeats.settle(2), Some(("channel 2: error 7".into(), 1)));
+    }
 }
