@@ -31,6 +31,19 @@ fn zmotor(args: &[&str]) -> Running {
     Running(child)
 }
 
+/// `zmotor launch FILE --listen ENDPOINT`, its state in `state`.
+fn launch_node(file: &std::path::Path, endpoint: &str, state: &std::path::Path) -> Running {
+    let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["launch", file.to_str().unwrap(), "--listen", endpoint])
+        .env("ZMOTOR_STATE_DIR", state)
+        .env("RUST_LOG", "warn")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    Running(node)
+}
+
 /// One phase of tests/python/controller_client.py; panics with what it said if it failed.
 fn client(phase: &str, endpoint: &str, axis: &str) {
     let output = environment::python_script("controller_client.py").args([phase, endpoint, axis]).output().unwrap();
@@ -62,15 +75,7 @@ fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, a
 
     let emulate = || zmotor(&["sim-controller", protocol, flag, &here]);
     let emulator = emulate();
-    let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
-        .args(["launch", file.to_str().unwrap(), "--listen", &endpoint])
-        .env("ZMOTOR_STATE_DIR", dir.path())
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let _node = Running(node);
+    let _node = launch_node(&file, &endpoint, dir.path());
 
     client("motion", &endpoint, axis);
     drop(emulator);
@@ -159,15 +164,7 @@ fn a_controllers_error_reaches_the_axis_err() {
     std::fs::write(&file, text).unwrap();
     let endpoint = free_local_endpoint().unwrap();
     let _emulator = zmotor(&["sim-controller", "pi_gcs2", "--listen", &here]);
-    let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
-        .args(["launch", file.to_str().unwrap(), "--listen", &endpoint])
-        .env("ZMOTOR_STATE_DIR", dir.path())
-        .env("RUST_LOG", "warn")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let _node = Running(node);
+    let _node = launch_node(&file, &endpoint, dir.path());
     // Served, and its controller reached (the emulator may start listening after the node).
     const COMM_ERR: u32 = 0x1000;
     common::Host::default().wait_for(&endpoint, "pi1", "MSTA", |msta| (msta as u32) & COMM_ERR == 0);
