@@ -98,6 +98,17 @@ def refused():
     assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
     assert epics.caget("m1") == before
     ok("refused writes answer as an IOC would (a limit violation taken, a refused value failed) and move nothing")
+    # The refusal's words, as the axis's ERR key has them: in full as a character array (ERR$,
+    # as EPICS serves long strings), cut to a DBR_STRING's 39 characters as ERR.
+    deadline = time.time() + 10
+    message = ""
+    while "NTMF" not in message and time.time() < deadline:
+        message = epics.caget("m1.ERR$", as_string=True) or ""
+        time.sleep(0.05)
+    assert "NTMF" in message, message
+    assert epics.caget("m1.ERR") == message[:39], (epics.caget("m1.ERR"), message)
+    assert epics.PV("m1.ERR$").write_access is False
+    ok("the axis's ERR reads in full as ERR$ and cut as ERR")
 
 
 def caproto_tools():

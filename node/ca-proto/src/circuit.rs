@@ -123,6 +123,8 @@ struct Channel {
 struct Subscription {
     sid: u32,
     dbr: u16,
+    /// The element count asked for (0: as many as there are).
+    count: u32,
     mask: u16,
     /// Whether its first event went (it waits for its axis's values).
     posted: bool,
@@ -139,6 +141,8 @@ const PROPERTY_EVENT: u16 = 8;
 struct Pending {
     sid: u32,
     data_type: u16,
+    /// The element count asked for (0: as many as there are).
+    count: u32,
     ioid: u32,
 }
 
@@ -189,9 +193,9 @@ impl Circuit {
         self.requests.pop_front()
     }
 
-    /// A field of an axis changed (or the axis's values arrived): answer the reads that
-    /// waited for it and post to the subscriptions it concerns.
-    pub fn handle_change(&mut self, axis: &str, field: Field, directory: &dyn Directory) {
+    /// A field of an axis (or its message) changed, or the axis's values arrived: answer the
+    /// reads that waited for it and post to the subscriptions it concerns.
+    pub fn handle_change(&mut self, axis: &str, changed: Target, directory: &dyn Directory) {
         let waiting = std::mem::take(&mut self.pending_reads);
         for pending in waiting {
             let pv = self.channels.get(&pending.sid).map(|c| c.pv.clone());
@@ -200,7 +204,10 @@ impl Circuit {
                 None => self.pending_reads.push(pending),
             }
         }
-        let alarm = matches!(field, Field::STAT | Field::SEVR);
+        let alarm = matches!(changed, Target::Field(Field::STAT | Field::SEVR));
+        let shows =
+            |target: Target| target == changed || (changed == Target::Message && target == Target::MessageChars);
+        let metadata = |pv: &Pv| matches!(changed, Target::Field(field) if pv.metadata_from().contains(&field));
         let concerned: Vec<u32> = self
             .subscriptions
             .iter()
@@ -209,10 +216,9 @@ impl Circuit {
                 let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
                 pv.axis == axis
                     && (!s.posted
-                        || (pv.target == Target::Field(field) && s.mask & VALUE_EVENTS != 0)
+                        || (shows(pv.target) && s.mask & VALUE_EVENTS != 0)
                         || (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
-                        || (pv.metadata_from().contains(&field)
-                            && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
+                        || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
             })
             .map(|(subid, _)| *subid)
             .collect();
@@ -304,17 +310,17 @@ impl Circuit {
         let sid = self.next_sid;
         self.next_sid = self.next_sid.wrapping_add(1).max(1);
         let rights = if pv.writable() { READ | WRITE } else { READ };
-        let native = pv.native();
+        let (native, count) = (pv.native(), pv.count());
         if directory.snapshot(&pv).is_none() {
             self.requests.push_back(Request::Fetch { axis: pv.axis.clone() });
         }
         self.channels.insert(sid, Channel { cid, pv });
         self.send(Header::new(command::ACCESS_RIGHTS, 0, 0, cid, rights), &[]);
-        self.send(Header::new(command::CREATE_CHAN, native.code(), 1, cid, sid), &[]);
+        self.send(Header::new(command::CREATE_CHAN, native.code(), count, cid, sid), &[]);
     }
 
     fn read(&mut self, header: Header, directory: &dyn Directory) {
-        let pending = Pending { sid: header.p1, data_type: header.data_type, ioid: header.p2 };
+        let pending = Pending { sid: header.p1, data_type: header.data_type, count: header.count, ioid: header.p2 };
         let Some(channel) = self.channels.get(&pending.sid) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
@@ -328,9 +334,12 @@ impl Circuit {
     }
 
     fn send_read(&mut self, pending: &Pending, snapshot: &Snapshot) {
-        match self.encode(pending.data_type, snapshot) {
+        let count = self.channels.get(&pending.sid).map_or(1, |c| c.pv.count());
+        let elements = snapshot.elements(pending.count, count);
+        match self.encode(pending.data_type, snapshot, elements) {
             Some(bytes) => {
-                let reply = Header::new(command::READ_NOTIFY, pending.data_type, 1, status::NORMAL, pending.ioid);
+                let reply =
+                    Header::new(command::READ_NOTIFY, pending.data_type, elements, status::NORMAL, pending.ioid);
                 self.send(reply, &bytes);
             }
             None => {
@@ -347,7 +356,8 @@ impl Circuit {
         };
         let mask = payload.get(12..14).map_or(VALUE_EVENTS | ALARM_EVENT, |m| u16::from_be_bytes([m[0], m[1]]));
         let axis = channel.pv.axis.clone();
-        self.subscriptions.insert(subid, Subscription { sid, dbr: header.data_type, mask, posted: false });
+        let subscription = Subscription { sid, dbr: header.data_type, count: header.count, mask, posted: false };
+        self.subscriptions.insert(subid, subscription);
         self.post(subid, directory);
         if !self.subscriptions.get(&subid).is_some_and(|s| s.posted) {
             self.requests.push_back(Request::Fetch { axis });
@@ -357,17 +367,19 @@ impl Circuit {
     /// A subscription's current value, if its axis's values are there.
     fn post(&mut self, subid: u32, directory: &dyn Directory) {
         let Some(subscription) = self.subscriptions.get(&subid) else { return };
-        let dbr = subscription.dbr;
+        let (dbr, requested) = (subscription.dbr, subscription.count);
         let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
-        let Some(bytes) = directory.snapshot(pv).and_then(|snapshot| self.encode(dbr, &snapshot)) else { return };
-        self.send(Header::new(command::EVENT_ADD, dbr, 1, status::NORMAL, subid), &bytes);
+        let Some(snapshot) = directory.snapshot(pv) else { return };
+        let elements = snapshot.elements(requested, pv.count());
+        let Some(bytes) = self.encode(dbr, &snapshot, elements) else { return };
+        self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
         if let Some(subscription) = self.subscriptions.get_mut(&subid) {
             subscription.posted = true;
         }
     }
 
-    /// The DBR encoding of a snapshot, or `None` for a type not served.
-    fn encode(&self, data_type: u16, snapshot: &Snapshot) -> Option<Vec<u8>> {
+    /// The DBR encoding of `elements` of a snapshot, or `None` for a type not served.
+    fn encode(&self, data_type: u16, snapshot: &Snapshot, elements: u32) -> Option<Vec<u8>> {
         match data_type {
             dbr::DBR_CLASS_NAME => {
                 let mut bytes = b"motor".to_vec();
@@ -379,10 +391,10 @@ impl Circuit {
                 for word in [snapshot.status, snapshot.severity, 0, 0] {
                     bytes.extend_from_slice(&word.to_be_bytes());
                 }
-                bytes.extend(snapshot.encode(DbrType { base: Base::String, class: Class::Plain }));
+                bytes.extend(snapshot.encode(DbrType { base: Base::String, class: Class::Plain }, 1));
                 Some(bytes)
             }
-            code => DbrType::from_code(code).map(|dbr| snapshot.encode(dbr)),
+            code => DbrType::from_code(code).map(|dbr| snapshot.encode(dbr, elements)),
         }
     }
 

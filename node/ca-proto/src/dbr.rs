@@ -153,8 +153,24 @@ impl Snapshot {
         }
     }
 
-    /// The DBR encoding of this snapshot as `dbr`.
-    pub fn encode(&self, dbr: DbrType) -> Vec<u8> {
+    /// How many elements a reply of this snapshot carries when `requested` were asked for (0:
+    /// as many as there are, CA's dynamic arrays) of a channel of `count` elements: the text of
+    /// a character array and its NUL, or the requested part of it; one of anything else.
+    pub fn elements(&self, requested: u32, count: u32) -> u32 {
+        if count <= 1 || self.native != Base::Char {
+            return 1;
+        }
+        let used = u32::try_from(self.text().len() + 1).unwrap_or(u32::MAX).min(count);
+        if requested == 0 {
+            used
+        } else {
+            requested.min(count)
+        }
+    }
+
+    /// The DBR encoding of this snapshot as `dbr`, `elements` of it (more than one only for a
+    /// character array, its text NUL-padded).
+    pub fn encode(&self, dbr: DbrType, elements: u32) -> Vec<u8> {
         let mut out = Writer::default();
         if dbr.class != Class::Plain {
             out.u16(self.status);
@@ -205,6 +221,7 @@ impl Snapshot {
         }
         match dbr.base {
             Base::String => out.fixed_text(&self.text(), STRING_SIZE),
+            Base::Char if elements > 1 => out.fixed_text(&self.text(), elements as usize),
             Base::Enum => out.u16(self.number().clamp(0.0, f64::from(u16::MAX)) as u16),
             base => out.number(base, self.number()),
         }
@@ -342,13 +359,13 @@ mod tests {
             let dbr = DbrType::from_code(code).unwrap();
             let native = if dbr.base == Base::Enum { Base::Enum } else { Base::Double };
             let value = if native == Base::Enum { Value::Int(3) } else { Value::Float(1.5) };
-            assert_eq!(snapshot(value, native).encode(dbr).len(), size, "DBR type {code}");
+            assert_eq!(snapshot(value, native).encode(dbr, 1).len(), size, "DBR type {code}");
         }
     }
 
     #[test]
     fn a_ctrl_double_carries_units_precision_limits_and_value() {
-        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(34).unwrap());
+        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(34).unwrap(), 1);
         assert_eq!(i16::from_be_bytes([bytes[4], bytes[5]]), 3, "precision");
         assert_eq!(&bytes[8..10], b"mm");
         assert_eq!(f64::from_be_bytes(bytes[16..24].try_into().unwrap()), 100.0, "upper display");
@@ -360,7 +377,7 @@ mod tests {
 
     #[test]
     fn a_time_double_carries_the_epics_stamp() {
-        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(20).unwrap());
+        let bytes = snapshot(Value::Float(2.5), Base::Double).encode(DbrType::from_code(20).unwrap(), 1);
         assert_eq!(u32::from_be_bytes(bytes[4..8].try_into().unwrap()), 10);
         assert_eq!(u32::from_be_bytes(bytes[8..12].try_into().unwrap()), 5);
         assert_eq!(f64::from_be_bytes(bytes[16..24].try_into().unwrap()), 2.5);
@@ -369,12 +386,28 @@ mod tests {
     #[test]
     fn menus_read_as_their_choices_and_numbers_at_their_precision() {
         let menu = snapshot(Value::Int(3), Base::Enum);
-        assert_eq!(&menu.encode(DbrType::from_code(0).unwrap())[..3], b"Go\0");
-        let ctrl = menu.encode(DbrType::from_code(31).unwrap());
+        assert_eq!(&menu.encode(DbrType::from_code(0).unwrap(), 1)[..3], b"Go\0");
+        let ctrl = menu.encode(DbrType::from_code(31).unwrap(), 1);
         assert_eq!(i16::from_be_bytes([ctrl[4], ctrl[5]]), 4, "four choices");
         assert_eq!(&ctrl[6 + 26..6 + 26 + 5], b"Pause");
         assert_eq!(u16::from_be_bytes([ctrl[422], ctrl[423]]), 3);
         assert_eq!(snapshot(Value::Float(2.5), Base::Double).text(), "2.500");
+    }
+
+    #[test]
+    fn a_message_reads_in_full_as_a_character_array_and_cut_as_a_string() {
+        let long = "c884: not referenced: home the axis first (HOMF or HOMR)";
+        let chars = snapshot(Value::Text(long.into()), Base::Char);
+        let dynamic = chars.elements(0, 512);
+        assert_eq!(dynamic as usize, long.len() + 1, "the text and its NUL");
+        let bytes = chars.encode(DbrType::from_code(4).unwrap(), dynamic);
+        assert_eq!((&bytes[..long.len()], bytes[long.len()]), (long.as_bytes(), 0));
+        assert_eq!(chars.elements(10, 512), 10, "as many as asked for");
+        assert_eq!(chars.elements(4096, 512), 512, "no more than the channel has");
+        let time = chars.encode(DbrType::from_code(18).unwrap(), 512);
+        assert_eq!(time.len(), 12 + 3 + 512, "alarm, stamp, padding, then the characters");
+        let string = snapshot(Value::Text(long.into()), Base::String).encode(DbrType::from_code(0).unwrap(), 1);
+        assert_eq!((&string[..39], string.len()), (&long.as_bytes()[..39], 40));
     }
 
     #[test]

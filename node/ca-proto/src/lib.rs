@@ -15,7 +15,7 @@ mod search;
 pub use circuit::{Circuit, Request, WriteAnswer, WriteEnd};
 pub use dbr::{Base, Snapshot, Stamp};
 pub use directory::Directory;
-pub use names::{Pv, Target};
+pub use names::{Pv, Target, MESSAGE_CHARS};
 pub use search::answer as answer_search;
 
 #[cfg(test)]
@@ -83,7 +83,7 @@ mod tests {
         // A read before the values arrive waits for them.
         assert!(request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, sid, 99), &[]).is_empty());
         directory.fetched = true;
-        circuit.handle_change("m1", Field::VAL, &directory);
+        circuit.handle_change("m1", Target::Field(Field::VAL), &directory);
         let read = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((read[0].0.command, read[0].0.p1, read[0].0.p2), (command::READ_NOTIFY, 1, 99));
         assert_eq!(read[0].1, 2.5f64.to_be_bytes());
@@ -93,9 +93,9 @@ mod tests {
         add[12..14].copy_from_slice(&5u16.to_be_bytes());
         let first = request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 34, 1, sid, 5), &add);
         assert_eq!((first[0].0.command, first[0].0.p2, first[0].1.len()), (command::EVENT_ADD, 5, 88));
-        circuit.handle_change("m1", Field::HLM, &directory);
+        circuit.handle_change("m1", Target::Field(Field::HLM), &directory);
         assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1);
-        circuit.handle_change("m1", Field::VELO, &directory);
+        circuit.handle_change("m1", Target::Field(Field::VELO), &directory);
         assert_eq!(circuit.poll_transmit(), None, "VELO is not VAL's metadata");
 
         // The axis goes: the client hears its channel is disconnected.
@@ -151,15 +151,15 @@ mod tests {
         assert!(request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 20, 1, sid, 9), &add).is_empty());
         directory.fetched = true;
         // The first change of the axis, whichever field, brings the first event.
-        circuit.handle_change("m1", Field::DESC, &directory);
+        circuit.handle_change("m1", Target::Field(Field::DESC), &directory);
         assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
-        circuit.handle_change("m1", Field::DESC, &directory);
+        circuit.handle_change("m1", Target::Field(Field::DESC), &directory);
         assert_eq!(circuit.poll_transmit(), None, "DESC is not RBV's");
-        circuit.handle_change("m1", Field::SEVR, &directory);
+        circuit.handle_change("m1", Target::Field(Field::SEVR), &directory);
         assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "an alarm change reaches DBE_ALARM");
         // Events held back by EVENTS_OFF are posted at EVENTS_ON.
         request(&mut circuit, &directory, Header::new(command::EVENTS_OFF, 0, 0, 0, 0), &[]);
-        circuit.handle_change("m1", Field::RBV, &directory);
+        circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
         assert_eq!(circuit.poll_transmit(), None);
         let resumed = request(&mut circuit, &directory, Header::new(command::EVENTS_ON, 0, 0, 0, 0), &[]);
         assert_eq!((resumed.len(), resumed[0].0.command), (1, command::EVENT_ADD));

@@ -1,5 +1,8 @@
 //! Channel names: `<P><axis>` is the axis's VAL, `<P><axis>.<FIELD>` any field of the
-//! catalogue, `<P><axis>.RTYP` the record type (`motor`).
+//! catalogue, `<P><axis>.RTYP` the record type (`motor`), and `<P><axis>.ERR` the axis's last
+//! message (its ERR key: a refused write, a controller's error), as a DBR_STRING of 39
+//! characters or, as EPICS serves long strings, in full as a character array with a `$`
+//! appended to the name (`.ERR$`; `caget -S`).
 
 use crate::dbr::Base;
 use zmotor_msgs::{keys, Access, Field};
@@ -11,7 +14,14 @@ pub enum Target {
     Field(Field),
     /// `.RTYP`: the record type, `motor`.
     RecordType,
+    /// `.ERR`: the last message, as a DBR_STRING (cut at 39 characters).
+    Message,
+    /// `.ERR$`: the last message in full, as a character array.
+    MessageChars,
 }
+
+/// The length of `.ERR$`, in characters, its NUL included: a message beyond is cut.
+pub const MESSAGE_CHARS: u32 = 512;
 
 /// A channel of an axis.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -31,6 +41,8 @@ impl Pv {
         keys::validate_axis_name(axis).ok()?;
         let target = match field {
             "RTYP" => Target::RecordType,
+            keys::ERR_KEY => Target::Message,
+            "ERR$" => Target::MessageChars,
             name => Target::Field(Field::from_name(name)?),
         };
         Some(Pv { axis: axis.to_string(), target })
@@ -41,6 +53,17 @@ impl Pv {
         match self.target {
             Target::Field(field) => format!("{prefix}{}.{}", self.axis, field.name()),
             Target::RecordType => format!("{prefix}{}.RTYP", self.axis),
+            Target::Message => format!("{prefix}{}.{}", self.axis, keys::ERR_KEY),
+            Target::MessageChars => format!("{prefix}{}.{}$", self.axis, keys::ERR_KEY),
+        }
+    }
+
+    /// Its element count: a message in full has `MESSAGE_CHARS`, everything else one.
+    pub fn count(&self) -> u32 {
+        if self.target == Target::MessageChars {
+            MESSAGE_CHARS
+        } else {
+            1
         }
     }
 
@@ -53,7 +76,8 @@ impl Pv {
     pub fn native(&self) -> Base {
         match self.target {
             Target::Field(field) => Base::native(field.def().kind),
-            Target::RecordType => Base::String,
+            Target::RecordType | Target::Message => Base::String,
+            Target::MessageChars => Base::Char,
         }
     }
 
@@ -89,7 +113,7 @@ impl Pv {
     pub fn units(&self, egu: &str) -> String {
         match self.target {
             Target::Field(field) => field.def().unit.replace("EGU", egu),
-            Target::RecordType => String::new(),
+            Target::RecordType | Target::Message | Target::MessageChars => String::new(),
         }
     }
 }
@@ -109,6 +133,10 @@ mod tests {
         assert_eq!(pv("bl2:m1"), None);
         assert_eq!(pv("bl1:m/1"), None);
         assert_eq!(pv("bl1:m1.DVAL").unwrap().name("bl1:"), "bl1:m1.DVAL");
+        let (message, whole) = (pv("bl1:m1.ERR").unwrap(), pv("bl1:m1.ERR$").unwrap());
+        assert_eq!((message.target, message.native(), message.count()), (Target::Message, Base::String, 1));
+        assert_eq!((whole.target, whole.native(), whole.count()), (Target::MessageChars, Base::Char, MESSAGE_CHARS));
+        assert_eq!((whole.name("bl1:"), message.writable(), whole.writable()), ("bl1:m1.ERR$".into(), false, false));
     }
 
     #[test]

@@ -44,7 +44,7 @@ pub(crate) async fn serve_circuit(
                 handled.map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
             }
             change = changes.recv() => match change {
-                Ok(Change::Field(axis, field)) => circuit.handle_change(&axis, field, &*shared.values()),
+                Ok(Change::Value(axis, target)) => circuit.handle_change(&axis, target, &*shared.values()),
                 Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
                 Err(broadcast::error::RecvError::Lagged(missed)) => {
                     tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");

@@ -20,8 +20,7 @@ use zenoh::sample::{Sample, SampleKind};
 use zmotor_ca_proto::{answer_search, Pv, Stamp, Target, WriteAnswer, WriteEnd};
 use zmotor_client::{Client, NoAnswer, WriteOptions, WriteOutcome};
 use zmotor_deploy::CaConfig;
-use zmotor_msgs::decode_cbor_value;
-use zmotor_msgs::Field;
+use zmotor_msgs::{decode_cbor_value, keys, Field, Value};
 
 /// The gateway could not start.
 #[derive(Debug, thiserror::Error)]
@@ -59,12 +58,20 @@ impl Shared {
         self.values.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
-    /// Store a field's value as a sample brings it, and tell the circuits.
+    /// Store a field's value, or the axis's message, as a sample brings it, and tell the
+    /// circuits.
     fn store(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
         let Some(axis) = self.client.layout().axis_chunk(key) else { return };
-        let Some(field) = self.client.layout().field_name(axis, key).and_then(Field::from_name) else { return };
-        let Ok(value) = decode_cbor_value(&sample.payload().to_bytes()) else { return };
+        let Some(name) = self.client.layout().field_name(axis, key) else { return };
+        let payload = sample.payload().to_bytes();
+        let (target, value) = if name == keys::ERR_KEY {
+            (Target::Message, Value::Text(String::from_utf8_lossy(&payload).into_owned()))
+        } else {
+            let Some(field) = Field::from_name(name) else { return };
+            let Ok(value) = decode_cbor_value(&payload) else { return };
+            (Target::Field(field), value)
+        };
         let since = SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
         let stamp = Stamp::from_posix(since.as_secs(), since.subsec_nanos());
         let axis = axis.to_string();
@@ -73,9 +80,17 @@ impl Shared {
         if !values.followed.contains_key(&axis) {
             return;
         }
-        values.fields.entry(axis.clone()).or_default().insert(field, Entry { value, stamp });
+        let entry = Entry { value, stamp };
+        match target {
+            Target::Field(field) => {
+                values.fields.entry(axis.clone()).or_default().insert(field, entry);
+            }
+            _ => {
+                values.messages.insert(axis.clone(), entry);
+            }
+        }
         drop(values);
-        let _ = self.changes.send(Change::Field(axis, field));
+        let _ = self.changes.send(Change::Value(axis, target));
     }
 
     /// Follow an axis's fields and read them all, once while it stays live.
@@ -205,6 +220,7 @@ impl ChannelAccess {
                     } else {
                         values.live.remove(&axis);
                         values.fields.remove(&axis);
+                        values.messages.remove(&axis);
                         // Undeclared on a task of ours, not inside Zenoh's callback.
                         let followed = values.followed.remove(&axis);
                         drop(values);

@@ -20,6 +20,8 @@ pub(crate) struct Values {
     /// fields (`None` while it is declared): the nodes publish only what someone follows.
     pub(crate) followed: HashMap<String, Option<zenoh::pubsub::Subscriber<()>>>,
     pub(crate) fields: HashMap<String, HashMap<Field, Entry>>,
+    /// Each followed axis's last message (its ERR key).
+    pub(crate) messages: HashMap<String, Entry>,
 }
 
 impl Values {
@@ -49,6 +51,10 @@ impl Directory for Values {
                 (entry.value.clone(), entry.stamp, choices)
             }
             Target::RecordType => (Value::Text("motor".into()), alarm.stamp, &[][..]),
+            Target::Message | Target::MessageChars => match self.messages.get(&pv.axis) {
+                Some(message) => (message.value.clone(), message.stamp, &[][..]),
+                None => (Value::Text(String::new()), alarm.stamp, &[][..]),
+            },
         };
         let egu = match self.entry(&pv.axis, Field::EGU).map(|e| &e.value) {
             Some(Value::Text(egu)) => egu.clone(),
@@ -66,7 +72,7 @@ impl Directory for Values {
             units: pv.units(&egu),
             precision: match pv.target {
                 Target::Field(field) => field.precision(prec),
-                Target::RecordType => prec,
+                Target::RecordType | Target::Message | Target::MessageChars => prec,
             },
             upper,
             lower,
@@ -79,6 +85,7 @@ impl Directory for Values {
 /// What circuits are told of the network.
 #[derive(Clone, Debug)]
 pub(crate) enum Change {
-    Field(String, Field),
+    /// A field of an axis, or its message, has a new value.
+    Value(String, Target),
     Gone(String),
 }

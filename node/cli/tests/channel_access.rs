@@ -48,9 +48,15 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
     let (node, _ca, _, port) = served(dir.path(), false);
 
     let seen = clients(port, "clients") + &clients(port, "ophyd");
-    for check in
-        ["reads", "put-callback waits", "control limits are re-posted", "answer as an IOC would", "caproto", "ophyd"]
-    {
+    for check in [
+        "reads",
+        "put-callback waits",
+        "control limits are re-posted",
+        "answer as an IOC would",
+        "ERR reads in full",
+        "caproto",
+        "ophyd",
+    ] {
         assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
     }
 
