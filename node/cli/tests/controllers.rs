@@ -151,9 +151,11 @@ fn pi_gcs2_through_pipython() {
     panic!("{said}");
 }
 
-/// A controller's error reaches the client, not only the node's log: a move of a PI axis that
-/// was never referenced is refused by the controller (error 5); `zmotor monitor pi1 ERR` shows
-/// it with its code and meaning, and so does the answer of `zmotor put pi1 VAL 1 --wait`.
+/// A controller's error reaches the client, not only the node's log. A move of a PI axis that
+/// was never referenced is refused before it is sent, saying how to reference it; once homed, a
+/// target beyond the controller's travel range (the record's limits set wider) is refused by
+/// the controller itself (PI error 7). `zmotor monitor pi1 ERR` shows both, and the answer of
+/// the `zmotor put … --wait` that caused each names it once.
 #[test]
 fn a_controllers_error_reaches_the_axis_err() {
     let dir = tempfile::tempdir().unwrap();
@@ -178,15 +180,33 @@ fn a_controllers_error_reaches_the_axis_err() {
     let _monitor = Running(monitor);
     // The monitor is live once it showed DMOV's current value.
     assert!(lines.wait_for(common::PATIENCE, |l| l.starts_with("pi1.DMOV")).is_some(), "the monitor started");
-    let put = Command::new(env!("CARGO_BIN_EXE_zmotor"))
-        .args(["put", "pi1", "VAL", "1", "--wait", "--connect", &endpoint])
-        .output()
-        .unwrap();
-    let said = String::from_utf8_lossy(&put.stdout).into_owned() + &String::from_utf8_lossy(&put.stderr);
-    let err = |l: &str| l.starts_with("pi1.ERR") && l.contains("controller error 5") && l.contains("unreferenced");
-    assert!(lines.wait_for(common::PATIENCE, err).is_some(), "ERR named PI's error 5; the put said {said}");
-    // And the answer of the write that caused it says why the target was not reached, once.
+    let put = |args: &[&str]| {
+        let output = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+            .args(["put", "pi1"])
+            .args(args)
+            .args(["--connect", &endpoint])
+            .output()
+            .unwrap();
+        String::from_utf8_lossy(&output.stdout).into_owned() + &String::from_utf8_lossy(&output.stderr)
+    };
+    let said_once = |said: &str, line: &str| said.lines().filter(|l| l.starts_with(line)).count() == 1;
+
+    let said = put(&["VAL", "1", "--wait"]);
+    let why = "not referenced: home the axis first (HOMF or HOMR)";
+    let err = |l: &str| l.starts_with("pi1.ERR") && l.contains(why);
+    assert!(lines.wait_for(common::PATIENCE, err).is_some(), "ERR said why before trying; the put said {said}");
+    assert!(said.contains("reached=0") && said_once(&said, &format!("ERR: c884: {why}")), "{said}");
+
+    // Homed without alarm (MISS stays as the refused move left it: no retry check follows a
+    // home, as in the record), at the reference switch, which counts 0.
+    let said = put(&["HOMF", "1", "--wait"]);
+    assert!(said.contains("SEVR=0") && said.contains("RBV=0 "), "homed: {said}");
+    const HOMED: u32 = 0x4000;
+    common::Host::default().wait_for(&endpoint, "pi1", "MSTA", |msta| (msta as u32) & HOMED != 0);
+    put(&["DHLM", "19.8"]);
+    let said = put(&["VAL", "19.7", "--wait"]);
+    let err = |l: &str| l.starts_with("pi1.ERR") && l.contains("controller error 7: Position out of limits");
+    assert!(lines.wait_for(common::PATIENCE, err).is_some(), "ERR named PI's error 7; the put said {said}");
     assert!(said.contains("reached=0"), "{said}");
-    let told = said.lines().filter(|l| l.starts_with("ERR: c884: controller error 5")).count();
-    assert_eq!(told, 1, "the put's answer names PI's error once: {said}");
+    assert!(said_once(&said, "ERR: c884: controller error 7: Position out of limits"), "once: {said}");
 }

@@ -11,8 +11,9 @@
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
 //! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
 
-use crate::protocol::{CommandError, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
-use std::collections::VecDeque;
+use crate::protocol::{CommandError, Finding, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
+use crate::scale::{RecordUnits, Scale, ScaleCheck, ScaleMismatch};
+use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
 use zmotor_core::{DeviceStatus, Instant};
 use zmotor_msgs::bits::msta;
@@ -42,6 +43,9 @@ pub struct ControllerConfig {
     /// Only observed (`observe = true`): connected, initialised read-only and polled; every
     /// command but a status refresh refused, so nothing moves, powers up or is reconfigured.
     pub observe: bool,
+    /// Each channel's axis's EGU and MRES, compared with the controller's scale whenever the
+    /// link comes up: a channel where they disagree moves nothing.
+    pub record_units: BTreeMap<usize, RecordUnits>,
 }
 
 impl ControllerConfig {
@@ -59,6 +63,7 @@ impl ControllerConfig {
             reconnect_first: Duration::from_millis(500),
             reconnect_max: Duration::from_secs(10),
             observe: false,
+            record_units: BTreeMap::new(),
         }
     }
 }
@@ -84,6 +89,18 @@ pub enum ControllerEvent {
     /// The controller reported an error; the channel's status shows a problem until its next
     /// command.
     ControllerError(VendorError),
+    /// What the controller said of itself at connection.
+    Found(Finding),
+    /// A channel's scale, once the link is up, and how its axis's MRES and EGU compare with it.
+    Scale {
+        /// The channel.
+        channel: usize,
+        /// The controller's units per record step, and where that comes from.
+        scale: Scale,
+        /// The comparison: a channel whose axis disagrees moves nothing until a connection
+        /// finds them agreeing.
+        check: ScaleCheck,
+    },
     /// A command was not sent.
     Refused {
         /// The channel.
@@ -104,8 +121,16 @@ pub enum ControllerEvent {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum Refusal {
     /// The protocol cannot express it.
-    #[error(transparent)]
+    #[error("not sent: {0}")]
     Command(#[from] CommandError),
+    /// A move or jog of an axis the controller moves only once referenced, which it is not:
+    /// the controller would refuse it.
+    #[error("not referenced: home the axis first (HOMF or HOMR)")]
+    NotReferenced,
+    /// A motion of an axis whose MRES disagrees with the controller's step: every target
+    /// would be off by their ratio.
+    #[error("no motion while the scale disagrees: {0}")]
+    ScaleMismatch(ScaleMismatch),
     /// The controller cannot be reached now; the command is not kept for later.
     #[error("the controller cannot be reached; the command is dropped, not kept for later")]
     NotConnected,
@@ -193,6 +218,10 @@ enum Link {
 struct Channel {
     /// The last status reported.
     status: DeviceStatus,
+    /// When the poll that read it was queued, in the controller's sequence.
+    status_issued: u64,
+    /// The sequence number of the last home or position set queued: either may reference it.
+    reference_issued: u64,
     /// A motion was commanded and no status since says it is over.
     moving: bool,
     /// The sequence number of the last motion command queued.
@@ -206,6 +235,8 @@ struct Channel {
     /// It was moving, or being stopped, when the link was lost: a stop goes first when the
     /// link is back, so that nothing keeps moving that nobody commands.
     stop_owed: bool,
+    /// Its axis's MRES disagrees with the controller's step, as the link found when it came up.
+    mismatch: Option<ScaleMismatch>,
 }
 
 /// One controller speaking the protocol `P` (see the module documentation). Its API is
@@ -341,6 +372,22 @@ impl<P: Protocol> AnyController for Controller<P> {
             self.report_lost(channel);
             return;
         }
+        let state = &self.channels[channel];
+        // Known unreferenced: a home or a position set since the status was read may have
+        // referenced it, and the controller itself is the judge then.
+        let unreferenced = state.status.msta & msta::HOMED == 0 && state.status_issued >= state.reference_issued;
+        let moves = matches!(command, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. });
+        if let Some(mismatch) = state.mismatch.clone().filter(|_| motion) {
+            self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::ScaleMismatch(mismatch) });
+            self.report_problem(channel);
+            return;
+        }
+        if moves && unreferenced && self.protocol.moves_need_reference(channel) {
+            // Said before trying: the controller's own refusal would come as a bare error code.
+            self.events.push_back(ControllerEvent::Refused { channel, why: Refusal::NotReferenced });
+            self.report_problem(channel);
+            return;
+        }
         if let DriverCommand::Poll = command {
             self.queue_poll_of(&[channel], Priority::Setting);
             self.pump();
@@ -366,6 +413,9 @@ impl<P: Protocol> AnyController for Controller<P> {
         self.seq += 1;
         let state = &mut self.channels[channel];
         state.problem = false;
+        if matches!(command, DriverCommand::Home { .. } | DriverCommand::SetPosition { .. }) {
+            state.reference_issued = self.seq;
+        }
         if motion {
             state.moving = true;
             state.motion_issued = self.seq;
@@ -611,6 +661,23 @@ impl<P: Protocol> Controller<P> {
         if initialising && matches!(transaction.kind, Kind::Init | Kind::Poll) && last {
             self.link = Link::Up;
             self.next_poll = Some(self.now + self.config.idle_poll);
+            self.check_scales();
+        }
+    }
+
+    /// Each channel's scale, as the initialisation left it, against its axis's MRES and EGU.
+    fn check_scales(&mut self) {
+        for channel in self.config.channels.clone() {
+            let scale = self.protocol.scale(channel);
+            let check = match self.config.record_units.get(&channel) {
+                Some(record) => scale.check(record),
+                None => ScaleCheck::Unchecked("no axis units given"),
+            };
+            self.channels[channel].mismatch = match &check {
+                ScaleCheck::Disagrees(mismatch) => Some(mismatch.clone()),
+                _ => None,
+            };
+            self.events.push_back(ControllerEvent::Scale { channel, scale, check });
         }
     }
 
@@ -650,6 +717,7 @@ impl<P: Protocol> Controller<P> {
                     status.msta |= msta::PROBLEM;
                 }
                 state.status = status;
+                state.status_issued = issued;
                 let motions = state.motions;
                 if matches!(self.link, Link::Initialising { .. } | Link::Up) {
                     self.events.push_back(ControllerEvent::Status { channel, status, motions });
@@ -667,6 +735,7 @@ impl<P: Protocol> Controller<P> {
                     self.report_problem(channel);
                 }
             }
+            ReplyEvent::Found(finding) => self.events.push_back(ControllerEvent::Found(finding)),
             ReplyEvent::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {
                     for request in requests.into_iter().rev() {

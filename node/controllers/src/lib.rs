@@ -16,6 +16,7 @@ mod newport;
 mod phytron;
 mod pi_gcs2;
 mod protocol;
+mod scale;
 mod smaract_mcs2;
 mod spec;
 
@@ -23,8 +24,10 @@ pub use controller::{AnyController, Controller, ControllerConfig, ControllerEven
 #[cfg(feature = "testing")]
 pub use loopback::Loopback;
 pub use protocol::{
-    line_frame, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+    line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
+    VendorError,
 };
+pub use scale::{ControllerUnit, Dimension, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource, Unit};
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
 

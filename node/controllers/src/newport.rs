@@ -71,6 +71,7 @@
 use crate::protocol::{
     line_frame, line_text, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
+use crate::scale::{ControllerUnit, Scale, ScaleSource, Unit};
 use std::ops::RangeInclusive;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -291,6 +292,8 @@ struct ChannelState {
 #[derive(Debug)]
 pub(crate) struct Smc100 {
     units_per_step: f64,
+    /// Where `units_per_step` comes from.
+    source: ScaleSource,
     /// Indexed by address.
     channels: Vec<ChannelState>,
 }
@@ -299,17 +302,17 @@ impl Smc100 {
     /// A protocol at `units_per_step` millimetres per record step (None: the default). A value
     /// that is not a positive number cannot scale anything: the default is used, and said.
     pub(crate) fn new(units_per_step: Option<f64>) -> Self {
-        let units_per_step = match units_per_step {
-            None => DEFAULT_UNITS_PER_STEP,
-            Some(u) if u.is_finite() && u > 0.0 => u,
+        let (units_per_step, source) = match units_per_step {
+            None => (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault),
+            Some(u) if u.is_finite() && u > 0.0 => (u, ScaleSource::Installation),
             Some(u) => {
                 tracing::warn!(
                     "{NAME}: units_per_step {u} is not a positive number; using {DEFAULT_UNITS_PER_STEP} mm"
                 );
-                DEFAULT_UNITS_PER_STEP
+                (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault)
             }
         };
-        Self { units_per_step, channels: vec![ChannelState::default(); ADDRESSES.end() + 1] }
+        Self { units_per_step, source, channels: vec![ChannelState::default(); ADDRESSES.end() + 1] }
     }
 
     /// Steps as millimetres, if the controller can take them.
@@ -541,6 +544,18 @@ impl Protocol for Smc100 {
 
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    /// In its NOT REFERENCED states the controller takes no move (error H, "Command not
+    /// allowed in NOT REFERENCED state"); HOMED is off exactly there.
+    fn moves_need_reference(&self, _channel: usize) -> bool {
+        true
+    }
+
+    fn scale(&self, _channel: usize) -> Scale {
+        // The stage's unit: mm on a linear stage, degrees on a rotary one.
+        let unit = ControllerUnit::Physical { linear: Unit::MM, rotary: Unit::DEG };
+        Scale { units_per_step: self.units_per_step, unit, source: self.source }
     }
 
     fn purpose(step: Step) -> Purpose {

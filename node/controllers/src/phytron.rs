@@ -87,6 +87,7 @@
 use crate::protocol::{
     whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
+use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use std::collections::HashMap;
 use std::ops::RangeInclusive;
 use zmotor_core::DeviceStatus;
@@ -386,21 +387,23 @@ impl Default for Axis {
 #[derive(Debug)]
 pub(crate) struct Phymotion {
     units_per_step: f64,
+    /// Where `units_per_step` comes from.
+    source: ScaleSource,
     axes: HashMap<usize, Axis>,
 }
 
 impl Phymotion {
     /// The protocol with the installation's options (`units_per_step` defaults to 1).
     pub(crate) fn new(options: &ProtocolOptions) -> Self {
-        let units_per_step = match options.units_per_step {
-            Some(units) if units.is_finite() && units > 0.0 => units,
+        let (units_per_step, source) = match options.units_per_step {
+            Some(units) if units.is_finite() && units > 0.0 => (units, ScaleSource::Installation),
             Some(units) => {
                 tracing::warn!(units, "phytron: units_per_step must be a positive number; using 1");
-                DEFAULT_UNITS_PER_STEP
+                (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault)
             }
-            None => DEFAULT_UNITS_PER_STEP,
+            None => (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault),
         };
-        Self { units_per_step, axes: HashMap::new() }
+        Self { units_per_step, source, axes: HashMap::new() }
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
@@ -651,6 +654,11 @@ impl Protocol for Phymotion {
 
     fn name(&self) -> &'static str {
         NAME
+    }
+
+    fn scale(&self, _channel: usize) -> Scale {
+        // In the unit the module's parameter P02 was set to, which this driver does not read.
+        Scale { units_per_step: self.units_per_step, unit: ControllerUnit::Steps, source: self.source }
     }
 
     fn purpose(step: Step) -> Purpose {

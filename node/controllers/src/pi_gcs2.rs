@@ -80,9 +80,10 @@
 //! without `HAR?` would not answer it), macros, joystick, data recording, wave generator.
 
 use crate::protocol::{
-    line_text, whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
-    VendorError,
+    line_text, whole_steps, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
+    Request, VendorError,
 };
+use crate::scale::{ControllerUnit, Scale, ScaleSource, Unit};
 use std::collections::BTreeMap;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -610,6 +611,25 @@ impl Protocol for PiGcs2 {
         NAME
     }
 
+    /// An unreferenced axis takes no move (error 5); `FRF?` (HOMED) says whether it is
+    /// referenced, by a reference move or by a position set with `RON 0`.
+    fn moves_need_reference(&self, _channel: usize) -> bool {
+        true
+    }
+
+    fn scale(&self, channel: usize) -> Scale {
+        // PI's stages count in mm (linear) or degrees (rotary), their physical units.
+        let unit = ControllerUnit::Physical { linear: Unit::MM, rotary: Unit::DEG };
+        let read =
+            self.axes.get(&channel).is_some_and(|a| a.counts_numerator.is_some() && a.counts_denominator.is_some());
+        let source = match (self.units_per_step, read) {
+            (Some(_), _) => ScaleSource::Installation,
+            (None, true) => ScaleSource::Controller("SPA? <axis> 14 and 15, counts per unit"),
+            (None, false) => ScaleSource::ProtocolDefault,
+        };
+        Scale { units_per_step: self.units_per_step(channel), unit, source }
+    }
+
     fn purpose(step: Step) -> Purpose {
         match step {
             Step::Identity | Step::Axes | Step::Setting { .. } => Purpose::Init,
@@ -779,7 +799,7 @@ impl Protocol for PiGcs2 {
                 if !MODELS.iter().any(|model| upper.contains(model)) {
                     return Err(ReplyError::new(request, frame, "not a PI controller of the C-863/C-884 class"));
                 }
-                Ok(Vec::new())
+                Ok(vec![ReplyEvent::Found(Finding::Identity(reply_text(frame).trim().to_string()))])
             }
             Step::Axes => {
                 let text = reply_text(frame);
@@ -787,10 +807,17 @@ impl Protocol for PiGcs2 {
                 if !self.channels.iter().all(|channel| names.contains(&channel.to_string().as_str())) {
                     return Err(ReplyError::new(request, frame, "a channel is not one of the controller's axes"));
                 }
-                Ok(Vec::new())
+                Ok(vec![ReplyEvent::Found(Finding::Axes(names.iter().map(|n| n.to_string()).collect()))])
             }
             Step::Setting { channel, setting } => {
-                self.on_setting(request, frame, channel, setting).map(|()| Vec::new())
+                self.on_setting(request, frame, channel, setting)?;
+                let axis = self.axes.get(&channel);
+                let travel =
+                    axis.and_then(|a| a.travel_min.zip(a.travel_max)).filter(|_| setting == Setting::TravelMax);
+                Ok(travel
+                    .map(|(min, max)| ReplyEvent::Found(Finding::Travel { channel, min, max }))
+                    .into_iter()
+                    .collect())
             }
             Step::ServoStarted => {
                 self.servo_started = true;
@@ -833,7 +860,8 @@ mod tests {
                 "TMX?" => format!("{channel}=19.5000000\n"),
                 _ => "0\n".into(),
             };
-            assert_eq!(p.reply(request, reply.as_bytes()), Ok(vec![]), "{text}");
+            let events = p.reply(request, reply.as_bytes()).expect(&text);
+            assert!(events.iter().all(|e| matches!(e, ReplyEvent::Found(_))), "{text}: {events:?}");
         }
         p
     }

@@ -2,6 +2,7 @@
 //! and polls into request frames, splits the byte stream into reply frames, and turns replies
 //! into channel status. No I/O, no clock.
 
+use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::DriverCommand;
 
@@ -98,6 +99,27 @@ pub enum ReplyEvent<S> {
     /// Requests to send right after this one, before anything else (an error query after a
     /// setter, the next entry of an error queue).
     FollowUp(Vec<Request<S>>),
+    /// What the controller says of itself at connection, for the log.
+    Found(Finding),
+}
+
+/// What a controller says of itself when a connection is initialised.
+#[non_exhaustive]
+#[derive(Clone, Debug, PartialEq)]
+pub enum Finding {
+    /// Who it is (model, serial number, firmware), in its words.
+    Identity(String),
+    /// Its axes, by its names for them.
+    Axes(Vec<String>),
+    /// A channel's travel range, in the controller's units.
+    Travel {
+        /// The channel.
+        channel: usize,
+        /// The lowest position it takes.
+        min: f64,
+        /// The highest.
+        max: f64,
+    },
 }
 
 /// An error a controller reported.
@@ -183,6 +205,18 @@ pub trait Protocol: Send {
     /// The requests that carry out one driver command on `channel`, in order.
     #[must_use = "the requests are to be sent"]
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Self::Step>>, CommandError>;
+
+    /// Whether the controller refuses to move `channel` until it is referenced: the layer then
+    /// refuses a move or a jog of a channel whose last status lacks HOMED, before sending
+    /// anything, and says how to reference it.
+    fn moves_need_reference(&self, channel: usize) -> bool {
+        let _ = channel;
+        false
+    }
+
+    /// How many of the controller's units one record step of `channel` is, as the protocol
+    /// knows it now (read at connection where the controller tells).
+    fn scale(&self, channel: usize) -> Scale;
 
     /// What the reply `frame` to `request` says.
     fn reply(&mut self, request: &Request<Self::Step>, frame: &[u8])

@@ -60,8 +60,10 @@
 //! is checked by its form only.
 
 use crate::protocol::{
-    line_frame, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+    line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
+    VendorError,
 };
+use crate::scale::{ControllerUnit, Scale, ScaleSource, Unit};
 use std::collections::BTreeMap;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
@@ -255,6 +257,8 @@ struct Channel {
 #[derive(Debug)]
 pub(crate) struct Mcs2 {
     picometres_per_step: f64,
+    /// Where `picometres_per_step` comes from.
+    source: ScaleSource,
     channels: BTreeMap<usize, Channel>,
     /// Error-queue entries read in a row without reaching 0.
     errors_in_a_row: u32,
@@ -265,6 +269,11 @@ impl Mcs2 {
     pub(crate) fn new(options: &ProtocolOptions) -> Self {
         Self {
             picometres_per_step: options.units_per_step.unwrap_or(DEFAULT_PICOMETRES_PER_STEP),
+            source: if options.units_per_step.is_some() {
+                ScaleSource::Installation
+            } else {
+                ScaleSource::ProtocolDefault
+            },
             channels: BTreeMap::new(),
             errors_in_a_row: 0,
         }
@@ -443,6 +452,12 @@ impl Protocol for Mcs2 {
         NAME
     }
 
+    fn scale(&self, _channel: usize) -> Scale {
+        // Positions are picometres on a linear positioner, nanodegrees on a rotary one.
+        let unit = ControllerUnit::Physical { linear: Unit::PM, rotary: Unit::NDEG };
+        Scale { units_per_step: self.picometres_per_step, unit, source: self.source }
+    }
+
     fn purpose(step: Step) -> Purpose {
         match step {
             Step::SerialNumber | Step::StaleErrors | Step::InitErrors => Purpose::Init,
@@ -568,8 +583,8 @@ impl Protocol for Mcs2 {
         let text = reply_text(frame);
         match request.step {
             Step::SerialNumber => {
-                tracing::info!(serial = text, "MCS2 connected");
-                Ok(Vec::new())
+                let serial = text.trim_matches('"');
+                Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MCS2, serial number {serial}")))])
             }
             Step::StaleErrors | Step::InitErrors | Step::PollErrors { .. } => self.error_entry(request, frame, None),
             Step::CommandErrors { channel } => self.error_entry(request, frame, Some(channel)),
@@ -764,7 +779,8 @@ mod tests {
             [":DEV:SNUM?\r\n", ":SYST:ERR?\r\n", ":CHAN0:HOLD -1\r\n", ":CHAN2:HOLD -1\r\n", ":SYST:ERR?\r\n"]
         );
         assert_eq!(answered(&init), [true, true, false, false, true]);
-        assert_eq!(p.reply(&init[0], b"\"MCS2-00001234\"\r\n").unwrap(), []);
+        let identity = Finding::Identity("MCS2, serial number MCS2-00001234".into());
+        assert_eq!(p.reply(&init[0], b"\"MCS2-00001234\"\r\n").unwrap(), [ReplyEvent::Found(identity)]);
         // Entries from before the connection are read to the end but not reported.
         assert_eq!(
             p.reply(&init[1], b"-113,\"Undefined header\"\r\n").unwrap(),

@@ -7,8 +7,8 @@ mod common;
 use common::{bring_up, last_status, loopback, run_until_done, written_since};
 use std::time::Duration;
 use zmotor_controllers::{
-    line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, Frame, Loopback, ProtocolKind, Purpose,
-    Refusal, ReplyError, ReplyEvent, Request,
+    line_frame, CommandError, Controller, ControllerConfig, ControllerEvent, ControllerUnit, Frame, Loopback,
+    ProtocolKind, Purpose, Refusal, ReplyError, ReplyEvent, Request, Scale, ScaleSource,
 };
 use zmotor_core::{DeviceStatus, Driver};
 use zmotor_emulators::Faults;
@@ -355,6 +355,9 @@ impl zmotor_controllers::Protocol for Picky {
     }
     fn command(&mut self, _channel: usize, _command: &DriverCommand) -> Result<Vec<Request<PickyStep>>, CommandError> {
         Ok(Vec::new())
+    }
+    fn scale(&self, _channel: usize) -> Scale {
+        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
     }
     fn reply(&mut self, request: &Request<PickyStep>, frame: &[u8]) -> Result<Vec<ReplyEvent<PickyStep>>, ReplyError> {
         match request.step {

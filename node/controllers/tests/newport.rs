@@ -75,17 +75,22 @@ fn a_new_connection_clears_old_errors_polls_and_moves_nothing() {
 }
 
 #[test]
-fn a_move_before_the_home_is_refused_by_the_controller_in_its_own_words() {
+fn a_move_before_the_home_is_refused_before_it_is_sent_saying_why() {
     let mut lb = loopback(SMC, &[1], Faults::default());
     bring_up(&mut lb);
-    lb.command(1, &go(50_000.0, false));
-    lb.run_for(Duration::from_millis(300));
-    let events = lb.take_events();
-    let expected = (Some(1), "H".to_string(), "Command not allowed in NOT REFERENCED state".to_string());
-    assert_eq!(controller_errors(&events), [expected]);
-    let status = last_status(&events, 1);
-    assert_eq!(status.msta & (msta::PROBLEM | msta::DONE), msta::PROBLEM | msta::DONE);
-    assert_eq!(status.position, 0.0);
+    let start = lb.written().len();
+    for command in [go(50_000.0, false), go(50_000.0, true), jog(10_000.0)] {
+        lb.command(1, &command);
+        lb.run_for(Duration::from_millis(300));
+        let events = lb.take_events();
+        let refused = ControllerEvent::Refused { channel: 1, why: Refusal::NotReferenced };
+        assert!(events.contains(&refused), "{command:?}: {events:?}");
+        let status = last_status(&events, 1);
+        assert_eq!(status.msta & (msta::PROBLEM | msta::DONE), msta::PROBLEM | msta::DONE);
+        assert_eq!(status.position, 0.0);
+    }
+    let sent = written_since(&lb, start);
+    assert!(sent.iter().all(|s| !s.contains("PA") && !s.contains("PR")), "{sent:?}");
     // The problem lasts until the next command.
     homed(&mut lb, 1);
     lb.run_for(Duration::from_millis(300));
@@ -309,8 +314,11 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
         push_carriage(&mut lb, 2, 1.5);
         lb.command(2, &home());
         lb.run_for(Duration::from_secs(2));
+        // Beyond the software limit (the controller's error), then a move it takes.
+        lb.command(2, &go(130_000.0, false));
+        lb.run_for(Duration::from_millis(300));
         lb.command(2, &go(-30_000.0, false));
-        lb.command(1, &go(10_000.0, false));
+        lb.command(1, &DriverCommand::Poll);
         lb.run_for(Duration::from_secs(3));
         let events = lb.take_events();
         (
@@ -322,7 +330,7 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
     };
     let whole = run(usize::MAX);
     assert!(whole.1.iter().any(|s| s.position == -30_000.0 && s.msta & msta::DONE != 0));
-    assert_eq!(whole.2.len(), 1, "controller 1 is not referenced: {:?}", whole.2);
+    assert_eq!(whole.2.len(), 1, "the target beyond the software limit: {:?}", whole.2);
     assert_eq!(run(1), whole);
 }
 
@@ -342,6 +350,6 @@ proptest! {
     fn no_sequence_of_record_commands_makes_a_malformed_frame(
         commands in proptest::collection::vec((0usize..2, command(), 0u64..300), 1..12)
     ) {
-        common::no_malformed_frames(SMC, &[1, 3], &commands);
+        common::no_malformed_frames(SMC, &[1, 3], common::Start::Homed, &commands);
     }
 }

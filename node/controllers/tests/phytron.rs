@@ -268,7 +268,7 @@ proptest! {
     fn no_sequence_of_record_commands_makes_a_malformed_frame(
         commands in proptest::collection::vec((0usize..4, command(), 0u64..300), 1..12)
     ) {
-        common::no_malformed_frames(PHYTRON, &CHANNELS, &commands);
+        common::no_malformed_frames(PHYTRON, &CHANNELS, common::Start::AsPoweredUp, &commands);
     }
 }
 

@@ -9,7 +9,10 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{
+    ControllerConfig, ControllerEvent, Finding, Loopback, ProtocolKind, ProtocolOptions, RecordUnits, Refusal,
+    ScaleCheck,
+};
 use zmotor_core::Instant;
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
@@ -87,24 +90,38 @@ fn moves_absolute_and_relative_land_where_asked() {
 }
 
 #[test]
-fn a_move_the_controller_refuses_is_a_controller_error_with_its_meaning_and_a_problem() {
+fn a_move_of_an_unreferenced_axis_is_refused_before_it_is_sent_saying_why() {
     let mut lb = loopback(PI, &[1], Faults::default());
     bring_up(&mut lb);
-    // Not referenced yet: the C-884 takes no move.
-    lb.command(1, &go(10_000.0, false));
-    lb.run_for(Duration::from_millis(100));
-    let events = lb.take_events();
-    let meaning = "Unallowable move attempted on unreferenced axis, or move attempted with servo off";
-    assert_eq!(controller_errors(&events), [(Some(1), "5".to_string(), meaning.to_string())]);
-    assert_ne!(last_status(&events, 1).msta & msta::PROBLEM, 0);
+    let start = lb.written().len();
+    for command in [go(10_000.0, false), go(10_000.0, true), jog(10_000.0)] {
+        lb.command(1, &command);
+        lb.run_for(Duration::from_millis(100));
+        let events = lb.take_events();
+        let refused = ControllerEvent::Refused { channel: 1, why: Refusal::NotReferenced };
+        assert!(events.contains(&refused), "{command:?}: {events:?}");
+        assert_eq!(last_status(&events, 1).msta & (msta::PROBLEM | msta::DONE), msta::PROBLEM | msta::DONE);
+    }
+    let sent = written_since(&lb, start);
+    assert!(sent.iter().all(|s| !s.starts_with("MOV") && !s.starts_with("MVR")), "{sent:?}");
     assert_eq!(physical(&mut lb, 1), 5.0);
-    // Referenced, but beyond the travel range.
+    // A position set makes it referenced: the move right behind it is the controller's to judge.
     lb.command(1, &DriverCommand::SetPosition { position: 0.0 });
+    lb.command(1, &go(10_000.0, false));
+    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(2));
+    assert_eq!(statuses.last().map(|s| (s.position, s.msta & msta::PROBLEM)), Some((10_000.0, 0)));
+}
+
+#[test]
+fn a_move_the_controller_refuses_is_a_controller_error_with_its_meaning_and_a_problem() {
+    let mut lb = up_with_position(&[1], 1, 0.0);
+    // Referenced, but beyond the travel range.
     lb.command(1, &go(250_000.0, false));
     lb.run_for(Duration::from_millis(100));
     let events = lb.take_events();
     assert_eq!(controller_errors(&events), [(Some(1), "7".to_string(), "Position out of limits".to_string())]);
     assert_ne!(last_status(&events, 1).msta & msta::PROBLEM, 0);
+    assert_eq!(physical(&mut lb, 1), 5.0);
     // The next command clears it.
     lb.command(1, &go(1000.0, false));
     let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(2));
@@ -248,6 +265,47 @@ fn a_reconnection_leaves_the_servo_as_it_finds_it() {
 }
 
 #[test]
+fn an_mres_that_disagrees_with_the_controllers_scale_moves_nothing_and_says_what_agrees() {
+    // The controller counts 10000 per mm (0.1 µm a step); axis 1 says 1 µm a step, axis 2 agrees.
+    let mut config = ControllerConfig::for_channels(vec![1, 2]);
+    let units = |egu: &str, mres: f64| RecordUnits { egu: egu.into(), mres };
+    config.record_units = [(1, units("mm", 0.001)), (2, units("um", 0.1))].into();
+    let controller = PI.controller(&ProtocolOptions::default(), config, Instant::ZERO);
+    let mut lb = Loopback::new(controller, common::emulator(PI, 3), Faults::default());
+    let events = bring_up(&mut lb);
+    let checks: Vec<(usize, ScaleCheck)> = events
+        .iter()
+        .filter_map(|e| match e {
+            ControllerEvent::Scale { channel, scale, check } => {
+                assert!((scale.units_per_step - 0.0001).abs() < 1e-12, "{scale:?}");
+                Some((*channel, check.clone()))
+            }
+            _ => None,
+        })
+        .collect();
+    assert_eq!(checks.len(), 2, "{events:?}");
+    assert_eq!(checks[1], (2, ScaleCheck::Agrees));
+    let ScaleCheck::Disagrees(mismatch) = &checks[0].1 else { panic!("{checks:?}") };
+    assert!((mismatch.expected_mres - 0.0001).abs() < 1e-12 && (mismatch.ratio - 10.0).abs() < 1e-9);
+    assert!(events.iter().any(|e| matches!(e, ControllerEvent::Found(Finding::Identity(i)) if i.contains("C-884"))));
+    // Referenced by a position set (no motion), then every motion of axis 1 is refused unsent.
+    lb.command(1, &DriverCommand::SetPosition { position: 0.0 });
+    lb.run_for(Duration::from_millis(200));
+    lb.take_events();
+    let start = lb.written().len();
+    for command in [go(1000.0, false), jog(1000.0), home(true)] {
+        lb.command(1, &command);
+        lb.run_for(Duration::from_millis(100));
+        let events = lb.take_events();
+        let refused = ControllerEvent::Refused { channel: 1, why: Refusal::ScaleMismatch(mismatch.clone()) };
+        assert!(events.contains(&refused), "{command:?}: {events:?}");
+    }
+    let sent = written_since(&lb, start);
+    assert!(sent.iter().all(|s| !["MOV", "MVR", "FRF ", "FNL", "FPL"].iter().any(|v| s.starts_with(v))), "{sent:?}");
+    assert_eq!(physical(&mut lb, 1), 5.0);
+}
+
+#[test]
 fn units_given_by_the_installation_replace_the_controllers() {
     // One step of 1 µm.
     let options = ProtocolOptions { units_per_step: Some(0.001) };
@@ -286,7 +344,7 @@ proptest! {
     fn no_sequence_of_record_commands_makes_a_malformed_frame(
         commands in proptest::collection::vec((0usize..2, command(), 0u64..300), 1..12)
     ) {
-        common::no_malformed_frames(PI, &[1, 4], &commands);
+        common::no_malformed_frames(PI, &[1, 4], common::Start::Homed, &commands);
     }
 }
 

@@ -244,7 +244,7 @@ proptest! {
     fn no_sequence_of_record_commands_makes_a_malformed_frame(
         commands in proptest::collection::vec((0usize..2, command(), 0u64..300), 1..12)
     ) {
-        common::no_malformed_frames(MCS2, &[0, 3], &commands);
+        common::no_malformed_frames(MCS2, &[0, 3], common::Start::AsPoweredUp, &commands);
     }
 }
 

@@ -547,10 +547,11 @@ impl Axis {
             match &mut self.device {
                 Device::Driver { driver, .. } => execute(driver.as_mut(), &command),
                 // As asyn's model 3: "not done" from the moment motion is commanded, until a
-                // poll says otherwise.
+                // poll says otherwise. A problem is the last command's: the controller layer
+                // clears it with the next command, and a stale one would end this motion at once.
                 Device::Controller { status, motions, .. } if command.starts_motion() => {
                     *motions += 1;
-                    status.msta &= !msta::DONE;
+                    status.msta &= !(msta::DONE | msta::PROBLEM);
                 }
                 Device::Controller { .. } => {}
                 Device::Soft(_) => return,

@@ -13,7 +13,7 @@ use crate::plans::check_wiring;
 use crate::problem::{keys_path, Problem};
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{ProtocolKind, RecordUnits};
 use zmotor_msgs::{keys, KeyLayout};
 
 /// A file that took part in a launch, kept to point errors at their line.
@@ -297,8 +297,14 @@ impl Launch {
         let plan = |a: &AxisSection| a.plan().map_err(|p| self.error(p));
         let spec = |c: &CalcSection| c.spec().map_err(|p| self.error(p));
         let controller = |c: &ControllerSection| {
-            let channels = self.file.axes.iter().filter(|a| a.controller.as_ref() == Some(&c.name));
-            c.spec(channels.filter_map(|a| a.channel).collect()).map_err(|p| self.error(p))
+            let mut axes = Vec::new();
+            for axis in self.file.axes.iter().filter(|a| a.controller.as_ref() == Some(&c.name)) {
+                let fields = plan(axis)?.fields;
+                if let Some(channel) = axis.channel {
+                    axes.push((channel, RecordUnits { egu: fields.egu, mres: fields.mres }));
+                }
+            }
+            c.spec(axes).map_err(|p| self.error(p))
         };
         let contents = NodeContents {
             plans: self.file.axes.iter().filter(|a| runs_here(&a.host)).map(plan).collect::<Result<_, _>>()?,

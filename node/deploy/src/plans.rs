@@ -8,7 +8,7 @@ use crate::file::{
 use crate::problem::Problem;
 use std::time::Duration;
 use zmotor_bridge::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
-use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions, RecordUnits};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_core::JogHold;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
@@ -67,8 +67,9 @@ impl AxisSection {
 }
 
 impl ControllerSection {
-    /// The controller, driving `channels`; every setting checked.
-    pub(crate) fn spec(&self, channels: Vec<usize>) -> Result<ControllerSpec, Problem> {
+    /// The controller, driving `axes` (each channel, with its axis's EGU and MRES); every
+    /// setting checked.
+    pub(crate) fn spec(&self, axes: Vec<(usize, RecordUnits)>) -> Result<ControllerSpec, Problem> {
         let at = |inner: &[&str], message: String| {
             let key = inner.join(".");
             Problem::in_item("controller", self.origin, inner, format!("controller '{}': {key}: {message}", self.name))
@@ -120,8 +121,9 @@ impl ControllerSection {
             timeout: period("timeout", self.timeout, 0.001, 60.0)?,
             retries: self.retries,
             observe: self.observe,
-            ..ControllerConfig::for_channels(channels)
+            ..ControllerConfig::for_channels(axes.iter().map(|(channel, _)| *channel).collect())
         };
+        let config = ControllerConfig { record_units: axes.into_iter().collect(), ..config };
         if self.retries > 10 {
             return Err(at(&["retries"], format!("{} is more than 10", self.retries)));
         }

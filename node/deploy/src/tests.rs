@@ -204,6 +204,15 @@ fn a_controller_drives_the_channels_of_its_axes() {
 }
 
 #[test]
+fn a_controller_knows_its_axes_units_to_compare_with_its_scale() {
+    let units = CONTROLLED.replace("channel = 2\n", "channel = 2\n[axis.fields]\nEGU = \"um\"\nMRES = 0.5\n");
+    let deployment = Launch::parse(&units).unwrap().deployment(None).unwrap();
+    let record_units = &deployment.contents.controllers[0].config.record_units;
+    assert_eq!(record_units[&2], zmotor_controllers::RecordUnits { egu: "um".into(), mres: 0.5 });
+    assert_eq!(record_units[&0], zmotor_controllers::RecordUnits { egu: String::new(), mres: 0.0 }, "the defaults");
+}
+
+#[test]
 fn controller_errors_name_the_file_line_and_key() {
     let refused = |from: &str, to: &str| Launch::parse(&CONTROLLED.replacen(from, to, 1)).unwrap_err().to_string();
     assert_eq!(

@@ -9,9 +9,9 @@ use std::pin::Pin;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
-use zmotor_controllers::VendorError;
 use zmotor_controllers::{AnyController, ControllerEvent};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
+use zmotor_controllers::{ControllerUnit, Finding, Scale, ScaleCheck, VendorError};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_msgs::DriverCommand;
@@ -81,6 +81,7 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         opening: None,
         axes: None,
         latest: BTreeMap::new(),
+        unheard: Vec::new(),
         first: Some(first_in),
         write_timeout: spec.config.timeout,
         was_up: false,
@@ -102,6 +103,8 @@ struct Runner {
     axes: Option<Box<dyn ControllerAxes>>,
     /// Each channel's latest status (and motions received), for axes not attached yet.
     latest: BTreeMap<usize, (DeviceStatus, u64)>,
+    /// Messages for axes not attached yet (a scale found wrong at the first connection).
+    unheard: Vec<(Option<usize>, String)>,
     first: Option<oneshot::Sender<BTreeMap<usize, DeviceStatus>>>,
     /// How long a write may take.
     write_timeout: std::time::Duration,
@@ -169,6 +172,9 @@ impl Runner {
                     ToController::Attach(mut axes) => {
                         for (channel, (status, motions)) in std::mem::take(&mut self.latest) {
                             axes.status(channel, status, motions);
+                        }
+                        for (channel, message) in std::mem::take(&mut self.unheard) {
+                            axes.message(channel, &message);
                         }
                         self.axes = Some(axes);
                     }
@@ -260,30 +266,72 @@ impl Runner {
                 }
             }
             ControllerEvent::ControllerError(VendorError { channel, code, meaning }) => {
-                let message = format!("controller error {code}: {meaning}");
-                let on = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
-                let line = format!("{on}: {message}");
-                match self.repeats.note(channel, &line) {
-                    Noted::New { before } => {
-                        if let Some((before, times)) = before {
-                            tracing::warn!(controller = %self.name, "{before} (and {times} more times)");
-                        }
-                        tracing::error!(controller = %self.name, "{line}");
-                    }
-                    Noted::Repeat => tracing::debug!(controller = %self.name, "{line} (again)"),
-                }
-                if let Some(axes) = &mut self.axes {
-                    axes.message(channel, &format!("{}: {message}", self.name));
-                }
+                self.tell(channel, &format!("controller error {code}: {meaning}"), tracing::Level::ERROR);
             }
             ControllerEvent::Refused { channel, why } => {
-                tracing::warn!(controller = %self.name, "channel {channel}: command not sent: {why}");
-                if let Some(axes) = &mut self.axes {
-                    axes.message(Some(channel), &format!("{}: command not sent: {why}", self.name));
-                }
+                self.tell(Some(channel), &why.to_string(), tracing::Level::WARN)
             }
+            ControllerEvent::Found(finding) => {
+                let found = match finding {
+                    Finding::Identity(identity) => format!("identifies itself as {identity}"),
+                    Finding::Axes(names) => format!("has axes {}", names.join(", ")),
+                    Finding::Travel { channel, min, max } => format!("channel {channel}: travel {min} to {max}"),
+                    other => format!("{other:?}"),
+                };
+                tracing::info!(controller = %self.name, "{found}");
+            }
+            ControllerEvent::Scale { channel, scale, check } => self.scale_found(channel, &scale, &check),
             ControllerEvent::Failed { what } => tracing::warn!(controller = %self.name, "exchange failed: {what}"),
             other => tracing::debug!(controller = %self.name, "an event this runner does not act on: {other:?}"),
+        }
+    }
+
+    /// A channel's scale, said at `info`; one its axis's MRES disagrees with, an error on the
+    /// axis's ERR too (its motions are refused).
+    fn scale_found(&mut self, channel: usize, scale: &Scale, check: &ScaleCheck) {
+        let unit = match scale.unit {
+            ControllerUnit::Physical { linear, rotary } => {
+                format!("{} ({} on a rotary stage)", linear.name, rotary.name)
+            }
+            ControllerUnit::Steps => "controller units".to_string(),
+        };
+        let step = format!("channel {channel}: one step is {} {unit}, {}", scale.units_per_step, scale.source);
+        match check {
+            ScaleCheck::Agrees => tracing::info!(controller = %self.name, "{step}; the axis's MRES and EGU agree"),
+            ScaleCheck::Unchecked(why) => {
+                tracing::info!(controller = %self.name, "{step}; not compared with the axis's MRES: {why}")
+            }
+            ScaleCheck::Disagrees(mismatch) => {
+                tracing::error!(controller = %self.name, "channel {channel}: {mismatch}; its motions are refused");
+                let message = format!("{}: {mismatch}", self.name);
+                match &mut self.axes {
+                    Some(axes) => axes.message(Some(channel), &message),
+                    None => self.unheard.push((Some(channel), message)),
+                }
+            }
+        }
+    }
+
+    /// A controller's error or a command not sent: on the axes' ERR every time, in the log
+    /// once (at `level`) however often it repeats in a row.
+    fn tell(&mut self, channel: Option<usize>, message: &str, level: tracing::Level) {
+        let on = channel.map_or_else(|| "every channel".to_string(), |c| format!("channel {c}"));
+        let line = format!("{on}: {message}");
+        match self.repeats.note(channel, &line) {
+            Noted::New { before } => {
+                if let Some((before, times)) = before {
+                    tracing::warn!(controller = %self.name, "{before} (and {times} more times)");
+                }
+                if level == tracing::Level::ERROR {
+                    tracing::error!(controller = %self.name, "{line}");
+                } else {
+                    tracing::warn!(controller = %self.name, "{line}");
+                }
+            }
+            Noted::Repeat => tracing::debug!(controller = %self.name, "{line} (again)"),
+        }
+        if let Some(axes) = &mut self.axes {
+            axes.message(channel, &format!("{}: {message}", self.name));
         }
     }
 

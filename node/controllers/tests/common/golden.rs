@@ -8,6 +8,7 @@
 //! protocol = "pi_gcs2"
 //! epics = "epics-motor/motorPIGCS2 at commit …"   # where the bytes were read
 //! channels = [1, 2]                               # the channels the operations use
+//! referenced_before_moves = true                  # optional: moves and jogs after a home
 //!
 //! [[operation]]
 //! name = "connect and initialise"
@@ -33,7 +34,7 @@
 //! idle (a poll of one channel is the command `{ cmd = "poll" }`).
 #![allow(dead_code)] // each protocol's test file uses it
 
-use super::{bring_up, loopback};
+use super::{bring_up, loopback, run_until_done};
 use serde::Deserialize;
 use std::time::Duration;
 use zmotor_controllers::ProtocolKind;
@@ -51,6 +52,10 @@ pub(crate) struct Transcripts {
     pub(crate) epics: String,
     /// The channels the operations use.
     pub(crate) channels: Vec<usize>,
+    /// The controller moves only referenced axes (zmotor refuses the move unsent otherwise): a
+    /// move's or a jog's bytes are those sent once the channel is homed.
+    #[serde(default)]
+    pub(crate) referenced_before_moves: bool,
     /// The operations.
     pub(crate) operation: Vec<Operation>,
 }
@@ -135,8 +140,21 @@ pub(crate) fn driver_sends_the_transcripts(kind: ProtocolKind) {
             }
             At::Command => {
                 bring_up(&mut lb);
+                let channel = op.channel.unwrap_or_default();
+                let command = op.command.as_ref().expect("checked by load");
+                let moves = matches!(command, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. });
+                if moves && transcripts.referenced_before_moves {
+                    let home = DriverCommand::Home {
+                        forward: true,
+                        min_velocity: 0.0,
+                        max_velocity: 20_000.0,
+                        acceleration: 200_000.0,
+                    };
+                    lb.command(channel, &home);
+                    run_until_done(&mut lb, channel, Duration::from_millis(50), Duration::from_secs(120));
+                }
                 let from = lb.written().len();
-                lb.command(op.channel.unwrap_or_default(), op.command.as_ref().expect("checked by load"));
+                lb.command(channel, command);
                 lb.run_for(Duration::from_millis(50));
                 from
             }

@@ -120,11 +120,37 @@ pub(crate) fn command() -> impl Strategy<Value = DriverCommand> {
     ]
 }
 
+/// Whether `no_malformed_frames` homes every channel first: a controller that moves only
+/// referenced axes would otherwise see none of the moves (the layer refuses them unsent).
+#[derive(Clone, Copy, PartialEq)]
+pub(crate) enum Start {
+    AsPoweredUp,
+    Homed,
+}
+
 /// Feed `commands` to `channels` in turn, a little apart, and check that every frame the driver
 /// wrote was well-formed for the emulator.
-pub(crate) fn no_malformed_frames(kind: ProtocolKind, channels: &[usize], commands: &[(usize, DriverCommand, u64)]) {
+pub(crate) fn no_malformed_frames(
+    kind: ProtocolKind,
+    channels: &[usize],
+    start: Start,
+    commands: &[(usize, DriverCommand, u64)],
+) {
     let mut lb = loopback(kind, channels, Faults::default());
     bring_up(&mut lb);
+    if start == Start::Homed {
+        for &channel in channels {
+            let home = DriverCommand::Home {
+                forward: true,
+                min_velocity: 0.0,
+                max_velocity: 20_000.0,
+                acceleration: 200_000.0,
+            };
+            lb.command(channel, &home);
+            let statuses = run_until_done(&mut lb, channel, Duration::from_millis(50), Duration::from_secs(120));
+            assert!(statuses.last().is_some_and(|s| s.msta & msta::HOMED != 0), "homed: {statuses:?}");
+        }
+    }
     for (pick, command, gap_ms) in commands {
         lb.command(channels[pick % channels.len()], command);
         lb.run_for(Duration::from_millis(*gap_ms));

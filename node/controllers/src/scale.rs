@@ -1,0 +1,235 @@
+//! How a channel's record steps map onto the controller's units, and whether the record's MRES
+//! and EGU agree with it. A controller counts in its own unit (PI and Newport stages in mm or
+//! deg, SmarAct's in pm or n°); the protocol knows, or reads, how many of them one record step
+//! is. A record whose MRES says otherwise would move every target by the ratio of the two,
+//! silently: the controller layer compares them when the link comes up and refuses motion on a
+//! channel where they disagree.
+
+/// A unit of length or angle an EGU may name.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Unit {
+    /// Its usual spelling.
+    pub name: &'static str,
+    /// Length or angle.
+    pub dimension: Dimension,
+    /// Its size in the dimension's base unit (metres, degrees).
+    size: f64,
+}
+
+/// What a unit measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Dimension {
+    /// Metres and their parts.
+    Length,
+    /// Degrees, radians and their parts.
+    Angle,
+}
+
+/// The units an EGU is recognised as, by every spelling taken (in any case).
+const UNITS: &[(&[&str], Unit)] = &[
+    (&["m", "metre", "meter"], unit("m", Dimension::Length, 1.0)),
+    (&["mm", "millimetre", "millimeter"], unit("mm", Dimension::Length, 1e-3)),
+    (&["um", "µm", "μm", "micron", "microns", "micrometre", "micrometer"], unit("µm", Dimension::Length, 1e-6)),
+    (&["nm", "nanometre", "nanometer"], unit("nm", Dimension::Length, 1e-9)),
+    (&["pm", "picometre", "picometer"], unit("pm", Dimension::Length, 1e-12)),
+    (&["deg", "degree", "degrees", "°"], unit("deg", Dimension::Angle, 1.0)),
+    (&["mdeg", "millidegree", "millidegrees"], unit("mdeg", Dimension::Angle, 1e-3)),
+    (&["udeg", "µdeg", "μdeg", "microdegree", "microdegrees"], unit("µdeg", Dimension::Angle, 1e-6)),
+    (&["ndeg", "n°", "nanodegree", "nanodegrees"], unit("ndeg", Dimension::Angle, 1e-9)),
+    (&["rad", "radian", "radians"], unit("rad", Dimension::Angle, 180.0 / std::f64::consts::PI)),
+    (&["mrad", "milliradian", "milliradians"], unit("mrad", Dimension::Angle, 0.18 / std::f64::consts::PI)),
+    (
+        &["urad", "µrad", "μrad", "microradian", "microradians"],
+        unit("µrad", Dimension::Angle, 1.8e-4 / std::f64::consts::PI),
+    ),
+];
+
+const fn unit(name: &'static str, dimension: Dimension, size: f64) -> Unit {
+    Unit { name, dimension, size }
+}
+
+impl Unit {
+    /// The unit an EGU names, if it is one of length or angle zmotor knows.
+    pub fn parse(egu: &str) -> Option<Unit> {
+        let egu = egu.trim();
+        UNITS.iter().find(|(names, _)| names.iter().any(|n| n.eq_ignore_ascii_case(egu))).map(|(_, unit)| *unit)
+    }
+
+    /// Millimetres, the unit of PI's and Newport's linear stages.
+    pub const MM: Unit = unit("mm", Dimension::Length, 1e-3);
+    /// Degrees, the unit of PI's and Newport's rotary stages.
+    pub const DEG: Unit = unit("deg", Dimension::Angle, 1.0);
+    /// Picometres, SmarAct's linear unit.
+    pub const PM: Unit = unit("pm", Dimension::Length, 1e-12);
+    /// Nanodegrees, SmarAct's rotary unit.
+    pub const NDEG: Unit = unit("ndeg", Dimension::Angle, 1e-9);
+}
+
+/// The unit a controller counts a channel in.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ControllerUnit {
+    /// The stage's physical unit: `linear` on a linear stage, `rotary` on a rotary one (the
+    /// axis's EGU tells which the stage is).
+    Physical {
+        /// A linear stage's unit.
+        linear: Unit,
+        /// A rotary stage's unit.
+        rotary: Unit,
+    },
+    /// Motor steps, or whatever unit the controller was configured in: nothing to compare an
+    /// EGU with.
+    Steps,
+}
+
+/// Where a scale comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScaleSource {
+    /// Read from the controller at connection, by these queries.
+    Controller(&'static str),
+    /// The launch file's `units_per_step`.
+    Installation,
+    /// The protocol's default, nothing given.
+    ProtocolDefault,
+}
+
+impl std::fmt::Display for ScaleSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ScaleSource::Controller(queries) => write!(f, "read from the controller: {queries}"),
+            ScaleSource::Installation => f.write_str("the launch file's units_per_step"),
+            ScaleSource::ProtocolDefault => f.write_str("the protocol's default; units_per_step sets it"),
+        }
+    }
+}
+
+/// How many of the controller's units one record step of a channel is.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Scale {
+    /// The controller's units in one record step.
+    pub units_per_step: f64,
+    /// The controller's unit.
+    pub unit: ControllerUnit,
+    /// Where `units_per_step` comes from.
+    pub source: ScaleSource,
+}
+
+/// An axis's own idea of its step: its EGU and MRES, as the deployment configures them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RecordUnits {
+    /// The record's engineering units.
+    pub egu: String,
+    /// The record's motor resolution (EGU per step).
+    pub mres: f64,
+}
+
+/// What comparing a record's units with its controller's scale found.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ScaleCheck {
+    /// They agree.
+    Agrees,
+    /// They cannot be compared (an EGU of no known unit, a controller counting steps), and why.
+    Unchecked(&'static str),
+    /// They disagree.
+    Disagrees(ScaleMismatch),
+}
+
+/// A record step that is not the controller's.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "MRES {mres} {egu} per step disagrees with the controller's step of {units_per_step} {unit} ({origin}): \
+     every position would be off by a factor of {ratio:.3}; set MRES to {expected_mres} {egu} \
+     (or units_per_step to match MRES)"
+)]
+pub struct ScaleMismatch {
+    /// The record's MRES.
+    pub mres: f64,
+    /// The record's EGU.
+    pub egu: String,
+    /// The controller's step, in its unit.
+    pub units_per_step: f64,
+    /// The controller's unit.
+    pub unit: &'static str,
+    /// Where the controller's step comes from.
+    pub origin: ScaleSource,
+    /// MRES over the controller's step (in one unit).
+    pub ratio: f64,
+    /// The MRES that agrees.
+    pub expected_mres: f64,
+}
+
+/// Two steps agree to this fraction.
+const AGREEMENT: f64 = 1e-6;
+
+impl Scale {
+    /// Whether `record` (EGU and MRES) agrees with this scale.
+    #[must_use]
+    pub fn check(&self, record: &RecordUnits) -> ScaleCheck {
+        let ControllerUnit::Physical { linear, rotary } = self.unit else {
+            return ScaleCheck::Unchecked("the controller counts steps");
+        };
+        let Some(egu) = Unit::parse(&record.egu) else {
+            return ScaleCheck::Unchecked("the EGU is no unit of length or angle zmotor knows");
+        };
+        let controller = if egu.dimension == Dimension::Length { linear } else { rotary };
+        let mres = record.mres.abs();
+        if !(mres.is_finite() && mres > 0.0 && self.units_per_step.is_finite() && self.units_per_step > 0.0) {
+            return ScaleCheck::Unchecked("MRES or the controller's step is not a positive number");
+        }
+        let record_step = mres * egu.size / controller.size;
+        let ratio = record_step / self.units_per_step;
+        if (ratio - 1.0).abs() <= AGREEMENT {
+            return ScaleCheck::Agrees;
+        }
+        ScaleCheck::Disagrees(ScaleMismatch {
+            mres: record.mres,
+            egu: record.egu.clone(),
+            units_per_step: self.units_per_step,
+            unit: controller.name,
+            origin: self.source,
+            ratio,
+            expected_mres: record.mres / ratio,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn physical(units_per_step: f64) -> Scale {
+        Scale {
+            units_per_step,
+            unit: ControllerUnit::Physical { linear: Unit::MM, rotary: Unit::DEG },
+            source: ScaleSource::Controller("SPA? 14/15"),
+        }
+    }
+
+    fn record(egu: &str, mres: f64) -> RecordUnits {
+        RecordUnits { egu: egu.into(), mres }
+    }
+
+    #[test]
+    fn the_same_step_in_any_spelling_of_its_unit_agrees() {
+        let scale = physical(0.0001);
+        for (egu, mres) in [("mm", 0.0001), ("MM", 0.0001), ("um", 0.1), ("µm", -0.1), ("nm", 100.0)] {
+            assert_eq!(scale.check(&record(egu, mres)), ScaleCheck::Agrees, "{egu} {mres}");
+        }
+        assert_eq!(physical(0.001).check(&record("mdeg", 1.0)), ScaleCheck::Agrees, "a rotary stage in deg");
+    }
+
+    #[test]
+    fn another_step_is_a_mismatch_naming_the_mres_that_agrees() {
+        let ScaleCheck::Disagrees(mismatch) = physical(0.0001).check(&record("mm", 0.001)) else { panic!() };
+        assert!((mismatch.ratio - 10.0).abs() < 1e-9 && (mismatch.expected_mres - 0.0001).abs() < 1e-15);
+        let words = mismatch.to_string();
+        assert!(words.contains("MRES 0.001 mm") && words.contains("SPA? 14/15"), "{words}");
+    }
+
+    #[test]
+    fn what_cannot_be_compared_is_said_so() {
+        assert!(matches!(physical(0.0001).check(&record("steps", 1.0)), ScaleCheck::Unchecked(_)));
+        assert!(matches!(physical(0.0001).check(&record("mm", 0.0)), ScaleCheck::Unchecked(_)));
+        let steps = Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault };
+        assert!(matches!(steps.check(&record("mm", 0.01)), ScaleCheck::Unchecked(_)));
+    }
+}
