@@ -1,22 +1,24 @@
 //! The controllers' figures of `zmotor bench`, per protocol against its emulator (played here,
-//! as the hardware would be, by `zmotor_sim_controller::Emulated`): request/reply round trips per
-//! second over one TCP connection, the time of a full poll of 1 and 8 axes (as many as the
-//! controller has, if fewer), and the delay from the emulated stage's end of motion to DMOV 1
-//! at a client, beside the moving-poll period. That last one runs the vendor's ready launch
-//! file in a node process of its own, reaching the emulator over the launch file's transport
-//! (a pseudo-terminal for the serial SMC100), with the client in this process.
+//! as the hardware would be, by `zmotor_sim_controller::Emulated`), over the transport of the
+//! vendor's ready launch file (TCP, or for the SMC100 a pseudo-terminal carrying bytes at the
+//! controller's 57,600 baud), all through the production controller layer
+//! (zmotor-controllers' `Controller`, as a node runs it): requests a second while status
+//! refreshes of one axis follow each other, the time of the controller's own full poll of 1 and
+//! 8 axes (as many as the controller has, if fewer), and the delay from the emulated stage's end
+//! of motion to DMOV 1 at a client, beside the moving-poll period. That last one runs the ready
+//! launch file in a node process of its own, with the client in this process.
 
 use crate::process::{client_when_ready, Programs};
 use crate::stats::Percentiles;
 use crate::Error;
-use std::future::Future;
-use std::pin::Pin;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
-use zmotor_controllers::{Frame, Protocol, ProtocolKind, ProtocolOptions, ReplyEvent, Request, WithProtocol};
+use zmotor_controllers::{AnyController, ControllerConfig, ControllerEvent, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{SerialSettings, Transport};
 use zmotor_emulators::{Faults, Model};
 use zmotor_msgs::decode_cbor_value;
+use zmotor_msgs::DriverCommand;
 use zmotor_msgs::Value;
 use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 
@@ -83,6 +85,8 @@ const READY: [Ready; 5] = [
 /// What one protocol measured.
 pub(crate) struct ProtocolFigures {
     pub(crate) name: &'static str,
+    /// The line measured on: tcp, or a serial line at its speed.
+    pub(crate) line: String,
     pub(crate) round_trips_per_s: f64,
     pub(crate) poll_one: Duration,
     pub(crate) poll_many: (usize, Duration),
@@ -101,49 +105,53 @@ pub(crate) async fn run(programs: &Programs, window: f64, moves: usize) -> Resul
     Ok(figures)
 }
 
-/// Round trips and poll times of one protocol, over a connection to `address`.
-struct Exchanges {
-    address: String,
-    channels: Vec<usize>,
-    window: Duration,
-}
-
-/// Round trips in `window` (with the time they took), and the median poll of one and of all
-/// the channels.
-type ExchangeFigures = (usize, Duration, Duration, Duration);
-
-impl WithProtocol for Exchanges {
-    type Output = Pin<Box<dyn Future<Output = Result<ExchangeFigures, Error>> + Send>>;
-
-    fn with<P: Protocol + 'static>(self, protocol: P) -> Self::Output {
-        Box::pin(async move {
-            let Exchanges { address, channels, window } = self;
-            let mut exchange = Exchange::open(protocol, &address).await?;
-            exchange.init(&channels).await?;
-            let (round_trips, elapsed) = exchange.poll_for(&channels[..1], window).await?;
-            let poll_one = exchange.poll_time(&channels[..1]).await?;
-            let poll_many = exchange.poll_time(&channels).await?;
-            Ok((round_trips, elapsed, poll_one, poll_many))
-        })
-    }
-}
-
 async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) -> Result<ProtocolFigures, Error> {
     let kind = ready.kind;
     let many = up_to_eight_channels(kind);
-    let emulated = Emulated::new(model(kind)?, many.iter().max().map_or(1, |c| c + 1), Faults::default());
-    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-    let address = listener.local_addr()?.to_string();
-    let serving = emulated.clone();
-    let server = tokio::spawn(async move { serving.serve_tcp(listener).await });
-    let exchanges = Exchanges { address, channels: many.clone(), window: Duration::from_secs_f64(window) };
-    let (round_trips, elapsed, poll_one, poll_many) =
-        kind.with_protocol(&ProtocolOptions::default(), exchanges).await?;
-    let poll_many = (many.len(), poll_many);
-    server.abort();
+    let model = model(kind)?;
+    let channels = many.iter().max().map_or(1, |c| c + 1);
+    let dir = tempfile::tempdir_in(&programs.dir)?;
+    // Over the transport its ready launch file uses: TCP, or the serial line at its speed.
+    let (emulated, transport) = match ready.reach {
+        Reach::Tcp(_) => {
+            let emulated = Emulated::new(model, channels, Faults::default(), None);
+            let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+            let address = listener.local_addr()?.to_string();
+            let serving = emulated.clone();
+            tokio::spawn(async move { serving.serve_tcp(listener).await });
+            (emulated, Transport::Tcp { address })
+        }
+        Reach::Pty(_) => {
+            let baud = model.factory_baud();
+            let emulated = Emulated::new(model, channels, Faults::default(), Some(baud));
+            let path = dir.path().join("tty");
+            let (master, slave) = pseudo_terminal(&path)?;
+            let serving = emulated.clone();
+            tokio::spawn(async move {
+                let _slave = slave;
+                let mut connection: Option<Box<dyn Io>> = Some(Box::new(master));
+                serving.serve(&mut connection).await
+            });
+            let device = path.to_string_lossy().into_owned();
+            (emulated, Transport::Serial(SerialSettings::eight_n_one(&device, baud)))
+        }
+    };
+    let window = Duration::from_secs_f64(window);
+    let mut one = Driven::connect(kind, &transport, &many[..1]).await?;
+    let (round_trips, elapsed) = one.refresh_for(many[0], window).await?;
+    let poll_one = one.poll_time().await?;
+    drop(one);
+    let mut all = Driven::connect(kind, &transport, &many).await?;
+    let poll_many = (many.len(), all.poll_time().await?);
+    drop(all);
+    drop(emulated);
     let (end_to_done, moving_poll) = end_of_motion_to_done(programs, ready, moves).await?;
     Ok(ProtocolFigures {
         name: kind.name(),
+        line: match transport {
+            Transport::Serial(settings) => format!("serial {} baud", settings.baud),
+            Transport::Tcp { .. } => "tcp".into(),
+        },
         round_trips_per_s: round_trips as f64 / elapsed.as_secs_f64(),
         poll_one,
         poll_many,
@@ -164,91 +172,144 @@ fn up_to_eight_channels(kind: ProtocolKind) -> Vec<usize> {
     (0..100).filter(|&c| kind.check_channel(c).is_ok() && probe.axis(c).is_some()).take(8).collect()
 }
 
-/// A protocol driven by hand over one connection: each request sent once its predecessor is
-/// answered, replies parsed, follow-ups sent as the controller layer sends them.
-struct Exchange<P> {
-    protocol: P,
-    stream: tokio::net::TcpStream,
-    received: Vec<u8>,
+/// The production controller layer (zmotor-controllers' `Controller`, as a node runs it) over
+/// one connection, its bytes moved here; every request it writes counted.
+struct Driven {
+    controller: Box<dyn AnyController>,
+    stream: Box<dyn Io>,
+    channels: Vec<usize>,
+    origin: Instant,
+    written: usize,
+    /// When the first request was written since `poll_time` last cleared it.
+    first_write: Option<Instant>,
 }
 
-impl<P: Protocol> Exchange<P> {
-    async fn open(protocol: P, address: &str) -> Result<Self, Error> {
-        let stream = tokio::net::TcpStream::connect(address).await?;
-        stream.set_nodelay(true)?;
-        Ok(Self { protocol, stream, received: Vec::new() })
+/// The controller polls its channels this often, at rest as in motion.
+const POLL_PERIOD: Duration = Duration::from_millis(100);
+
+impl Driven {
+    /// Connected to the emulator at `transport` and initialised, for `channels`.
+    async fn connect(kind: ProtocolKind, transport: &Transport, channels: &[usize]) -> Result<Self, Error> {
+        let stream: Box<dyn Io> = match transport {
+            Transport::Tcp { address } => {
+                let stream = tokio::net::TcpStream::connect(address).await?;
+                stream.set_nodelay(true)?;
+                Box::new(stream)
+            }
+            Transport::Serial(settings) => {
+                use tokio_serial::SerialPortBuilderExt;
+                Box::new(tokio_serial::new(&settings.device, settings.baud).open_native_async()?)
+            }
+        };
+        let config = ControllerConfig {
+            idle_poll: POLL_PERIOD,
+            moving_poll: POLL_PERIOD,
+            ..ControllerConfig::for_channels(channels.to_vec())
+        };
+        let controller = kind.controller(&ProtocolOptions::default(), config, zmotor_core::Instant::ZERO);
+        let mut driven = Self {
+            controller,
+            stream,
+            channels: channels.to_vec(),
+            origin: Instant::now(),
+            written: 0,
+            first_write: None,
+        };
+        let now = driven.now();
+        driven.controller.handle_timeout(now);
+        driven.controller.handle_connected(now);
+        driven.run_until(|controller, _| controller.is_up()).await?;
+        Ok(driven)
     }
 
-    async fn init(&mut self, channels: &[usize]) -> Result<usize, Error> {
-        let requests = self.protocol.init(channels);
-        self.carry_out(requests).await
+    fn now(&self) -> zmotor_core::Instant {
+        zmotor_core::Instant::after(self.origin.elapsed())
     }
 
-    /// Full polls of `channels` for `window`: the exchanges made and the time taken.
-    async fn poll_for(&mut self, channels: &[usize], window: Duration) -> Result<(usize, Duration), Error> {
-        let start = Instant::now();
-        let mut exchanges = 0;
-        while start.elapsed() < window {
-            let requests = self.protocol.poll(channels);
-            exchanges += self.carry_out(requests).await?;
+    /// Move bytes and time until `done` says so (after an event, or with none); a controller
+    /// that does not get there within 10 s is an error.
+    async fn run_until(
+        &mut self,
+        mut done: impl FnMut(&dyn AnyController, Option<&ControllerEvent>) -> bool,
+    ) -> Result<(), Error> {
+        let limit = Instant::now() + Duration::from_secs(10);
+        let mut buffer = vec![0u8; 4096];
+        loop {
+            while let Some(bytes) = self.controller.poll_transmit() {
+                self.first_write.get_or_insert_with(Instant::now);
+                self.stream.write_all(&bytes).await?;
+                self.written += 1;
+            }
+            let mut finished = done(self.controller.as_ref(), None);
+            while let Some(event) = self.controller.poll_event() {
+                if let ControllerEvent::Failed { what } = &event {
+                    return Err(format!("an exchange failed: {what}").into());
+                }
+                finished |= done(self.controller.as_ref(), Some(&event));
+            }
+            if finished {
+                return Ok(());
+            }
+            if Instant::now() > limit {
+                return Err("the controller did not get there within 10 s".into());
+            }
+            let due = self.controller.poll_timeout().map(|t| self.origin + t.since_origin());
+            tokio::select! {
+                read = self.stream.read(&mut buffer) => {
+                    let n = read?;
+                    if n == 0 {
+                        return Err("the emulator closed the connection".into());
+                    }
+                    let now = self.now();
+                    self.controller.handle_input(now, &buffer[..n]);
+                }
+                _ = tokio::time::sleep_until(due.unwrap_or(limit).into()) => {
+                    let now = self.now();
+                    self.controller.handle_timeout(now);
+                }
+            }
         }
-        Ok((exchanges, start.elapsed()))
     }
 
-    /// The median time of a full poll of `channels`.
-    async fn poll_time(&mut self, channels: &[usize]) -> Result<Duration, Error> {
+    /// Status refreshes of `channel` (the record's GET_INFO), each asked once the last is
+    /// answered, for `window`: the requests written and the time taken.
+    async fn refresh_for(&mut self, channel: usize, window: Duration) -> Result<(usize, Duration), Error> {
+        let (start, written) = (Instant::now(), self.written);
+        while start.elapsed() < window {
+            self.refresh(channel).await?;
+        }
+        Ok((self.written - written, start.elapsed()))
+    }
+
+    async fn refresh(&mut self, channel: usize) -> Result<(), Error> {
+        let now = self.now();
+        self.controller.command(now, channel, &DriverCommand::Poll);
+        self.run_until(|_, event| matches!(event, Some(ControllerEvent::Status { channel: c, .. }) if *c == channel))
+            .await
+    }
+
+    /// The median time of the controller's own full poll of its channels (batched where the
+    /// protocol batches), from its first request to the last channel's status; the polls come
+    /// at the controller's period, nothing else asked meanwhile.
+    async fn poll_time(&mut self) -> Result<Duration, Error> {
         let mut times = Vec::new();
         for _ in 0..21 {
-            let start = Instant::now();
-            let requests = self.protocol.poll(channels);
-            self.carry_out(requests).await?;
+            // The last poll's trailing request (an error query) may still be answered: it
+            // writes nothing, so the first write from here is the next poll's.
+            self.first_write = None;
+            let mut waiting = self.channels.clone();
+            self.run_until(|_, event| {
+                if let Some(ControllerEvent::Status { channel, .. }) = event {
+                    waiting.retain(|c| c != channel);
+                }
+                waiting.is_empty()
+            })
+            .await?;
+            let start = self.first_write.ok_or("a poll without a request")?;
             times.push(start.elapsed());
         }
         times.sort();
         Ok(times[times.len() / 2])
-    }
-
-    /// Send `requests` one after the other, each answered one waiting for its reply; the number
-    /// of exchanges (follow-ups included).
-    async fn carry_out(&mut self, requests: Vec<Request<P::Step>>) -> Result<usize, Error> {
-        let mut queue: std::collections::VecDeque<Request<P::Step>> = requests.into();
-        let mut exchanges = 0;
-        while let Some(request) = queue.pop_front() {
-            self.stream.write_all(&request.bytes).await?;
-            exchanges += 1;
-            if !request.answered {
-                continue;
-            }
-            let frame = self.next_frame().await?;
-            let events = self.protocol.reply(&request, &frame)?;
-            for event in events {
-                if let ReplyEvent::FollowUp(more) = event {
-                    for follow in more.into_iter().rev() {
-                        queue.push_front(follow);
-                    }
-                }
-            }
-        }
-        Ok(exchanges)
-    }
-
-    async fn next_frame(&mut self) -> Result<Vec<u8>, Error> {
-        let mut buffer = [0u8; 4096];
-        loop {
-            match self.protocol.frame(&self.received) {
-                Frame::Complete(n) => return Ok(self.received.drain(..n).collect()),
-                Frame::Junk(n) => {
-                    self.received.drain(..n);
-                }
-                Frame::Incomplete => {
-                    let n = tokio::time::timeout(Duration::from_secs(2), self.stream.read(&mut buffer)).await??;
-                    if n == 0 {
-                        return Err("the emulator closed the connection".into());
-                    }
-                    self.received.extend_from_slice(&buffer[..n]);
-                }
-            }
-        }
     }
 }
 
@@ -261,7 +322,8 @@ async fn end_of_motion_to_done(
 ) -> Result<(Percentiles, Duration), Error> {
     let dir = tempfile::tempdir_in(&programs.dir)?;
     let model = model(ready.kind)?;
-    let emulated = Emulated::new(model, model.typical_channels(), Faults::default());
+    let baud = matches!(ready.reach, Reach::Pty(_)).then(|| model.factory_baud());
+    let emulated = Emulated::new(model, model.typical_channels(), Faults::default(), baud);
     let serving = emulated.clone();
     let (named, here, server) = match ready.reach {
         Reach::Tcp(address) => {

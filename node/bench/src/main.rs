@@ -222,19 +222,22 @@ async fn run(cli: Cli) -> Result<(), Error> {
 
 async fn controllers_part(programs: &Programs, options: &BenchOptions) -> Result<(), Error> {
     println!("\n6. controllers: each protocol against its emulator (zmotor-sim-controller's, in this process)");
-    println!("   round trips: request/reply exchanges per second over one TCP connection on 127.0.0.1;");
-    println!("   poll: one full poll of 1 axis and of 8 (all of them on a smaller controller), median;");
+    println!("   through the production controller layer, over the ready launch file's line (TCP on");
+    println!("   127.0.0.1, or a pseudo-terminal at the controller's baud rate);");
+    println!("   requests/s: requests written a second while status refreshes of one axis follow each other;");
+    println!("   poll: the controller's own full poll of 1 axis and of 8 (all of a smaller controller), median;");
     println!("   end → DMOV 1: the vendor's ready launch file in a node process (`zmotor launch`), a client");
     println!("   here: from the emulated stage's end of motion to DMOV 1 at the client, µs, beside the");
     println!("   moving-poll period");
     println!(
-        "   {:<16} {:>12} {:>10} {:>14} {:>10} {:>10} {:>10} {:>8}",
-        "", "round trips/s", "poll 1", "poll n", "end→DMOV1 p50", "p90", "p99", "poll"
+        "   {:<16} {:<18} {:>12} {:>10} {:>14} {:>10} {:>10} {:>10} {:>8}",
+        "", "line", "requests/s", "poll 1", "poll n", "end→DMOV1 p50", "p90", "p99", "poll"
     );
     for f in controller_bench::run(programs, options.controller_window, options.controller_moves).await? {
         println!(
-            "   {:<16} {:>12.0} {:>8.0} µs {:>2} {:>8.0} µs {:>13.0} {:>10.0} {:>10.0} {:>5.0} ms",
+            "   {:<16} {:<18} {:>12.0} {:>8.0} µs {:>2} {:>8.0} µs {:>13.0} {:>10.0} {:>10.0} {:>5.0} ms",
             f.name,
+            f.line,
             f.round_trips_per_s,
             f.poll_one.as_secs_f64() * 1e6,
             f.poll_many.0,

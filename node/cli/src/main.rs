@@ -229,6 +229,10 @@ enum Command {
         /// Serve on a pseudo-terminal linked at this path.
         #[arg(long)]
         pty: Option<PathBuf>,
+        /// The pseudo-terminal's bytes take the time they take on a serial line at this rate
+        /// (default: the controller's factory rate, e.g. 57600 for an SMC100).
+        #[arg(long, requires = "pty", value_parser = clap::value_parser!(u32).range(50..=4_000_000))]
+        baud: Option<u32>,
         /// Axes of the emulated controller (default: a typical controller of the kind).
         #[arg(long)]
         channels: Option<usize>,
@@ -330,10 +334,10 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         Command::Jog { axis, direction, client } => jog(&client, &axis, direction == "+").await,
         Command::Schema { dir } => schema(&dir),
         Command::Bench { args } => bench(&args),
-        Command::SimController { protocol, listen, pty, channels, faults } => {
+        Command::SimController { protocol, listen, pty, baud, channels, faults } => {
             let endpoint = match (listen, pty) {
                 (Some(address), _) => sim_controller::Endpoint::Tcp(address),
-                (None, Some(path)) => sim_controller::Endpoint::Pty(path),
+                (None, Some(path)) => sim_controller::Endpoint::Pty(path, baud),
                 (None, None) => return Err("give --listen host:port or --pty PATH".into()),
             };
             sim_controller::run(&protocol, endpoint, channels, &faults).await?;

@@ -12,8 +12,9 @@ use zmotor_sim_controller::{pseudo_terminal, Emulated, Io};
 pub(crate) enum Endpoint {
     /// A TCP address, `host:port`.
     Tcp(String),
-    /// A pseudo-terminal, linked at this path.
-    Pty(PathBuf),
+    /// A pseudo-terminal, linked at this path, carrying bytes at this baud (None: the model's
+    /// factory rate).
+    Pty(PathBuf, Option<u32>),
 }
 
 /// The link's faults, from the command line.
@@ -54,11 +55,12 @@ pub(crate) async fn run(
     let kind = ProtocolKind::from_name(protocol)
         .ok_or_else(|| format!("'{protocol}' is not a known protocol (known: {})", ProtocolKind::known()))?;
     let model = Model::speaking(kind.name()).ok_or_else(|| format!("'{}' has no emulator", kind.name()))?;
-    let emulated = Emulated::new(model, channels.unwrap_or(model.typical_channels()), faults.faults());
+    let channels = channels.unwrap_or(model.typical_channels());
     let interrupted = crate::interrupted();
     tokio::pin!(interrupted);
     match endpoint {
         Endpoint::Tcp(address) => {
+            let emulated = Emulated::new(model, channels, faults.faults(), None);
             let listener = tokio::net::TcpListener::bind(&address).await?;
             tracing::info!("{} emulated on tcp {}; Ctrl-C to stop", kind.name(), listener.local_addr()?);
             tokio::select! {
@@ -66,9 +68,12 @@ pub(crate) async fn run(
                 result = &mut interrupted => result,
             }
         }
-        Endpoint::Pty(path) => {
+        Endpoint::Pty(path, baud) => {
+            let baud = baud.unwrap_or(model.factory_baud());
+            let emulated = Emulated::new(model, channels, faults.faults(), Some(baud));
             let (master, slave) = pseudo_terminal(&path)?;
-            tracing::info!("{} emulated on the pseudo-terminal {}; Ctrl-C to stop", kind.name(), path.display());
+            let (name, shown) = (kind.name(), path.display());
+            tracing::info!("{name} emulated on the pseudo-terminal {shown} at {baud} baud; Ctrl-C to stop");
             let mut connection: Option<Box<dyn Io>> = Some(Box::new(master));
             let result = tokio::select! {
                 ended = emulated.serve(&mut connection) => Err(format!("pseudo-terminal closed: {ended}").into()),

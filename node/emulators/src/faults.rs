@@ -1,4 +1,4 @@
-//! A link's faults between a driver and its controller.
+//! A link between a driver and its controller: its faults, and the pace of a serial line.
 
 use crate::Emulator;
 use std::collections::VecDeque;
@@ -18,12 +18,22 @@ pub struct Faults {
     pub close_after: Option<u32>,
 }
 
-/// An emulator behind a faulty link (see `Faults`).
+/// Bits on the wire per character of a serial line at 8N1: start, eight data bits, stop.
+const BITS_PER_CHARACTER: u32 = 10;
+
+/// An emulator behind a faulty link (see `Faults`), paced as a serial line where it is one.
 pub struct WithFaults {
     emulator: Box<dyn Emulator>,
     faults: Faults,
     replies: u32,
     late: VecDeque<(Instant, Vec<u8>)>,
+    /// On a serial line: how long one character takes, and the driver's bytes still on their
+    /// way (each with when its last character has arrived).
+    character_time: Option<Duration>,
+    arriving: VecDeque<(Instant, Vec<u8>)>,
+    /// When each direction of the line is free again.
+    receive_free: Instant,
+    send_free: Instant,
     now: Instant,
     closed: bool,
 }
@@ -31,7 +41,32 @@ pub struct WithFaults {
 impl WithFaults {
     /// `emulator` behind `faults`.
     pub fn new(emulator: Box<dyn Emulator>, faults: Faults) -> Self {
-        Self { emulator, faults, replies: 0, late: VecDeque::new(), now: Instant::ZERO, closed: false }
+        Self {
+            emulator,
+            faults,
+            replies: 0,
+            late: VecDeque::new(),
+            character_time: None,
+            arriving: VecDeque::new(),
+            receive_free: Instant::ZERO,
+            send_free: Instant::ZERO,
+            now: Instant::ZERO,
+            closed: false,
+        }
+    }
+
+    /// The same link as a serial line at `baud` (8N1): every byte takes its time on the wire
+    /// both ways, one after the other, so that a controller at 57,600 baud answers no faster
+    /// than its line carries the bytes (a pseudo-terminal carries them at once).
+    #[must_use]
+    pub fn at_baud(self, baud: u32) -> Self {
+        let character_time = Duration::from_secs(u64::from(BITS_PER_CHARACTER)) / baud.max(1);
+        Self { character_time: Some(character_time), ..self }
+    }
+
+    /// How long `bytes` take on the line, if it is a serial line.
+    fn on_the_wire(&self, bytes: usize) -> Duration {
+        self.character_time.map_or(Duration::ZERO, |t| t * u32::try_from(bytes).unwrap_or(u32::MAX))
     }
 
     /// The protocol spoken.
@@ -39,31 +74,46 @@ impl WithFaults {
         self.emulator.name()
     }
 
-    /// Bytes from the driver at `now`.
+    /// Bytes from the driver at `now` (on a serial line, the controller has them once they
+    /// have crossed it).
     pub fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
         self.now = self.now.max(now);
         if self.closed {
             return;
         }
-        self.emulator.handle_input(self.now, bytes);
-        while let Some(reply) = self.emulator.poll_transmit() {
-            self.replies += 1;
-            let nth = |every: Option<u32>| every.is_some_and(|n| n > 0 && self.replies.is_multiple_of(n));
-            if nth(self.faults.drop_every) {
-                continue;
-            }
-            let reply = if nth(self.faults.garble_every) { vec![b'~'; reply.len().max(3)] } else { reply };
-            self.late.push_back((self.now + self.faults.delay, reply));
-            if self.faults.close_after.is_some_and(|n| self.replies >= n) {
-                self.closed = true;
-                break;
-            }
-        }
+        let arrived = self.receive_free.max(self.now) + self.on_the_wire(bytes.len());
+        self.receive_free = arrived;
+        self.arriving.push_back((arrived, bytes.to_vec()));
+        self.deliver();
     }
 
-    /// Time passed to `now` (late replies come due).
+    /// Time passed to `now` (bytes on the line arrive, late replies come due).
     pub fn handle_timeout(&mut self, now: Instant) {
         self.now = self.now.max(now);
+        self.deliver();
+    }
+
+    /// The driver's bytes that have arrived, to the controller; its replies onto the line.
+    fn deliver(&mut self) {
+        while self.arriving.front().is_some_and(|(at, _)| *at <= self.now) && !self.closed {
+            let (at, bytes) = self.arriving.pop_front().expect("checked above");
+            self.emulator.handle_input(at, &bytes);
+            while let Some(reply) = self.emulator.poll_transmit() {
+                self.replies += 1;
+                let nth = |every: Option<u32>| every.is_some_and(|n| n > 0 && self.replies.is_multiple_of(n));
+                if nth(self.faults.drop_every) {
+                    continue;
+                }
+                let reply = if nth(self.faults.garble_every) { vec![b'~'; reply.len().max(3)] } else { reply };
+                let sent = self.send_free.max(at + self.faults.delay) + self.on_the_wire(reply.len());
+                self.send_free = sent;
+                self.late.push_back((sent, reply));
+                if self.faults.close_after.is_some_and(|n| self.replies >= n) {
+                    self.closed = true;
+                    break;
+                }
+            }
+        }
     }
 
     /// The next reply due by now.
@@ -75,10 +125,10 @@ impl WithFaults {
         None
     }
 
-    /// When the next late reply is due.
+    /// When the next late reply is due, or the next bytes on the line arrive.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        self.late.front().map(|(due, _)| *due)
+        [self.late.front(), self.arriving.front()].into_iter().flatten().map(|(due, _)| *due).min()
     }
 
     /// The connection is to be closed (after its last replies).
@@ -98,6 +148,7 @@ impl WithFaults {
         self.closed = false;
         self.replies = 0;
         self.late.clear();
+        self.arriving.clear();
     }
 
     /// Requests that were not well-formed.
@@ -108,5 +159,52 @@ impl WithFaults {
     /// The emulator, to reach its axes.
     pub fn emulator(&mut self) -> &mut dyn Emulator {
         self.emulator.as_mut()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Model;
+
+    fn at(seconds: f64) -> Instant {
+        Instant::after(Duration::from_secs_f64(seconds))
+    }
+
+    /// Run the link until `until`, stepping from due time to due time; the replies with when.
+    fn replies_until(link: &mut WithFaults, until: Instant) -> Vec<(Instant, Vec<u8>)> {
+        let mut seen = Vec::new();
+        while let Some(due) = link.poll_timeout().filter(|due| *due <= until) {
+            link.handle_timeout(due);
+            while let Some(reply) = link.poll_transmit() {
+                seen.push((due, reply));
+            }
+        }
+        seen
+    }
+
+    #[test]
+    fn a_serial_line_carries_each_byte_in_its_time_both_ways() {
+        // 57,600 baud: 5,760 characters a second.
+        let mut link = WithFaults::new(Model::NewportSmc100.emulator(2), Faults::default()).at_baud(57_600);
+        link.handle_input(Instant::ZERO, b"1TS\r\n");
+        assert_eq!(link.poll_transmit(), None, "nothing before the request has crossed the line");
+        let replies = replies_until(&mut link, at(1.0));
+        let [(when, reply)] = &replies[..] else { panic!("{replies:?}") };
+        let characters = 5 + reply.len();
+        let per_character = Duration::from_secs(10) / 57_600;
+        assert_eq!(when.since_origin(), per_character * characters as u32, "{characters} characters at 5,760 a second");
+        // Requests sent at once queue on the line: a second is answered a request and a reply later.
+        link.handle_input(at(2.0), b"1TS\r\n1TS\r\n");
+        let replies = replies_until(&mut link, at(3.0));
+        assert_eq!(replies.len(), 2);
+        assert_eq!(replies[1].0 - replies[0].0, per_character * replies[1].1.len() as u32);
+    }
+
+    #[test]
+    fn without_a_line_replies_come_at_once() {
+        let mut link = WithFaults::new(Model::NewportSmc100.emulator(2), Faults::default());
+        link.handle_input(Instant::ZERO, b"1TS\r\n");
+        assert!(link.poll_transmit().is_some());
     }
 }

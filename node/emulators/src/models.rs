@@ -42,6 +42,18 @@ impl Model {
         Model::ALL.into_iter().find(|model| model.protocol() == protocol)
     }
 
+    /// The rate of its serial line as it leaves the factory, as a pseudo-terminal emulating
+    /// the line carries bytes: the SMC100's manual gives 57,600 baud and PI's C-863 manual
+    /// 115,200; the others' documents were not to be had, and 9,600 (the usual factory rate of
+    /// serial controllers) stands for theirs (`zmotor sim-controller --baud` sets any).
+    pub fn factory_baud(self) -> u32 {
+        match self {
+            Model::NewportSmc100 => 57_600,
+            Model::PiGcs2 => 115_200,
+            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron => 9_600,
+        }
+    }
+
     /// The channels a typical controller of the model has (what `zmotor sim-controller` makes
     /// when not told): one more than its highest channel number.
     pub fn typical_channels(self) -> usize {

@@ -44,9 +44,14 @@ pub struct Emulated {
 }
 
 impl Emulated {
-    /// A controller of `model` with every channel below `channels`, behind `faults`.
-    pub fn new(model: Model, channels: usize, faults: Faults) -> Self {
+    /// A controller of `model` with every channel below `channels`, behind `faults`; on a
+    /// serial line at `baud`, if given (its bytes take their time, as on a real line).
+    pub fn new(model: Model, channels: usize, faults: Faults, baud: Option<u32>) -> Self {
         let link = WithFaults::new(model.emulator(channels), faults);
+        let link = match baud {
+            Some(baud) => link.at_baud(baud),
+            None => link,
+        };
         Self { link: Arc::new(Mutex::new(link)), origin: tokio::time::Instant::now() }
     }
 
