@@ -40,8 +40,11 @@
 //!   after a reconnection: a new connection forgets any home still waiting.
 //! - Stop: `ST` (the controller decelerates at its current `AC`), `TE`.
 //! - Enable: `MM1` / `MM0` (READY ↔ DISABLE), `TE`.
-//! - High / low limit: `SR<limit>` / `SL<limit>` (software limits, in RAM), `TE`; the
-//!   controller takes SR ≥ 0 and SL ≤ 0 only, anything else is refused here.
+//! - High / low limit: nothing is sent, as the EPICS driver sends none. The controller keeps
+//!   its own software limits (`SR`/`SL`, set by the lab with Newport's tools), which a jog
+//!   reads; the record's DHLM/DLLM refuse a target before it is sent. Writing the record's
+//!   limits would reconfigure the controller behind the lab's back (and the record's "no
+//!   limits", both 0, would make SR = SL = 0: every move refused).
 //! - Gains: `KP` / `KI` / `KD` = gain × 1e6 (the EPICS CONEX driver's scale; it writes the D
 //!   gain to KI, mended here), `TE`. The controller takes gains outside READY only (the
 //!   EPICS CONEX driver disables the servo around them, which would stop a motion): disable
@@ -379,20 +382,7 @@ impl Smc100 {
                 return Err(CommandError::Unsupported { protocol: NAME, what: "redefine its position" })
             }
             DriverCommand::Enable { on } => vec![setter(channel, if *on { "MM1" } else { "MM0" })],
-            DriverCommand::SetHighLimit { position } => {
-                let mm = self.millimetres("high limit", *position)?;
-                if mm < 0.0 {
-                    return Err(CommandError::OutOfRange { what: "high limit (SR is 0 or above)", value: *position });
-                }
-                vec![setter(channel, &format!("SR{}", decimal(mm)))]
-            }
-            DriverCommand::SetLowLimit { position } => {
-                let mm = self.millimetres("low limit", *position)?;
-                if mm > 0.0 {
-                    return Err(CommandError::OutOfRange { what: "low limit (SL is 0 or below)", value: *position });
-                }
-                vec![setter(channel, &format!("SL{}", decimal(mm)))]
-            }
+            DriverCommand::SetHighLimit { .. } | DriverCommand::SetLowLimit { .. } => Vec::new(),
             DriverCommand::SetGain { gain, value } => {
                 let scaled = value * GAIN_SCALE;
                 if !(scaled.is_finite() && (0.0..LARGEST_VALUE).contains(&scaled)) {
@@ -761,8 +751,6 @@ mod tests {
         assert!(refused(p.command(1, &crawl)), "a speed that is 0.000000 mm/s");
         assert!(refused(p.command(0, &go(1.0, false))), "address 0");
         assert!(refused(p.command(32, &go(1.0, false))), "address 32");
-        assert!(refused(p.command(1, &DriverCommand::SetHighLimit { position: -10.0 })));
-        assert!(refused(p.command(1, &DriverCommand::SetLowLimit { position: 10.0 })));
         assert!(refused(p.command(1, &DriverCommand::SetGain { gain: Gain::Proportional, value: -0.5 })));
         assert!(matches!(
             p.command(1, &DriverCommand::SetPosition { position: 0.0 }),
@@ -777,8 +765,8 @@ mod tests {
         assert_eq!(bytes(DriverCommand::Stop { acceleration: 1.0 }), ["3ST\r\n", "3TE\r\n"]);
         assert_eq!(bytes(DriverCommand::Enable { on: true }), ["3MM1\r\n", "3TE\r\n"]);
         assert_eq!(bytes(DriverCommand::Enable { on: false }), ["3MM0\r\n", "3TE\r\n"]);
-        assert_eq!(bytes(DriverCommand::SetHighLimit { position: 140_000.0 }), ["3SR14.000000\r\n", "3TE\r\n"]);
-        assert_eq!(bytes(DriverCommand::SetLowLimit { position: -50_000.0 }), ["3SL-5.000000\r\n", "3TE\r\n"]);
+        assert!(bytes(DriverCommand::SetHighLimit { position: 0.0 }).is_empty(), "the controller keeps its own");
+        assert!(bytes(DriverCommand::SetLowLimit { position: -50_000.0 }).is_empty());
         assert_eq!(
             bytes(DriverCommand::SetGain { gain: Gain::Proportional, value: 0.25 }),
             ["3KP250000.000000\r\n", "3TE\r\n"]

@@ -124,6 +124,9 @@ pub enum SpecError {
     /// units_per_step that is not a positive number.
     #[error("units_per_step: {0} is not a positive number")]
     UnitsPerStep(f64),
+    /// units_per_step given to a protocol that counts motor steps only.
+    #[error("units_per_step: {0} counts motor steps, one per record step; it has no units to scale")]
+    NoUnits(&'static str),
     /// A channel the protocol has no such number for.
     #[error("channel {channel}: {protocol} numbers its axes {allowed}")]
     Channel {
@@ -164,10 +167,11 @@ impl SerialSettings {
 }
 
 impl ProtocolOptions {
-    /// Whether the options can be used.
-    pub fn check(&self) -> Result<(), SpecError> {
+    /// Whether the options can be used with `protocol`.
+    pub fn check(&self, protocol: ProtocolKind) -> Result<(), SpecError> {
         match self.units_per_step {
             Some(units) if !(units.is_finite() && units > 0.0) => Err(SpecError::UnitsPerStep(units)),
+            Some(_) if protocol == ProtocolKind::AcsMcb4b => Err(SpecError::NoUnits(protocol.name())),
             _ => Ok(()),
         }
     }

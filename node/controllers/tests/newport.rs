@@ -183,8 +183,9 @@ fn a_jog_past_the_end_of_run_switch_stops_on_it_and_needs_a_home() {
     let mut lb = loopback(SMC, &[1], Faults::default());
     bring_up(&mut lb);
     homed(&mut lb, 1);
-    // The software limit set beyond the switch (13 mm): the switch stops the stage.
-    carry_out(&mut lb, 1, &DriverCommand::SetHighLimit { position: 140_000.0 });
+    // The controller's software limit set beyond the switch (13 mm), by the lab's own hand:
+    // the switch stops the stage.
+    carry_out(&mut lb, 1, &DriverCommand::Raw { text: "1SR14".into() });
     let statuses = carry_out(&mut lb, 1, &jog(50_000.0));
     let on_switch = statuses.last().expect("done");
     assert_eq!(on_switch.position, 130_000.0);
@@ -194,13 +195,17 @@ fn a_jog_past_the_end_of_run_switch_stops_on_it_and_needs_a_home() {
 }
 
 #[test]
-fn the_low_limit_is_where_a_jog_down_stops() {
+fn the_controllers_low_limit_is_where_a_jog_down_stops_and_the_records_limits_leave_it_alone() {
     let mut lb = loopback(SMC, &[1], Faults::default());
     bring_up(&mut lb);
     homed(&mut lb, 1);
     let start = lb.written().len();
-    carry_out(&mut lb, 1, &DriverCommand::SetLowLimit { position: -20_000.0 });
-    assert_eq!(written_since(&lb, start)[..2], ["1SL-2.000000\r\n", "1TE\r\n"]);
+    // The record's "no limits" (both 0) reaches the driver as limits of 0: nothing is sent.
+    lb.command(1, &DriverCommand::SetHighLimit { position: 0.0 });
+    lb.command(1, &DriverCommand::SetLowLimit { position: 0.0 });
+    lb.run_for(Duration::from_millis(300));
+    assert!(written_since(&lb, start).iter().all(|s| !s.contains("SR") && !s.contains("SL")));
+    carry_out(&mut lb, 1, &DriverCommand::Raw { text: "1SL-2".into() });
     let statuses = carry_out(&mut lb, 1, &jog(-20_000.0));
     assert_eq!(statuses.last().map(|s| s.position), Some(-20_000.0));
 }

@@ -111,7 +111,7 @@ impl ControllerSection {
             _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),
         };
         let options = ProtocolOptions { units_per_step: self.units_per_step };
-        options.check().map_err(|e| at(&["units_per_step"], e.to_string()))?;
+        options.check(protocol).map_err(|e| at(&["units_per_step"], e.to_string()))?;
         let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
             ControllerConfig::checked_period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
         };

@@ -204,6 +204,13 @@ fn a_controller_drives_the_channels_of_its_axes() {
 }
 
 #[test]
+fn units_per_step_on_a_controller_that_counts_motor_steps_is_an_error() {
+    let scaled = CONTROLLED.replace("moving_poll = 0.05", "moving_poll = 0.05\nunits_per_step = 0.001");
+    let error = Launch::parse(&scaled).unwrap_err().to_string();
+    assert!(error.contains("units_per_step: acs_mcb4b counts motor steps"), "{error}");
+}
+
+#[test]
 fn a_controller_knows_its_axes_units_to_compare_with_its_scale() {
     let units = CONTROLLED.replace("channel = 2\n", "channel = 2\n[axis.fields]\nEGU = \"um\"\nMRES = 0.5\n");
     let deployment = Launch::parse(&units).unwrap().deployment(None).unwrap();
