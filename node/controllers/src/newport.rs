@@ -382,7 +382,6 @@ impl Smc100 {
                 return Err(CommandError::Unsupported { protocol: NAME, what: "redefine its position" })
             }
             DriverCommand::Enable { on } => vec![setter(channel, if *on { "MM1" } else { "MM0" })],
-            DriverCommand::SetHighLimit { .. } | DriverCommand::SetLowLimit { .. } => Vec::new(),
             DriverCommand::SetGain { gain, value } => {
                 let scaled = value * GAIN_SCALE;
                 if !(scaled.is_finite() && (0.0..LARGEST_VALUE).contains(&scaled)) {
@@ -402,7 +401,10 @@ impl Smc100 {
                     if raw_is_query(text) { Request::query(bytes, step) } else { Request::silent(bytes, step) };
                 return Ok((vec![request], None));
             }
-            DriverCommand::SetEncoderRatio { .. } | DriverCommand::Poll => return Ok((Vec::new(), None)),
+            DriverCommand::SetEncoderRatio { .. }
+            | DriverCommand::SetHighLimit { .. }
+            | DriverCommand::SetLowLimit { .. }
+            | DriverCommand::Poll => return Ok((Vec::new(), None)),
         };
         requests.push(error_query(channel));
         Ok((requests, None))
