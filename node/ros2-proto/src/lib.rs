@@ -1,0 +1,23 @@
+//! ROS 2 over Zenoh for zmotor axes, sans-IO: what a ROS 2 Jazzy graph on rmw_zenoh expects of a
+//! node, so that `ros2 node list`, `ros2 topic echo`, RViz and ros2_control see zmotor's axes as
+//! joints with no bridge. The conventions are rmw_zenoh_cpp's (Jazzy release 0.2.10, source
+//! `rmw_zenoh_cpp/src/detail/`), cited where each is built:
+//!
+//! - `names`: the data key expression of a topic or service (`<domain>/<name>/<type>/<hash>`),
+//!   DDS-style type names and the REP-2016 type hashes (RIHS01) of the types zmotor uses;
+//! - `graph`: the liveliness tokens by which a node and its publishers, subscriptions and
+//!   services appear in the ROS graph, their QoS strings, and the GID derived from a token;
+//! - `attachment`: the 33 bytes every sample carries (sequence number, source time, GID);
+//! - `messages`: the ROS messages as CDR (little-endian, with the encapsulation header).
+//!
+//! The gateway moves these onto a Zenoh session; nothing here touches one.
+
+mod attachment;
+mod graph;
+mod messages;
+mod names;
+
+pub use attachment::{Attachment, AttachmentError};
+pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
+pub use messages::{decode, encode, CdrError, Header, JointState, Time};
+pub use names::{topic_key, TypeInfo, JOINT_STATE};
