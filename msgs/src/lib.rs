@@ -15,6 +15,7 @@ pub mod menus;
 mod refusal;
 mod schema;
 mod toml_value;
+mod units;
 mod value;
 mod wire;
 
@@ -27,5 +28,6 @@ pub use keys::{KeyLayout, LinkKeyError};
 pub use refusal::{Refusal, RefusalKind};
 pub use schema::{catalogue_json, message_schemas};
 pub use toml_value::{field_value, to_toml};
+pub use units::{Dimension, Unit};
 pub use value::Value;
 pub use wire::{Completion, DriverCommand, DriverTrace, Gain, Hold, SimState, StateMarker};

@@ -17,7 +17,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-emulators", "node/emulators", &["zmotor-msgs", "zmotor-core"]),
     ("zmotor-controllers", "node/controllers", &["zmotor-msgs", "zmotor-core", "zmotor-emulators"]),
     ("zmotor-ca-proto", "node/ca-proto", &["zmotor-msgs"]),
-    ("zmotor-ros2-proto", "node/ros2-proto", &[]),
+    ("zmotor-ros2-proto", "node/ros2-proto", &["zmotor-msgs"]),
     ("zmotor-inbox", "node/inbox", &[]),
     ("zmotor-deploy", "node/deploy", &["zmotor-msgs", "zmotor-bridge", "zmotor-core", "zmotor-controllers"]),
     (

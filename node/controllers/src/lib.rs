@@ -27,7 +27,7 @@ pub use protocol::{
     line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
     VendorError,
 };
-pub use scale::{ControllerUnit, Dimension, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource, Unit};
+pub use scale::{ControllerUnit, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource};
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
 

@@ -74,10 +74,11 @@
 use crate::protocol::{
     line_frame, line_text, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request, VendorError,
 };
-use crate::scale::{ControllerUnit, Scale, ScaleSource, Unit};
+use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use std::ops::RangeInclusive;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
+use zmotor_msgs::Unit;
 use zmotor_msgs::{DriverCommand, Gain};
 
 /// The protocol's name in launch files.

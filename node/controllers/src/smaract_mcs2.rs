@@ -63,11 +63,12 @@ use crate::protocol::{
     line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
     VendorError,
 };
-use crate::scale::{ControllerUnit, Scale, ScaleSource, Unit};
+use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use std::collections::BTreeMap;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
+use zmotor_msgs::Unit;
 
 /// The protocol's name in launch files.
 pub(crate) const NAME: &str = "smaract_mcs2";

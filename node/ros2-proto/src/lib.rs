@@ -8,16 +8,20 @@
 //! - `graph`: the liveliness tokens by which a node and its publishers, subscriptions and
 //!   services appear in the ROS graph, their QoS strings, and the GID derived from a token;
 //! - `attachment`: the 33 bytes every sample carries (sequence number, source time, GID);
-//! - `messages`: the ROS messages as CDR (little-endian, with the encapsulation header).
+//! - `messages`: the ROS messages as CDR (little-endian, with the encapsulation header);
+//! - `joints`: axes as joints: their readbacks as `JointState` in SI units, at the readback
+//!   rate while any moves and at a slow rate at rest, and joint commands as axis targets.
 //!
 //! The gateway moves these onto a Zenoh session; nothing here touches one.
 
 mod attachment;
 mod graph;
+mod joints;
 mod messages;
 mod names;
 
 pub use attachment::{Attachment, AttachmentError};
 pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
+pub use joints::{Joint, JointCommandError, JointError, JointStates};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
 pub use names::{topic_key, TypeInfo, JOINT_STATE};

@@ -1,0 +1,272 @@
+//! Axes as ROS joints, sans-IO: each axis's readbacks become a `sensor_msgs/JointState` in SI
+//! units (metres or radians, from its EGU or a factor given), published at the readback rate
+//! while any joint moves and every `rest_period` at rest; a `JointState` received as a command
+//! (ros2_control's topic-based hardware interface sends one) becomes a target per axis, in the
+//! axis's own units. Time is given (since the Unix epoch: it stamps the messages).
+
+use crate::messages::{Header, JointState, Time};
+use std::time::Duration;
+use zmotor_msgs::Unit;
+
+/// One axis seen as a joint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Joint {
+    /// The joint's name in ROS.
+    pub name: String,
+    /// The axis.
+    pub axis: String,
+    /// SI units (m or rad) per the axis's EGU.
+    pub si_per_egu: f64,
+}
+
+/// A joint that cannot be made.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum JointError {
+    /// The EGU names no length or angle, and no factor was given.
+    #[error("joint '{joint}': axis '{axis}' has EGU '{egu}', no unit of length or angle: give its factor to SI")]
+    NoSiUnit {
+        /// The joint.
+        joint: String,
+        /// Its axis.
+        axis: String,
+        /// The axis's EGU.
+        egu: String,
+    },
+    /// A factor that is not a positive number.
+    #[error("joint '{joint}': factor {factor} is not a positive number")]
+    Factor {
+        /// The joint.
+        joint: String,
+        /// The factor.
+        factor: f64,
+    },
+}
+
+impl Joint {
+    /// The joint `name` on `axis`, whose EGU is `egu`; `factor` (SI units per EGU) when the
+    /// EGU is no unit of length or angle zmotor knows, or to override it.
+    pub fn new(name: &str, axis: &str, egu: &str, factor: Option<f64>) -> Result<Self, JointError> {
+        let si_per_egu = match factor {
+            Some(f) if f.is_finite() && f > 0.0 => f,
+            Some(factor) => return Err(JointError::Factor { joint: name.into(), factor }),
+            None => Unit::parse(egu).map(Unit::si).ok_or_else(|| JointError::NoSiUnit {
+                joint: name.into(),
+                axis: axis.into(),
+                egu: egu.into(),
+            })?,
+        };
+        Ok(Self { name: name.into(), axis: axis.into(), si_per_egu })
+    }
+}
+
+/// A joint command that moves nothing.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum JointCommandError {
+    /// A name that is no joint of this node.
+    #[error("no joint named '{0}'")]
+    UnknownJoint(String),
+    /// Fewer positions than names.
+    #[error("{names} joint names but {positions} positions")]
+    Positions {
+        /// Names given.
+        names: usize,
+        /// Positions given.
+        positions: usize,
+    },
+    /// A position that is not a number.
+    #[error("joint '{0}': the position is not a number")]
+    NotFinite(String),
+}
+
+/// What is known of one joint.
+#[derive(Clone, Copy, Debug, Default)]
+struct Seen {
+    /// The last readback (EGU) and when it came.
+    last: Option<(f64, Duration)>,
+    /// Its velocity, SI per second, from the last two readbacks while it moves.
+    velocity: f64,
+    moving: bool,
+}
+
+/// The joints' state as ROS sees it (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct JointStates {
+    joints: Vec<Joint>,
+    seen: Vec<Seen>,
+    rest_period: Duration,
+    /// A readback came since the last message.
+    fresh: bool,
+    last_sent: Option<Duration>,
+}
+
+impl JointStates {
+    /// The state of `joints`, sent every `rest_period` at rest.
+    pub fn new(joints: Vec<Joint>, rest_period: Duration) -> Self {
+        let seen = vec![Seen::default(); joints.len()];
+        Self { joints, seen, rest_period, fresh: false, last_sent: None }
+    }
+
+    /// The joints.
+    pub fn joints(&self) -> &[Joint] {
+        &self.joints
+    }
+
+    fn index(&self, axis: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j.axis == axis)
+    }
+
+    /// `axis`'s readback (RBV, in its EGU) at `at`.
+    pub fn readback(&mut self, axis: &str, rbv: f64, at: Duration) {
+        let Some(i) = self.index(axis).filter(|_| rbv.is_finite()) else { return };
+        let si = self.joints[i].si_per_egu;
+        let seen = &mut self.seen[i];
+        if let Some((before, then)) = seen.last.filter(|_| seen.moving) {
+            let dt = at.saturating_sub(then).as_secs_f64();
+            if dt > 0.0 {
+                seen.velocity = (rbv - before) * si / dt;
+            }
+        }
+        seen.last = Some((rbv, at));
+        self.fresh = true;
+    }
+
+    /// `axis`'s DMOV: a joint at rest has no velocity.
+    pub fn done_moving(&mut self, axis: &str, done: bool) {
+        let Some(i) = self.index(axis) else { return };
+        let seen = &mut self.seen[i];
+        seen.moving = !done;
+        if done && seen.velocity != 0.0 {
+            seen.velocity = 0.0;
+            self.fresh = true;
+        }
+    }
+
+    /// The message to publish at `now`, if one is due: once every joint has a readback, on
+    /// every new readback, and every `rest_period` without one.
+    #[must_use]
+    pub fn poll_publish(&mut self, now: Duration) -> Option<JointState> {
+        if self.seen.iter().any(|s| s.last.is_none()) {
+            return None;
+        }
+        let due = self.fresh || self.last_sent.is_none_or(|t| now >= t + self.rest_period);
+        if !due {
+            return None;
+        }
+        self.fresh = false;
+        self.last_sent = Some(now);
+        let stamp = Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() };
+        let positions = self.joints.iter().zip(&self.seen);
+        Some(JointState {
+            header: Header { stamp, frame_id: String::new() },
+            name: self.joints.iter().map(|j| j.name.clone()).collect(),
+            position: positions.map(|(j, s)| s.last.map_or(0.0, |(rbv, _)| rbv * j.si_per_egu)).collect(),
+            velocity: self.seen.iter().map(|s| s.velocity).collect(),
+            effort: Vec::new(),
+        })
+    }
+
+    /// When `poll_publish` is next due without a new readback.
+    #[must_use]
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        self.last_sent.map(|t| t + self.rest_period)
+    }
+
+    /// The targets a joint command asks for: each named joint's axis and its position in the
+    /// axis's EGU. All or nothing: a command with one bad joint moves none.
+    pub fn command(&self, command: &JointState) -> Result<Vec<(String, f64)>, JointCommandError> {
+        if command.position.len() < command.name.len() {
+            let (names, positions) = (command.name.len(), command.position.len());
+            return Err(JointCommandError::Positions { names, positions });
+        }
+        command
+            .name
+            .iter()
+            .zip(&command.position)
+            .map(|(name, position)| {
+                let joint = self
+                    .joints
+                    .iter()
+                    .find(|j| &j.name == name)
+                    .ok_or_else(|| JointCommandError::UnknownJoint(name.clone()))?;
+                if !position.is_finite() {
+                    return Err(JointCommandError::NotFinite(name.clone()));
+                }
+                Ok((joint.axis.clone(), position / joint.si_per_egu))
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(ms: u64) -> Duration {
+        Duration::from_millis(1_700_000_000_000 + ms)
+    }
+
+    fn two_joints() -> JointStates {
+        let lift = Joint::new("lift", "m1", "mm", None).unwrap();
+        let turn = Joint::new("turn", "m2", "deg", None).unwrap();
+        JointStates::new(vec![lift, turn], Duration::from_secs(1))
+    }
+
+    #[test]
+    fn joints_take_si_from_their_egu_or_a_factor() {
+        assert_eq!(Joint::new("j", "m1", "um", None).unwrap().si_per_egu, 1e-6);
+        assert_eq!(Joint::new("j", "m1", "counts", Some(2e-9)).unwrap().si_per_egu, 2e-9);
+        assert!(matches!(Joint::new("j", "m1", "counts", None), Err(JointError::NoSiUnit { .. })));
+        assert!(matches!(Joint::new("j", "m1", "mm", Some(-1.0)), Err(JointError::Factor { .. })));
+    }
+
+    #[test]
+    fn state_is_published_in_si_on_every_readback_while_moving_and_slowly_at_rest() {
+        let mut states = two_joints();
+        states.readback("m1", 5.0, at(0));
+        assert_eq!(states.poll_publish(at(0)), None, "not before every joint is known");
+        states.readback("m2", 90.0, at(0));
+        let first = states.poll_publish(at(0)).expect("every joint known");
+        assert_eq!(first.name, ["lift", "turn"]);
+        assert!(
+            (first.position[0] - 0.005).abs() < 1e-15
+                && (first.position[1] - std::f64::consts::FRAC_PI_2).abs() < 1e-12
+        );
+        assert_eq!((first.header.stamp.sec, first.header.stamp.nanosec), (1_700_000_000, 0));
+        assert_eq!(states.poll_publish(at(500)), None, "at rest: not before the rest period");
+        assert_eq!(states.poll_timeout(), Some(at(1000)));
+        assert!(states.poll_publish(at(1000)).is_some(), "at rest: every period");
+        // Moving at 10 mm/s, readbacks every 100 ms: one message each, with the velocity.
+        states.done_moving("m1", false);
+        states.readback("m1", 6.0, at(1100));
+        states.readback("m1", 7.0, at(1200));
+        let moving = states.poll_publish(at(1200)).expect("a new readback");
+        assert!((moving.velocity[0] - 0.01).abs() < 1e-12, "{:?}", moving.velocity);
+        assert_eq!(states.poll_publish(at(1250)), None);
+        states.done_moving("m1", true);
+        assert_eq!(states.poll_publish(at(1260)).map(|s| s.velocity[0]), Some(0.0), "at rest: no velocity");
+    }
+
+    #[test]
+    fn a_command_becomes_targets_in_axis_units_all_or_nothing() {
+        let states = two_joints();
+        let command = |names: &[&str], positions: &[f64]| JointState {
+            name: names.iter().map(|n| n.to_string()).collect(),
+            position: positions.to_vec(),
+            ..JointState::default()
+        };
+        let targets = states.command(&command(&["turn", "lift"], &[std::f64::consts::PI, 0.0125])).unwrap();
+        assert_eq!(targets[0].0, "m2");
+        assert!((targets[0].1 - 180.0).abs() < 1e-9 && targets[1] == ("m1".to_string(), 12.5));
+        assert_eq!(
+            states.command(&command(&["lift", "wrist"], &[0.0, 0.0])),
+            Err(JointCommandError::UnknownJoint("wrist".into()))
+        );
+        assert_eq!(
+            states.command(&command(&["lift", "turn"], &[0.0])),
+            Err(JointCommandError::Positions { names: 2, positions: 1 })
+        );
+        assert_eq!(states.command(&command(&["lift"], &[f64::NAN])), Err(JointCommandError::NotFinite("lift".into())));
+    }
+}
