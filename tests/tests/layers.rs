@@ -28,6 +28,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-client", "node/client", &["zmotor-msgs", "zmotor-deploy"]),
     ("zmotor-ca", "node/ca", &["zmotor-msgs", "zmotor-ca-proto", "zmotor-client", "zmotor-deploy"]),
     ("zmotor-web", "node/web", &["zmotor-msgs", "zmotor-client", "zmotor-deploy"]),
+    ("zmotor-ros2", "node/ros2", &["zmotor-msgs", "zmotor-ros2-proto", "zmotor-client"]),
     ("zmotor-sim-controller", "node/sim-controller", &["zmotor-core", "zmotor-emulators"]),
     (
         "zmotor",
@@ -40,6 +41,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
             "zmotor-client",
             "zmotor-ca",
             "zmotor-web",
+            "zmotor-ros2",
             "zmotor-emulators",
             "zmotor-sim-controller",
         ],

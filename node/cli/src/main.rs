@@ -22,6 +22,22 @@ struct Cli {
     command: Command,
 }
 
+/// A `--joint NAME=AXIS[*FACTOR]` argument.
+fn joint_arg(text: &str) -> Result<(String, String, Option<f64>), Error> {
+    let (name, rest) = text.split_once('=').ok_or_else(|| format!("--joint {text}: give NAME=AXIS[*FACTOR]"))?;
+    let (axis, factor) = match rest.split_once('*') {
+        Some((axis, factor)) => {
+            let factor: f64 = factor.parse().map_err(|_| format!("--joint {text}: '{factor}' is not a number"))?;
+            (axis, Some(factor))
+        }
+        None => (rest, None),
+    };
+    if name.is_empty() || axis.is_empty() {
+        return Err(format!("--joint {text}: give NAME=AXIS[*FACTOR]").into());
+    }
+    Ok((name.to_string(), axis.to_string(), factor))
+}
+
 /// How a client reaches the network.
 #[derive(clap::Args, Clone)]
 struct ClientArgs {
@@ -205,6 +221,25 @@ enum Command {
         #[command(flatten)]
         client: ClientArgs,
     },
+    /// Be a ROS 2 node (rmw_zenoh's conventions) whose joints are axes: sensor_msgs/JointState
+    /// on <namespace>/joint_states (SI units), and joint commands on <namespace>/joint_commands.
+    Ros2 {
+        /// A joint: NAME=AXIS, or NAME=AXIS*FACTOR (SI units per EGU when the EGU is no unit of
+        /// length or angle). Repeat for each joint.
+        #[arg(long = "joint", value_name = "NAME=AXIS[*FACTOR]", required = true)]
+        joints: Vec<String>,
+        /// The ROS domain (ROS_DOMAIN_ID).
+        #[arg(long, default_value_t = 0)]
+        domain: u32,
+        /// The node's namespace.
+        #[arg(long, default_value = "/")]
+        namespace: String,
+        /// The node's name.
+        #[arg(long, default_value = "zmotor")]
+        node_name: String,
+        #[command(flatten)]
+        client: ClientArgs,
+    },
     /// Write the JSON Schemas of every message type and the field catalogue into DIR.
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
@@ -326,6 +361,17 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             let zmotor = connect(&client).await?;
             let served =
                 zmotor_ca::ChannelAccess::start(zmotor.clone(), &CaConfig { pv_prefix, address, port }).await?;
+            interrupted().await?;
+            drop(served);
+            zmotor.session().close().await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Ros2 { joints, domain, namespace, node_name, client } => {
+            let joints = joints.iter().map(|j| joint_arg(j)).collect::<Result<Vec<_>, _>>()?;
+            let zmotor = connect(&client).await?;
+            let config =
+                zmotor_ros2::Ros2Config { domain, namespace, node_name, joints, rest_period: Duration::from_secs(1) };
+            let served = zmotor_ros2::Ros2Node::start(zmotor.clone(), &config).await?;
             interrupted().await?;
             drop(served);
             zmotor.session().close().await?;
