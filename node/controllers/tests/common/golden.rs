@@ -34,7 +34,7 @@
 //! idle (a poll of one channel is the command `{ cmd = "poll" }`).
 #![allow(dead_code)] // each protocol's test file uses it
 
-use super::{bring_up, loopback, run_until_done};
+use super::{bring_up, home_and_wait, loopback};
 use serde::Deserialize;
 use std::time::Duration;
 use zmotor_controllers::ProtocolKind;
@@ -144,14 +144,7 @@ pub(crate) fn driver_sends_the_transcripts(kind: ProtocolKind) {
                 let command = op.command.as_ref().expect("checked by load");
                 let moves = matches!(command, DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. });
                 if moves && transcripts.referenced_before_moves {
-                    let home = DriverCommand::Home {
-                        forward: true,
-                        min_velocity: 0.0,
-                        max_velocity: 20_000.0,
-                        acceleration: 200_000.0,
-                    };
-                    lb.command(channel, &home);
-                    run_until_done(&mut lb, channel, Duration::from_millis(50), Duration::from_secs(120));
+                    home_and_wait(&mut lb, channel);
                 }
                 let from = lb.written().len();
                 lb.command(channel, command);

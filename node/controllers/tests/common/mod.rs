@@ -120,6 +120,15 @@ pub(crate) fn command() -> impl Strategy<Value = DriverCommand> {
     ]
 }
 
+/// Home `channel` forward and run until it is done and referenced (HOMED).
+pub(crate) fn home_and_wait(lb: &mut Loopback, channel: usize) {
+    let home =
+        DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(channel, &home);
+    let statuses = run_until_done(lb, channel, Duration::from_millis(50), Duration::from_secs(120));
+    assert!(statuses.last().is_some_and(|s| s.msta & msta::HOMED != 0), "homed: {statuses:?}");
+}
+
 /// Whether `no_malformed_frames` homes every channel first: a controller that moves only
 /// referenced axes would otherwise see none of the moves (the layer refuses them unsent).
 #[derive(Clone, Copy, PartialEq)]
@@ -140,15 +149,7 @@ pub(crate) fn no_malformed_frames(
     bring_up(&mut lb);
     if start == Start::Homed {
         for &channel in channels {
-            let home = DriverCommand::Home {
-                forward: true,
-                min_velocity: 0.0,
-                max_velocity: 20_000.0,
-                acceleration: 200_000.0,
-            };
-            lb.command(channel, &home);
-            let statuses = run_until_done(&mut lb, channel, Duration::from_millis(50), Duration::from_secs(120));
-            assert!(statuses.last().is_some_and(|s| s.msta & msta::HOMED != 0), "homed: {statuses:?}");
+            home_and_wait(&mut lb, channel);
         }
     }
     for (pick, command, gap_ms) in commands {
