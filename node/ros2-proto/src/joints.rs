@@ -6,7 +6,7 @@
 
 use crate::messages::{Header, JointState, Time};
 use std::time::Duration;
-use zmotor_msgs::Unit;
+use zmotor_msgs::{Field, Unit};
 
 /// One axis seen as a joint.
 #[derive(Clone, Debug, PartialEq)]
@@ -88,6 +88,35 @@ struct Seen {
     /// Its velocity, SI per second, from the last two readbacks while it moves.
     velocity: f64,
     moving: bool,
+    /// User soft limits (HLM, LLM) and dial ones (DHLM, DLLM: both 0 means none).
+    limits: [Option<f64>; 4],
+    /// VELO, EGU/s.
+    speed: Option<f64>,
+}
+
+/// The positions a joint's axis may be sent to, in its EGU.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Travel {
+    /// Between LLM and HLM.
+    Within {
+        /// LLM.
+        low: f64,
+        /// HLM.
+        high: f64,
+    },
+    /// Anywhere: the soft limits are off (DHLM = DLLM = 0).
+    Unlimited,
+}
+
+impl Travel {
+    /// Whether `position` (EGU) may be asked for.
+    #[must_use]
+    pub fn allows(self, position: f64) -> bool {
+        match self {
+            Travel::Within { low, high } => (low..=high).contains(&position),
+            Travel::Unlimited => true,
+        }
+    }
 }
 
 /// The joints' state as ROS sees it (see the module documentation).
@@ -117,9 +146,44 @@ impl JointStates {
         self.joints.iter().position(|j| j.axis == axis)
     }
 
-    /// `axis`'s readback (RBV, in its EGU) at `at`.
-    pub fn readback(&mut self, axis: &str, rbv: f64, at: Duration) {
-        let Some(i) = self.index(axis).filter(|_| rbv.is_finite()) else { return };
+    /// A posted value of `axis`'s `field` at `at`: RBV and DMOV make the state; HLM, LLM,
+    /// DHLM, DLLM and VELO are kept for trajectories. Other fields are ignored.
+    pub fn update(&mut self, axis: &str, field: Field, value: f64, at: Duration) {
+        let Some(i) = self.index(axis).filter(|_| value.is_finite()) else { return };
+        let seen = &mut self.seen[i];
+        match field {
+            Field::RBV => self.readback(i, value, at),
+            Field::DMOV => self.done_moving(i, value != 0.0),
+            Field::HLM => seen.limits[0] = Some(value),
+            Field::LLM => seen.limits[1] = Some(value),
+            Field::DHLM => seen.limits[2] = Some(value),
+            Field::DLLM => seen.limits[3] = Some(value),
+            Field::VELO => seen.speed = Some(value),
+            _ => {}
+        }
+    }
+
+    /// The joint at `index`: its last readback (EGU), whether it moves, its travel and speed
+    /// (VELO), once known.
+    #[must_use]
+    pub fn joint_state(&self, index: usize) -> Option<(f64, bool, Travel, f64)> {
+        let seen = self.seen.get(index)?;
+        let (rbv, _) = seen.last?;
+        let travel = match seen.limits {
+            [_, _, Some(dhlm), Some(dllm)] if dhlm == 0.0 && dllm == 0.0 => Travel::Unlimited,
+            [Some(high), Some(low), Some(_), Some(_)] => Travel::Within { low, high },
+            _ => return None,
+        };
+        Some((rbv, seen.moving, travel, seen.speed?))
+    }
+
+    /// The index of the joint named `name`.
+    #[must_use]
+    pub fn joint_index(&self, name: &str) -> Option<usize> {
+        self.joints.iter().position(|j| j.name == name)
+    }
+
+    fn readback(&mut self, i: usize, rbv: f64, at: Duration) {
         let si = self.joints[i].si_per_egu;
         let seen = &mut self.seen[i];
         if let Some((before, then)) = seen.last.filter(|_| seen.moving) {
@@ -132,9 +196,8 @@ impl JointStates {
         self.fresh = true;
     }
 
-    /// `axis`'s DMOV: a joint at rest has no velocity.
-    pub fn done_moving(&mut self, axis: &str, done: bool) {
-        let Some(i) = self.index(axis) else { return };
+    /// A joint at rest has no velocity.
+    fn done_moving(&mut self, i: usize, done: bool) {
         let seen = &mut self.seen[i];
         seen.moving = !done;
         if done && seen.velocity != 0.0 {
@@ -224,9 +287,9 @@ mod tests {
     #[test]
     fn state_is_published_in_si_on_every_readback_while_moving_and_slowly_at_rest() {
         let mut states = two_joints();
-        states.readback("m1", 5.0, at(0));
+        states.update("m1", Field::RBV, 5.0, at(0));
         assert_eq!(states.poll_publish(at(0)), None, "not before every joint is known");
-        states.readback("m2", 90.0, at(0));
+        states.update("m2", Field::RBV, 90.0, at(0));
         let first = states.poll_publish(at(0)).expect("every joint known");
         assert_eq!(first.name, ["lift", "turn"]);
         assert!(
@@ -238,13 +301,13 @@ mod tests {
         assert_eq!(states.poll_timeout(), Some(at(1000)));
         assert!(states.poll_publish(at(1000)).is_some(), "at rest: every period");
         // Moving at 10 mm/s, readbacks every 100 ms: one message each, with the velocity.
-        states.done_moving("m1", false);
-        states.readback("m1", 6.0, at(1100));
-        states.readback("m1", 7.0, at(1200));
+        states.update("m1", Field::DMOV, 0.0, at(1050));
+        states.update("m1", Field::RBV, 6.0, at(1100));
+        states.update("m1", Field::RBV, 7.0, at(1200));
         let moving = states.poll_publish(at(1200)).expect("a new readback");
         assert!((moving.velocity[0] - 0.01).abs() < 1e-12, "{:?}", moving.velocity);
         assert_eq!(states.poll_publish(at(1250)), None);
-        states.done_moving("m1", true);
+        states.update("m1", Field::DMOV, 1.0, at(1255));
         assert_eq!(states.poll_publish(at(1260)).map(|s| s.velocity[0]), Some(0.0), "at rest: no velocity");
     }
 

@@ -10,18 +10,31 @@
 //! - `attachment`: the 33 bytes every sample carries (sequence number, source time, GID);
 //! - `messages`: the ROS messages as CDR (little-endian, with the encapsulation header);
 //! - `joints`: axes as joints: their readbacks as `JointState` in SI units, at the readback
-//!   rate while any moves and at a slow rate at rest, and joint commands as axis targets.
+//!   rate while any moves and at a slow rate at rest, and joint commands as axis targets;
+//! - `follow`: the messages of `control_msgs/action/FollowJointTrajectory` and `action_msgs`;
+//! - `trajectory`: that action's server: goals checked, executed as timed moves, cancelled.
 //!
 //! The gateway moves these onto a Zenoh session; nothing here touches one.
 
 mod attachment;
+mod follow;
 mod graph;
 mod joints;
 mod messages;
 mod names;
+mod trajectory;
 
 pub use attachment::{Attachment, AttachmentError};
+pub use follow::{
+    CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultRequest, GetResultResponse, GoalId, GoalInfo,
+    GoalStatusArray, GoalStatusEntry, JointComponentTolerance, JointTolerance, JointTrajectory, JointTrajectoryPoint,
+    MultiDofJointTrajectory, MultiDofJointTrajectoryPoint, Quaternion, RosDuration, SendGoalRequest, SendGoalResponse,
+    TrajectoryFeedback, TrajectoryGoal, TrajectoryResult, Transform, Twist, Vector3,
+};
 pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
-pub use joints::{Joint, JointCommandError, JointError, JointStates};
+pub use joints::{Joint, JointCommandError, JointError, JointStates, Travel};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
-pub use names::{topic_key, TypeInfo, JOINT_STATE};
+pub use names::{
+    topic_key, Distribution, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
+};
+pub use trajectory::{status, FollowJointTrajectory, GoalRejection, JointCommand, MoveEnd};

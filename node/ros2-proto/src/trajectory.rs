@@ -1,0 +1,763 @@
+//! The `FollowJointTrajectory` action server, sans-IO: goals checked against the joints
+//! (unknown joints, positions beyond the soft limits, time going backwards), then executed point
+//! by point as timed moves: each segment starts when its time has come and every joint has
+//! ended the previous one, and each joint is sent its target at the speed that covers the
+//! segment in its time (VELO, restored when the goal ends). The result comes when every joint
+//! has arrived (the motion's end, as a waiting write reports it); a cancel stops the joints.
+//! Time is given (since the Unix epoch: it stamps goals and feedback).
+//!
+//! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
+//! a time: a goal sent while another executes is rejected), then end SUCCEEDED, ABORTED or,
+//! after CANCELING, CANCELED. Path tolerances and `goal_time_tolerance` are not checked (the
+//! record's own deadband and retries decide arrival); goal position tolerances are.
+
+use crate::follow::{
+    CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultResponse, GoalId, GoalInfo, GoalStatusArray,
+    GoalStatusEntry, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback, TrajectoryGoal, TrajectoryResult,
+};
+use crate::joints::JointStates;
+use crate::messages::{Header, Time};
+use std::collections::VecDeque;
+use std::time::Duration;
+
+/// `action_msgs/msg/GoalStatus` codes.
+pub mod status {
+    /// Not known.
+    pub const UNKNOWN: i8 = 0;
+    /// Executing.
+    pub const EXECUTING: i8 = 2;
+    /// Stopping after a cancel.
+    pub const CANCELING: i8 = 3;
+    /// Every joint arrived.
+    pub const SUCCEEDED: i8 = 4;
+    /// Stopped by a cancel.
+    pub const CANCELED: i8 = 5;
+    /// Ended by a failure.
+    pub const ABORTED: i8 = 6;
+}
+
+/// `FollowJointTrajectory` result codes.
+mod error_code {
+    pub(super) const SUCCESSFUL: i32 = 0;
+    pub(super) const PATH_TOLERANCE_VIOLATED: i32 = -4;
+    pub(super) const GOAL_TOLERANCE_VIOLATED: i32 = -5;
+}
+
+/// `CancelGoal` return codes.
+mod cancel_code {
+    pub(super) const NONE: i8 = 0;
+    pub(super) const UNKNOWN_GOAL_ID: i8 = 2;
+    pub(super) const GOAL_TERMINATED: i8 = 3;
+}
+
+/// Why a goal was not accepted.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum GoalRejection {
+    /// Another goal is executing.
+    #[error("a goal is executing: cancel it first")]
+    Busy,
+    /// A joint this node does not have.
+    #[error("no joint named '{0}'")]
+    UnknownJoint(String),
+    /// A joint named twice.
+    #[error("joint '{0}' is named twice")]
+    DuplicateJoint(String),
+    /// A multi-DOF trajectory.
+    #[error("multi-DOF trajectories are not served: each joint here is one axis")]
+    MultiDof,
+    /// No points.
+    #[error("the trajectory has no points")]
+    NoPoints,
+    /// A point whose positions do not match the joints.
+    #[error("point {point}: {got} positions for {expected} joints")]
+    Positions {
+        /// The point's index.
+        point: usize,
+        /// Joints named.
+        expected: usize,
+        /// Positions given.
+        got: usize,
+    },
+    /// A position that is not a number.
+    #[error("point {point}: joint '{joint}': the position is not a number")]
+    NotFinite {
+        /// The point's index.
+        point: usize,
+        /// The joint.
+        joint: String,
+    },
+    /// A point due before the one before it.
+    #[error("point {point}: time_from_start is negative or before the previous point's")]
+    TimeBackwards {
+        /// The point's index.
+        point: usize,
+    },
+    /// A target beyond a joint's soft limits.
+    #[error("point {point}: joint '{joint}': {target} (its axis's units) is beyond the soft limits [{low}, {high}]")]
+    BeyondLimits {
+        /// The point's index.
+        point: usize,
+        /// The joint.
+        joint: String,
+        /// The target, in the axis's EGU.
+        target: f64,
+        /// LLM.
+        low: f64,
+        /// HLM.
+        high: f64,
+    },
+    /// A joint whose axis has not yet said where it is and what its limits are.
+    #[error("joint '{0}': its axis's position, limits and speed are not known yet")]
+    NotReady(String),
+}
+
+/// What the gateway is to do for a goal.
+#[derive(Clone, Debug, PartialEq)]
+pub enum JointCommand {
+    /// Write VELO (when a speed is given) then VAL, and report the motion's end with
+    /// `move_ended`; `duration` is the segment's planned time.
+    Move {
+        /// The axis.
+        axis: String,
+        /// VAL, EGU.
+        target: f64,
+        /// VELO, EGU/s; none for a point due at once (the axis's own speed).
+        speed: Option<f64>,
+        /// The segment's planned time.
+        duration: Duration,
+    },
+    /// Write STOP.
+    Stop {
+        /// The axis.
+        axis: String,
+    },
+    /// Write VELO back to what it was before the goal.
+    RestoreSpeed {
+        /// The axis.
+        axis: String,
+        /// VELO, EGU/s.
+        speed: f64,
+    },
+}
+
+/// How a joint's move ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MoveEnd {
+    /// At its target.
+    Reached,
+    /// Refused, stopped short or unanswered: why.
+    Failed(String),
+}
+
+/// One joint of an executing goal.
+#[derive(Clone, Debug)]
+struct PlannedJoint {
+    /// Its index in `JointStates`.
+    index: usize,
+    axis: String,
+    si_per_egu: f64,
+    /// Where it was when the goal was accepted, EGU.
+    from: f64,
+    /// VELO then, to restore; whether the goal changed it.
+    speed: f64,
+    speed_changed: bool,
+    /// The goal position tolerance, EGU.
+    tolerance: Option<f64>,
+    /// A move commanded whose end has not come.
+    in_flight: bool,
+}
+
+/// An executing goal.
+#[derive(Clone, Debug)]
+struct Plan {
+    id: GoalId,
+    joints: Vec<PlannedJoint>,
+    /// Each point's time from the start and its targets, EGU, in `joints`' order.
+    points: Vec<(Duration, Vec<f64>)>,
+    start: Duration,
+    /// The next point to command.
+    next: usize,
+    /// The segment moving now and when it was commanded.
+    segment: Option<(usize, Duration)>,
+    /// The end decided (a failure, a cancel) while moves are still in flight.
+    ending: Option<(i8, TrajectoryResult)>,
+}
+
+impl Plan {
+    fn busy(&self) -> bool {
+        self.joints.iter().any(|j| j.in_flight)
+    }
+
+    /// When point `i`'s segment may start.
+    fn due(&self, i: usize) -> Duration {
+        self.start + i.checked_sub(1).map_or(Duration::ZERO, |before| self.points[before].0)
+    }
+
+    /// Each joint's position at the start of point `i`'s segment.
+    fn segment_from(&self, i: usize, joint: usize) -> f64 {
+        i.checked_sub(1).map_or(self.joints[joint].from, |before| self.points[before].1[joint])
+    }
+
+    /// Stop every joint still moving, ending the goal with `status` and `result` once stopped
+    /// (the first end decided stands).
+    fn end_with(&mut self, status: i8, result: TrajectoryResult) -> Vec<JointCommand> {
+        if self.ending.is_some() {
+            return Vec::new();
+        }
+        self.ending = Some((status, result));
+        self.joints.iter().filter(|j| j.in_flight).map(|j| JointCommand::Stop { axis: j.axis.clone() }).collect()
+    }
+}
+
+/// A goal the server knows: its id, stamp, status and, once ended, its result.
+#[derive(Clone, Debug)]
+struct Goal {
+    info: GoalInfo,
+    status: i8,
+    result: Option<TrajectoryResult>,
+}
+
+/// How many ended goals keep their results.
+const KEPT_GOALS: usize = 16;
+
+/// The action server's state (see the module documentation).
+#[derive(Clone, Debug, Default)]
+pub struct FollowJointTrajectory {
+    goals: VecDeque<Goal>,
+    plan: Option<Plan>,
+    status_changed: bool,
+}
+
+fn stamp(now: Duration) -> Time {
+    Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() }
+}
+
+fn since_epoch(time: Time) -> Option<Duration> {
+    let sec = u64::try_from(time.sec).ok()?;
+    Some(Duration::new(sec, 0) + Duration::from_nanos(u64::from(time.nanosec)))
+}
+
+impl FollowJointTrajectory {
+    /// A server with no goals.
+    #[must_use]
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// A goal sent at `now`: accepted (it executes at once) or rejected, saying why.
+    pub fn send_goal(
+        &mut self,
+        request: &SendGoalRequest,
+        joints: &JointStates,
+        now: Duration,
+    ) -> Result<(), GoalRejection> {
+        if self.plan.is_some() {
+            return Err(GoalRejection::Busy);
+        }
+        let plan = plan(request.goal_id, &request.goal, joints, now)?;
+        self.plan = Some(plan);
+        self.goals.push_back(Goal {
+            info: GoalInfo { goal_id: request.goal_id, stamp: stamp(now) },
+            status: status::EXECUTING,
+            result: None,
+        });
+        while self.goals.len() > KEPT_GOALS + 1 {
+            self.goals.pop_front();
+        }
+        self.status_changed = true;
+        Ok(())
+    }
+
+    /// Whether a goal is executing (or stopping).
+    #[must_use]
+    pub fn executing(&self) -> bool {
+        self.plan.is_some()
+    }
+
+    /// What to do at `now`: the next segment's moves when due, or the goal's end.
+    #[must_use]
+    pub fn poll(&mut self, joints: &JointStates, now: Duration) -> Vec<JointCommand> {
+        let Some(plan) = &mut self.plan else { return Vec::new() };
+        let mut commands = Vec::new();
+        while !plan.busy() && plan.ending.is_none() && plan.next < plan.points.len() && now >= plan.due(plan.next) {
+            let i = plan.next;
+            let segment_time =
+                plan.points[i].0.saturating_sub(i.checked_sub(1).map_or(Duration::ZERO, |b| plan.points[b].0));
+            for k in 0..plan.joints.len() {
+                let (from, target) = (plan.segment_from(i, k), plan.points[i].1[k]);
+                if target == from {
+                    continue;
+                }
+                let speed = (!segment_time.is_zero()).then(|| (target - from).abs() / segment_time.as_secs_f64());
+                let joint = &mut plan.joints[k];
+                joint.speed_changed |= speed.is_some();
+                joint.in_flight = true;
+                commands.push(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: segment_time });
+            }
+            plan.segment = Some((i, now));
+            plan.next += 1;
+        }
+        if plan.busy() {
+            return commands;
+        }
+        let end = match plan.ending.take() {
+            Some(end) => Some(end),
+            None if plan.next == plan.points.len() => Some(arrival(plan, joints)),
+            None => None,
+        };
+        if let Some((status, result)) = end {
+            commands.extend(
+                plan.joints
+                    .iter()
+                    .filter(|j| j.speed_changed)
+                    .map(|j| JointCommand::RestoreSpeed { axis: j.axis.clone(), speed: j.speed }),
+            );
+            let id = plan.id;
+            self.plan = None;
+            self.finish(id, status, result);
+        }
+        commands
+    }
+
+    /// When `poll` is next due without another event.
+    #[must_use]
+    pub fn poll_timeout(&self) -> Option<Duration> {
+        let plan = self.plan.as_ref()?;
+        (!plan.busy() && plan.ending.is_none() && plan.next < plan.points.len()).then(|| plan.due(plan.next))
+    }
+
+    /// The end of the move `axis` was sent; a failure aborts the goal, stopping the others.
+    #[must_use]
+    pub fn move_ended(&mut self, axis: &str, end: MoveEnd) -> Vec<JointCommand> {
+        let Some(plan) = &mut self.plan else { return Vec::new() };
+        let Some(joint) = plan.joints.iter_mut().find(|j| j.axis == axis && j.in_flight) else { return Vec::new() };
+        joint.in_flight = false;
+        match end {
+            MoveEnd::Reached => Vec::new(),
+            MoveEnd::Failed(why) => {
+                let error_string = format!("axis '{axis}': {why}");
+                let result = TrajectoryResult { error_code: error_code::PATH_TOLERANCE_VIOLATED, error_string };
+                plan.end_with(status::ABORTED, result)
+            }
+        }
+    }
+
+    /// A cancel request: the executing goal, if it is one the request names, stops.
+    #[must_use]
+    pub fn cancel(&mut self, request: &CancelGoalRequest) -> (CancelGoalResponse, Vec<JointCommand>) {
+        let GoalInfo { goal_id, stamp: before } = request.goal_info;
+        let every = goal_id == GoalId::default();
+        let named = self.goals.iter().find(|g| g.info.goal_id == goal_id);
+        if !every && named.is_none() {
+            return (
+                CancelGoalResponse { return_code: cancel_code::UNKNOWN_GOAL_ID, goals_canceling: Vec::new() },
+                Vec::new(),
+            );
+        }
+        let cutoff = since_epoch(before).filter(|t| !t.is_zero());
+        let matches = |goal: &Goal| {
+            (every && cutoff.is_none())
+                || goal.info.goal_id == goal_id
+                || cutoff.is_some_and(|cut| since_epoch(goal.info.stamp).is_some_and(|at| at <= cut))
+        };
+        let mut canceling = Vec::new();
+        let mut commands = Vec::new();
+        if let Some(plan) = &mut self.plan {
+            let goal = self.goals.iter_mut().find(|g| g.info.goal_id == plan.id).expect("an executing goal is known");
+            if matches(goal) && goal.status == status::EXECUTING {
+                goal.status = status::CANCELING;
+                self.status_changed = true;
+                canceling.push(goal.info);
+                let result = TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
+                commands = plan.end_with(status::CANCELED, result);
+            } else if matches(goal) && goal.status == status::CANCELING {
+                canceling.push(goal.info);
+            }
+        }
+        let return_code = if canceling.is_empty() && !every { cancel_code::GOAL_TERMINATED } else { cancel_code::NONE };
+        (CancelGoalResponse { return_code, goals_canceling: canceling }, commands)
+    }
+
+    /// The result of goal `id` once it has ended (a goal not known answers at once with status
+    /// UNKNOWN); none while it runs: answer when it ends.
+    #[must_use]
+    pub fn result(&self, id: &GoalId) -> Option<GetResultResponse> {
+        match self.goals.iter().find(|g| &g.info.goal_id == id) {
+            None => Some(GetResultResponse { status: status::UNKNOWN, result: TrajectoryResult::default() }),
+            Some(goal) => goal.result.clone().map(|result| GetResultResponse { status: goal.status, result }),
+        }
+    }
+
+    /// Every goal's status, when it changed since the last call.
+    #[must_use]
+    pub fn poll_status(&mut self) -> Option<GoalStatusArray> {
+        if !std::mem::take(&mut self.status_changed) {
+            return None;
+        }
+        let status_list = self.goals.iter().map(|g| GoalStatusEntry { goal_info: g.info, status: g.status }).collect();
+        Some(GoalStatusArray { status_list })
+    }
+
+    /// The executing goal's feedback at `now`: where its joints should be (along the segment
+    /// moving now), where they are, and the difference, in SI units.
+    #[must_use]
+    pub fn feedback(&self, joints: &JointStates, now: Duration) -> Option<FeedbackMessage> {
+        let plan = self.plan.as_ref()?;
+        let names: Vec<String> = plan.joints.iter().map(|j| joints.joints()[j.index].name.clone()).collect();
+        let (mut desired, mut actual) = (Vec::new(), Vec::new());
+        for (k, joint) in plan.joints.iter().enumerate() {
+            let wanted = match plan.segment {
+                None => joint.from,
+                Some((i, commanded)) => {
+                    let (from, to) = (plan.segment_from(i, k), plan.points[i].1[k]);
+                    let length =
+                        plan.points[i].0.saturating_sub(i.checked_sub(1).map_or(Duration::ZERO, |b| plan.points[b].0));
+                    let done = if length.is_zero() {
+                        1.0
+                    } else {
+                        (now.saturating_sub(commanded).as_secs_f64() / length.as_secs_f64()).min(1.0)
+                    };
+                    from + (to - from) * done
+                }
+            };
+            let (rbv, ..) = joints.joint_state(joint.index)?;
+            desired.push(wanted * joint.si_per_egu);
+            actual.push(rbv * joint.si_per_egu);
+        }
+        let error = actual.iter().zip(&desired).map(|(a, d)| a - d).collect();
+        let point = |positions| JointTrajectoryPoint { positions, ..JointTrajectoryPoint::default() };
+        Some(FeedbackMessage {
+            goal_id: plan.id,
+            feedback: TrajectoryFeedback {
+                header: Header { stamp: stamp(now), frame_id: String::new() },
+                joint_names: names,
+                desired: point(desired),
+                actual: point(actual),
+                error: point(error),
+                ..TrajectoryFeedback::default()
+            },
+        })
+    }
+
+    fn finish(&mut self, id: GoalId, status: i8, result: TrajectoryResult) {
+        if let Some(goal) = self.goals.iter_mut().find(|g| g.info.goal_id == id) {
+            goal.status = status;
+            goal.result = Some(result);
+            self.status_changed = true;
+        }
+    }
+}
+
+/// The end of a goal whose every segment is done: success when each joint is within its goal
+/// tolerance.
+fn arrival(plan: &Plan, joints: &JointStates) -> (i8, TrajectoryResult) {
+    let last = &plan.points[plan.points.len() - 1].1;
+    for (k, joint) in plan.joints.iter().enumerate() {
+        let (Some(tolerance), Some((rbv, ..))) = (joint.tolerance, joints.joint_state(joint.index)) else { continue };
+        if (rbv - last[k]).abs() > tolerance {
+            let error_string = format!(
+                "axis '{}' ended at {rbv}, {} from its goal {} (tolerance {tolerance}, its axis's units)",
+                joint.axis,
+                (rbv - last[k]).abs(),
+                last[k]
+            );
+            return (
+                status::ABORTED,
+                TrajectoryResult { error_code: error_code::GOAL_TOLERANCE_VIOLATED, error_string },
+            );
+        }
+    }
+    (status::SUCCEEDED, TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: String::new() })
+}
+
+/// The goal checked and planned, or why not.
+fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) -> Result<Plan, GoalRejection> {
+    if !goal.multi_dof_trajectory.joint_names.is_empty() || !goal.multi_dof_trajectory.points.is_empty() {
+        return Err(GoalRejection::MultiDof);
+    }
+    let trajectory = &goal.trajectory;
+    if trajectory.points.is_empty() {
+        return Err(GoalRejection::NoPoints);
+    }
+    let mut planned = Vec::new();
+    let mut travels = Vec::new();
+    for (k, name) in trajectory.joint_names.iter().enumerate() {
+        if trajectory.joint_names[..k].contains(name) {
+            return Err(GoalRejection::DuplicateJoint(name.clone()));
+        }
+        let index = joints.joint_index(name).ok_or_else(|| GoalRejection::UnknownJoint(name.clone()))?;
+        let (rbv, _, travel, speed) = joints.joint_state(index).ok_or_else(|| GoalRejection::NotReady(name.clone()))?;
+        let joint = &joints.joints()[index];
+        let tolerance = goal
+            .goal_tolerance
+            .iter()
+            .find(|t| &t.name == name && t.position > 0.0)
+            .map(|t| t.position / joint.si_per_egu);
+        travels.push(travel);
+        planned.push(PlannedJoint {
+            index,
+            axis: joint.axis.clone(),
+            si_per_egu: joint.si_per_egu,
+            from: rbv,
+            speed,
+            speed_changed: false,
+            tolerance,
+            in_flight: false,
+        });
+    }
+    let mut points = Vec::new();
+    let mut previous = Duration::ZERO;
+    for (i, point) in trajectory.points.iter().enumerate() {
+        let (expected, got) = (planned.len(), point.positions.len());
+        if got != expected {
+            return Err(GoalRejection::Positions { point: i, expected, got });
+        }
+        let at = point.time_from_start.to_duration().filter(|at| *at >= previous);
+        let at = at.ok_or(GoalRejection::TimeBackwards { point: i })?;
+        previous = at;
+        let mut targets = Vec::new();
+        for (k, position) in point.positions.iter().enumerate() {
+            let joint = trajectory.joint_names[k].clone();
+            if !position.is_finite() {
+                return Err(GoalRejection::NotFinite { point: i, joint });
+            }
+            let target = position / planned[k].si_per_egu;
+            if let crate::joints::Travel::Within { low, high } = travels[k] {
+                if !travels[k].allows(target) {
+                    return Err(GoalRejection::BeyondLimits { point: i, joint, target, low, high });
+                }
+            }
+            targets.push(target);
+        }
+        points.push((at, targets));
+    }
+    let start = since_epoch(trajectory.header.stamp).filter(|at| *at > now).unwrap_or(now);
+    Ok(Plan { id, joints: planned, points, start, next: 0, segment: None, ending: None })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::follow::{JointTolerance, JointTrajectory, RosDuration};
+    use crate::joints::Joint;
+    use zmotor_msgs::Field;
+
+    const T0: Duration = Duration::from_secs(1_700_000_000);
+
+    fn at(ms: u64) -> Duration {
+        T0 + Duration::from_millis(ms)
+    }
+
+    /// Two joints: `lift` on m1 (mm, soft limits ±50) and `turn` on m2 (deg, no soft limits),
+    /// both at 0, VELO 1.
+    fn joints() -> JointStates {
+        let lift = Joint::new("lift", "m1", "mm", None).unwrap();
+        let turn = Joint::new("turn", "m2", "deg", None).unwrap();
+        let mut states = JointStates::new(vec![lift, turn], Duration::from_secs(1));
+        for (axis, limits) in [("m1", [50.0, -50.0, 50.0, -50.0]), ("m2", [0.0; 4])] {
+            states.update(axis, Field::RBV, 0.0, T0);
+            states.update(axis, Field::DMOV, 1.0, T0);
+            states.update(axis, Field::VELO, 1.0, T0);
+            for (field, value) in [Field::HLM, Field::LLM, Field::DHLM, Field::DLLM].into_iter().zip(limits) {
+                states.update(axis, field, value, T0);
+            }
+        }
+        states
+    }
+
+    fn goal(names: &[&str], points: &[(u64, &[f64])]) -> SendGoalRequest {
+        let points = points
+            .iter()
+            .map(|(ms, positions)| JointTrajectoryPoint {
+                positions: positions.to_vec(),
+                time_from_start: RosDuration { sec: (ms / 1000) as i32, nanosec: (ms % 1000) as u32 * 1_000_000 },
+                ..JointTrajectoryPoint::default()
+            })
+            .collect();
+        let trajectory = JointTrajectory {
+            joint_names: names.iter().map(|n| n.to_string()).collect(),
+            points,
+            ..JointTrajectory::default()
+        };
+        SendGoalRequest { goal_id: [1; 16], goal: TrajectoryGoal { trajectory, ..TrajectoryGoal::default() } }
+    }
+
+    fn moves(commands: &[JointCommand]) -> Vec<(&str, f64, Option<f64>)> {
+        commands
+            .iter()
+            .filter_map(|c| match c {
+                JointCommand::Move { axis, target, speed, .. } => {
+                    Some((axis.as_str(), *target, speed.map(|s| (s * 1e9).round() / 1e9)))
+                }
+                _ => None,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn three_points_run_as_timed_moves_one_segment_after_the_other_then_succeed() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        // 10 mm and 90° in 2 s, then back to 5 mm in 1 s, then 180° in 3 s.
+        let quarter = std::f64::consts::FRAC_PI_2;
+        let request = goal(
+            &["lift", "turn"],
+            &[(2000, &[0.010, quarter]), (3000, &[0.005, quarter]), (6000, &[0.005, 2.0 * quarter])],
+        );
+        server.send_goal(&request, &states, at(0)).unwrap();
+        let status = server.poll_status().expect("a new goal changes the status");
+        assert_eq!((status.status_list.len(), status.status_list[0].status), (1, status::EXECUTING));
+        assert_eq!(server.result(&[1; 16]), None, "no result while it runs");
+
+        let first = server.poll(&states, at(0));
+        assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 90.0, Some(45.0))]);
+        assert_eq!(server.poll(&states, at(2500)), [], "not before both joints ended the segment");
+        assert_eq!(server.poll_timeout(), None, "waiting on the moves, not on time");
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        assert_eq!(server.poll(&states, at(2500)), [], "m2 still moving");
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        // Second segment: only lift moves, 5 mm in 1 s; it is late (2.5 s), so it starts now.
+        let second = server.poll(&states, at(2500));
+        assert_eq!(moves(&second), [("m1", 5.0, Some(5.0))]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        // Third: due at 3 s.
+        assert_eq!(server.poll_timeout(), Some(at(3000)));
+        assert_eq!(server.poll(&states, at(2900)), []);
+        let third = server.poll(&states, at(3000));
+        assert_eq!(moves(&third), [("m2", 180.0, Some(30.0))]);
+        let feedback = server.feedback(&states, at(4500)).expect("feedback while executing");
+        assert_eq!(feedback.feedback.joint_names, ["lift", "turn"]);
+        assert!((feedback.feedback.desired.positions[1] - 1.5 * quarter).abs() < 1e-9, "half way through the segment");
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        states.update("m1", Field::RBV, 5.0, at(6000));
+        states.update("m2", Field::RBV, 180.0, at(6000));
+        let end = server.poll(&states, at(6000));
+        assert_eq!(
+            end,
+            [
+                JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 },
+                JointCommand::RestoreSpeed { axis: "m2".into(), speed: 1.0 }
+            ]
+        );
+        let result = server.result(&[1; 16]).expect("ended");
+        assert_eq!((result.status, result.result.error_code), (status::SUCCEEDED, 0));
+        assert_eq!(server.poll_status().unwrap().status_list[0].status, status::SUCCEEDED);
+        assert_eq!(server.feedback(&states, at(6000)), None);
+    }
+
+    #[test]
+    fn goals_that_cannot_run_are_rejected_saying_why_and_move_nothing() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        let reject = |server: &mut FollowJointTrajectory, request: SendGoalRequest| {
+            server.send_goal(&request, &states, at(0)).unwrap_err()
+        };
+        assert_eq!(
+            reject(&mut server, goal(&["wrist"], &[(1000, &[0.0])])),
+            GoalRejection::UnknownJoint("wrist".into())
+        );
+        assert_eq!(
+            reject(&mut server, goal(&["lift", "lift"], &[(1000, &[0.0, 0.0])])),
+            GoalRejection::DuplicateJoint("lift".into())
+        );
+        assert_eq!(reject(&mut server, goal(&["lift"], &[])), GoalRejection::NoPoints);
+        assert_eq!(
+            reject(&mut server, goal(&["lift", "turn"], &[(1000, &[0.0])])),
+            GoalRejection::Positions { point: 0, expected: 2, got: 1 }
+        );
+        assert_eq!(
+            reject(&mut server, goal(&["lift"], &[(1000, &[f64::NAN])])),
+            GoalRejection::NotFinite { point: 0, joint: "lift".into() }
+        );
+        assert_eq!(
+            reject(&mut server, goal(&["lift"], &[(2000, &[0.0]), (1000, &[0.001])])),
+            GoalRejection::TimeBackwards { point: 1 }
+        );
+        assert_eq!(
+            reject(&mut server, goal(&["lift"], &[(1000, &[0.010]), (2000, &[0.060])])),
+            GoalRejection::BeyondLimits { point: 1, joint: "lift".into(), target: 60.0, low: -50.0, high: 50.0 }
+        );
+        let mut unknown = JointStates::new(vec![Joint::new("lift", "m1", "mm", None).unwrap()], Duration::from_secs(1));
+        unknown.update("m1", Field::RBV, 0.0, T0);
+        assert_eq!(
+            server.send_goal(&goal(&["lift"], &[(1000, &[0.0])]), &unknown, at(0)),
+            Err(GoalRejection::NotReady("lift".into()))
+        );
+        assert_eq!(server.poll_status(), None, "no goal known");
+        assert_eq!(server.poll(&states, at(0)), []);
+        // No soft limits on turn: any angle goes. A second goal while it runs does not.
+        server.send_goal(&goal(&["turn"], &[(1000, &[100.0])]), &states, at(0)).unwrap();
+        assert_eq!(reject(&mut server, goal(&["lift"], &[(1000, &[0.001])])), GoalRejection::Busy);
+    }
+
+    #[test]
+    fn a_cancel_stops_the_moving_joints_and_ends_the_goal_once_they_stopped() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        server
+            .send_goal(&goal(&["lift", "turn"], &[(2000, &[0.010, 1.0]), (4000, &[0.0, 0.0])]), &states, at(0))
+            .unwrap();
+        let _ = server.poll_status();
+        assert_eq!(moves(&server.poll(&states, at(0))).len(), 2);
+        let unknown = CancelGoalRequest { goal_info: GoalInfo { goal_id: [9; 16], stamp: Time::default() } };
+        assert_eq!(server.cancel(&unknown).0.return_code, cancel_code::UNKNOWN_GOAL_ID);
+        let (answer, commands) = server.cancel(&CancelGoalRequest::default());
+        assert_eq!((answer.return_code, answer.goals_canceling.len()), (cancel_code::NONE, 1));
+        assert_eq!(commands, [JointCommand::Stop { axis: "m1".into() }, JointCommand::Stop { axis: "m2".into() }]);
+        assert_eq!(server.poll_status().unwrap().status_list[0].status, status::CANCELING);
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), [], "already ending");
+        assert_eq!(server.poll(&states, at(3000)), [], "m2 not yet stopped; no second segment");
+        assert_eq!(server.result(&[1; 16]), None);
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        let end = server.poll(&states, at(3000));
+        assert_eq!(end.len(), 2, "both speeds restored: {end:?}");
+        assert_eq!(server.result(&[1; 16]).unwrap().status, status::CANCELED);
+        let again =
+            server.cancel(&CancelGoalRequest { goal_info: GoalInfo { goal_id: [1; 16], stamp: Time::default() } });
+        assert_eq!(again.0.return_code, cancel_code::GOAL_TERMINATED);
+    }
+
+    #[test]
+    fn a_joint_that_fails_aborts_the_goal_stopping_the_others() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        server.send_goal(&goal(&["lift", "turn"], &[(1000, &[0.010, 1.0])]), &states, at(0)).unwrap();
+        let _ = server.poll(&states, at(0));
+        assert_eq!(
+            server.move_ended("m1", MoveEnd::Failed("not referenced".into())),
+            [JointCommand::Stop { axis: "m2".into() }]
+        );
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        let _ = server.poll(&states, at(500));
+        let result = server.result(&[1; 16]).unwrap();
+        assert_eq!((result.status, result.result.error_code), (status::ABORTED, error_code::PATH_TOLERANCE_VIOLATED));
+        assert!(result.result.error_string.contains("m1") && result.result.error_string.contains("not referenced"));
+
+        // A goal tolerance the joint missed.
+        let mut request = goal(&["lift"], &[(1000, &[0.010])]);
+        request.goal_id = [2; 16];
+        request.goal.goal_tolerance =
+            vec![JointTolerance { name: "lift".into(), position: 0.0001, ..JointTolerance::default() }];
+        server.send_goal(&request, &states, at(1000)).unwrap();
+        let _ = server.poll(&states, at(1000));
+        let _ = server.move_ended("m1", MoveEnd::Reached);
+        states.update("m1", Field::RBV, 9.8, at(2000));
+        let _ = server.poll(&states, at(2000));
+        let result = server.result(&[2; 16]).unwrap();
+        assert_eq!((result.status, result.result.error_code), (status::ABORTED, error_code::GOAL_TOLERANCE_VIOLATED));
+    }
+
+    #[test]
+    fn a_goal_stamped_in_the_future_waits_for_its_time_and_a_point_at_the_current_position_moves_nothing() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        let mut request = goal(&["lift"], &[(0, &[0.0]), (1000, &[0.002])]);
+        request.goal.trajectory.header.stamp = stamp(at(500));
+        server.send_goal(&request, &states, at(0)).unwrap();
+        assert_eq!(server.poll(&states, at(100)), []);
+        assert_eq!(server.poll_timeout(), Some(at(500)));
+        assert_eq!(moves(&server.poll(&states, at(500))), [("m1", 2.0, Some(2.0))]);
+        assert_eq!(server.result(&[3; 16]).unwrap().status, status::UNKNOWN, "an unknown goal answers at once");
+    }
+}
