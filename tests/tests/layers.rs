@@ -19,7 +19,11 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-ca-proto", "node/ca-proto", &["zmotor-msgs"]),
     ("zmotor-ros2-proto", "node/ros2-proto", &["zmotor-msgs"]),
     ("zmotor-inbox", "node/inbox", &[]),
-    ("zmotor-deploy", "node/deploy", &["zmotor-msgs", "zmotor-bridge", "zmotor-core", "zmotor-controllers"]),
+    (
+        "zmotor-deploy",
+        "node/deploy",
+        &["zmotor-msgs", "zmotor-bridge", "zmotor-core", "zmotor-controllers", "zmotor-ros2-proto"],
+    ),
     (
         "zmotor-node",
         "node/node",
@@ -28,7 +32,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
     ("zmotor-client", "node/client", &["zmotor-msgs", "zmotor-deploy"]),
     ("zmotor-ca", "node/ca", &["zmotor-msgs", "zmotor-ca-proto", "zmotor-client", "zmotor-deploy"]),
     ("zmotor-web", "node/web", &["zmotor-msgs", "zmotor-client", "zmotor-deploy"]),
-    ("zmotor-ros2", "node/ros2", &["zmotor-msgs", "zmotor-ros2-proto", "zmotor-client"]),
+    ("zmotor-ros2", "node/ros2", &["zmotor-msgs", "zmotor-ros2-proto", "zmotor-client", "zmotor-deploy"]),
     ("zmotor-sim-controller", "node/sim-controller", &["zmotor-core", "zmotor-emulators"]),
     (
         "zmotor",
@@ -64,7 +68,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
 
 /// Crates that move bytes on networks, sockets or an async runtime: below the gateways, only
 /// the node and the client may use them.
-const RUNTIME: &[&str] = &["zenoh", "tokio", "tokio-serial", "axum", "socket2"];
+const RUNTIME: &[&str] = &["zenoh", "zenoh-ext", "tokio", "tokio-serial", "axum", "socket2"];
 const BELOW_THE_GATEWAYS: &[&str] = &[
     "zmotor-msgs",
     "zmotor-bridge",
@@ -72,6 +76,7 @@ const BELOW_THE_GATEWAYS: &[&str] = &[
     "zmotor-emulators",
     "zmotor-controllers",
     "zmotor-ca-proto",
+    "zmotor-ros2-proto",
     "zmotor-inbox",
     "zmotor-deploy",
 ];

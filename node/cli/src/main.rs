@@ -8,7 +8,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 use zmotor_client::{show, Client, NoAnswer, Selection, WriteOptions, WriteOutcome};
-use zmotor_deploy::{import_db, CaConfig, Launch, LoginConfig, Macros, Mode, TlsConfig, WebConfig, ZenohConfig};
+use zmotor_deploy::{
+    import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
+    WebConfig, ZenohConfig,
+};
 use zmotor_msgs::{Field, KeyLayout, Value, FIELDS};
 use zmotor_node::{state_dir, AutosaveConfig, Node, StateStore};
 
@@ -23,7 +26,7 @@ struct Cli {
 }
 
 /// A `--joint NAME=AXIS[*FACTOR]` argument.
-fn joint_arg(text: &str) -> Result<(String, String, Option<f64>), Error> {
+fn joint_arg(text: &str) -> Result<JointConfig, Error> {
     let (name, rest) = text.split_once('=').ok_or_else(|| format!("--joint {text}: give NAME=AXIS[*FACTOR]"))?;
     let (axis, factor) = match rest.split_once('*') {
         Some((axis, factor)) => {
@@ -35,7 +38,7 @@ fn joint_arg(text: &str) -> Result<(String, String, Option<f64>), Error> {
     if name.is_empty() || axis.is_empty() {
         return Err(format!("--joint {text}: give NAME=AXIS[*FACTOR]").into());
     }
-    Ok((name.to_string(), axis.to_string(), factor))
+    Ok(JointConfig { name: name.to_string(), axis: axis.to_string(), factor })
 }
 
 /// How a client reaches the network.
@@ -222,7 +225,8 @@ enum Command {
         client: ClientArgs,
     },
     /// Be a ROS 2 node (rmw_zenoh's conventions) whose joints are axes: sensor_msgs/JointState
-    /// on <namespace>/joint_states (SI units), and joint commands on <namespace>/joint_commands.
+    /// on <namespace>/joint_states (SI units), joint commands on <namespace>/joint_commands, and
+    /// the FollowJointTrajectory action on <namespace>/follow_joint_trajectory.
     Ros2 {
         /// A joint: NAME=AXIS, or NAME=AXIS*FACTOR (SI units per EGU when the EGU is no unit of
         /// length or angle). Repeat for each joint.
@@ -237,6 +241,12 @@ enum Command {
         /// The node's name.
         #[arg(long, default_value = "zmotor")]
         node_name: String,
+        /// The ROS 2 distribution whose keys to use: jazzy (type hashes) or humble (none).
+        #[arg(long, default_value = "jazzy")]
+        distribution: String,
+        /// Seconds between the joints' state messages at rest.
+        #[arg(long, default_value_t = 1.0)]
+        rest_period: f64,
         #[command(flatten)]
         client: ClientArgs,
     },
@@ -366,11 +376,17 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Ros2 { joints, domain, namespace, node_name, client } => {
+        Command::Ros2 { joints, domain, namespace, node_name, distribution, rest_period, client } => {
             let joints = joints.iter().map(|j| joint_arg(j)).collect::<Result<Vec<_>, _>>()?;
+            let distribution = Distribution::from_name(&distribution)
+                .ok_or_else(|| format!("--distribution {distribution}: give jazzy or humble"))?;
+            if !(rest_period.is_finite() && rest_period > 0.0) {
+                return Err("--rest-period: give a positive number of seconds".into());
+            }
+            let rest_period = Duration::from_secs_f64(rest_period);
+            let config = Ros2Config { domain_id: domain, namespace, node_name, distribution, joints, rest_period };
+            config.check()?;
             let zmotor = connect(&client).await?;
-            let config =
-                zmotor_ros2::Ros2Config { domain, namespace, node_name, joints, rest_period: Duration::from_secs(1) };
             let served = zmotor_ros2::Ros2Node::start(zmotor.clone(), &config).await?;
             interrupted().await?;
             drop(served);
@@ -477,17 +493,21 @@ async fn launch(
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
     // The front-ends are clients of the node's own network, on a session of their own: a node's
     // publications leave its session only for others.
-    let front_client = match deployment.channel_access.is_some() || deployment.web.is_some() {
-        true => Some(front_end_client(&deployment.zenoh).await?),
-        false => None,
-    };
-    let mut front_ends = (None, None);
+    let front_client =
+        match deployment.channel_access.is_some() || deployment.web.is_some() || deployment.ros2.is_some() {
+            true => Some(front_end_client(&deployment.zenoh).await?),
+            false => None,
+        };
+    let mut front_ends = (None, None, None);
     if let Some(client) = &front_client {
         if let Some(config) = &deployment.channel_access {
             front_ends.0 = Some(zmotor_ca::ChannelAccess::start(client.clone(), config).await?);
         }
         if let Some(config) = &deployment.web {
             front_ends.1 = Some(zmotor_web::Web::start(client.clone(), config).await?);
+        }
+        if let Some(config) = &deployment.ros2 {
+            front_ends.2 = Some(zmotor_ros2::Ros2Node::start(client.clone(), config).await?);
         }
     }
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
@@ -519,7 +539,7 @@ fn warn_if_open(section: &ZenohConfig) {
 async fn front_end_client(section: &ZenohConfig) -> Result<Client, Error> {
     let reach = section.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
     let Some(endpoint) = reach.or_else(|| section.connect.first().cloned()) else {
-        return Err("[channel_access] and [web] need the node to listen or connect somewhere".into());
+        return Err("[channel_access], [web] and [ros2] need the node to listen or connect somewhere".into());
     };
     let client = ZenohConfig {
         tls: section.tls.clone(),

@@ -1,7 +1,8 @@
-//! `zmotor ros2` makes a node's axes the joints of a ROS 2 node on rmw_zenoh's conventions: a
-//! peer written in Python from rmw_zenoh's rules (tests/python/ros2_peer.py, eclipse-zenoh,
-//! no zmotor code) finds it in the ROS graph, reads joint_states and moves a joint through
-//! joint_commands. 127.0.0.1 only, a free port.
+//! `zmotor ros2`, and `[ros2]` in a launch file, make axes the joints of a ROS 2 node on
+//! rmw_zenoh's conventions: peers written in Python from rmw_zenoh's rules and the ROS message
+//! definitions (tests/python/ros2_*.py, eclipse-zenoh, no zmotor code) find it in the ROS
+//! graph, read joint_states, move joints through joint_commands and run FollowJointTrajectory
+//! goals to their result and to a cancel. 127.0.0.1 only, a free port.
 
 mod common;
 
@@ -18,8 +19,26 @@ fn a_ros_2_peer_sees_the_joint_and_moves_it() {
     std::fs::copy(repo_file("launch/sim-axis.toml"), &file).unwrap();
     let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
     here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
-    let _ros2 = here.spawn(&["ros2", "--joint", "lift=m1", "--connect", &endpoint], dir.path());
+    let ros2 = ["ros2", "--joint", "lift=m1", "--rest-period", "30", "--connect", &endpoint];
+    let _ros2 = here.spawn(&ros2, dir.path());
     let output = environment::python_script("ros2_peer.py").args([&endpoint, "lift"]).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("ros2 peer ok"), "{said}");
+}
+
+#[test]
+fn a_launch_files_ros_2_joints_follow_commands_and_trajectories_and_stop_on_cancel() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let file = dir.path().join("joints.toml");
+    std::fs::copy(repo_file("launch/ros2-joints.toml"), &file).unwrap();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+    let output = environment::python_script("ros2_trajectory.py").args([&endpoint, "/arm"]).output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success() && said.contains("ros2 trajectory peer ok"), "{said}");
+    for (axis, speed) in [("m1", 10.0), ("m2", 30.0)] {
+        assert_eq!(here.get(&endpoint, axis, "VELO"), Some(speed), "{axis}: the trajectories' speeds were undone");
+    }
 }

@@ -1,7 +1,7 @@
 //! What one process runs, as plain data: the result of a checked launch for one host.
 
 use crate::file::AutosaveSection;
-use crate::front_ends::{CaConfig, WebConfig};
+use crate::front_ends::{CaConfig, Ros2Config, WebConfig};
 use crate::network::ZenohConfig;
 use std::path::PathBuf;
 use zmotor_bridge::CalcLinkSpec;
@@ -23,6 +23,8 @@ pub struct Deployment {
     pub channel_access: Option<CaConfig>,
     /// The web server this process runs, if any.
     pub web: Option<WebConfig>,
+    /// The ROS 2 node this process runs, if any.
+    pub ros2: Option<Ros2Config>,
 }
 
 /// What a node serves.

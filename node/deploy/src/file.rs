@@ -1,13 +1,15 @@
 //! A launch file as written: the TOML model serde reads (every section and its choices), and
 //! the errors that name the file, line and key at fault.
 
-use crate::front_ends::{CaConfig, WebConfig};
+use crate::front_ends::{CaConfig, JointConfig, Ros2Config, Ros2ConfigError, WebConfig};
 use crate::network::{Mode, TlsConfig, ZenohConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::Path;
+use std::time::Duration;
 use zmotor_core::SimConfig;
 use zmotor_msgs::keys;
+use zmotor_ros2_proto::Distribution;
 
 /// Highest readback rate while moving, Hz.
 pub const MAX_READBACK_RATE: f64 = 1000.0;
@@ -64,6 +66,9 @@ pub struct LaunchFile {
     /// A Channel Access front-end serving the axes (`[channel_access]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub channel_access: Option<ChannelAccessSection>,
+    /// A ROS 2 node whose joints are axes (`[ros2]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ros2: Option<Ros2Section>,
     #[serde(default, rename = "controller", skip_serializing_if = "Vec::is_empty")]
     /// The motor controllers (`[[controller]]`).
     pub controllers: Vec<ControllerSection>,
@@ -113,6 +118,91 @@ impl Default for ChannelAccessSection {
     fn default() -> Self {
         let CaConfig { pv_prefix, address, port } = CaConfig::default();
         Self { pv_prefix, address, port, host: None }
+    }
+}
+
+/// The `[ros2]` section: `zmotor ros2` run by the launch (on its host, when given), making the
+/// axes it names joints of a ROS 2 node.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(default, deny_unknown_fields)]
+pub struct Ros2Section {
+    /// ROS_DOMAIN_ID.
+    pub domain_id: u32,
+    /// The node's namespace (`/` for none).
+    pub namespace: String,
+    /// The node's name.
+    pub node_name: String,
+    /// `jazzy` (type hashes in keys) or `humble` (none).
+    pub distribution: String,
+    /// Seconds between the joints' state messages at rest.
+    pub rest_period: f64,
+    /// The joints (`[[ros2.joint]]`).
+    #[serde(rename = "joint")]
+    pub joints: Vec<JointSection>,
+    /// The host that runs it (with `[hosts]`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
+}
+
+impl Default for Ros2Section {
+    fn default() -> Self {
+        let config = Ros2Config::default();
+        Self {
+            domain_id: config.domain_id,
+            namespace: config.namespace,
+            node_name: config.node_name,
+            distribution: "jazzy".into(),
+            rest_period: config.rest_period.as_secs_f64(),
+            joints: Vec::new(),
+            host: None,
+        }
+    }
+}
+
+/// A `[[ros2.joint]]`: an axis of the launch as a ROS joint.
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct JointSection {
+    /// The joint's ROS name.
+    pub name: String,
+    /// The axis.
+    pub axis: String,
+    /// SI units (m or rad) per EGU, when the axis's EGU is no unit of length or angle or is to
+    /// be overridden.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub factor: Option<f64>,
+}
+
+impl Ros2Section {
+    /// The ROS 2 node's configuration, checked; an error names the key.
+    pub(crate) fn config(&self) -> Result<Ros2Config, (&'static str, String)> {
+        let distribution = Distribution::from_name(&self.distribution)
+            .ok_or(("distribution", format!("distribution: '{}' is not jazzy or humble", self.distribution)))?;
+        if !(self.rest_period.is_finite() && self.rest_period > 0.0) {
+            return Err(("rest_period", Ros2ConfigError::RestPeriod.to_string()));
+        }
+        let config = Ros2Config {
+            domain_id: self.domain_id,
+            namespace: self.namespace.clone(),
+            node_name: self.node_name.clone(),
+            distribution,
+            joints: self
+                .joints
+                .iter()
+                .map(|j| JointConfig { name: j.name.clone(), axis: j.axis.clone(), factor: j.factor })
+                .collect(),
+            rest_period: Duration::from_secs_f64(self.rest_period),
+        };
+        config.check().map_err(|e| {
+            let key = match e {
+                Ros2ConfigError::NodeName(_) => "node_name",
+                Ros2ConfigError::Namespace(_) => "namespace",
+                Ros2ConfigError::RestPeriod => "rest_period",
+                _ => "joint",
+            };
+            (key, e.to_string())
+        })?;
+        Ok(config)
     }
 }
 

@@ -61,6 +61,7 @@ impl Launch {
         launch.file.autosave = main.autosave.clone();
         launch.file.channel_access = main.channel_access.clone();
         launch.file.web = main.web.clone();
+        launch.file.ros2 = main.ros2.clone();
         let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
         launch.merge(main, base, &mut visited)?;
         launch.check().map_err(|p| launch.error(p))?;
@@ -207,6 +208,7 @@ impl Launch {
         let front_ends = [
             ("channel_access", self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref())),
             ("web", self.file.web.as_ref().and_then(|web| web.host.as_ref())),
+            ("ros2", self.file.ros2.as_ref().and_then(|ros2| ros2.host.as_ref())),
         ];
         for (section, host) in front_ends {
             if let Some(host) = host.filter(|h| !self.file.hosts.contains_key(*h)) {
@@ -215,6 +217,7 @@ impl Launch {
             }
         }
         self.check_axes_on_controllers()?;
+        self.check_ros2()?;
         let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
         let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
         for value in &self.file.values {
@@ -227,6 +230,25 @@ impl Launch {
         let axis_origins: Vec<Origin> = self.file.axes.iter().map(|a| a.origin).collect();
         let calc_origins: Vec<Origin> = self.file.calcs.iter().map(|c| c.origin).collect();
         check_wiring(&KeyLayout::new(&zenoh.prefix), &plans, &axis_origins, &calcs, &calc_origins)
+    }
+
+    /// `[ros2]` names ROS accepts and joints on axes of this launch.
+    fn check_ros2(&self) -> Result<(), Problem> {
+        let Some(ros2) = &self.file.ros2 else { return Ok(()) };
+        let config = ros2.config().map_err(|(key, message)| Problem::at(0, keys_path(&["ros2", key]), message))?;
+        for joint in &config.joints {
+            if !self.file.axes.iter().any(|a| a.name == joint.axis) {
+                let known: Vec<&str> = self.file.axes.iter().map(|a| a.name.as_str()).collect();
+                let message = format!(
+                    "joint '{}': no axis '{}' in this launch (known: {})",
+                    joint.name,
+                    joint.axis,
+                    known.join(", ")
+                );
+                return Err(Problem::at(0, keys_path(&["ros2", "joint"]), message));
+            }
+        }
+        Ok(())
     }
 
     /// (table, name, host, origin) of every item.
@@ -336,6 +358,13 @@ impl Launch {
                 port: ca.port,
             }),
             web: self.file.web.as_ref().filter(|w| runs_here(&w.host)).map(|w| WebConfig { address: w.address }),
+            ros2: match self.file.ros2.as_ref().filter(|r| runs_here(&r.host)) {
+                Some(ros2) => Some(
+                    ros2.config()
+                        .map_err(|(key, message)| self.error(Problem::at(0, keys_path(&["ros2", key]), message)))?,
+                ),
+                None => None,
+            },
         })
     }
 

@@ -22,11 +22,13 @@ pub use db::{import_db, import_db_text, MacroError, Macros};
 pub use deployment::{Deployment, NodeContents, ValueSpec};
 pub use file::{
     AutosaveSection, AxisSection, CalcInput, CalcOption, CalcSection, ChannelAccessSection, ControllerSection,
-    DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, LaunchError, LaunchFile,
-    Origin, ParityChoice, SerialSection, UnknownChoice, ValueSection, WebSection, MAX_READBACK_RATE,
+    DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, JointSection,
+    LaunchError, LaunchFile, Origin, ParityChoice, Ros2Section, SerialSection, UnknownChoice, ValueSection, WebSection,
+    MAX_READBACK_RATE,
 };
-pub use front_ends::{CaConfig, WebConfig};
+pub use front_ends::{CaConfig, JointConfig, Ros2Config, Ros2ConfigError, WebConfig};
 pub use launch::Launch;
 pub use network::{
     AccessRule, LoginConfig, Mode, Permission, TlsConfig, UnknownMode, ZenohConfig, CLIENT_LEASE, NODE_LEASE,
 };
+pub use zmotor_ros2_proto::Distribution;

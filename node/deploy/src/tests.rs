@@ -128,6 +128,30 @@ fn a_channel_access_section_runs_on_its_host() {
 }
 
 #[test]
+fn a_ros2_section_makes_joints_of_the_launchs_axes_and_bad_ones_are_named() {
+    let axes = "[[axis]]\nname = \"m1\"\n[[axis]]\nname = \"m2\"\n";
+    let text = format!(
+        "[ros2]\ndomain_id = 7\nnamespace = \"/arm\"\ndistribution = \"humble\"\nrest_period = 0.5\n\
+         [[ros2.joint]]\nname = \"lift\"\naxis = \"m1\"\n[[ros2.joint]]\nname = \"turn\"\naxis = \"m2\"\nfactor = 0.5\n{axes}"
+    );
+    let ros2 = Launch::parse(&text).unwrap().deployment(None).unwrap().ros2.unwrap();
+    assert_eq!((ros2.domain_id, ros2.namespace.as_str(), ros2.node_name.as_str()), (7, "/arm", "zmotor"));
+    assert_eq!((ros2.distribution, ros2.rest_period), (Distribution::Humble, Duration::from_millis(500)));
+    assert_eq!(ros2.joints[1], JointConfig { name: "turn".into(), axis: "m2".into(), factor: Some(0.5) });
+    let bad = |section: &str| Launch::parse(&format!("[ros2]\n{section}\n{axes}")).unwrap_err().to_string();
+    let joint = "[[ros2.joint]]\nname = \"lift\"\naxis = \"m1\"";
+    assert!(bad(&format!("{joint}\n[[ros2.joint]]\nname = \"x\"\naxis = \"m9\""))
+        .contains(":2: joint 'x': no axis 'm9' in this launch (known: m1, m2)"));
+    assert!(bad(&format!("node_name = \"9lives\"\n{joint}")).contains("node_name: '9lives' is not a ROS name"));
+    assert!(bad(&format!("namespace = \"arm\"\n{joint}")).contains("namespace: 'arm' is not a ROS namespace"));
+    assert!(bad(&format!("distribution = \"iron\"\n{joint}")).contains("distribution: 'iron' is not jazzy or humble"));
+    assert!(bad(&format!("{joint}\n{joint}")).contains("joint 'lift': a joint needs a name of its own"));
+    assert!(bad(&format!("{joint}\nfactor = -1.0")).contains("joint 'lift': factor must be a positive number"));
+    assert!(bad("").contains("no joints"));
+    assert!(bad(&format!("{joint}\nunits = \"m\"")).contains("unknown field `units`"));
+}
+
+#[test]
 fn errors_name_the_axis_and_key() {
     let bad = |text: &str| Launch::parse(text).unwrap_err().to_string();
     assert!(bad("[[axis]]\nname = \"m1\"\n[axis.fields]\nNOPE = 1").contains("axis 'm1': fields.NOPE: no such field"));

@@ -1,34 +1,28 @@
 //! zmotor-ros2, the ROS 2 gateway: the axes a launch or command line names, as the joints of
 //! one ROS 2 node on the same Zenoh network, following rmw_zenoh's conventions
 //! (zmotor-ros2-proto), as a client of that network (zmotor-client). It declares the node's
-//! liveliness tokens and those of its `joint_states` publisher and `joint_commands`
-//! subscription, publishes the joints' state (with the attachment every ROS sample carries)
-//! and turns joint commands into confirmed writes of VAL, so refusals and access rules are the
-//! node's. Not yet: transient-local state, the FollowJointTrajectory action.
+//! liveliness tokens and those of its endpoints: the `joint_states` publisher (transient local:
+//! a late subscriber gets the last state), the `joint_commands` subscription, and the
+//! `follow_joint_trajectory` action (three services, two topics). Joint commands and
+//! trajectory moves are confirmed writes, so refusals and access rules are the node's (which
+//! posts a refusal on the axis's ERR). One task drives the sans-IO state; the rest only moves
+//! bytes.
 
-use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
+use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use zenoh::liveliness::LivelinessToken;
+use zenoh::query::{Query, Queryable};
+use zenoh::Session;
+use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig, MissDetectionConfig};
 use zmotor_client::{Client, Selection, WriteOptions, WriteOutcome};
+use zmotor_deploy::Ros2Config;
 use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
-    decode, encode, topic_key, Attachment, EntityKind, GraphEntity, Joint, JointState, JointStates, Qos, JOINT_STATE,
+    decode, encode, topic_key, Attachment, CancelGoalRequest, Durability, EntityKind, FollowJointTrajectory,
+    GetResultRequest, GoalId, GraphEntity, Joint, JointCommand, JointState, JointStates, MoveEnd, Qos, Reliability,
+    SendGoalRequest, SendGoalResponse, Time, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY,
+    JOINT_STATE, SEND_GOAL,
 };
-
-/// Which axes are which joints, and the node they make.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Ros2Config {
-    /// The ROS domain id (ROS_DOMAIN_ID).
-    pub domain: u32,
-    /// The node's namespace, `/` for none.
-    pub namespace: String,
-    /// The node's name.
-    pub node_name: String,
-    /// Each joint: its ROS name, its axis, and SI units per EGU if not from the axis's EGU.
-    pub joints: Vec<(String, String, Option<f64>)>,
-    /// How often the state is published at rest.
-    pub rest_period: Duration,
-}
 
 /// The gateway could not start.
 #[derive(Debug, thiserror::Error)]
@@ -42,17 +36,25 @@ pub enum Ros2Error {
     Zenoh(#[from] zenoh::Error),
 }
 
-/// How long a joint's axis may take to answer.
+/// How long a joint's axis may take to answer a write that is not a move.
 const PATIENCE: Duration = Duration::from_secs(5);
 
-/// The QoS both topics declare: rclcpp's `QoS(10)`, reliable and volatile.
-const TOPIC_QOS: u32 = 10;
+/// rclcpp's `QoS(10)`: the commands topic, the feedback topic and the services.
+const DEFAULT_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::Volatile, depth: 10 };
+/// The state: its last sample kept for late subscribers.
+const STATE_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::TransientLocal, depth: 1 };
+/// An action's status topic (`rcl_action_qos_profile_status_default`).
+const STATUS_QOS: Qos = STATE_QOS;
+
+/// The fields each joint's axis is followed by.
+const FOLLOWED: [Field; 7] = [Field::RBV, Field::DMOV, Field::HLM, Field::LLM, Field::DHLM, Field::DLLM, Field::VELO];
 
 /// A running ROS 2 face; dropping it takes the node out of the ROS graph.
 pub struct Ros2Node {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     _tokens: Vec<LivelinessToken>,
     _commands: zenoh::pubsub::Subscriber<()>,
+    _services: Vec<Queryable<()>>,
 }
 
 impl Drop for Ros2Node {
@@ -66,134 +68,384 @@ fn wall() -> Duration {
     SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default()
 }
 
-/// The fully qualified name of a topic of the node.
-fn qualified(namespace: &str, topic: &str) -> String {
-    format!("{}/{topic}", namespace.trim_end_matches('/'))
+fn nanos(at: Duration) -> i64 {
+    i64::try_from(at.as_nanos()).unwrap_or(i64::MAX)
+}
+
+/// The fully qualified name of a topic or service of the node.
+fn qualified(namespace: &str, name: &str) -> String {
+    format!("{}/{name}", namespace.trim_end_matches('/'))
+}
+
+/// The action's services.
+#[derive(Clone, Copy, Debug)]
+enum Service {
+    SendGoal,
+    CancelGoal,
+    GetResult,
+}
+
+/// What the driving task is told.
+enum Event {
+    /// A followed field of a joint's axis.
+    Posted { axis: String, field: Field, value: f64, at: Duration },
+    /// A joint_commands sample.
+    JointCommand(Vec<u8>),
+    /// A request to one of the action's services.
+    Request(Service, Query),
+    /// A trajectory move ended.
+    MoveEnded { axis: String, end: MoveEnd },
+}
+
+/// A publisher as rmw_zenoh makes one: advanced (a cache of `depth` for transient local), each
+/// sample with its attachment.
+struct RosPublisher {
+    publisher: AdvancedPublisher<'static>,
+    gid: [u8; 16],
+    sequence: i64,
+}
+
+impl RosPublisher {
+    /// rmw_zenoh_cpp `rmw_publisher_data.cpp`: transient local adds a cache of `depth`,
+    /// publisher detection and a sporadic heartbeat of 500 ms for reliable ones.
+    async fn declare(session: &Session, key: String, qos: Qos, gid: [u8; 16]) -> Result<Self, zenoh::Error> {
+        let mut builder =
+            session.declare_publisher(key).congestion_control(zenoh::qos::CongestionControl::Drop).advanced();
+        if qos.durability == Durability::TransientLocal {
+            builder = builder
+                .publisher_detection()
+                .cache(CacheConfig::default().max_samples(qos.depth as usize))
+                .sample_miss_detection(MissDetectionConfig::default().sporadic_heartbeat(Duration::from_millis(500)));
+        }
+        Ok(Self { publisher: builder.await?, gid, sequence: 0 })
+    }
+
+    async fn publish(&mut self, payload: Vec<u8>, now: Duration) {
+        self.sequence += 1;
+        let attachment = Attachment { sequence: self.sequence, source_time_ns: nanos(now), gid: self.gid };
+        if let Err(e) = self.publisher.put(payload).attachment(attachment.encode()).await {
+            tracing::warn!(key = %self.publisher.key_expr(), "not published: {e}");
+        }
+    }
+}
+
+/// Reply to a service request as rmw_zenoh does: the response, with the request's sequence
+/// number and client GID in the attachment (`rmw_service_data.cpp`, `send_response`).
+async fn reply(query: &Query, request: &Attachment, payload: Vec<u8>) {
+    let attachment = Attachment { sequence: request.sequence, source_time_ns: nanos(wall()), gid: request.gid };
+    if let Err(e) = query.reply(query.key_expr().clone(), payload).attachment(attachment.encode()).await {
+        tracing::warn!(key = %query.key_expr(), "no reply sent: {e}");
+    }
+}
+
+/// The request's attachment, without which rmw_zenoh takes no request.
+fn request_attachment(query: &Query) -> Option<Attachment> {
+    let attachment = query.attachment().and_then(|a| Attachment::decode(&a.to_bytes()).ok());
+    if attachment.is_none() {
+        tracing::warn!(key = %query.key_expr(), "a request without rmw_zenoh's attachment: not answered");
+    }
+    attachment
 }
 
 impl Ros2Node {
     /// The node, its joints' axes reached through `client`.
     pub async fn start(client: Client, config: &Ros2Config) -> Result<Self, Ros2Error> {
         let mut joints = Vec::new();
-        for (name, axis, factor) in &config.joints {
-            let reading = client.read(axis, Selection::Field(Field::EGU)).await?;
+        for joint in &config.joints {
+            let reading = client.read(&joint.axis, Selection::Field(Field::EGU)).await?;
             let egu = match reading.readings.iter().find(|r| r.field == Some(Field::EGU)).map(|r| &r.value) {
                 Some(Value::Text(egu)) => egu.clone(),
-                _ => return Err(Ros2Error::Joint(format!("joint '{name}': axis '{axis}' is not served"))),
+                _ => {
+                    let message = format!("joint '{}': axis '{}' is not served", joint.name, joint.axis);
+                    return Err(Ros2Error::Joint(message));
+                }
             };
-            joints.push(Joint::new(name, axis, &egu, *factor).map_err(|e| Ros2Error::Joint(e.to_string()))?);
+            let made = Joint::new(&joint.name, &joint.axis, &egu, joint.factor);
+            joints.push(made.map_err(|e| Ros2Error::Joint(e.to_string()))?);
         }
         let session = client.session().clone();
         let zid = session.zid().to_string();
-        let entity = |id: u64, kind: EntityKind, topic: Option<&str>| GraphEntity {
-            domain: config.domain,
-            zid: zid.clone(),
-            node_id: 0,
-            id,
-            kind,
-            enclave: "/".into(),
-            namespace: config.namespace.clone(),
-            node: config.node_name.clone(),
-            endpoint: topic.map(|t| (qualified(&config.namespace, t), JOINT_STATE, Qos::keep_last(TOPIC_QOS))),
+        let mut next_id = 0;
+        let mut entity = |kind: EntityKind, endpoint: Option<(&str, TypeInfo, Qos)>| {
+            let id = next_id;
+            next_id += 1;
+            GraphEntity {
+                domain: config.domain_id,
+                zid: zid.clone(),
+                node_id: 0,
+                id,
+                kind,
+                enclave: "/".into(),
+                namespace: config.namespace.clone(),
+                node: config.node_name.clone(),
+                endpoint: endpoint.map(|(name, type_info, qos)| {
+                    (qualified(&config.namespace, name), type_info.in_distribution(config.distribution), qos)
+                }),
+            }
         };
-        let node = entity(0, EntityKind::Node, None);
-        let publisher = entity(1, EntityKind::Publisher, Some("joint_states"));
-        let subscription = entity(2, EntityKind::Subscription, Some("joint_commands"));
-        let mut tokens = Vec::new();
-        for graph in [&node, &publisher, &subscription] {
-            tokens.push(session.liveliness().declare_token(graph.token_key()).await?);
-        }
-        let states_key = topic_key(config.domain, &qualified(&config.namespace, "joint_states"), &JOINT_STATE);
-        let commands_key = topic_key(config.domain, &qualified(&config.namespace, "joint_commands"), &JOINT_STATE);
-        let states = Arc::new(Mutex::new(JointStates::new(joints, config.rest_period)));
-
+        let action = |part: &str| format!("follow_joint_trajectory/_action/{part}");
+        let (send_goal, cancel_goal, get_result) = (action("send_goal"), action("cancel_goal"), action("get_result"));
+        let (feedback_topic, status_topic) = (action("feedback"), action("status"));
+        let graph = [
+            entity(EntityKind::Node, None),
+            entity(EntityKind::Publisher, Some(("joint_states", JOINT_STATE, STATE_QOS))),
+            entity(EntityKind::Subscription, Some(("joint_commands", JOINT_STATE, DEFAULT_QOS))),
+            entity(EntityKind::ServiceServer, Some((&send_goal, SEND_GOAL, DEFAULT_QOS))),
+            entity(EntityKind::ServiceServer, Some((&cancel_goal, CANCEL_GOAL, DEFAULT_QOS))),
+            entity(EntityKind::ServiceServer, Some((&get_result, GET_RESULT, DEFAULT_QOS))),
+            entity(EntityKind::Publisher, Some((&feedback_topic, FEEDBACK, DEFAULT_QOS))),
+            entity(EntityKind::Publisher, Some((&status_topic, GOAL_STATUS_ARRAY, STATUS_QOS))),
+        ];
+        let key = |entity: &GraphEntity| {
+            let (name, type_info, _) = entity.endpoint.as_ref().expect("an endpoint");
+            topic_key(config.domain_id, name, type_info)
+        };
+        let (events, inbox) = unbounded_channel();
         let mut tasks = Vec::new();
-        // Each joint's axis followed: RBV and DMOV, current values first.
-        let (changed, mut wake) = tokio::sync::mpsc::unbounded_channel::<()>();
-        let axes: Vec<String> = states.lock().expect("not poisoned").joints().iter().map(|j| j.axis.clone()).collect();
-        for axis in axes {
-            let mut monitor = client.monitor(&axis, &[Field::RBV, Field::DMOV]).await?;
-            let (states, changed) = (states.clone(), changed.clone());
+        for joint in &joints {
+            let mut monitor = client.monitor(&joint.axis, &FOLLOWED).await?;
+            let events = events.clone();
             tasks.push(tokio::spawn(async move {
                 while let Some(update) = monitor.next().await {
+                    let (Some(field), Some(value)) = (update.field, update.value.as_f64()) else { continue };
                     let at = update.at.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
-                    let mut states = states.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                    match (update.field, update.value.as_f64()) {
-                        (Some(Field::RBV), Some(rbv)) => states.readback(&update.axis, rbv, at),
-                        (Some(Field::DMOV), Some(dmov)) => states.done_moving(&update.axis, dmov != 0.0),
-                        _ => continue,
+                    if events.send(Event::Posted { axis: update.axis, field, value, at }).is_err() {
+                        return;
                     }
-                    drop(states);
-                    let _ = changed.send(());
                 }
             }));
         }
-        // The state published when a readback came, and at rest every period.
-        let gid = publisher.gid();
-        let publisher_session = session.clone();
-        let publishing_states = states.clone();
-        tasks.push(tokio::spawn(async move {
-            let Ok(publisher) = publisher_session.declare_publisher(states_key).await else { return };
-            let mut sequence = 0;
-            loop {
-                let now = wall();
-                let (message, next) = {
-                    let mut states = publishing_states.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-                    (states.poll_publish(now), states.poll_timeout())
-                };
-                if let Some(message) = message {
-                    sequence += 1;
-                    let attachment =
-                        Attachment { sequence, source_time_ns: i64::try_from(now.as_nanos()).unwrap_or(i64::MAX), gid };
-                    let sent = publisher.put(encode(&message)).attachment(attachment.encode()).await;
-                    if let Err(e) = sent {
-                        tracing::warn!("joint_states not published: {e}");
-                    }
-                }
-                let wait = next.map_or(Duration::from_millis(100), |t| t.saturating_sub(wall()));
-                tokio::select! {
-                    _ = wake.recv() => {}
-                    _ = tokio::time::sleep(wait) => {}
-                }
-            }
-        }));
-        // Joint commands: one confirmed write of VAL per joint, all or none.
-        let commanding = states.clone();
-        let writer = client.clone();
+        let commanding = events.clone();
         let commands = session
-            .declare_subscriber(commands_key)
+            .declare_subscriber(key(&graph[2]))
             .callback(move |sample| {
-                let command = match decode::<JointState>(&sample.payload().to_bytes(), "JointState") {
-                    Ok(command) => command,
-                    Err(e) => return tracing::warn!("joint_commands: {e}"),
-                };
-                let targets = commanding.lock().unwrap_or_else(std::sync::PoisonError::into_inner).command(&command);
-                let targets = match targets {
-                    Ok(targets) => targets,
-                    Err(e) => return tracing::warn!("joint_commands: {e}; nothing moved"),
-                };
-                let writer = writer.clone();
-                tokio::spawn(async move {
-                    for (axis, target) in targets {
-                        let sent =
-                            writer.write(&axis, Field::VAL, target.to_string(), WriteOptions::confirmed(PATIENCE));
-                        match sent.await {
-                            Ok(sent) => match sent.outcome().await {
-                                WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                                other => tracing::warn!(axis, "joint command: {other}"),
-                            },
-                            Err(e) => tracing::warn!(axis, "joint command not sent: {e}"),
-                        }
-                    }
-                });
+                let _ = commanding.send(Event::JointCommand(sample.payload().to_bytes().into_owned()));
             })
             .await?;
+        let mut services = Vec::new();
+        for (entity, service) in graph[3..6].iter().zip([Service::SendGoal, Service::CancelGoal, Service::GetResult]) {
+            let events = events.clone();
+            let queryable = session
+                .declare_queryable(key(entity))
+                .complete(true)
+                .callback(move |query| {
+                    let _ = events.send(Event::Request(service, query));
+                })
+                .await?;
+            services.push(queryable);
+        }
+        let driver = Driver {
+            states: JointStates::new(joints, config.rest_period),
+            follow: FollowJointTrajectory::new(),
+            joint_states: RosPublisher::declare(&session, key(&graph[1]), STATE_QOS, graph[1].gid()).await?,
+            feedback: RosPublisher::declare(&session, key(&graph[6]), DEFAULT_QOS, graph[6].gid()).await?,
+            status: RosPublisher::declare(&session, key(&graph[7]), STATUS_QOS, graph[7].gid()).await?,
+            pending_results: Vec::new(),
+            client,
+            events,
+        };
+        tasks.push(tokio::spawn(driver.run(inbox)));
+        // The tokens last: the graph shows the node once it serves.
+        let mut tokens = Vec::new();
+        for entity in &graph {
+            tokens.push(session.liveliness().declare_token(entity.token_key()).await?);
+        }
         tracing::info!(
             node = config.node_name,
             namespace = config.namespace,
-            domain = config.domain,
+            domain = config.domain_id,
             "ROS 2 node serving its joints"
         );
-        Ok(Self { tasks, _tokens: tokens, _commands: commands })
+        Ok(Self { tasks, _tokens: tokens, _commands: commands, _services: services })
+    }
+}
+
+/// The task that owns the joints' state and the action server.
+struct Driver {
+    states: JointStates,
+    follow: FollowJointTrajectory,
+    joint_states: RosPublisher,
+    feedback: RosPublisher,
+    status: RosPublisher,
+    /// get_result requests waiting for their goal's end.
+    pending_results: Vec<(GoalId, Query, Attachment)>,
+    client: Client,
+    events: UnboundedSender<Event>,
+}
+
+impl Driver {
+    async fn run(mut self, mut inbox: UnboundedReceiver<Event>) {
+        loop {
+            let now = wall();
+            let commands = self.follow.poll(&self.states, now);
+            self.execute(commands);
+            if let Some(status) = self.follow.poll_status() {
+                self.status.publish(encode(&status), now).await;
+                self.answer_results().await;
+            }
+            if let Some(state) = self.states.poll_publish(now) {
+                self.joint_states.publish(encode(&state), now).await;
+                if let Some(feedback) = self.follow.feedback(&self.states, now) {
+                    self.feedback.publish(encode(&feedback), now).await;
+                }
+            }
+            let next = [self.states.poll_timeout(), self.follow.poll_timeout()].into_iter().flatten().min();
+            let wait = next.map_or(Duration::from_millis(100), |at| at.saturating_sub(wall()));
+            tokio::select! {
+                event = inbox.recv() => match event {
+                    Some(event) => self.handle(event).await,
+                    None => return,
+                },
+                () = tokio::time::sleep(wait) => {}
+            }
+        }
+    }
+
+    async fn handle(&mut self, event: Event) {
+        match event {
+            Event::Posted { axis, field, value, at } => self.states.update(&axis, field, value, at),
+            Event::MoveEnded { axis, end } => {
+                let commands = self.follow.move_ended(&axis, end);
+                self.execute(commands);
+            }
+            Event::JointCommand(payload) => self.joint_command(&payload),
+            Event::Request(service, query) => self.request(service, query).await,
+        }
+    }
+
+    /// A joint command: one confirmed write of VAL per joint, all or none, unless a trajectory
+    /// is executing.
+    fn joint_command(&self, payload: &[u8]) {
+        let command = match decode::<JointState>(payload, "JointState") {
+            Ok(command) => command,
+            Err(e) => return tracing::warn!("joint_commands: {e}"),
+        };
+        if self.follow.executing() {
+            return tracing::warn!("joint_commands: ignored while a FollowJointTrajectory goal executes");
+        }
+        let targets = match self.states.command(&command) {
+            Ok(targets) => targets,
+            Err(e) => return tracing::warn!("joint_commands: {e}; nothing moved"),
+        };
+        let client = self.client.clone();
+        tokio::spawn(async move {
+            for (axis, target) in targets {
+                let sent = client.write(&axis, Field::VAL, target.to_string(), WriteOptions::confirmed(PATIENCE));
+                match sent.await {
+                    Ok(sent) => match sent.outcome().await {
+                        WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+                        other => tracing::warn!(axis, "joint command: {other}"),
+                    },
+                    Err(e) => tracing::warn!(axis, "joint command not sent: {e}"),
+                }
+            }
+        });
+    }
+
+    async fn request(&mut self, service: Service, query: Query) {
+        let Some(attachment) = request_attachment(&query) else { return };
+        let payload = query.payload().map(|p| p.to_bytes().into_owned()).unwrap_or_default();
+        let now = wall();
+        match service {
+            Service::SendGoal => {
+                let accepted = match decode::<SendGoalRequest>(&payload, "FollowJointTrajectory goal") {
+                    Ok(request) => match self.follow.send_goal(&request, &self.states, now) {
+                        Ok(()) => true,
+                        Err(why) => {
+                            tracing::warn!("follow_joint_trajectory: goal rejected: {why}");
+                            false
+                        }
+                    },
+                    Err(e) => {
+                        tracing::warn!("follow_joint_trajectory: {e}");
+                        false
+                    }
+                };
+                let stamp = Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() };
+                reply(&query, &attachment, encode(&SendGoalResponse { accepted, stamp })).await;
+            }
+            Service::CancelGoal => match decode::<CancelGoalRequest>(&payload, "CancelGoal request") {
+                Ok(request) => {
+                    let (response, commands) = self.follow.cancel(&request);
+                    self.execute(commands);
+                    reply(&query, &attachment, encode(&response)).await;
+                }
+                Err(e) => tracing::warn!("follow_joint_trajectory: {e}"),
+            },
+            Service::GetResult => match decode::<GetResultRequest>(&payload, "GetResult request") {
+                Ok(request) => match self.follow.result(&request.goal_id) {
+                    Some(result) => reply(&query, &attachment, encode(&result)).await,
+                    None => self.pending_results.push((request.goal_id, query, attachment)),
+                },
+                Err(e) => tracing::warn!("follow_joint_trajectory: {e}"),
+            },
+        }
+    }
+
+    /// Answer the get_result requests whose goal has ended.
+    async fn answer_results(&mut self) {
+        let mut waiting = Vec::new();
+        for (id, query, attachment) in std::mem::take(&mut self.pending_results) {
+            match self.follow.result(&id) {
+                Some(result) => reply(&query, &attachment, encode(&result)).await,
+                None => waiting.push((id, query, attachment)),
+            }
+        }
+        self.pending_results = waiting;
+    }
+
+    /// Carry out the action server's commands as writes; each move reports its end.
+    fn execute(&self, commands: Vec<JointCommand>) {
+        for command in commands {
+            let (client, events) = (self.client.clone(), self.events.clone());
+            tokio::spawn(async move {
+                match command {
+                    JointCommand::Move { axis, target, speed, duration } => {
+                        let end = timed_move(&client, &axis, target, speed, duration).await;
+                        let _ = events.send(Event::MoveEnded { axis, end });
+                    }
+                    JointCommand::Stop { axis } => write(&client, &axis, Field::STOP, "1").await,
+                    JointCommand::RestoreSpeed { axis, speed } => {
+                        write(&client, &axis, Field::VELO, &speed.to_string()).await
+                    }
+                }
+            });
+        }
+    }
+}
+
+/// A confirmed write whose refusal is only logged (the node posts it on ERR).
+async fn write(client: &Client, axis: &str, field: Field, value: &str) {
+    match client.write(axis, field, value, WriteOptions::confirmed(PATIENCE)).await {
+        Ok(sent) => match sent.outcome().await {
+            WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+            other => tracing::warn!(axis, "{field}: {other}"),
+        },
+        Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
+    }
+}
+
+/// VELO then VAL, waiting for the motion's end: how a trajectory segment moves a joint.
+async fn timed_move(client: &Client, axis: &str, target: f64, speed: Option<f64>, duration: Duration) -> MoveEnd {
+    if let Some(speed) = speed {
+        let sent = client.write(axis, Field::VELO, speed.to_string(), WriteOptions::confirmed(PATIENCE)).await;
+        match sent {
+            Ok(sent) => match sent.outcome().await {
+                WriteOutcome::Accepted(_) => {}
+                other => return MoveEnd::Failed(format!("VELO {speed}: {other}")),
+            },
+            Err(e) => return MoveEnd::Failed(format!("VELO not sent: {e}")),
+        }
+    }
+    // The move may take several times its plan (acceleration, a slow axis) before it is late.
+    let patience = duration * 10 + Duration::from_secs(60);
+    let sent = match client.write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience)).await {
+        Ok(sent) => sent,
+        Err(e) => return MoveEnd::Failed(format!("VAL not sent: {e}")),
+    };
+    match sent.outcome().await {
+        WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
+        WriteOutcome::Completed(done) => MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv)),
+        other => MoveEnd::Failed(format!("VAL {target}: {other}")),
     }
 }
