@@ -1,0 +1,397 @@
+//! A ROS 2 implementation no one here wrote meets zmotor's ROS 2 face: hiroz (ZettaScale's native
+//! Rust ROS 2 on Zenoh, rmw_zenoh-compatible) as a ROS node of its own. It finds zmotor's node,
+//! topics and action in the ROS graph, follows joint_states during a move, moves two axes with a
+//! joint command, and calls FollowJointTrajectory to its result and to a cancel. The messages are
+//! declared here from their .msg and .action definitions, and hiroz derives the type hashes of
+//! the `msg` ones itself (REP-2016), so a topic whose hash differed from zmotor's would reach
+//! nothing. The action's hashes (hiroz derives none for `action` types) are written out as
+//! `ros2 interface` gives them for Jazzy. 127.0.0.1, a free port.
+
+mod common;
+
+use common::{repo_file, Host};
+use hiroz::action::{GoalStatus, ZAction};
+use hiroz::context::ZContextBuilder;
+use hiroz::entity::{TypeHash, TypeInfo};
+use hiroz::{Builder, MessageTypeInfo};
+use serde::{Deserialize, Serialize};
+use std::time::{Duration, Instant};
+use zmotor_client::free_local_endpoint;
+
+/// A ROS message's CDR, by serde.
+macro_rules! cdr_by_serde {
+    ($($name:ident)*) => {$(
+        impl hiroz::msg::ZMessage for $name {
+            type Serdes = hiroz::msg::SerdeCdrSerdes<$name>;
+        }
+    )*};
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "builtin_interfaces/msg/Time")]
+struct Time {
+    sec: i32,
+    nanosec: u32,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "builtin_interfaces/msg/Duration")]
+struct RosDuration {
+    sec: i32,
+    nanosec: u32,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "std_msgs/msg/Header")]
+struct Header {
+    stamp: Time,
+    frame_id: String,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "sensor_msgs/msg/JointState")]
+struct JointState {
+    header: Header,
+    name: Vec<String>,
+    position: Vec<f64>,
+    velocity: Vec<f64>,
+    effort: Vec<f64>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "unique_identifier_msgs/msg/UUID")]
+struct Uuid {
+    uuid: [u8; 16],
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "geometry_msgs/msg/Vector3")]
+struct Vector3 {
+    x: f64,
+    y: f64,
+    z: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "geometry_msgs/msg/Quaternion")]
+struct Quaternion {
+    x: f64,
+    y: f64,
+    z: f64,
+    w: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "geometry_msgs/msg/Transform")]
+struct Transform {
+    translation: Vector3,
+    rotation: Quaternion,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "geometry_msgs/msg/Twist")]
+struct Twist {
+    linear: Vector3,
+    angular: Vector3,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "trajectory_msgs/msg/JointTrajectoryPoint")]
+struct JointTrajectoryPoint {
+    positions: Vec<f64>,
+    velocities: Vec<f64>,
+    accelerations: Vec<f64>,
+    effort: Vec<f64>,
+    time_from_start: RosDuration,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "trajectory_msgs/msg/JointTrajectory")]
+struct JointTrajectory {
+    header: Header,
+    joint_names: Vec<String>,
+    points: Vec<JointTrajectoryPoint>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "trajectory_msgs/msg/MultiDOFJointTrajectoryPoint")]
+struct MultiDofPoint {
+    transforms: Vec<Transform>,
+    velocities: Vec<Twist>,
+    accelerations: Vec<Twist>,
+    time_from_start: RosDuration,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "trajectory_msgs/msg/MultiDOFJointTrajectory")]
+struct MultiDofTrajectory {
+    header: Header,
+    joint_names: Vec<String>,
+    points: Vec<MultiDofPoint>,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "control_msgs/msg/JointTolerance")]
+struct JointTolerance {
+    name: String,
+    position: f64,
+    velocity: f64,
+    acceleration: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "control_msgs/msg/JointComponentTolerance")]
+struct JointComponentTolerance {
+    joint_name: String,
+    component: u16,
+    position: f64,
+    velocity: f64,
+    acceleration: f64,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "action_msgs/msg/GoalInfo")]
+struct GoalInfo {
+    goal_id: Uuid,
+    stamp: Time,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "action_msgs/msg/GoalStatus")]
+struct GoalStatusEntry {
+    goal_info: GoalInfo,
+    status: i8,
+}
+
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "action_msgs/msg/GoalStatusArray")]
+struct GoalStatusArray {
+    status_list: Vec<GoalStatusEntry>,
+}
+
+// The action's own types (hiroz derives no hash for `action` types; their hashes are in the
+// services' and the feedback topic's type information below).
+/// `control_msgs/action/FollowJointTrajectory_Goal`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+struct Goal {
+    trajectory: JointTrajectory,
+    multi_dof_trajectory: MultiDofTrajectory,
+    path_tolerance: Vec<JointTolerance>,
+    component_path_tolerance: Vec<JointComponentTolerance>,
+    goal_tolerance: Vec<JointTolerance>,
+    component_goal_tolerance: Vec<JointComponentTolerance>,
+    goal_time_tolerance: RosDuration,
+}
+
+/// `control_msgs/action/FollowJointTrajectory_Result`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+struct TrajectoryResult {
+    error_code: i32,
+    error_string: String,
+}
+
+/// `control_msgs/action/FollowJointTrajectory_Feedback`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+struct Feedback {
+    header: Header,
+    joint_names: Vec<String>,
+    desired: JointTrajectoryPoint,
+    actual: JointTrajectoryPoint,
+    error: JointTrajectoryPoint,
+    multi_dof_joint_names: Vec<String>,
+    multi_dof_desired: MultiDofPoint,
+    multi_dof_actual: MultiDofPoint,
+    multi_dof_error: MultiDofPoint,
+}
+
+cdr_by_serde!(JointState Goal TrajectoryResult Feedback);
+
+/// `control_msgs/action/FollowJointTrajectory`, its services and topics typed as in Jazzy.
+struct FollowJointTrajectory;
+
+/// A type as `ros2 interface` hashes it for Jazzy.
+fn service(dds_name: &str, rihs: &str) -> TypeInfo {
+    TypeInfo::new(dds_name, TypeHash::from_rihs_string(rihs).expect("a RIHS01 hash"))
+}
+
+impl ZAction for FollowJointTrajectory {
+    type Goal = Goal;
+    type Result = TrajectoryResult;
+    type Feedback = Feedback;
+
+    fn name() -> &'static str {
+        "control_msgs/action/FollowJointTrajectory"
+    }
+
+    fn send_goal_type_info() -> TypeInfo {
+        service(
+            "control_msgs::action::dds_::FollowJointTrajectory_SendGoal_",
+            "RIHS01_b13789dddc325a7a962825c45e28c77d37237ec129dd0c34dc5994562938c57f",
+        )
+    }
+
+    fn get_result_type_info() -> TypeInfo {
+        service(
+            "control_msgs::action::dds_::FollowJointTrajectory_GetResult_",
+            "RIHS01_e3ceb38e3e1867c8dc0f46014df26e90eb93422f27e9e97f936e07f94be4bc8b",
+        )
+    }
+
+    fn cancel_goal_type_info() -> TypeInfo {
+        service(
+            "action_msgs::srv::dds_::CancelGoal_",
+            "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a",
+        )
+    }
+
+    fn feedback_type_info() -> TypeInfo {
+        service(
+            "control_msgs::action::dds_::FollowJointTrajectory_FeedbackMessage_",
+            "RIHS01_80398fcb9674a79081a9906e2ccf0c804dd7cb15e22e362e606ee87186beab71",
+        )
+    }
+
+    fn status_type_info() -> TypeInfo {
+        TypeInfo::new(GoalStatusArray::type_name(), GoalStatusArray::type_hash())
+    }
+}
+
+fn at(seconds: f64) -> RosDuration {
+    RosDuration { sec: seconds.trunc() as i32, nanosec: (seconds.fract() * 1e9).round() as u32 }
+}
+
+fn trajectory(names: &[&str], points: &[(f64, &[f64])]) -> Goal {
+    let points = points
+        .iter()
+        .map(|(t, positions)| JointTrajectoryPoint {
+            positions: positions.to_vec(),
+            time_from_start: at(*t),
+            ..JointTrajectoryPoint::default()
+        })
+        .collect();
+    let names = names.iter().map(|n| n.to_string()).collect();
+    Goal { trajectory: JointTrajectory { joint_names: names, points, ..JointTrajectory::default() }, ..Goal::default() }
+}
+
+/// The positions of the last joint state, by joint.
+fn positions(state: &JointState) -> Vec<(String, f64)> {
+    state.name.iter().cloned().zip(state.position.iter().copied()).collect()
+}
+
+/// The messages declared here are Jazzy's: hiroz's hashes of them are the ones in zmotor's keys
+/// (joint_states, joint_commands, the action's status) and inside its trajectories.
+#[test]
+fn the_messages_declared_here_hash_as_jazzys() {
+    let rihs = |hash: TypeHash| hash.to_rihs_string();
+    assert_eq!(
+        rihs(JointState::type_hash()),
+        "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+    );
+    assert_eq!(
+        rihs(GoalStatusArray::type_hash()),
+        "RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e"
+    );
+    assert_eq!(
+        rihs(JointTrajectory::type_hash()),
+        "RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e"
+    );
+}
+
+#[test]
+fn a_hiroz_node_finds_the_joints_follows_them_commands_them_and_runs_trajectories() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let here = Host::default();
+    let file = dir.path().join("joints.toml");
+    std::fs::copy(repo_file("launch/ros2-joints.toml"), &file).unwrap();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+    let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
+    runtime.block_on(ros_peer(&endpoint)).unwrap();
+}
+
+async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
+    let context = ZContextBuilder::default()
+        .with_mode("client")
+        .with_connect_endpoints([endpoint])
+        .with_json("scouting/multicast/enabled", false)
+        .build()?;
+    let node = context.create_node("hiroz_peer").build()?;
+
+    // The graph: the node, its topics with their types, its action.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let (mut nodes, mut topics, mut actions) = (Vec::new(), Vec::new(), Vec::new());
+    while Instant::now() < deadline {
+        nodes = node.graph().get_node_names();
+        topics = node.graph().get_topic_names_and_types();
+        actions = node.graph().get_action_names_and_types();
+        if nodes.iter().any(|(n, _)| n == "zmotor") && topics.len() >= 3 && !actions.is_empty() {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    assert!(nodes.contains(&("zmotor".to_string(), "/arm".to_string())), "{nodes:?}");
+    for (topic, type_name) in [
+        ("/arm/joint_states", "sensor_msgs::msg::dds_::JointState_"),
+        ("/arm/joint_commands", "sensor_msgs::msg::dds_::JointState_"),
+    ] {
+        assert!(topics.iter().any(|(t, ty)| t == topic && ty == type_name), "{topic} in {topics:?}");
+    }
+    // hiroz names an action's type by its feedback message's.
+    let action =
+        |(a, ty): &(String, String)| a == "/arm/follow_joint_trajectory" && ty.contains("FollowJointTrajectory_");
+    assert!(actions.iter().any(action), "{actions:?}");
+
+    // joint_states followed, joint_commands moving two axes.
+    let states = node.create_sub::<JointState>("/arm/joint_states").build()?;
+    let commands = node.create_pub::<JointState>("/arm/joint_commands").build()?;
+    assert!(commands.wait_for_subscription(1, Duration::from_secs(10)).await, "zmotor subscribes joint_commands");
+    let command =
+        JointState { name: vec!["lift".into(), "turn".into()], position: vec![0.003, 0.2], ..JointState::default() };
+    commands.async_publish(&command).await?;
+    let mut last = JointState::default();
+    let mut moving_seen = false;
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while Instant::now() < deadline {
+        let Ok(state) = states.recv_timeout(Duration::from_secs(2)) else { continue };
+        moving_seen |= state.velocity.iter().any(|v| *v != 0.0);
+        last = state;
+        let at = positions(&last);
+        if (at[0].1 - 0.003).abs() < 1.5e-6 && (at[1].1 - 0.2).abs() < 2.7e-5 {
+            break;
+        }
+    }
+    assert_eq!(last.name, ["lift", "turn"]);
+    assert!((last.position[0] - 0.003).abs() < 1.5e-6 && (last.position[1] - 0.2).abs() < 2.7e-5, "{last:?}");
+    assert!(moving_seen, "joint_states carried velocities while the joints moved");
+
+    // A three-point trajectory to its result.
+    let client = node.create_action_client::<FollowJointTrajectory>("/arm/follow_joint_trajectory").build()?;
+    assert!(client.wait_for_server(Duration::from_secs(10)).await, "the action server is found");
+    let goal = trajectory(&["lift", "turn"], &[(1.0, &[0.006, 0.4]), (2.0, &[0.009, 0.3]), (3.0, &[0.004, 0.6])]);
+    let started = Instant::now();
+    let mut handle = client.send_goal(goal).await?;
+    let mut feedback = handle.feedback().expect("a feedback stream");
+    let result = handle.result_with_timeout(Duration::from_secs(60)).await?;
+    assert_eq!(result, TrajectoryResult { error_code: 0, error_string: String::new() });
+    assert!(started.elapsed() > Duration::from_millis(2500), "the points took their time: {:?}", started.elapsed());
+    let seen = feedback.try_recv().expect("feedback while it ran");
+    assert_eq!(seen.joint_names, ["lift", "turn"]);
+
+    // A long one, cancelled on the way: the lift stops short.
+    let mut handle = client.send_goal(trajectory(&["lift"], &[(20.0, &[0.050])])).await?;
+    let mut status = handle.status_watch().expect("a status watch");
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    let cancel = handle.cancel().await?;
+    assert_eq!(cancel.return_code, 0, "the cancel is taken");
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while *status.borrow() != GoalStatus::Canceled && Instant::now() < deadline {
+        let _ = tokio::time::timeout(Duration::from_millis(500), status.changed()).await;
+    }
+    assert_eq!(*status.borrow(), GoalStatus::Canceled);
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    while states.recv_timeout(Duration::from_millis(100)).is_ok() {}
+    let stopped = states.recv_timeout(Duration::from_secs(3))?;
+    assert!(stopped.position[0] > 0.005 && stopped.position[0] < 0.04, "{stopped:?}");
+    Ok(())
+}
