@@ -60,6 +60,7 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
             "zmotor-deploy",
             "zmotor-client",
             "zmotor-ca-proto",
+            "zmotor-ros2-proto",
             "zmotor-emulators",
             "zmotor-sim-controller",
         ],

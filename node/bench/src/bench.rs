@@ -25,7 +25,7 @@ use zmotor_msgs::{Field, KeyLayout, Value};
 
 /// A launch file of `n` simulated axes b0, b1, … whose moves take real time (10 mm/s),
 /// read back `readback_hz` times a second while moving; no autosave.
-fn bench_launch(n: usize, readback_hz: f64) -> String {
+pub(crate) fn bench_launch(n: usize, readback_hz: f64) -> String {
     let mut text = String::from("[autosave]\nenabled = false\n");
     for i in 0..n {
         let name = bench_axis(i);
@@ -103,17 +103,13 @@ pub(crate) async fn latency_part(programs: &Programs, options: &BenchOptions) ->
     println!("   a node process started by `zmotor launch`, a client in this one, TCP on 127.0.0.1; moves of 0.01 mm;");
     println!("   beside Zenoh's round trip to an echo in a process of its own (z_ping/z_pong style); µs");
     let (_node, endpoint) = programs.launch("latency", &demo_launch(1)?)?;
-    let echo_endpoint = free_local_endpoint()?;
-    let _echo = programs.floor(&["echo", "--listen", &echo_endpoint])?;
+    let echo = Echo::start(programs).await?;
     let client = client_when_ready(&endpoint).await?;
-    let echo = client_when_ready(&echo_endpoint).await?;
     wait_for_axes(client.session(), 1, Duration::from_secs(20)).await?;
     let session = client.session();
     let dmov = session.declare_subscriber(bench_key(0, Field::DMOV)).await?;
     until_heard(&client, &bench_axis(0), &dmov).await?;
-    let pong = echo.session().declare_subscriber(PONG).await?;
     let val = session.declare_publisher(bench_key(0, Field::VAL)).encoding(Encoding::TEXT_PLAIN).await?;
-    let ping = echo.session().declare_publisher(PING).congestion_control(CongestionControl::Block).await?;
     let moves = options.moves;
     let (mut to_dmov0, mut to_dmov1, mut rtt) = (Vec::new(), Vec::new(), Vec::new());
     // Moves and pings alternate, so both see the same conditions on a shared machine; the
@@ -132,19 +128,11 @@ pub(crate) async fn latency_part(programs: &Programs, options: &BenchOptions) ->
             }
         }
         let moved = start.elapsed();
-        let start = Instant::now();
-        let answered = async {
-            ping.put(vec![0u8; 8]).await?;
-            // The first pings may come before the echo's subscription reached it.
-            tokio::time::timeout(Duration::from_millis(500), pong.recv_async()).await.map_err(Error::from)
-        };
-        let answered = answered.await;
+        let answered = echo.round_trip().await;
         if i >= moves / 10 {
             to_dmov0.push(zero.expect("DMOV 0 came first"));
             to_dmov1.push(moved);
-            if answered.is_ok() {
-                rtt.push(start.elapsed());
-            }
+            rtt.extend(answered);
         }
     }
     let (dmov0, dmov1, rtt) = (Percentiles::of(to_dmov0), Percentiles::of(to_dmov1), Percentiles::of(rtt));
@@ -176,7 +164,7 @@ pub(crate) async fn latency_part(programs: &Programs, options: &BenchOptions) ->
         puts.push(start.elapsed());
         let start = Instant::now();
         let mut get = std::process::Command::new(&programs.bench);
-        let get = get.args(["floor", "get", "--connect", &echo_endpoint]).env("RUST_LOG", "off").status()?;
+        let get = get.args(["floor", "get", "--connect", &echo.endpoint]).env("RUST_LOG", "off").status()?;
         if !get.success() {
             return Err("the floor's one-shot get failed".into());
         }
@@ -201,6 +189,36 @@ pub(crate) async fn latency_part(programs: &Programs, options: &BenchOptions) ->
     println!("   (p50, p90, max; the move itself lasts {:.1} ms)", motion_us / 1e3);
     println!("\n2. engine cost per event: measured by criterion, `cargo bench -p zmotor-core --bench engine`");
     Ok(())
+}
+
+/// Zenoh's round trip to an echo in a process of its own (z_ping/z_pong style): the floor of
+/// the latency figures.
+pub(crate) struct Echo {
+    _process: Process,
+    pub(crate) endpoint: String,
+    _client: Client,
+    ping: zenoh::pubsub::Publisher<'static>,
+    pong: zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
+}
+
+impl Echo {
+    pub(crate) async fn start(programs: &Programs) -> Result<Self, Error> {
+        let endpoint = free_local_endpoint()?;
+        let process = programs.floor(&["echo", "--listen", &endpoint])?;
+        let client = client_when_ready(&endpoint).await?;
+        let pong = client.session().declare_subscriber(PONG).await?;
+        let ping = client.session().declare_publisher(PING).congestion_control(CongestionControl::Block).await?;
+        Ok(Self { _process: process, endpoint, _client: client, ping, pong })
+    }
+
+    /// One ping's round trip; none when the pong did not come (the first pings may come
+    /// before the echo's subscription reached it).
+    pub(crate) async fn round_trip(&self) -> Option<Duration> {
+        let start = Instant::now();
+        self.ping.put(vec![0u8; 8]).await.ok()?;
+        tokio::time::timeout(Duration::from_millis(500), self.pong.recv_async()).await.ok()?.ok()?;
+        Some(start.elapsed())
+    }
 }
 
 /// Samples a subscriber received: all of them, RBV alone, DMOV 1 alone.

@@ -11,6 +11,7 @@ mod ca_bench;
 mod controller_bench;
 mod floor;
 mod process;
+mod ros2_bench;
 mod stats;
 
 use clap::{Parser, Subcommand};
@@ -76,10 +77,12 @@ enum Part {
     ChannelAccess,
     /// 9. the jog deadman.
     Holds,
+    /// 10. ROS 2 joints beside zmotor's keys.
+    Ros2,
 }
 
 impl Part {
-    const ALL: [Part; 8] = [
+    const ALL: [Part; 9] = [
         Part::Latency,
         Part::Scale,
         Part::EpicsLoad,
@@ -88,6 +91,7 @@ impl Part {
         Part::Writes,
         Part::ChannelAccess,
         Part::Holds,
+        Part::Ros2,
     ];
 }
 
@@ -215,6 +219,7 @@ async fn run(cli: Cli) -> Result<(), Error> {
             Part::Writes => bench::writes_part(&programs, &options).await?,
             Part::ChannelAccess => channel_access_part(&programs, &options).await?,
             Part::Holds => bench::holds_part(&programs, &options).await?,
+            Part::Ros2 => ros2_bench::ros2_part(&programs, &options).await?,
         }
     }
     Ok(())

@@ -37,6 +37,9 @@ fn the_benchmark_runs_in_smoke_mode() {
         "a Zenoh client process",
         "9. the jog deadman",
         "2 kills",
+        "10. ROS 2",
+        "JointState arrival − RBV arrival",
+        "with [ros2], 10 joints",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }

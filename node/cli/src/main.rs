@@ -247,6 +247,9 @@ enum Command {
         /// Seconds between the joints' state messages at rest.
         #[arg(long, default_value_t = 1.0)]
         rest_period: f64,
+        /// The most joint state messages a second while joints move.
+        #[arg(long, default_value_t = 100.0)]
+        max_rate: f64,
         #[command(flatten)]
         client: ClientArgs,
     },
@@ -254,8 +257,8 @@ enum Command {
     Schema { dir: PathBuf },
     /// List every field: name, type, access, default, prompt.
     Fields,
-    /// Measure latency, scale, start-up, controllers, storms of writes and Channel Access, each
-    /// beside Zenoh's own floor, and print the figures (runs `zmotor-bench`, built beside
+    /// Measure latency, scale, start-up, controllers, storms of writes, Channel Access, the jog
+    /// deadman and ROS 2, each beside Zenoh's own floor, and print the figures (runs `zmotor-bench`, built beside
     /// `zmotor`; `zmotor bench --help` lists its options).
     #[command(disable_help_flag = true)]
     Bench {
@@ -376,7 +379,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Ros2 { joints, domain, namespace, node_name, distribution, rest_period, client } => {
+        Command::Ros2 { joints, domain, namespace, node_name, distribution, rest_period, max_rate, client } => {
             let joints = joints.iter().map(|j| joint_arg(j)).collect::<Result<Vec<_>, _>>()?;
             let distribution = Distribution::from_name(&distribution)
                 .ok_or_else(|| format!("--distribution {distribution}: give jazzy or humble"))?;
@@ -384,7 +387,8 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
                 return Err("--rest-period: give a positive number of seconds".into());
             }
             let rest_period = Duration::from_secs_f64(rest_period);
-            let config = Ros2Config { domain_id: domain, namespace, node_name, distribution, joints, rest_period };
+            let config =
+                Ros2Config { domain_id: domain, namespace, node_name, distribution, joints, rest_period, max_rate };
             config.check()?;
             let zmotor = connect(&client).await?;
             let served = zmotor_ros2::Ros2Node::start(zmotor.clone(), &config).await?;

@@ -136,6 +136,8 @@ pub struct Ros2Section {
     pub distribution: String,
     /// Seconds between the joints' state messages at rest.
     pub rest_period: f64,
+    /// The most joint state messages a second while joints move.
+    pub max_rate: f64,
     /// The joints (`[[ros2.joint]]`).
     #[serde(rename = "joint")]
     pub joints: Vec<JointSection>,
@@ -153,6 +155,7 @@ impl Default for Ros2Section {
             node_name: config.node_name,
             distribution: "jazzy".into(),
             rest_period: config.rest_period.as_secs_f64(),
+            max_rate: config.max_rate,
             joints: Vec::new(),
             host: None,
         }
@@ -192,12 +195,14 @@ impl Ros2Section {
                 .map(|j| JointConfig { name: j.name.clone(), axis: j.axis.clone(), factor: j.factor })
                 .collect(),
             rest_period: Duration::from_secs_f64(self.rest_period),
+            max_rate: self.max_rate,
         };
         config.check().map_err(|e| {
             let key = match e {
                 Ros2ConfigError::NodeName(_) => "node_name",
                 Ros2ConfigError::Namespace(_) => "namespace",
                 Ros2ConfigError::RestPeriod => "rest_period",
+                Ros2ConfigError::MaxRate => "max_rate",
                 _ => "joint",
             };
             (key, e.to_string())

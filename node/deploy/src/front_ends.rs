@@ -62,10 +62,13 @@ pub struct Ros2Config {
     pub joints: Vec<JointConfig>,
     /// How often the joints' state is published at rest.
     pub rest_period: Duration,
+    /// The most joint states a second while joints move (Hz).
+    pub max_rate: f64,
 }
 
 impl Default for Ros2Config {
-    /// Domain 0, the node `/zmotor`, Jazzy, no joints, state every second at rest.
+    /// Domain 0, the node `/zmotor`, Jazzy, no joints, state every second at rest and at most
+    /// 100 times a second while moving.
     fn default() -> Self {
         Self {
             domain_id: 0,
@@ -74,6 +77,7 @@ impl Default for Ros2Config {
             distribution: Distribution::Jazzy,
             joints: Vec::new(),
             rest_period: Duration::from_secs(1),
+            max_rate: 100.0,
         }
     }
 }
@@ -100,6 +104,9 @@ pub enum Ros2ConfigError {
     /// A rest period that is not a positive number of seconds.
     #[error("rest_period: must be a positive number of seconds")]
     RestPeriod,
+    /// A rate that is not a positive number.
+    #[error("max_rate: must be a positive number of messages a second")]
+    MaxRate,
 }
 
 /// Whether `name` is a ROS name token.
@@ -132,6 +139,9 @@ impl Ros2Config {
         }
         if self.rest_period.is_zero() {
             return Err(Ros2ConfigError::RestPeriod);
+        }
+        if !(self.max_rate.is_finite() && self.max_rate > 0.0) {
+            return Err(Ros2ConfigError::MaxRate);
         }
         Ok(())
     }

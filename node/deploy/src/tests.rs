@@ -131,12 +131,13 @@ fn a_channel_access_section_runs_on_its_host() {
 fn a_ros2_section_makes_joints_of_the_launchs_axes_and_bad_ones_are_named() {
     let axes = "[[axis]]\nname = \"m1\"\n[[axis]]\nname = \"m2\"\n";
     let text = format!(
-        "[ros2]\ndomain_id = 7\nnamespace = \"/arm\"\ndistribution = \"humble\"\nrest_period = 0.5\n\
+        "[ros2]\ndomain_id = 7\nnamespace = \"/arm\"\ndistribution = \"humble\"\nrest_period = 0.5\nmax_rate = 20.0\n\
          [[ros2.joint]]\nname = \"lift\"\naxis = \"m1\"\n[[ros2.joint]]\nname = \"turn\"\naxis = \"m2\"\nfactor = 0.5\n{axes}"
     );
     let ros2 = Launch::parse(&text).unwrap().deployment(None).unwrap().ros2.unwrap();
     assert_eq!((ros2.domain_id, ros2.namespace.as_str(), ros2.node_name.as_str()), (7, "/arm", "zmotor"));
     assert_eq!((ros2.distribution, ros2.rest_period), (Distribution::Humble, Duration::from_millis(500)));
+    assert_eq!(ros2.max_rate, 20.0);
     assert_eq!(ros2.joints[1], JointConfig { name: "turn".into(), axis: "m2".into(), factor: Some(0.5) });
     let bad = |section: &str| Launch::parse(&format!("[ros2]\n{section}\n{axes}")).unwrap_err().to_string();
     let joint = "[[ros2.joint]]\nname = \"lift\"\naxis = \"m1\"";

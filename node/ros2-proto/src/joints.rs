@@ -1,6 +1,8 @@
 //! Axes as ROS joints, sans-IO: each axis's readbacks become a `sensor_msgs/JointState` in SI
 //! units (metres or radians, from its EGU or a factor given), published at the readback rate
-//! while any joint moves and every `rest_period` at rest; a `JointState` received as a command
+//! while any joint moves (no more often than a given interval: many axes at their readback rate
+//! make one message per interval, not one per readback) and every `rest_period` at rest, each
+//! stamped with its newest readback's time; a `JointState` received as a command
 //! (ros2_control's topic-based hardware interface sends one) becomes a target per axis, in the
 //! axis's own units. Time is given (since the Unix epoch: it stamps the messages).
 
@@ -125,16 +127,19 @@ pub struct JointStates {
     joints: Vec<Joint>,
     seen: Vec<Seen>,
     rest_period: Duration,
+    /// The shortest interval between two messages.
+    min_interval: Duration,
     /// A readback came since the last message.
     fresh: bool,
     last_sent: Option<Duration>,
 }
 
 impl JointStates {
-    /// The state of `joints`, sent every `rest_period` at rest.
-    pub fn new(joints: Vec<Joint>, rest_period: Duration) -> Self {
+    /// The state of `joints`, sent every `rest_period` at rest and at most once per
+    /// `min_interval`.
+    pub fn new(joints: Vec<Joint>, rest_period: Duration, min_interval: Duration) -> Self {
         let seen = vec![Seen::default(); joints.len()];
-        Self { joints, seen, rest_period, fresh: false, last_sent: None }
+        Self { joints, seen, rest_period, min_interval, fresh: false, last_sent: None }
     }
 
     /// The joints.
@@ -213,13 +218,20 @@ impl JointStates {
         if self.seen.iter().any(|s| s.last.is_none()) {
             return None;
         }
-        let due = self.fresh || self.last_sent.is_none_or(|t| now >= t + self.rest_period);
+        let due = match self.last_sent {
+            None => true,
+            Some(sent) if self.fresh => now >= sent + self.min_interval,
+            Some(sent) => now >= sent + self.rest_period,
+        };
         if !due {
             return None;
         }
+        // A new readback is stamped with its own time, a state at rest with the time it is sent.
+        let newest = self.seen.iter().filter_map(|s| s.last.map(|(_, at)| at)).max();
+        let at = if self.fresh { newest.unwrap_or(now) } else { now };
         self.fresh = false;
         self.last_sent = Some(now);
-        let stamp = Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() };
+        let stamp = Time { sec: i32::try_from(at.as_secs()).unwrap_or(i32::MAX), nanosec: at.subsec_nanos() };
         let positions = self.joints.iter().zip(&self.seen);
         Some(JointState {
             header: Header { stamp, frame_id: String::new() },
@@ -233,7 +245,8 @@ impl JointStates {
     /// When `poll_publish` is next due without a new readback.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Duration> {
-        self.last_sent.map(|t| t + self.rest_period)
+        let wait = if self.fresh { self.min_interval } else { self.rest_period };
+        self.last_sent.map(|t| t + wait)
     }
 
     /// The targets a joint command asks for: each named joint's axis and its position in the
@@ -273,7 +286,7 @@ mod tests {
     fn two_joints() -> JointStates {
         let lift = Joint::new("lift", "m1", "mm", None).unwrap();
         let turn = Joint::new("turn", "m2", "deg", None).unwrap();
-        JointStates::new(vec![lift, turn], Duration::from_secs(1))
+        JointStates::new(vec![lift, turn], Duration::from_secs(1), Duration::from_millis(10))
     }
 
     #[test]
@@ -299,14 +312,23 @@ mod tests {
         assert_eq!((first.header.stamp.sec, first.header.stamp.nanosec), (1_700_000_000, 0));
         assert_eq!(states.poll_publish(at(500)), None, "at rest: not before the rest period");
         assert_eq!(states.poll_timeout(), Some(at(1000)));
-        assert!(states.poll_publish(at(1000)).is_some(), "at rest: every period");
+        let at_rest = states.poll_publish(at(1000)).expect("at rest: every period");
+        assert_eq!(at_rest.header.stamp.sec, 1_700_000_001, "at rest: stamped when sent");
         // Moving at 10 mm/s, readbacks every 100 ms: one message each, with the velocity.
         states.update("m1", Field::DMOV, 0.0, at(1050));
         states.update("m1", Field::RBV, 6.0, at(1100));
         states.update("m1", Field::RBV, 7.0, at(1200));
-        let moving = states.poll_publish(at(1200)).expect("a new readback");
+        let moving = states.poll_publish(at(1230)).expect("a new readback");
         assert!((moving.velocity[0] - 0.01).abs() < 1e-12, "{:?}", moving.velocity);
-        assert_eq!(states.poll_publish(at(1250)), None);
+        assert_eq!(moving.header.stamp.nanosec, 200_000_000, "stamped with the readback's time");
+        assert_eq!(states.poll_publish(at(1229)), None, "nothing new");
+        // Readbacks closer than the interval make one message.
+        states.update("m1", Field::RBV, 7.1, at(1231));
+        states.update("m2", Field::RBV, 90.5, at(1232));
+        assert_eq!(states.poll_publish(at(1235)), None, "within 10 ms of the last");
+        assert_eq!(states.poll_timeout(), Some(at(1240)));
+        let both = states.poll_publish(at(1240)).expect("both readbacks in one message");
+        assert!((both.position[0] - 0.0071).abs() < 1e-15 && both.header.stamp.nanosec == 232_000_000, "{both:?}");
         states.update("m1", Field::DMOV, 1.0, at(1255));
         assert_eq!(states.poll_publish(at(1260)).map(|s| s.velocity[0]), Some(0.0), "at rest: no velocity");
     }

@@ -554,7 +554,7 @@ mod tests {
     fn joints() -> JointStates {
         let lift = Joint::new("lift", "m1", "mm", None).unwrap();
         let turn = Joint::new("turn", "m2", "deg", None).unwrap();
-        let mut states = JointStates::new(vec![lift, turn], Duration::from_secs(1));
+        let mut states = JointStates::new(vec![lift, turn], Duration::from_secs(1), Duration::ZERO);
         for (axis, limits) in [("m1", [50.0, -50.0, 50.0, -50.0]), ("m2", [0.0; 4])] {
             states.update(axis, Field::RBV, 0.0, T0);
             states.update(axis, Field::DMOV, 1.0, T0);
@@ -678,7 +678,11 @@ mod tests {
             reject(&mut server, goal(&["lift"], &[(1000, &[0.010]), (2000, &[0.060])])),
             GoalRejection::BeyondLimits { point: 1, joint: "lift".into(), target: 60.0, low: -50.0, high: 50.0 }
         );
-        let mut unknown = JointStates::new(vec![Joint::new("lift", "m1", "mm", None).unwrap()], Duration::from_secs(1));
+        let mut unknown = JointStates::new(
+            vec![Joint::new("lift", "m1", "mm", None).unwrap()],
+            Duration::from_secs(1),
+            Duration::ZERO,
+        );
         unknown.update("m1", Field::RBV, 0.0, T0);
         assert_eq!(
             server.send_goal(&goal(&["lift"], &[(1000, &[0.0])]), &unknown, at(0)),

@@ -235,7 +235,7 @@ impl Ros2Node {
             services.push(queryable);
         }
         let driver = Driver {
-            states: JointStates::new(joints, config.rest_period),
+            states: JointStates::new(joints, config.rest_period, Duration::from_secs_f64(1.0 / config.max_rate)),
             follow: FollowJointTrajectory::new(),
             joint_states: RosPublisher::declare(&session, key(&graph[1]), STATE_QOS, graph[1].gid()).await?,
             feedback: RosPublisher::declare(&session, key(&graph[6]), DEFAULT_QOS, graph[6].gid()).await?,
