@@ -9,14 +9,13 @@
 
 mod common;
 
-use common::{repo_file, Host};
+use common::{serve_shipped, Host};
 use hiroz::action::{GoalStatus, ZAction};
 use hiroz::context::ZContextBuilder;
 use hiroz::entity::{TypeHash, TypeInfo};
 use hiroz::{Builder, MessageTypeInfo};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
-use zmotor_client::free_local_endpoint;
 
 /// A ROS message's CDR, by serde.
 macro_rules! cdr_by_serde {
@@ -300,12 +299,7 @@ fn the_messages_declared_here_hash_as_jazzys() {
 #[test]
 fn a_hiroz_node_finds_the_joints_follows_them_commands_them_and_runs_trajectories() {
     let dir = tempfile::tempdir().unwrap();
-    let endpoint = free_local_endpoint().unwrap();
-    let here = Host::default();
-    let file = dir.path().join("joints.toml");
-    std::fs::copy(repo_file("launch/ros2-joints.toml"), &file).unwrap();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+    let (_node, endpoint) = serve_shipped(&Host::default(), "launch/ros2-joints.toml", "m2", dir.path());
     let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(2).enable_all().build().unwrap();
     runtime.block_on(ros_peer(&endpoint)).unwrap();
 }

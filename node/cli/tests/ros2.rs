@@ -6,19 +6,14 @@
 
 mod common;
 
-use common::{repo_file, Host};
-use zmotor_client::free_local_endpoint;
+use common::{serve_shipped, Host};
 use zmotor_tests::environment;
 
 #[test]
 fn a_ros_2_peer_sees_the_joint_and_moves_it() {
     let dir = tempfile::tempdir().unwrap();
-    let endpoint = free_local_endpoint().unwrap();
     let here = Host::default();
-    let file = dir.path().join("axis.toml");
-    std::fs::copy(repo_file("launch/sim-axis.toml"), &file).unwrap();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (_node, endpoint) = serve_shipped(&here, "launch/sim-axis.toml", "m1", dir.path());
     let ros2 = ["ros2", "--joint", "lift=m1", "--rest-period", "30", "--connect", &endpoint];
     let _ros2 = here.spawn(&ros2, dir.path());
     let output = environment::python_script("ros2_peer.py").args([&endpoint, "lift"]).output().unwrap();
@@ -29,12 +24,8 @@ fn a_ros_2_peer_sees_the_joint_and_moves_it() {
 #[test]
 fn a_launch_files_ros_2_joints_follow_commands_and_trajectories_and_stop_on_cancel() {
     let dir = tempfile::tempdir().unwrap();
-    let endpoint = free_local_endpoint().unwrap();
     let here = Host::default();
-    let file = dir.path().join("joints.toml");
-    std::fs::copy(repo_file("launch/ros2-joints.toml"), &file).unwrap();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+    let (_node, endpoint) = serve_shipped(&here, "launch/ros2-joints.toml", "m2", dir.path());
     let output = environment::python_script("ros2_trajectory.py").args([&endpoint, "/arm"]).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("ros2 trajectory peer ok"), "{said}");

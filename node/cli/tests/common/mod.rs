@@ -143,6 +143,17 @@ pub(crate) fn repo_file(path: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..").join(path)
 }
 
+/// A shipped launch file (`launch/...`) served on this host on a free port of 127.0.0.1, its
+/// state in `dir`, once `axis` has finished its start (DMOV 1): the node and its endpoint.
+pub(crate) fn serve_shipped(here: &Host, launch: &str, axis: &str, dir: &Path) -> (Running, String) {
+    let endpoint = zmotor_client::free_local_endpoint().unwrap();
+    let file = dir.join(Path::new(launch).file_name().unwrap());
+    std::fs::copy(repo_file(launch), &file).unwrap();
+    let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir);
+    here.wait_for(&endpoint, axis, "DMOV", |v| v == 1.0);
+    (node, endpoint)
+}
+
 /// A slow stage (1 mm/s), its restore mode and autosave delay as given.
 pub(crate) fn slow_stage(rstm: &str, delay: f64) -> String {
     format!(
