@@ -317,3 +317,31 @@ async fn a_write_to_a_wildcard_key_is_refused_and_text_fields_keep_what_was_writ
     assert!(err.starts_with("DESC: "), "{err}");
     assert_eq!(get_value(&client, &node.key("m1", Field::DESC)).await, Value::Text("-0".into()));
 }
+
+/// A front-end in the node's process hears the axes' posts in-process, as they are posted and
+/// whether or not anyone on the network subscribes, and no more once it lets go.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_node_hands_its_posts_to_an_in_process_follower_until_it_lets_go() {
+    let node = TestNode::start(vec![fast_axis("m1")]).await;
+    let client = node.client().await;
+    let keys = [node.key("m1", Field::RBV), node.key("m1", Field::DMOV)];
+    let (tx, mut posts) = tokio::sync::mpsc::unbounded_channel();
+    let following = node.node.as_ref().unwrap().follow_posts(&keys, move |index, value| {
+        let _ = tx.send((index, value));
+    });
+    put_text(&client, &node.key("m1", Field::VAL), "5").await;
+    let mut heard = Vec::new();
+    while heard.last() != Some(&(1, 1.0)) {
+        let post = tokio::time::timeout(PATIENCE, posts.recv()).await.expect("posts within patience").unwrap();
+        heard.push(post);
+    }
+    assert_eq!(heard.iter().filter(|(key, _)| *key == 1).map(|(_, v)| *v).collect::<Vec<_>>(), [0.0, 1.0]);
+    let readbacks: Vec<f64> = heard.iter().filter(|(key, _)| *key == 0).map(|(_, v)| *v).collect();
+    assert!(readbacks.len() >= 3 && (readbacks[readbacks.len() - 1] - 5.0).abs() < 1e-6, "{readbacks:?}");
+    while posts.try_recv().is_ok() {}
+    drop(following);
+    let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;
+    put_text(&client, &node.key("m1", Field::VAL), "0").await;
+    rec.wait_for("DMOV", |v| *v == int(1)).await;
+    assert!(posts.try_recv().is_err(), "nothing of the second move after letting go");
+}

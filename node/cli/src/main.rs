@@ -495,14 +495,13 @@ async fn launch(
     let names: Vec<String> = deployment.contents.plans.iter().map(|p| p.name.clone()).collect();
     let calc_names: Vec<String> = deployment.contents.calcs.iter().map(|c| c.name.clone()).collect();
     let node = Node::start(session.clone(), layout.clone(), deployment.contents, autosave).await?;
-    // The front-ends are clients of the node's own network, on a session of their own: a node's
-    // publications leave its session only for others.
-    let front_client =
-        match deployment.channel_access.is_some() || deployment.web.is_some() || deployment.ros2.is_some() {
-            true => Some(front_end_client(&deployment.zenoh).await?),
-            false => None,
-        };
-    let mut front_ends = (None, None, None);
+    // Channel Access and the web screens are clients of the node's own network, on a session of
+    // their own: a node's publications leave its session only for others.
+    let front_client = match deployment.channel_access.is_some() || deployment.web.is_some() {
+        true => Some(front_end_client(&deployment.zenoh).await?),
+        false => None,
+    };
+    let mut front_ends = (None, None, None, None);
     if let Some(client) = &front_client {
         if let Some(config) = &deployment.channel_access {
             front_ends.0 = Some(zmotor_ca::ChannelAccess::start(client.clone(), config).await?);
@@ -510,9 +509,16 @@ async fn launch(
         if let Some(config) = &deployment.web {
             front_ends.1 = Some(zmotor_web::Web::start(client.clone(), config).await?);
         }
-        if let Some(config) = &deployment.ros2 {
-            front_ends.2 = Some(zmotor_ros2::Ros2Node::start(client.clone(), config).await?);
-        }
+    }
+    if let Some(config) = &deployment.ros2 {
+        // The ROS face is on the node's own session, the joints' values handed over as the node
+        // posts them: a readback reaches ROS as soon as zmotor's key (BENCHMARKS.md §10). Its
+        // writes are the node's queries to itself, under the node's own identity, as a client
+        // session of the node's credentials would be.
+        let (ros2, feed) =
+            zmotor_ros2::Ros2Node::start_fed(Client::new(session.clone(), layout.clone()), config).await?;
+        front_ends.3 = Some(node.follow_posts(&feed.keys(), move |index, value| feed.post(index, value)));
+        front_ends.2 = Some(ros2);
     }
     tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
         connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
@@ -543,7 +549,7 @@ fn warn_if_open(section: &ZenohConfig) {
 async fn front_end_client(section: &ZenohConfig) -> Result<Client, Error> {
     let reach = section.listen.first().map(|l| l.replace("0.0.0.0", "127.0.0.1"));
     let Some(endpoint) = reach.or_else(|| section.connect.first().cloned()) else {
-        return Err("[channel_access], [web] and [ros2] need the node to listen or connect somewhere".into());
+        return Err("[channel_access] and [web] need the node to listen or connect somewhere".into());
     };
     let client = ZenohConfig {
         tls: section.tls.clone(),

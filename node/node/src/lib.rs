@@ -23,4 +23,5 @@ mod tokens;
 mod writer;
 
 pub use autosave::{state_dir, AutosaveConfig, AutosaveError, RestoreError, SavedAxis, StateStore, STATE_DIR_ENV};
+pub use links::PostsFollowed;
 pub use node::{Node, NodeError};

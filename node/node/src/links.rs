@@ -71,6 +71,33 @@ impl LocalFollowers {
     }
 }
 
+/// Fields of this node's own axes followed in-process, as the node posts them (before the
+/// network hears them): what a front-end in the node's process follows without a hop through
+/// Zenoh. The values go to the callback given, with the index of their key; following ends when
+/// this is dropped.
+pub struct PostsFollowed {
+    local: Arc<LocalFollowers>,
+    sink: LinkSink,
+    keys: usize,
+}
+
+impl PostsFollowed {
+    pub(crate) fn new(local: Arc<LocalFollowers>, keys: &[String], sink: LinkSink) -> Self {
+        for (index, key) in keys.iter().enumerate() {
+            local.register(key, (sink.clone(), index));
+        }
+        Self { local, sink, keys: keys.len() }
+    }
+}
+
+impl Drop for PostsFollowed {
+    fn drop(&mut self) {
+        for index in 0..self.keys {
+            self.local.unregister(&(self.sink.clone(), index));
+        }
+    }
+}
+
 /// The keys one task follows, by index, as EPICS links follow PVs: every update, and the
 /// current value asked for once when a key is followed (as a link does when it connects). Any
 /// sample is a reading, state or write. What a key follows can change at run time.

@@ -8,7 +8,7 @@ use crate::controllers::{ControllerAxes, ControllerPort, RunningController, ToCo
 use crate::demand::FieldDemand;
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
-use crate::links::{CalcTask, Follows, LocalFollowers, ValueHolder};
+use crate::links::{CalcTask, Follows, LocalFollowers, PostsFollowed, ValueHolder};
 use crate::router::Router;
 use crate::routes::Routes;
 use crate::timer::Timer;
@@ -71,6 +71,7 @@ pub struct Node {
     stop_controllers: tokio::sync::watch::Sender<bool>,
     _router: Router,
     _values: Vec<ValueHolder>,
+    followers: Arc<LocalFollowers>,
 }
 
 impl Node {
@@ -184,7 +185,26 @@ impl Node {
             let mut task = CalcTask { writer: side.writer.clone(), link, _follows: follows, inputs };
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
-        Ok(Self { axis_tasks, calc_tasks, controller_tasks, stop, stop_controllers, _router: router, _values: holders })
+        Ok(Self {
+            axis_tasks,
+            calc_tasks,
+            controller_tasks,
+            stop,
+            stop_controllers,
+            _router: router,
+            _values: holders,
+            followers: side.followers.clone(),
+        })
+    }
+
+    /// Follow `keys` (fields of this node's axes, `<prefix>/<axis>/<FIELD>`) in-process: each
+    /// numeric value an axis posts there goes to `sink` with the key's index, as it is posted,
+    /// before the network gets it, and whether or not anyone there subscribes. `sink` runs on
+    /// the axis's task: it must only hand the value on. Changes only: read the current values
+    /// apart.
+    #[must_use = "following ends when the returned value is dropped"]
+    pub fn follow_posts(&self, keys: &[String], sink: impl Fn(usize, f64) + Send + Sync + 'static) -> PostsFollowed {
+        PostsFollowed::new(self.followers.clone(), keys, Arc::new(sink))
     }
 
     /// Stop every moving axis, wait (at most five seconds) until they are done, save their

@@ -6,8 +6,11 @@
 //! `follow_joint_trajectory` action (three services, two topics). Joint commands and
 //! trajectory moves are confirmed writes, so refusals and access rules are the node's (which
 //! posts a refusal on the axis's ERR). One task drives the sans-IO state; the rest only moves
-//! bytes.
+//! bytes. The joints' values come from monitors over the network (`start`), or, in the process
+//! of the node serving the axes, from the node's own posts (`start_fed` and its `Feed`), one
+//! Zenoh hop sooner.
 
+use std::collections::HashSet;
 use std::time::{Duration, SystemTime};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use zenoh::liveliness::LivelinessToken;
@@ -89,6 +92,8 @@ enum Service {
 enum Event {
     /// A followed field of a joint's axis.
     Posted { axis: String, field: Field, value: f64, at: Duration },
+    /// A value read at start: taken unless a post of that field came first.
+    Read { axis: String, field: Field, value: f64, at: Duration },
     /// A joint_commands sample.
     JointCommand(Vec<u8>),
     /// A request to one of the action's services.
@@ -147,12 +152,63 @@ fn request_attachment(query: &Query) -> Option<Attachment> {
     attachment
 }
 
+/// Where the joints' values come from.
+enum Source {
+    /// Monitors of each joint's axis over the network.
+    Monitors,
+    /// A `Feed` the caller posts to.
+    Fed,
+}
+
+/// Hands the values of the joints' axes to a running ROS face from the node that posts them,
+/// in the same process (`zmotor_node::Node::follow_posts` with `keys()`).
+#[derive(Clone)]
+pub struct Feed {
+    events: UnboundedSender<Event>,
+    keys: Vec<(String, Field)>,
+    layout: zmotor_msgs::KeyLayout,
+}
+
+impl std::fmt::Debug for Feed {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Feed").field("keys", &self.keys).finish_non_exhaustive()
+    }
+}
+
+impl Feed {
+    /// The keys whose values the ROS face needs, by index: each joint's axis's RBV, DMOV, soft
+    /// limits and VELO.
+    #[must_use]
+    pub fn keys(&self) -> Vec<String> {
+        self.keys.iter().map(|(axis, field)| self.layout.field(axis, *field)).collect()
+    }
+
+    /// Key `index` took `value`, now.
+    pub fn post(&self, index: usize, value: f64) {
+        if let Some((axis, field)) = self.keys.get(index) {
+            let event = Event::Posted { axis: axis.clone(), field: *field, value, at: wall() };
+            let _ = self.events.send(event);
+        }
+    }
+}
+
 impl Ros2Node {
-    /// The node, its joints' axes reached through `client`.
+    /// The node, its joints' axes reached and followed through `client`.
     pub async fn start(client: Client, config: &Ros2Config) -> Result<Self, Ros2Error> {
+        Ok(Self::serve(client, config, Source::Monitors).await?.0)
+    }
+
+    /// The node, its joints' axes reached through `client` but their values posted to the
+    /// `Feed` returned (their current values are read once).
+    pub async fn start_fed(client: Client, config: &Ros2Config) -> Result<(Self, Feed), Ros2Error> {
+        Self::serve(client, config, Source::Fed).await
+    }
+
+    async fn serve(client: Client, config: &Ros2Config, source: Source) -> Result<(Self, Feed), Ros2Error> {
+        let (events, inbox) = unbounded_channel();
         let mut joints = Vec::new();
         for joint in &config.joints {
-            let reading = client.read(&joint.axis, Selection::Field(Field::EGU)).await?;
+            let reading = client.read(&joint.axis, Selection::All).await?;
             let egu = match reading.readings.iter().find(|r| r.field == Some(Field::EGU)).map(|r| &r.value) {
                 Some(Value::Text(egu)) => egu.clone(),
                 _ => {
@@ -162,6 +218,10 @@ impl Ros2Node {
             };
             let made = Joint::new(&joint.name, &joint.axis, &egu, joint.factor);
             joints.push(made.map_err(|e| Ros2Error::Joint(e.to_string()))?);
+            for read in reading.readings.iter().filter(|r| r.field.is_some_and(|f| FOLLOWED.contains(&f))) {
+                let (Some(field), Some(value)) = (read.field, read.value.as_f64()) else { continue };
+                let _ = events.send(Event::Read { axis: joint.axis.clone(), field, value, at: wall() });
+            }
         }
         let session = client.session().clone();
         let zid = session.zid().to_string();
@@ -200,21 +260,24 @@ impl Ros2Node {
             let (name, type_info, _) = entity.endpoint.as_ref().expect("an endpoint");
             topic_key(config.domain_id, name, type_info)
         };
-        let (events, inbox) = unbounded_channel();
         let mut tasks = Vec::new();
-        for joint in &joints {
-            let mut monitor = client.monitor(&joint.axis, &FOLLOWED).await?;
-            let events = events.clone();
-            tasks.push(tokio::spawn(async move {
-                while let Some(update) = monitor.next().await {
-                    let (Some(field), Some(value)) = (update.field, update.value.as_f64()) else { continue };
-                    let at = update.at.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
-                    if events.send(Event::Posted { axis: update.axis, field, value, at }).is_err() {
-                        return;
+        if let Source::Monitors = source {
+            for joint in &joints {
+                let mut monitor = client.monitor(&joint.axis, &FOLLOWED).await?;
+                let events = events.clone();
+                tasks.push(tokio::spawn(async move {
+                    while let Some(update) = monitor.next().await {
+                        let (Some(field), Some(value)) = (update.field, update.value.as_f64()) else { continue };
+                        let at = update.at.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
+                        if events.send(Event::Posted { axis: update.axis, field, value, at }).is_err() {
+                            return;
+                        }
                     }
-                }
-            }));
+                }));
+            }
         }
+        let keys = joints.iter().flat_map(|j| FOLLOWED.iter().map(|f| (j.axis.clone(), *f))).collect();
+        let feed = Feed { events: events.clone(), keys, layout: client.layout().clone() };
         let commanding = events.clone();
         let commands = session
             .declare_subscriber(key(&graph[2]))
@@ -241,6 +304,7 @@ impl Ros2Node {
             feedback: RosPublisher::declare(&session, key(&graph[6]), DEFAULT_QOS, graph[6].gid()).await?,
             status: RosPublisher::declare(&session, key(&graph[7]), STATUS_QOS, graph[7].gid()).await?,
             pending_results: Vec::new(),
+            posted: HashSet::new(),
             client,
             events,
         };
@@ -256,7 +320,7 @@ impl Ros2Node {
             domain = config.domain_id,
             "ROS 2 node serving its joints"
         );
-        Ok(Self { tasks, _tokens: tokens, _commands: commands, _services: services })
+        Ok((Self { tasks, _tokens: tokens, _commands: commands, _services: services }, feed))
     }
 }
 
@@ -269,6 +333,8 @@ struct Driver {
     status: RosPublisher,
     /// get_result requests waiting for their goal's end.
     pending_results: Vec<(GoalId, Query, Attachment)>,
+    /// The fields of which a post came: a value read at start does not undo it.
+    posted: HashSet<(String, Field)>,
     client: Client,
     events: UnboundedSender<Event>,
 }
@@ -303,7 +369,15 @@ impl Driver {
 
     async fn handle(&mut self, event: Event) {
         match event {
-            Event::Posted { axis, field, value, at } => self.states.update(&axis, field, value, at),
+            Event::Posted { axis, field, value, at } => {
+                self.states.update(&axis, field, value, at);
+                self.posted.insert((axis, field));
+            }
+            Event::Read { axis, field, value, at } => {
+                if !self.posted.contains(&(axis.clone(), field)) {
+                    self.states.update(&axis, field, value, at);
+                }
+            }
             Event::MoveEnded { axis, end } => {
                 let commands = self.follow.move_ended(&axis, end);
                 self.execute(commands);
