@@ -390,6 +390,10 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
             let config =
                 Ros2Config { domain_id: domain, namespace, node_name, distribution, joints, rest_period, max_rate };
             config.check()?;
+            tracing::warn!(
+                "the ROS face moves the joints with this session's rights for whoever reaches its ROS 2 keys \
+                 (zmotor's access rules do not cover them)"
+            );
             let zmotor = connect(&client).await?;
             let served = zmotor_ros2::Ros2Node::start(zmotor.clone(), &config).await?;
             interrupted().await?;

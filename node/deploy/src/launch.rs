@@ -232,9 +232,16 @@ impl Launch {
         check_wiring(&KeyLayout::new(&zenoh.prefix), &plans, &axis_origins, &calcs, &calc_origins)
     }
 
-    /// `[ros2]` names ROS accepts and joints on axes of this launch.
+    /// `[ros2]` names ROS accepts and joints on axes of this launch, and no access rules it
+    /// would go around.
     fn check_ros2(&self) -> Result<(), Problem> {
         let Some(ros2) = &self.file.ros2 else { return Ok(()) };
+        if self.zenoh().guarded() {
+            let message = "[ros2] cannot run under [[zenoh.access]] rules yet: they do not cover ROS 2's keys, and \
+                           whoever may read (query any key) could send the ROS face trajectory goals it would run \
+                           with the node's rights";
+            return Err(Problem::at(0, keys_path(&["ros2"]), message));
+        }
         let config = ros2.config().map_err(|(key, message)| Problem::at(0, keys_path(&["ros2", key]), message))?;
         for joint in &config.joints {
             if !self.file.axes.iter().any(|a| a.name == joint.axis) {

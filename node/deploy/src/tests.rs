@@ -150,6 +150,12 @@ fn a_ros2_section_makes_joints_of_the_launchs_axes_and_bad_ones_are_named() {
     assert!(bad(&format!("{joint}\nfactor = -1.0")).contains("joint 'lift': factor must be a positive number"));
     assert!(bad("").contains("no joints"));
     assert!(bad(&format!("{joint}\nunits = \"m\"")).contains("unknown field `units`"));
+    let guarded = format!(
+        "[zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n[[zenoh.access]]\nname = \"ops\"\nmay = [\"drive\"]\n\
+         usernames = [\"ops\"]\n[ros2]\n{joint}\n{axes}"
+    );
+    let refused = Launch::parse(&guarded).unwrap_err().to_string();
+    assert!(refused.contains("[ros2] cannot run under [[zenoh.access]] rules yet"), "{refused}");
 }
 
 #[test]
