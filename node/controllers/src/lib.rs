@@ -15,6 +15,7 @@ mod loopback;
 mod newport;
 mod phytron;
 mod pi_gcs2;
+mod pmac;
 mod protocol;
 mod scale;
 mod smaract_mcs2;
@@ -44,16 +45,19 @@ pub enum ProtocolKind {
     SmaractMcs2,
     /// Phytron phyMOTION (channel = module × 10 + axis).
     Phytron,
+    /// Delta Tau Turbo PMAC2 and Geo Brick, over Ethernet (channel = motor number).
+    Pmac,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 5] = [
+    pub const ALL: [ProtocolKind; 6] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
         ProtocolKind::SmaractMcs2,
         ProtocolKind::Phytron,
+        ProtocolKind::Pmac,
     ];
 
     /// Its name in launch files and on the command line.
@@ -64,6 +68,7 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => pi_gcs2::NAME,
             ProtocolKind::SmaractMcs2 => smaract_mcs2::NAME,
             ProtocolKind::Phytron => phytron::NAME,
+            ProtocolKind::Pmac => pmac::NAME,
         }
     }
 
@@ -75,6 +80,7 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => &["gcs2", "pigcs2", "pi", "motorpigcs2"],
             ProtocolKind::SmaractMcs2 => &["mcs2", "smaract", "motorsmaract"],
             ProtocolKind::Phytron => &["phymotion", "motorphytron"],
+            ProtocolKind::Pmac => &["turbo_pmac", "pmac2", "geobrick", "geo_brick", "delta_tau", "motorpmac"],
         }
     }
 
@@ -101,6 +107,7 @@ impl ProtocolKind {
             ProtocolKind::Phytron => {
                 ((11..=99).contains(&channel) && !channel.is_multiple_of(10), "module × 10 + axis, each 1 to 9")
             }
+            ProtocolKind::Pmac => ((1..=32).contains(&channel), "by their motor number, 1 to 32"),
         };
         if valid {
             Ok(())
@@ -139,6 +146,7 @@ impl ProtocolKind {
             ProtocolKind::PiGcs2 => user.with(pi_gcs2::PiGcs2::new(options)),
             ProtocolKind::SmaractMcs2 => user.with(smaract_mcs2::Mcs2::new(options)),
             ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
+            ProtocolKind::Pmac => user.with(pmac::Pmac::new(options)),
         }
     }
 }

@@ -14,12 +14,13 @@ use zmotor_emulators::Faults;
 use zmotor_msgs::DriverCommand;
 
 /// Each protocol with two of its channels.
-const CASES: [(ProtocolKind, [usize; 2]); 5] = [
+const CASES: [(ProtocolKind, [usize; 2]); 6] = [
     (ProtocolKind::AcsMcb4b, [0, 2]),
     (ProtocolKind::NewportSmc100, [1, 2]),
     (ProtocolKind::PiGcs2, [1, 4]),
     (ProtocolKind::SmaractMcs2, [0, 2]),
     (ProtocolKind::Phytron, [11, 22]),
+    (ProtocolKind::Pmac, [1, 2]),
 ];
 
 fn observed(kind: ProtocolKind, channels: &[usize]) -> Loopback {

@@ -17,6 +17,7 @@ mod models;
 mod newport_smc100;
 mod phytron;
 mod pi_gcs2;
+mod pmac;
 mod smaract_mcs2;
 
 pub use acs_mcb4b::Mcb4bEmulator;
@@ -27,4 +28,5 @@ pub use models::Model;
 pub use newport_smc100::Smc100Emulator;
 pub use phytron::PhymotionEmulator;
 pub use pi_gcs2::Gcs2Emulator;
+pub use pmac::PmacEmulator;
 pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};

@@ -2,7 +2,8 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator, Smc100Emulator,
+    mcs2_positioner, stage, Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator, PmacEmulator,
+    Smc100Emulator,
 };
 
 /// A controller model this crate emulates.
@@ -19,12 +20,14 @@ pub enum Model {
     SmaractMcs2,
     /// A Phytron phyMOTION.
     Phytron,
+    /// A Delta Tau Turbo PMAC2 / Geo Brick, over Ethernet.
+    Pmac,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 5] =
-        [Model::AcsMcb4b, Model::NewportSmc100, Model::PiGcs2, Model::SmaractMcs2, Model::Phytron];
+    pub const ALL: [Model; 6] =
+        [Model::AcsMcb4b, Model::NewportSmc100, Model::PiGcs2, Model::SmaractMcs2, Model::Phytron, Model::Pmac];
 
     /// The protocol it speaks, as launch files name it.
     pub fn protocol(self) -> &'static str {
@@ -34,6 +37,7 @@ impl Model {
             Model::PiGcs2 => "pi_gcs2",
             Model::SmaractMcs2 => "smaract_mcs2",
             Model::Phytron => "phytron",
+            Model::Pmac => "pmac",
         }
     }
 
@@ -50,7 +54,8 @@ impl Model {
         match self {
             Model::NewportSmc100 => 57_600,
             Model::PiGcs2 => 115_200,
-            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron => 9_600,
+            // The PMAC is reached over TCP; its rate only paces a pseudo-terminal standing in.
+            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac => 9_600,
         }
     }
 
@@ -63,12 +68,15 @@ impl Model {
             Model::PiGcs2 => 5,
             Model::SmaractMcs2 => 3,
             Model::Phytron => 23,
+            // A Geo Brick's motors 1 to 8; there is no motor 0.
+            Model::Pmac => 9,
         }
     }
 
     /// An emulated controller with every channel below `channels` the model has: an SMC100
     /// chain the addresses 1 to `channels` − 1 (one at least), a PI controller the axes 1 to
-    /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least).
+    /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least), a
+    /// PMAC the motors 1 to `channels` − 1 (one at least, 32 at most).
     pub fn emulator(self, channels: usize) -> Box<dyn Emulator> {
         let mechanics = stage();
         match self {
@@ -83,6 +91,7 @@ impl Model {
                 let mechanics = zmotor_core::SimConfig { encoder_counts_per_step: Some(1.0), ..mechanics };
                 Box::new(PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
+            Model::Pmac => Box::new(PmacEmulator::new(channels.saturating_sub(1).clamp(1, 32), &mechanics)),
         }
     }
 }

@@ -9,6 +9,7 @@
 //! epics = "epics-motor/motorPIGCS2 at commit …"   # where the bytes were read
 //! channels = [1, 2]                               # the channels the operations use
 //! referenced_before_moves = true                  # optional: moves and jogs after a home
+//! framing = "pmac_ethernet"                       # optional: lines a port layer wraps (below)
 //!
 //! [[operation]]
 //! name = "connect and initialise"
@@ -32,6 +33,10 @@
 //! A connect transcript is compared with the first requests the driver writes on a new
 //! connection; a command's with the first requests written after it, the controller up and
 //! idle (a poll of one channel is the command `{ cmd = "poll" }`).
+//!
+//! Where the EPICS module's asyn port wraps each line in a binary packet (`framing`), the
+//! transcripts hold the lines: zmotor's requests are unwrapped (their header checked) before
+//! they are compared, and the transcripts' lines wrapped before the emulator gets them.
 #![allow(dead_code)] // each protocol's test file uses it
 
 use super::{bring_up, home_and_wait, loopback};
@@ -56,6 +61,9 @@ pub(crate) struct Transcripts {
     /// move's or a jog's bytes are those sent once the channel is homed.
     #[serde(default)]
     pub(crate) referenced_before_moves: bool,
+    /// How each line goes on the wire.
+    #[serde(default)]
+    pub(crate) framing: Framing,
     /// The operations.
     pub(crate) operation: Vec<Operation>,
 }
@@ -95,6 +103,46 @@ pub(crate) enum At {
     Connect,
     /// After the operation's command, the controller up and idle.
     Command,
+}
+
+/// How a transcript's line goes on the wire.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq)]
+#[serde(rename_all = "snake_case")]
+pub(crate) enum Framing {
+    /// As the transcript writes it, terminator included.
+    #[default]
+    AsWritten,
+    /// Behind Delta Tau's 8-byte Ethernet header, `VR_DOWNLOAD` `VR_PMAC_GETRESPONSE` 0 0
+    /// and the line's length big-endian (DiamondLightSource/pmac pmacAsynIPPort.c:527-531).
+    PmacEthernet,
+}
+
+impl Framing {
+    const PMAC_HEADER: [u8; 6] = [0x40, 0xBF, 0, 0, 0, 0];
+
+    /// `line` as it goes on the wire.
+    fn wrap(self, line: &str) -> Vec<u8> {
+        match self {
+            Framing::AsWritten => line.as_bytes().to_vec(),
+            Framing::PmacEthernet => {
+                let length = u16::try_from(line.len()).expect("a short line").to_be_bytes();
+                [&Self::PMAC_HEADER[..], &length, line.as_bytes()].concat()
+            }
+        }
+    }
+
+    /// The line of a request on the wire.
+    fn unwrap(self, bytes: &[u8]) -> String {
+        match self {
+            Framing::AsWritten => text(bytes),
+            Framing::PmacEthernet => {
+                let (header, line) = bytes.split_at(8.min(bytes.len()));
+                assert_eq!(header[..6], Self::PMAC_HEADER, "a GETRESPONSE header: {bytes:?}");
+                assert_eq!(usize::from(u16::from_be_bytes([header[6], header[7]])), line.len(), "wLength: {bytes:?}");
+                text(line)
+            }
+        }
+    }
 }
 
 impl Operation {
@@ -152,7 +200,7 @@ pub(crate) fn driver_sends_the_transcripts(kind: ProtocolKind) {
                 from
             }
         };
-        let sent: Vec<String> = lb.written()[from..].iter().map(|b| text(b)).collect();
+        let sent: Vec<String> = lb.written()[from..].iter().map(|b| transcripts.framing.unwrap(b)).collect();
         let expected = op.expected();
         assert!(
             sent.len() >= expected.len() && sent[..expected.len()] == *expected,
@@ -179,7 +227,7 @@ pub(crate) fn emulator_answers_the_transcripts(kind: ProtocolKind) {
         for (index, request) in op.epics.iter().enumerate() {
             now = now + Duration::from_millis(10);
             let malformed = emulator.malformed();
-            emulator.handle_input(now, request.as_bytes());
+            emulator.handle_input(now, &transcripts.framing.wrap(request));
             let mut reply = Vec::new();
             while let Some(bytes) = emulator.poll_transmit() {
                 reply.extend(bytes);
