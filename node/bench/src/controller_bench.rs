@@ -39,7 +39,7 @@ struct Ready {
     targets: [f64; 2],
 }
 
-const READY: [Ready; 5] = [
+const READY: [Ready; 6] = [
     Ready {
         kind: ProtocolKind::AcsMcb4b,
         launch: include_str!("../../../launch/acs-mcb4b.toml"),
@@ -78,6 +78,14 @@ const READY: [Ready; 5] = [
         reach: Reach::Tcp("127.0.0.1:22222"),
         axis: "phy11",
         channel: 11,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::Pmac,
+        launch: include_str!("../../../launch/pmac.toml"),
+        reach: Reach::Tcp("127.0.0.1:1025"),
+        axis: "pmac1",
+        channel: 1,
         targets: [1.0, 1.5],
     },
 ];

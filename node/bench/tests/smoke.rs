@@ -30,6 +30,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "pi_gcs2",
         "smaract_mcs2",
         "phytron",
+        "pmac",
         "7. a storm of writes",
         "8. Channel Access beside Zenoh",
         "caput -c VAL, one step",

@@ -110,6 +110,11 @@ fn phytron() {
     drive_through_loss_and_recovery("phytron", "launch/phytron.toml", Reach::Tcp("127.0.0.1:22222"), "phy11");
 }
 
+#[test]
+fn pmac() {
+    drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
+}
+
 /// A stock third-party SMC100 client, yaqd-newport's daemon (tests/python/smc100_workflow.py),
 /// resets, homes and moves a stage of the emulator served on a pseudo-terminal: the emulator
 /// speaks the controller's bytes to software that was written for the real one.
@@ -132,18 +137,31 @@ fn newport_smc100_for_a_third_party_client() {
 /// pi_gcs2`: the emulator answers what PI's software sends and parses (tests/python/pi_workflow.py).
 #[test]
 fn pi_gcs2_through_pipython() {
+    vendor_software_against_the_emulator("pi_gcs2", "pi_workflow.py", "pi workflow ok");
+}
+
+/// Diamond's dls-pmaclib, the library of its PMAC tools, runs a Delta Tau user's workflow
+/// against `zmotor sim-controller pmac` over the Ethernet protocol (tests/python/pmac_pmaclib.py).
+#[test]
+fn pmac_through_dls_pmaclib() {
+    vendor_software_against_the_emulator("pmac", "pmac_pmaclib.py", "pmac workflow ok");
+}
+
+/// `script HOST PORT` against `protocol`'s emulator on a free port; panics with what it said
+/// unless it ended saying `done`.
+fn vendor_software_against_the_emulator(protocol: &str, script: &str, done: &str) {
     let address = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
     let (host, port) = address.rsplit_once(':').expect("host:port");
-    let _emulator = zmotor(&["sim-controller", "pi_gcs2", "--listen", &address]);
+    let _emulator = zmotor(&["sim-controller", protocol, "--listen", &address]);
     let mut said = String::new();
     // The emulator takes a moment to listen.
     for _ in 0..50 {
-        let output = environment::python_script("pi_workflow.py").args([host, port]).output().unwrap();
+        let output = environment::python_script(script).args([host, port]).output().unwrap();
         said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
-        if output.status.success() && said.contains("pi workflow ok") {
+        if output.status.success() && said.contains(done) {
             return;
         }
-        if !said.contains("Connection refused") {
+        if !said.contains("Connection refused") && !said.contains("connection refused") {
             break;
         }
         std::thread::sleep(std::time::Duration::from_millis(100));

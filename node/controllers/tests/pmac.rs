@@ -7,7 +7,7 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{Loopback, ProtocolKind};
+use zmotor_controllers::{ControllerEvent, Loopback, ProtocolKind};
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -172,6 +172,38 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
     assert_eq!(pieces, whole);
     assert_eq!(whole[0].last().map(|s| s.position), Some(-77.0));
     assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0));
+}
+
+#[test]
+fn through_lost_and_garbled_replies_a_move_goes_once_and_a_new_connection_moves_nothing() {
+    let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    let first = lines_since(&lb, 0);
+    // Every third reply lost, every fifth replaced by noise.
+    lb.link.set_faults(Faults { drop_every: Some(3), garble_every: Some(5), ..Faults::default() });
+    let start = lb.written().len();
+    lb.command(1, &go(5000.0, false));
+    lb.run_for(Duration::from_secs(5));
+    let sent = lines_since(&lb, start);
+    assert_eq!(sent.iter().filter(|l| l.contains("J=")).count(), 1, "a move is never sent twice: {sent:?}");
+    let events = lb.take_events();
+    for status in Loopback::statuses(&events, 1) {
+        assert!((0.0..=5000.0).contains(&status.position), "no noise became a position: {status:?}");
+    }
+    assert_eq!(lb.link.emulator().axis(1).map(|a| a.physical_position()), Some(5000.0));
+    // The connection drops and comes back: identified and polled again, nothing else.
+    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_millis(1200));
+    assert!(lb.take_events().contains(&ControllerEvent::Disconnect));
+    lb.link.set_faults(Faults::default());
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    let again = lines_since(&lb, start);
+    assert!(again.starts_with(&first[..4]), "{again:?}");
+    assert!(again.iter().all(|l| !l.contains('=') && !l.contains("J/")), "reads only: {again:?}");
+    let axis = lb.link.emulator().axis(1).expect("motor 1");
+    assert_eq!((axis.physical_position(), axis.is_moving()), (5000.0, false));
 }
 
 proptest! {
