@@ -44,12 +44,17 @@ with zenoh.open(conf) as session:
         expect(len(replies) == 1 and replies[0].ok is not None, f"{field}={value}?wait: {replies}")
         return cbor2.loads(replies[0].ok.payload.to_bytes())
 
+    def get_if_served(field):
+        """The field's value, None while no node answers for the axis (it may still be starting)."""
+        replies = [r for r in session.get(f"motor/{axis}/{field}", timeout=5.0) if r.ok is not None]
+        return cbor2.loads(replies[0].ok.payload.to_bytes()) if replies else None
+
     def wait_for(field, accept, timeout, what):
         deadline = time.monotonic() + timeout
         value = None
         while time.monotonic() < deadline:
-            value = get(field)
-            if accept(value):
+            value = get_if_served(field)
+            if value is not None and accept(value):
                 return value
             time.sleep(0.05)
         sys.exit(f"controller client ({phase}, {axis}): {what}: {field} is {value} after {timeout} s")

@@ -39,7 +39,7 @@ struct Ready {
     targets: [f64; 2],
 }
 
-const READY: [Ready; 6] = [
+const READY: [Ready; 7] = [
     Ready {
         kind: ProtocolKind::AcsMcb4b,
         launch: include_str!("../../../launch/acs-mcb4b.toml"),
@@ -85,6 +85,14 @@ const READY: [Ready; 6] = [
         launch: include_str!("../../../launch/pmac.toml"),
         reach: Reach::Tcp("127.0.0.1:1025"),
         axis: "pmac1",
+        channel: 1,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::NewportEsp300,
+        launch: include_str!("../../../launch/newport-esp300.toml"),
+        reach: Reach::Pty("/tmp/zmotor-esp300"),
+        axis: "esp1",
         channel: 1,
         targets: [1.0, 1.5],
     },

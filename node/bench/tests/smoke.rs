@@ -31,6 +31,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "smaract_mcs2",
         "phytron",
         "pmac",
+        "newport_esp300",
         "7. a storm of writes",
         "8. Channel Access beside Zenoh",
         "caput -c VAL, one step",

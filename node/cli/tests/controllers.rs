@@ -111,6 +111,12 @@ fn phytron() {
 }
 
 #[test]
+fn newport_esp300_on_a_serial_line() {
+    let reach = Reach::Pty("/tmp/zmotor-esp300");
+    drive_through_loss_and_recovery("newport_esp300", "launch/newport-esp300.toml", reach, "esp1");
+}
+
+#[test]
 fn pmac() {
     drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
 }
@@ -120,17 +126,30 @@ fn pmac() {
 /// speaks the controller's bytes to software that was written for the real one.
 #[test]
 fn newport_smc100_for_a_third_party_client() {
+    third_party_client_on_a_pseudo_terminal("newport_smc100", "smc100_workflow.py", "smc100 workflow ok");
+}
+
+/// `script DEVICE` against `protocol`'s emulator on a pseudo-terminal; panics with what it said
+/// unless it ended saying `done`.
+fn third_party_client_on_a_pseudo_terminal(protocol: &str, script: &str, done: &str) {
     let dir = tempfile::tempdir().unwrap();
     let tty = dir.path().join("tty");
-    let _emulator = zmotor(&["sim-controller", "newport_smc100", "--pty", tty.to_str().unwrap()]);
+    let _emulator = zmotor(&["sim-controller", protocol, "--pty", tty.to_str().unwrap()]);
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
     while !tty.exists() {
         assert!(std::time::Instant::now() < deadline, "the emulator made no pseudo-terminal at {}", tty.display());
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
-    let output = environment::python_script("smc100_workflow.py").arg(&tty).output().unwrap();
+    let output = environment::python_script(script).arg(&tty).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
-    assert!(output.status.success() && said.contains("smc100 workflow ok"), "{said}");
+    assert!(output.status.success() && said.contains(done), "{said}");
+}
+
+/// pymeasure's ESP300 instrument (a third party's, on PyPI) runs its users' workflow against
+/// `zmotor sim-controller newport_esp300` on a pseudo-terminal (tests/python/esp300_pymeasure.py).
+#[test]
+fn newport_esp300_for_a_third_party_client() {
+    third_party_client_on_a_pseudo_terminal("newport_esp300", "esp300_pymeasure.py", "esp300 workflow ok");
 }
 
 /// PI's own Python library (pipython) runs a PI user's workflow against `zmotor sim-controller

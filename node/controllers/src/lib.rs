@@ -13,6 +13,7 @@ mod controller;
 #[cfg(feature = "testing")]
 mod loopback;
 mod newport;
+mod newport_esp300;
 mod phytron;
 mod pi_gcs2;
 mod pmac;
@@ -47,17 +48,20 @@ pub enum ProtocolKind {
     Phytron,
     /// Delta Tau Turbo PMAC2 and Geo Brick, over Ethernet (channel = motor number).
     Pmac,
+    /// Newport ESP300 / ESP301 (channel = axis, 1 to 3).
+    NewportEsp300,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 6] = [
+    pub const ALL: [ProtocolKind; 7] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
         ProtocolKind::SmaractMcs2,
         ProtocolKind::Phytron,
         ProtocolKind::Pmac,
+        ProtocolKind::NewportEsp300,
     ];
 
     /// Its name in launch files and on the command line.
@@ -69,6 +73,7 @@ impl ProtocolKind {
             ProtocolKind::SmaractMcs2 => smaract_mcs2::NAME,
             ProtocolKind::Phytron => phytron::NAME,
             ProtocolKind::Pmac => pmac::NAME,
+            ProtocolKind::NewportEsp300 => newport_esp300::NAME,
         }
     }
 
@@ -81,6 +86,7 @@ impl ProtocolKind {
             ProtocolKind::SmaractMcs2 => &["mcs2", "smaract", "motorsmaract"],
             ProtocolKind::Phytron => &["phymotion", "motorphytron"],
             ProtocolKind::Pmac => &["turbo_pmac", "pmac2", "geobrick", "geo_brick", "delta_tau", "motorpmac"],
+            ProtocolKind::NewportEsp300 => &["esp300", "esp301", "esp", "mm4000"],
         }
     }
 
@@ -108,6 +114,7 @@ impl ProtocolKind {
                 ((11..=99).contains(&channel) && !channel.is_multiple_of(10), "module × 10 + axis, each 1 to 9")
             }
             ProtocolKind::Pmac => ((1..=32).contains(&channel), "by their motor number, 1 to 32"),
+            ProtocolKind::NewportEsp300 => ((1..=3).contains(&channel), "by their axis number, 1 to 3"),
         };
         if valid {
             Ok(())
@@ -147,6 +154,7 @@ impl ProtocolKind {
             ProtocolKind::SmaractMcs2 => user.with(smaract_mcs2::Mcs2::new(options)),
             ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
             ProtocolKind::Pmac => user.with(pmac::Pmac::new(options)),
+            ProtocolKind::NewportEsp300 => user.with(newport_esp300::Esp300::new(options)),
         }
     }
 }

@@ -18,6 +18,8 @@ pub enum ControllerUnit {
         /// A rotary stage's unit.
         rotary: Unit,
     },
+    /// The unit the controller says it counts the channel in (an ESP300's `SN?`).
+    Known(Unit),
     /// Motor steps, or whatever unit the controller was configured in: nothing to compare an
     /// EGU with.
     Steps,
@@ -106,13 +108,18 @@ impl Scale {
     /// Whether `record` (EGU and MRES) agrees with this scale.
     #[must_use]
     pub fn check(&self, record: &RecordUnits) -> ScaleCheck {
-        let ControllerUnit::Physical { linear, rotary } = self.unit else {
-            return ScaleCheck::Unchecked("the controller counts steps");
-        };
         let Some(egu) = Unit::parse(&record.egu) else {
             return ScaleCheck::Unchecked("the EGU is no unit of length or angle zmotor knows");
         };
-        let controller = if egu.dimension == Dimension::Length { linear } else { rotary };
+        let controller = match self.unit {
+            ControllerUnit::Physical { linear, .. } if egu.dimension == Dimension::Length => linear,
+            ControllerUnit::Physical { rotary, .. } => rotary,
+            ControllerUnit::Known(unit) if unit.dimension == egu.dimension => unit,
+            ControllerUnit::Known(_) => {
+                return ScaleCheck::Unchecked("the EGU and the controller's unit measure different things")
+            }
+            ControllerUnit::Steps => return ScaleCheck::Unchecked("the controller counts steps"),
+        };
         let mres = record.mres.abs();
         if !(mres.is_finite() && mres > 0.0 && self.units_per_step.is_finite() && self.units_per_step > 0.0) {
             return ScaleCheck::Unchecked("MRES or the controller's step is not a positive number");
@@ -173,5 +180,9 @@ mod tests {
         assert!(matches!(physical(0.0001).check(&record("mm", 0.0)), ScaleCheck::Unchecked(_)));
         let steps = Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault };
         assert!(matches!(steps.check(&record("mm", 0.01)), ScaleCheck::Unchecked(_)));
+        let mm =
+            Scale { units_per_step: 0.0001, unit: ControllerUnit::Known(Unit::MM), source: ScaleSource::Installation };
+        assert!(matches!(mm.check(&record("deg", 0.0001)), ScaleCheck::Unchecked(_)), "a linear stage in degrees");
+        assert_eq!(mm.check(&record("um", 0.1)), ScaleCheck::Agrees);
     }
 }

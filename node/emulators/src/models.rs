@@ -2,8 +2,8 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator, PmacEmulator,
-    Smc100Emulator,
+    mcs2_positioner, stage, Emulator, Esp300Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator,
+    PmacEmulator, Smc100Emulator,
 };
 
 /// A controller model this crate emulates.
@@ -22,12 +22,21 @@ pub enum Model {
     Phytron,
     /// A Delta Tau Turbo PMAC2 / Geo Brick, over Ethernet.
     Pmac,
+    /// A Newport ESP300 / ESP301, three axes on a serial line.
+    NewportEsp300,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 6] =
-        [Model::AcsMcb4b, Model::NewportSmc100, Model::PiGcs2, Model::SmaractMcs2, Model::Phytron, Model::Pmac];
+    pub const ALL: [Model; 7] = [
+        Model::AcsMcb4b,
+        Model::NewportSmc100,
+        Model::PiGcs2,
+        Model::SmaractMcs2,
+        Model::Phytron,
+        Model::Pmac,
+        Model::NewportEsp300,
+    ];
 
     /// The protocol it speaks, as launch files name it.
     pub fn protocol(self) -> &'static str {
@@ -38,6 +47,7 @@ impl Model {
             Model::SmaractMcs2 => "smaract_mcs2",
             Model::Phytron => "phytron",
             Model::Pmac => "pmac",
+            Model::NewportEsp300 => "newport_esp300",
         }
     }
 
@@ -48,11 +58,13 @@ impl Model {
 
     /// The rate of its serial line as it leaves the factory, as a pseudo-terminal emulating
     /// the line carries bytes: the SMC100's manual gives 57,600 baud and PI's C-863 manual
-    /// 115,200; the others' documents were not to be had, and 9,600 (the usual factory rate of
-    /// serial controllers) stands for theirs (`zmotor sim-controller --baud` sets any).
+    /// 115,200; the ESP family's line runs at 19,200 (the ESP302-GPIB adaptor's manual, §2.5);
+    /// the others' documents were not to be had, and 9,600 (the usual factory rate of serial
+    /// controllers) stands for theirs (`zmotor sim-controller --baud` sets any).
     pub fn factory_baud(self) -> u32 {
         match self {
             Model::NewportSmc100 => 57_600,
+            Model::NewportEsp300 => 19_200,
             Model::PiGcs2 => 115_200,
             // The PMAC is reached over TCP; its rate only paces a pseudo-terminal standing in.
             Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac => 9_600,
@@ -70,13 +82,16 @@ impl Model {
             Model::Phytron => 23,
             // A Geo Brick's motors 1 to 8; there is no motor 0.
             Model::Pmac => 9,
+            // Axes 1 to 3; there is no axis 0.
+            Model::NewportEsp300 => 4,
         }
     }
 
     /// An emulated controller with every channel below `channels` the model has: an SMC100
     /// chain the addresses 1 to `channels` − 1 (one at least), a PI controller the axes 1 to
     /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least), a
-    /// PMAC the motors 1 to `channels` − 1 (one at least, 32 at most).
+    /// PMAC the motors 1 to `channels` − 1 (one at least, 32 at most), an ESP300 the axes 1 to
+    /// `channels` − 1 (one at least, three at most).
     pub fn emulator(self, channels: usize) -> Box<dyn Emulator> {
         let mechanics = stage();
         match self {
@@ -92,6 +107,9 @@ impl Model {
                 Box::new(PhymotionEmulator::with_channels_below(channels, &mechanics))
             }
             Model::Pmac => Box::new(PmacEmulator::new(channels.saturating_sub(1).clamp(1, 32), &mechanics)),
+            Model::NewportEsp300 => {
+                Box::new(Esp300Emulator::new(channels.saturating_sub(1), &Esp300Emulator::mechanics()))
+            }
         }
     }
 }

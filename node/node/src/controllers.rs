@@ -293,6 +293,7 @@ impl Runner {
             ControllerUnit::Physical { linear, rotary } => {
                 format!("{} ({} on a rotary stage)", linear.name, rotary.name)
             }
+            ControllerUnit::Known(unit) => unit.name.to_string(),
             ControllerUnit::Steps => "controller units".to_string(),
         };
         let step = format!("channel {channel}: one step is {} {unit}, {}", scale.units_per_step, scale.source);

@@ -1,0 +1,180 @@
+//! Newport ESP300 against its emulator, in virtual time: every record command as the
+//! controller takes it, the error buffer, and no sequence of commands that yields a line it
+//! cannot read.
+
+mod common;
+
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
+use proptest::prelude::*;
+use std::time::Duration;
+use zmotor_controllers::{ControllerEvent, Loopback, ProtocolKind};
+use zmotor_emulators::Faults;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+const ESP: ProtocolKind = ProtocolKind::NewportEsp300;
+const CHANNELS: [usize; 2] = [1, 2];
+const TICK: Duration = Duration::from_millis(10);
+
+fn go(position: f64, relative: bool) -> DriverCommand {
+    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
+}
+
+/// Switched on and homed, as a user starts a stage.
+fn ready(channels: &[usize]) -> Loopback {
+    let mut lb = loopback(ESP, channels, Faults::default());
+    bring_up(&mut lb);
+    for &channel in channels {
+        lb.command(channel, &DriverCommand::Enable { on: true });
+        lb.run_for(Duration::from_millis(100));
+    }
+    lb
+}
+
+#[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(ESP)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(ESP)
+}
+
+#[test]
+fn a_new_connection_reads_the_configuration_and_stops_nothing() {
+    let mut lb = loopback(ESP, &CHANNELS, Faults::default());
+    let events = bring_up(&mut lb);
+    let sent = written_since(&lb, 0);
+    assert_eq!(sent[0], "VE?\r");
+    let writes: Vec<&String> = sent.iter().filter(|l| !(l.ends_with("?\r") || *l == "PH\r")).collect();
+    assert_eq!(writes, ["01MO;02MO\r"], "queries, and the motors switched on (the first connection)");
+    let scales: Vec<_> = events.iter().filter(|e| matches!(e, ControllerEvent::Scale { .. })).collect();
+    assert_eq!(scales.len(), 2, "{events:?}");
+    let ControllerEvent::Scale { scale, .. } = scales[0] else { unreachable!() };
+    assert!(scale.units_per_step > 0.0, "read from the controller: {scale:?}");
+}
+
+#[test]
+fn a_move_arrives_where_asked_in_the_stages_units() {
+    let mut lb = ready(&CHANNELS);
+    lb.command(2, &go(12_345.0, false));
+    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
+    let arrived = statuses.last().expect("done");
+    assert!((arrived.position - 12_345.0).abs() < 1e-6, "{arrived:?}");
+    assert!(statuses.iter().any(|s| s.msta & msta::MOVING != 0));
+    lb.command(2, &go(-2_345.0, true));
+    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
+    assert!(statuses.last().is_some_and(|s| (s.position - 10_000.0).abs() < 1e-6));
+}
+
+#[test]
+fn a_jog_runs_until_stopped() {
+    let mut lb = ready(&CHANNELS);
+    lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -5000.0, acceleration: 50_000.0 });
+    lb.run_for(Duration::from_secs(1));
+    let status = last_status(&lb.take_events(), 1);
+    assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING, "{status:?}");
+    assert!(status.position < -3000.0, "{status:?}");
+    lb.command(1, &DriverCommand::Stop { acceleration: 50_000.0 });
+    let stopped = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(3)).last().expect("done");
+    assert!(stopped.position > -7000.0, "stopped soon after the stop: {stopped:?}");
+}
+
+#[test]
+fn a_home_search_ends_on_the_home_switch() {
+    let mut lb = ready(&CHANNELS);
+    lb.command(1, &go(30_000.0, false));
+    run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
+    lb.command(
+        1,
+        &DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 },
+    );
+    let home = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(20)).last().expect("done");
+    assert_ne!(home.msta & msta::HOME, 0, "{home:?}");
+}
+
+#[test]
+fn a_motion_the_controller_refuses_reaches_the_record_with_its_error() {
+    let mut lb = loopback(ESP, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(1, &DriverCommand::Enable { on: false });
+    lb.run_for(Duration::from_millis(200));
+    lb.take_events();
+    lb.command(1, &go(1000.0, false));
+    lb.run_for(Duration::from_millis(500));
+    let events = lb.take_events();
+    let errors = controller_errors(&events);
+    assert!(!errors.is_empty() && errors.iter().all(|(channel, ..)| *channel == Some(1)), "{events:?}");
+    assert_ne!(last_status(&events, 1).msta & msta::PROBLEM, 0);
+    assert_eq!(lb.link.emulator().axis(1).map(|a| a.physical_position()), Some(0.0), "nothing moved");
+}
+
+#[test]
+fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
+    let mut lb = ready(&CHANNELS);
+    lb.command(2, &DriverCommand::Raw { text: "02XX".into() });
+    lb.run_for(Duration::from_millis(1100));
+    let events = lb.take_events();
+    assert_eq!(controller_errors(&events).len(), 1, "{events:?}");
+    assert!(lb.controller.is_up());
+    assert!(!Loopback::statuses(&events, 2).is_empty(), "still polled");
+}
+
+#[test]
+fn replies_split_at_every_byte_give_the_same_statuses() {
+    let script = |lb: &mut Loopback| {
+        bring_up(lb);
+        for channel in CHANNELS {
+            lb.command(channel, &DriverCommand::Enable { on: true });
+        }
+        lb.command(1, &go(3000.0, false));
+        lb.command(2, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 8000.0, acceleration: 80_000.0 });
+        lb.run_for(Duration::from_millis(400));
+        lb.command(2, &DriverCommand::Stop { acceleration: 80_000.0 });
+        lb.command(1, &DriverCommand::SetPosition { position: -77.0 });
+        lb.run_for(Duration::from_secs(2));
+        let events = lb.take_events();
+        CHANNELS.map(|c| Loopback::statuses(&events, c))
+    };
+    let whole = script(&mut loopback(ESP, &CHANNELS, Faults::default()));
+    let pieces = script(&mut loopback(ESP, &CHANNELS, Faults::default()).with_chunks(1));
+    assert_eq!(pieces, whole);
+    assert!(whole[0].last().is_some_and(|s| (s.position + 77.0).abs() < 1e-6), "{:?}", whole[0].last());
+    assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0));
+}
+
+#[test]
+fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
+    let mut lb = ready(&CHANNELS);
+    lb.link.set_faults(Faults { drop_every: Some(3), garble_every: Some(5), ..Faults::default() });
+    let start = lb.written().len();
+    lb.command(1, &go(5000.0, false));
+    lb.run_for(Duration::from_secs(5));
+    let sent = written_since(&lb, start);
+    assert_eq!(sent.iter().filter(|l| l.contains("PA")).count(), 1, "a move is never sent twice: {sent:?}");
+    lb.link.set_faults(Faults::default());
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    lb.take_events();
+    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_millis(1200));
+    assert!(lb.take_events().contains(&ControllerEvent::Disconnect));
+    lb.link.set_faults(Faults::default());
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    let again = written_since(&lb, start);
+    assert_eq!(again[0], "VE?\r");
+    assert!(again.iter().all(|l| l.ends_with("?\r") || l == "PH\r"), "reads only: {again:?}");
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #[test]
+    fn no_sequence_of_record_commands_makes_a_malformed_line(
+        commands in proptest::collection::vec((0usize..2, command(), 0u64..300), 1..12)
+    ) {
+        common::no_malformed_frames(ESP, &CHANNELS, common::Start::AsPoweredUp, &commands);
+    }
+}
