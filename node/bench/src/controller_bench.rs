@@ -200,6 +200,10 @@ struct Driven {
     first_write: Option<Instant>,
 }
 
+/// A reopened serial line is quiet once nothing came for this long (over 100 characters at
+/// 9,600 baud).
+const QUIET_LINE: Duration = Duration::from_millis(120);
+
 /// The controller polls its channels this often, at rest as in motion.
 const POLL_PERIOD: Duration = Duration::from_millis(100);
 
@@ -214,7 +218,17 @@ impl Driven {
             }
             Transport::Serial(settings) => {
                 use tokio_serial::SerialPortBuilderExt;
-                Box::new(tokio_serial::new(&settings.device, settings.baud).open_native_async()?)
+                let mut port: Box<dyn Io> =
+                    Box::new(tokio_serial::new(&settings.device, settings.baud).open_native_async()?);
+                // The line reopened: what a former connection's last exchange left on it is
+                // read and dropped first, or it would pass for the first reply.
+                let mut stale = [0u8; 256];
+                while let Ok(Ok(n)) = tokio::time::timeout(QUIET_LINE, port.read(&mut stale)).await {
+                    if n == 0 {
+                        break;
+                    }
+                }
+                port
             }
         };
         let config = ControllerConfig {

@@ -374,7 +374,11 @@ impl Protocol for Esp300 {
             _ => Err(error("neither 0 nor 1")),
         };
         match request.step {
-            Step::Version => Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))]),
+            // "ESP300 Version 3.08 09/09/02": anything else is not this controller's answer.
+            Step::Version if text.to_ascii_lowercase().contains("version") => {
+                Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
+            }
+            Step::Version => Err(error("not a firmware version")),
             Step::Config { channel, item } => {
                 let query = |suffix: &str, item| {
                     Request::query(line(&format!("{channel:02}{suffix}")), Step::Config { channel, item })
@@ -586,6 +590,9 @@ mod tests {
     fn the_motors_are_switched_on_at_the_first_connection_only() {
         let mut p = configured(1);
         let init = p.init(&[1, 3]);
+        assert!(p.reply(&init[0], b"0, 451322, NO ERROR DETECTED\r\n").is_err(), "a stale line is no version");
+        let identity = p.reply(&init[0], b"ESP300 Version 3.08 09/09/02\r\n").unwrap();
+        assert_eq!(identity, [ReplyEvent::Found(Finding::Identity("ESP300 Version 3.08 09/09/02".into()))]);
         let setup: Vec<_> = init.iter().filter(|r| Esp300::purpose(r.step) == Purpose::Setup).collect();
         assert_eq!(sent(&setup.iter().map(|r| (*r).clone()).collect::<Vec<_>>()), ["01MO;03MO\r", "TB?\r"]);
         p.reply(setup[1], b"0, 5, NO ERROR DETECTED\r\n").unwrap();
