@@ -28,24 +28,7 @@ fn the_emulator_answers_what_the_epics_driver_sends() {
 fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
     let mut lb = loopback(ACS, &[1], Faults::default());
     bring_up(&mut lb);
-    lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -5000.0, acceleration: 50_000.0 });
-    lb.run_for(Duration::from_secs(1));
-    let status = last_status(&lb.take_events(), 1);
-    assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING);
-    assert!(status.position < -4000.0, "{status:?}");
-    lb.command(1, &DriverCommand::Stop { acceleration: 50_000.0 });
-    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(2));
-    let stopped = statuses.last().expect("done");
-    assert!(stopped.position > -6000.0, "stopped soon after the stop: {stopped:?}");
-    // A jog left running ends on the minus limit switch at -200000 steps.
-    lb.command(
-        1,
-        &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -100_000.0, acceleration: 500_000.0 },
-    );
-    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
-    let at_limit = statuses.last().expect("done");
-    assert_ne!(at_limit.msta & msta::MINUS_LS, 0, "{at_limit:?}");
-    assert!(at_limit.position <= -200_000.0);
+    common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 1);
 }
 
 #[test]

@@ -69,16 +69,9 @@ fn a_move_arrives_where_asked_in_the_stages_units() {
 }
 
 #[test]
-fn a_jog_runs_until_stopped() {
+fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
     let mut lb = ready(&CHANNELS);
-    lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -5000.0, acceleration: 50_000.0 });
-    lb.run_for(Duration::from_secs(1));
-    let status = last_status(&lb.take_events(), 1);
-    assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING, "{status:?}");
-    assert!(status.position < -3000.0, "{status:?}");
-    lb.command(1, &DriverCommand::Stop { acceleration: 50_000.0 });
-    let stopped = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(3)).last().expect("done");
-    assert!(stopped.position > -7000.0, "stopped soon after the stop: {stopped:?}");
+    common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 1);
 }
 
 #[test]
@@ -123,50 +116,14 @@ fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
 
 #[test]
 fn replies_split_at_every_byte_give_the_same_statuses() {
-    let script = |lb: &mut Loopback| {
-        bring_up(lb);
-        for channel in CHANNELS {
-            lb.command(channel, &DriverCommand::Enable { on: true });
-        }
-        lb.command(1, &go(3000.0, false));
-        lb.command(2, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 8000.0, acceleration: 80_000.0 });
-        lb.run_for(Duration::from_millis(400));
-        lb.command(2, &DriverCommand::Stop { acceleration: 80_000.0 });
-        lb.command(1, &DriverCommand::SetPosition { position: -77.0 });
-        lb.run_for(Duration::from_secs(2));
-        let events = lb.take_events();
-        CHANNELS.map(|c| Loopback::statuses(&events, c))
-    };
-    let whole = script(&mut loopback(ESP, &CHANNELS, Faults::default()));
-    let pieces = script(&mut loopback(ESP, &CHANNELS, Faults::default()).with_chunks(1));
-    assert_eq!(pieces, whole);
-    assert!(whole[0].last().is_some_and(|s| (s.position + 77.0).abs() < 1e-6), "{:?}", whole[0].last());
-    assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0));
+    common::replies_in_pieces_give_the_same_statuses(ESP, &CHANNELS);
 }
 
 #[test]
 fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
     let mut lb = ready(&CHANNELS);
-    lb.link.set_faults(Faults { drop_every: Some(3), garble_every: Some(5), ..Faults::default() });
-    let start = lb.written().len();
-    lb.command(1, &go(5000.0, false));
-    lb.run_for(Duration::from_secs(5));
-    let sent = written_since(&lb, start);
-    assert_eq!(sent.iter().filter(|l| l.contains("PA")).count(), 1, "a move is never sent twice: {sent:?}");
-    lb.link.set_faults(Faults::default());
-    lb.run_for(Duration::from_secs(3));
-    assert!(lb.controller.is_up());
-    lb.take_events();
-    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
-    lb.run_for(Duration::from_millis(1200));
-    assert!(lb.take_events().contains(&ControllerEvent::Disconnect));
-    lb.link.set_faults(Faults::default());
-    let start = lb.written().len();
-    lb.run_for(Duration::from_secs(3));
-    assert!(lb.controller.is_up());
-    let again = written_since(&lb, start);
-    assert_eq!(again[0], "VE?\r");
-    assert!(again.iter().all(|l| l.ends_with("?\r") || l == "PH\r"), "reads only: {again:?}");
+    let reads = |l: &str| l.ends_with("?\r") || l == "PH\r";
+    common::a_move_goes_once_and_a_new_connection_only_reads(&mut lb, 1, common::text, |l| l.contains("PA"), reads);
 }
 
 proptest! {

@@ -7,7 +7,7 @@ mod common;
 use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{ControllerEvent, Loopback, ProtocolKind};
+use zmotor_controllers::{Loopback, ProtocolKind};
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -71,21 +71,7 @@ fn a_move_arrives_in_counts_with_the_commanded_position_as_readback() {
 fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
     let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -5000.0, acceleration: 50_000.0 });
-    lb.run_for(Duration::from_secs(1));
-    let status = last_status(&lb.take_events(), 1);
-    assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING);
-    assert!(status.position < -4000.0, "{status:?}");
-    lb.command(1, &DriverCommand::Stop { acceleration: 50_000.0 });
-    let stopped = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(2)).last().expect("done");
-    assert!(stopped.position > -6000.0, "stopped soon after the stop: {stopped:?}");
-    lb.command(
-        1,
-        &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -100_000.0, acceleration: 500_000.0 },
-    );
-    let at_limit = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(5)).last().expect("done");
-    assert_ne!(at_limit.msta & msta::MINUS_LS, 0, "{at_limit:?}");
-    assert!(at_limit.position <= -200_000.0);
+    common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 1);
 }
 
 #[test]
@@ -156,54 +142,15 @@ fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
 
 #[test]
 fn replies_split_at_every_byte_give_the_same_statuses() {
-    let script = |lb: &mut Loopback| {
-        bring_up(lb);
-        lb.command(1, &go(3000.0, false));
-        lb.command(2, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 8000.0, acceleration: 80_000.0 });
-        lb.run_for(Duration::from_millis(400));
-        lb.command(2, &DriverCommand::Stop { acceleration: 80_000.0 });
-        lb.command(1, &DriverCommand::SetPosition { position: -77.0 });
-        lb.run_for(Duration::from_secs(2));
-        let events = lb.take_events();
-        CHANNELS.map(|c| Loopback::statuses(&events, c))
-    };
-    let whole = script(&mut loopback(PMAC, &CHANNELS, Faults::default()));
-    let pieces = script(&mut loopback(PMAC, &CHANNELS, Faults::default()).with_chunks(1));
-    assert_eq!(pieces, whole);
-    assert_eq!(whole[0].last().map(|s| s.position), Some(-77.0));
-    assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0));
+    common::replies_in_pieces_give_the_same_statuses(PMAC, &CHANNELS);
 }
 
 #[test]
 fn through_lost_and_garbled_replies_a_move_goes_once_and_a_new_connection_moves_nothing() {
     let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    let first = lines_since(&lb, 0);
-    // Every third reply lost, every fifth replaced by noise.
-    lb.link.set_faults(Faults { drop_every: Some(3), garble_every: Some(5), ..Faults::default() });
-    let start = lb.written().len();
-    lb.command(1, &go(5000.0, false));
-    lb.run_for(Duration::from_secs(5));
-    let sent = lines_since(&lb, start);
-    assert_eq!(sent.iter().filter(|l| l.contains("J=")).count(), 1, "a move is never sent twice: {sent:?}");
-    let events = lb.take_events();
-    for status in Loopback::statuses(&events, 1) {
-        assert!((0.0..=5000.0).contains(&status.position), "no noise became a position: {status:?}");
-    }
-    assert_eq!(lb.link.emulator().axis(1).map(|a| a.physical_position()), Some(5000.0));
-    // The connection drops and comes back: identified and polled again, nothing else.
-    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
-    lb.run_for(Duration::from_millis(1200));
-    assert!(lb.take_events().contains(&ControllerEvent::Disconnect));
-    lb.link.set_faults(Faults::default());
-    let start = lb.written().len();
-    lb.run_for(Duration::from_secs(3));
-    assert!(lb.controller.is_up());
-    let again = lines_since(&lb, start);
-    assert!(again.starts_with(&first[..4]), "{again:?}");
-    assert!(again.iter().all(|l| !l.contains('=') && !l.contains("J/")), "reads only: {again:?}");
-    let axis = lb.link.emulator().axis(1).expect("motor 1");
-    assert_eq!((axis.physical_position(), axis.is_moving()), (5000.0, false));
+    let reads = |l: &str| !l.contains('=') && !l.contains("J/");
+    common::a_move_goes_once_and_a_new_connection_only_reads(&mut lb, 1, line, |l| l.contains("J="), reads);
 }
 
 proptest! {

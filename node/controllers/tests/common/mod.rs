@@ -168,3 +168,113 @@ pub(crate) fn no_malformed_frames(
         "exchanges failed on a clean link: {refused:?}"
     );
 }
+
+/// A jog of `channel` (up, switched on) runs until stopped and stops soon after; left running it
+/// ends on the minus limit switch of the emulators' stage (-200000 steps).
+pub(crate) fn a_jog_runs_until_stopped_or_the_limit_switch(lb: &mut Loopback, channel: usize) {
+    let tick = Duration::from_millis(10);
+    lb.command(
+        channel,
+        &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -5000.0, acceleration: 50_000.0 },
+    );
+    lb.run_for(Duration::from_secs(1));
+    let status = last_status(&lb.take_events(), channel);
+    assert_eq!(status.msta & (msta::DONE | msta::MOVING), msta::MOVING, "{status:?}");
+    assert!(status.position < -3000.0, "{status:?}");
+    lb.command(channel, &DriverCommand::Stop { acceleration: 50_000.0 });
+    let stopped = *run_until_done(lb, channel, tick, Duration::from_secs(3)).last().expect("done");
+    assert!(stopped.position > -7000.0, "stopped soon after the stop: {stopped:?}");
+    // 40,000 steps/s: under every emulated controller's top speed (an ESP300's VU is 50,000).
+    let fast = DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -40_000.0, acceleration: 400_000.0 };
+    lb.command(channel, &fast);
+    let at_limit = *run_until_done(lb, channel, tick, Duration::from_secs(10)).last().expect("done");
+    assert_ne!(at_limit.msta & msta::MINUS_LS, 0, "{at_limit:?}");
+    assert!(at_limit.position <= -199_999.0, "{at_limit:?}");
+}
+
+/// Every kind of record command on the first two of `channels` (switched on first), replies
+/// delivered whole or in pieces of `chunk` bytes: the statuses each of the two reported.
+pub(crate) fn statuses_of_a_script(kind: ProtocolKind, channels: &[usize], chunk: usize) -> [Vec<DeviceStatus>; 2] {
+    let mut lb = loopback(kind, channels, Faults::default()).with_chunks(chunk);
+    bring_up(&mut lb);
+    let [first, second] = [channels[0], channels[1]];
+    for channel in [first, second] {
+        lb.command(channel, &DriverCommand::Enable { on: true });
+    }
+    let go = DriverCommand::Move {
+        position: 3000.0,
+        relative: false,
+        min_velocity: 0.0,
+        max_velocity: 20_000.0,
+        acceleration: 200_000.0,
+    };
+    lb.command(first, &go);
+    lb.command(
+        second,
+        &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 8000.0, acceleration: 80_000.0 },
+    );
+    lb.run_for(Duration::from_millis(400));
+    lb.command(second, &DriverCommand::Stop { acceleration: 80_000.0 });
+    lb.command(first, &DriverCommand::SetPosition { position: -77.0 });
+    lb.run_for(Duration::from_secs(2));
+    let events = lb.take_events();
+    [Loopback::statuses(&events, first), Loopback::statuses(&events, second)]
+}
+
+/// Replies split at every byte give the statuses whole replies give: the script's first
+/// channel ends at -77 (set), the second stopped beyond 0.
+pub(crate) fn replies_in_pieces_give_the_same_statuses(kind: ProtocolKind, channels: &[usize]) {
+    let whole = statuses_of_a_script(kind, channels, usize::MAX);
+    assert_eq!(statuses_of_a_script(kind, channels, 1), whole);
+    assert!(whole[0].last().is_some_and(|s| (s.position + 77.0).abs() < 1e-6), "{:?}", whole[0].last());
+    assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0), "{:?}", whole[1].last());
+}
+
+/// Through lost and garbled replies, a move of `channel` (up, switched on) is sent once (one
+/// request for which `is_move` holds); then a connection that closes and comes back starts
+/// again with `first` and writes only what `is_read` accepts. `line` reads a request.
+pub(crate) fn a_move_goes_once_and_a_new_connection_only_reads(
+    lb: &mut Loopback,
+    channel: usize,
+    line: impl Fn(&[u8]) -> String,
+    is_move: impl Fn(&str) -> bool,
+    is_read: impl Fn(&str) -> bool,
+) {
+    let lines_since =
+        |lb: &Loopback, from: usize| -> Vec<String> { lb.written()[from..].iter().map(|r| line(r)).collect() };
+    let first = lines_since(lb, 0);
+    // Every third reply lost, every fifth replaced by noise.
+    lb.link.set_faults(Faults { drop_every: Some(3), garble_every: Some(5), ..Faults::default() });
+    let start = lb.written().len();
+    let go = DriverCommand::Move {
+        position: 5000.0,
+        relative: false,
+        min_velocity: 0.0,
+        max_velocity: 20_000.0,
+        acceleration: 200_000.0,
+    };
+    lb.command(channel, &go);
+    lb.run_for(Duration::from_secs(5));
+    let sent = lines_since(lb, start);
+    assert_eq!(sent.iter().filter(|l| is_move(l)).count(), 1, "a move is never sent twice: {sent:?}");
+    for status in Loopback::statuses(&lb.take_events(), channel) {
+        assert!((0.0..=5000.0 + 1e-6).contains(&status.position), "no noise became a position: {status:?}");
+    }
+    // Clean again, up; then the connection drops and comes back.
+    lb.link.set_faults(Faults::default());
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    lb.take_events();
+    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_millis(1200));
+    assert!(lb.take_events().contains(&ControllerEvent::Disconnect));
+    lb.link.set_faults(Faults::default());
+    let start = lb.written().len();
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    let again = lines_since(lb, start);
+    assert_eq!(again.first(), first.first(), "initialised again: {again:?}");
+    assert!(again.iter().all(|l| is_read(l)), "reads only: {again:?}");
+    let axis = lb.link.emulator().axis(channel).expect("the channel");
+    assert!(!axis.is_moving(), "nothing moves after the reconnection");
+}
