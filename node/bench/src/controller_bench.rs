@@ -39,7 +39,7 @@ struct Ready {
     targets: [f64; 2],
 }
 
-const READY: [Ready; 7] = [
+const READY: [Ready; 8] = [
     Ready {
         kind: ProtocolKind::AcsMcb4b,
         launch: include_str!("../../../launch/acs-mcb4b.toml"),
@@ -94,6 +94,14 @@ const READY: [Ready; 7] = [
         reach: Reach::Pty("/tmp/zmotor-esp300"),
         axis: "esp1",
         channel: 1,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::Galil,
+        launch: include_str!("../../../launch/galil.toml"),
+        reach: Reach::Tcp("127.0.0.1:2323"),
+        axis: "galA",
+        channel: 0,
         targets: [1.0, 1.5],
     },
 ];

@@ -32,6 +32,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "phytron",
         "pmac",
         "newport_esp300",
+        "galil",
         "7. a storm of writes",
         "8. Channel Access beside Zenoh",
         "caput -c VAL, one step",

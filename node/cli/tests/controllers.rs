@@ -117,6 +117,11 @@ fn newport_esp300_on_a_serial_line() {
 }
 
 #[test]
+fn galil() {
+    drive_through_loss_and_recovery("galil", "launch/galil.toml", Reach::Tcp("127.0.0.1:2323"), "galA");
+}
+
+#[test]
 fn pmac() {
     drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
 }

@@ -10,6 +10,7 @@
 
 mod acs;
 mod controller;
+mod galil;
 #[cfg(feature = "testing")]
 mod loopback;
 mod newport;
@@ -50,11 +51,13 @@ pub enum ProtocolKind {
     Pmac,
     /// Newport ESP300 / ESP301 (channel = axis, 1 to 3).
     NewportEsp300,
+    /// Galil DMC-40x0, DMC-41x3, DMC-30010 (channel = axis, 0 to 7 for A to H).
+    Galil,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 7] = [
+    pub const ALL: [ProtocolKind; 8] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
@@ -62,6 +65,7 @@ impl ProtocolKind {
         ProtocolKind::Phytron,
         ProtocolKind::Pmac,
         ProtocolKind::NewportEsp300,
+        ProtocolKind::Galil,
     ];
 
     /// Its name in launch files and on the command line.
@@ -74,6 +78,7 @@ impl ProtocolKind {
             ProtocolKind::Phytron => phytron::NAME,
             ProtocolKind::Pmac => pmac::NAME,
             ProtocolKind::NewportEsp300 => newport_esp300::NAME,
+            ProtocolKind::Galil => galil::NAME,
         }
     }
 
@@ -87,6 +92,7 @@ impl ProtocolKind {
             ProtocolKind::Phytron => &["phymotion", "motorphytron"],
             ProtocolKind::Pmac => &["turbo_pmac", "pmac2", "geobrick", "geo_brick", "delta_tau", "motorpmac"],
             ProtocolKind::NewportEsp300 => &["esp300", "esp301", "esp", "mm4000"],
+            ProtocolKind::Galil => &["dmc", "dmc4040", "dmc4143", "dmc30010", "motorgalil"],
         }
     }
 
@@ -115,6 +121,7 @@ impl ProtocolKind {
             }
             ProtocolKind::Pmac => ((1..=32).contains(&channel), "by their motor number, 1 to 32"),
             ProtocolKind::NewportEsp300 => ((1..=3).contains(&channel), "by their axis number, 1 to 3"),
+            ProtocolKind::Galil => (channel <= 7, "0 to 7, for the axes A to H"),
         };
         if valid {
             Ok(())
@@ -155,6 +162,7 @@ impl ProtocolKind {
             ProtocolKind::Phytron => user.with(phytron::Phymotion::new(options)),
             ProtocolKind::Pmac => user.with(pmac::Pmac::new(options)),
             ProtocolKind::NewportEsp300 => user.with(newport_esp300::Esp300::new(options)),
+            ProtocolKind::Galil => user.with(galil::Galil::new(options)),
         }
     }
 }

@@ -2,8 +2,8 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Esp300Emulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator, PhymotionEmulator,
-    PmacEmulator, Smc100Emulator,
+    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator,
+    PhymotionEmulator, PmacEmulator, Smc100Emulator,
 };
 
 /// A controller model this crate emulates.
@@ -24,11 +24,13 @@ pub enum Model {
     Pmac,
     /// A Newport ESP300 / ESP301, three axes on a serial line.
     NewportEsp300,
+    /// A Galil DMC-4040, four axes, over Ethernet.
+    Galil,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 7] = [
+    pub const ALL: [Model; 8] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -36,6 +38,7 @@ impl Model {
         Model::Phytron,
         Model::Pmac,
         Model::NewportEsp300,
+        Model::Galil,
     ];
 
     /// The protocol it speaks, as launch files name it.
@@ -48,6 +51,7 @@ impl Model {
             Model::Phytron => "phytron",
             Model::Pmac => "pmac",
             Model::NewportEsp300 => "newport_esp300",
+            Model::Galil => "galil",
         }
     }
 
@@ -66,6 +70,9 @@ impl Model {
             Model::NewportSmc100 => 57_600,
             Model::NewportEsp300 => 19_200,
             Model::PiGcs2 => 115_200,
+            // The DMC-40x0 is reached over TCP; 115,200 is taken for its RS-232 port's factory
+            // rate (not read in its manual), and only paces a pseudo-terminal standing in.
+            Model::Galil => 115_200,
             // The PMAC is reached over TCP; its rate only paces a pseudo-terminal standing in.
             Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac => 9_600,
         }
@@ -84,6 +91,8 @@ impl Model {
             Model::Pmac => 9,
             // Axes 1 to 3; there is no axis 0.
             Model::NewportEsp300 => 4,
+            // Axes A to D, channels 0 to 3.
+            Model::Galil => 4,
         }
     }
 
@@ -91,7 +100,8 @@ impl Model {
     /// chain the addresses 1 to `channels` − 1 (one at least), a PI controller the axes 1 to
     /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least), a
     /// PMAC the motors 1 to `channels` − 1 (one at least, 32 at most), an ESP300 the axes 1 to
-    /// `channels` − 1 (one at least, three at most).
+    /// `channels` − 1 (one at least, three at most), a Galil DMC-40x0 the axes A… on channels 0
+    /// to `channels` − 1 (one at least, eight at most).
     pub fn emulator(self, channels: usize) -> Box<dyn Emulator> {
         let mechanics = stage();
         match self {
@@ -110,6 +120,7 @@ impl Model {
             Model::NewportEsp300 => {
                 Box::new(Esp300Emulator::new(channels.saturating_sub(1), &Esp300Emulator::mechanics()))
             }
+            Model::Galil => Box::new(GalilEmulator::new(channels.clamp(1, 8), &mechanics)),
         }
     }
 }

@@ -256,7 +256,9 @@ pub(crate) fn a_move_goes_once_and_a_new_connection_only_reads(
     lb.command(channel, &go);
     lb.run_for(Duration::from_secs(5));
     let sent = lines_since(lb, start);
-    assert_eq!(sent.iter().filter(|l| is_move(l)).count(), 1, "a move is never sent twice: {sent:?}");
+    // Sent once, or cut short when a reply to one of its requests was lost (a command half
+    // carried out is not carried on): never twice.
+    assert!(sent.iter().filter(|l| is_move(l)).count() <= 1, "a move is never sent twice: {sent:?}");
     for status in Loopback::statuses(&lb.take_events(), channel) {
         assert!((0.0..=5000.0 + 1e-6).contains(&status.position), "no noise became a position: {status:?}");
     }
