@@ -39,7 +39,7 @@ struct Ready {
     targets: [f64; 2],
 }
 
-const READY: [Ready; 8] = [
+const READY: [Ready; 9] = [
     Ready {
         kind: ProtocolKind::AcsMcb4b,
         launch: include_str!("../../../launch/acs-mcb4b.toml"),
@@ -102,6 +102,14 @@ const READY: [Ready; 8] = [
         reach: Reach::Tcp("127.0.0.1:2323"),
         axis: "galA",
         channel: 0,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::McLennanPm304,
+        launch: include_str!("../../../launch/mclennan-pm304.toml"),
+        reach: Reach::Pty("/tmp/zmotor-pm304"),
+        axis: "pm1",
+        channel: 1,
         targets: [1.0, 1.5],
     },
 ];

@@ -33,6 +33,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "pmac",
         "newport_esp300",
         "galil",
+        "mclennan_pm304",
         "7. a storm of writes",
         "8. Channel Access beside Zenoh",
         "caput -c VAL, one step",

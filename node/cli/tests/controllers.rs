@@ -122,6 +122,12 @@ fn galil() {
 }
 
 #[test]
+fn mclennan_pm304_on_a_serial_line() {
+    let reach = Reach::Pty("/tmp/zmotor-pm304");
+    drive_through_loss_and_recovery("mclennan_pm304", "launch/mclennan-pm304.toml", reach, "pm1");
+}
+
+#[test]
 fn pmac() {
     drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
 }

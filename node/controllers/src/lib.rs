@@ -13,6 +13,7 @@ mod controller;
 mod galil;
 #[cfg(feature = "testing")]
 mod loopback;
+mod mclennan_pm304;
 mod newport;
 mod newport_esp300;
 mod phytron;
@@ -53,11 +54,13 @@ pub enum ProtocolKind {
     NewportEsp300,
     /// Galil DMC-40x0, DMC-41x3, DMC-30010 (channel = axis, 0 to 7 for A to H).
     Galil,
+    /// McLennan PM304 (channel = the axis's address, 1 to 8).
+    McLennanPm304,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 8] = [
+    pub const ALL: [ProtocolKind; 9] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
@@ -66,6 +69,7 @@ impl ProtocolKind {
         ProtocolKind::Pmac,
         ProtocolKind::NewportEsp300,
         ProtocolKind::Galil,
+        ProtocolKind::McLennanPm304,
     ];
 
     /// Its name in launch files and on the command line.
@@ -79,6 +83,7 @@ impl ProtocolKind {
             ProtocolKind::Pmac => pmac::NAME,
             ProtocolKind::NewportEsp300 => newport_esp300::NAME,
             ProtocolKind::Galil => galil::NAME,
+            ProtocolKind::McLennanPm304 => mclennan_pm304::NAME,
         }
     }
 
@@ -93,6 +98,7 @@ impl ProtocolKind {
             ProtocolKind::Pmac => &["turbo_pmac", "pmac2", "geobrick", "geo_brick", "delta_tau", "motorpmac"],
             ProtocolKind::NewportEsp300 => &["esp300", "esp301", "esp", "mm4000"],
             ProtocolKind::Galil => &["dmc", "dmc4040", "dmc4143", "dmc30010", "motorgalil"],
+            ProtocolKind::McLennanPm304 => &["pm304", "mclennan", "motormclennan"],
         }
     }
 
@@ -122,6 +128,7 @@ impl ProtocolKind {
             ProtocolKind::Pmac => ((1..=32).contains(&channel), "by their motor number, 1 to 32"),
             ProtocolKind::NewportEsp300 => ((1..=3).contains(&channel), "by their axis number, 1 to 3"),
             ProtocolKind::Galil => (channel <= 7, "0 to 7, for the axes A to H"),
+            ProtocolKind::McLennanPm304 => ((1..=8).contains(&channel), "by their address, 1 to 8"),
         };
         if valid {
             Ok(())
@@ -163,6 +170,7 @@ impl ProtocolKind {
             ProtocolKind::Pmac => user.with(pmac::Pmac::new(options)),
             ProtocolKind::NewportEsp300 => user.with(newport_esp300::Esp300::new(options)),
             ProtocolKind::Galil => user.with(galil::Galil::new(options)),
+            ProtocolKind::McLennanPm304 => user.with(mclennan_pm304::Pm304::new()),
         }
     }
 }

@@ -171,7 +171,9 @@ impl ProtocolOptions {
     pub fn check(&self, protocol: ProtocolKind) -> Result<(), SpecError> {
         match self.units_per_step {
             Some(units) if !(units.is_finite() && units > 0.0) => Err(SpecError::UnitsPerStep(units)),
-            Some(_) if protocol == ProtocolKind::AcsMcb4b => Err(SpecError::NoUnits(protocol.name())),
+            Some(_) if matches!(protocol, ProtocolKind::AcsMcb4b | ProtocolKind::McLennanPm304) => {
+                Err(SpecError::NoUnits(protocol.name()))
+            }
             _ => Ok(()),
         }
     }

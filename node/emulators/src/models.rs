@@ -3,7 +3,7 @@
 
 use crate::{
     mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator,
-    PhymotionEmulator, PmacEmulator, Smc100Emulator,
+    PhymotionEmulator, Pm304Emulator, PmacEmulator, Smc100Emulator,
 };
 
 /// A controller model this crate emulates.
@@ -26,11 +26,13 @@ pub enum Model {
     NewportEsp300,
     /// A Galil DMC-4040, four axes, over Ethernet.
     Galil,
+    /// A McLennan PM304, or a chain of them, on a serial line.
+    McLennanPm304,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 8] = [
+    pub const ALL: [Model; 9] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -39,6 +41,7 @@ impl Model {
         Model::Pmac,
         Model::NewportEsp300,
         Model::Galil,
+        Model::McLennanPm304,
     ];
 
     /// The protocol it speaks, as launch files name it.
@@ -52,6 +55,7 @@ impl Model {
             Model::Pmac => "pmac",
             Model::NewportEsp300 => "newport_esp300",
             Model::Galil => "galil",
+            Model::McLennanPm304 => "mclennan_pm304",
         }
     }
 
@@ -74,7 +78,7 @@ impl Model {
             // rate (not read in its manual), and only paces a pseudo-terminal standing in.
             Model::Galil => 115_200,
             // The PMAC is reached over TCP; its rate only paces a pseudo-terminal standing in.
-            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac => 9_600,
+            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac | Model::McLennanPm304 => 9_600,
         }
     }
 
@@ -93,6 +97,8 @@ impl Model {
             Model::NewportEsp300 => 4,
             // Axes A to D, channels 0 to 3.
             Model::Galil => 4,
+            // Address 1; there is no address 0.
+            Model::McLennanPm304 => 2,
         }
     }
 
@@ -101,7 +107,8 @@ impl Model {
     /// `channels` − 1 (four at least), a phyMOTION modules of two axes (two modules at least), a
     /// PMAC the motors 1 to `channels` − 1 (one at least, 32 at most), an ESP300 the axes 1 to
     /// `channels` − 1 (one at least, three at most), a Galil DMC-40x0 the axes A… on channels 0
-    /// to `channels` − 1 (one at least, eight at most).
+    /// to `channels` − 1 (one at least, eight at most), a chain of McLennan PM304s the addresses 1 to
+    /// `channels` − 1 (one at least, eight at most).
     pub fn emulator(self, channels: usize) -> Box<dyn Emulator> {
         let mechanics = stage();
         match self {
@@ -121,6 +128,7 @@ impl Model {
                 Box::new(Esp300Emulator::new(channels.saturating_sub(1), &Esp300Emulator::mechanics()))
             }
             Model::Galil => Box::new(GalilEmulator::new(channels.clamp(1, 8), &mechanics)),
+            Model::McLennanPm304 => Box::new(Pm304Emulator::new(channels.saturating_sub(1).clamp(1, 8), &mechanics)),
         }
     }
 }
