@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, switched_on, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{Loopback, ProtocolKind};
@@ -18,17 +18,6 @@ const TICK: Duration = Duration::from_millis(10);
 
 fn go(position: f64, relative: bool) -> DriverCommand {
     DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
-
-/// Up, every axis's servo on.
-fn ready(channels: &[usize]) -> Loopback {
-    let mut lb = loopback(GALIL, channels, Faults::default());
-    bring_up(&mut lb);
-    for &channel in channels {
-        lb.command(channel, &DriverCommand::Enable { on: true });
-    }
-    lb.run_for(Duration::from_millis(100));
-    lb
 }
 
 #[test]
@@ -56,7 +45,7 @@ fn a_new_connection_reads_switches_the_servos_on_once_and_polls_every_axis_in_on
 
 #[test]
 fn a_move_arrives_where_asked_and_a_relative_one_from_there() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(GALIL, &CHANNELS);
     lb.command(1, &go(12_345.0, false));
     let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
     assert_eq!(statuses.last().map(|s| s.position), Some(12_345.0));
@@ -68,13 +57,13 @@ fn a_move_arrives_where_asked_and_a_relative_one_from_there() {
 
 #[test]
 fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(GALIL, &CHANNELS);
     common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 0);
 }
 
 #[test]
 fn a_home_is_the_controllers_and_ends_homed_at_zero() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(GALIL, &CHANNELS);
     lb.command(0, &go(30_000.0, false));
     run_until_done(&mut lb, 0, TICK, Duration::from_secs(5));
     let from = lb.written().len();
@@ -118,7 +107,7 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
 
 #[test]
 fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(GALIL, &CHANNELS);
     let reads = |l: &str| l.ends_with("=?\r") || l == "QR\r" || l == "QZ\r" || l == "\u{12}\u{16}\r";
     common::a_move_goes_once_and_a_new_connection_only_reads(&mut lb, 0, common::text, |l| l.starts_with("PAA"), reads);
 }

@@ -3,10 +3,10 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, loopback, run_until_done, written_since};
+use common::{bring_up, command, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{Loopback, ProtocolKind};
+use zmotor_controllers::ProtocolKind;
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -78,12 +78,7 @@ fn a_datum_search_ends_at_zero_and_homed() {
 fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
     let mut lb = loopback(PM304, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    lb.command(2, &DriverCommand::Raw { text: "2XX".into() });
-    lb.run_for(Duration::from_millis(1100));
-    let events = lb.take_events();
-    assert_eq!(controller_errors(&events).len(), 1, "{events:?}");
-    assert!(lb.controller.is_up());
-    assert!(!Loopback::statuses(&events, 2).is_empty(), "still polled");
+    common::an_unknown_command_is_an_error_and_the_link_stays_up(&mut lb, 2, "2XX", (Some(2), "!"));
 }
 
 #[test]

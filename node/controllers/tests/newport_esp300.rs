@@ -4,10 +4,10 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
+use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, switched_on, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{ControllerEvent, Loopback, ProtocolKind};
+use zmotor_controllers::{ControllerEvent, ProtocolKind};
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -18,17 +18,6 @@ const TICK: Duration = Duration::from_millis(10);
 
 fn go(position: f64, relative: bool) -> DriverCommand {
     DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
-
-/// Switched on and homed, as a user starts a stage.
-fn ready(channels: &[usize]) -> Loopback {
-    let mut lb = loopback(ESP, channels, Faults::default());
-    bring_up(&mut lb);
-    for &channel in channels {
-        lb.command(channel, &DriverCommand::Enable { on: true });
-        lb.run_for(Duration::from_millis(100));
-    }
-    lb
 }
 
 #[test]
@@ -57,7 +46,7 @@ fn a_new_connection_reads_the_configuration_and_stops_nothing() {
 
 #[test]
 fn a_move_arrives_where_asked_in_the_stages_units() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(ESP, &CHANNELS);
     lb.command(2, &go(12_345.0, false));
     let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
     let arrived = statuses.last().expect("done");
@@ -70,13 +59,13 @@ fn a_move_arrives_where_asked_in_the_stages_units() {
 
 #[test]
 fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(ESP, &CHANNELS);
     common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 1);
 }
 
 #[test]
 fn a_home_search_ends_on_the_home_switch() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(ESP, &CHANNELS);
     lb.command(1, &go(30_000.0, false));
     run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
     lb.command(
@@ -105,13 +94,8 @@ fn a_motion_the_controller_refuses_reaches_the_record_with_its_error() {
 
 #[test]
 fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
-    let mut lb = ready(&CHANNELS);
-    lb.command(2, &DriverCommand::Raw { text: "02XX".into() });
-    lb.run_for(Duration::from_millis(1100));
-    let events = lb.take_events();
-    assert_eq!(controller_errors(&events).len(), 1, "{events:?}");
-    assert!(lb.controller.is_up());
-    assert!(!Loopback::statuses(&events, 2).is_empty(), "still polled");
+    let mut lb = switched_on(ESP, &CHANNELS);
+    common::an_unknown_command_is_an_error_and_the_link_stays_up(&mut lb, 2, "02XX", (None, "6"));
 }
 
 #[test]
@@ -121,7 +105,7 @@ fn replies_split_at_every_byte_give_the_same_statuses() {
 
 #[test]
 fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
-    let mut lb = ready(&CHANNELS);
+    let mut lb = switched_on(ESP, &CHANNELS);
     let reads = |l: &str| l.ends_with("?\r") || l == "PH\r";
     common::a_move_goes_once_and_a_new_connection_only_reads(&mut lb, 1, common::text, |l| l.contains("PA"), reads);
 }

@@ -130,14 +130,7 @@ fn a_fatal_following_error_reaches_the_record_once_with_its_meaning() {
 fn an_unknown_command_is_the_controllers_error_and_the_link_stays_up() {
     let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    lb.command(1, &DriverCommand::Raw { text: "#1 FOO".into() });
-    lb.run_for(Duration::from_millis(1100));
-    let events = lb.take_events();
-    let errors = controller_errors(&events);
-    assert_eq!(errors.len(), 1, "{events:?}");
-    assert_eq!((errors[0].0, errors[0].1.as_str()), (Some(1), "ERR003"));
-    assert!(lb.controller.is_up());
-    assert!(!Loopback::statuses(&events, 1).is_empty(), "still polled");
+    common::an_unknown_command_is_an_error_and_the_link_stays_up(&mut lb, 1, "#1 FOO", (Some(1), "ERR003"));
 }
 
 #[test]

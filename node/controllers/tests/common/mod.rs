@@ -280,3 +280,33 @@ pub(crate) fn a_move_goes_once_and_a_new_connection_only_reads(
     let axis = lb.link.emulator().axis(channel).expect("the channel");
     assert!(!axis.is_moving(), "nothing moves after the reconnection");
 }
+
+/// `kind` driving its emulator with `channels`, up, every channel switched on.
+pub(crate) fn switched_on(kind: ProtocolKind, channels: &[usize]) -> Loopback {
+    let mut lb = loopback(kind, channels, Faults::default());
+    bring_up(&mut lb);
+    for &channel in channels {
+        lb.command(channel, &DriverCommand::Enable { on: true });
+    }
+    lb.run_for(Duration::from_millis(100));
+    lb
+}
+
+/// A line the controller does not know, sent raw to `channel`, is its error, reported once as
+/// `(channel, code)` say (the channel the vendor's error names, None for a controller's error);
+/// the link stays up and the channel polled.
+pub(crate) fn an_unknown_command_is_an_error_and_the_link_stays_up(
+    lb: &mut Loopback,
+    channel: usize,
+    text: &str,
+    (named, code): (Option<usize>, &str),
+) {
+    lb.command(channel, &DriverCommand::Raw { text: text.into() });
+    lb.run_for(Duration::from_millis(1100));
+    let events = lb.take_events();
+    let errors = controller_errors(&events);
+    assert_eq!(errors.len(), 1, "{events:?}");
+    assert_eq!((errors[0].0, errors[0].1.as_str()), (named, code), "{errors:?}");
+    assert!(lb.controller.is_up());
+    assert!(!Loopback::statuses(&events, channel).is_empty(), "still polled");
+}
