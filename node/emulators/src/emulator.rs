@@ -2,7 +2,13 @@
 
 use zmotor_core::{Instant, SimAxis, SimConfig};
 
-/// A controller's side of the wire, sans-IO: bytes in at a time, bytes out.
+/// One of a controller's simultaneous connections, numbered from 0 in the order the runner
+/// opened them. Most controllers serve one; an XPS serves many, each a socket of its own.
+pub type Connection = usize;
+
+/// A controller's side of the wire, sans-IO: bytes in at a time, bytes out. `handle_input` and
+/// `poll_transmit` are the first connection's; a controller serving several connections at once
+/// also gives the `_on` methods, and one whose replies wait for a motion gives `poll_timeout`.
 pub trait Emulator: Send {
     /// The protocol it speaks, as launch files name it.
     fn name(&self) -> &'static str;
@@ -19,6 +25,39 @@ pub trait Emulator: Send {
     /// queue entry, a refusal), as if the last command had failed. False when the protocol has
     /// no way to report one.
     fn raise_error(&mut self, channel: usize) -> bool;
+
+    /// How many connections the controller serves at once.
+    fn connections(&self) -> usize {
+        1
+    }
+
+    /// Bytes from the driver on `connection`, at `now`.
+    fn handle_input_on(&mut self, now: Instant, connection: Connection, bytes: &[u8]) {
+        debug_assert_eq!(connection, 0, "{} serves one connection", self.name());
+        self.handle_input(now, bytes);
+    }
+
+    /// The next bytes to send, and the connection they go on.
+    #[must_use]
+    fn poll_transmit_on(&mut self) -> Option<(Connection, Vec<u8>)> {
+        self.poll_transmit().map(|bytes| (0, bytes))
+    }
+
+    /// `connection` closed: what it was waiting for is dropped (the axes move on).
+    fn handle_closed(&mut self, connection: Connection) {
+        let _ = connection;
+    }
+
+    /// Time passed to `now`: a reply held until a motion ended comes due.
+    fn handle_timeout(&mut self, now: Instant) {
+        let _ = now;
+    }
+
+    /// When `handle_timeout` is next due, if a reply is held.
+    #[must_use]
+    fn poll_timeout(&self) -> Option<Instant> {
+        None
+    }
 }
 
 /// The mechanics behind every channel of an emulated controller, in steps.

@@ -1,6 +1,6 @@
 //! A link between a driver and its controller: its faults, and the pace of a serial line.
 
-use crate::Emulator;
+use crate::{Connection, Emulator};
 use std::collections::VecDeque;
 use std::time::Duration;
 use zmotor_core::Instant;
@@ -26,11 +26,11 @@ pub struct WithFaults {
     emulator: Box<dyn Emulator>,
     faults: Faults,
     replies: u32,
-    late: VecDeque<(Instant, Vec<u8>)>,
+    late: VecDeque<(Instant, Connection, Vec<u8>)>,
     /// On a serial line: how long one character takes, and the driver's bytes still on their
     /// way (each with when its last character has arrived).
     character_time: Option<Duration>,
-    arriving: VecDeque<(Instant, Vec<u8>)>,
+    arriving: VecDeque<(Instant, Connection, Vec<u8>)>,
     /// When each direction of the line is free again.
     receive_free: Instant,
     send_free: Instant,
@@ -74,61 +74,96 @@ impl WithFaults {
         self.emulator.name()
     }
 
-    /// Bytes from the driver at `now` (on a serial line, the controller has them once they
-    /// have crossed it).
+    /// Bytes from the driver at `now` on the first connection (on a serial line, the controller
+    /// has them once they have crossed it).
     pub fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
+        self.handle_input_on(now, 0, bytes);
+    }
+
+    /// Bytes from the driver at `now` on `connection`.
+    pub fn handle_input_on(&mut self, now: Instant, connection: Connection, bytes: &[u8]) {
         self.now = self.now.max(now);
         if self.closed {
             return;
         }
         let arrived = self.receive_free.max(self.now) + self.on_the_wire(bytes.len());
         self.receive_free = arrived;
-        self.arriving.push_back((arrived, bytes.to_vec()));
+        self.arriving.push_back((arrived, connection, bytes.to_vec()));
         self.deliver();
     }
 
-    /// Time passed to `now` (bytes on the line arrive, late replies come due).
+    /// Time passed to `now` (bytes on the line arrive, late replies come due, replies the
+    /// controller held until a motion ended are sent).
     pub fn handle_timeout(&mut self, now: Instant) {
         self.now = self.now.max(now);
         self.deliver();
+        if self.emulator.poll_timeout().is_some_and(|due| due <= self.now) && !self.closed {
+            self.emulator.handle_timeout(self.now);
+            self.take_replies(self.now);
+        }
+    }
+
+    /// `connection` closed by the driver: the controller drops what it held for it.
+    pub fn close(&mut self, connection: Connection) {
+        self.emulator.handle_closed(connection);
+        self.late.retain(|(_, on, _)| *on != connection);
+        self.arriving.retain(|(_, on, _)| *on != connection);
     }
 
     /// The driver's bytes that have arrived, to the controller; its replies onto the line.
     fn deliver(&mut self) {
-        while self.arriving.front().is_some_and(|(at, _)| *at <= self.now) && !self.closed {
-            let (at, bytes) = self.arriving.pop_front().expect("checked above");
-            self.emulator.handle_input(at, &bytes);
-            while let Some(reply) = self.emulator.poll_transmit() {
-                self.replies += 1;
-                let nth = |every: Option<u32>| every.is_some_and(|n| n > 0 && self.replies.is_multiple_of(n));
-                if nth(self.faults.drop_every) {
-                    continue;
-                }
-                let reply = if nth(self.faults.garble_every) { vec![b'~'; reply.len().max(3)] } else { reply };
-                let sent = self.send_free.max(at + self.faults.delay) + self.on_the_wire(reply.len());
-                self.send_free = sent;
-                self.late.push_back((sent, reply));
-                if self.faults.close_after.is_some_and(|n| self.replies >= n) {
-                    self.closed = true;
-                    break;
-                }
+        while self.arriving.front().is_some_and(|(at, _, _)| *at <= self.now) && !self.closed {
+            let (at, connection, bytes) = self.arriving.pop_front().expect("checked above");
+            self.emulator.handle_input_on(at, connection, &bytes);
+            self.take_replies(at);
+        }
+    }
+
+    /// The controller's replies at `at`, onto the link with its faults.
+    fn take_replies(&mut self, at: Instant) {
+        while let Some((connection, reply)) = self.emulator.poll_transmit_on() {
+            self.replies += 1;
+            let nth = |every: Option<u32>| every.is_some_and(|n| n > 0 && self.replies.is_multiple_of(n));
+            if nth(self.faults.drop_every) {
+                continue;
+            }
+            let reply = if nth(self.faults.garble_every) { vec![b'~'; reply.len().max(3)] } else { reply };
+            let sent = self.send_free.max(at + self.faults.delay) + self.on_the_wire(reply.len());
+            self.send_free = sent;
+            self.late.push_back((sent, connection, reply));
+            if self.faults.close_after.is_some_and(|n| self.replies >= n) {
+                self.closed = true;
+                break;
             }
         }
     }
 
-    /// The next reply due by now.
+    /// The next reply due by now (of a controller serving one connection).
     #[must_use]
     pub fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        if self.late.front().is_some_and(|(due, _)| *due <= self.now) {
-            return self.late.pop_front().map(|(_, bytes)| bytes);
+        self.poll_transmit_on().map(|(_, bytes)| bytes)
+    }
+
+    /// The next reply due by now, and the connection it goes on.
+    #[must_use]
+    pub fn poll_transmit_on(&mut self) -> Option<(Connection, Vec<u8>)> {
+        if self.late.front().is_some_and(|(due, _, _)| *due <= self.now) {
+            return self.late.pop_front().map(|(_, connection, bytes)| (connection, bytes));
         }
         None
     }
 
-    /// When the next late reply is due, or the next bytes on the line arrive.
+    /// When the next late reply is due, the next bytes on the line arrive, or the controller
+    /// sends a reply it held.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        [self.late.front(), self.arriving.front()].into_iter().flatten().map(|(due, _)| *due).min()
+        let link = [self.late.front(), self.arriving.front()].into_iter().flatten().map(|(due, _, _)| *due);
+        link.chain(self.emulator.poll_timeout()).min()
+    }
+
+    /// How many connections the controller serves at once.
+    pub fn connections(&self) -> usize {
+        self.emulator.connections()
     }
 
     /// The connection is to be closed (after its last replies).
@@ -145,6 +180,9 @@ impl WithFaults {
     /// A new connection to the same controller: what the old one had in transit is lost, the
     /// controller itself (its axes, its settings) is as it was, the faults count again.
     pub fn reconnect(&mut self) {
+        for connection in 0..self.emulator.connections() {
+            self.emulator.handle_closed(connection);
+        }
         self.closed = false;
         self.replies = 0;
         self.late.clear();

@@ -2,8 +2,8 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, Mcb4bEmulator, Mcs2Emulator,
-    PhymotionEmulator, Pm304Emulator, PmacEmulator, Smc100Emulator,
+    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, MaxnetEmulator, Mcb4bEmulator,
+    Mcs2Emulator, MdriveEmulator, PhymotionEmulator, Pm304Emulator, PmacEmulator, Smc100Emulator, XpsEmulator,
 };
 
 /// A controller model this crate emulates.
@@ -28,11 +28,17 @@ pub enum Model {
     Galil,
     /// A McLennan PM304, or a chain of them, on a serial line.
     McLennanPm304,
+    /// A Newport XPS, over Ethernet, serving several sockets at once.
+    NewportXps,
+    /// IMS MDrive Plus motors sharing a serial line in party mode.
+    ImsMdrive,
+    /// An Oregon Micro Systems MAXnet, over Ethernet.
+    OmsMaxnet,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 9] = [
+    pub const ALL: [Model; 12] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -42,6 +48,9 @@ impl Model {
         Model::NewportEsp300,
         Model::Galil,
         Model::McLennanPm304,
+        Model::NewportXps,
+        Model::ImsMdrive,
+        Model::OmsMaxnet,
     ];
 
     /// The protocol it speaks, as launch files name it.
@@ -56,6 +65,9 @@ impl Model {
             Model::NewportEsp300 => "newport_esp300",
             Model::Galil => "galil",
             Model::McLennanPm304 => "mclennan_pm304",
+            Model::NewportXps => "newport_xps",
+            Model::ImsMdrive => "ims_mdrive",
+            Model::OmsMaxnet => "oms_maxnet",
         }
     }
 
@@ -78,7 +90,15 @@ impl Model {
             // rate (not read in its manual), and only paces a pseudo-terminal standing in.
             Model::Galil => 115_200,
             // The PMAC is reached over TCP; its rate only paces a pseudo-terminal standing in.
-            Model::AcsMcb4b | Model::SmaractMcs2 | Model::Phytron | Model::Pmac | Model::McLennanPm304 => 9_600,
+            // The XPS and the MAXnet are reached over TCP; the rate only paces a pseudo-terminal.
+            Model::AcsMcb4b
+            | Model::SmaractMcs2
+            | Model::Phytron
+            | Model::Pmac
+            | Model::McLennanPm304
+            | Model::NewportXps
+            | Model::ImsMdrive
+            | Model::OmsMaxnet => 9_600,
         }
     }
 
@@ -99,6 +119,12 @@ impl Model {
             Model::Galil => 4,
             // Address 1; there is no address 0.
             Model::McLennanPm304 => 2,
+            // Groups 1 to 4 (GROUP1.POSITIONER …); there is no group 0.
+            Model::NewportXps => 5,
+            // Party-mode names 1 to 3 on channels 1 to 3.
+            Model::ImsMdrive => 4,
+            // Axes X, Y, Z, T on channels 0 to 3.
+            Model::OmsMaxnet => 4,
         }
     }
 
@@ -129,6 +155,9 @@ impl Model {
             }
             Model::Galil => Box::new(GalilEmulator::new(channels.clamp(1, 8), &mechanics)),
             Model::McLennanPm304 => Box::new(Pm304Emulator::new(channels.saturating_sub(1).clamp(1, 8), &mechanics)),
+            Model::NewportXps => Box::new(XpsEmulator::new(channels.saturating_sub(1).clamp(1, 8), &mechanics)),
+            Model::ImsMdrive => Box::new(MdriveEmulator::new(channels.saturating_sub(1).clamp(1, 9), &mechanics)),
+            Model::OmsMaxnet => Box::new(MaxnetEmulator::new(channels.clamp(1, 10), &mechanics)),
         }
     }
 }
