@@ -14,7 +14,7 @@ use crate::Error;
 use std::time::{Duration, Instant};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use zenoh::Session;
-use zmotor_controllers::{AnyController, ControllerConfig, ControllerEvent, ProtocolKind, ProtocolOptions};
+use zmotor_controllers::{AnyController, ControllerConfig, ControllerEvent, Lane, ProtocolKind, ProtocolOptions};
 use zmotor_controllers::{SerialSettings, Transport};
 use zmotor_emulators::{Faults, Model};
 use zmotor_msgs::decode_cbor_value;
@@ -281,7 +281,11 @@ impl Driven {
         let limit = Instant::now() + Duration::from_secs(10);
         let mut buffer = vec![0u8; 4096];
         loop {
-            while let Some(bytes) = self.controller.poll_transmit() {
+            while let Some((lane, bytes)) = self.controller.poll_transmit() {
+                // Only polls and status refreshes are timed here: all on the main connection.
+                if lane != Lane::Main {
+                    return Err(format!("a write on {lane:?}, which this bench does not open").into());
+                }
                 self.first_write.get_or_insert_with(Instant::now);
                 self.stream.write_all(&bytes).await?;
                 self.written += 1;
@@ -307,7 +311,7 @@ impl Driven {
                         return Err("the emulator closed the connection".into());
                     }
                     let now = self.now();
-                    self.controller.handle_input(now, &buffer[..n]);
+                    self.controller.handle_input(now, Lane::Main, &buffer[..n]);
                 }
                 _ = tokio::time::sleep_until(due.unwrap_or(limit).into()) => {
                     let now = self.now();

@@ -8,10 +8,16 @@
 //! later), and the connection is reopened with a growing back-off. A reopened connection is
 //! initialised and every channel polled before its status counts again.
 //!
-//! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read),
-//! `handle_timeout`. Outputs: `poll_transmit` (bytes to write), `poll_event`, `poll_timeout`.
+//! A protocol whose motion calls answer only once the motion ends has, beside the main
+//! connection, one per channel for its motion (`Lane::Motion`): a motion call is written there
+//! without waiting, and its reply, whenever it comes, is read as the protocol's and brings a poll.
+//! The connections are one link: when one is lost, all are.
+//!
+//! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read on
+//! a lane), `handle_timeout`. Outputs: `poll_transmit` (bytes to write on a lane), `poll_event`,
+//! `poll_timeout`.
 
-use crate::protocol::{CommandError, Finding, Frame, Protocol, Purpose, ReplyEvent, Request, VendorError};
+use crate::protocol::{CommandError, Finding, Frame, Lane, Protocol, Purpose, ReplyEvent, Request, VendorError};
 use crate::scale::{RecordUnits, Scale, ScaleCheck, ScaleMismatch};
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -194,6 +200,19 @@ struct InFlight<S> {
     attempts: u32,
 }
 
+/// A channel's motion connection: its motion calls waiting for their replies, in order.
+#[derive(Debug)]
+struct MotionLane<S> {
+    waiting: VecDeque<Request<S>>,
+    received: Vec<u8>,
+}
+
+impl<S> Default for MotionLane<S> {
+    fn default() -> Self {
+        Self { waiting: VecDeque::new(), received: Vec::new() }
+    }
+}
+
 /// The connection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Link {
@@ -256,12 +275,14 @@ pub struct Controller<P: Protocol> {
     /// A request whose reply did not come in time, sent again once the quiet is over.
     retry: Option<InFlight<P::Step>>,
     received: Vec<u8>,
+    /// Each channel's motion connection, for a protocol with motion lanes.
+    motion_lanes: BTreeMap<usize, MotionLane<P::Step>>,
     next_poll: Option<Instant>,
     fast_polls_left: u32,
     failures: u32,
     seq: u64,
     now: Instant,
-    transmit: VecDeque<Vec<u8>>,
+    transmit: VecDeque<(Lane, Vec<u8>)>,
     events: VecDeque<ControllerEvent>,
 }
 
@@ -277,14 +298,19 @@ pub trait AnyController: Send {
     /// A driver command for `channel` (from its axis's record).
     fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand);
 
-    /// The runner opened the connection.
+    /// The connections the runner opens at `ControllerEvent::Connect`, all of them: the main
+    /// one first.
+    #[must_use]
+    fn lanes(&self) -> Vec<Lane>;
+
+    /// The runner opened the connections (every lane).
     fn handle_connected(&mut self, now: Instant);
 
-    /// The connection failed to open, or closed.
+    /// A connection failed to open, or closed: the runner closes the others.
     fn handle_disconnected(&mut self, now: Instant);
 
-    /// Bytes read from the connection.
-    fn handle_input(&mut self, now: Instant, bytes: &[u8]);
+    /// Bytes read from the connection of `lane`.
+    fn handle_input(&mut self, now: Instant, lane: Lane, bytes: &[u8]);
 
     /// Time passed to `now`: a reply overdue, a poll due, a reconnection due.
     fn handle_timeout(&mut self, now: Instant);
@@ -293,9 +319,9 @@ pub trait AnyController: Send {
     #[must_use]
     fn poll_timeout(&self) -> Option<Instant>;
 
-    /// The next bytes to write.
+    /// The next bytes to write, and the connection they go on.
     #[must_use]
-    fn poll_transmit(&mut self) -> Option<Vec<u8>>;
+    fn poll_transmit(&mut self) -> Option<(Lane, Vec<u8>)>;
 
     /// The next event.
     #[must_use]
@@ -318,6 +344,7 @@ impl<P: Protocol> Controller<P> {
             quiet_until: None,
             retry: None,
             received: Vec::new(),
+            motion_lanes: BTreeMap::new(),
             next_poll: None,
             fast_polls_left: 0,
             failures: 0,
@@ -427,6 +454,11 @@ impl<P: Protocol> AnyController for Controller<P> {
         self.pump();
     }
 
+    fn lanes(&self) -> Vec<Lane> {
+        let motion = self.config.channels.iter().map(|&channel| Lane::Motion(channel));
+        std::iter::once(Lane::Main).chain(motion.filter(|_| self.protocol.motion_lanes())).collect()
+    }
+
     fn handle_connected(&mut self, now: Instant) {
         self.advance(now);
         let Link::Connecting { backoff } = self.link else { return };
@@ -478,28 +510,43 @@ impl<P: Protocol> AnyController for Controller<P> {
         }
     }
 
-    fn handle_input(&mut self, now: Instant, bytes: &[u8]) {
+    fn handle_input(&mut self, now: Instant, lane: Lane, bytes: &[u8]) {
         self.advance(now);
         if !matches!(self.link, Link::Initialising { .. } | Link::Up) {
             return;
         }
-        self.received.extend_from_slice(bytes);
-        if self.received.len() > MAX_UNFRAMED {
+        let mut received = match lane {
+            Lane::Main => std::mem::take(&mut self.received),
+            Lane::Motion(channel) => std::mem::take(&mut self.motion_lanes.entry(channel).or_default().received),
+        };
+        received.extend_from_slice(bytes);
+        if received.len() > MAX_UNFRAMED {
             // Bytes that never make a frame (a device streaming, the wrong protocol): dropped.
-            let what = format!("{} bytes that are no frame of the protocol, dropped", self.received.len());
-            self.received.clear();
+            let what = format!("{} bytes that are no frame of the protocol, dropped", received.len());
             self.events.push_back(ControllerEvent::Failed { what });
             return;
         }
+        let mut frames = Vec::new();
         loop {
-            match self.protocol.frame(&self.received) {
+            match self.protocol.frame(&received) {
                 Frame::Incomplete => break,
                 Frame::Junk(n) => {
-                    self.received.drain(..n.min(self.received.len()));
+                    received.drain(..n.min(received.len()));
                 }
-                Frame::Complete(n) => {
-                    let frame: Vec<u8> = self.received.drain(..n.min(self.received.len())).collect();
+                Frame::Complete(n) => frames.push(received.drain(..n.min(received.len())).collect::<Vec<u8>>()),
+            }
+        }
+        match lane {
+            Lane::Main => {
+                self.received = received;
+                for frame in frames {
                     self.on_frame(&frame);
+                }
+            }
+            Lane::Motion(channel) => {
+                self.motion_lanes.entry(channel).or_default().received = received;
+                for frame in frames {
+                    self.on_motion_frame(channel, &frame);
                 }
             }
         }
@@ -547,7 +594,7 @@ impl<P: Protocol> AnyController for Controller<P> {
         }
     }
 
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+    fn poll_transmit(&mut self) -> Option<(Lane, Vec<u8>)> {
         self.transmit.pop_front()
     }
 
@@ -625,10 +672,18 @@ impl<P: Protocol> Controller<P> {
 
     /// Write `request` (its `attempts`-th time); wait for its reply if it has one.
     fn send(&mut self, request: Request<P::Step>, attempts: u32) {
+        if let Lane::Motion(channel) = request.lane {
+            // Not waited for: its reply comes when the motion ends, however long that takes.
+            self.transmit.push_back((request.lane, request.bytes.clone()));
+            if request.answered {
+                self.motion_lanes.entry(channel).or_default().waiting.push_back(request);
+            }
+            return;
+        }
         // What arrived before this request belongs to nothing: a late reply to an exchange
         // given up must not pass for this one's.
         self.received.clear();
-        self.transmit.push_back(request.bytes.clone());
+        self.transmit.push_back((Lane::Main, request.bytes.clone()));
         if request.answered {
             self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts });
         }
@@ -701,6 +756,44 @@ impl<P: Protocol> Controller<P> {
                 }
             }
             Err(e) => self.on_failure(in_flight, &e.to_string()),
+        }
+    }
+
+    /// The reply to a motion call of `channel`, the oldest waiting: what it says counts as any
+    /// reply's, requests it asks for follow as a command of their own, and a poll comes next
+    /// (the motion is over).
+    fn on_motion_frame(&mut self, channel: usize, frame: &[u8]) {
+        let waiting = self.motion_lanes.get_mut(&channel).and_then(|lane| lane.waiting.pop_front());
+        let Some(request) = waiting else {
+            self.events.push_back(ControllerEvent::Failed {
+                what: format!(
+                    "unexpected bytes on the motion connection of channel {channel}: {}",
+                    crate::protocol::printable(frame)
+                ),
+            });
+            return;
+        };
+        match self.protocol.reply(&request, frame) {
+            Ok(events) => {
+                for event in events {
+                    match event {
+                        ReplyEvent::FollowUp(requests) => {
+                            self.seq += 1;
+                            let kind = Kind::Command { channel, motion: false };
+                            let (requests, issued) = (requests.into(), self.seq);
+                            self.queue.push(Transaction { priority: Priority::Setting, kind, requests, issued });
+                        }
+                        event => self.on_event(event, self.seq),
+                    }
+                }
+            }
+            Err(e) => {
+                self.events.push_back(ControllerEvent::Failed { what: e.to_string() });
+                self.report_problem(channel);
+            }
+        }
+        if self.link == Link::Up {
+            self.next_poll = Some(self.now);
         }
     }
 
@@ -827,6 +920,7 @@ impl<P: Protocol> Controller<P> {
         self.retry = None;
         self.quiet_until = None;
         self.received.clear();
+        self.motion_lanes.clear();
         self.transmit.clear();
         self.next_poll = None;
         self.failures = 0;

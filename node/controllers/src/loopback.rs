@@ -104,7 +104,7 @@ impl Loopback {
             .collect()
     }
 
-    /// Every request the driver wrote, in order.
+    /// Every request the driver wrote, on any lane, in order.
     pub fn written(&self) -> &[Vec<u8>] {
         &self.written
     }
@@ -124,6 +124,11 @@ impl Loopback {
                 moved = true;
                 match event {
                     ControllerEvent::Connect if self.reachable => {
+                        let lanes = self.controller.lanes().len();
+                        assert!(
+                            lanes <= self.link.connections(),
+                            "the emulator serves fewer connections than the driver opens"
+                        );
                         self.link.reconnect();
                         self.connected = true;
                         self.controller.handle_connected(self.now);
@@ -134,17 +139,21 @@ impl Loopback {
                 }
                 self.events.push(event);
             }
-            while let Some(bytes) = self.controller.poll_transmit() {
+            // The controller's lanes are the emulator's connections, in the same order.
+            let lanes = self.controller.lanes();
+            while let Some((lane, bytes)) = self.controller.poll_transmit() {
                 moved = true;
                 if self.connected {
-                    self.link.handle_input(self.now, &bytes);
+                    let connection = lanes.iter().position(|l| *l == lane).expect("a lane of the controller");
+                    self.link.handle_input_on(self.now, connection, &bytes);
                 }
                 self.written.push(bytes);
             }
-            while let Some(reply) = self.link.poll_transmit() {
+            while let Some((connection, reply)) = self.link.poll_transmit_on() {
                 moved = true;
+                let lane = lanes[connection];
                 for piece in reply.chunks(self.chunk) {
-                    self.controller.handle_input(self.now, piece);
+                    self.controller.handle_input(self.now, lane, piece);
                 }
             }
             if self.connected && self.link.is_closed() {

@@ -14,6 +14,18 @@ pub struct ProtocolOptions {
     pub units_per_step: Option<f64>,
 }
 
+/// Which of a controller's connections a request travels on. Most protocols use one; a
+/// controller whose motion calls answer only once the motion ends (an XPS) gets a connection
+/// of its own for each channel's motion, so that polls and stops go on meanwhile.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Lane {
+    /// The connection every exchange waits on, one request at a time.
+    Main,
+    /// The connection of the motion of one channel: requests are written without waiting,
+    /// their replies read whenever they come.
+    Motion(usize),
+}
+
 /// One exchange with the controller: the bytes to write, and whether one reply frame answers
 /// them. `S` is the protocol's name for the step it is (`Protocol::Step`).
 #[derive(Clone, Debug, PartialEq)]
@@ -24,18 +36,26 @@ pub struct Request<S> {
     pub answered: bool,
     /// Which step it is, handed back with the reply.
     pub step: S,
+    /// The connection it goes on.
+    pub lane: Lane,
 }
 
 impl<S> Request<S> {
     /// A request the controller answers.
     pub fn query(bytes: impl Into<Vec<u8>>, step: S) -> Self {
-        Self { bytes: bytes.into(), answered: true, step }
+        Self { bytes: bytes.into(), answered: true, step, lane: Lane::Main }
     }
 
     /// A request the controller does not answer (a setter of a protocol whose setters are
     /// silent).
     pub fn silent(bytes: impl Into<Vec<u8>>, step: S) -> Self {
-        Self { bytes: bytes.into(), answered: false, step }
+        Self { bytes: bytes.into(), answered: false, step, lane: Lane::Main }
+    }
+
+    /// A motion call of `channel` answered when the motion ends: written on the channel's
+    /// motion connection and not waited for; its reply goes to `Protocol::reply` when it comes.
+    pub fn motion(bytes: impl Into<Vec<u8>>, step: S, channel: usize) -> Self {
+        Self { bytes: bytes.into(), answered: true, step, lane: Lane::Motion(channel) }
     }
 }
 
@@ -211,6 +231,12 @@ pub trait Protocol: Send {
     /// anything, and says how to reference it.
     fn moves_need_reference(&self, channel: usize) -> bool {
         let _ = channel;
+        false
+    }
+
+    /// Whether motion calls go on connections of their own (`Lane::Motion`): the runner then
+    /// opens one for each channel beside the main one.
+    fn motion_lanes(&self) -> bool {
         false
     }
 

@@ -1,15 +1,17 @@
 //! Controllers on their connections: a thin tokio runner around each sans-IO `Controller`
-//! (zmotor-controllers). It opens the TCP socket or serial port when the controller asks, moves
+//! (zmotor-controllers). It opens the TCP socket or serial port when the controller asks (one
+//! socket for each of the controller's lanes, where it has several), moves
 //! bytes both ways, turns the wall clock into timeouts, hands each channel's status to its axis
 //! and the axes' driver commands to the controller. Nothing here decides anything.
 
 use std::collections::BTreeMap;
 use std::future::Future;
 use std::pin::Pin;
+use std::task::Poll;
 use std::time::Duration;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadHalf, WriteHalf};
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
-use zmotor_controllers::{AnyController, ControllerEvent};
+use zmotor_controllers::{AnyController, ControllerEvent, Lane};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_controllers::{ControllerUnit, Finding, Scale, ScaleCheck, VendorError};
 use zmotor_core::DeviceStatus;
@@ -24,7 +26,7 @@ trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
 impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
 
 type Stream = Box<dyn Io>;
-type Opening = Pin<Box<dyn Future<Output = std::io::Result<Stream>> + Send>>;
+type Opening = Pin<Box<dyn Future<Output = std::io::Result<Vec<Stream>>> + Send>>;
 
 /// A controller's axes, once they exist: where its statuses and its messages go.
 pub(crate) trait ControllerAxes: Send {
@@ -74,10 +76,11 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
     let mut runner = Runner {
         name: spec.name,
         transport: spec.transport,
+        lanes: controller.lanes(),
         controller,
         origin,
-        reader: None,
-        writer: None,
+        readers: Vec::new(),
+        writers: Vec::new(),
         opening: None,
         axes: None,
         latest: BTreeMap::new(),
@@ -97,8 +100,10 @@ struct Runner {
     transport: Transport,
     controller: Box<dyn AnyController>,
     origin: tokio::time::Instant,
-    reader: Option<ReadHalf<Stream>>,
-    writer: Option<WriteHalf<Stream>>,
+    /// The controller's lanes; the connections below are theirs, in the same order.
+    lanes: Vec<Lane>,
+    readers: Vec<ReadHalf<Stream>>,
+    writers: Vec<WriteHalf<Stream>>,
     opening: Option<Opening>,
     axes: Option<Box<dyn ControllerAxes>>,
     /// Each channel's latest status (and motions received), for axes not attached yet.
@@ -179,17 +184,16 @@ impl Runner {
                         self.axes = Some(axes);
                     }
                 },
-                read = read_some(&mut self.reader, &mut buffer) => match read {
-                    Ok(n) if n > 0 => self.controller.handle_input(self.now(), &buffer[..n]),
+                (lane, read) = read_any(&mut self.readers, &mut buffer) => match read {
+                    Ok(n) if n > 0 => self.controller.handle_input(self.now(), self.lanes[lane], &buffer[..n]),
                     Ok(_) => self.closed("the controller closed the connection"),
                     Err(e) => self.closed(&e.to_string()),
                 },
                 opened = async { self.opening.as_mut().expect("guarded").await }, if self.opening.is_some() => {
                     self.opening = None;
                     match opened {
-                        Ok(stream) => {
-                            let (reader, writer) = tokio::io::split(stream);
-                            (self.reader, self.writer) = (Some(reader), Some(writer));
+                        Ok(streams) => {
+                            (self.readers, self.writers) = streams.into_iter().map(tokio::io::split).unzip();
                             self.controller.handle_connected(self.now());
                         }
                         Err(e) => {
@@ -219,8 +223,9 @@ impl Runner {
             while let Some(event) = self.controller.poll_event() {
                 self.on_event(event);
             }
-            let Some(bytes) = self.controller.poll_transmit() else { break };
-            let Some(writer) = self.writer.as_mut() else { continue };
+            let Some((lane, bytes)) = self.controller.poll_transmit() else { break };
+            let connection = self.lanes.iter().position(|l| *l == lane);
+            let Some(writer) = connection.and_then(|c| self.writers.get_mut(c)) else { continue };
             let written = async {
                 writer.write_all(&bytes).await?;
                 writer.flush().await
@@ -245,11 +250,11 @@ impl Runner {
         match event {
             ControllerEvent::Connect => {
                 tracing::debug!(controller = %self.name, "opening {}", self.transport);
-                self.opening = Some(open(self.transport.clone()));
+                self.opening = Some(open(self.transport.clone(), self.lanes.len()));
             }
             ControllerEvent::Disconnect => {
                 tracing::warn!(controller = %self.name, "communication lost; its axes are in COMM alarm until it answers again");
-                (self.reader, self.writer) = (None, None);
+                (self.readers, self.writers) = (Vec::new(), Vec::new());
                 self.ready();
             }
             ControllerEvent::Status { channel, status, motions } => {
@@ -339,7 +344,7 @@ impl Runner {
     /// The connection failed under us.
     fn closed(&mut self, why: &str) {
         tracing::warn!(controller = %self.name, "{}: {why}", self.transport);
-        (self.reader, self.writer) = (None, None);
+        (self.readers, self.writers) = (Vec::new(), Vec::new());
         self.controller.handle_disconnected(self.now());
     }
 
@@ -356,31 +361,51 @@ impl Runner {
     }
 }
 
-/// Read from the stream if there is one; never ready otherwise.
-async fn read_some(reader: &mut Option<ReadHalf<Stream>>, buffer: &mut [u8]) -> std::io::Result<usize> {
-    match reader {
-        Some(reader) => reader.read(buffer).await,
-        None => std::future::pending().await,
+/// Read from whichever connection has bytes first: its index and what was read. Never ready
+/// without a connection.
+async fn read_any(readers: &mut [ReadHalf<Stream>], buffer: &mut [u8]) -> (usize, std::io::Result<usize>) {
+    if readers.is_empty() {
+        return std::future::pending().await;
     }
+    std::future::poll_fn(|context| {
+        for (index, reader) in readers.iter_mut().enumerate() {
+            let mut read = ReadBuf::new(buffer);
+            if let Poll::Ready(result) = Pin::new(reader).poll_read(context, &mut read) {
+                return Poll::Ready((index, result.map(|()| read.filled().len())));
+            }
+        }
+        Poll::Pending
+    })
+    .await
 }
 
-/// Open the transport, within `OPEN_TIMEOUT`.
-fn open(transport: Transport) -> Opening {
+/// Open `connections` connections on the transport (a serial line has one), each within
+/// `OPEN_TIMEOUT`.
+fn open(transport: Transport, connections: usize) -> Opening {
     Box::pin(async move {
-        let opening = async {
-            match &transport {
-                Transport::Tcp { address } => {
-                    let stream = tokio::net::TcpStream::connect(address.as_str()).await?;
-                    // Requests are small and each waits for its reply: no Nagle delay.
-                    stream.set_nodelay(true)?;
-                    Ok(Box::new(stream) as Stream)
+        let mut streams = Vec::with_capacity(connections);
+        for opened in 0..connections {
+            let opening = async {
+                match &transport {
+                    Transport::Tcp { address } => {
+                        let stream = tokio::net::TcpStream::connect(address.as_str()).await?;
+                        // Requests are small and each waits for its reply: no Nagle delay.
+                        stream.set_nodelay(true)?;
+                        Ok(Box::new(stream) as Stream)
+                    }
+                    Transport::Serial(_) if opened > 0 => Err(std::io::Error::new(
+                        std::io::ErrorKind::Unsupported,
+                        "the protocol needs several connections, and a serial line is one",
+                    )),
+                    Transport::Serial(settings) => open_serial(settings),
                 }
-                Transport::Serial(settings) => open_serial(settings),
-            }
-        };
-        tokio::time::timeout(OPEN_TIMEOUT, opening)
-            .await
-            .unwrap_or_else(|_| Err(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))
+            };
+            let stream = tokio::time::timeout(OPEN_TIMEOUT, opening)
+                .await
+                .unwrap_or_else(|_| Err(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?;
+            streams.push(stream);
+        }
+        Ok(streams)
     })
 }
 

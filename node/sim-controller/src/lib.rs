@@ -2,14 +2,17 @@
 //! (`zmotor_emulators`), served on the wall clock: its bytes on a TCP socket or on a
 //! pseudo-terminal, with the link's faults on request. It lets a launch file written for real
 //! hardware run with none attached (`zmotor sim-controller`), and the benchmark watch the
-//! emulated stages. One connection at a time; a new one replaces the old (the controller, its
-//! axes and settings, stays as it was).
+//! emulated stages. A controller serving one connection at a time has a new one replace the old
+//! (the controller, its axes and settings, stays as it was); one serving several (an XPS) serves
+//! them at once.
 
 use std::path::{Path, PathBuf};
+use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use std::task::Poll;
+use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf};
 use zmotor_core::{Driver, Instant};
-use zmotor_emulators::{Faults, Model, WithFaults};
+use zmotor_emulators::{Connection, Faults, Model, WithFaults};
 
 /// A pseudo-terminal that cannot be made.
 #[derive(Debug, thiserror::Error)]
@@ -35,8 +38,8 @@ pub enum PtyError {
 pub trait Io: AsyncRead + AsyncWrite + Unpin + Send {}
 impl<T: AsyncRead + AsyncWrite + Unpin + Send> Io for T {}
 
-/// An emulated controller: its faulty link and its clock. Connections come one at a time;
-/// the benchmark also watches its stages.
+/// An emulated controller: its faulty link and its clock; the benchmark also watches its
+/// stages.
 #[derive(Clone)]
 pub struct Emulated {
     link: Arc<Mutex<WithFaults>>,
@@ -72,52 +75,78 @@ impl Emulated {
         axis.next_event().map(|end| self.origin + end.since_origin())
     }
 
-    /// Serve connections on `listener`, a new one replacing the old; returns only on error.
+    /// Serve connections on `listener`: as many at once as the controller serves, each with its
+    /// number (a controller serving one: a new one replaces the old); returns only on error.
     pub async fn serve_tcp(&self, listener: tokio::net::TcpListener) -> std::io::Result<()> {
-        let mut connection: Option<Box<dyn Io>> = None;
+        let mut connections: Vec<Option<Box<dyn Io>>> = Vec::new();
         loop {
             tokio::select! {
                 accepted = listener.accept() => {
                     let (stream, peer) = accepted?;
                     stream.set_nodelay(true)?;
-                    tracing::debug!("connection from {peer}");
-                    self.link().reconnect();
-                    connection = Some(Box::new(stream));
+                    let served = self.link().connections();
+                    if served == 1 || connections.iter().all(Option::is_none) {
+                        connections.clear();
+                        self.link().reconnect();
+                    }
+                    let Some(number) = free_slot(&mut connections, served) else {
+                        tracing::warn!("connection from {peer} refused: the controller serves {served} at once");
+                        continue;
+                    };
+                    tracing::debug!("connection {number} from {peer}");
+                    connections[number] = Some(Box::new(stream));
                 }
-                ended = self.serve(&mut connection) => {
-                    tracing::info!("connection closed: {ended}");
-                    connection = None;
-                }
+                ended = self.serve_connections(&mut connections) => match ended {
+                    Ended::One(number, why) => {
+                        tracing::info!("connection {number} closed: {why}");
+                        connections[number] = None;
+                        self.link().close(number);
+                    }
+                    Ended::All(why) => {
+                        tracing::info!("connections closed: {why}");
+                        connections.clear();
+                    }
+                },
             }
         }
     }
 
-    /// Serve one connection until it closes; what ended it. Never returns without a connection.
+    /// Serve one connection (a pseudo-terminal) until it closes; what ended it. Never returns
+    /// without a connection.
     pub async fn serve(&self, connection: &mut Option<Box<dyn Io>>) -> String {
-        let Some(stream) = connection.as_mut() else { return std::future::pending().await };
+        let mut connections = vec![connection.take()];
+        match self.serve_connections(&mut connections).await {
+            Ended::One(_, why) | Ended::All(why) => why,
+        }
+    }
+
+    /// Serve `connections` (by their number; None a free number) until one closes, or all.
+    async fn serve_connections(&self, connections: &mut [Option<Box<dyn Io>>]) -> Ended {
         let mut buffer = vec![0u8; 4096];
         loop {
             let (replies, closed, due) = {
                 let mut link = self.link();
-                let replies: Vec<Vec<u8>> = std::iter::from_fn(|| link.poll_transmit()).collect();
+                let replies: Vec<(Connection, Vec<u8>)> = std::iter::from_fn(|| link.poll_transmit_on()).collect();
                 (replies, link.is_closed(), link.poll_timeout().map(|t| self.origin + t.since_origin()))
             };
-            for reply in replies {
+            for (number, reply) in replies {
+                // A reply for a connection closed meanwhile is lost with it.
+                let Some(Some(stream)) = connections.get_mut(number) else { continue };
                 if let Err(e) = stream.write_all(&reply).await {
-                    return e.to_string();
+                    return Ended::One(number, e.to_string());
                 }
             }
             if closed {
-                return "closed on purpose (--close-after)".into();
+                return Ended::All("closed on purpose (--close-after)".into());
             }
             tokio::select! {
-                read = stream.read(&mut buffer) => match read {
-                    Ok(0) => return "the driver closed it".into(),
+                (number, read) = read_any(connections, &mut buffer) => match read {
+                    Ok(0) => return Ended::One(number, "the driver closed it".into()),
                     Ok(n) => {
                         let now = self.now();
-                        self.link().handle_input(now, &buffer[..n]);
+                        self.link().handle_input_on(now, number, &buffer[..n]);
                     }
-                    Err(e) => return e.to_string(),
+                    Err(e) => return Ended::One(number, e.to_string()),
                 },
                 _ = tokio::time::sleep_until(due.unwrap_or(self.origin)), if due.is_some() => {
                     let now = self.now();
@@ -126,6 +155,41 @@ impl Emulated {
             }
         }
     }
+}
+
+/// What ended the service of connections.
+enum Ended {
+    /// This connection closed.
+    One(Connection, String),
+    /// The controller closed them all.
+    All(String),
+}
+
+/// The lowest free connection number of at most `served`, made room for.
+fn free_slot(connections: &mut Vec<Option<Box<dyn Io>>>, served: usize) -> Option<Connection> {
+    if let Some(free) = connections.iter().position(Option::is_none) {
+        return Some(free);
+    }
+    (connections.len() < served).then(|| {
+        connections.push(None);
+        connections.len() - 1
+    })
+}
+
+/// Read from whichever connection has bytes first: its number and what was read. Never ready
+/// without a connection.
+async fn read_any(connections: &mut [Option<Box<dyn Io>>], buffer: &mut [u8]) -> (Connection, std::io::Result<usize>) {
+    std::future::poll_fn(|context| {
+        for (number, connection) in connections.iter_mut().enumerate() {
+            let Some(stream) = connection else { continue };
+            let mut read = ReadBuf::new(buffer);
+            if let Poll::Ready(result) = Pin::new(stream).poll_read(context, &mut read) {
+                return Poll::Ready((number, result.map(|()| read.filled().len())));
+            }
+        }
+        Poll::Pending
+    })
+    .await
 }
 
 /// A pseudo-terminal pair, its slave linked at `path` (a symlink left by an earlier run is
