@@ -128,6 +128,11 @@ fn mclennan_pm304_on_a_serial_line() {
 }
 
 #[test]
+fn newport_xps() {
+    drive_through_loss_and_recovery("newport_xps", "launch/newport-xps.toml", Reach::Tcp("127.0.0.1:5001"), "xps1");
+}
+
+#[test]
 fn pmac() {
     drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
 }
@@ -175,6 +180,13 @@ fn pi_gcs2_through_pipython() {
 #[test]
 fn pmac_through_dls_pmaclib() {
     vendor_software_against_the_emulator("pmac", "pmac_pmaclib.py", "pmac workflow ok");
+}
+
+/// Newport's own Python driver for the XPS, as the `newportxps` package ships it (its
+/// low-level `XPS` class): two sockets, a move one waits on aborted from the other.
+#[test]
+fn newport_xps_through_newportxps() {
+    vendor_software_against_the_emulator("newport_xps", "xps_newportxps.py", "xps workflow ok");
 }
 
 /// `script HOST PORT` against `protocol`'s emulator on a free port; panics with what it said

@@ -16,6 +16,7 @@ mod loopback;
 mod mclennan_pm304;
 mod newport;
 mod newport_esp300;
+mod newport_xps;
 mod phytron;
 mod pi_gcs2;
 mod pmac;
@@ -28,8 +29,8 @@ pub use controller::{AnyController, Controller, ControllerConfig, ControllerEven
 #[cfg(feature = "testing")]
 pub use loopback::Loopback;
 pub use protocol::{
-    line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
-    VendorError,
+    line_frame, CommandError, Finding, Frame, Lane, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
+    Request, VendorError,
 };
 pub use scale::{ControllerUnit, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource};
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
@@ -56,11 +57,13 @@ pub enum ProtocolKind {
     Galil,
     /// McLennan PM304 (channel = the axis's address, 1 to 8).
     McLennanPm304,
+    /// Newport XPS (channel = n for the group GROUPn, 1 to 8).
+    NewportXps,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 9] = [
+    pub const ALL: [ProtocolKind; 10] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
@@ -70,6 +73,7 @@ impl ProtocolKind {
         ProtocolKind::NewportEsp300,
         ProtocolKind::Galil,
         ProtocolKind::McLennanPm304,
+        ProtocolKind::NewportXps,
     ];
 
     /// Its name in launch files and on the command line.
@@ -84,6 +88,7 @@ impl ProtocolKind {
             ProtocolKind::NewportEsp300 => newport_esp300::NAME,
             ProtocolKind::Galil => galil::NAME,
             ProtocolKind::McLennanPm304 => mclennan_pm304::NAME,
+            ProtocolKind::NewportXps => newport_xps::NAME,
         }
     }
 
@@ -99,6 +104,7 @@ impl ProtocolKind {
             ProtocolKind::NewportEsp300 => &["esp300", "esp301", "esp", "mm4000"],
             ProtocolKind::Galil => &["dmc", "dmc4040", "dmc4143", "dmc30010", "motorgalil"],
             ProtocolKind::McLennanPm304 => &["pm304", "mclennan", "motormclennan"],
+            ProtocolKind::NewportXps => &["xps", "xps_c8", "xps_q8", "xps_d", "xpsc8"],
         }
     }
 
@@ -129,6 +135,7 @@ impl ProtocolKind {
             ProtocolKind::NewportEsp300 => ((1..=3).contains(&channel), "by their axis number, 1 to 3"),
             ProtocolKind::Galil => (channel <= 7, "0 to 7, for the axes A to H"),
             ProtocolKind::McLennanPm304 => ((1..=8).contains(&channel), "by their address, 1 to 8"),
+            ProtocolKind::NewportXps => ((1..=8).contains(&channel), "by their group, 1 to 8 for GROUP1 to GROUP8"),
         };
         if valid {
             Ok(())
@@ -171,6 +178,7 @@ impl ProtocolKind {
             ProtocolKind::NewportEsp300 => user.with(newport_esp300::Esp300::new(options)),
             ProtocolKind::Galil => user.with(galil::Galil::new(options)),
             ProtocolKind::McLennanPm304 => user.with(mclennan_pm304::Pm304::new()),
+            ProtocolKind::NewportXps => user.with(newport_xps::Xps::new(options)),
         }
     }
 }

@@ -14,13 +14,17 @@ use zmotor_emulators::Faults;
 use zmotor_msgs::DriverCommand;
 
 /// Each protocol with two of its channels.
-const CASES: [(ProtocolKind, [usize; 2]); 6] = [
+const CASES: [(ProtocolKind, [usize; 2]); 10] = [
     (ProtocolKind::AcsMcb4b, [0, 2]),
     (ProtocolKind::NewportSmc100, [1, 2]),
     (ProtocolKind::PiGcs2, [1, 4]),
     (ProtocolKind::SmaractMcs2, [0, 2]),
     (ProtocolKind::Phytron, [11, 22]),
     (ProtocolKind::Pmac, [1, 2]),
+    (ProtocolKind::NewportEsp300, [1, 2]),
+    (ProtocolKind::Galil, [0, 1]),
+    (ProtocolKind::McLennanPm304, [1, 2]),
+    (ProtocolKind::NewportXps, [1, 2]),
 ];
 
 fn observed(kind: ProtocolKind, channels: &[usize]) -> Loopback {
@@ -44,7 +48,8 @@ fn readings(kind: ProtocolKind, channels: &[usize]) -> BTreeSet<Vec<u8>> {
 
 #[test]
 fn an_observed_controller_is_initialised_without_a_setting() {
-    // PI's servo is not switched on, SmarAct's holding time not set: only readings go out.
+    // PI's servo is not switched on, SmarAct's holding time not set, ESP300 motors and Galil
+    // servos stay off, XPS groups uninitialised: only readings go out.
     for (kind, channels) in CASES {
         let mut plain = common::loopback(kind, &channels, Faults::default());
         bring_up(&mut plain);
@@ -58,6 +63,9 @@ fn an_observed_controller_is_initialised_without_a_setting() {
         match kind {
             ProtocolKind::PiGcs2 => assert!(setup.iter().any(|r| r.starts_with("SVO")), "{setup:?}"),
             ProtocolKind::SmaractMcs2 => assert!(setup.iter().any(|r| r.contains(":HOLD")), "{setup:?}"),
+            ProtocolKind::NewportEsp300 => assert!(setup.iter().any(|r| r.contains("MO")), "{setup:?}"),
+            ProtocolKind::Galil => assert!(setup.iter().any(|r| r.starts_with("SH")), "{setup:?}"),
+            ProtocolKind::NewportXps => assert!(setup.iter().any(|r| r.starts_with("GroupInitialize")), "{setup:?}"),
             _ => assert!(setup.is_empty(), "{}: an observed init leaves out {setup:?}", kind.name()),
         }
     }
