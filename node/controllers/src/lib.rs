@@ -11,12 +11,14 @@
 mod acs;
 mod controller;
 mod galil;
+mod ims_mdrive;
 #[cfg(feature = "testing")]
 mod loopback;
 mod mclennan_pm304;
 mod newport;
 mod newport_esp300;
 mod newport_xps;
+mod oms_maxnet;
 mod phytron;
 mod pi_gcs2;
 mod pmac;
@@ -59,11 +61,15 @@ pub enum ProtocolKind {
     McLennanPm304,
     /// Newport XPS (channel = n for the group GROUPn, 1 to 8).
     NewportXps,
+    /// IMS MDrive Plus in party mode (channel = the motor's name, 1 to 9).
+    ImsMdrive,
+    /// Oregon Micro Systems MAXnet (channel = the axis, 0 to 9 for X, Y, Z, T, U, V, R, S, W, K).
+    OmsMaxnet,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 10] = [
+    pub const ALL: [ProtocolKind; 12] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
@@ -74,6 +80,8 @@ impl ProtocolKind {
         ProtocolKind::Galil,
         ProtocolKind::McLennanPm304,
         ProtocolKind::NewportXps,
+        ProtocolKind::ImsMdrive,
+        ProtocolKind::OmsMaxnet,
     ];
 
     /// Its name in launch files and on the command line.
@@ -89,6 +97,8 @@ impl ProtocolKind {
             ProtocolKind::Galil => galil::NAME,
             ProtocolKind::McLennanPm304 => mclennan_pm304::NAME,
             ProtocolKind::NewportXps => newport_xps::NAME,
+            ProtocolKind::ImsMdrive => ims_mdrive::NAME,
+            ProtocolKind::OmsMaxnet => oms_maxnet::NAME,
         }
     }
 
@@ -105,6 +115,8 @@ impl ProtocolKind {
             ProtocolKind::Galil => &["dmc", "dmc4040", "dmc4143", "dmc30010", "motorgalil"],
             ProtocolKind::McLennanPm304 => &["pm304", "mclennan", "motormclennan"],
             ProtocolKind::NewportXps => &["xps", "xps_c8", "xps_q8", "xps_d", "xpsc8"],
+            ProtocolKind::ImsMdrive => &["mdrive", "mdrive_plus", "ims", "motorims"],
+            ProtocolKind::OmsMaxnet => &["maxnet", "oms", "motoromsasyn"],
         }
     }
 
@@ -136,6 +148,8 @@ impl ProtocolKind {
             ProtocolKind::Galil => (channel <= 7, "0 to 7, for the axes A to H"),
             ProtocolKind::McLennanPm304 => ((1..=8).contains(&channel), "by their address, 1 to 8"),
             ProtocolKind::NewportXps => ((1..=8).contains(&channel), "by their group, 1 to 8 for GROUP1 to GROUP8"),
+            ProtocolKind::ImsMdrive => ((1..=9).contains(&channel), "by their name, the motors named 1 to 9"),
+            ProtocolKind::OmsMaxnet => (channel <= 9, "0 to 9, for the axes X, Y, Z, T, U, V, R, S, W, K"),
         };
         if valid {
             Ok(())
@@ -179,6 +193,8 @@ impl ProtocolKind {
             ProtocolKind::Galil => user.with(galil::Galil::new(options)),
             ProtocolKind::McLennanPm304 => user.with(mclennan_pm304::Pm304::new()),
             ProtocolKind::NewportXps => user.with(newport_xps::Xps::new(options)),
+            ProtocolKind::ImsMdrive => user.with(ims_mdrive::Mdrive::new()),
+            ProtocolKind::OmsMaxnet => user.with(oms_maxnet::Maxnet::new()),
         }
     }
 }

@@ -171,7 +171,15 @@ impl ProtocolOptions {
     pub fn check(&self, protocol: ProtocolKind) -> Result<(), SpecError> {
         match self.units_per_step {
             Some(units) if !(units.is_finite() && units > 0.0) => Err(SpecError::UnitsPerStep(units)),
-            Some(_) if matches!(protocol, ProtocolKind::AcsMcb4b | ProtocolKind::McLennanPm304) => {
+            Some(_)
+                if matches!(
+                    protocol,
+                    ProtocolKind::AcsMcb4b
+                        | ProtocolKind::McLennanPm304
+                        | ProtocolKind::ImsMdrive
+                        | ProtocolKind::OmsMaxnet
+                ) =>
+            {
                 Err(SpecError::NoUnits(protocol.name()))
             }
             _ => Ok(()),

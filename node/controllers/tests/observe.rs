@@ -14,7 +14,7 @@ use zmotor_emulators::Faults;
 use zmotor_msgs::DriverCommand;
 
 /// Each protocol with two of its channels.
-const CASES: [(ProtocolKind, [usize; 2]); 10] = [
+const CASES: [(ProtocolKind, [usize; 2]); 12] = [
     (ProtocolKind::AcsMcb4b, [0, 2]),
     (ProtocolKind::NewportSmc100, [1, 2]),
     (ProtocolKind::PiGcs2, [1, 4]),
@@ -25,6 +25,8 @@ const CASES: [(ProtocolKind, [usize; 2]); 10] = [
     (ProtocolKind::Galil, [0, 1]),
     (ProtocolKind::McLennanPm304, [1, 2]),
     (ProtocolKind::NewportXps, [1, 2]),
+    (ProtocolKind::ImsMdrive, [1, 2]),
+    (ProtocolKind::OmsMaxnet, [0, 2]),
 ];
 
 fn observed(kind: ProtocolKind, channels: &[usize]) -> Loopback {

@@ -1,0 +1,418 @@
+//! IMS (Schneider Electric Motion) MDrive Plus motors in party mode: several motors on one line
+//! (RS-485, or a terminal server's TCP port), each addressed by its one-character device name,
+//! MCode in ASCII, as the EPICS driver motorIms (ImsMDrivePlusMotorAxis.cpp and
+//! ImsMDrivePlusMotorController.cpp) speaks it.
+//!
+//! # Wire format
+//! A command is the motor's name, the MCode and `\r\n`: `1MA 1000`. The motors are set up as
+//! motorIms requires (party mode `PY=1`, echo mode `EM=2`): a motor answers only its `PR`
+//! (print) queries, with the value and `\r\n`; every other command is silent. An error shows
+//! nowhere but in the motor's error number `ER`: zmotor reads `PR ER` after each command (a
+//! refusal reaches the axis's ERR with its code and meaning) and clears it, `ER=0`.
+//!
+//! # Channels
+//! Channel n (1 to 9) is the motor named `n`. Positions are the motor's counts (microsteps, or
+//! encoder counts with `EE=1`), speeds counts/s: the record's steps, nothing to scale.
+//!
+//! # Record commands (motor 1), as motorIms builds them
+//! - move: `1VI=<v0>` (with a base speed), `1VM=<v>`, `1A=<a>` and `1D=<a>` (with an
+//!   acceleration), `1ST=0` (the stall flag cleared), `1MA <p>` or `1MR <d>`;
+//! - jog: the same settings at |v|, then `1SL <v>` (slew, signed);
+//! - home: the settings, `1HM 3` forward (slew +, creep − off the switch) or `1HM 1` reverse,
+//!   then `1R1=0`: user register R1 is motorIms's "homed" flag, set `1R1=1` by the first poll
+//!   that finds the search over. Unlike motorIms, a stop in between leaves it 0 (an aborted
+//!   search referenced nothing), and motorIms's `PR VI` before a home without base speed (read,
+//!   never used) is not sent;
+//! - stop: `1D=<a>` (with a deceleration), `1SL 0`;
+//! - set position: `1P=<p>`; enable: `1DE=1` / `1DE=0` (drive enable; motorIms has none);
+//! - raw text: sent after the name as it is;
+//! - soft limits, gains, encoder ratio: nothing is sent.
+//!
+//! Numbers are whole counts (rounded; one beyond 32 bits is refused, never clamped).
+//!
+//! # Connection and polls
+//! Initialisation reads per motor `PR VR` (the firmware, logged), `PR EE` (an encoder) and
+//! `PR S1` … `PR S4`, the inputs' functions (1 home, 2 limit +, 3 limit −), as motorIms does;
+//! nothing is written. A poll reads per motor `PR P`, `PR MV`, the home and limit inputs set up
+//! (`PR I<n>`), `PR R1`, `PR ST`, `PR C2`:
+//!
+//! | reading | MSTA |
+//! |---|---|
+//! | `MV` 0 / 1 | DONE / MOVING |
+//! | home input 1, limit + 1, limit − 1 | HOME, PLUS_LS, MINUS_LS |
+//! | `R1` > 0 | HOMED |
+//! | `ST` > 0 | SLIP_STALL (a stall) |
+//! | `EE` 1 | PRESENT; the encoder position is `C2` (else `P`) |
+
+use crate::protocol::{
+    line_frame, line_text, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError, ReplyEvent,
+    Request, VendorError,
+};
+use crate::scale::{ControllerUnit, Scale, ScaleSource};
+use zmotor_core::DeviceStatus;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+/// The protocol's name in launch files.
+pub(crate) const NAME: &str = "ims_mdrive";
+
+/// What ends a command (motorIms's output terminator for the MDrive Plus).
+const OUTPUT_TERMINATOR: &str = "\r\n";
+
+/// What ends a reply.
+const INPUT_TERMINATOR: &[u8] = b"\r\n";
+
+/// A request's place in the protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Step {
+    Version {
+        channel: usize,
+    },
+    Encoder {
+        channel: usize,
+    },
+    /// `PR S<input>`: what the input is set up as.
+    InputFunction {
+        channel: usize,
+        input: u8,
+    },
+    Read {
+        channel: usize,
+        reading: Reading,
+    },
+    /// A home search found over: its flag set, `R1=1`.
+    Homed {
+        channel: usize,
+    },
+    Command {
+        channel: usize,
+    },
+    Errors {
+        channel: usize,
+    },
+    ClearError {
+        channel: usize,
+    },
+}
+
+/// One reading of a motor's poll, in the order sent.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Reading {
+    Position,
+    Moving,
+    Switch(Switch),
+    Homed,
+    Stall,
+    Encoder,
+}
+
+/// The switches an input can be set up as.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Switch {
+    Home,
+    Plus,
+    Minus,
+}
+
+/// What the protocol knows of a motor.
+#[derive(Clone, Copy, Debug, Default)]
+struct Motor {
+    encoder: bool,
+    /// The input each switch is wired to, as `S1`…`S4` say.
+    inputs: [Option<u8>; 3],
+    /// A home search was sent and not stopped: its end sets the homed flag.
+    homing: bool,
+    status: DeviceStatus,
+}
+
+/// The MDrive protocol.
+#[derive(Debug, Default)]
+pub(crate) struct Mdrive {
+    motors: Vec<(usize, Motor)>,
+}
+
+impl Mdrive {
+    pub(crate) fn new() -> Self {
+        Self::default()
+    }
+
+    fn motor(&mut self, channel: usize) -> &mut Motor {
+        match self.motors.iter().position(|(c, _)| *c == channel) {
+            Some(i) => &mut self.motors[i].1,
+            None => {
+                self.motors.push((channel, Motor::default()));
+                &mut self.motors.last_mut().expect("just pushed").1
+            }
+        }
+    }
+
+    /// The commands of a record command, without the name.
+    fn mcode(&mut self, n: usize, command: &DriverCommand) -> Result<Vec<String>, CommandError> {
+        let settings = |base: f64, velocity: f64, acceleration: f64| -> Result<Vec<String>, CommandError> {
+            let mut lines = Vec::new();
+            if base > 0.0 {
+                lines.push(format!("VI={}", whole_steps("base velocity", base)?));
+            }
+            lines.push(format!("VM={}", whole_steps("velocity", velocity)?));
+            if acceleration != 0.0 {
+                let acceleration = whole_steps("acceleration", acceleration.abs())?;
+                lines.extend([format!("A={acceleration}"), format!("D={acceleration}")]);
+            }
+            lines.push("ST=0".into());
+            Ok(lines)
+        };
+        Ok(match command {
+            DriverCommand::Move { position, relative, min_velocity, max_velocity, acceleration } => {
+                let mut lines = settings(*min_velocity, max_velocity.abs(), *acceleration)?;
+                let verb = if *relative { "MR" } else { "MA" };
+                lines.push(format!("{verb} {}", whole_steps("target", *position)?));
+                lines
+            }
+            DriverCommand::MoveVelocity { min_velocity, max_velocity, acceleration } => {
+                let mut lines = settings(*min_velocity, max_velocity.abs(), *acceleration)?;
+                lines.push(format!("SL {}", whole_steps("jog velocity", *max_velocity)?));
+                lines
+            }
+            DriverCommand::Home { forward, min_velocity, max_velocity, acceleration } => {
+                let mut lines = settings(*min_velocity, max_velocity.abs(), *acceleration)?;
+                lines.extend([format!("HM {}", if *forward { 3 } else { 1 }), "R1=0".into()]);
+                self.motor(n).homing = true;
+                lines
+            }
+            DriverCommand::Stop { acceleration } => {
+                self.motor(n).homing = false;
+                let mut lines = Vec::new();
+                if *acceleration != 0.0 {
+                    lines.push(format!("D={}", whole_steps("deceleration", acceleration.abs())?));
+                }
+                lines.push("SL 0".into());
+                lines
+            }
+            DriverCommand::SetPosition { position } => vec![format!("P={}", whole_steps("position", *position)?)],
+            DriverCommand::Enable { on } => vec![format!("DE={}", u8::from(*on))],
+            DriverCommand::Raw { text } => vec![text.clone()],
+            DriverCommand::SetEncoderRatio { .. }
+            | DriverCommand::SetHighLimit { .. }
+            | DriverCommand::SetLowLimit { .. }
+            | DriverCommand::SetGain { .. }
+            | DriverCommand::Poll => Vec::new(),
+        })
+    }
+
+    /// A poll's reading of `channel`: its status once the last is in.
+    fn read(&mut self, channel: usize, reading: Reading, value: f64) -> Vec<ReplyEvent<Step>> {
+        let motor = self.motor(channel);
+        let status = &mut motor.status;
+        let on = value > 0.0;
+        match reading {
+            Reading::Position => {
+                let moving = status.msta & msta::MOVING != 0;
+                set(&mut status.msta, msta::DIRECTION, moving && value > status.position);
+                status.position = value;
+                if !motor.encoder {
+                    status.encoder_position = value;
+                }
+            }
+            Reading::Moving => {
+                set(&mut status.msta, msta::DONE, !on);
+                set(&mut status.msta, msta::MOVING, on);
+                let mut next = Vec::new();
+                if !on && std::mem::take(&mut motor.homing) {
+                    next.push(Request::silent(line(channel, "R1=1"), Step::Homed { channel }));
+                }
+                // The switches as set up: known by now (the poll was made before the
+                // initialisation's answers, at a new connection).
+                for (switch, input) in [Switch::Home, Switch::Plus, Switch::Minus].into_iter().zip(motor.inputs) {
+                    if let Some(input) = input {
+                        let query = line(channel, &format!("PR I{input}"));
+                        next.push(Request::query(query, Step::Read { channel, reading: Reading::Switch(switch) }));
+                    }
+                }
+                return vec![ReplyEvent::FollowUp(next)];
+            }
+            Reading::Switch(Switch::Home) => set(&mut status.msta, msta::HOME, on),
+            Reading::Switch(Switch::Plus) => set(&mut status.msta, msta::PLUS_LS, on),
+            Reading::Switch(Switch::Minus) => set(&mut status.msta, msta::MINUS_LS, on),
+            Reading::Homed => set(&mut status.msta, msta::HOMED, on),
+            Reading::Stall => set(&mut status.msta, msta::SLIP_STALL, on),
+            Reading::Encoder => {
+                if motor.encoder {
+                    status.encoder_position = value;
+                }
+                set(&mut status.msta, msta::PRESENT, motor.encoder);
+                return vec![ReplyEvent::Status { channel, status: *status }];
+            }
+        }
+        Vec::new()
+    }
+}
+
+/// `code` to motor `channel`, terminated.
+fn line(channel: usize, code: &str) -> Vec<u8> {
+    format!("{channel}{code}{OUTPUT_TERMINATOR}").into_bytes()
+}
+
+fn set(bits: &mut u32, bit: u32, on: bool) {
+    if on {
+        *bits |= bit;
+    } else {
+        *bits &= !bit;
+    }
+}
+
+/// What an MCode error number means (the MCode reference's table, as motorIms lists it).
+fn meaning(code: u32) -> &'static str {
+    match code {
+        6 => "an I/O is already set to this type",
+        8 => "tried to set an I/O to an incorrect I/O type",
+        9 => "tried to write to an I/O set as input or typed",
+        10 => "illegal I/O number",
+        20 => "tried to set an unknown variable or flag",
+        21 => "tried to set an incorrect value",
+        22 => "VI is set greater than or equal to VM",
+        23 => "VM is set less than or equal to VI",
+        24 => "illegal data entered",
+        25 => "variable or flag is read only",
+        30 => "unknown label or user variable",
+        34 => "a variable sent as a command",
+        35 => "unknown name in a print",
+        38 => "a number glued to the command's name",
+        40 => "a program command in immediate mode",
+        73 => "a save while moving",
+        74 => "a reset of the parameters while moving",
+        80 => "no input set up as the home switch",
+        81 => "home type out of range",
+        83 => "stopped on the plus limit switch",
+        84 => "stopped on the minus limit switch",
+        85 => "a motion during a home search, or a home during a motion",
+        86 => "stall detected",
+        94 => "a motion while the drive is disabled",
+        _ => "an MCode error (see the MCode reference's error table)",
+    }
+}
+
+impl Protocol for Mdrive {
+    type Step = Step;
+
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn purpose(step: Step) -> Purpose {
+        match step {
+            Step::Version { .. } | Step::Encoder { .. } | Step::InputFunction { .. } => Purpose::Init,
+            Step::Read { channel, .. } => Purpose::Poll { channel },
+            Step::Homed { channel }
+            | Step::Command { channel }
+            | Step::Errors { channel }
+            | Step::ClearError { channel } => Purpose::Command { channel },
+        }
+    }
+
+    fn frame(&self, buffer: &[u8]) -> Frame {
+        match line_frame(buffer, INPUT_TERMINATOR) {
+            // A line end alone is not a reply.
+            Frame::Complete(2) => Frame::Junk(2),
+            frame => frame,
+        }
+    }
+
+    fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        let mut requests = Vec::new();
+        for &channel in channels {
+            requests.push(Request::query(line(channel, "PR VR"), Step::Version { channel }));
+            requests.push(Request::query(line(channel, "PR EE"), Step::Encoder { channel }));
+            for input in 1..=4 {
+                let query = line(channel, &format!("PR S{input}"));
+                requests.push(Request::query(query, Step::InputFunction { channel, input }));
+            }
+            self.motor(channel).inputs = [None; 3];
+        }
+        requests
+    }
+
+    fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        let mut requests = Vec::new();
+        for &channel in channels {
+            // The switches' readings follow `MV`'s answer.
+            let readings = [
+                ("PR P", Reading::Position),
+                ("PR MV", Reading::Moving),
+                ("PR R1", Reading::Homed),
+                ("PR ST", Reading::Stall),
+                ("PR C2", Reading::Encoder),
+            ];
+            for (query, reading) in readings {
+                requests.push(Request::query(line(channel, query), Step::Read { channel, reading }));
+            }
+        }
+        requests
+    }
+
+    fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
+        let lines = self.mcode(channel, command)?;
+        if lines.is_empty() {
+            return Ok(Vec::new());
+        }
+        let mut requests: Vec<Request<Step>> =
+            lines.iter().map(|code| Request::silent(line(channel, code), Step::Command { channel })).collect();
+        requests.push(Request::query(line(channel, "PR ER"), Step::Errors { channel }));
+        Ok(requests)
+    }
+
+    fn scale(&self, _channel: usize) -> Scale {
+        // Counts: what one is in EGU is the lab's mechanics.
+        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
+    }
+
+    fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {
+        let text = line_text(frame, INPUT_TERMINATOR);
+        let text = text.trim();
+        let error = |why| ReplyError::new(request, frame, why);
+        let number = || text.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| error("not a number"));
+        match request.step {
+            Step::Version { channel } if !text.is_empty() => {
+                Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MDrive {channel}: firmware {text}")))])
+            }
+            Step::Version { .. } => Err(error("no firmware version")),
+            Step::Encoder { channel } => {
+                self.motor(channel).encoder = number()? > 0.0;
+                Ok(Vec::new())
+            }
+            Step::InputFunction { channel, input } => {
+                // `function,active,sink`: 1 home, 2 limit +, 3 limit −.
+                let function = text.split(',').next().and_then(|f| f.trim().parse::<u8>().ok());
+                let slot = match function.ok_or_else(|| error("not an input set-up"))? {
+                    1 => Some(0),
+                    2 => Some(1),
+                    3 => Some(2),
+                    _ => None,
+                };
+                if let Some(slot) = slot {
+                    self.motor(channel).inputs[slot] = Some(input);
+                }
+                Ok(Vec::new())
+            }
+            Step::Read { channel, reading } => Ok(self.read(channel, reading, number()?)),
+            Step::Errors { channel } => {
+                let code = text.parse::<u32>().map_err(|_| error("not an error number"))?;
+                if code == 0 {
+                    return Ok(Vec::new());
+                }
+                let meaning = format!("{} (error {code})", meaning(code));
+                let clear = Request::silent(line(channel, "ER=0"), Step::ClearError { channel });
+                Ok(vec![
+                    ReplyEvent::ControllerError(VendorError {
+                        channel: Some(channel),
+                        code: code.to_string(),
+                        meaning,
+                    }),
+                    ReplyEvent::FollowUp(vec![clear]),
+                ])
+            }
+            Step::Homed { .. } | Step::Command { .. } | Step::ClearError { .. } => {
+                Err(error("a silent command answered"))
+            }
+        }
+    }
+}

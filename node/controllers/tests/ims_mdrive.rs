@@ -1,0 +1,153 @@
+//! IMS MDrive Plus motors against their emulator, in virtual time: every record command as the
+//! motors take it, their refusals, the homed flag, and no sequence of commands that yields a
+//! line they cannot read.
+
+mod common;
+
+use common::{bring_up, command, loopback, run_until_done, written_since};
+use proptest::prelude::*;
+use std::time::Duration;
+use zmotor_controllers::ProtocolKind;
+use zmotor_emulators::Faults;
+use zmotor_msgs::bits::msta;
+use zmotor_msgs::DriverCommand;
+
+const MDRIVE: ProtocolKind = ProtocolKind::ImsMdrive;
+const CHANNELS: [usize; 2] = [1, 2];
+const TICK: Duration = Duration::from_millis(10);
+
+fn go(position: f64, relative: bool) -> DriverCommand {
+    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
+}
+
+fn is_read(line: &str) -> bool {
+    line.get(1..).is_some_and(|code| code.starts_with("PR "))
+}
+
+#[test]
+fn the_driver_sends_what_the_epics_driver_sends() {
+    common::golden::driver_sends_the_transcripts(MDRIVE)
+}
+
+#[test]
+fn the_emulator_answers_what_the_epics_driver_sends() {
+    common::golden::emulator_answers_the_transcripts(MDRIVE)
+}
+
+#[test]
+fn a_new_connection_reads_each_motor_and_writes_nothing() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    let sent = written_since(&lb, 0);
+    assert_eq!(sent[..2], ["1PR VR\r\n", "1PR EE\r\n"]);
+    assert!(sent.iter().all(|l| is_read(l)), "reads only: {sent:?}");
+    assert!(sent.contains(&"2PR I3\r\n".to_string()), "the minus limit input found and polled: {sent:?}");
+}
+
+#[test]
+fn a_move_arrives_where_asked_and_a_relative_one_from_there() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(2, &go(12_345.0, false));
+    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
+    assert_eq!(statuses.last().map(|s| s.position), Some(12_345.0));
+    assert!(statuses.iter().any(|s| s.msta & (msta::MOVING | msta::DIRECTION) == msta::MOVING | msta::DIRECTION));
+    lb.command(2, &go(-2_345.0, true));
+    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
+    assert_eq!(statuses.last().map(|s| s.position), Some(10_000.0));
+}
+
+#[test]
+fn a_jog_runs_until_stopped_and_meets_the_limit_switch_if_not() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    common::a_jog_runs_until_stopped_or_the_limit_switch(&mut lb, 1);
+}
+
+#[test]
+fn a_home_search_ends_homed_and_a_stopped_one_does_not() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(1, &go(30_000.0, false));
+    run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
+    let home =
+        DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(1, &home);
+    lb.run_for(Duration::from_millis(300));
+    lb.command(1, &DriverCommand::Stop { acceleration: 200_000.0 });
+    let stopped = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(5)).last().expect("done");
+    lb.run_for(Duration::from_secs(2));
+    let later = common::last_status(&lb.take_events(), 1);
+    assert_eq!((stopped.msta | later.msta) & msta::HOMED, 0, "an aborted search homed nothing: {later:?}");
+    let from = lb.written().len();
+    lb.command(1, &home);
+    let homed = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(20)).last().expect("done");
+    lb.run_for(Duration::from_secs(2));
+    let homed_later = common::last_status(&lb.take_events(), 1);
+    assert_eq!(homed_later.msta & msta::HOMED, msta::HOMED, "{homed:?} then {homed_later:?}");
+    assert_eq!(homed_later.position, 0.0);
+    let sent = written_since(&lb, from);
+    assert!(sent.contains(&"1HM 1\r\n".to_string()) && sent.contains(&"1R1=1\r\n".to_string()), "{sent:?}");
+}
+
+#[test]
+fn a_refused_command_is_the_motors_error_named_once_and_cleared() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    // A base speed above the top speed: the motor refuses VI (error 22 or 23).
+    let go = DriverCommand::Move {
+        position: 100.0,
+        relative: false,
+        min_velocity: 30_000.0,
+        max_velocity: 20_000.0,
+        acceleration: 200_000.0,
+    };
+    let from = lb.written().len();
+    lb.command(2, &go);
+    lb.run_for(Duration::from_millis(500));
+    let events = lb.take_events();
+    let errors = common::controller_errors(&events);
+    assert_eq!(errors.len(), 1, "{events:?}");
+    assert_eq!(errors[0].0, Some(2));
+    assert!(["22", "23"].contains(&errors[0].1.as_str()), "{errors:?}");
+    assert!(written_since(&lb, from).contains(&"2ER=0\r\n".to_string()));
+    // Cleared: the next command draws no error.
+    lb.command(2, &DriverCommand::SetPosition { position: 5.0 });
+    lb.run_for(Duration::from_millis(300));
+    assert!(common::controller_errors(&lb.take_events()).is_empty());
+}
+
+#[test]
+fn an_unknown_command_is_the_motors_error_and_the_link_stays_up() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    common::an_unknown_command_is_an_error_and_the_link_stays_up(&mut lb, 2, "XX", (Some(2), "20"));
+}
+
+#[test]
+fn replies_split_at_every_byte_give_the_same_statuses() {
+    common::replies_in_pieces_give_the_same_statuses(MDRIVE, &CHANNELS);
+}
+
+#[test]
+fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    common::a_move_goes_once_and_a_new_connection_only_reads(
+        &mut lb,
+        1,
+        common::text,
+        |l| l.starts_with("1MA"),
+        is_read,
+    );
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+    #[test]
+    fn no_sequence_of_record_commands_makes_a_malformed_line(
+        commands in proptest::collection::vec((0usize..2, command(), 0u64..300), 1..12)
+    ) {
+        common::no_malformed_frames(MDRIVE, &CHANNELS, common::Start::AsPoweredUp, &commands);
+    }
+}
