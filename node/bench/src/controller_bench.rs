@@ -39,7 +39,7 @@ struct Ready {
     targets: [f64; 2],
 }
 
-const READY: [Ready; 9] = [
+const READY: [Ready; 12] = [
     Ready {
         kind: ProtocolKind::AcsMcb4b,
         launch: include_str!("../../../launch/acs-mcb4b.toml"),
@@ -110,6 +110,30 @@ const READY: [Ready; 9] = [
         reach: Reach::Pty("/tmp/zmotor-pm304"),
         axis: "pm1",
         channel: 1,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::NewportXps,
+        launch: include_str!("../../../launch/newport-xps.toml"),
+        reach: Reach::Tcp("127.0.0.1:5001"),
+        axis: "xps1",
+        channel: 1,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::ImsMdrive,
+        launch: include_str!("../../../launch/ims-mdrive.toml"),
+        reach: Reach::Pty("/tmp/zmotor-mdrive"),
+        axis: "mdrive1",
+        channel: 1,
+        targets: [1.0, 1.5],
+    },
+    Ready {
+        kind: ProtocolKind::OmsMaxnet,
+        launch: include_str!("../../../launch/oms-maxnet.toml"),
+        reach: Reach::Tcp("127.0.0.1:2023"),
+        axis: "omsX",
+        channel: 0,
         targets: [1.0, 1.5],
     },
 ];

@@ -133,6 +133,17 @@ fn newport_xps() {
 }
 
 #[test]
+fn ims_mdrive_on_a_serial_line() {
+    let reach = Reach::Pty("/tmp/zmotor-mdrive");
+    drive_through_loss_and_recovery("ims_mdrive", "launch/ims-mdrive.toml", reach, "mdrive1");
+}
+
+#[test]
+fn oms_maxnet() {
+    drive_through_loss_and_recovery("oms_maxnet", "launch/oms-maxnet.toml", Reach::Tcp("127.0.0.1:2023"), "omsX");
+}
+
+#[test]
 fn pmac() {
     drive_through_loss_and_recovery("pmac", "launch/pmac.toml", Reach::Tcp("127.0.0.1:1025"), "pmac1");
 }

@@ -68,8 +68,8 @@ pub fn epics_db(data: &[u8]) {
 }
 
 /// Bytes from a controller: byte 0 picks the protocol, byte 1 how many bytes arrive at a time;
-/// the rest arrives on an open connection while the controller initialises and polls, 10 ms
-/// apart.
+/// the rest arrives on the open connections, piece by piece in turn, while the controller
+/// initialises and polls, 10 ms apart.
 pub fn controller_replies(data: &[u8]) {
     let [kind, chunk, bytes @ ..] = data else { return };
     let kind = ProtocolKind::ALL[usize::from(*kind) % ProtocolKind::ALL.len()];
@@ -79,8 +79,10 @@ pub fn controller_replies(data: &[u8]) {
     let mut now = Instant::ZERO;
     controller.handle_timeout(now);
     controller.handle_connected(now);
-    for piece in bytes.chunks(usize::from(*chunk).max(1)) {
-        controller.handle_input(now, piece);
+    // Pieces go to each of the controller's connections in turn (an XPS has one per channel).
+    let lanes = controller.lanes();
+    for (index, piece) in bytes.chunks(usize::from(*chunk).max(1)).enumerate() {
+        controller.handle_input(now, lanes[index % lanes.len()], piece);
         now = now + Duration::from_millis(10);
         controller.handle_timeout(now);
         while controller.poll_transmit().is_some() {}
