@@ -515,37 +515,21 @@ impl<P: Protocol> AnyController for Controller<P> {
         if !matches!(self.link, Link::Initialising { .. } | Link::Up) {
             return;
         }
-        let mut received = match lane {
-            Lane::Main => std::mem::take(&mut self.received),
-            Lane::Motion(channel) => std::mem::take(&mut self.motion_lanes.entry(channel).or_default().received),
-        };
-        received.extend_from_slice(bytes);
-        if received.len() > MAX_UNFRAMED {
-            // Bytes that never make a frame (a device streaming, the wrong protocol): dropped.
-            let what = format!("{} bytes that are no frame of the protocol, dropped", received.len());
-            self.events.push_back(ControllerEvent::Failed { what });
-            return;
-        }
-        let mut frames = Vec::new();
-        loop {
-            match self.protocol.frame(&received) {
-                Frame::Incomplete => break,
-                Frame::Junk(n) => {
-                    received.drain(..n.min(received.len()));
-                }
-                Frame::Complete(n) => frames.push(received.drain(..n.min(received.len())).collect::<Vec<u8>>()),
-            }
-        }
+        // Frame by frame: handling one may send a request, whose clearing of the buffer drops
+        // what came before it (a late reply must not pass for the new request's).
         match lane {
             Lane::Main => {
-                self.received = received;
-                for frame in frames {
+                self.received.extend_from_slice(bytes);
+                self.drop_if_unframed(Lane::Main);
+                while let Some(frame) = next_frame(&self.protocol, &mut self.received) {
                     self.on_frame(&frame);
                 }
             }
             Lane::Motion(channel) => {
-                self.motion_lanes.entry(channel).or_default().received = received;
-                for frame in frames {
+                self.motion_lanes.entry(channel).or_default().received.extend_from_slice(bytes);
+                self.drop_if_unframed(lane);
+                while let Some(motion) = self.motion_lanes.get_mut(&channel) {
+                    let Some(frame) = next_frame(&self.protocol, &mut motion.received) else { break };
                     self.on_motion_frame(channel, &frame);
                 }
             }
@@ -759,6 +743,20 @@ impl<P: Protocol> Controller<P> {
         }
     }
 
+    /// Bytes on `lane` that never make a frame (a device streaming, the wrong protocol): dropped
+    /// beyond `MAX_UNFRAMED`.
+    fn drop_if_unframed(&mut self, lane: Lane) {
+        let buffer = match lane {
+            Lane::Main => &mut self.received,
+            Lane::Motion(channel) => &mut self.motion_lanes.entry(channel).or_default().received,
+        };
+        if buffer.len() > MAX_UNFRAMED {
+            let what = format!("{} bytes that are no frame of the protocol, dropped", buffer.len());
+            buffer.clear();
+            self.events.push_back(ControllerEvent::Failed { what });
+        }
+    }
+
     /// The reply to a motion call of `channel`, the oldest waiting: what it says counts as any
     /// reply's, requests it asks for follow as a command of their own, and a poll comes next
     /// (the motion is over).
@@ -777,6 +775,8 @@ impl<P: Protocol> Controller<P> {
             Ok(events) => {
                 for event in events {
                     match event {
+                        // Nothing of the command under way is this reply's to cut short.
+                        ReplyEvent::Refused(error) => self.on_event(ReplyEvent::ControllerError(error), self.seq),
                         ReplyEvent::FollowUp(requests) => {
                             self.seq += 1;
                             let kind = Kind::Command { channel, motion: false };
@@ -800,6 +800,11 @@ impl<P: Protocol> Controller<P> {
     fn on_event(&mut self, event: ReplyEvent<P::Step>, issued: u64) {
         match event {
             ReplyEvent::Status { channel, mut status } => {
+                if self.motion_lanes.get(&channel).is_some_and(|lane| !lane.waiting.is_empty()) {
+                    // Its motion call is unanswered: the motion is not over, whatever the
+                    // controller's state said (the poll may have reached it first).
+                    status.msta &= !msta::DONE;
+                }
                 let Some(state) = self.channels.get_mut(channel) else { return };
                 // A poll queued before the last motion command reports the state before it.
                 if issued < state.motion_issued {
@@ -829,6 +834,10 @@ impl<P: Protocol> Controller<P> {
                 }
             }
             ReplyEvent::Found(finding) => self.events.push_back(ControllerEvent::Found(finding)),
+            ReplyEvent::Refused(error) => {
+                self.abandon_current();
+                self.on_event(ReplyEvent::ControllerError(error), issued);
+            }
             ReplyEvent::FollowUp(requests) => {
                 if let Some(current) = self.current.as_mut() {
                     for request in requests.into_iter().rev() {
@@ -958,6 +967,19 @@ impl<P: Protocol> Controller<P> {
 /// Replies are read in bytes until a frame completes; beyond this many without one, they are
 /// dropped.
 const MAX_UNFRAMED: usize = 64 * 1024;
+
+/// The first complete frame in `buffer`, taken out of it (noise before it dropped).
+fn next_frame<P: Protocol>(protocol: &P, buffer: &mut Vec<u8>) -> Option<Vec<u8>> {
+    loop {
+        match protocol.frame(buffer) {
+            Frame::Incomplete => return None,
+            Frame::Junk(n) => {
+                buffer.drain(..n.min(buffer.len()));
+            }
+            Frame::Complete(n) => return Some(buffer.drain(..n.min(buffer.len())).collect()),
+        }
+    }
+}
 
 /// A status whose numbers are numbers.
 fn finite(status: &DeviceStatus) -> bool {

@@ -8,7 +8,9 @@
 //! motorIms requires (party mode `PY=1`, echo mode `EM=2`): a motor answers only its `PR`
 //! (print) queries, with the value and `\r\n`; every other command is silent. An error shows
 //! nowhere but in the motor's error number `ER`: zmotor reads `PR ER` after each command (a
-//! refusal reaches the axis's ERR with its code and meaning) and clears it, `ER=0`.
+//! refusal reaches the axis's ERR with its code and meaning) and at the end of each motion the
+//! motor took (a stall; a search ended on a limit; a motion ending on a limit switch is said by
+//! the limit bits, not as an error), and clears it, `ER=0`.
 //!
 //! # Channels
 //! Channel n (1 to 9) is the motor named `n`. Positions are the motor's counts (microsteps, or
@@ -20,12 +22,12 @@
 //! - jog: the same settings at |v|, then `1SL <v>` (slew, signed);
 //! - home: the settings, `1HM 3` forward (slew +, creep − off the switch) or `1HM 1` reverse,
 //!   then `1R1=0`: user register R1 is motorIms's "homed" flag, set `1R1=1` by the first poll
-//!   that finds the search over. Unlike motorIms, a stop in between leaves it 0 (an aborted
-//!   search referenced nothing), and motorIms's `PR VI` before a home without base speed (read,
-//!   never used) is not sent;
+//!   that finds the search over. Unlike motorIms, only a search the motor took (`PR ER` 0), that
+//!   nobody stopped and that ended without an error sets it; motorIms's `PR VI` before a home
+//!   without base speed (read, never used) is not sent;
 //! - stop: `1D=<a>` (with a deceleration), `1SL 0`;
 //! - set position: `1P=<p>`; enable: `1DE=1` / `1DE=0` (drive enable; motorIms has none);
-//! - raw text: sent after the name as it is;
+//! - raw text: sent after the name as it is; a `PR` query's answer is read (and dropped);
 //! - soft limits, gains, encoder ratio: nothing is sent.
 //!
 //! Numbers are whole counts (rounded; one beyond 32 bits is refused, never clamped).
@@ -87,12 +89,30 @@ pub(crate) enum Step {
     Command {
         channel: usize,
     },
+    /// `PR ER` after a command: what it started, armed when the motor took it.
     Errors {
+        channel: usize,
+        started: Started,
+    },
+    /// `PR ER` once a motion is over: a stall, a search that failed.
+    MotionEnded {
+        channel: usize,
+    },
+    /// A raw `PR` query: its answer is read and dropped.
+    RawQuery {
         channel: usize,
     },
     ClearError {
         channel: usize,
     },
+}
+
+/// What a command started, once the motor took it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Started {
+    Nothing,
+    Motion,
+    HomeSearch,
 }
 
 /// One reading of a motor's poll, in the order sent.
@@ -120,7 +140,10 @@ struct Motor {
     encoder: bool,
     /// The input each switch is wired to, as `S1`…`S4` say.
     inputs: [Option<u8>; 3],
-    /// A home search was sent and not stopped: its end sets the homed flag.
+    /// A motion the motor took: its end reads the error number.
+    moving_since_command: bool,
+    /// A home search the motor took and nobody stopped: its end, without an error, sets the
+    /// homed flag.
     homing: bool,
     status: DeviceStatus,
 }
@@ -176,7 +199,6 @@ impl Mdrive {
             DriverCommand::Home { forward, min_velocity, max_velocity, acceleration } => {
                 let mut lines = settings(*min_velocity, max_velocity.abs(), *acceleration)?;
                 lines.extend([format!("HM {}", if *forward { 3 } else { 1 }), "R1=0".into()]);
-                self.motor(n).homing = true;
                 lines
             }
             DriverCommand::Stop { acceleration } => {
@@ -190,6 +212,9 @@ impl Mdrive {
             }
             DriverCommand::SetPosition { position } => vec![format!("P={}", whole_steps("position", *position)?)],
             DriverCommand::Enable { on } => vec![format!("DE={}", u8::from(*on))],
+            DriverCommand::Raw { text } if text.contains(['\n', '\r']) => {
+                return Err(CommandError::Unsupported { protocol: NAME, what: "send raw text of several lines" })
+            }
             DriverCommand::Raw { text } => vec![text.clone()],
             DriverCommand::SetEncoderRatio { .. }
             | DriverCommand::SetHighLimit { .. }
@@ -217,8 +242,9 @@ impl Mdrive {
                 set(&mut status.msta, msta::DONE, !on);
                 set(&mut status.msta, msta::MOVING, on);
                 let mut next = Vec::new();
-                if !on && std::mem::take(&mut motor.homing) {
-                    next.push(Request::silent(line(channel, "R1=1"), Step::Homed { channel }));
+                // A motion over: its error, if any (a stall, a search ended on a limit).
+                if !on && std::mem::take(&mut motor.moving_since_command) {
+                    next.push(Request::query(line(channel, "PR ER"), Step::MotionEnded { channel }));
                 }
                 // The switches as set up: known by now (the poll was made before the
                 // initialisation's answers, at a new connection).
@@ -245,6 +271,20 @@ impl Mdrive {
         }
         Vec::new()
     }
+}
+
+/// The error numbers of a motion stopped by the plus and the minus limit switch.
+const LIMIT_PLUS: u32 = 83;
+const LIMIT_MINUS: u32 = 84;
+
+/// Motor `channel`'s error `code`, on ERR, then cleared (`ER=0`).
+fn motor_error(channel: usize, code: u32) -> Vec<ReplyEvent<Step>> {
+    let meaning = format!("{} (error {code})", meaning(code));
+    let clear = Request::silent(line(channel, "ER=0"), Step::ClearError { channel });
+    vec![
+        ReplyEvent::ControllerError(VendorError { channel: Some(channel), code: code.to_string(), meaning }),
+        ReplyEvent::FollowUp(vec![clear]),
+    ]
 }
 
 /// `code` to motor `channel`, terminated.
@@ -301,10 +341,11 @@ impl Protocol for Mdrive {
     fn purpose(step: Step) -> Purpose {
         match step {
             Step::Version { .. } | Step::Encoder { .. } | Step::InputFunction { .. } => Purpose::Init,
-            Step::Read { channel, .. } => Purpose::Poll { channel },
+            Step::Read { channel, .. } | Step::MotionEnded { channel } => Purpose::Poll { channel },
             Step::Homed { channel }
             | Step::Command { channel }
-            | Step::Errors { channel }
+            | Step::Errors { channel, .. }
+            | Step::RawQuery { channel }
             | Step::ClearError { channel } => Purpose::Command { channel },
         }
     }
@@ -350,13 +391,27 @@ impl Protocol for Mdrive {
     }
 
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
+        if let DriverCommand::Raw { text } = command {
+            if text.trim_start().to_ascii_uppercase().starts_with("PR") {
+                return Ok(vec![Request::query(line(channel, text), Step::RawQuery { channel })]);
+            }
+        }
         let lines = self.mcode(channel, command)?;
         if lines.is_empty() {
             return Ok(Vec::new());
         }
+        let started = match command {
+            DriverCommand::Home { .. } => Started::HomeSearch,
+            DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } => Started::Motion,
+            _ => Started::Nothing,
+        };
+        if matches!(command, DriverCommand::Stop { .. }) {
+            // A search stopped referenced nothing.
+            self.motor(channel).homing = false;
+        }
         let mut requests: Vec<Request<Step>> =
             lines.iter().map(|code| Request::silent(line(channel, code), Step::Command { channel })).collect();
-        requests.push(Request::query(line(channel, "PR ER"), Step::Errors { channel }));
+        requests.push(Request::query(line(channel, "PR ER"), Step::Errors { channel, started }));
         Ok(requests)
     }
 
@@ -394,22 +449,38 @@ impl Protocol for Mdrive {
                 Ok(Vec::new())
             }
             Step::Read { channel, reading } => Ok(self.read(channel, reading, number()?)),
-            Step::Errors { channel } => {
+            Step::Errors { channel, started } => {
                 let code = text.parse::<u32>().map_err(|_| error("not an error number"))?;
-                if code == 0 {
-                    return Ok(Vec::new());
+                if code != 0 {
+                    return Ok(motor_error(channel, code));
                 }
-                let meaning = format!("{} (error {code})", meaning(code));
-                let clear = Request::silent(line(channel, "ER=0"), Step::ClearError { channel });
-                Ok(vec![
-                    ReplyEvent::ControllerError(VendorError {
-                        channel: Some(channel),
-                        code: code.to_string(),
-                        meaning,
-                    }),
-                    ReplyEvent::FollowUp(vec![clear]),
-                ])
+                let motor = self.motor(channel);
+                match started {
+                    Started::Nothing => {}
+                    Started::Motion => motor.moving_since_command = true,
+                    Started::HomeSearch => (motor.moving_since_command, motor.homing) = (true, true),
+                }
+                Ok(Vec::new())
             }
+            Step::MotionEnded { channel } => {
+                let code = text.parse::<u32>().map_err(|_| error("not an error number"))?;
+                let homing = std::mem::take(&mut self.motor(channel).homing);
+                match code {
+                    0 if homing => Ok(vec![ReplyEvent::FollowUp(vec![Request::silent(
+                        line(channel, "R1=1"),
+                        Step::Homed { channel },
+                    )])]),
+                    0 => Ok(Vec::new()),
+                    // A motion ended on a limit switch: the limit bits say so; only a search
+                    // that ended there failed.
+                    LIMIT_PLUS | LIMIT_MINUS if !homing => Ok(vec![ReplyEvent::FollowUp(vec![Request::silent(
+                        line(channel, "ER=0"),
+                        Step::ClearError { channel },
+                    )])]),
+                    code => Ok(motor_error(channel, code)),
+                }
+            }
+            Step::RawQuery { .. } => Ok(Vec::new()),
             Step::Homed { .. } | Step::Command { .. } | Step::ClearError { .. } => {
                 Err(error("a silent command answered"))
             }

@@ -158,6 +158,20 @@ impl ProtocolKind {
         }
     }
 
+    /// Whether its controllers are reached over several connections at once (motion lanes):
+    /// over TCP only.
+    pub fn opens_several_connections(self) -> bool {
+        /// Asks the protocol.
+        struct MotionLanes;
+        impl WithProtocol for MotionLanes {
+            type Output = bool;
+            fn with<P: Protocol + 'static>(self, protocol: P) -> bool {
+                protocol.motion_lanes()
+            }
+        }
+        self.with_protocol(&ProtocolOptions::default(), MotionLanes)
+    }
+
     /// A controller speaking the protocol, not connected yet (see `Controller::new`).
     pub fn controller(
         self,

@@ -7,7 +7,9 @@
 //! outputs are named by their C types (`GroupStatusGet (GROUP1,int *)`). Numbers go out as C's
 //! `%.13g`. A reply is the error code, the outputs, and `EndOfAPI`, comma separated:
 //! `0,12,EndOfAPI`; a call without outputs is answered `0,EndOfAPI` (or `0,,EndOfAPI`: both are
-//! read). A code other than 0 is the controller's error, named on the axis's ERR.
+//! read). A code other than 0 is the controller's error, named on the axis's ERR; a call of a
+//! command refused ends the command there (a move whose speed the XPS refuses is not sent at
+//! the previous speed), as motorNewport returns at the first error.
 //!
 //! # Motion calls block their socket
 //! `GroupMoveAbsolute`, `GroupMoveRelative` and `GroupHomeSearch` are answered only when the
@@ -37,9 +39,10 @@
 //!   ready (10–18) or in jog mode `GroupKill` and `GroupInitialize`, for
 //!   one not initialised (0–9, 50, 63) `GroupInitialize`, then on the motion lane
 //!   `GroupHomeSearch (GROUP1)`: the XPS homes only a group not referenced;
-//! - stop: `GroupStatusGet`, then `GroupMoveAbort (GROUP1)` if the group moves or jogs (44, 45,
-//!   47) or a motion call is unanswered, `GroupKill (GROUP1)` if it homes (43: a home search cannot
-//!   be aborted). On the main connection: motorNewport writes them on the move socket, unanswered;
+//! - stop: `GroupStatusGet`, then `GroupKill (GROUP1)` if it homes (43: a home search cannot be
+//!   aborted), `GroupMoveAbort (GROUP1)` otherwise: a move whose call is on its way on the motion
+//!   connection may not have started when the state was read, and the abort's refusal when
+//!   nothing moves (-22) is no error (motorNewport aborts only in 44, 45, 47). On the main connection: motorNewport writes them on the move socket, unanswered;
 //!   here the abort's own answer is read;
 //! - set position: `GroupKill`, `GroupInitialize`, `GroupReferencingStart`,
 //!   `GroupReferencingActionExecute (GROUP1.POSITIONER,SetPosition,None,p)`,
@@ -57,9 +60,9 @@
 //! Initialisation reads `FirmwareVersionGet (char *)` (logged) and, per channel, the jerk times
 //! `PositionerSGammaParametersGet` and the travel `PositionerUserTravelLimitsGet` (logged);
 //! nothing is changed or homed. At a node run's first connection only (not under `observe`,
-//! not after a reconnection), each group the XPS powered up without initialising (states 0–9,
-//! 50, 63) is initialised, `GroupInitialize (GROUP1)`, as PI's servos are switched on: its
-//! motors powered, nothing moved; a group killed since stays killed. A poll reads per channel `GroupStatusGet`,
+//! not after a reconnection), each group as the XPS powers up (state 0; not one left
+//! uninitialised by a fault, an emergency or a kill, 1–9) is initialised, `GroupInitialize
+//! (GROUP1)`, as PI's servos are switched on: its motors powered, nothing moved. A poll reads per channel `GroupStatusGet`,
 //! `GroupPositionCurrentGet` (the encoder), `GroupPositionSetpointGet` (the position, as
 //! motorNewport reads them), `PositionerErrorGet`, `GroupVelocityCurrentGet`:
 //!
@@ -67,7 +70,7 @@
 //! |---|---|
 //! | group state 43–48, or a motion call unanswered | not DONE (but DONE in jog mode, 47, at rest after the jog moved) |
 //! | speed beyond 1e-7 | MOVING, DIRECTION its sign |
-//! | state 10–21, 44, 45, 47 | HOMED |
+//! | state 10–36, 44, 45, 47 | HOMED (a disabled group keeps its reference; motorNewport: 10–21) |
 //! | state 11 | HOME |
 //! | state 10–19, 42–49, 56, 64, 68, 70, 77, 79 | POSITION (powered) |
 //! | state 1–6, 8, 9, 21–36, 50, 63 | PROBLEM (not initialised or disabled by a fault) |
@@ -108,6 +111,15 @@ const END_OF_RUN_PLUS: i64 = 0x200;
 /// The group state of jog mode.
 const JOGGING: i32 = 47;
 
+/// The group state of a home search.
+const HOMING: i32 = 43;
+
+/// The group state as powered up: not initialised, and by no fault or request.
+const POWERED_UP: i32 = 0;
+
+/// The code of a call the group's state does not allow.
+const NOT_ALLOWED: i32 = -22;
+
 /// The code of a motion call answered because the motion was aborted.
 const MOTION_ABORTED: i32 = -27;
 
@@ -138,6 +150,10 @@ pub(crate) enum Step {
         then: Then,
     },
     Command {
+        channel: usize,
+    },
+    /// `GroupMoveAbort` of a stop: refused (-22) when nothing moves, which is no error.
+    Abort {
         channel: usize,
     },
     /// A motion call, answered when the motion ends.
@@ -171,8 +187,6 @@ struct Axis {
     jerk: Option<(f64, f64)>,
     /// The group state the last poll read.
     state: Option<i32>,
-    /// Motion calls written and not answered yet.
-    motions_unanswered: u32,
     /// The last jog was seen moving: standing still in jog mode since means it has ended (not
     /// that it has yet to start).
     jog_seen_moving: bool,
@@ -250,17 +264,20 @@ impl Xps {
                     Step::Motion { channel: n },
                     n,
                 ));
-                self.axis(n).motions_unanswered += 1;
                 requests
             }
             DriverCommand::MoveVelocity { max_velocity, acceleration, .. } => {
                 let velocity = self.units("velocity", *max_velocity)?;
                 let acceleration = self.units("acceleration", acceleration.abs())?;
-                self.axis(n).jog_seen_moving = false;
-                vec![
-                    call(format!("GroupJogModeEnable ({group})")),
-                    call(format!("GroupJogParametersSet ({positioner},{velocity},{acceleration})")),
-                ]
+                let axis = self.axis(n);
+                axis.jog_seen_moving = false;
+                let mut requests = Vec::new();
+                // A new speed while jogging: jog mode is on already (enabling it again is refused).
+                if axis.state != Some(JOGGING) {
+                    requests.push(call(format!("GroupJogModeEnable ({group})")));
+                }
+                requests.push(call(format!("GroupJogParametersSet ({positioner},{velocity},{acceleration})")));
+                requests
             }
             DriverCommand::Home { .. } => {
                 vec![Request::query(state_query(n), Step::StateFor { channel: n, then: Then::Home })]
@@ -296,11 +313,10 @@ impl Xps {
         let group = format!("GROUP{channel}");
         let call = |text: String| Request::query(text, Step::Command { channel });
         match then {
-            Then::Stop if state == 43 => vec![call(format!("GroupKill ({group})"))],
-            Then::Stop if matches!(state, 44 | 45 | 47) || self.axis(channel).motions_unanswered > 0 => {
-                vec![call(format!("GroupMoveAbort ({group})"))]
-            }
-            Then::Stop => Vec::new(),
+            Then::Stop if state == HOMING => vec![call(format!("GroupKill ({group})"))],
+            // Whatever else the state: a move whose call is on its way on the motion connection
+            // may not have started yet when the state was read. Nothing to abort is no error.
+            Then::Stop => vec![Request::query(format!("GroupMoveAbort ({group})"), Step::Abort { channel })],
             Then::Enable if not_initialised(state) => vec![call(format!("GroupInitialize ({group})"))],
             Then::Enable if (20..=36).contains(&state) => vec![call(format!("GroupMotionEnable ({group})"))],
             Then::Enable => Vec::new(),
@@ -317,7 +333,6 @@ impl Xps {
                     requests.push(call(format!("GroupInitialize ({group})")));
                 }
                 requests.push(Request::motion(format!("GroupHomeSearch ({group})"), Step::Motion { channel }, channel));
-                self.axis(channel).motions_unanswered += 1;
                 requests
             }
         }
@@ -334,7 +349,8 @@ impl Xps {
                 let state = value as i32;
                 axis.state = Some(state);
                 let bits = [
-                    (msta::HOMED, (10..=21).contains(&state) || matches!(state, 44 | 45 | 47)),
+                    // Disabled (20–36), a group keeps its reference: enabled, it is ready again.
+                    (msta::HOMED, (10..=36).contains(&state) || matches!(state, 44 | 45 | 47)),
                     (msta::HOME, state == 11),
                     (
                         msta::POSITION,
@@ -348,8 +364,8 @@ impl Xps {
                 for (bit, on) in bits {
                     set(&mut status.msta, bit, on);
                 }
-                let done = !(43..=48).contains(&state) && axis.motions_unanswered == 0;
-                set(&mut status.msta, msta::DONE, done);
+                // (While a motion call is unanswered, the controller layer holds DONE off.)
+                set(&mut status.msta, msta::DONE, !(43..=48).contains(&state));
                 // In jog mode the group stays "jogging" at rest (at the travel limit, or at
                 // speed 0): done once the speed says it stands, read below.
             }
@@ -365,7 +381,7 @@ impl Xps {
                 set(&mut status.msta, msta::MOVING, moving);
                 if axis.state == Some(JOGGING) {
                     axis.jog_seen_moving |= moving;
-                    if axis.jog_seen_moving && !moving && axis.motions_unanswered == 0 {
+                    if axis.jog_seen_moving && !moving {
                         status.msta |= msta::DONE;
                     }
                 }
@@ -487,9 +503,10 @@ impl Protocol for Xps {
             Step::Firmware | Step::Jerk { .. } | Step::Travel { .. } => Purpose::Init,
             Step::PowerUp { .. } | Step::PowerUpCall { .. } => Purpose::Setup,
             Step::Read { channel, .. } => Purpose::Poll { channel },
-            Step::StateFor { channel, .. } | Step::Command { channel } | Step::Motion { channel } => {
-                Purpose::Command { channel }
-            }
+            Step::StateFor { channel, .. }
+            | Step::Command { channel }
+            | Step::Abort { channel }
+            | Step::Motion { channel } => Purpose::Command { channel },
         }
     }
 
@@ -510,10 +527,6 @@ impl Protocol for Xps {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
-        // A new connection: motion calls on the old one are answered nowhere.
-        for (_, axis) in &mut self.axes {
-            axis.motions_unanswered = 0;
-        }
         let mut requests = vec![Request::query("FirmwareVersionGet (char *)", Step::Firmware)];
         for &channel in channels {
             let positioner = format!("GROUP{channel}.POSITIONER");
@@ -568,13 +581,11 @@ impl Protocol for Xps {
         let error = |why| ReplyError::new(request, frame, why);
         let (code, outputs) = split_reply(frame).ok_or_else(|| error("not an XPS reply"))?;
         let call = String::from_utf8_lossy(&request.bytes).into_owned();
-        if let Step::Motion { channel } = request.step {
-            let axis = self.axis(channel);
-            axis.motions_unanswered = axis.motions_unanswered.saturating_sub(1);
+        match request.step {
             // Aborted by a stop (or a new motion of the record's): the stop said all there is.
-            if code == 0 || code == MOTION_ABORTED {
-                return Ok(Vec::new());
-            }
+            Step::Motion { .. } if code == MOTION_ABORTED => return Ok(Vec::new()),
+            Step::Abort { .. } if code == NOT_ALLOWED => return Ok(Vec::new()),
+            _ => {}
         }
         if code != 0 {
             let channel = match request.step {
@@ -586,6 +597,7 @@ impl Protocol for Xps {
                 | Step::Read { channel, .. }
                 | Step::StateFor { channel, .. }
                 | Step::Command { channel }
+                | Step::Abort { channel }
                 | Step::Motion { channel } => Some(channel),
             };
             if matches!(Self::purpose(request.step), Purpose::Init) || matches!(request.step, Step::Read { .. }) {
@@ -593,7 +605,14 @@ impl Protocol for Xps {
                 return Err(error("the controller refused the reading"));
             }
             let meaning = format!("{} (to {call})", meaning(code));
-            return Ok(vec![ReplyEvent::ControllerError(VendorError { channel, code: code.to_string(), meaning })]);
+            let error = VendorError { channel, code: code.to_string(), meaning };
+            // A step of a command refused: the rest of it is not sent. A motion call's answer
+            // comes when the motion ended: nothing is left to cut short.
+            return Ok(vec![if matches!(request.step, Step::Motion { .. }) {
+                ReplyEvent::ControllerError(error)
+            } else {
+                ReplyEvent::Refused(error)
+            }]);
         }
         let number = |i: usize| -> Result<f64, ReplyError> {
             outputs
@@ -613,7 +632,7 @@ impl Protocol for Xps {
                 Ok(vec![ReplyEvent::Found(Finding::Travel { channel, min: number(0)?, max: number(1)? })])
             }
             Step::Read { channel, reading } => Ok(self.read(channel, reading, number(0)?).into_iter().collect()),
-            Step::PowerUp { channel } if not_initialised(number(0)? as i32) => {
+            Step::PowerUp { channel } if number(0)? as i32 == POWERED_UP => {
                 let call = format!("GroupInitialize (GROUP{channel})");
                 Ok(vec![ReplyEvent::FollowUp(vec![Request::query(call, Step::PowerUpCall { channel })])])
             }
@@ -622,7 +641,7 @@ impl Protocol for Xps {
                 let state = number(0)? as i32;
                 Ok(vec![ReplyEvent::FollowUp(self.after_state(channel, state, then))])
             }
-            Step::Command { .. } | Step::Motion { .. } => Ok(Vec::new()),
+            Step::Command { .. } | Step::Abort { .. } | Step::Motion { .. } => Ok(Vec::new()),
         }
     }
 }

@@ -7,8 +7,8 @@
 //! several commands share a line separated by `;`. Commands answer nothing; a query answers one
 //! line ended by `\n\r`, all axes comma separated in `AM` mode. The controller also sends, unasked,
 //! notification lines `%000 SSSSSSSS` (done, limit, slip, command error flags): they are read and
-//! dropped, as motorOmsAsyn does (a command error is therefore not named on ERR: the MAXnet says
-//! nothing else of it).
+//! dropped (motorOmsAsyn prints a command error's on the IOC console; zmotor does not report it
+//! on ERR: the layer has no place for a line nobody asked for, yet).
 //!
 //! # Channels
 //! Channel n (0 to 9) is the n-th axis of X, Y, Z, T, U, V, R, S, W, K. Positions are motor steps,
@@ -20,9 +20,11 @@
 //!   speed is below the last base speed, so that the base stays below the top at each step);
 //! - home: the same settings, then `HM` forward or `HR` reverse, `MA0;GO;ID;` (to the switch,
 //!   whose position becomes 0, and there);
-//! - jog: `AX AC<a>; JG<v>;`; stop: `AX AC<a>; ST ID;`; set position: `AX LP<p>;`;
+//! - jog: `AX AC<a>; JG<v>;`; stop: `AX AC<a>; ST ID;` (200,000 without a deceleration, as
+//!   motorOmsAsyn); set position: `AX LP<p>;`;
 //! - enable: `AX CL1;` / `AX CL0;` (the closed loop, on an axis with an encoder);
-//! - raw text: sent after the axis selection;
+//! - raw text: sent after the axis selection; a query (a report such as `RP`, or a `?`) is
+//!   refused, as its answer would be taken for the next poll's;
 //! - soft limits, gains, encoder ratio: nothing is sent.
 //!
 //! Speeds and accelerations are held to the controller's ranges as motorOmsAsyn holds them
@@ -35,13 +37,13 @@
 //! every axis) at connection: zmotor stops nothing that it did not start. A poll is four
 //! exchanges for every axis at once, as motorOmsAsyn's: `AM;RI;` (the status of each axis, its
 //! done flag cleared by the reading), `AM PP;` (positions), `AM;RV;` (speeds), `AM;QL;` (the
-//! limit inputs):
+//! limit inputs; an empty field reads 0, as motorOmsAsyn reads it):
 //!
 //! | reading | MSTA |
 //! |---|---|
 //! | `RI` done `D`, or at rest (speed 0) with no motion commanded | DONE |
 //! | speed not 0 | MOVING |
-//! | at rest, a motion commanded, no `D`: on a limit (`L`) at once, else after five polls (PROBLEM) | DONE |
+//! | at rest, a motion commanded, no `D`: on a limit switch once it moved, else after five polls (PROBLEM) | DONE |
 //! | `RI` direction `P` | DIRECTION |
 //! | `RI` home `H` | HOME |
 //! | `QL` bit n / n+8 (n+16 / n+24 for W, K), against the level `LT?` gives | MINUS_LS / PLUS_LS |
@@ -98,6 +100,8 @@ struct Axis {
     commanded: bool,
     /// Polls at rest since, with no done flag.
     at_rest_polls: u32,
+    /// It was seen moving since the motion was commanded.
+    moved: bool,
     /// The base speed last sent, for the order of `VL` and `VB`.
     last_base: i64,
     /// The done flag of the poll under way.
@@ -156,11 +160,25 @@ impl Maxnet {
                 format!("A{axis} AC{acceleration}; JG{velocity};")
             }
             DriverCommand::Stop { acceleration } => {
-                let acceleration = nint(acceleration.abs()).clamp(1, 8_000_000);
+                // No deceleration given (a stop before any motion's settings): motorOmsAsyn's
+                // 200,000 steps/s², not the 1 step/s² that would hardly brake.
+                let acceleration = match nint(acceleration.abs()) {
+                    0 => 200_000,
+                    given => given.min(8_000_000),
+                };
                 format!("A{axis} AC{acceleration}; ST ID;")
             }
             DriverCommand::SetPosition { position } => format!("A{axis} LP{};", whole_steps("position", *position)?),
             DriverCommand::Enable { on } => format!("A{axis} CL{};", u8::from(*on)),
+            DriverCommand::Raw { text } if is_query(text) => {
+                return Err(CommandError::Unsupported {
+                    protocol: NAME,
+                    what: "send a query as raw text (its answer would be taken for the next poll's)",
+                })
+            }
+            DriverCommand::Raw { text } if text.contains(['\n', '\r']) => {
+                return Err(CommandError::Unsupported { protocol: NAME, what: "send raw text of several lines" })
+            }
             DriverCommand::Raw { text } => format!("A{axis};{text}"),
             DriverCommand::SetEncoderRatio { .. }
             | DriverCommand::SetHighLimit { .. }
@@ -171,6 +189,7 @@ impl Maxnet {
         if command.starts_motion() {
             let axis = &mut self.axes[channel];
             axis.commanded = true;
+            axis.moved = false;
             axis.at_rest_polls = 0;
         }
         Ok(Some(text))
@@ -199,8 +218,10 @@ impl Maxnet {
                 true
             } else if moving {
                 axis.at_rest_polls = 0;
+                axis.moved = true;
                 false
-            } else if !axis.commanded || at_a_limit {
+            } else if !axis.commanded || (at_a_limit && axis.moved) {
+                // At rest on a switch after moving: stopped there (its done flag never comes).
                 true
             } else {
                 axis.at_rest_polls += 1;
@@ -221,6 +242,14 @@ impl Maxnet {
         }
         events
     }
+}
+
+/// Whether raw text asks something the controller answers: a report (`RP`, `RI`, `WY`, …) or a
+/// `?` query.
+fn is_query(text: &str) -> bool {
+    const REPORTS: [&str; 14] = ["RP", "RE", "RI", "RA", "RV", "RQ", "QA", "QI", "QL", "PP", "PE", "EA", "WY", "WS"];
+    let text = text.to_ascii_uppercase();
+    text.contains('?') || REPORTS.iter().any(|report| text.contains(report))
 }
 
 /// C's rounding of a value to an integer (`(int)(v + 0.5)` away from zero), saturated.
@@ -256,9 +285,13 @@ impl Protocol for Maxnet {
     }
 
     fn frame(&self, buffer: &[u8]) -> Frame {
+        // An acknowledgement or line ends before a line are no reply (motorOmsAsyn skips them).
+        let noise = buffer.iter().take_while(|b| matches!(b, 0x06 | b'\r' | b'\n')).count();
+        if noise > 0 {
+            return Frame::Junk(noise);
+        }
         match line_frame(buffer, INPUT_TERMINATOR) {
-            // A line end alone, or a notification (`%000 SSSSSSSS`), is no reply.
-            Frame::Complete(2) => Frame::Junk(2),
+            // A notification (`%000 SSSSSSSS`) is no reply.
             Frame::Complete(n) if buffer.first() == Some(&b'%') => Frame::Junk(n),
             frame => frame,
         }
@@ -310,8 +343,8 @@ impl Protocol for Maxnet {
             // `=O` open loop, `=E`, `=M`: logged by the identity; encoders are not read.
             Step::AxisType { .. } if text.starts_with('=') => Ok(Vec::new()),
             Step::LimitLevel { channel } => match text {
-                "=l" => Ok(Vec::new()),
-                "=h" => {
+                "=l" | "=L" => Ok(Vec::new()),
+                "=h" | "=H" => {
                     self.axes[channel].limits_active_high = true;
                     Ok(Vec::new())
                 }
@@ -333,7 +366,13 @@ impl Protocol for Maxnet {
             }
             Step::Read(reading @ (Reading::Positions | Reading::Velocities)) => {
                 for (channel, field) in self.fields(text) {
-                    let value = field.parse::<i64>().map_err(|_| error("not a whole number"))? as f64;
+                    // An empty field is 0, as motorOmsAsyn reads it (`,,,,`).
+                    let value = if field.is_empty() {
+                        0
+                    } else {
+                        field.parse::<i64>().map_err(|_| error("not a whole number"))?
+                    };
+                    let value = value as f64;
                     let status = &mut self.axes[channel].status;
                     match reading {
                         Reading::Positions => status.position = value,

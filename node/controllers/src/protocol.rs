@@ -116,6 +116,9 @@ pub enum ReplyEvent<S> {
     },
     /// The controller reported an error, in its own words.
     ControllerError(VendorError),
+    /// The controller refused this request: its error, and the rest of the command under way is
+    /// not sent (a move whose speed was refused must not go at the previous speed).
+    Refused(VendorError),
     /// Requests to send right after this one, before anything else (an error query after a
     /// setter, the next entry of an error queue).
     FollowUp(Vec<Request<S>>),

@@ -151,3 +151,31 @@ proptest! {
         common::no_malformed_frames(MDRIVE, &CHANNELS, common::Start::AsPoweredUp, &commands);
     }
 }
+
+#[test]
+fn a_refused_home_homes_nothing_and_a_jog_to_a_limit_is_no_error() {
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(1, &go(150_000.0, false));
+    lb.run_for(Duration::from_millis(200));
+    // A home while moving: refused (85), named once; the move's end homes nothing.
+    let home =
+        DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(1, &home);
+    lb.run_for(Duration::from_millis(300));
+    let errors = common::controller_errors(&lb.take_events());
+    assert_eq!(errors.iter().map(|(_, code, _)| code.as_str()).collect::<Vec<_>>(), ["85"], "{errors:?}");
+    let done = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(20)).last().expect("done");
+    lb.run_for(Duration::from_secs(2));
+    let events = lb.take_events();
+    assert!(common::controller_errors(&events).is_empty(), "{events:?}");
+    assert_eq!((done.msta | common::last_status(&events, 1).msta) & msta::HOMED, 0, "{done:?}");
+    // A jog left to run ends on the minus limit switch: the limit bit says it, ERR stays quiet.
+    let jog = DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -40_000.0, acceleration: 400_000.0 };
+    lb.command(1, &jog);
+    let end = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(20)).last().expect("done");
+    lb.run_for(Duration::from_secs(2));
+    let events = lb.take_events();
+    assert_ne!(end.msta & msta::MINUS_LS, 0, "{end:?}");
+    assert!(common::controller_errors(&events).is_empty(), "{events:?}");
+}

@@ -231,3 +231,65 @@ proptest! {
         common::no_malformed_frames(XPS, &CHANNELS, common::Start::Homed, &commands);
     }
 }
+
+#[test]
+fn a_stop_right_after_a_move_ends_it_whenever_the_calls_were_under_way() {
+    // Replies 30 ms late: the stop comes while the move's settings call is still unanswered,
+    // so the move's motion call is dropped unsent, or just sent and not yet started.
+    for stop_after_ms in [0, 10, 35, 70] {
+        let mut lb = homed();
+        lb.link.set_faults(Faults { delay: Duration::from_millis(30), ..Faults::default() });
+        lb.command(1, &go(100_000.0, false));
+        lb.run_for(Duration::from_millis(stop_after_ms));
+        lb.command(1, &DriverCommand::Stop { acceleration: 200_000.0 });
+        let end = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(5)).last().expect("done");
+        lb.run_for(Duration::from_millis(2500));
+        let events = lb.take_events();
+        let after = common::last_status(&events, 1);
+        assert!(common::controller_errors(&events).is_empty(), "after {stop_after_ms} ms: {events:?}");
+        assert_eq!(after.msta & (msta::DONE | msta::PROBLEM), msta::DONE, "after {stop_after_ms} ms: {after:?}");
+        assert!(end.position < 20_000.0, "stopped, not run to the target: {end:?}");
+        assert!(!lb.link.emulator().axis(1).expect("the channel").is_moving());
+    }
+}
+
+#[test]
+fn a_refused_speed_sends_no_move() {
+    let mut lb = homed();
+    let from = lb.written().len();
+    // 20 mm/s: beyond the stage's 10 mm/s, which the XPS refuses (-17).
+    let fast = DriverCommand::Move {
+        position: 10_000.0,
+        relative: false,
+        min_velocity: 0.0,
+        max_velocity: 200_000.0,
+        acceleration: 200_000.0,
+    };
+    lb.command(1, &fast);
+    lb.run_for(Duration::from_millis(500));
+    let events = lb.take_events();
+    let errors = common::controller_errors(&events);
+    assert_eq!(errors.len(), 1, "{events:?}");
+    assert!(errors[0].2.contains("PositionerSGammaParametersSet"), "{errors:?}");
+    let sent = written_since(&lb, from);
+    assert!(!sent.iter().any(|l| l.starts_with("GroupMoveAbsolute")), "the move went at the old speed: {sent:?}");
+    assert!(!lb.link.emulator().axis(1).expect("the channel").is_moving());
+}
+
+#[test]
+fn a_reconnection_initialises_nothing_a_group_killed_stays_killed() {
+    let mut lb = homed();
+    lb.command(1, &DriverCommand::Raw { text: "GroupKill (GROUP1)".into() });
+    lb.run_for(Duration::from_millis(300));
+    lb.link.set_faults(Faults { close_after: Some(1), ..Faults::default() });
+    lb.run_for(Duration::from_millis(1200));
+    assert!(lb.take_events().contains(&zmotor_controllers::ControllerEvent::Disconnect));
+    lb.link.set_faults(Faults::default());
+    let from = lb.written().len();
+    lb.run_for(Duration::from_secs(3));
+    assert!(lb.controller.is_up());
+    let sent = written_since(&lb, from);
+    assert!(sent.iter().all(|l| is_read(l)), "reads only at a reconnection: {sent:?}");
+    let status = common::last_status(&lb.take_events(), 1);
+    assert_eq!(status.msta & (msta::HOMED | msta::POSITION), 0, "killed: unpowered, not referenced: {status:?}");
+}

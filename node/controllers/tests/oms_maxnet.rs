@@ -87,15 +87,33 @@ fn a_home_ends_at_zero_on_the_switch() {
 fn a_motion_that_never_says_done_ends_as_a_problem_after_five_polls() {
     let mut lb = loopback(MAXNET, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    // Raw commands start nothing the driver knows of; a move to where the axis is already, its
-    // done flag taken by a raw RI before the poll reads it, leaves the poll nothing but a rest.
+    // A move to where the axis stands ends at once; another client (here, straight at the
+    // emulator) reads the done flag before the driver's poll can: the poll finds only a rest.
     lb.command(0, &go(0.0, false));
-    lb.command(0, &DriverCommand::Raw { text: "RI".into() });
+    let now = lb.now();
+    let emulator = lb.link.emulator();
+    emulator.handle_input(now, b"AX RI\n");
+    while emulator.poll_transmit().is_some() {}
     let statuses = run_until_done(&mut lb, 0, TICK, Duration::from_secs(5));
     let end = statuses.last().expect("done");
     assert_eq!(end.msta & (msta::DONE | msta::PROBLEM), msta::DONE | msta::PROBLEM, "{statuses:?}");
     let waiting = statuses.iter().filter(|s| s.msta & msta::DONE == 0).count();
     assert!(waiting >= 4, "five polls at rest before giving up: {statuses:?}");
+}
+
+#[test]
+fn a_stop_without_a_deceleration_brakes_as_motoromsasyn_does_and_raw_queries_are_refused() {
+    let mut lb = loopback(MAXNET, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    let from = lb.written().len();
+    lb.command(2, &DriverCommand::Stop { acceleration: 0.0 });
+    lb.run_for(Duration::from_millis(100));
+    assert_eq!(written_since(&lb, from)[0], "AZ AC200000; ST ID;\n");
+    let from = lb.written().len();
+    lb.command(2, &DriverCommand::Raw { text: "RP".into() });
+    let events = lb.take_events();
+    assert!(events.iter().any(|e| matches!(e, zmotor_controllers::ControllerEvent::Refused { channel: 2, .. })));
+    assert!(written_since(&lb, from).iter().all(|l| is_read(l)));
 }
 
 #[test]

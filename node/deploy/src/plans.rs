@@ -106,6 +106,13 @@ impl ControllerSection {
                     },
                 };
                 settings.check().map_err(|e| at(&["serial"], e.to_string()))?;
+                if protocol.opens_several_connections() {
+                    let why = format!(
+                        "{} opens a connection for each axis's motion beside the main one, and a serial line is one: give tcp = \"host:port\"",
+                        protocol.name()
+                    );
+                    return Err(at(&["serial"], why));
+                }
                 Transport::Serial(settings)
             }
             _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),

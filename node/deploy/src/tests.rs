@@ -242,6 +242,24 @@ fn units_per_step_on_a_controller_that_counts_motor_steps_is_an_error() {
 }
 
 #[test]
+fn an_xps_on_a_serial_line_is_an_error_at_load() {
+    let serial = CONTROLLED
+        .replace("protocol = \"acs_mcb4b\"", "protocol = \"newport_xps\"")
+        .replace("tcp = \"127.0.0.1:4001\"\n", "")
+        .replace(
+            "moving_poll = 0.05\n",
+            "moving_poll = 0.05\n[controller.serial]\ndevice = \"/dev/ttyS0\"\nbaud = 9600\n",
+        )
+        .replace("channel = 0", "channel = 1");
+    let error = Launch::parse(&serial).unwrap_err().to_string();
+    assert!(error.contains("newport_xps opens a connection for each axis's motion"), "{error}");
+    let tcp = CONTROLLED
+        .replace("protocol = \"acs_mcb4b\"", "protocol = \"newport_xps\"")
+        .replace("channel = 0", "channel = 1");
+    assert!(Launch::parse(&tcp).is_ok(), "over TCP it loads");
+}
+
+#[test]
 fn a_controller_knows_its_axes_units_to_compare_with_its_scale() {
     let units = CONTROLLED.replace("channel = 2\n", "channel = 2\n[axis.fields]\nEGU = \"um\"\nMRES = 0.5\n");
     let deployment = Launch::parse(&units).unwrap().deployment(None).unwrap();

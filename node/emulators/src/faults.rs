@@ -97,9 +97,14 @@ impl WithFaults {
     pub fn handle_timeout(&mut self, now: Instant) {
         self.now = self.now.max(now);
         self.deliver();
-        if self.emulator.poll_timeout().is_some_and(|due| due <= self.now) && !self.closed {
+        if self.emulator.poll_timeout().is_some_and(|due| due <= self.now) {
+            // Motions end whether the link is up or not; a closed link sends nothing.
             self.emulator.handle_timeout(self.now);
-            self.take_replies(self.now);
+            if self.closed {
+                while self.emulator.poll_transmit_on().is_some() {}
+            } else {
+                self.take_replies(self.now);
+            }
         }
     }
 

@@ -121,7 +121,11 @@ impl Emulated {
     }
 
     /// Serve `connections` (by their number; None a free number) until one closes, or all.
+    /// Never returns without a connection.
     async fn serve_connections(&self, connections: &mut [Option<Box<dyn Io>>]) -> Ended {
+        if connections.iter().all(Option::is_none) {
+            return std::future::pending().await;
+        }
         let mut buffer = vec![0u8; 4096];
         loop {
             let (replies, closed, due) = {
