@@ -167,6 +167,16 @@ pub(crate) fn no_malformed_frames(
         refused.iter().all(|e| matches!(e, ControllerEvent::Refused { .. })),
         "exchanges failed on a clean link: {refused:?}"
     );
+    // Whatever came before, a stop of every channel ends with every channel done.
+    for &channel in channels {
+        lb.command(channel, &DriverCommand::Stop { acceleration: 200_000.0 });
+    }
+    lb.run_for(Duration::from_secs(10));
+    let events = lb.take_events();
+    for &channel in channels {
+        let status = last_status(&events, channel);
+        assert_ne!(status.msta & msta::DONE, 0, "channel {channel} not done after a stop: {status:?}");
+    }
 }
 
 /// A jog of `channel` (up, switched on) runs until stopped and stops soon after; left running it
