@@ -521,16 +521,22 @@ impl<P: Protocol> AnyController for Controller<P> {
             Lane::Main => {
                 self.received.extend_from_slice(bytes);
                 self.drop_if_unframed(Lane::Main);
-                while let Some(frame) = next_frame(&self.protocol, &mut self.received) {
-                    self.on_frame(&frame);
+                while let Some(framed) = next_frame(&self.protocol, &mut self.received) {
+                    match framed {
+                        Framed::Reply(frame) => self.on_frame(&frame),
+                        Framed::Notice(frame) => self.on_notice(&frame),
+                    }
                 }
             }
             Lane::Motion(channel) => {
                 self.motion_lanes.entry(channel).or_default().received.extend_from_slice(bytes);
                 self.drop_if_unframed(lane);
                 while let Some(motion) = self.motion_lanes.get_mut(&channel) {
-                    let Some(frame) = next_frame(&self.protocol, &mut motion.received) else { break };
-                    self.on_motion_frame(channel, &frame);
+                    match next_frame(&self.protocol, &mut motion.received) {
+                        Some(Framed::Reply(frame)) => self.on_motion_frame(channel, &frame),
+                        Some(Framed::Notice(frame)) => self.on_notice(&frame),
+                        None => break,
+                    }
                 }
             }
         }
@@ -740,6 +746,20 @@ impl<P: Protocol> Controller<P> {
                 }
             }
             Err(e) => self.on_failure(in_flight, &e.to_string()),
+        }
+    }
+
+    /// A notification: what it says counts as a reply's would, no request waiting for it.
+    fn on_notice(&mut self, frame: &[u8]) {
+        for event in self.protocol.notice(frame) {
+            match event {
+                ReplyEvent::FollowUp(_) => {
+                    tracing::warn!("a notification asked for requests: not sent");
+                }
+                // Nothing of the command under way is the notification's to cut short.
+                ReplyEvent::Refused(error) => self.on_event(ReplyEvent::ControllerError(error), self.seq),
+                event => self.on_event(event, self.seq),
+            }
         }
     }
 
@@ -968,15 +988,22 @@ impl<P: Protocol> Controller<P> {
 /// dropped.
 const MAX_UNFRAMED: usize = 64 * 1024;
 
+/// A complete frame of the byte stream.
+enum Framed {
+    Reply(Vec<u8>),
+    Notice(Vec<u8>),
+}
+
 /// The first complete frame in `buffer`, taken out of it (noise before it dropped).
-fn next_frame<P: Protocol>(protocol: &P, buffer: &mut Vec<u8>) -> Option<Vec<u8>> {
+fn next_frame<P: Protocol>(protocol: &P, buffer: &mut Vec<u8>) -> Option<Framed> {
     loop {
         match protocol.frame(buffer) {
             Frame::Incomplete => return None,
             Frame::Junk(n) => {
                 buffer.drain(..n.min(buffer.len()));
             }
-            Frame::Complete(n) => return Some(buffer.drain(..n.min(buffer.len())).collect()),
+            Frame::Complete(n) => return Some(Framed::Reply(buffer.drain(..n.min(buffer.len())).collect())),
+            Frame::Notice(n) => return Some(Framed::Notice(buffer.drain(..n.min(buffer.len())).collect())),
         }
     }
 }

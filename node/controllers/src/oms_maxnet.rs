@@ -6,9 +6,9 @@
 //! Commands end with `\n`; an axis is selected first (`AX` … `AK`), or all of them (`AM`), and
 //! several commands share a line separated by `;`. Commands answer nothing; a query answers one
 //! line ended by `\n\r`, all axes comma separated in `AM` mode. The controller also sends, unasked,
-//! notification lines `%000 SSSSSSSS` (done, limit, slip, command error flags): they are read and
-//! dropped (motorOmsAsyn prints a command error's on the IOC console; zmotor does not report it
-//! on ERR: the layer has no place for a line nobody asked for, yet).
+//! notification lines `%000 SSSSSSSS` (done, limit, slip, command error flags), never taken for
+//! a reply: a command error reaches ERR of the channel last commanded (the flag names no
+//! command; motorOmsAsyn prints it on the IOC console), the other flags are the polls' to read.
 //!
 //! # Channels
 //! Channel n (0 to 9) is the n-th axis of X, Y, Z, T, U, V, R, S, W, K. Positions are motor steps,
@@ -50,7 +50,7 @@
 
 use crate::protocol::{
     line_frame, line_text, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError, ReplyEvent,
-    Request,
+    Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -65,6 +65,9 @@ const AXES: [char; 10] = ['X', 'Y', 'Z', 'T', 'U', 'V', 'R', 'S', 'W', 'K'];
 
 /// What ends a reply.
 const INPUT_TERMINATOR: &[u8] = b"\n\r";
+
+/// The notification flag of a command the controller refused.
+const COMMAND_ERROR: u32 = 0x0100_0000;
 
 /// Polls at rest with a motion commanded and no done flag before the motion counts as lost.
 const POLLS_TO_GIVE_UP: u32 = 5;
@@ -115,11 +118,13 @@ pub(crate) struct Maxnet {
     axes: [Axis; 10],
     /// The channels the poll under way reads.
     polled: Vec<usize>,
+    /// The channel of the last command sent.
+    last_commanded: Option<usize>,
 }
 
 impl Maxnet {
     pub(crate) fn new() -> Self {
-        Self { axes: [Axis::default(); 10], polled: Vec::new() }
+        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None }
     }
 
     /// The speed settings of a motion: `AC`, then `VL` and `VB` in the order that keeps the
@@ -186,6 +191,7 @@ impl Maxnet {
             | DriverCommand::SetGain { .. }
             | DriverCommand::Poll => return Ok(None),
         };
+        self.last_commanded = Some(channel);
         if command.starts_motion() {
             let axis = &mut self.axes[channel];
             axis.commanded = true;
@@ -292,8 +298,22 @@ impl Protocol for Maxnet {
         }
         match line_frame(buffer, INPUT_TERMINATOR) {
             // A notification (`%000 SSSSSSSS`) is no reply.
-            Frame::Complete(n) if buffer.first() == Some(&b'%') => Frame::Junk(n),
+            Frame::Complete(n) if buffer.first() == Some(&b'%') => Frame::Notice(n),
             frame => frame,
+        }
+    }
+
+    fn notice(&mut self, frame: &[u8]) -> Vec<ReplyEvent<Step>> {
+        let text = line_text(frame, INPUT_TERMINATOR);
+        let flags = text.trim().strip_prefix('%').and_then(|rest| rest.split_whitespace().nth(1));
+        match flags.and_then(|flags| u32::from_str_radix(flags, 16).ok()) {
+            // Said right after the command it refused: the last one sent is its channel's.
+            Some(flags) if flags & COMMAND_ERROR != 0 => vec![ReplyEvent::ControllerError(VendorError {
+                channel: self.last_commanded,
+                code: "command error".into(),
+                meaning: "the MAXnet refused a command (its command error flag, which names no command)".into(),
+            })],
+            _ => Vec::new(),
         }
     }
 

@@ -1046,7 +1046,7 @@ mod tests {
             loop {
                 match p.frame(&buffer) {
                     Frame::Incomplete => break,
-                    Frame::Junk(n) => panic!("junk {n} in {buffer:?}"),
+                    Frame::Junk(n) | Frame::Notice(n) => panic!("junk or notice {n} in {buffer:?}"),
                     Frame::Complete(n) => found.push(buffer.drain(..n).collect::<Vec<u8>>()),
                 }
             }

@@ -101,6 +101,9 @@ pub enum Frame {
     Complete(usize),
     /// This many bytes before any frame are noise (line noise, a stray terminator): drop them.
     Junk(usize),
+    /// A frame of this many bytes the controller sent unasked (a notification): handed to
+    /// `Protocol::notice`, never taken for a reply.
+    Notice(usize),
 }
 
 /// What a reply says.
@@ -246,6 +249,12 @@ pub trait Protocol: Send {
     /// How many of the controller's units one record step of `channel` is, as the protocol
     /// knows it now (read at connection where the controller tells).
     fn scale(&self, channel: usize) -> Scale;
+
+    /// What a notification the controller sent unasked says (see `Frame::Notice`).
+    fn notice(&mut self, frame: &[u8]) -> Vec<ReplyEvent<Self::Step>> {
+        let _ = frame;
+        Vec::new()
+    }
 
     /// What the reply `frame` to `request` says.
     fn reply(&mut self, request: &Request<Self::Step>, frame: &[u8])

@@ -148,3 +148,10 @@ proptest! {
         common::no_malformed_frames(MAXNET, &CHANNELS, common::Start::AsPoweredUp, &commands);
     }
 }
+
+#[test]
+fn an_unknown_command_is_the_controllers_command_error_and_the_link_stays_up() {
+    let mut lb = loopback(MAXNET, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    common::an_unknown_command_is_an_error_and_the_link_stays_up(&mut lb, 2, "XX", (Some(2), "command error"));
+}
