@@ -7,7 +7,8 @@
 //! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does.
 
 use crate::protocol::{
-    line_frame, line_text, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError, ReplyEvent, Request,
+    line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError,
+    ReplyEvent, Request,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -82,13 +83,7 @@ impl Mcb4b {
     }
 
     fn partial(&mut self, channel: usize) -> &mut DeviceStatus {
-        match self.partial.iter().position(|(c, _)| *c == channel) {
-            Some(i) => &mut self.partial[i].1,
-            None => {
-                self.partial.push((channel, DeviceStatus::default()));
-                &mut self.partial.last_mut().expect("just pushed").1
-            }
-        }
+        state_of(&mut self.partial, channel)
     }
 }
 
@@ -215,20 +210,20 @@ impl Protocol for Mcb4b {
             }
             Reading::Moving => {
                 let moving = value.as_bytes().first().ok_or_else(|| ReplyError::new(request, frame, "empty"))? != &b'0';
-                set(&mut status.msta, msta::DONE, !moving);
-                set(&mut status.msta, msta::MOVING, moving);
+                set_bit(&mut status.msta, msta::DONE, !moving);
+                set_bit(&mut status.msta, msta::MOVING, moving);
             }
             Reading::Switches => {
                 let (Some(plus), Some(minus), Some(home)) = (flag(0), flag(1), flag(2)) else {
                     return Err(ReplyError::new(request, frame, "fewer than three switch flags"));
                 };
-                set(&mut status.msta, msta::PLUS_LS, plus);
-                set(&mut status.msta, msta::MINUS_LS, minus);
-                set(&mut status.msta, msta::HOME, home);
+                set_bit(&mut status.msta, msta::PLUS_LS, plus);
+                set_bit(&mut status.msta, msta::MINUS_LS, minus);
+                set_bit(&mut status.msta, msta::HOME, home);
             }
             Reading::Power => {
                 let powered = flag(0).ok_or_else(|| ReplyError::new(request, frame, "empty"))?;
-                set(&mut status.msta, msta::POSITION, powered);
+                set_bit(&mut status.msta, msta::POSITION, powered);
                 // The direction bit tells the current motion, not the last one.
                 if status.msta & msta::DONE != 0 {
                     status.msta &= !msta::DIRECTION;
@@ -237,14 +232,6 @@ impl Protocol for Mcb4b {
             }
         }
         Ok(Vec::new())
-    }
-}
-
-fn set(bits: &mut u32, bit: u32, on: bool) {
-    if on {
-        *bits |= bit;
-    } else {
-        *bits &= !bit;
     }
 }
 

@@ -47,8 +47,8 @@
 //! | `EE` 1 | PRESENT; the encoder position is `C2` (else `P`) |
 
 use crate::protocol::{
-    line_frame, line_text, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
+    ReplyEvent, Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -160,13 +160,7 @@ impl Mdrive {
     }
 
     fn motor(&mut self, channel: usize) -> &mut Motor {
-        match self.motors.iter().position(|(c, _)| *c == channel) {
-            Some(i) => &mut self.motors[i].1,
-            None => {
-                self.motors.push((channel, Motor::default()));
-                &mut self.motors.last_mut().expect("just pushed").1
-            }
-        }
+        state_of(&mut self.motors, channel)
     }
 
     /// The commands of a record command, without the name.
@@ -232,15 +226,15 @@ impl Mdrive {
         match reading {
             Reading::Position => {
                 let moving = status.msta & msta::MOVING != 0;
-                set(&mut status.msta, msta::DIRECTION, moving && value > status.position);
+                set_bit(&mut status.msta, msta::DIRECTION, moving && value > status.position);
                 status.position = value;
                 if !motor.encoder {
                     status.encoder_position = value;
                 }
             }
             Reading::Moving => {
-                set(&mut status.msta, msta::DONE, !on);
-                set(&mut status.msta, msta::MOVING, on);
+                set_bit(&mut status.msta, msta::DONE, !on);
+                set_bit(&mut status.msta, msta::MOVING, on);
                 let mut next = Vec::new();
                 // A motion over: its error, if any (a stall, a search ended on a limit).
                 if !on && std::mem::take(&mut motor.moving_since_command) {
@@ -256,16 +250,16 @@ impl Mdrive {
                 }
                 return vec![ReplyEvent::FollowUp(next)];
             }
-            Reading::Switch(Switch::Home) => set(&mut status.msta, msta::HOME, on),
-            Reading::Switch(Switch::Plus) => set(&mut status.msta, msta::PLUS_LS, on),
-            Reading::Switch(Switch::Minus) => set(&mut status.msta, msta::MINUS_LS, on),
-            Reading::Homed => set(&mut status.msta, msta::HOMED, on),
-            Reading::Stall => set(&mut status.msta, msta::SLIP_STALL, on),
+            Reading::Switch(Switch::Home) => set_bit(&mut status.msta, msta::HOME, on),
+            Reading::Switch(Switch::Plus) => set_bit(&mut status.msta, msta::PLUS_LS, on),
+            Reading::Switch(Switch::Minus) => set_bit(&mut status.msta, msta::MINUS_LS, on),
+            Reading::Homed => set_bit(&mut status.msta, msta::HOMED, on),
+            Reading::Stall => set_bit(&mut status.msta, msta::SLIP_STALL, on),
             Reading::Encoder => {
                 if motor.encoder {
                     status.encoder_position = value;
                 }
-                set(&mut status.msta, msta::PRESENT, motor.encoder);
+                set_bit(&mut status.msta, msta::PRESENT, motor.encoder);
                 return vec![ReplyEvent::Status { channel, status: *status }];
             }
         }
@@ -290,14 +284,6 @@ fn motor_error(channel: usize, code: u32) -> Vec<ReplyEvent<Step>> {
 /// `code` to motor `channel`, terminated.
 fn line(channel: usize, code: &str) -> Vec<u8> {
     format!("{channel}{code}{OUTPUT_TERMINATOR}").into_bytes()
-}
-
-fn set(bits: &mut u32, bit: u32, on: bool) {
-    if on {
-        *bits |= bit;
-    } else {
-        *bits &= !bit;
-    }
 }
 
 /// What an MCode error number means (the MCode reference's table, as motorIms lists it).

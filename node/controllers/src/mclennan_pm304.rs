@@ -33,8 +33,8 @@
 //! search it started ends at rest without a limit or an abort, until the connection closes.
 
 use crate::protocol::{
-    line_frame, line_text, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, line_text, state_of, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
+    ReplyEvent, Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -96,13 +96,7 @@ impl Pm304 {
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
-        match self.axes.iter().position(|(c, _)| *c == channel) {
-            Some(i) => &mut self.axes[i].1,
-            None => {
-                self.axes.push((channel, Axis::default()));
-                &mut self.axes.last_mut().expect("just pushed").1
-            }
-        }
+        state_of(&mut self.axes, channel)
     }
 }
 

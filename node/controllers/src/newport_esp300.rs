@@ -52,8 +52,8 @@
 //! to read: HOMED is never set, HOME is the switch.
 
 use crate::protocol::{
-    line_frame, line_text, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, line_text, set_bit, state_of, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose,
+    ReplyError, ReplyEvent, Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -166,13 +166,7 @@ impl Esp300 {
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
-        match self.axes.iter().position(|(c, _)| *c == channel) {
-            Some(i) => &mut self.axes[i].1,
-            None => {
-                self.axes.push((channel, Axis::default()));
-                &mut self.axes.last_mut().expect("just pushed").1
-            }
-        }
+        state_of(&mut self.axes, channel)
     }
 
     fn units_per_step(&self, channel: usize) -> f64 {
@@ -279,14 +273,6 @@ fn buffered_error(text: &str) -> Option<Result<(u32, String), ()>> {
     }
     let message = parts.nth(1).map(str::trim).unwrap_or("").to_string();
     Some(Ok((code, message)))
-}
-
-fn set(bits: &mut u32, bit: u32, on: bool) {
-    if on {
-        *bits |= bit;
-    } else {
-        *bits &= !bit;
-    }
 }
 
 impl Protocol for Esp300 {
@@ -432,23 +418,23 @@ impl Protocol for Esp300 {
                 let status = &mut axis.status;
                 match reading {
                     Reading::Done => {
-                        set(&mut status.msta, msta::DONE, value == 1.0);
-                        set(&mut status.msta, msta::MOVING, value == 0.0);
+                        set_bit(&mut status.msta, msta::DONE, value == 1.0);
+                        set_bit(&mut status.msta, msta::MOVING, value == 0.0);
                     }
                     Reading::Position => {
                         let position = value / units_per_step;
                         let moving = status.msta & msta::MOVING != 0;
-                        set(&mut status.msta, msta::DIRECTION, moving && position > status.position);
+                        set_bit(&mut status.msta, msta::DIRECTION, moving && position > status.position);
                         status.position = position;
                         status.encoder_position = position;
                     }
                     Reading::Power => {
-                        set(&mut status.msta, msta::POSITION, value == 1.0);
+                        set_bit(&mut status.msta, msta::POSITION, value == 1.0);
                         axis.fresh = true;
                     }
                 }
                 let encoder = axis.encoder;
-                set(&mut axis.status.msta, msta::PRESENT | msta::GAIN_SUPPORT, encoder);
+                set_bit(&mut axis.status.msta, msta::PRESENT | msta::GAIN_SUPPORT, encoder);
                 Ok(Vec::new())
             }
             Step::Switches => {
@@ -461,9 +447,9 @@ impl Protocol for Esp300 {
                     .filter_map(|(channel, axis)| std::mem::take(&mut axis.fresh).then_some((channel, axis)))
                     .map(|(channel, axis)| {
                         let bit = 1 << (*channel - 1);
-                        set(&mut axis.status.msta, msta::PLUS_LS, limits & bit != 0);
-                        set(&mut axis.status.msta, msta::MINUS_LS, limits & (bit << 8) != 0);
-                        set(&mut axis.status.msta, msta::HOME, home & bit != 0);
+                        set_bit(&mut axis.status.msta, msta::PLUS_LS, limits & bit != 0);
+                        set_bit(&mut axis.status.msta, msta::MINUS_LS, limits & (bit << 8) != 0);
+                        set_bit(&mut axis.status.msta, msta::HOME, home & bit != 0);
                         ReplyEvent::Status { channel: *channel, status: axis.status }
                     })
                     .collect())

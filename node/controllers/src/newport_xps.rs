@@ -85,7 +85,8 @@
 //! leaves off there.
 
 use crate::protocol::{
-    CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+    set_bit, state_of, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
+    Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -215,13 +216,7 @@ impl Xps {
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
-        match self.axes.iter().position(|(c, _)| *c == channel) {
-            Some(i) => &mut self.axes[i].1,
-            None => {
-                self.axes.push((channel, Axis::default()));
-                &mut self.axes.last_mut().expect("just pushed").1
-            }
-        }
+        state_of(&mut self.axes, channel)
     }
 
     /// `steps` in the stage's unit, as the XPS takes numbers.
@@ -362,10 +357,10 @@ impl Xps {
                     (msta::SLIP_STALL, matches!(state, 21 | 22 | 24 | 25 | 26 | 28 | 35)),
                 ];
                 for (bit, on) in bits {
-                    set(&mut status.msta, bit, on);
+                    set_bit(&mut status.msta, bit, on);
                 }
                 // (While a motion call is unanswered, the controller layer holds DONE off.)
-                set(&mut status.msta, msta::DONE, !(43..=48).contains(&state));
+                set_bit(&mut status.msta, msta::DONE, !(43..=48).contains(&state));
                 // In jog mode the group stays "jogging" at rest (at the travel limit, or at
                 // speed 0): done once the speed says it stands, read below.
             }
@@ -373,12 +368,12 @@ impl Xps {
             Reading::Setpoint => status.position = value / units_per_step,
             Reading::PositionerError => {
                 let bits = value as i64;
-                set(&mut status.msta, msta::PLUS_LS, bits & END_OF_RUN_PLUS != 0);
-                set(&mut status.msta, msta::MINUS_LS, bits & END_OF_RUN_MINUS != 0);
+                set_bit(&mut status.msta, msta::PLUS_LS, bits & END_OF_RUN_PLUS != 0);
+                set_bit(&mut status.msta, msta::MINUS_LS, bits & END_OF_RUN_MINUS != 0);
             }
             Reading::Velocity => {
                 let moving = value.abs() > VELOCITY_DEADBAND;
-                set(&mut status.msta, msta::MOVING, moving);
+                set_bit(&mut status.msta, msta::MOVING, moving);
                 if axis.state == Some(JOGGING) {
                     axis.jog_seen_moving |= moving;
                     if axis.jog_seen_moving && !moving {
@@ -386,7 +381,7 @@ impl Xps {
                     }
                 }
                 if moving {
-                    set(&mut status.msta, msta::DIRECTION, value > 0.0);
+                    set_bit(&mut status.msta, msta::DIRECTION, value > 0.0);
                 }
                 status.velocity = value / units_per_step;
                 status.msta |= msta::PRESENT | msta::GAIN_SUPPORT;
@@ -411,14 +406,6 @@ fn not_initialised(state: i32) -> bool {
 /// `GroupStatusGet` of channel `n`'s group.
 fn state_query(n: usize) -> String {
     format!("GroupStatusGet (GROUP{n},int *)")
-}
-
-fn set(bits: &mut u32, bit: u32, on: bool) {
-    if on {
-        *bits |= bit;
-    } else {
-        *bits &= !bit;
-    }
 }
 
 /// A number as C's `%.13g` writes it (Newport's driver formats every argument so).

@@ -49,8 +49,8 @@
 //! | `QL` bit n / n+8 (n+16 / n+24 for W, K), against the level `LT?` gives | MINUS_LS / PLUS_LS |
 
 use crate::protocol::{
-    line_frame, line_text, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, line_text, set_bit, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
+    ReplyEvent, Request, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -216,8 +216,8 @@ impl Maxnet {
             let (low, high) = if channel < 8 { (channel, channel + 8) } else { (channel + 8, channel + 16) };
             let level = |bit: usize| (limits >> bit) & 1 == 1;
             // A switch is active at its level: high under `LH`, low under `LL`.
-            set(&mut status.msta, msta::MINUS_LS, level(low) == axis.limits_active_high);
-            set(&mut status.msta, msta::PLUS_LS, level(high) == axis.limits_active_high);
+            set_bit(&mut status.msta, msta::MINUS_LS, level(low) == axis.limits_active_high);
+            set_bit(&mut status.msta, msta::PLUS_LS, level(high) == axis.limits_active_high);
             let moving = status.velocity != 0.0;
             let at_a_limit = status.msta & (msta::MINUS_LS | msta::PLUS_LS) != 0;
             let done = if axis.done_flag {
@@ -232,7 +232,7 @@ impl Maxnet {
             } else {
                 axis.at_rest_polls += 1;
                 let lost = axis.at_rest_polls >= POLLS_TO_GIVE_UP;
-                set(&mut status.msta, msta::PROBLEM, lost);
+                set_bit(&mut status.msta, msta::PROBLEM, lost);
                 lost
             };
             if done {
@@ -241,8 +241,8 @@ impl Maxnet {
             } else {
                 status.msta &= !msta::PROBLEM;
             }
-            set(&mut status.msta, msta::DONE, done);
-            set(&mut status.msta, msta::MOVING, moving);
+            set_bit(&mut status.msta, msta::DONE, done);
+            set_bit(&mut status.msta, msta::MOVING, moving);
             status.encoder_position = status.position;
             events.push(ReplyEvent::Status { channel, status: *status });
         }
@@ -261,14 +261,6 @@ fn is_query(text: &str) -> bool {
 /// C's rounding of a value to an integer (`(int)(v + 0.5)` away from zero), saturated.
 fn nint(value: f64) -> i64 {
     value.round() as i64
-}
-
-fn set(bits: &mut u32, bit: u32, on: bool) {
-    if on {
-        *bits |= bit;
-    } else {
-        *bits &= !bit;
-    }
 }
 
 fn line(text: &str) -> Vec<u8> {
@@ -379,8 +371,8 @@ impl Protocol for Maxnet {
                     };
                     let axis = &mut self.axes[channel];
                     axis.done_flag = done == 'D';
-                    set(&mut axis.status.msta, msta::DIRECTION, direction == 'P');
-                    set(&mut axis.status.msta, msta::HOME, home == 'H');
+                    set_bit(&mut axis.status.msta, msta::DIRECTION, direction == 'P');
+                    set_bit(&mut axis.status.msta, msta::HOME, home == 'H');
                 }
                 Ok(Vec::new())
             }

@@ -85,7 +85,8 @@
 //! the I/O modules; velocity readback.
 
 use crate::protocol::{
-    whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request, VendorError,
+    state_of, whole_steps, CommandError, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
+    VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use std::collections::HashMap;
@@ -535,14 +536,7 @@ impl Phymotion {
         let mut polled: Vec<(usize, Polled)> = Vec::new();
         for (command, (acknowledged, data)) in asked.iter().zip(replies) {
             let (channel, reading) = reading_of(command).ok_or("a reply to a reading this protocol does not ask")?;
-            let at = match polled.iter().position(|(c, _)| *c == channel) {
-                Some(at) => at,
-                None => {
-                    polled.push((channel, Polled::default()));
-                    polled.len() - 1
-                }
-            };
-            let entry = &mut polled[at].1;
+            let entry = state_of(&mut polled, channel);
             if !acknowledged {
                 if !std::mem::replace(&mut entry.refused, true) {
                     events.push(ReplyEvent::ControllerError(VendorError {

@@ -281,6 +281,27 @@ pub(crate) fn printable(bytes: &[u8]) -> String {
     bytes.iter().flat_map(|b| std::ascii::escape_default(*b)).map(char::from).collect()
 }
 
+/// What a protocol keeps of `channel` among `states`, made (as its default) the first time.
+pub(crate) fn state_of<T: Default>(states: &mut Vec<(usize, T)>, channel: usize) -> &mut T {
+    let at = match states.iter().position(|(c, _)| *c == channel) {
+        Some(at) => at,
+        None => {
+            states.push((channel, T::default()));
+            states.len() - 1
+        }
+    };
+    &mut states[at].1
+}
+
+/// `bit` of `bits` set or cleared.
+pub(crate) fn set_bit(bits: &mut u32, bit: u32, on: bool) {
+    if on {
+        *bits |= bit;
+    } else {
+        *bits &= !bit;
+    }
+}
+
 /// A step count as a controller counts it: C-style NINT, in 32 bits. A value beyond is
 /// refused, never clamped (a clamped target drives the carriage somewhere nobody asked).
 pub(crate) fn whole_steps(what: &'static str, steps: f64) -> Result<i32, CommandError> {

@@ -46,13 +46,7 @@ fn a_new_connection_reads_switches_the_servos_on_once_and_polls_every_axis_in_on
 #[test]
 fn a_move_arrives_where_asked_and_a_relative_one_from_there() {
     let mut lb = switched_on(GALIL, &CHANNELS);
-    lb.command(1, &go(12_345.0, false));
-    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
-    assert_eq!(statuses.last().map(|s| s.position), Some(12_345.0));
-    assert!(statuses.iter().any(|s| s.msta & (msta::MOVING | msta::DIRECTION) == msta::MOVING | msta::DIRECTION));
-    lb.command(1, &go(-2_345.0, true));
-    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
-    assert_eq!(statuses.last().map(|s| s.position), Some(10_000.0));
+    common::a_move_arrives_where_asked_and_a_relative_one_from_there(&mut lb, 1, go);
 }
 
 #[test]

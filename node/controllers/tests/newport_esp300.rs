@@ -47,14 +47,7 @@ fn a_new_connection_reads_the_configuration_and_stops_nothing() {
 #[test]
 fn a_move_arrives_where_asked_in_the_stages_units() {
     let mut lb = switched_on(ESP, &CHANNELS);
-    lb.command(2, &go(12_345.0, false));
-    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
-    let arrived = statuses.last().expect("done");
-    assert!((arrived.position - 12_345.0).abs() < 1e-6, "{arrived:?}");
-    assert!(statuses.iter().any(|s| s.msta & msta::MOVING != 0));
-    lb.command(2, &go(-2_345.0, true));
-    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
-    assert!(statuses.last().is_some_and(|s| (s.position - 10_000.0).abs() < 1e-6));
+    common::a_move_arrives_where_asked_and_a_relative_one_from_there(&mut lb, 2, go);
 }
 
 #[test]

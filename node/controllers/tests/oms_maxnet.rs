@@ -53,14 +53,7 @@ fn a_new_connection_reads_and_polls_every_axis_in_four_exchanges() {
 fn a_move_arrives_where_asked_and_a_relative_one_from_there() {
     let mut lb = loopback(MAXNET, &CHANNELS, Faults::default());
     bring_up(&mut lb);
-    lb.command(2, &go(12_345.0, false));
-    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
-    let end = statuses.last().expect("done");
-    assert_eq!((end.position, end.msta & msta::PROBLEM), (12_345.0, 0), "{end:?}");
-    assert!(statuses.iter().any(|s| s.msta & (msta::MOVING | msta::DIRECTION) == msta::MOVING | msta::DIRECTION));
-    lb.command(2, &go(-2_345.0, true));
-    let statuses = run_until_done(&mut lb, 2, TICK, Duration::from_secs(5));
-    assert_eq!(statuses.last().map(|s| s.position), Some(10_000.0));
+    common::a_move_arrives_where_asked_and_a_relative_one_from_there(&mut lb, 2, go);
 }
 
 #[test]

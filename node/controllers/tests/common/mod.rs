@@ -179,6 +179,25 @@ pub(crate) fn no_malformed_frames(
     }
 }
 
+/// A move of `channel` (up, switched on) by `go` (target, relative) arrives at 12,345 steps,
+/// seen moving up on the way; one of −2,345 from there arrives at 10,000.
+pub(crate) fn a_move_arrives_where_asked_and_a_relative_one_from_there(
+    lb: &mut Loopback,
+    channel: usize,
+    go: impl Fn(f64, bool) -> DriverCommand,
+) {
+    let tick = Duration::from_millis(10);
+    lb.command(channel, &go(12_345.0, false));
+    let statuses = run_until_done(lb, channel, tick, Duration::from_secs(5));
+    let arrived = statuses.last().expect("done");
+    assert!((arrived.position - 12_345.0).abs() < 1e-6, "{arrived:?}");
+    let up = msta::MOVING | msta::DIRECTION;
+    assert!(statuses.iter().any(|s| s.msta & up == up), "seen moving up: {statuses:?}");
+    lb.command(channel, &go(-2_345.0, true));
+    let arrived = *run_until_done(lb, channel, tick, Duration::from_secs(5)).last().expect("done");
+    assert!((arrived.position - 10_000.0).abs() < 1e-6, "{arrived:?}");
+}
+
 /// A jog of `channel` (up, switched on) runs until stopped and stops soon after; left running it
 /// ends on the minus limit switch of the emulators' stage (-200000 steps).
 pub(crate) fn a_jog_runs_until_stopped_or_the_limit_switch(lb: &mut Loopback, channel: usize) {
