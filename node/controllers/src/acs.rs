@@ -10,7 +10,7 @@ use crate::protocol::{
     line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError,
     ReplyEvent, Request,
 };
-use crate::scale::{ControllerUnit, Scale, ScaleSource};
+use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -113,7 +113,7 @@ impl Protocol for Mcb4b {
 
     fn scale(&self, _channel: usize) -> Scale {
         // Motor steps, one per record step: the MCB-4B knows no other unit.
-        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
+        Scale::motor_steps()
     }
 
     fn purpose(step: Step) -> Purpose {

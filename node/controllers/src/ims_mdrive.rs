@@ -50,7 +50,7 @@ use crate::protocol::{
     line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
     ReplyEvent, Request, VendorError,
 };
-use crate::scale::{ControllerUnit, Scale, ScaleSource};
+use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -403,7 +403,7 @@ impl Protocol for Mdrive {
 
     fn scale(&self, _channel: usize) -> Scale {
         // Counts: what one is in EGU is the lab's mechanics.
-        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
+        Scale::motor_steps()
     }
 
     fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {

@@ -52,7 +52,7 @@ use crate::protocol::{
     line_frame, line_text, set_bit, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
     ReplyEvent, Request, VendorError,
 };
-use crate::scale::{ControllerUnit, Scale, ScaleSource};
+use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -343,7 +343,7 @@ impl Protocol for Maxnet {
 
     fn scale(&self, _channel: usize) -> Scale {
         // Steps: what one is in EGU is the lab's mechanics.
-        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
+        Scale::motor_steps()
     }
 
     fn reply(&mut self, request: &Request<Step>, frame: &[u8]) -> Result<Vec<ReplyEvent<Step>>, ReplyError> {

@@ -57,6 +57,13 @@ pub struct Scale {
     pub source: ScaleSource,
 }
 
+impl Scale {
+    /// One motor step a record step: a controller counting steps, nothing to scale or compare.
+    pub fn motor_steps() -> Self {
+        Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault }
+    }
+}
+
 /// An axis's own idea of its step: its EGU and MRES, as the deployment configures them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RecordUnits {
@@ -178,7 +185,7 @@ mod tests {
     fn what_cannot_be_compared_is_said_so() {
         assert!(matches!(physical(0.0001).check(&record("steps", 1.0)), ScaleCheck::Unchecked(_)));
         assert!(matches!(physical(0.0001).check(&record("mm", 0.0)), ScaleCheck::Unchecked(_)));
-        let steps = Scale { units_per_step: 1.0, unit: ControllerUnit::Steps, source: ScaleSource::ProtocolDefault };
+        let steps = Scale::motor_steps();
         assert!(matches!(steps.check(&record("mm", 0.01)), ScaleCheck::Unchecked(_)));
         let mm =
             Scale { units_per_step: 0.0001, unit: ControllerUnit::Known(Unit::MM), source: ScaleSource::Installation };
