@@ -10,7 +10,9 @@
 //!
 //! A protocol whose motion calls answer only once the motion ends has, beside the main
 //! connection, one per channel for its motion (`Lane::Motion`): a motion call is written there
-//! without waiting, and its reply, whenever it comes, is read as the protocol's and brings a poll.
+//! without waiting, and its reply, whenever it comes, is read as the protocol's and brings a poll
+//! of the channel; only that poll, or a later one, can say the motion is done (one queued before
+//! the answer may have read the controller before the motion even began).
 //! The connections are one link: when one is lost, all are.
 //!
 //! Inputs: `command`, `handle_connected`, `handle_disconnected`, `handle_input` (bytes read on
@@ -256,6 +258,9 @@ struct Channel {
     stop_owed: bool,
     /// Its axis's MRES disagrees with the controller's step, as the link found when it came up.
     mismatch: Option<ScaleMismatch>,
+    /// The sequence number at which its last motion call was answered (motion lanes): a poll
+    /// queued before then may have read the controller before the motion began.
+    motion_answered: u64,
 }
 
 /// One controller speaking the protocol `P` (see the module documentation). Its API is
@@ -812,17 +817,23 @@ impl<P: Protocol> Controller<P> {
                 self.report_problem(channel);
             }
         }
-        if self.link == Link::Up {
-            self.next_poll = Some(self.now);
+        // The motion is over: a poll of the channel, queued now, reads what it left.
+        if let Some(state) = self.channels.get_mut(channel) {
+            self.seq += 1;
+            state.motion_answered = self.seq;
+            self.queue_poll_of(&[channel], Priority::Setting);
         }
     }
 
     fn on_event(&mut self, event: ReplyEvent<P::Step>, issued: u64) {
         match event {
             ReplyEvent::Status { channel, mut status } => {
-                if self.motion_lanes.get(&channel).is_some_and(|lane| !lane.waiting.is_empty()) {
-                    // Its motion call is unanswered: the motion is not over, whatever the
-                    // controller's state said (the poll may have reached it first).
+                let unanswered = self.motion_lanes.get(&channel).is_some_and(|lane| !lane.waiting.is_empty());
+                let answered_since = self.channels.get(channel).is_some_and(|c| issued <= c.motion_answered);
+                if unanswered || answered_since {
+                    // Its motion call is unanswered, or was answered after this poll was queued:
+                    // the poll may have read the controller before the motion began, on the other
+                    // connection. Not done on its word; the poll queued at the answer says.
                     status.msta &= !msta::DONE;
                 }
                 let Some(state) = self.channels.get_mut(channel) else { return };
