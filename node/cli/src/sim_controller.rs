@@ -41,6 +41,7 @@ impl FaultArgs {
             garble_every: self.garble_every,
             delay: Duration::from_millis(self.delay_ms),
             close_after: self.close_after,
+            late_connection: None,
         }
     }
 }

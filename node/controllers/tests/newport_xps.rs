@@ -293,3 +293,29 @@ fn a_reconnection_initialises_nothing_a_group_killed_stays_killed() {
     let status = common::last_status(&lb.take_events(), 1);
     assert_eq!(status.msta & (msta::HOMED | msta::POSITION), 0, "killed: unpowered, not referenced: {status:?}");
 }
+
+#[test]
+fn a_poll_that_reached_the_controller_before_the_motion_call_does_not_end_it() {
+    // Replies 10 ms late (a poll of five exchanges takes 50 ms), and the motion connection of
+    // channel 1 (the controller's connection 1) 15 ms slower than the main one: the poll written
+    // after the home call reads the group not yet homing, and ends after the home's answer (the
+    // stage is on its home switch: the search ends at once). The home must end homed all the
+    // same, and the move after it go.
+    let mut lb = loopback(XPS, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    let late = Faults {
+        delay: Duration::from_millis(10),
+        late_connection: Some((1, Duration::from_millis(15))),
+        ..Faults::default()
+    };
+    lb.link.set_faults(late);
+    let home =
+        DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(1, &home);
+    let statuses = run_until_done(&mut lb, 1, TICK, Duration::from_secs(20));
+    let done = statuses.last().expect("done");
+    assert_ne!(done.msta & msta::HOMED, 0, "done only once homed: {statuses:?}");
+    lb.command(1, &go(20_000.0, false));
+    let end = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(10)).last().expect("done");
+    assert!((end.position - 20_000.0).abs() < 1e-6, "{end:?}");
+}

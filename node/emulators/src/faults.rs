@@ -16,6 +16,9 @@ pub struct Faults {
     pub delay: Duration,
     /// The connection closes after this many replies.
     pub close_after: Option<u32>,
+    /// The driver's bytes on this connection reach the controller this late (one socket of
+    /// several slower than the others: a controller may then see them out of their order).
+    pub late_connection: Option<(Connection, Duration)>,
 }
 
 /// Bits on the wire per character of a serial line at 8N1: start, eight data bits, stop.
@@ -88,7 +91,9 @@ impl WithFaults {
         }
         let arrived = self.receive_free.max(self.now) + self.on_the_wire(bytes.len());
         self.receive_free = arrived;
-        self.arriving.push_back((arrived, connection, bytes.to_vec()));
+        let late =
+            self.faults.late_connection.filter(|(late, _)| *late == connection).map_or(Duration::ZERO, |(_, by)| by);
+        self.arriving.push_back((arrived + late, connection, bytes.to_vec()));
         self.deliver();
     }
 
@@ -117,8 +122,16 @@ impl WithFaults {
 
     /// The driver's bytes that have arrived, to the controller; its replies onto the line.
     fn deliver(&mut self) {
-        while self.arriving.front().is_some_and(|(at, _, _)| *at <= self.now) && !self.closed {
-            let (at, connection, bytes) = self.arriving.pop_front().expect("checked above");
+        // In the order they arrive (a late connection's bytes after others sent later).
+        while !self.closed {
+            let due = self
+                .arriving
+                .iter()
+                .enumerate()
+                .filter(|(_, (at, _, _))| *at <= self.now)
+                .min_by_key(|(_, (at, _, _))| *at);
+            let Some(index) = due.map(|(index, _)| index) else { break };
+            let (at, connection, bytes) = self.arriving.remove(index).expect("an index of the queue");
             self.emulator.handle_input_on(at, connection, &bytes);
             self.take_replies(at);
         }
@@ -162,7 +175,8 @@ impl WithFaults {
     /// sends a reply it held.
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let link = [self.late.front(), self.arriving.front()].into_iter().flatten().map(|(due, _, _)| *due);
+        let arriving = self.arriving.iter().map(|(due, _, _)| *due);
+        let link = self.late.front().map(|(due, _, _)| *due).into_iter().chain(arriving);
         link.chain(self.emulator.poll_timeout()).min()
     }
 
