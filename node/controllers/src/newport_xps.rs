@@ -21,9 +21,11 @@
 //! `-27` (motion aborted) is expected after a stop and not an error, as in motorNewport.
 //!
 //! # Channels and units
-//! Channel n (1 to 8) is the single-positioner group `GROUPn` and its positioner
-//! `GROUPn.POSITIONER`, as the XPS's system.ini names them. Positions, speeds and accelerations
-//! are in the stage's unit (mm, or deg on a rotary stage), one record step being
+//! Channel n (1 to 8) is the positioner the launch file's `axis_names` gives it
+//! (`axis_names = { 1 = "FINE.X" }`: group `FINE`, positioner `FINE.X`, as the XPS's system.ini
+//! names them), or else the single-positioner group `GROUPn` and its `GROUPn.POSITIONER`. Axes
+//! sharing a group share its state: a home, a set position or a stop of one acts on the group.
+//! Positions, speeds and accelerations are in the stage's unit (mm, or deg on a rotary stage), one record step being
 //! `units_per_step` of them (the launch file's; 0.1 µm otherwise), as motorNewport's `stepSize`.
 //!
 //! # Record commands (channel 1), with what differs from motorNewport and why
@@ -200,6 +202,8 @@ pub(crate) struct Xps {
     units_per_step: f64,
     source: ScaleSource,
     axes: Vec<(usize, Axis)>,
+    /// The launch file's positioner names, by channel.
+    names: std::collections::BTreeMap<usize, String>,
     /// The groups not initialised were initialised at a connection of this run (once only: a
     /// group killed since stays as it is).
     initialised_at_start: bool,
@@ -212,7 +216,23 @@ impl Xps {
             Some(units) => (units, ScaleSource::Installation),
             None => (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault),
         };
-        Self { units_per_step, source, axes: Vec::new(), initialised_at_start: false }
+        Self { units_per_step, source, axes: Vec::new(), names: options.names.clone(), initialised_at_start: false }
+    }
+
+    /// Channel `n`'s positioner, `GROUP.POSITIONER`: the launch file's name, or `GROUPn.POSITIONER`.
+    fn positioner(&self, n: usize) -> String {
+        self.names.get(&n).cloned().unwrap_or_else(|| format!("GROUP{n}.POSITIONER"))
+    }
+
+    /// Channel `n`'s group: its positioner's name before the dot.
+    fn group(&self, n: usize) -> String {
+        let positioner = self.positioner(n);
+        positioner.split_once('.').map_or(positioner.clone(), |(group, _)| group.to_string())
+    }
+
+    /// `GroupStatusGet` of channel `n`'s group.
+    fn state_query(&self, n: usize) -> String {
+        format!("GroupStatusGet ({},int *)", self.group(n))
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
@@ -230,7 +250,7 @@ impl Xps {
     }
 
     fn command_requests(&mut self, n: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
-        let (group, positioner) = (format!("GROUP{n}"), format!("GROUP{n}.POSITIONER"));
+        let (group, positioner) = (self.group(n), self.positioner(n));
         let call = |text: String| Request::query(text, Step::Command { channel: n });
         Ok(match command {
             DriverCommand::Move { position, relative, max_velocity, acceleration, .. } => {
@@ -275,10 +295,10 @@ impl Xps {
                 requests
             }
             DriverCommand::Home { .. } => {
-                vec![Request::query(state_query(n), Step::StateFor { channel: n, then: Then::Home })]
+                vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Home })]
             }
             DriverCommand::Stop { .. } => {
-                vec![Request::query(state_query(n), Step::StateFor { channel: n, then: Then::Stop })]
+                vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Stop })]
             }
             DriverCommand::SetPosition { position } => {
                 let position = self.units("position", *position)?;
@@ -291,7 +311,7 @@ impl Xps {
                 ]
             }
             DriverCommand::Enable { on: true } => {
-                vec![Request::query(state_query(n), Step::StateFor { channel: n, then: Then::Enable })]
+                vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Enable })]
             }
             DriverCommand::Enable { on: false } => vec![call(format!("GroupMotionDisable ({group})"))],
             DriverCommand::Raw { text } => vec![call(text.clone())],
@@ -305,7 +325,7 @@ impl Xps {
 
     /// What follows the group state `state` for `then`.
     fn after_state(&mut self, channel: usize, state: i32, then: Then) -> Vec<Request<Step>> {
-        let group = format!("GROUP{channel}");
+        let group = self.group(channel);
         let call = |text: String| Request::query(text, Step::Command { channel });
         match then {
             Then::Stop if state == HOMING => vec![call(format!("GroupKill ({group})"))],
@@ -401,11 +421,6 @@ fn faulted(state: i32) -> bool {
 /// A group state from which only `GroupInitialize` leads on (its motors unpowered).
 fn not_initialised(state: i32) -> bool {
     matches!(state, 0..=9 | 50 | 63)
-}
-
-/// `GroupStatusGet` of channel `n`'s group.
-fn state_query(n: usize) -> String {
-    format!("GroupStatusGet (GROUP{n},int *)")
 }
 
 /// A number as C's `%.13g` writes it (Newport's driver formats every argument so).
@@ -516,7 +531,7 @@ impl Protocol for Xps {
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = vec![Request::query("FirmwareVersionGet (char *)", Step::Firmware)];
         for &channel in channels {
-            let positioner = format!("GROUP{channel}.POSITIONER");
+            let positioner = self.positioner(channel);
             requests.push(Request::query(
                 format!("PositionerSGammaParametersGet ({positioner},double *,double *,double *,double *)"),
                 Step::Jerk { channel },
@@ -528,7 +543,7 @@ impl Protocol for Xps {
         }
         if !std::mem::replace(&mut self.initialised_at_start, true) {
             for &channel in channels {
-                requests.push(Request::query(state_query(channel), Step::PowerUp { channel }));
+                requests.push(Request::query(self.state_query(channel), Step::PowerUp { channel }));
             }
         }
         requests
@@ -537,7 +552,7 @@ impl Protocol for Xps {
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            let (group, positioner) = (format!("GROUP{channel}"), format!("GROUP{channel}.POSITIONER"));
+            let (group, positioner) = (self.group(channel), self.positioner(channel));
             let readings = [
                 (format!("GroupStatusGet ({group},int *)"), Reading::GroupState),
                 (format!("GroupPositionCurrentGet ({positioner},double *)"), Reading::Current),
@@ -620,7 +635,7 @@ impl Protocol for Xps {
             }
             Step::Read { channel, reading } => Ok(self.read(channel, reading, number(0)?).into_iter().collect()),
             Step::PowerUp { channel } if number(0)? as i32 == POWERED_UP => {
-                let call = format!("GroupInitialize (GROUP{channel})");
+                let call = format!("GroupInitialize ({})", self.group(channel));
                 Ok(vec![ReplyEvent::FollowUp(vec![Request::query(call, Step::PowerUpCall { channel })])])
             }
             Step::PowerUp { .. } | Step::PowerUpCall { .. } => Ok(Vec::new()),
@@ -646,6 +661,22 @@ mod tests {
         assert_eq!(c_g13(25.0), "25");
         assert_eq!(c_g13(1e13), "1e+13");
         assert_eq!(c_g13(123456.0001), "123456.0001");
+    }
+
+    #[test]
+    fn the_launch_files_positioner_names_are_the_calls_names() {
+        let names = [(1, "FINE.X".to_string())].into();
+        let mut xps = Xps::new(&ProtocolOptions { names, ..ProtocolOptions::default() });
+        let text = |requests: Vec<Request<Step>>| -> Vec<String> {
+            requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
+        };
+        let polled = text(xps.poll(&[1, 2]));
+        assert_eq!(polled[..2], ["GroupStatusGet (FINE,int *)", "GroupPositionCurrentGet (FINE.X,double *)"]);
+        assert_eq!(polled[5], "GroupStatusGet (GROUP2,int *)", "a channel not named keeps its default");
+        let stop = xps.command(1, &DriverCommand::Stop { acceleration: 1.0 }).expect("a stop");
+        assert_eq!(text(stop), ["GroupStatusGet (FINE,int *)"]);
+        let set = xps.command(1, &DriverCommand::SetPosition { position: 10.0 }).expect("a set position");
+        assert_eq!(text(set)[3], "GroupReferencingActionExecute (FINE.X,SetPosition,None,0.001)");
     }
 
     #[test]

@@ -1069,7 +1069,7 @@ mod tests {
 
     #[test]
     fn units_per_step_scales_positions_not_frequencies() {
-        let mut p = Phymotion::new(&ProtocolOptions { units_per_step: Some(0.005) });
+        let mut p = Phymotion::new(&ProtocolOptions { units_per_step: Some(0.005), ..ProtocolOptions::default() });
         let sent = payloads(&p.command(11, &go(1234.0, false)).unwrap());
         assert_eq!(sent, ["M1.1P14=2000.000000 M1.1P04=200.000000 M1.1P15=10000.000000 M1.1MA M1.1A6.17"]);
         assert_eq!(

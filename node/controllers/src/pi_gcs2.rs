@@ -899,7 +899,8 @@ mod tests {
         assert_eq!(p.units_per_step(1), 1e-4);
         let again = sent(&p.init(&[1, 3]));
         assert!(!again.iter().any(|r| r.starts_with("SVO")), "a reconnection leaves the servo alone: {again:?}");
-        let given = PiGcs2::new(&ProtocolOptions { units_per_step: Some(0.0005) }).init(&[2]);
+        let given =
+            PiGcs2::new(&ProtocolOptions { units_per_step: Some(0.0005), ..ProtocolOptions::default() }).init(&[2]);
         assert!(!sent(&given).iter().any(|r| r.starts_with("SPA?")), "the units are given");
     }
 
@@ -950,7 +951,7 @@ mod tests {
 
     #[test]
     fn positions_carry_as_many_decimals_as_one_step_needs() {
-        let mut p = PiGcs2::new(&ProtocolOptions { units_per_step: Some(1e-9) });
+        let mut p = PiGcs2::new(&ProtocolOptions { units_per_step: Some(1e-9), ..ProtocolOptions::default() });
         assert_eq!(sent(&p.command(1, &go(1_234_567.0, false)).unwrap())[6], "MOV 1 0.0012345670\n");
     }
 

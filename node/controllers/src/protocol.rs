@@ -7,11 +7,14 @@ use zmotor_core::DeviceStatus;
 use zmotor_msgs::DriverCommand;
 
 /// What a protocol needs to know of the installation.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct ProtocolOptions {
     /// How many of the controller's own units one record step is (an SMC100's millimetres, an
     /// MCS2's picometres); None for the protocol's default.
     pub units_per_step: Option<f64>,
+    /// The controller's own names of its channels' axes, where it names them (an XPS's
+    /// positioners, `GROUP.POSITIONER`); a channel not named has the protocol's default name.
+    pub names: std::collections::BTreeMap<usize, String>,
 }
 
 /// Which of a controller's connections a request travels on. Most protocols use one; a

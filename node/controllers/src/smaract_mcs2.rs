@@ -735,7 +735,8 @@ mod tests {
 
     #[test]
     fn the_scale_is_the_installations_and_values_beyond_64_bits_are_refused() {
-        let mut picometre_steps = Mcs2::new(&ProtocolOptions { units_per_step: Some(1.0) });
+        let mut picometre_steps =
+            Mcs2::new(&ProtocolOptions { units_per_step: Some(1.0), ..ProtocolOptions::default() });
         assert_eq!(lines(&picometre_steps.command(0, &go(1234.5, false)).unwrap())[3], ":MOVE0 1235\r\n");
         let mut p = mcs2();
         for refused in [go(1e17, false), go(-1e17, true), go(f64::NAN, false)] {
@@ -753,7 +754,7 @@ mod tests {
         };
         assert!(matches!(p.command(0, &fast), Err(CommandError::OutOfRange { what: "velocity", .. })));
         // The largest pm the controller holds is taken; one more is not.
-        let mut pm = Mcs2::new(&ProtocolOptions { units_per_step: Some(1.0) });
+        let mut pm = Mcs2::new(&ProtocolOptions { units_per_step: Some(1.0), ..ProtocolOptions::default() });
         let lowest = pm.command(0, &go(i64::MIN as f64, false)).unwrap();
         assert_eq!(lines(&lowest)[3], ":MOVE0 -9223372036854775808\r\n");
         assert!(pm.command(0, &go(-(i64::MIN as f64), false)).is_err(), "2^63 pm");
@@ -762,7 +763,7 @@ mod tests {
             matches!(p.command(0, &still), Err(CommandError::OutOfRange { what: "jog velocity", .. })),
             "not full speed"
         );
-        let mut unscaled = Mcs2::new(&ProtocolOptions { units_per_step: Some(0.0) });
+        let mut unscaled = Mcs2::new(&ProtocolOptions { units_per_step: Some(0.0), ..ProtocolOptions::default() });
         assert!(matches!(
             unscaled.command(0, &go(1.0, false)),
             Err(CommandError::OutOfRange { what: "picometres per step", .. })

@@ -127,6 +127,17 @@ pub enum SpecError {
     /// units_per_step given to a protocol that counts motor steps only.
     #[error("units_per_step: {0} counts motor steps, one per record step; it has no units to scale")]
     NoUnits(&'static str),
+    /// Axis names given to a protocol whose controllers do not name their axes.
+    #[error("axis_names: {0} numbers its axes; it has no names for them")]
+    NoNames(&'static str),
+    /// An axis name the controller could not have.
+    #[error("axis_names: channel {channel}: {name:?} is not a name of the form GROUP.POSITIONER (letters, digits, _)")]
+    Name {
+        /// The channel named.
+        channel: usize,
+        /// The name given.
+        name: String,
+    },
     /// A channel the protocol has no such number for.
     #[error("channel {channel}: {protocol} numbers its axes {allowed}")]
     Channel {
@@ -169,6 +180,16 @@ impl SerialSettings {
 impl ProtocolOptions {
     /// Whether the options can be used with `protocol`.
     pub fn check(&self, protocol: ProtocolKind) -> Result<(), SpecError> {
+        if !self.names.is_empty() && protocol != ProtocolKind::NewportXps {
+            return Err(SpecError::NoNames(protocol.name()));
+        }
+        for (&channel, name) in &self.names {
+            protocol.check_channel(channel)?;
+            let word = |part: &str| !part.is_empty() && part.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+            if !name.split_once('.').is_some_and(|(group, positioner)| word(group) && word(positioner)) {
+                return Err(SpecError::Name { channel, name: name.clone() });
+            }
+        }
         match self.units_per_step {
             Some(units) if !(units.is_finite() && units > 0.0) => Err(SpecError::UnitsPerStep(units)),
             Some(_)

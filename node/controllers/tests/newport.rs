@@ -300,7 +300,7 @@ fn each_controller_on_the_chain_answers_for_itself() {
 
 #[test]
 fn millimetres_per_step_follow_the_launch_file() {
-    let options = ProtocolOptions { units_per_step: Some(0.00005) };
+    let options = ProtocolOptions { units_per_step: Some(0.00005), ..ProtocolOptions::default() };
     let config = ControllerConfig::for_channels(vec![1]);
     let controller = SMC.controller(&options, config, Instant::ZERO);
     let mut lb = Loopback::new(controller, common::emulator(SMC, 2), Faults::default());

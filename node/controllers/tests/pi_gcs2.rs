@@ -308,7 +308,7 @@ fn an_mres_that_disagrees_with_the_controllers_scale_moves_nothing_and_says_what
 #[test]
 fn units_given_by_the_installation_replace_the_controllers() {
     // One step of 1 µm.
-    let options = ProtocolOptions { units_per_step: Some(0.001) };
+    let options = ProtocolOptions { units_per_step: Some(0.001), ..ProtocolOptions::default() };
     let config = ControllerConfig::for_channels(vec![1]);
     let controller = PI.controller(&options, config, Instant::ZERO);
     let mut lb = Loopback::new(controller, common::emulator(PI, 2), Faults::default());

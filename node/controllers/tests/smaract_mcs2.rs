@@ -228,7 +228,7 @@ fn connecting_and_reconnecting_move_nothing() {
 
 #[test]
 fn the_scale_is_the_launch_files() {
-    let options = ProtocolOptions { units_per_step: Some(1.0) };
+    let options = ProtocolOptions { units_per_step: Some(1.0), ..ProtocolOptions::default() };
     let controller = MCS2.controller(&options, ControllerConfig::for_channels(vec![0]), Instant::ZERO);
     let mut lb = Loopback::new(controller, common::emulator(MCS2, 1), Faults::default());
     bring_up(&mut lb);

@@ -434,6 +434,10 @@ pub struct ControllerSection {
     /// The controller's units per record step, where the protocol has units (see README).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub units_per_step: Option<f64>,
+    /// The controller's own names of its channels' axes, by channel (an XPS's positioners,
+    /// `GROUP.POSITIONER`), where they are not the protocol's defaults.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub axis_names: BTreeMap<String, String>,
     /// Only observe it: connect, initialise read-only and poll; refuse every command that
     /// would move, enable or reconfigure (commissioning, or beside a running IOC).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]

@@ -6,10 +6,11 @@ use crate::file::{
     JogHoldChoice, Origin, ParityChoice, MAX_READBACK_RATE,
 };
 use crate::problem::Problem;
+use std::collections::BTreeMap;
 use std::time::Duration;
 use zmotor_bridge::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions, RecordUnits};
-use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
+use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::JogHold;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
 use zmotor_msgs::field_value;
@@ -117,8 +118,22 @@ impl ControllerSection {
             }
             _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),
         };
-        let options = ProtocolOptions { units_per_step: self.units_per_step };
-        options.check(protocol).map_err(|e| at(&["units_per_step"], e.to_string()))?;
+        let mut names = BTreeMap::new();
+        for (channel, name) in &self.axis_names {
+            let number = channel.parse::<usize>().map_err(|_| {
+                at(&["axis_names"], format!("'{channel}' is not a channel number: write {{ 1 = \"GROUP1.POS\" }}"))
+            })?;
+            names.insert(number, name.clone());
+        }
+        let options = ProtocolOptions { units_per_step: self.units_per_step, names };
+        options.check(protocol).map_err(|e| {
+            let key = if matches!(e, SpecError::NoNames(_) | SpecError::Name { .. }) {
+                "axis_names"
+            } else {
+                "units_per_step"
+            };
+            at(&[key], e.to_string())
+        })?;
         let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
             ControllerConfig::checked_period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
         };

@@ -260,6 +260,22 @@ fn an_xps_on_a_serial_line_is_an_error_at_load() {
 }
 
 #[test]
+fn an_xps_takes_its_positioners_names_and_no_other_controller_does() {
+    let xps = CONTROLLED
+        .replace("protocol = \"acs_mcb4b\"", "protocol = \"newport_xps\"")
+        .replace("channel = 0", "channel = 1");
+    let named = xps.replace("moving_poll = 0.05\n", "moving_poll = 0.05\naxis_names = { 2 = \"FINE.X\" }\n");
+    let deployment = Launch::parse(&named).unwrap().deployment(None).unwrap();
+    assert_eq!(deployment.contents.controllers[0].options.names, [(2, "FINE.X".to_string())].into());
+    let bad = xps.replace("moving_poll = 0.05\n", "moving_poll = 0.05\naxis_names = { 2 = \"FINE X\" }\n");
+    let error = Launch::parse(&bad).unwrap_err().to_string();
+    assert!(error.contains("axis_names") && error.contains("GROUP.POSITIONER"), "{error}");
+    let acs = CONTROLLED.replace("moving_poll = 0.05\n", "moving_poll = 0.05\naxis_names = { 2 = \"A.B\" }\n");
+    let error = Launch::parse(&acs).unwrap_err().to_string();
+    assert!(error.contains("axis_names: acs_mcb4b numbers its axes"), "{error}");
+}
+
+#[test]
 fn a_controller_knows_its_axes_units_to_compare_with_its_scale() {
     let units = CONTROLLED.replace("channel = 2\n", "channel = 2\n[axis.fields]\nEGU = \"um\"\nMRES = 0.5\n");
     let deployment = Launch::parse(&units).unwrap().deployment(None).unwrap();
