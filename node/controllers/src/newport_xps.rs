@@ -48,7 +48,8 @@
 //!   here the abort's own answer is read;
 //! - set position: `GroupKill`, `GroupInitialize`, `GroupReferencingStart`,
 //!   `GroupReferencingActionExecute (GROUP1.POSITIONER,SetPosition,None,p)`,
-//!   `GroupReferencingStop` (motorNewport's sequence, without its settling pause);
+//!   `GroupReferencingStop` (motorNewport's sequence, without its settling pause); refused for
+//!   an axis whose group has others (motorNewport reads their positions and sets them again);
 //! - enable: `GroupStatusGet`, then `GroupInitialize` for a group not initialised (its motors
 //!   unpowered: 0–9, 50, 63) or `GroupMotionEnable` for a disabled one (20–36); disable:
 //!   `GroupMotionDisable`. motorNewport's enable is `GroupMotionEnable` alone, which the XPS
@@ -301,6 +302,15 @@ impl Xps {
                 vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Stop })]
             }
             DriverCommand::SetPosition { position } => {
+                // The XPS sets a position by re-initialising the whole group: another axis of it
+                // would lose its reference and position (motorNewport reads and sets them again).
+                let known = self.names.keys().copied().chain(self.axes.iter().map(|(c, _)| *c));
+                if known.filter(|&c| c != n).any(|c| self.group(c) == group) {
+                    return Err(CommandError::Unsupported {
+                        protocol: NAME,
+                        what: "set the position of an axis whose group has other axes (it re-initialises the group)",
+                    });
+                }
                 let position = self.units("position", *position)?;
                 vec![
                     call(format!("GroupKill ({group})")),
@@ -677,6 +687,11 @@ mod tests {
         assert_eq!(text(stop), ["GroupStatusGet (FINE,int *)"]);
         let set = xps.command(1, &DriverCommand::SetPosition { position: 10.0 }).expect("a set position");
         assert_eq!(text(set)[3], "GroupReferencingActionExecute (FINE.X,SetPosition,None,0.001)");
+        // Two positioners of one group: a set position would re-initialise the other one too.
+        let names = [(1, "FINE.X".to_string()), (2, "FINE.Y".to_string())].into();
+        let mut shared = Xps::new(&ProtocolOptions { names, ..ProtocolOptions::default() });
+        let refused = shared.command(2, &DriverCommand::SetPosition { position: 10.0 });
+        assert!(matches!(refused, Err(CommandError::Unsupported { .. })), "{refused:?}");
     }
 
     #[test]
