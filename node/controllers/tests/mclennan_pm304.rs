@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{bring_up, command, loopback, run_until_done, written_since};
+use common::{bring_up, command, go, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::ProtocolKind;
@@ -14,10 +14,6 @@ use zmotor_msgs::DriverCommand;
 const PM304: ProtocolKind = ProtocolKind::McLennanPm304;
 const CHANNELS: [usize; 2] = [1, 2];
 const TICK: Duration = Duration::from_millis(10);
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
 
 #[test]
 fn the_driver_sends_what_the_epics_driver_sends() {

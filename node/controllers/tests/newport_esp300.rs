@@ -4,7 +4,9 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, switched_on, written_since};
+use common::{
+    bring_up, command, controller_errors, go, last_status, loopback, run_until_done, switched_on, written_since,
+};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{ControllerEvent, ProtocolKind};
@@ -15,10 +17,6 @@ use zmotor_msgs::DriverCommand;
 const ESP: ProtocolKind = ProtocolKind::NewportEsp300;
 const CHANNELS: [usize; 2] = [1, 2];
 const TICK: Duration = Duration::from_millis(10);
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
 
 #[test]
 fn the_driver_sends_what_the_epics_driver_sends() {

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, command, home_and_wait, loopback, run_until_done, written_since};
+use common::{bring_up, command, go, home_and_wait, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{ControllerEvent, Loopback, ProtocolKind};
@@ -15,10 +15,6 @@ use zmotor_msgs::DriverCommand;
 const XPS: ProtocolKind = ProtocolKind::NewportXps;
 const CHANNELS: [usize; 2] = [1, 2];
 const TICK: Duration = Duration::from_millis(10);
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
 
 fn homed() -> Loopback {
     let mut lb = loopback(XPS, &CHANNELS, Faults::default());

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, command, loopback, run_until_done, written_since};
+use common::{bring_up, command, go, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::ProtocolKind;
@@ -15,10 +15,6 @@ use zmotor_msgs::DriverCommand;
 const MAXNET: ProtocolKind = ProtocolKind::OmsMaxnet;
 const CHANNELS: [usize; 2] = [0, 2];
 const TICK: Duration = Duration::from_millis(10);
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
 
 fn is_read(line: &str) -> bool {
     ["WY\n", "AM;RI;\n", "AM PP;\n", "AM;RV;\n", "AM;QL;\n"].contains(&line)

@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done};
+use common::{bring_up, command, controller_errors, go, last_status, loopback, run_until_done};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{Loopback, ProtocolKind};
@@ -24,10 +24,6 @@ fn line(packet: &[u8]) -> String {
 
 fn lines_since(lb: &Loopback, from: usize) -> Vec<String> {
     lb.written()[from..].iter().map(|p| line(p)).collect()
-}
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
 }
 
 #[test]

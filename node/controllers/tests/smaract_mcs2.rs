@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{bring_up, command, controller_errors, last_status, loopback, run_until_done, written_since};
+use common::{bring_up, command, controller_errors, go, last_status, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
@@ -15,10 +15,6 @@ use zmotor_msgs::DriverCommand;
 
 const MCS2: ProtocolKind = ProtocolKind::SmaractMcs2;
 const TICK: Duration = Duration::from_millis(10);
-
-fn go(position: f64, relative: bool) -> DriverCommand {
-    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
-}
 
 #[test]
 fn moves_land_where_asked_to_the_picometre() {

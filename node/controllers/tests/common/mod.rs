@@ -179,6 +179,11 @@ pub(crate) fn no_malformed_frames(
     }
 }
 
+/// A move to `position` (a distance when `relative`) at 20,000 steps/s and 200,000 steps/s².
+pub(crate) fn go(position: f64, relative: bool) -> DriverCommand {
+    DriverCommand::Move { position, relative, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 }
+}
+
 /// A move of `channel` (up, switched on) by `go` (target, relative) arrives at 12,345 steps,
 /// seen moving up on the way; one of −2,345 from there arrives at 10,000.
 pub(crate) fn a_move_arrives_where_asked_and_a_relative_one_from_there(
