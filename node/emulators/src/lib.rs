@@ -10,13 +10,17 @@
 //! do: replies lost, late or garbled, a connection that closes.
 
 mod acs_mcb4b;
+mod attocube_amc;
 mod emulator;
 mod faults;
 mod framing;
 mod galil;
 mod ims_mdrive;
+mod kohzu_sc;
 mod mclennan_pm304;
+mod micronix_mmc;
 mod models;
+mod newfocus_8742;
 mod newport_esp300;
 mod newport_smc100;
 mod newport_xps;
@@ -25,15 +29,20 @@ mod phytron;
 mod pi_gcs2;
 mod pmac;
 mod smaract_mcs2;
+mod vmc;
 
 pub use acs_mcb4b::Mcb4bEmulator;
+pub use attocube_amc::AmcEmulator;
 pub use emulator::{stage, Connection, Emulator};
 pub use faults::{Faults, WithFaults};
 pub use framing::Lines;
 pub use galil::GalilEmulator;
 pub use ims_mdrive::MdriveEmulator;
+pub use kohzu_sc::KohzuScEmulator;
 pub use mclennan_pm304::Pm304Emulator;
+pub use micronix_mmc::MmcEmulator;
 pub use models::Model;
+pub use newfocus_8742::Picomotor8742Emulator;
 pub use newport_esp300::Esp300Emulator;
 pub use newport_smc100::Smc100Emulator;
 pub use newport_xps::XpsEmulator;
@@ -42,3 +51,4 @@ pub use phytron::PhymotionEmulator;
 pub use pi_gcs2::Gcs2Emulator;
 pub use pmac::PmacEmulator;
 pub use smaract_mcs2::{mcs2_positioner, Mcs2Emulator};
+pub use vmc::VmcEmulator;

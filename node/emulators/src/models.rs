@@ -2,8 +2,9 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, MaxnetEmulator, Mcb4bEmulator,
-    Mcs2Emulator, MdriveEmulator, PhymotionEmulator, Pm304Emulator, PmacEmulator, Smc100Emulator, XpsEmulator,
+    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, KohzuScEmulator, MaxnetEmulator,
+    Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, PhymotionEmulator, Picomotor8742Emulator, Pm304Emulator, PmacEmulator,
+    Smc100Emulator, VmcEmulator, XpsEmulator,
 };
 
 /// A controller model this crate emulates.
@@ -34,11 +35,19 @@ pub enum Model {
     ImsMdrive,
     /// An Oregon Micro Systems MAXnet, over Ethernet.
     OmsMaxnet,
+    /// Kevin Peterson's Virtual Motor Controller (motorVMC's), over TCP; driven by a script.
+    Vmc,
+    /// A Kohzu SC-400 (SC-200/400/800 family); driven by a script.
+    KohzuSc,
+    /// Micronix MMC-100 modules on one line; driven by a script.
+    MicronixMmc,
+    /// A New Focus 8742 picomotor controller, over Ethernet (Telnet); driven by a script.
+    NewFocus8742,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 12] = [
+    pub const ALL: [Model; 16] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -51,9 +60,14 @@ impl Model {
         Model::NewportXps,
         Model::ImsMdrive,
         Model::OmsMaxnet,
+        Model::Vmc,
+        Model::KohzuSc,
+        Model::MicronixMmc,
+        Model::NewFocus8742,
     ];
 
-    /// The protocol it speaks, as launch files name it.
+    /// The protocol it speaks, as launch files name it; for a controller a script drives
+    /// (`protocol = "script"`), the family's name (`zmotor sim-controller` takes either).
     pub fn protocol(self) -> &'static str {
         match self {
             Model::AcsMcb4b => "acs_mcb4b",
@@ -68,6 +82,10 @@ impl Model {
             Model::NewportXps => "newport_xps",
             Model::ImsMdrive => "ims_mdrive",
             Model::OmsMaxnet => "oms_maxnet",
+            Model::Vmc => "vmc",
+            Model::KohzuSc => "kohzu_sc",
+            Model::MicronixMmc => "micronix_mmc",
+            Model::NewFocus8742 => "newfocus_8742",
         }
     }
 
@@ -98,7 +116,11 @@ impl Model {
             | Model::McLennanPm304
             | Model::NewportXps
             | Model::ImsMdrive
-            | Model::OmsMaxnet => 9_600,
+            | Model::OmsMaxnet
+            | Model::Vmc
+            | Model::KohzuSc
+            | Model::MicronixMmc
+            | Model::NewFocus8742 => 9_600,
         }
     }
 
@@ -125,6 +147,9 @@ impl Model {
             Model::ImsMdrive => 4,
             // Axes X, Y, Z, T on channels 0 to 3.
             Model::OmsMaxnet => 4,
+            // A script's AXIS n drives the controller's axis n + 1: channels 0 to 3 are axes 1 to 4.
+            Model::Vmc | Model::KohzuSc | Model::NewFocus8742 => 4,
+            Model::MicronixMmc => 2,
         }
     }
 
@@ -158,6 +183,11 @@ impl Model {
             Model::NewportXps => Box::new(XpsEmulator::new(channels.saturating_sub(1).clamp(1, 8), &mechanics)),
             Model::ImsMdrive => Box::new(MdriveEmulator::new(channels.saturating_sub(1).clamp(1, 9), &mechanics)),
             Model::OmsMaxnet => Box::new(MaxnetEmulator::new(channels.clamp(1, 10), &mechanics)),
+            // Axes 1 to `channels`, for a script's AXIS 0 to `channels` − 1.
+            Model::Vmc => Box::new(VmcEmulator::new(channels.clamp(1, 8), &mechanics)),
+            Model::KohzuSc => Box::new(KohzuScEmulator::new(channels.clamp(1, 8), &mechanics)),
+            Model::MicronixMmc => Box::new(MmcEmulator::new(channels.clamp(1, 99), &mechanics)),
+            Model::NewFocus8742 => Box::new(Picomotor8742Emulator::new(channels.clamp(1, 4), &mechanics)),
         }
     }
 }
