@@ -660,8 +660,15 @@ impl<P: Protocol> Controller<P> {
                 self.preempt_poll();
                 continue;
             }
-            let request = self.current.as_mut().and_then(|t| t.requests.pop_front()).expect("checked above");
-            self.send(request, 1);
+            let current = self.current.as_mut().expect("checked above");
+            let (request, issued) = (current.requests.pop_front().expect("checked above"), current.issued);
+            let prepared = self.protocol.prepare(request);
+            for event in prepared.events {
+                self.on_event(event, issued);
+            }
+            if let Some(request) = prepared.request {
+                self.send(request, 1);
+            }
         }
     }
 

@@ -24,6 +24,7 @@ mod pi_gcs2;
 mod pmac;
 mod protocol;
 mod scale;
+mod script;
 mod smaract_mcs2;
 mod spec;
 
@@ -31,10 +32,11 @@ pub use controller::{AnyController, Controller, ControllerConfig, ControllerEven
 #[cfg(feature = "testing")]
 pub use loopback::Loopback;
 pub use protocol::{
-    line_frame, CommandError, Finding, Frame, Lane, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, CommandError, Finding, Frame, Lane, Prepared, Protocol, ProtocolOptions, Purpose, ReplyError,
+    ReplyEvent, Request, VendorError,
 };
 pub use scale::{ControllerUnit, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource};
+pub use script::{MacroValue, ScriptError, ScriptSettings, ScriptSource};
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
 
@@ -65,11 +67,13 @@ pub enum ProtocolKind {
     ImsMdrive,
     /// Oregon Micro Systems MAXnet (channel = the axis, 0 to 9 for X, Y, Z, T, U, V, R, S, W, K).
     OmsMaxnet,
+    /// A motorScriptMotor Lua script (channel = the script's `AXIS`, from 0).
+    Script,
 }
 
 impl ProtocolKind {
     /// Every protocol.
-    pub const ALL: [ProtocolKind; 12] = [
+    pub const ALL: [ProtocolKind; 13] = [
         ProtocolKind::AcsMcb4b,
         ProtocolKind::NewportSmc100,
         ProtocolKind::PiGcs2,
@@ -82,6 +86,7 @@ impl ProtocolKind {
         ProtocolKind::NewportXps,
         ProtocolKind::ImsMdrive,
         ProtocolKind::OmsMaxnet,
+        ProtocolKind::Script,
     ];
 
     /// Its name in launch files and on the command line.
@@ -99,6 +104,7 @@ impl ProtocolKind {
             ProtocolKind::NewportXps => newport_xps::NAME,
             ProtocolKind::ImsMdrive => ims_mdrive::NAME,
             ProtocolKind::OmsMaxnet => oms_maxnet::NAME,
+            ProtocolKind::Script => script::NAME,
         }
     }
 
@@ -117,6 +123,7 @@ impl ProtocolKind {
             ProtocolKind::NewportXps => &["xps", "xps_c8", "xps_q8", "xps_d", "xpsc8"],
             ProtocolKind::ImsMdrive => &["mdrive", "mdrive_plus", "ims", "motorims"],
             ProtocolKind::OmsMaxnet => &["maxnet", "oms", "motoromsasyn"],
+            ProtocolKind::Script => &["lua", "script_motor", "scriptmotor", "motorscriptmotor"],
         }
     }
 
@@ -150,6 +157,7 @@ impl ProtocolKind {
             ProtocolKind::NewportXps => ((1..=8).contains(&channel), "by their group, 1 to 8 for GROUP1 to GROUP8"),
             ProtocolKind::ImsMdrive => ((1..=9).contains(&channel), "by their name, the motors named 1 to 9"),
             ProtocolKind::OmsMaxnet => (channel <= 9, "0 to 9, for the axes X, Y, Z, T, U, V, R, S, W, K"),
+            ProtocolKind::Script => (channel <= 63, "0 to 63, the script's AXIS"),
         };
         if valid {
             Ok(())
@@ -209,6 +217,7 @@ impl ProtocolKind {
             ProtocolKind::NewportXps => user.with(newport_xps::Xps::new(options)),
             ProtocolKind::ImsMdrive => user.with(ims_mdrive::Mdrive::new()),
             ProtocolKind::OmsMaxnet => user.with(oms_maxnet::Maxnet::new()),
+            ProtocolKind::Script => user.with(script::Script::new(options)),
         }
     }
 }

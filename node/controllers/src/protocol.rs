@@ -15,6 +15,8 @@ pub struct ProtocolOptions {
     /// The controller's own names of its channels' axes, where it names them (an XPS's
     /// positioners, `GROUP.POSITIONER`); a channel not named has the protocol's default name.
     pub names: std::collections::BTreeMap<usize, String>,
+    /// The script of a script controller, and what the launch file gives it.
+    pub script: Option<crate::script::ScriptSource>,
 }
 
 /// Which of a controller's connections a request travels on. Most protocols use one; a
@@ -107,6 +109,16 @@ pub enum Frame {
     /// A frame of this many bytes the controller sent unasked (a notification): handed to
     /// `Protocol::notice`, never taken for a reply.
     Notice(usize),
+}
+
+/// A request as it goes out (`Protocol::prepare`): what to write, if anything, and what
+/// making it found.
+#[derive(Debug)]
+pub struct Prepared<S> {
+    /// The request to write; none when there is nothing to send.
+    pub request: Option<Request<S>>,
+    /// What making it says, as a reply's events would.
+    pub events: Vec<ReplyEvent<S>>,
 }
 
 /// What a reply says.
@@ -247,6 +259,13 @@ pub trait Protocol: Send {
     /// opens one for each channel beside the main one.
     fn motion_lanes(&self) -> bool {
         false
+    }
+
+    /// The request as it goes out, asked just before it is written: a protocol whose requests
+    /// are made by code that must run in turn (a script's call) makes them then. Most send
+    /// the request as it was queued.
+    fn prepare(&mut self, request: Request<Self::Step>) -> Prepared<Self::Step> {
+        Prepared { request: Some(request), events: Vec::new() }
     }
 
     /// How many of the controller's units one record step of `channel` is, as the protocol

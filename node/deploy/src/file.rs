@@ -419,12 +419,12 @@ pub struct ControllerSection {
     /// A serial port, instead of `tcp`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub serial: Option<SerialSection>,
-    /// Seconds between polls while an axis moves.
-    #[serde(default = "default_moving_poll")]
-    pub moving_poll: f64,
-    /// Seconds between polls while every axis is idle.
-    #[serde(default = "default_idle_poll")]
-    pub idle_poll: f64,
+    /// Seconds between polls while an axis moves (0.1, or a script's `MovingPollPeriod`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub moving_poll: Option<f64>,
+    /// Seconds between polls while every axis is idle (1, or a script's `IdlePollPeriod`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub idle_poll: Option<f64>,
     /// Seconds a reply may take.
     #[serde(default = "default_timeout")]
     pub timeout: f64,
@@ -442,9 +442,58 @@ pub struct ControllerSection {
     /// would move, enable or reconfigure (commissioning, or beside a running IOC).
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub observe: bool,
+    /// The Lua script of a `script` controller (motorScriptMotor's), relative to this file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub script: Option<String>,
+    /// Globals its script sees, as `ScriptControllerConfig`'s macros (`{ PORT = "VMC" }`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub macros: BTreeMap<String, toml::Value>,
+    /// Each channel's own globals, over the controller's, as `ScriptAxisConfig`'s
+    /// (`{ 0 = { OPEN_LOOP = "NO" } }`).
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub axis_macros: BTreeMap<String, BTreeMap<String, toml::Value>>,
+    #[serde(skip)]
+    /// The script's files, read when the launch file was.
+    pub script_files: Option<ScriptFiles>,
     #[serde(skip)]
     /// Where it was written.
     pub origin: Origin,
+}
+
+/// A controller script as read from disk: its text and the `.lua` files beside it, all that
+/// its `require` may load.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ScriptFiles {
+    /// The script's path, as given (relative to the working directory or absolute).
+    pub path: String,
+    /// Its text.
+    pub text: String,
+    /// The other `.lua` files of its directory, by module name (`json` for `json.lua`).
+    pub modules: BTreeMap<String, String>,
+}
+
+impl ScriptFiles {
+    /// The script at `path` and the modules beside it.
+    pub fn read(path: &Path) -> Result<Self, String> {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let directory = match path.parent() {
+            Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
+            _ => Path::new(".").to_path_buf(),
+        };
+        let entries = std::fs::read_dir(&directory).map_err(|e| format!("{}: {e}", directory.display()))?;
+        let mut modules = BTreeMap::new();
+        for entry in entries.flatten() {
+            let file = entry.path();
+            let is_lua = file.extension().is_some_and(|e| e == "lua");
+            let (Some(stem), true) = (file.file_stem().and_then(|s| s.to_str()), is_lua) else { continue };
+            if file.file_name() == path.file_name() {
+                continue;
+            }
+            let module = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            modules.insert(stem.to_string(), module);
+        }
+        Ok(Self { path: path.display().to_string(), text, modules })
+    }
 }
 
 /// A serial port's settings.
@@ -470,13 +519,11 @@ pub struct SerialSection {
     pub flow_control: FlowControlChoice,
 }
 
-fn default_moving_poll() -> f64 {
-    0.1
-}
+/// Seconds between polls while an axis moves, unless the launch file or the script says.
+pub(crate) const DEFAULT_MOVING_POLL: f64 = 0.1;
 
-fn default_idle_poll() -> f64 {
-    1.0
-}
+/// Seconds between polls while every axis is idle, unless the launch file or the script says.
+pub(crate) const DEFAULT_IDLE_POLL: f64 = 1.0;
 
 fn default_timeout() -> f64 {
     1.0

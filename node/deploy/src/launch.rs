@@ -4,6 +4,7 @@
 use crate::db::{import_db, Macros};
 use crate::deployment::{Deployment, NodeContents, ValueSpec};
 use crate::file::{
+    ScriptFiles,
     read_text, AxisSection, CalcSection, ControllerSection, LaunchError, LaunchFile, Origin, ValueSection,
 };
 use crate::front_ends::{CaConfig, WebConfig};
@@ -93,9 +94,19 @@ impl Launch {
         let source = self.sources.len() - 1;
         let origin = |index| Origin { source, index };
         self.file.hosts.extend(file.hosts);
-        self.file.controllers.extend(
-            file.controllers.into_iter().enumerate().map(|(i, c)| ControllerSection { origin: origin(i), ..c }),
-        );
+        for (index, controller) in file.controllers.into_iter().enumerate() {
+            let script_files = match &controller.script {
+                Some(script) => {
+                    let files = ScriptFiles::read(&dir.join(script)).map_err(|message| {
+                        let path = vec![Seg::Key("controller".into()), Seg::Index(index), Seg::Key("script".into())];
+                        self.error(Problem::at(source, path, format!("controller '{}': script: {message}", controller.name)))
+                    })?;
+                    Some(files)
+                }
+                None => None,
+            };
+            self.file.controllers.push(ControllerSection { origin: origin(index), script_files, ..controller });
+        }
         self.file.axes.extend(file.axes.into_iter().enumerate().map(|(i, a)| AxisSection { origin: origin(i), ..a }));
         self.file.calcs.extend(file.calcs.into_iter().enumerate().map(|(i, c)| CalcSection { origin: origin(i), ..c }));
         self.file

@@ -2,6 +2,7 @@
 //! spec; and the wiring between them, checked.
 
 use crate::file::{
+    DEFAULT_IDLE_POLL, DEFAULT_MOVING_POLL,
     AxisSection, CalcInput, CalcOption, CalcSection, ControllerSection, DriverKind, FlowControlChoice, InputLinkMode,
     JogHoldChoice, Origin, ParityChoice, MAX_READBACK_RATE,
 };
@@ -9,7 +10,9 @@ use crate::problem::Problem;
 use std::collections::BTreeMap;
 use std::time::Duration;
 use zmotor_bridge::{find_cycle, input_index, CalcLinkSpec, InputMode, InputSpec, OutputOption};
-use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions, RecordUnits};
+use zmotor_controllers::{
+    ControllerConfig, MacroValue, ProtocolKind, ProtocolOptions, RecordUnits, ScriptSettings, ScriptSource,
+};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::JogHold;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
@@ -125,7 +128,12 @@ impl ControllerSection {
             })?;
             names.insert(number, name.clone());
         }
-        let options = ProtocolOptions { units_per_step: self.units_per_step, names };
+        let script = self.script_source(protocol).map_err(|(key, message)| at(&[key], message))?;
+        let settings = match &script {
+            Some(source) => ScriptSettings::of(source).map_err(|e| at(&["script"], e.to_string()))?,
+            None => ScriptSettings::default(),
+        };
+        let options = ProtocolOptions { units_per_step: self.units_per_step, names, script };
         options.check(protocol).map_err(|e| {
             let key = if matches!(e, SpecError::NoNames(_) | SpecError::Name { .. }) {
                 "axis_names"
@@ -137,19 +145,88 @@ impl ControllerSection {
         let period = |key: &'static str, seconds: f64, min: f64, max: f64| {
             ControllerConfig::checked_period(key, seconds, min, max).map_err(|e| at(&[key], e.to_string()))
         };
+        // The launch file's periods, or the script's, or the defaults.
+        let moving_poll = self.moving_poll.or(settings.moving_poll).unwrap_or(DEFAULT_MOVING_POLL);
+        let idle_poll = self.idle_poll.or(settings.idle_poll).unwrap_or(DEFAULT_IDLE_POLL);
+        let defaults = ControllerConfig::for_channels(axes.iter().map(|(channel, _)| *channel).collect());
+        let fast_polls = match settings.forced_fast_polls {
+            Some(n) if n.is_finite() && (0.0..=100.0).contains(&n) => n as u32,
+            Some(n) => return Err(at(&["script"], format!("ForcedFastPolls = {n} is not a count from 0 to 100"))),
+            None => defaults.fast_polls,
+        };
         let config = ControllerConfig {
-            moving_poll: period("moving_poll", self.moving_poll, 0.001, 10.0)?,
-            idle_poll: period("idle_poll", self.idle_poll, 0.001, 60.0)?,
+            moving_poll: period("moving_poll", moving_poll, 0.001, 10.0)?,
+            idle_poll: period("idle_poll", idle_poll, 0.001, 60.0)?,
+            fast_polls,
             timeout: period("timeout", self.timeout, 0.001, 60.0)?,
             retries: self.retries,
             observe: self.observe,
-            ..ControllerConfig::for_channels(axes.iter().map(|(channel, _)| *channel).collect())
+            ..defaults
         };
         let config = ControllerConfig { record_units: axes.into_iter().collect(), ..config };
         if self.retries > 10 {
             return Err(at(&["retries"], format!("{} is more than 10", self.retries)));
         }
         Ok(ControllerSpec { name: self.name.clone(), protocol, options, transport, config })
+    }
+}
+
+impl ControllerSection {
+    /// A script controller's script, with its macros: given for `protocol = "script"` only.
+    fn script_source(&self, protocol: ProtocolKind) -> Result<Option<ScriptSource>, (&'static str, String)> {
+        let is_script = protocol == ProtocolKind::Script;
+        if !is_script {
+            let given = [
+                ("script", self.script.is_some()),
+                ("macros", !self.macros.is_empty()),
+                ("axis_macros", !self.axis_macros.is_empty()),
+            ];
+            if let Some((key, _)) = given.into_iter().find(|(_, given)| *given) {
+                return Err((key, format!("only a script controller (protocol = \"script\") takes a {key}")));
+            }
+            return Ok(None);
+        }
+        let Some(files) = &self.script_files else {
+            let message = match &self.script {
+                Some(_) => "the script was not read (a launch built in memory reads no files)",
+                None => "give the Lua script: script = \"scripts/my_controller.lua\" (relative to this file)",
+            };
+            return Err(("script", message.into()));
+        };
+        let macros = |table: &BTreeMap<String, toml::Value>, key: &'static str| {
+            table
+                .iter()
+                .map(|(name, value)| {
+                    let value = match value {
+                        toml::Value::String(text) => MacroValue::Text(text.clone()),
+                        toml::Value::Integer(n) => MacroValue::Integer(*n),
+                        toml::Value::Float(n) => MacroValue::Number(*n),
+                        toml::Value::Boolean(b) => MacroValue::Boolean(*b),
+                        other => {
+                            let why = format!("{name} is a {}: a macro is a string, a number or a boolean", other.type_str());
+                            return Err((key, why));
+                        }
+                    };
+                    Ok((name.clone(), value))
+                })
+                .collect::<Result<BTreeMap<_, _>, _>>()
+        };
+        let mut axis_macros = BTreeMap::new();
+        for (channel, table) in &self.axis_macros {
+            let number = channel.parse::<usize>().map_err(|_| {
+                ("axis_macros", format!("'{channel}' is not a channel number: write {{ 0 = {{ OPEN_LOOP = \"NO\" }} }}"))
+            })?;
+            protocol.check_channel(number).map_err(|e| ("axis_macros", e.to_string()))?;
+            axis_macros.insert(number, macros(table, "axis_macros")?);
+        }
+        Ok(Some(ScriptSource {
+            path: files.path.clone(),
+            text: files.text.clone(),
+            modules: files.modules.clone(),
+            driver: self.name.clone(),
+            macros: macros(&self.macros, "macros")?,
+            axis_macros,
+        }))
     }
 }
 

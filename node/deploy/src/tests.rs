@@ -4,7 +4,7 @@ use crate::*;
 use std::path::Path;
 use std::time::Duration;
 use zmotor_bridge::InputMode;
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{MacroValue, ProtocolKind};
 use zmotor_controllers::{Parity, Transport};
 use zmotor_core::DriverPlan;
 
@@ -456,4 +456,62 @@ fn state_dir_is_relative_to_the_launch_file() {
     assert_eq!(deployment.state_dir, Some(dir.path().join("state")));
     assert_eq!(deployment.autosave, AutosaveSection { enabled: true, delay: 0.2 });
     assert!(Launch::parse("[autosave]\ndelay = -1").unwrap_err().message.contains("autosave.delay"));
+}
+
+/// A script controller's launch file beside its script (and a module the script requires).
+fn script_launch(script: &str, controller_extra: &str) -> (tempfile::TempDir, Result<Launch, LaunchError>) {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("scripts")).unwrap();
+    std::fs::write(dir.path().join("scripts/ctl.lua"), script).unwrap();
+    std::fs::write(dir.path().join("scripts/helper.lua"), "return { answer = 42 }").unwrap();
+    let launch = format!(
+        "[[controller]]\nname = \"ctl\"\nprotocol = \"script\"\ntcp = \"127.0.0.1:31337\"\nscript = \"scripts/ctl.lua\"\n{controller_extra}\n\
+         [[axis]]\nname = \"x\"\ndriver = \"controller\"\ncontroller = \"ctl\"\nchannel = 0\n"
+    );
+    let path = dir.path().join("launch.toml");
+    std::fs::write(&path, launch).unwrap();
+    let loaded = Launch::load(&path);
+    (dir, loaded)
+}
+
+#[test]
+fn a_script_controller_carries_its_script_modules_macros_and_poll_periods() {
+    let script = "h = require('helper')\nIdlePollPeriod = 2.0\nMovingPollPeriod = 0.25\nForcedFastPolls = 3\n";
+    let extra = "macros = { PORT = \"VMC\", GAIN = 2 }\naxis_macros = { 0 = { OPEN_LOOP = \"YES\" } }";
+    let (_dir, launch) = script_launch(script, extra);
+    let deployment = launch.unwrap().deployment(None).unwrap();
+    let [ctl] = &deployment.contents.controllers[..] else { panic!("one controller") };
+    let source = ctl.options.script.as_ref().expect("the script");
+    assert!(source.path.ends_with("scripts/ctl.lua") && source.text == script, "{source:?}");
+    assert_eq!(source.modules.keys().collect::<Vec<_>>(), ["helper"]);
+    assert_eq!(source.driver, "ctl");
+    assert_eq!(source.macros["PORT"], MacroValue::Text("VMC".into()));
+    assert_eq!(source.macros["GAIN"], MacroValue::Integer(2));
+    assert_eq!(source.axis_macros[&0]["OPEN_LOOP"], MacroValue::Text("YES".into()));
+    let periods = (ctl.config.idle_poll, ctl.config.moving_poll, ctl.config.fast_polls);
+    assert_eq!(periods, (Duration::from_secs(2), Duration::from_millis(250), 3), "the script's, as EPICS reads them");
+    let (_dir, launch) = script_launch(script, "moving_poll = 0.05");
+    let config = &launch.unwrap().deployment(None).unwrap().contents.controllers[0].config;
+    assert_eq!(config.moving_poll, Duration::from_millis(50), "the launch file's over the script's");
+}
+
+#[test]
+fn a_broken_or_missing_script_is_refused_at_load_naming_its_file_and_line() {
+    let (_dir, launch) = script_launch("function move(\n", "");
+    let error = launch.unwrap_err().to_string();
+    assert!(error.contains("controller 'ctl': script:") && error.contains("scripts/ctl.lua:2:"), "{error}");
+    let (dir, _) = script_launch("", "");
+    let missing = std::fs::read_to_string(dir.path().join("launch.toml")).unwrap().replace("ctl.lua", "none.lua");
+    std::fs::write(dir.path().join("launch.toml"), missing).unwrap();
+    let error = Launch::load(&dir.path().join("launch.toml")).unwrap_err().to_string();
+    assert!(error.contains("script:") && error.contains("none.lua"), "{error}");
+    let (_dir, launch) = script_launch("", "macros = { PORT = [1, 2] }");
+    let error = launch.unwrap_err().to_string();
+    assert!(error.contains("macros: PORT is a array"), "{error}");
+    let no_script = CONTROLLED.replace("protocol = \"acs_mcb4b\"", "protocol = \"script\"");
+    let error = Launch::parse(&no_script).unwrap_err().to_string();
+    assert!(error.contains("give the Lua script"), "{error}");
+    let stray = CONTROLLED.replace("moving_poll = 0.05\n", "macros = { PORT = \"A\" }\n");
+    let error = Launch::parse(&stray).unwrap_err().to_string();
+    assert!(error.contains("only a script controller"), "{error}");
 }

@@ -5,7 +5,10 @@ pub(crate) mod golden;
 
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, VendorError};
+use zmotor_controllers::{
+    ControllerConfig, ControllerEvent, Loopback, MacroValue, ProtocolKind, ProtocolOptions, ScriptSettings, ScriptSource,
+    VendorError,
+};
 use zmotor_core::{DeviceStatus, Instant};
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
@@ -17,6 +20,42 @@ pub(crate) fn loopback(kind: ProtocolKind, channels: &[usize], faults: Faults) -
     let emulator = emulator(kind, channels.iter().max().map_or(1, |c| c + 1));
     let config = ControllerConfig::for_channels(channels.to_vec());
     Loopback::new(kind.controller(&ProtocolOptions::default(), config, Instant::ZERO), emulator, faults)
+}
+
+/// The script at `path` (relative to the workspace's root) and the `.lua` files beside it, for
+/// the controller `driver`, with `macros`.
+pub(crate) fn script_source(path: &str, driver: &str, macros: &[(&str, MacroValue)]) -> ScriptSource {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let file = root.join(path);
+    let text = std::fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+    let mut modules = std::collections::BTreeMap::new();
+    for entry in std::fs::read_dir(file.parent().expect("a directory")).expect("readable").flatten() {
+        let other = entry.path();
+        if other.extension().is_some_and(|e| e == "lua") && other != file {
+            let stem = other.file_stem().and_then(|s| s.to_str()).expect("a name").to_string();
+            modules.insert(stem, std::fs::read_to_string(&other).expect("readable"));
+        }
+    }
+    let macros = macros.iter().map(|(name, value)| (name.to_string(), value.clone())).collect();
+    ScriptSource { path: path.into(), text, modules, driver: driver.into(), macros, ..ScriptSource::default() }
+}
+
+/// A script controller running `source` on `channels` against `model`'s emulator (every channel
+/// up to the highest), polled as the script asks, through `faults`.
+pub(crate) fn script_loopback(
+    source: &ScriptSource,
+    model: zmotor_emulators::Model,
+    channels: &[usize],
+    faults: Faults,
+) -> Loopback {
+    let settings = ScriptSettings::of(source).expect("the script loads");
+    let mut config = ControllerConfig::for_channels(channels.to_vec());
+    config.moving_poll = settings.moving_poll.map_or(config.moving_poll, Duration::from_secs_f64);
+    config.idle_poll = settings.idle_poll.map_or(config.idle_poll, Duration::from_secs_f64);
+    config.fast_polls = settings.forced_fast_polls.map_or(config.fast_polls, |n| n as u32);
+    let options = ProtocolOptions { script: Some(source.clone()), ..ProtocolOptions::default() };
+    let emulator = model.emulator(channels.iter().max().map_or(1, |c| c + 1));
+    Loopback::new(ProtocolKind::Script.controller(&options, config, Instant::ZERO), emulator, faults)
 }
 
 /// The emulator of `kind`'s controllers, with every channel below `channels`.
@@ -145,7 +184,16 @@ pub(crate) fn no_malformed_frames(
     start: Start,
     commands: &[(usize, DriverCommand, u64)],
 ) {
-    let mut lb = loopback(kind, channels, Faults::default());
+    no_malformed_frames_on(loopback(kind, channels, Faults::default()), channels, start, commands);
+}
+
+/// `no_malformed_frames` on the loopback `lb`, not brought up yet.
+pub(crate) fn no_malformed_frames_on(
+    mut lb: Loopback,
+    channels: &[usize],
+    start: Start,
+    commands: &[(usize, DriverCommand, u64)],
+) {
     bring_up(&mut lb);
     if start == Start::Homed {
         for &channel in channels {
@@ -229,7 +277,11 @@ pub(crate) fn a_jog_runs_until_stopped_or_the_limit_switch(lb: &mut Loopback, ch
 /// Every kind of record command on the first two of `channels` (switched on first), replies
 /// delivered whole or in pieces of `chunk` bytes: the statuses each of the two reported.
 pub(crate) fn statuses_of_a_script(kind: ProtocolKind, channels: &[usize], chunk: usize) -> [Vec<DeviceStatus>; 2] {
-    let mut lb = loopback(kind, channels, Faults::default()).with_chunks(chunk);
+    statuses_of_a_script_on(loopback(kind, channels, Faults::default()).with_chunks(chunk), channels)
+}
+
+/// `statuses_of_a_script` on the loopback `lb`, not brought up yet.
+pub(crate) fn statuses_of_a_script_on(mut lb: Loopback, channels: &[usize]) -> [Vec<DeviceStatus>; 2] {
     bring_up(&mut lb);
     let [first, second] = [channels[0], channels[1]];
     for channel in [first, second] {
@@ -258,8 +310,14 @@ pub(crate) fn statuses_of_a_script(kind: ProtocolKind, channels: &[usize], chunk
 /// Replies split at every byte give the statuses whole replies give: the script's first
 /// channel ends at -77 (set), the second stopped beyond 0.
 pub(crate) fn replies_in_pieces_give_the_same_statuses(kind: ProtocolKind, channels: &[usize]) {
-    let whole = statuses_of_a_script(kind, channels, usize::MAX);
-    assert_eq!(statuses_of_a_script(kind, channels, 1), whole);
+    replies_in_pieces_give_the_same_statuses_on(|chunk| loopback(kind, channels, Faults::default()).with_chunks(chunk), channels);
+}
+
+/// `replies_in_pieces_give_the_same_statuses` on the loopbacks `make` makes, with replies in
+/// pieces of the given size.
+pub(crate) fn replies_in_pieces_give_the_same_statuses_on(make: impl Fn(usize) -> Loopback, channels: &[usize]) {
+    let whole = statuses_of_a_script_on(make(usize::MAX), channels);
+    assert_eq!(statuses_of_a_script_on(make(1), channels), whole);
     assert!(whole[0].last().is_some_and(|s| (s.position + 77.0).abs() < 1e-6), "{:?}", whole[0].last());
     assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0), "{:?}", whole[1].last());
 }
