@@ -3,8 +3,8 @@
 
 use crate::{
     mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, KohzuScEmulator, MaxnetEmulator,
-    Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, PhymotionEmulator, Picomotor8742Emulator, Pm304Emulator, PmacEmulator,
-    Smc100Emulator, VmcEmulator, XpsEmulator,
+    AmcEmulator, Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, PhymotionEmulator, Picomotor8742Emulator, Pm304Emulator,
+    PmacEmulator, Smc100Emulator, VmcEmulator, XpsEmulator,
 };
 
 /// A controller model this crate emulates.
@@ -43,11 +43,13 @@ pub enum Model {
     MicronixMmc,
     /// A New Focus 8742 picomotor controller, over Ethernet (Telnet); driven by a script.
     NewFocus8742,
+    /// An attocube AMC100, JSON-RPC over TCP, its outputs switched on; driven by a script.
+    AttocubeAmc,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 16] = [
+    pub const ALL: [Model; 17] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -64,6 +66,7 @@ impl Model {
         Model::KohzuSc,
         Model::MicronixMmc,
         Model::NewFocus8742,
+        Model::AttocubeAmc,
     ];
 
     /// The protocol it speaks, as launch files name it; for a controller a script drives
@@ -86,6 +89,7 @@ impl Model {
             Model::KohzuSc => "kohzu_sc",
             Model::MicronixMmc => "micronix_mmc",
             Model::NewFocus8742 => "newfocus_8742",
+            Model::AttocubeAmc => "attocube_amc",
         }
     }
 
@@ -120,7 +124,8 @@ impl Model {
             | Model::Vmc
             | Model::KohzuSc
             | Model::MicronixMmc
-            | Model::NewFocus8742 => 9_600,
+            | Model::NewFocus8742
+            | Model::AttocubeAmc => 9_600,
         }
     }
 
@@ -150,6 +155,8 @@ impl Model {
             // A script's AXIS n drives the controller's axis n + 1: channels 0 to 3 are axes 1 to 4.
             Model::Vmc | Model::KohzuSc | Model::NewFocus8742 => 4,
             Model::MicronixMmc => 2,
+            // Axes 0 to 2, a script's AXIS.
+            Model::AttocubeAmc => 3,
         }
     }
 
@@ -188,6 +195,7 @@ impl Model {
             Model::KohzuSc => Box::new(KohzuScEmulator::new(channels.clamp(1, 8), &mechanics)),
             Model::MicronixMmc => Box::new(MmcEmulator::new(channels.clamp(1, 99), &mechanics)),
             Model::NewFocus8742 => Box::new(Picomotor8742Emulator::new(channels.clamp(1, 4), &mechanics)),
+            Model::AttocubeAmc => Box::new(AmcEmulator::new(channels.clamp(1, 3), &mechanics).with_outputs_on()),
         }
     }
 }
