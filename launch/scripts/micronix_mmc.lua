@@ -11,8 +11,8 @@
   - A move sets VEL, ACC and DEC, then MVA/MVR; a jog JAC then JOG at a percentage of the
     axis's top speed (VMX?, read once); a home HCG (1 forward) then HOM; STP stops.
   - The MMC sets only position 0 (ZRO): another position is refused, as nothing would set it.
-  - A poll reads POS? (theoretical and encoder positions), STA? (limits, stopped, error) and
-    MOT? (the motor's power). An error flagged by STA? is read and cleared with ERR?, shown as
+  - A poll reads POS? (theoretical and encoder positions), STA? (limits, stopped, error), MOT?
+    (the motor's power) and HOM? (homed since power-up; motorMicronix does not read it). An error flagged by STA? is read and cleared with ERR?, shown as
     the axis's problem and in the node's log.
   - A jog faster than the axis's top speed is refused, never clamped.
 --]]
@@ -105,7 +105,8 @@ function poll()
   local theoretical, encoder = string.match(ask("POS?"), "^%s*([-%d.]+),([-%d.]+)")
   local status = tonumber(ask("STA?"))
   local powered = tonumber(ask("MOT?"))
-  if theoretical == nil or status == nil or powered == nil then
+  local homed = tonumber(ask("HOM?"))
+  if theoretical == nil or status == nil or powered == nil or homed == nil then
     error("a status the controller should not give")
   end
   local problem = 0
@@ -126,6 +127,7 @@ function poll()
   asyn.setIntegerParam(DRIVER, AXIS, "MOTOR_STATUS_HIGH_LIMIT", status & 0x2)
   asyn.setIntegerParam(DRIVER, AXIS, "MOTOR_STATUS_LOW_LIMIT", status & 0x1)
   asyn.setIntegerParam(DRIVER, AXIS, "MOTOR_STATUS_POWERED", powered)
+  asyn.setIntegerParam(DRIVER, AXIS, "MOTOR_STATUS_HOMED", homed)
   asyn.setIntegerParam(DRIVER, AXIS, "MOTOR_STATUS_PROBLEM", problem)
   asyn.callParamCallbacks(DRIVER, AXIS)
   return not done

@@ -269,7 +269,7 @@ enum Command {
     /// Emulate a motor controller on the physical simulator, speaking its protocol on a TCP
     /// socket or a pseudo-terminal, so that a launch file for real hardware runs with none.
     SimController {
-        /// The protocol (acs_mcb4b, ...).
+        /// The protocol (acs_mcb4b, ...), or the family a script drives (kohzu_sc, vmc, ...).
         protocol: String,
         /// Serve on this TCP address, host:port.
         #[arg(long, conflicts_with = "pty", required_unless_present = "pty")]

@@ -53,9 +53,15 @@ pub(crate) async fn run(
     channels: Option<usize>,
     faults: &FaultArgs,
 ) -> Result<(), Error> {
-    let kind = ProtocolKind::from_name(protocol)
-        .ok_or_else(|| format!("'{protocol}' is not a known protocol (known: {})", ProtocolKind::known()))?;
-    let model = Model::speaking(kind.name()).ok_or_else(|| format!("'{}' has no emulator", kind.name()))?;
+    // A family a script drives is named as its emulator is (`kohzu_sc`); a protocol by any of
+    // its names.
+    let model = Model::speaking(protocol)
+        .or_else(|| ProtocolKind::from_name(protocol).and_then(|kind| Model::speaking(kind.name())))
+        .ok_or_else(|| {
+            let known: Vec<&str> = Model::ALL.iter().map(|m| m.protocol()).collect();
+            format!("'{protocol}' is not an emulated controller (known: {})", known.join(", "))
+        })?;
+    let name = model.protocol();
     let channels = channels.unwrap_or(model.typical_channels());
     let interrupted = crate::interrupted();
     tokio::pin!(interrupted);
@@ -63,7 +69,7 @@ pub(crate) async fn run(
         Endpoint::Tcp(address) => {
             let emulated = Emulated::new(model, channels, faults.faults(), None);
             let listener = tokio::net::TcpListener::bind(&address).await?;
-            tracing::info!("{} emulated on tcp {}; Ctrl-C to stop", kind.name(), listener.local_addr()?);
+            tracing::info!("{name} emulated on tcp {}; Ctrl-C to stop", listener.local_addr()?);
             tokio::select! {
                 result = emulated.serve_tcp(listener) => Ok(result?),
                 result = &mut interrupted => result,
@@ -73,7 +79,7 @@ pub(crate) async fn run(
             let baud = baud.unwrap_or(model.factory_baud());
             let emulated = Emulated::new(model, channels, faults.faults(), Some(baud));
             let (master, slave) = pseudo_terminal(&path)?;
-            let (name, shown) = (kind.name(), path.display());
+            let shown = path.display();
             tracing::info!("{name} emulated on the pseudo-terminal {shown} at {baud} baud; Ctrl-C to stop");
             let mut connection: Option<Box<dyn Io>> = Some(Box::new(master));
             let result = tokio::select! {

@@ -46,7 +46,13 @@ fn launch_node(file: &std::path::Path, endpoint: &str, state: &std::path::Path) 
 
 /// One phase of tests/python/controller_client.py; panics with what it said if it failed.
 fn client(phase: &str, endpoint: &str, axis: &str) {
-    let output = environment::python_script("controller_client.py").args([phase, endpoint, axis]).output().unwrap();
+    client_with(phase, endpoint, axis, &[]);
+}
+
+/// `client` with more arguments (`--no-home`).
+fn client_with(phase: &str, endpoint: &str, axis: &str, more: &[&str]) {
+    let output =
+        environment::python_script("controller_client.py").args([phase, endpoint, axis]).args(more).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains(&format!("{phase} ok")), "{said}");
 }
@@ -59,6 +65,11 @@ enum Reach {
 
 /// The launch file `launch`, whose controller is reached as `reach` says, against its emulator.
 fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, axis: &str) {
+    drive_through_loss_and_recovery_with(protocol, launch, reach, axis, &[]);
+}
+
+/// `drive_through_loss_and_recovery`, the motion phase given `more` arguments (`--no-home`).
+fn drive_through_loss_and_recovery_with(protocol: &str, launch: &str, reach: Reach, axis: &str, more: &[&str]) {
     let dir = tempfile::tempdir().unwrap();
     let (named, here, flag) = match reach {
         Reach::Tcp(address) => {
@@ -69,6 +80,9 @@ fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, a
     };
     let text = std::fs::read_to_string(common::repo_file(launch)).unwrap();
     assert!(text.contains(named), "{launch} names its controller at {named}");
+    // The copy runs elsewhere: a script it names is found where the original finds it.
+    let beside = common::repo_file(launch).parent().unwrap().display().to_string();
+    let text = text.replace("script = \"", &format!("script = \"{beside}/"));
     let file = dir.path().join("launch.toml");
     std::fs::write(&file, text.replace(named, &here)).unwrap();
     let endpoint = free_local_endpoint().unwrap();
@@ -77,7 +91,7 @@ fn drive_through_loss_and_recovery(protocol: &str, launch: &str, reach: Reach, a
     let emulator = emulate();
     let _node = launch_node(&file, &endpoint, dir.path());
 
-    client("motion", &endpoint, axis);
+    client_with("motion", &endpoint, axis, more);
     drop(emulator);
     client("lost", &endpoint, axis);
     let _emulator = emulate();
@@ -141,6 +155,28 @@ fn ims_mdrive_on_a_serial_line() {
 #[test]
 fn oms_maxnet() {
     drive_through_loss_and_recovery("oms_maxnet", "launch/oms-maxnet.toml", Reach::Tcp("127.0.0.1:2023"), "omsX");
+}
+
+#[test]
+fn vmc_lua_of_motor_script_motor_unchanged() {
+    let vmc = Reach::Tcp("127.0.0.1:31337");
+    drive_through_loss_and_recovery_with("vmc", "launch/vmc.toml", vmc, "vmc1", &["--no-home"]);
+}
+
+#[test]
+fn kohzu_sc_by_script_on_a_serial_line() {
+    drive_through_loss_and_recovery("kohzu_sc", "launch/kohzu-sc.toml", Reach::Pty("/tmp/zmotor-kohzu"), "kohzu1");
+}
+
+#[test]
+fn micronix_mmc_by_script_on_a_serial_line() {
+    drive_through_loss_and_recovery("micronix_mmc", "launch/micronix-mmc.toml", Reach::Pty("/tmp/zmotor-mmc"), "mmc1");
+}
+
+#[test]
+fn newfocus_8742_by_script() {
+    let pico = Reach::Tcp("127.0.0.1:2323");
+    drive_through_loss_and_recovery_with("newfocus_8742", "launch/newfocus-8742.toml", pico, "pico1", &["--no-home"]);
 }
 
 #[test]

@@ -182,7 +182,7 @@ mod micronix {
         let home = DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 2e5 };
         lb.command(0, &home);
         let homed = *run_until_done(&mut lb, 0, TICK, Duration::from_secs(20)).last().expect("done");
-        assert_eq!(homed.position, 0.0, "{homed:?}");
+        assert_eq!((homed.position, homed.msta & msta::HOMED), (0.0, msta::HOMED), "{homed:?}");
     }
 
     #[test]
@@ -213,7 +213,7 @@ mod micronix {
 
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
-        let reads = |l: &str| ["POS?", "STA?", "MOT?"].iter().any(|q| l.ends_with(&format!("{q}\r")));
+        let reads = |l: &str| ["POS?", "STA?", "MOT?", "HOM?"].iter().any(|q| l.ends_with(&format!("{q}\r")));
         super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&MICRONIX, |l| l.contains("MVA"), reads);
     }
 
