@@ -1,9 +1,11 @@
 """A stock eclipse-zenoh Python client drives an axis on a motor controller (or its emulator,
 `zmotor sim-controller`) through motor/<axis>/... keys, with no zmotor code at all.
 
-Usage: python3 controller_client.py PHASE ENDPOINT AXIS [--no-home]
+Usage: python3 controller_client.py PHASE ENDPOINT AXIS [--no-home] [--settles-at-once]
   motion     home (unless --no-home: a controller without a home switch, whose home is refused
-             or does nothing), move absolute and relative, jog, stop a move
+             or does nothing), move absolute and relative, jog, stop a move (with
+             --settles-at-once, a piezo that arrives before anyone could stop it: a jog goes
+             to the end of the stroke, and a stop of an axis at rest moves nothing)
   lost       the controller is gone: the axis is in COMM alarm and a move goes nowhere
   recovered  the controller is back: the alarm clears and nothing moves by itself
 Exits non-zero with a message on the first broken expectation.
@@ -20,6 +22,7 @@ HOME, HOMED = 0x0008, 0x4000
 
 phase, endpoint, axis = sys.argv[1], sys.argv[2], sys.argv[3]
 homes = "--no-home" not in sys.argv[4:]
+settles_at_once = "--settles-at-once" in sys.argv[4:]
 conf = zenoh.Config()
 conf.insert_json5("mode", '"client"')
 conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -96,6 +99,20 @@ with zenoh.open(conf) as session:
         replies = list(session.get(f"motor/{axis}/VAL?wait", payload=str(beyond), timeout=30.0))
         expect(len(replies) == 1 and replies[0].err is not None, f"a target beyond HLM was accepted: {replies}")
         expect(get("LVIO") == 1 and get("RBV") == here, "a refused target moved the axis")
+
+        if settles_at_once:
+            # A jog goes to the end of the stroke; a stop at rest moves nothing.
+            before = get("RBV")
+            put("JOGF", 1)
+            wait_for("RBV", lambda v: v > before + 0.2, 10, "the jog did not move the axis")
+            put("JOGF", 0)
+            wait_for("DMOV", lambda v: v == 1, 20, "the jog never ended")
+            at_rest = get("RBV")
+            put("STOP", 1)
+            time.sleep(0.5)
+            expect(get("RBV") == at_rest and get("DMOV") == 1, "a stop at rest moved the axis")
+            print("controller client: motion ok")
+            sys.exit(0)
 
         # Jog forward, then let go: the axis stops, wherever it is.
         before = get("RBV")

@@ -174,6 +174,13 @@ fn micronix_mmc_by_script_on_a_serial_line() {
 }
 
 #[test]
+fn piezojena_nv40_by_script_on_a_serial_line() {
+    let nv40 = Reach::Pty("/tmp/zmotor-nv40");
+    let flags = ["--no-home", "--settles-at-once"];
+    drive_through_loss_and_recovery_with("piezojena_nv40", "launch/piezojena-nv40.toml", nv40, "piezo0", &flags);
+}
+
+#[test]
 fn newfocus_8742_by_script() {
     let pico = Reach::Tcp("127.0.0.1:2323");
     drive_through_loss_and_recovery_with("newfocus_8742", "launch/newfocus-8742.toml", pico, "pico1", &["--no-home"]);

@@ -26,6 +26,8 @@ struct Family {
 const KOHZU: Family = Family { script: "launch/scripts/kohzu_sc.lua", model: Model::KohzuSc, macros: &[] };
 const PICOMOTOR: Family =
     Family { script: "launch/scripts/newfocus_8742.lua", model: Model::NewFocus8742, macros: &[] };
+const PIEZO: Family =
+    Family { script: "launch/scripts/piezojena_nv40.lua", model: Model::PiezojenaNv40, macros: &[] };
 const MICRONIX: Family = Family { script: "launch/scripts/micronix_mmc.lua", model: Model::MicronixMmc, macros: &[] };
 
 impl Family {
@@ -316,6 +318,75 @@ mod picomotor {
             commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
         ) {
             let lb = PICOMOTOR.loopback(&[0, 1], Faults::default());
+            common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
+        }
+    }
+}
+
+mod piezojena {
+    use super::*;
+
+    #[test]
+    fn a_move_takes_serial_control_closes_the_loop_sets_the_target_and_arrives() {
+        let mut lb = PIEZO.up(&[0, 1]);
+        no_failed_exchange(&lb.take_events());
+        let from = lb.written().len();
+        lb.command(1, &go(12_345.0, false));
+        let arrived = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(2)).last().expect("done");
+        assert_eq!((arrived.position, arrived.msta & msta::PROBLEM), (12_345.0, 0), "{arrived:?}");
+        let sent = written_since(&lb, from);
+        assert_eq!(sent[..3], ["setk,1,1\r", "cloop,1,1\r", "set,1,12.345\r"], "{sent:?}");
+        lb.command(1, &go(-2_345.0, true));
+        let back = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(2)).last().expect("done");
+        assert_eq!(back.position, 10_000.0, "{back:?}");
+    }
+
+    #[test]
+    fn a_target_beyond_the_stroke_is_refused_unsent() {
+        let mut lb = PIEZO.up(&[0, 1]);
+        let from = lb.written().len();
+        lb.command(0, &go(150_000.0, false));
+        lb.run_for(Duration::from_millis(300));
+        let errors = common::controller_errors(&lb.take_events());
+        assert!(errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the stage's 0 to 100 um")), "{errors:?}");
+        assert!(!written_since(&lb, from).iter().any(|l| l.starts_with("set,")), "nothing sent");
+    }
+
+    #[test]
+    fn a_jog_goes_to_the_end_of_the_stroke_and_a_home_is_refused() {
+        let mut lb = PIEZO.up(&[0, 1]);
+        let jog = DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 1e4 };
+        lb.command(0, &jog);
+        let end = *run_until_done(&mut lb, 0, TICK, Duration::from_secs(2)).last().expect("done");
+        assert_eq!(end.position, 100_000.0, "{end:?}");
+        let home = DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 1000.0, acceleration: 1e4 };
+        lb.command(0, &home);
+        lb.run_for(Duration::from_millis(300));
+        let errors = common::controller_errors(&lb.take_events());
+        assert!(errors.iter().any(|(_, _, m)| m.contains("no home")), "{errors:?}");
+    }
+
+    #[test]
+    fn replies_split_at_every_byte_give_the_same_statuses() {
+        let statuses = |chunk| common::statuses_of_a_script_on(PIEZO.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1]);
+        let whole = statuses(usize::MAX);
+        assert_eq!(statuses(1), whole);
+        assert!(whole[0].iter().any(|s| s.position == 3000.0), "{:?}", whole[0]);
+    }
+
+    #[test]
+    fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
+        let reads = |l: &str| l.starts_with("rk,") || l.starts_with("stat,") || l == "ERROR\r";
+        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&PIEZO, |l| l.starts_with("set,"), reads);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
+        #[test]
+        fn no_sequence_of_record_commands_makes_a_malformed_line(
+            commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
+        ) {
+            let lb = PIEZO.loopback(&[0, 1], Faults::default());
             common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
         }
     }

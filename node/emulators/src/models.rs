@@ -2,9 +2,9 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, KohzuScEmulator, MaxnetEmulator,
-    AmcEmulator, Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, PhymotionEmulator, Picomotor8742Emulator, Pm304Emulator,
-    PmacEmulator, Smc100Emulator, VmcEmulator, XpsEmulator,
+    mcs2_positioner, stage, AmcEmulator, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, KohzuScEmulator,
+    MaxnetEmulator, Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, Nv40Emulator, PhymotionEmulator,
+    Picomotor8742Emulator, Pm304Emulator, PmacEmulator, Smc100Emulator, VmcEmulator, XpsEmulator,
 };
 
 /// A controller model this crate emulates.
@@ -45,11 +45,13 @@ pub enum Model {
     NewFocus8742,
     /// An attocube AMC100, JSON-RPC over TCP, its outputs switched on; driven by a script.
     AttocubeAmc,
+    /// A piezosystem jena NV40/3 CLE three-channel piezo amplifier; driven by a script.
+    PiezojenaNv40,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 17] = [
+    pub const ALL: [Model; 18] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -67,6 +69,7 @@ impl Model {
         Model::MicronixMmc,
         Model::NewFocus8742,
         Model::AttocubeAmc,
+        Model::PiezojenaNv40,
     ];
 
     /// The protocol it speaks, as launch files name it; for a controller a script drives
@@ -90,6 +93,7 @@ impl Model {
             Model::MicronixMmc => "micronix_mmc",
             Model::NewFocus8742 => "newfocus_8742",
             Model::AttocubeAmc => "attocube_amc",
+            Model::PiezojenaNv40 => "piezojena_nv40",
         }
     }
 
@@ -106,6 +110,8 @@ impl Model {
     pub fn factory_baud(self) -> u32 {
         match self {
             Model::NewportSmc100 => 57_600,
+            // The NV40/3 CLE's line, as piezosystem jena's own library opens it.
+            Model::PiezojenaNv40 => 19_200,
             Model::NewportEsp300 => 19_200,
             Model::PiGcs2 => 115_200,
             // The DMC-40x0 is reached over TCP; 115,200 is taken for its RS-232 port's factory
@@ -155,8 +161,8 @@ impl Model {
             // A script's AXIS n drives the controller's axis n + 1: channels 0 to 3 are axes 1 to 4.
             Model::Vmc | Model::KohzuSc | Model::NewFocus8742 => 4,
             Model::MicronixMmc => 2,
-            // Axes 0 to 2, a script's AXIS.
-            Model::AttocubeAmc => 3,
+            // Axes (channels) 0 to 2, a script's AXIS.
+            Model::AttocubeAmc | Model::PiezojenaNv40 => 3,
         }
     }
 
@@ -196,6 +202,7 @@ impl Model {
             Model::MicronixMmc => Box::new(MmcEmulator::new(channels.clamp(1, 99), &mechanics)),
             Model::NewFocus8742 => Box::new(Picomotor8742Emulator::new(channels.clamp(1, 4), &mechanics)),
             Model::AttocubeAmc => Box::new(AmcEmulator::new(channels.clamp(1, 3), &mechanics).with_outputs_on()),
+            Model::PiezojenaNv40 => Box::new(Nv40Emulator::new(channels.clamp(1, 3), &mechanics)),
         }
     }
 }
