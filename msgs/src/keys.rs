@@ -90,6 +90,17 @@ impl KeyLayout {
         format!("{}/{axis}/{pattern}", self.prefix)
     }
 
+    /// `<prefix>/@controller/<name>/reload`: a put here re-reads a script controller's script
+    /// (motorScriptMotor's `ScriptMotorReload`).
+    pub fn controller_reload(&self, controller: &str) -> String {
+        format!("{}/@controller/{controller}/reload", self.prefix)
+    }
+
+    /// `<prefix>/@controller/*/reload`: every controller's reload key.
+    pub fn every_controller_reload(&self) -> String {
+        self.controller_reload("*")
+    }
+
     /// `<prefix>/<axis>/@hold/<client>`: the liveliness token a client holds a motion by.
     pub fn hold(&self, axis: &str, client: &str) -> String {
         format!("{}/{axis}/@hold/{client}", self.prefix)

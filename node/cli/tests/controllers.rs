@@ -164,6 +164,28 @@ fn vmc_lua_of_motor_script_motor_unchanged() {
 }
 
 #[test]
+fn a_script_reloaded_during_a_move_stops_it_and_runs_and_a_broken_one_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = common::repo_file("node/controllers/tests/scripts/motorScriptMotor/vmc.lua");
+    let script = dir.path().join("vmc.lua");
+    std::fs::copy(original, &script).unwrap();
+    let here = free_local_endpoint().unwrap().trim_start_matches("tcp/").to_string();
+    let text = std::fs::read_to_string(common::repo_file("launch/vmc.toml")).unwrap();
+    let text = text
+        .replace("../node/controllers/tests/scripts/motorScriptMotor/vmc.lua", script.to_str().unwrap())
+        .replace("127.0.0.1:31337", &here);
+    let file = dir.path().join("launch.toml");
+    std::fs::write(&file, text).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let _emulator = zmotor(&["sim-controller", "vmc", "--listen", &here]);
+    let _node = launch_node(&file, &endpoint, dir.path());
+    let args = [endpoint.as_str(), "vmc1", "VMC_MOTOR", script.to_str().unwrap()];
+    let output = environment::python_script("script_reload.py").args(args).output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success() && said.contains("script reload ok"), "{said}");
+}
+
+#[test]
 fn kohzu_sc_by_script_on_a_serial_line() {
     drive_through_loss_and_recovery("kohzu_sc", "launch/kohzu-sc.toml", Reach::Pty("/tmp/zmotor-kohzu"), "kohzu1");
 }

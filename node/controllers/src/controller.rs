@@ -19,7 +19,10 @@
 //! a lane), `handle_timeout`. Outputs: `poll_transmit` (bytes to write on a lane), `poll_event`,
 //! `poll_timeout`.
 
-use crate::protocol::{CommandError, Finding, Frame, Lane, Protocol, Purpose, ReplyEvent, Request, VendorError};
+use crate::protocol::{
+    CommandError, Finding, Frame, Lane, Protocol, ProtocolOptions, Purpose, ReloadError, ReplyEvent, Request,
+    VendorError,
+};
 use crate::scale::{RecordUnits, Scale, ScaleCheck, ScaleMismatch};
 use std::collections::{BTreeMap, VecDeque};
 use std::time::Duration;
@@ -280,6 +283,8 @@ pub struct Controller<P: Protocol> {
     /// A request whose reply did not come in time, sent again once the quiet is over.
     retry: Option<InFlight<P::Step>>,
     received: Vec<u8>,
+    /// Options given again (a script re-read), used once the stops sent for them are out.
+    reload: Option<ProtocolOptions>,
     /// Each channel's motion connection, for a protocol with motion lanes.
     motion_lanes: BTreeMap<usize, MotionLane<P::Step>>,
     next_poll: Option<Instant>,
@@ -302,6 +307,12 @@ pub trait AnyController: Send {
 
     /// A driver command for `channel` (from its axis's record).
     fn command(&mut self, now: Instant, channel: usize, command: &DriverCommand);
+
+    /// New options for the protocol while it runs (a script re-read, motorScriptMotor's
+    /// `ScriptMotorReload`): checked at once (an error changes nothing); then every channel in
+    /// motion is stopped, and the options are used once the stops are sent. Positions are the
+    /// controller's and stay as they are.
+    fn reload(&mut self, now: Instant, options: &ProtocolOptions) -> Result<(), ReloadError>;
 
     /// The connections the runner opens at `ControllerEvent::Connect`, all of them: the main
     /// one first.
@@ -349,6 +360,7 @@ impl<P: Protocol> Controller<P> {
             quiet_until: None,
             retry: None,
             received: Vec::new(),
+            reload: None,
             motion_lanes: BTreeMap::new(),
             next_poll: None,
             fast_polls_left: 0,
@@ -457,6 +469,25 @@ impl<P: Protocol> AnyController for Controller<P> {
         }
         self.queue.push(Transaction { priority, kind, requests: requests.into(), issued: self.seq });
         self.pump();
+    }
+
+    fn reload(&mut self, now: Instant, options: &ProtocolOptions) -> Result<(), ReloadError> {
+        self.advance(now);
+        self.protocol.check_reload(options)?;
+        let moving: Vec<(usize, f64)> = self
+            .config
+            .channels
+            .iter()
+            .filter(|&&c| self.channels[c].moving)
+            .map(|&c| (c, self.channels[c].acceleration))
+            .collect();
+        for (channel, acceleration) in moving {
+            self.command(now, channel, &DriverCommand::Stop { acceleration });
+        }
+        self.reload = Some(options.clone());
+        self.apply_reload_when_stopped();
+        self.pump();
+        Ok(())
     }
 
     fn lanes(&self) -> Vec<Lane> {
@@ -651,6 +682,7 @@ impl<P: Protocol> Controller<P> {
                 if let Some(done) = self.current.take() {
                     self.finished(done);
                 }
+                self.apply_reload_when_stopped();
                 let Some(next) = self.next_transaction() else { return };
                 self.current = Some(next);
                 continue;
@@ -703,6 +735,19 @@ impl<P: Protocol> Controller<P> {
         if !self.queue.iter().any(|t| t.kind == Kind::Stop { channel }) {
             let kind = Kind::Command { channel, motion: true };
             self.queue.push(Transaction { priority: Priority::Motion, kind, requests: commands, issued });
+        }
+    }
+
+    /// New options are used once no stop waits or is under way (the stops a reload sent go
+    /// out as the old options make them), or at once while the link is down.
+    fn apply_reload_when_stopped(&mut self) {
+        let stopping = self.queue.iter().chain(&self.current).any(|t| t.priority == Priority::Stop);
+        let open = matches!(self.link, Link::Initialising { .. } | Link::Up);
+        if stopping && open {
+            return;
+        }
+        if let Some(options) = self.reload.take() {
+            self.protocol.reload(&options);
         }
     }
 

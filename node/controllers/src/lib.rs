@@ -32,8 +32,8 @@ pub use controller::{AnyController, Controller, ControllerConfig, ControllerEven
 #[cfg(feature = "testing")]
 pub use loopback::Loopback;
 pub use protocol::{
-    line_frame, CommandError, Finding, Frame, Lane, Prepared, Protocol, ProtocolOptions, Purpose, ReplyError,
-    ReplyEvent, Request, VendorError,
+    line_frame, CommandError, Finding, Frame, Lane, Prepared, Protocol, ProtocolOptions, Purpose, ReloadError,
+    ReplyError, ReplyEvent, Request, VendorError,
 };
 pub use scale::{ControllerUnit, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource};
 pub use script::{MacroValue, ScriptError, ScriptSettings, ScriptSource};

@@ -174,6 +174,18 @@ pub struct VendorError {
     pub meaning: String,
 }
 
+/// Why a controller's options cannot be given again while it runs.
+#[non_exhaustive]
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum ReloadError {
+    /// The protocol has nothing to reload.
+    #[error("{0} has nothing to reload (only a script controller does)")]
+    Unsupported(&'static str),
+    /// The new script does not load; the old one runs on.
+    #[error("{0}; the running script is kept")]
+    Script(#[from] crate::script::ScriptError),
+}
+
 /// A reply that cannot be understood.
 #[non_exhaustive]
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -266,6 +278,19 @@ pub trait Protocol: Send {
     /// the request as it was queued.
     fn prepare(&mut self, request: Request<Self::Step>) -> Prepared<Self::Step> {
         Prepared { request: Some(request), events: Vec::new() }
+    }
+
+    /// Whether `options`, given again while the controller runs (a script re-read), can be
+    /// used: a protocol that takes nothing new says so; a script that does not load is refused
+    /// with its file and line. Nothing changes yet.
+    fn check_reload(&self, options: &ProtocolOptions) -> Result<(), ReloadError> {
+        let _ = options;
+        Err(ReloadError::Unsupported(self.name()))
+    }
+
+    /// Use `options` (checked by `check_reload`) from the next request on.
+    fn reload(&mut self, options: &ProtocolOptions) {
+        let _ = options;
     }
 
     /// How many of the controller's units one record step of `channel` is, as the protocol

@@ -16,7 +16,8 @@ const TICK: Duration = Duration::from_millis(250);
 /// As st.cmd.Attocube_AMC configures it: `PORT='AMC-1_IP'`, axis 0 closed loop, axis 1 open.
 fn amc() -> ScriptSource {
     let macros = [("PORT", MacroValue::Text("AMC-1_IP".into()))];
-    let mut source = script_source("node/controllers/tests/scripts/motorScriptMotor/Attocube_AMC.lua", "AMC-1", &macros);
+    let mut source =
+        script_source("node/controllers/tests/scripts/motorScriptMotor/Attocube_AMC.lua", "AMC-1", &macros);
     source.axis_macros.insert(0, [("OPEN_LOOP".to_string(), MacroValue::Text("NO".into()))].into());
     source.axis_macros.insert(1, [("OPEN_LOOP".to_string(), MacroValue::Text("YES".into()))].into());
     source
@@ -45,7 +46,10 @@ fn a_poll_is_two_json_rpc_calls_as_the_script_encodes_them() {
     }
     lb.run_for(Duration::from_secs(2));
     let events = lb.take_events();
-    assert!(!events.iter().any(|e| matches!(e, ControllerEvent::Failed { .. } | ControllerEvent::ControllerError(_))), "{events:?}");
+    assert!(
+        !events.iter().any(|e| matches!(e, ControllerEvent::Failed { .. } | ControllerEvent::ControllerError(_))),
+        "{events:?}"
+    );
     assert_eq!(common::last_status(&events, 0).msta & msta::DONE, msta::DONE);
 }
 
@@ -68,7 +72,9 @@ fn an_open_loop_axis_steps_and_counts_its_steps_as_its_position() {
     lb.command(1, &go(300.0, false));
     lb.run_for(Duration::from_secs(2));
     let sent = written_since(&lb, from);
-    let steps = |l: &&String| l.contains(r#""method":"com.attocube.amc.move.setNSteps""#) && l.contains(r#""params":[1,0,300]"#);
+    let steps = |l: &&String| {
+        l.contains(r#""method":"com.attocube.amc.move.setNSteps""#) && l.contains(r#""params":[1,0,300]"#)
+    };
     assert!(sent.iter().any(|l| steps(&l)), "{sent:?}");
     let status = common::last_status(&lb.take_events(), 1);
     assert_eq!(status.position, 300.0, "{status:?}");

@@ -26,8 +26,7 @@ struct Family {
 const KOHZU: Family = Family { script: "launch/scripts/kohzu_sc.lua", model: Model::KohzuSc, macros: &[] };
 const PICOMOTOR: Family =
     Family { script: "launch/scripts/newfocus_8742.lua", model: Model::NewFocus8742, macros: &[] };
-const PIEZO: Family =
-    Family { script: "launch/scripts/piezojena_nv40.lua", model: Model::PiezojenaNv40, macros: &[] };
+const PIEZO: Family = Family { script: "launch/scripts/piezojena_nv40.lua", model: Model::PiezojenaNv40, macros: &[] };
 const MICRONIX: Family = Family { script: "launch/scripts/micronix_mmc.lua", model: Model::MicronixMmc, macros: &[] };
 
 impl Family {
@@ -142,7 +141,11 @@ mod kohzu {
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
         let reads = |l: &str| ["STR", "RDP", "RSY"].iter().any(|q| l.starts_with(&format!("\x02{q}")));
-        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&KOHZU, |l| l.contains("APS"), reads);
+        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
+            &KOHZU,
+            |l| l.contains("APS"),
+            reads,
+        );
     }
 
     proptest! {
@@ -207,7 +210,9 @@ mod micronix {
     fn replies_split_at_every_byte_give_the_same_statuses() {
         // The common script's position set of -77 is refused here (ZRO sets 0 only): the
         // statuses are compared as they are.
-        let statuses = |chunk| common::statuses_of_a_script_on(MICRONIX.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1]);
+        let statuses = |chunk| {
+            common::statuses_of_a_script_on(MICRONIX.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
+        };
         let whole = statuses(usize::MAX);
         assert_eq!(statuses(1), whole);
         assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0), "{:?}", whole[1].last());
@@ -216,7 +221,11 @@ mod micronix {
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
         let reads = |l: &str| ["POS?", "STA?", "MOT?", "HOM?"].iter().any(|q| l.ends_with(&format!("{q}\r")));
-        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&MICRONIX, |l| l.contains("MVA"), reads);
+        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
+            &MICRONIX,
+            |l| l.contains("MVA"),
+            reads,
+        );
     }
 
     proptest! {
@@ -258,12 +267,21 @@ mod picomotor {
     fn a_speed_beyond_the_controller_is_refused_unsent_and_a_refusal_of_its_own_is_in_its_words() {
         let mut lb = PICOMOTOR.up(&[0, 1]);
         let from = lb.written().len();
-        let fast = DriverCommand::Move { position: 10.0, relative: false, min_velocity: 0.0, max_velocity: 5000.0, acceleration: 1e5 };
+        let fast = DriverCommand::Move {
+            position: 10.0,
+            relative: false,
+            min_velocity: 0.0,
+            max_velocity: 5000.0,
+            acceleration: 1e5,
+        };
         lb.command(0, &fast);
         lb.run_for(Duration::from_millis(500));
         let events = lb.take_events();
         let errors = common::controller_errors(&events);
-        assert!(errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the 8742's 1 to 2000")), "{events:?}");
+        assert!(
+            errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the 8742's 1 to 2000")),
+            "{events:?}"
+        );
         assert_ne!(common::last_status(&events, 0).msta & msta::PROBLEM, 0);
         assert!(!written_since(&lb, from).iter().any(|l| l.contains(" PA ")), "nothing sent");
         // A position set while moving: the controller's own refusal, read from its error queue.
@@ -299,7 +317,9 @@ mod picomotor {
     fn replies_split_at_every_byte_give_the_same_statuses() {
         // The common script's speeds are above the 8742's (refused): the statuses are compared
         // as they are.
-        let statuses = |chunk| common::statuses_of_a_script_on(PICOMOTOR.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1]);
+        let statuses = |chunk| {
+            common::statuses_of_a_script_on(PICOMOTOR.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
+        };
         let whole = statuses(usize::MAX);
         assert_eq!(statuses(1), whole);
         assert!(!whole[0].is_empty() && !whole[1].is_empty());
@@ -308,7 +328,11 @@ mod picomotor {
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
         let reads = |l: &str| l.ends_with("TP?\r") || l.ends_with("MD?\r");
-        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&PICOMOTOR, |l| l.contains(" PA "), reads);
+        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
+            &PICOMOTOR,
+            |l| l.contains(" PA "),
+            reads,
+        );
     }
 
     proptest! {
@@ -348,7 +372,10 @@ mod piezojena {
         lb.command(0, &go(150_000.0, false));
         lb.run_for(Duration::from_millis(300));
         let errors = common::controller_errors(&lb.take_events());
-        assert!(errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the stage's 0 to 100 um")), "{errors:?}");
+        assert!(
+            errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the stage's 0 to 100 um")),
+            "{errors:?}"
+        );
         assert!(!written_since(&lb, from).iter().any(|l| l.starts_with("set,")), "nothing sent");
     }
 
@@ -368,7 +395,9 @@ mod piezojena {
 
     #[test]
     fn replies_split_at_every_byte_give_the_same_statuses() {
-        let statuses = |chunk| common::statuses_of_a_script_on(PIEZO.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1]);
+        let statuses = |chunk| {
+            common::statuses_of_a_script_on(PIEZO.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
+        };
         let whole = statuses(usize::MAX);
         assert_eq!(statuses(1), whole);
         assert!(whole[0].iter().any(|s| s.position == 3000.0), "{:?}", whole[0]);
@@ -377,7 +406,11 @@ mod piezojena {
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
         let reads = |l: &str| l.starts_with("rk,") || l.starts_with("stat,") || l == "ERROR\r";
-        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(&PIEZO, |l| l.starts_with("set,"), reads);
+        super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
+            &PIEZO,
+            |l| l.starts_with("set,"),
+            reads,
+        );
     }
 
     proptest! {

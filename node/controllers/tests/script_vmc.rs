@@ -79,7 +79,11 @@ fn a_home_the_script_does_not_define_sends_nothing_and_ends_at_the_next_poll() {
     lb.command(0, &home);
     let done = run_until_done(&mut lb, 0, TICK, Duration::from_secs(2));
     assert_eq!(done.last().map(|s| s.position), Some(0.0));
-    assert!(written_since(&lb, from).iter().all(|l| l.ends_with("?\r\n")), "only polls: {:?}", written_since(&lb, from));
+    assert!(
+        written_since(&lb, from).iter().all(|l| l.ends_with("?\r\n")),
+        "only polls: {:?}",
+        written_since(&lb, from)
+    );
 }
 
 #[test]
@@ -121,4 +125,36 @@ proptest! {
     ) {
         common::no_malformed_frames_on(loopback(Faults::default()), &CHANNELS, common::Start::AsPoweredUp, &commands);
     }
+}
+
+#[test]
+fn a_reload_during_a_move_stops_it_first_then_runs_the_new_script_and_a_broken_one_is_refused() {
+    let mut lb = loopback(Faults::default());
+    bring_up(&mut lb);
+    lb.command(0, &go(30_000.0, false));
+    lb.run_for(Duration::from_millis(500));
+    assert!(lb.link.emulator().axis(1).expect("axis 1").is_moving());
+    // The new script sends the speed only (no BAS, no ACC) before a move.
+    let mut new = vmc();
+    new.text.push_str(
+        "\nfunction sendAccelAndVelocity(minVel, maxVel, accel)\n  asyn.writeread(string.format(\"%d VEL %f\", AXIS + 1, maxVel), PORT)\nend\n",
+    );
+    let broken = ScriptSource { text: "function move(".into(), ..vmc() };
+    let refused = lb
+        .controller
+        .reload(lb.now(), &zmotor_controllers::ProtocolOptions { script: Some(broken), ..Default::default() });
+    assert!(refused.as_ref().is_err_and(|e| e.to_string().contains("vmc.lua:1:")), "{refused:?}");
+    assert!(lb.link.emulator().axis(1).expect("axis 1").is_moving(), "a refused reload stops nothing");
+    let from = lb.written().len();
+    let options = zmotor_controllers::ProtocolOptions { script: Some(new), ..Default::default() };
+    lb.controller.reload(lb.now(), &options).expect("the new script loads");
+    let stopped = *run_until_done(&mut lb, 0, TICK, Duration::from_secs(5)).last().expect("done");
+    assert!(stopped.position < 30_000.0, "stopped on the way: {stopped:?}");
+    assert_eq!(written_since(&lb, from)[0], "1 AB\r\n", "the stop goes first, by the old script");
+    let from = lb.written().len();
+    lb.command(0, &go(0.0, false));
+    let back = *run_until_done(&mut lb, 0, TICK, Duration::from_secs(10)).last().expect("done");
+    assert_eq!(back.position, 0.0);
+    let motion: Vec<String> = written_since(&lb, from).into_iter().filter(|l| !l.ends_with("?\r\n")).collect();
+    assert_eq!(motion[..2], ["1 VEL 20000.000000\r\n", "1 MV 0\r\n"], "the new script's move");
 }

@@ -475,11 +475,12 @@ impl<R: Clone> AxisService<R> {
         }
     }
 
-    /// The start of a shutdown: a moving axis is told to stop, as a STOP write would.
+    /// A shutdown, or a reload of its controller's script: a moving axis is told to stop, as a STOP
+    /// write would.
     pub fn stop_motion(&mut self, now: Instant) {
         if self.axis.fields().dmov == 0 {
             if let Err(e) = self.axis.write(now, Field::STOP, &Value::Int(1)) {
-                tracing::warn!(axis = %self.name, "stop at shutdown refused: {e}");
+                tracing::warn!(axis = %self.name, "stop refused: {e}");
             }
             self.collect();
         }

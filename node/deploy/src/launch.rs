@@ -4,8 +4,7 @@
 use crate::db::{import_db, Macros};
 use crate::deployment::{Deployment, NodeContents, ValueSpec};
 use crate::file::{
-    ScriptFiles,
-    read_text, AxisSection, CalcSection, ControllerSection, LaunchError, LaunchFile, Origin, ValueSection,
+    read_text, AxisSection, CalcSection, ControllerSection, LaunchError, LaunchFile, Origin, ScriptFiles, ValueSection,
 };
 use crate::front_ends::{CaConfig, WebConfig};
 use crate::locate::{self, line_of, Seg};
@@ -99,7 +98,11 @@ impl Launch {
                 Some(script) => {
                     let files = ScriptFiles::read(&dir.join(script)).map_err(|message| {
                         let path = vec![Seg::Key("controller".into()), Seg::Index(index), Seg::Key("script".into())];
-                        self.error(Problem::at(source, path, format!("controller '{}': script: {message}", controller.name)))
+                        self.error(Problem::at(
+                            source,
+                            path,
+                            format!("controller '{}': script: {message}", controller.name),
+                        ))
                     })?;
                     Some(files)
                 }

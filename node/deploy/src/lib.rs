@@ -23,8 +23,8 @@ pub use deployment::{Deployment, NodeContents, ValueSpec};
 pub use file::{
     AutosaveSection, AxisSection, CalcInput, CalcOption, CalcSection, ChannelAccessSection, ControllerSection,
     DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, JointSection,
-    LaunchError, LaunchFile, Origin, ParityChoice, Ros2Section, ScriptFiles, SerialSection, UnknownChoice, ValueSection, WebSection,
-    MAX_READBACK_RATE,
+    LaunchError, LaunchFile, Origin, ParityChoice, Ros2Section, ScriptFiles, SerialSection, UnknownChoice,
+    ValueSection, WebSection, MAX_READBACK_RATE,
 };
 pub use front_ends::{CaConfig, JointConfig, Ros2Config, Ros2ConfigError, WebConfig};
 pub use launch::Launch;

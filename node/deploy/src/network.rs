@@ -268,7 +268,13 @@ fn access_control(layout: &KeyLayout, rules: &[AccessRule]) -> serde_json::Value
         "declare_liveliness_subscriber",
         "liveliness_query",
     ];
-    let every_key = serde_json::json!(["**", layout.every_write(), layout.every_hold(), layout.driver_cmd("*")]);
+    let every_key = serde_json::json!([
+        "**",
+        layout.every_write(),
+        layout.every_hold(),
+        layout.driver_cmd("*"),
+        layout.every_controller_reload()
+    ]);
     let writable = |class: WriteClass| -> Vec<String> {
         Field::all()
             .filter(|f| f.write_class() == Some(class))
@@ -277,6 +283,7 @@ fn access_control(layout: &KeyLayout, rules: &[AccessRule]) -> serde_json::Value
     };
     let mut configure = writable(WriteClass::Configure);
     configure.push(keys::sim_key("*", "*"));
+    configure.push(layout.every_controller_reload());
     let rule = |id: &str, flow: &str, messages: &[&str], key_exprs: serde_json::Value| serde_json::json!({ "id": id, "permission": "allow", "flows": [flow], "messages": messages, "key_exprs": key_exprs });
     let zenoh_rules = [
         rule("see", "egress", &EVERY_MESSAGE, every_key.clone()),

@@ -2,9 +2,8 @@
 //! spec; and the wiring between them, checked.
 
 use crate::file::{
-    DEFAULT_IDLE_POLL, DEFAULT_MOVING_POLL,
     AxisSection, CalcInput, CalcOption, CalcSection, ControllerSection, DriverKind, FlowControlChoice, InputLinkMode,
-    JogHoldChoice, Origin, ParityChoice, MAX_READBACK_RATE,
+    JogHoldChoice, Origin, ParityChoice, DEFAULT_IDLE_POLL, DEFAULT_MOVING_POLL, MAX_READBACK_RATE,
 };
 use crate::problem::Problem;
 use std::collections::BTreeMap;
@@ -203,7 +202,8 @@ impl ControllerSection {
                         toml::Value::Float(n) => MacroValue::Number(*n),
                         toml::Value::Boolean(b) => MacroValue::Boolean(*b),
                         other => {
-                            let why = format!("{name} is a {}: a macro is a string, a number or a boolean", other.type_str());
+                            let why =
+                                format!("{name} is a {}: a macro is a string, a number or a boolean", other.type_str());
                             return Err((key, why));
                         }
                     };
@@ -214,7 +214,10 @@ impl ControllerSection {
         let mut axis_macros = BTreeMap::new();
         for (channel, table) in &self.axis_macros {
             let number = channel.parse::<usize>().map_err(|_| {
-                ("axis_macros", format!("'{channel}' is not a channel number: write {{ 0 = {{ OPEN_LOOP = \"NO\" }} }}"))
+                (
+                    "axis_macros",
+                    format!("'{channel}' is not a channel number: write {{ 0 = {{ OPEN_LOOP = \"NO\" }} }}"),
+                )
             })?;
             protocol.check_channel(number).map_err(|e| ("axis_macros", e.to_string()))?;
             axis_macros.insert(number, macros(table, "axis_macros")?);

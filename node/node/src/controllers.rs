@@ -11,11 +11,12 @@ use std::task::Poll;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
-use zmotor_controllers::{AnyController, ControllerEvent, Lane};
+use zmotor_controllers::{AnyController, ControllerEvent, Lane, ProtocolOptions, ScriptSource};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_controllers::{ControllerUnit, Finding, Scale, ScaleCheck, VendorError};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
+use zmotor_deploy::ScriptFiles;
 use zmotor_msgs::DriverCommand;
 
 /// Longest wait for a TCP connection or a serial port to open.
@@ -34,6 +35,9 @@ pub(crate) trait ControllerAxes: Send {
     fn status(&mut self, channel: usize, status: DeviceStatus, motions: u64);
     /// A controller error, or a command not sent, for `channel` (None: every channel).
     fn message(&mut self, channel: Option<usize>, message: &str);
+    /// Every axis in motion stops, as its record's STOP stops it (a record whose motion the
+    /// controller alone stopped would retry to reach its target).
+    fn stop_motion(&mut self);
 }
 
 /// What reaches a controller's runner.
@@ -42,6 +46,8 @@ pub(crate) enum ToController {
     Command { channel: usize, command: DriverCommand },
     /// The axes exist: statuses and messages go to them from now on.
     Attach(Box<dyn ControllerAxes>),
+    /// Read the controller's script again (its reload key was written).
+    Reload,
 }
 
 /// How an axis reaches its controller.
@@ -64,6 +70,8 @@ pub(crate) struct RunningController {
     /// The statuses of its channels once it is up, or none if it could not be reached.
     pub(crate) first: oneshot::Receiver<BTreeMap<usize, DeviceStatus>>,
     pub(crate) task: tokio::task::JoinHandle<()>,
+    /// It runs a script, which its reload key re-reads.
+    pub(crate) scripted: bool,
 }
 
 /// Start the runner of one controller; it ends when `stopped` turns true.
@@ -73,11 +81,13 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
     let origin = tokio::time::Instant::now();
     let controller = spec.protocol.controller(&spec.options, spec.config.clone(), Instant::ZERO);
     let name = spec.name.clone();
+    let scripted = spec.options.script.is_some();
     let mut runner = Runner {
         name: spec.name,
         transport: spec.transport,
         lanes: controller.lanes(),
         controller,
+        options: spec.options,
         origin,
         readers: Vec::new(),
         writers: Vec::new(),
@@ -92,13 +102,15 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         repeats: Repeats::default(),
     };
     let task = tokio::spawn(async move { runner.run(commands, stopped).await });
-    RunningController { name, sender, first, task }
+    RunningController { name, sender, first, task, scripted }
 }
 
 struct Runner {
     name: String,
     transport: Transport,
     controller: Box<dyn AnyController>,
+    /// What its protocol was given (a script's files are read again from its path).
+    options: ProtocolOptions,
     origin: tokio::time::Instant,
     /// The controller's lanes; the connections below are theirs, in the same order.
     lanes: Vec<Lane>,
@@ -183,6 +195,7 @@ impl Runner {
                         }
                         self.axes = Some(axes);
                     }
+                    ToController::Reload => self.reload(),
                 },
                 (lane, read) = read_any(&mut self.readers, &mut buffer) => match read {
                     Ok(n) if n > 0 => self.controller.handle_input(self.now(), self.lanes[lane], &buffer[..n]),
@@ -338,6 +351,30 @@ impl Runner {
         }
         if let Some(axes) = &mut self.axes {
             axes.message(channel, &format!("{}: {message}", self.name));
+        }
+    }
+
+    /// The script read again from its file (and the modules beside it), used once every axis
+    /// in motion is stopped; a script that does not read or load changes nothing.
+    fn reload(&mut self) {
+        let Some(running) = self.options.script.clone() else { return };
+        let read = ScriptFiles::read(std::path::Path::new(&running.path));
+        let outcome = read.map_err(|e| format!("cannot read the script again: {e}")).and_then(|files| {
+            let script = ScriptSource { text: files.text, modules: files.modules, ..running };
+            let options = ProtocolOptions { script: Some(script), ..self.options.clone() };
+            self.controller.reload(self.now(), &options).map_err(|e| e.to_string())?;
+            if let Some(axes) = &mut self.axes {
+                axes.stop_motion();
+            }
+            self.options = options;
+            Ok(())
+        });
+        match outcome {
+            Ok(()) => {
+                let path = self.options.script.as_ref().map_or("", |s| s.path.as_str());
+                tracing::info!(controller = %self.name, "{path} reloaded; axes in motion are stopped first");
+            }
+            Err(e) => self.tell(None, &format!("reload refused: {e}"), tracing::Level::WARN),
         }
     }
 

@@ -25,7 +25,8 @@ pub(crate) enum AxisInput {
     LinkUpdate(InputLink, f64),
     /// The liveliness token a held motion depends on went.
     HoldReleased(String),
-    /// The node is shutting down: a moving axis stops.
+    /// The node is shutting down, or the axis's controller reloads its script: a moving axis
+    /// stops.
     StopMotion,
 }
 

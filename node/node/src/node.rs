@@ -71,6 +71,8 @@ pub struct Node {
     stop_controllers: tokio::sync::watch::Sender<bool>,
     _router: Router,
     _values: Vec<ValueHolder>,
+    /// The reload keys of the script controllers.
+    _reloads: Vec<zenoh::pubsub::Subscriber<()>>,
     followers: Arc<LocalFollowers>,
 }
 
@@ -166,6 +168,18 @@ impl Node {
             let axes = on_controllers.remove(&controller.name).unwrap_or_default();
             let _ = controller.sender.send(ToController::Attach(Box::new(AxesOfController(axes))));
         }
+        let mut reloads = Vec::new();
+        for controller in running.iter().filter(|r| r.scripted) {
+            let sender = controller.sender.clone();
+            let key = layout.controller_reload(&controller.name);
+            let subscriber = session
+                .declare_subscriber(key)
+                .callback(move |_| {
+                    let _ = sender.send(ToController::Reload);
+                })
+                .await?;
+            reloads.push(subscriber);
+        }
         let controller_tasks = running.into_iter().map(|r| r.task).collect();
         let router = Router::declare(&session, &layout, routes, &side.writer).await?;
         // The axes answer as soon as the router exists; their liveliness tokens follow.
@@ -193,6 +207,7 @@ impl Node {
             stop_controllers,
             _router: router,
             _values: holders,
+            _reloads: reloads,
             followers: side.followers.clone(),
         })
     }
@@ -248,6 +263,12 @@ impl ControllerAxes for AxesOfController {
     fn message(&mut self, channel: Option<usize>, message: &str) {
         for (_, axis) in self.0.iter().filter(|(c, _)| channel.is_none_or(|channel| *c == channel)) {
             axis.deliver(AxisInput::ControllerMessage(message.to_string()));
+        }
+    }
+
+    fn stop_motion(&mut self) {
+        for (_, axis) in &self.0 {
+            axis.deliver(AxisInput::StopMotion);
         }
     }
 }

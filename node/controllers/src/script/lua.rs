@@ -5,11 +5,9 @@
 //! instructions between two exchanges.
 
 use super::{MacroValue, ScriptError, ScriptSource};
-use mlua::{
-    HookTriggers, Lua, LuaOptions, MultiValue, StdLib, Table, Thread, Value, Variadic, VmState,
-};
-use std::collections::HashMap;
 use mlua::thread::ThreadStatus;
+use mlua::{HookTriggers, Lua, LuaOptions, MultiValue, StdLib, Table, Thread, Value, Variadic, VmState};
+use std::collections::HashMap;
 use zmotor_msgs::bits::msta;
 
 /// Instructions a script may run between two exchanges with the controller: a poll parsing
@@ -293,7 +291,9 @@ impl AxisLua {
             let ours = matches!(values.next(), Some(Value::Table(t)) if t == self.token);
             if !ours {
                 self.call = None;
-                return Err("the script yielded outside asyn.read/write/writeread: coroutine.yield is the driver's".into());
+                return Err(
+                    "the script yielded outside asyn.read/write/writeread: coroutine.yield is the driver's".into()
+                );
             }
             let kind = text(values.next());
             let data = bytes_of(values.next());

@@ -23,8 +23,8 @@
 mod lua;
 
 use crate::protocol::{
-    line_frame, CommandError, Frame, Prepared, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
-    VendorError,
+    line_frame, CommandError, Frame, Prepared, Protocol, ProtocolOptions, Purpose, ReloadError, ReplyError, ReplyEvent,
+    Request, VendorError,
 };
 use crate::scale::Scale;
 use lua::{AxisLua, Ran};
@@ -183,7 +183,9 @@ impl Call {
             Call::Move { position, relative, min, max, acceleration } => {
                 axis.start(name, (position.get(), relative, min.get(), max.get(), acceleration.get()))
             }
-            Call::MoveVelocity { min, max, acceleration } => axis.start(name, (min.get(), max.get(), acceleration.get())),
+            Call::MoveVelocity { min, max, acceleration } => {
+                axis.start(name, (min.get(), max.get(), acceleration.get()))
+            }
             Call::Home { min, max, acceleration, forward } => {
                 axis.start(name, (min.get(), max.get(), acceleration.get(), forward))
             }
@@ -275,8 +277,11 @@ impl Script {
                 self.current = None;
                 tracing::error!(channel, "{error}");
                 let error = VendorError { channel: Some(channel), code: NAME.into(), meaning: error.to_string() };
-                let event =
-                    if current.call == Call::Poll { ReplyEvent::ControllerError(error) } else { ReplyEvent::Refused(error) };
+                let event = if current.call == Call::Poll {
+                    ReplyEvent::ControllerError(error)
+                } else {
+                    ReplyEvent::Refused(error)
+                };
                 return (None, vec![event]);
             }
         };
@@ -385,6 +390,19 @@ impl Protocol for Script {
         };
         let (request, events) = self.carry_on(current, ran);
         Prepared { request, events }
+    }
+
+    fn check_reload(&self, options: &ProtocolOptions) -> Result<(), ReloadError> {
+        let source = options.script.as_ref().ok_or(ScriptError::Missing)?;
+        ScriptSettings::of(source)?;
+        Ok(())
+    }
+
+    fn reload(&mut self, options: &ProtocolOptions) {
+        // Each axis's state is made again, from the new script, at its next call.
+        self.source = options.script.clone();
+        self.axes.clear();
+        self.current = None;
     }
 
     fn scale(&self, _channel: usize) -> Scale {

@@ -100,12 +100,11 @@ fn a_move_passes_the_record_s_numbers_as_motor_script_motor_does() {
 #[test]
 fn a_function_the_script_lacks_succeeds_without_a_word() {
     let mut script = script(POLLING);
-    let prepared = start(&mut script, 0, &DriverCommand::Home {
-        forward: true,
-        min_velocity: 1.0,
-        max_velocity: 2.0,
-        acceleration: 3.0,
-    });
+    let prepared = start(
+        &mut script,
+        0,
+        &DriverCommand::Home { forward: true, min_velocity: 1.0, max_velocity: 2.0, acceleration: 3.0 },
+    );
     assert!(prepared.request.is_none() && prepared.events.is_empty());
 }
 
@@ -119,13 +118,8 @@ fn a_write_that_ends_a_call_goes_unanswered() {
 #[test]
 fn a_script_error_refuses_the_command_naming_the_file_and_line() {
     let mut script = script("function move(p)\n  local x = nil\n  return x.field\nend");
-    let command = DriverCommand::Move {
-        position: 1.0,
-        relative: false,
-        min_velocity: 1.0,
-        max_velocity: 2.0,
-        acceleration: 3.0,
-    };
+    let command =
+        DriverCommand::Move { position: 1.0, relative: false, min_velocity: 1.0, max_velocity: 2.0, acceleration: 3.0 };
     let prepared = start(&mut script, 0, &command);
     assert!(prepared.request.is_none());
     let [ReplyEvent::Refused(error)] = prepared.events.as_slice() else { panic!("{:?}", prepared.events) };
@@ -148,7 +142,11 @@ fn a_script_that_never_yields_is_stopped_by_its_instruction_budget() {
     let mut script = script("function poll()\n  while true do end\nend\nfunction stop() asyn.write('ST') end");
     let prepared = start(&mut script, 0, &DriverCommand::Poll);
     let [ReplyEvent::ControllerError(error)] = prepared.events.as_slice() else { panic!("{:?}", prepared.events) };
-    assert!(error.meaning.contains("scripts/test.lua:2:") && error.meaning.contains("instructions"), "{}", error.meaning);
+    assert!(
+        error.meaning.contains("scripts/test.lua:2:") && error.meaning.contains("instructions"),
+        "{}",
+        error.meaning
+    );
     let stop = start(&mut script, 0, &DriverCommand::Stop { acceleration: 1.0 });
     assert_eq!(stop.request.map(|r| r.bytes), Some(b"ST".to_vec()), "the axis still takes calls");
 }
@@ -185,11 +183,17 @@ fn driver_axis_and_macros_are_globals_and_asyn_is_also_required() {
 #[test]
 fn a_script_that_does_not_load_is_refused_with_its_line() {
     let error = ScriptSettings::of(&source("x = 1\nfunction move(\n")).expect_err("a syntax error");
-    assert!(matches!(&error, ScriptError::Load { script, message } if script == "scripts/test.lua" && message.contains("scripts/test.lua:3:")), "{error}");
+    assert!(
+        matches!(&error, ScriptError::Load { script, message } if script == "scripts/test.lua" && message.contains("scripts/test.lua:3:")),
+        "{error}"
+    );
     let error = ScriptSettings::of(&source("local t = nil\nt.x = 1")).expect_err("an error at the top level");
     assert!(error.to_string().contains("scripts/test.lua:2:"), "{error}");
     let missing = Script::new(&ProtocolOptions::default()).prepare_poll();
-    assert!(matches!(missing.as_slice(), [ReplyEvent::ControllerError(e)] if e.meaning.contains("no script")), "{missing:?}");
+    assert!(
+        matches!(missing.as_slice(), [ReplyEvent::ControllerError(e)] if e.meaning.contains("no script")),
+        "{missing:?}"
+    );
 }
 
 #[test]

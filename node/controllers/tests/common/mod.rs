@@ -6,8 +6,8 @@ pub(crate) mod golden;
 use proptest::prelude::*;
 use std::time::Duration;
 use zmotor_controllers::{
-    ControllerConfig, ControllerEvent, Loopback, MacroValue, ProtocolKind, ProtocolOptions, ScriptSettings, ScriptSource,
-    VendorError,
+    ControllerConfig, ControllerEvent, Loopback, MacroValue, ProtocolKind, ProtocolOptions, ScriptSettings,
+    ScriptSource, VendorError,
 };
 use zmotor_core::{DeviceStatus, Instant};
 use zmotor_emulators::Faults;
@@ -310,7 +310,10 @@ pub(crate) fn statuses_of_a_script_on(mut lb: Loopback, channels: &[usize]) -> [
 /// Replies split at every byte give the statuses whole replies give: the script's first
 /// channel ends at -77 (set), the second stopped beyond 0.
 pub(crate) fn replies_in_pieces_give_the_same_statuses(kind: ProtocolKind, channels: &[usize]) {
-    replies_in_pieces_give_the_same_statuses_on(|chunk| loopback(kind, channels, Faults::default()).with_chunks(chunk), channels);
+    replies_in_pieces_give_the_same_statuses_on(
+        |chunk| loopback(kind, channels, Faults::default()).with_chunks(chunk),
+        channels,
+    );
 }
 
 /// `replies_in_pieces_give_the_same_statuses` on the loopbacks `make` makes, with replies in
