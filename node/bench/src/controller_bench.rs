@@ -37,105 +37,256 @@ struct Ready {
     channel: usize,
     /// Where moves start, and the farthest they go, in the axis's units.
     targets: [f64; 2],
+    /// For a family a script drives: its script, its emulator, whether it homes.
+    script: Option<ReadyScript>,
 }
 
-const READY: [Ready; 12] = [
-    Ready {
-        kind: ProtocolKind::AcsMcb4b,
-        launch: include_str!("../../../launch/acs-mcb4b.toml"),
-        reach: Reach::Tcp("127.0.0.1:4001"),
-        axis: "acs1",
-        channel: 0,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::NewportSmc100,
-        launch: include_str!("../../../launch/newport-smc100.toml"),
-        reach: Reach::Pty("/tmp/zmotor-smc100"),
-        axis: "smc1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::PiGcs2,
-        launch: include_str!("../../../launch/pi-gcs2.toml"),
-        reach: Reach::Tcp("127.0.0.1:50000"),
-        axis: "pi1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::SmaractMcs2,
-        launch: include_str!("../../../launch/smaract-mcs2.toml"),
-        reach: Reach::Tcp("127.0.0.1:55551"),
-        axis: "mcs0",
-        channel: 0,
-        targets: [10.0, 30.0],
-    },
-    Ready {
-        kind: ProtocolKind::Phytron,
-        launch: include_str!("../../../launch/phytron.toml"),
-        reach: Reach::Tcp("127.0.0.1:22222"),
-        axis: "phy11",
-        channel: 11,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::Pmac,
-        launch: include_str!("../../../launch/pmac.toml"),
-        reach: Reach::Tcp("127.0.0.1:1025"),
-        axis: "pmac1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::NewportEsp300,
-        launch: include_str!("../../../launch/newport-esp300.toml"),
-        reach: Reach::Pty("/tmp/zmotor-esp300"),
-        axis: "esp1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::Galil,
-        launch: include_str!("../../../launch/galil.toml"),
-        reach: Reach::Tcp("127.0.0.1:2323"),
-        axis: "galA",
-        channel: 0,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::McLennanPm304,
-        launch: include_str!("../../../launch/mclennan-pm304.toml"),
-        reach: Reach::Pty("/tmp/zmotor-pm304"),
-        axis: "pm1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::NewportXps,
-        launch: include_str!("../../../launch/newport-xps.toml"),
-        reach: Reach::Tcp("127.0.0.1:5001"),
-        axis: "xps1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::ImsMdrive,
-        launch: include_str!("../../../launch/ims-mdrive.toml"),
-        reach: Reach::Pty("/tmp/zmotor-mdrive"),
-        axis: "mdrive1",
-        channel: 1,
-        targets: [1.0, 1.5],
-    },
-    Ready {
-        kind: ProtocolKind::OmsMaxnet,
-        launch: include_str!("../../../launch/oms-maxnet.toml"),
-        reach: Reach::Tcp("127.0.0.1:2023"),
-        axis: "omsX",
-        channel: 0,
-        targets: [1.0, 1.5],
-    },
+/// The script of a script-driven family's ready launch file.
+struct ReadyScript {
+    /// The script's path as the launch file names it.
+    named: &'static str,
+    text: &'static str,
+    model: Model,
+    /// The emulator's number for the script's channel c is c + this (AXIS 0 is axis 1).
+    first_axis: usize,
+    homes: bool,
+}
+
+/// A native protocol's ready launch file (no script).
+const fn native(
+    kind: ProtocolKind,
+    launch: &'static str,
+    reach: Reach,
+    axis: &'static str,
+    channel: usize,
+    targets: [f64; 2],
+) -> Ready {
+    Ready { kind, launch, reach, axis, channel, targets, script: None }
+}
+
+/// A script-driven family's ready launch file, its axis on the script's channel 0.
+const fn scripted(
+    launch: &'static str,
+    reach: Reach,
+    axis: &'static str,
+    targets: [f64; 2],
+    script: ReadyScript,
+) -> Ready {
+    Ready { kind: ProtocolKind::Script, launch, reach, axis, channel: 0, targets, script: Some(script) }
+}
+
+impl Ready {
+    /// The name its figures go by.
+    fn name(&self) -> &'static str {
+        match &self.script {
+            Some(script) => script.model.protocol(),
+            None => self.kind.name(),
+        }
+    }
+
+    /// The emulated model of its controller.
+    fn model(&self) -> Result<Model, Error> {
+        match &self.script {
+            Some(script) => Ok(script.model),
+            None => {
+                Model::speaking(self.kind.name()).ok_or_else(|| format!("{} has no emulator", self.kind.name()).into())
+            }
+        }
+    }
+
+    /// The emulator's number of the launch file's channel `channel`.
+    fn emulated(&self, channel: usize) -> usize {
+        channel + self.script.as_ref().map_or(0, |s| s.first_axis)
+    }
+
+    /// Its launch file in `dir`, the controller reached at `here` instead of where the file
+    /// names it, its script (if any) beside it.
+    fn write_launch(&self, dir: &std::path::Path, named: &str, here: &str) -> Result<std::path::PathBuf, Error> {
+        let mut text = if named.is_empty() { self.launch.to_string() } else { self.launch.replace(named, here) };
+        if let Some(script) = &self.script {
+            let file = script.named.rsplit('/').next().unwrap_or(script.named);
+            std::fs::create_dir_all(dir.join("scripts"))?;
+            std::fs::write(dir.join("scripts").join(file), script.text)?;
+            text = text.replace(script.named, &format!("scripts/{file}"));
+        }
+        let path = dir.join("launch.toml");
+        std::fs::write(&path, text)?;
+        Ok(path)
+    }
+
+    /// What its protocol is given: a script's, as its launch file configures it.
+    fn options(&self, dir: &std::path::Path) -> Result<ProtocolOptions, Error> {
+        if self.script.is_none() {
+            return Ok(ProtocolOptions::default());
+        }
+        let file = self.write_launch(dir, "", "")?;
+        let deployment = zmotor_deploy::Launch::load(&file)?.deployment(None)?;
+        Ok(deployment.contents.controllers[0].options.clone())
+    }
+}
+
+const READY: [Ready; 17] = [
+    native(
+        ProtocolKind::AcsMcb4b,
+        include_str!("../../../launch/acs-mcb4b.toml"),
+        Reach::Tcp("127.0.0.1:4001"),
+        "acs1",
+        0,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::NewportSmc100,
+        include_str!("../../../launch/newport-smc100.toml"),
+        Reach::Pty("/tmp/zmotor-smc100"),
+        "smc1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::PiGcs2,
+        include_str!("../../../launch/pi-gcs2.toml"),
+        Reach::Tcp("127.0.0.1:50000"),
+        "pi1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::SmaractMcs2,
+        include_str!("../../../launch/smaract-mcs2.toml"),
+        Reach::Tcp("127.0.0.1:55551"),
+        "mcs0",
+        0,
+        [10.0, 30.0],
+    ),
+    native(
+        ProtocolKind::Phytron,
+        include_str!("../../../launch/phytron.toml"),
+        Reach::Tcp("127.0.0.1:22222"),
+        "phy11",
+        11,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::Pmac,
+        include_str!("../../../launch/pmac.toml"),
+        Reach::Tcp("127.0.0.1:1025"),
+        "pmac1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::NewportEsp300,
+        include_str!("../../../launch/newport-esp300.toml"),
+        Reach::Pty("/tmp/zmotor-esp300"),
+        "esp1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::Galil,
+        include_str!("../../../launch/galil.toml"),
+        Reach::Tcp("127.0.0.1:2323"),
+        "galA",
+        0,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::McLennanPm304,
+        include_str!("../../../launch/mclennan-pm304.toml"),
+        Reach::Pty("/tmp/zmotor-pm304"),
+        "pm1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::NewportXps,
+        include_str!("../../../launch/newport-xps.toml"),
+        Reach::Tcp("127.0.0.1:5001"),
+        "xps1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::ImsMdrive,
+        include_str!("../../../launch/ims-mdrive.toml"),
+        Reach::Pty("/tmp/zmotor-mdrive"),
+        "mdrive1",
+        1,
+        [1.0, 1.5],
+    ),
+    native(
+        ProtocolKind::OmsMaxnet,
+        include_str!("../../../launch/oms-maxnet.toml"),
+        Reach::Tcp("127.0.0.1:2023"),
+        "omsX",
+        0,
+        [1.0, 1.5],
+    ),
+    scripted(
+        include_str!("../../../launch/kohzu-sc.toml"),
+        Reach::Pty("/tmp/zmotor-kohzu"),
+        "kohzu1",
+        [1.0, 1.5],
+        ReadyScript {
+            named: "scripts/kohzu_sc.lua",
+            text: include_str!("../../../launch/scripts/kohzu_sc.lua"),
+            model: Model::KohzuSc,
+            first_axis: 1,
+            homes: true,
+        },
+    ),
+    scripted(
+        include_str!("../../../launch/micronix-mmc.toml"),
+        Reach::Pty("/tmp/zmotor-mmc"),
+        "mmc1",
+        [10.0, 20.0],
+        ReadyScript {
+            named: "scripts/micronix_mmc.lua",
+            text: include_str!("../../../launch/scripts/micronix_mmc.lua"),
+            model: Model::MicronixMmc,
+            first_axis: 1,
+            homes: true,
+        },
+    ),
+    scripted(
+        include_str!("../../../launch/newfocus-8742.toml"),
+        Reach::Tcp("127.0.0.1:2323"),
+        "pico1",
+        [10.0, 20.0],
+        ReadyScript {
+            named: "scripts/newfocus_8742.lua",
+            text: include_str!("../../../launch/scripts/newfocus_8742.lua"),
+            model: Model::NewFocus8742,
+            first_axis: 1,
+            homes: false,
+        },
+    ),
+    scripted(
+        include_str!("../../../launch/piezojena-nv40.toml"),
+        Reach::Pty("/tmp/zmotor-nv40"),
+        "piezo0",
+        [10.0, 20.0],
+        ReadyScript {
+            named: "scripts/piezojena_nv40.lua",
+            text: include_str!("../../../launch/scripts/piezojena_nv40.lua"),
+            model: Model::PiezojenaNv40,
+            first_axis: 0,
+            homes: false,
+        },
+    ),
+    scripted(
+        include_str!("../../../launch/vmc.toml"),
+        Reach::Tcp("127.0.0.1:31337"),
+        "vmc1",
+        [1.0, 1.5],
+        ReadyScript {
+            named: "../node/controllers/tests/scripts/motorScriptMotor/vmc.lua",
+            text: include_str!("../../controllers/tests/scripts/motorScriptMotor/vmc.lua"),
+            model: Model::Vmc,
+            first_axis: 1,
+            homes: false,
+        },
+    ),
 ];
 
 /// What one protocol measured.
@@ -156,17 +307,18 @@ pub(crate) async fn run(programs: &Programs, window: f64, moves: usize) -> Resul
     let mut figures = Vec::new();
     for ready in &READY {
         let measured = measure(programs, ready, window, moves).await;
-        figures.push(measured.map_err(|e| format!("{}: {e}", ready.kind.name()))?);
+        figures.push(measured.map_err(|e| format!("{}: {e}", ready.name()))?);
     }
     Ok(figures)
 }
 
 async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) -> Result<ProtocolFigures, Error> {
     let kind = ready.kind;
-    let many = up_to_eight_channels(kind);
-    let model = model(kind)?;
-    let channels = many.iter().max().map_or(1, |c| c + 1);
+    let many = up_to_eight_channels(ready);
+    let model = ready.model()?;
+    let channels = many.iter().max().map_or(1, |c| ready.emulated(*c) + 1);
     let dir = tempfile::tempdir_in(&programs.dir)?;
+    let options = ready.options(dir.path())?;
     // Over the transport its ready launch file uses: TCP, or the serial line at its speed.
     let (emulated, transport) = match ready.reach {
         Reach::Tcp(_) => {
@@ -193,17 +345,17 @@ async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) 
         }
     };
     let window = Duration::from_secs_f64(window);
-    let mut one = Driven::connect(kind, &transport, &many[..1]).await?;
+    let mut one = Driven::connect(kind, &options, &transport, &many[..1]).await?;
     let (round_trips, elapsed) = one.refresh_for(many[0], window).await?;
     let poll_one = one.poll_time().await?;
     drop(one);
-    let mut all = Driven::connect(kind, &transport, &many).await?;
+    let mut all = Driven::connect(kind, &options, &transport, &many).await?;
     let poll_many = (many.len(), all.poll_time().await?);
     drop(all);
     drop(emulated);
     let (end_to_done, moving_poll) = end_of_motion_to_done(programs, ready, moves).await?;
     Ok(ProtocolFigures {
-        name: kind.name(),
+        name: ready.name(),
         line: match transport {
             Transport::Serial(settings) => format!("serial {} baud", settings.baud),
             Transport::Tcp { .. } => "tcp".into(),
@@ -216,16 +368,13 @@ async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) 
     })
 }
 
-/// The emulated model of a protocol's controllers.
-fn model(kind: ProtocolKind) -> Result<Model, Error> {
-    Model::speaking(kind.name()).ok_or_else(|| format!("{} has no emulator", kind.name()).into())
-}
-
-/// The first eight channels the kind numbers and its emulator has (fewer if it has fewer).
-fn up_to_eight_channels(kind: ProtocolKind) -> Vec<usize> {
-    let Ok(model) = model(kind) else { return Vec::new() };
+/// The first eight channels the ready file's protocol numbers and its emulator has (fewer if
+/// it has fewer).
+fn up_to_eight_channels(ready: &Ready) -> Vec<usize> {
+    let Ok(model) = ready.model() else { return Vec::new() };
     let mut probe = model.emulator(100);
-    (0..100).filter(|&c| kind.check_channel(c).is_ok() && probe.axis(c).is_some()).take(8).collect()
+    let numbered = |c: &usize| ready.kind.check_channel(*c).is_ok();
+    (0..100).filter(numbered).filter(|&c| probe.axis(ready.emulated(c)).is_some()).take(8).collect()
 }
 
 /// The production controller layer (zmotor-controllers' `Controller`, as a node runs it) over
@@ -249,7 +398,12 @@ const POLL_PERIOD: Duration = Duration::from_millis(100);
 
 impl Driven {
     /// Connected to the emulator at `transport` and initialised, for `channels`.
-    async fn connect(kind: ProtocolKind, transport: &Transport, channels: &[usize]) -> Result<Self, Error> {
+    async fn connect(
+        kind: ProtocolKind,
+        options: &ProtocolOptions,
+        transport: &Transport,
+        channels: &[usize],
+    ) -> Result<Self, Error> {
         let stream: Box<dyn Io> = match transport {
             Transport::Tcp { address } => {
                 let stream = tokio::net::TcpStream::connect(address).await?;
@@ -276,7 +430,7 @@ impl Driven {
             moving_poll: POLL_PERIOD,
             ..ControllerConfig::for_channels(channels.to_vec())
         };
-        let controller = kind.controller(&ProtocolOptions::default(), config, zmotor_core::Instant::ZERO);
+        let controller = kind.controller(options, config, zmotor_core::Instant::ZERO);
         let mut driven = Self {
             controller,
             stream,
@@ -395,7 +549,7 @@ async fn end_of_motion_to_done(
     moves: usize,
 ) -> Result<(Percentiles, Duration), Error> {
     let dir = tempfile::tempdir_in(&programs.dir)?;
-    let model = model(ready.kind)?;
+    let model = ready.model()?;
     let baud = matches!(ready.reach, Reach::Pty(_)).then(|| model.factory_baud());
     let emulated = Emulated::new(model, model.typical_channels(), Faults::default(), baud);
     let serving = emulated.clone();
@@ -417,8 +571,7 @@ async fn end_of_motion_to_done(
             (device, here, server)
         }
     };
-    let file = dir.path().join("launch.toml");
-    std::fs::write(&file, ready.launch.replace(named, &here))?;
+    let file = ready.write_launch(dir.path(), named, &here)?;
     let launch = zmotor_deploy::Launch::load(&file)?;
     let moving_poll = launch.deployment(None)?.contents.controllers[0].config.moving_poll;
     let (_node, endpoint) = programs.launch_file(&file)?;
@@ -440,7 +593,9 @@ async fn time_moves(session: &Session, ready: &Ready, emulated: &Emulated, moves
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    wait_put(session, &key("HOMF"), "1").await?;
+    if ready.script.as_ref().is_none_or(|s| s.homes) {
+        wait_put(session, &key("HOMF"), "1").await?;
+    }
     let mut delays = Vec::new();
     let [near, far] = ready.targets;
     for i in 0..moves {
@@ -453,7 +608,7 @@ async fn time_moves(session: &Session, ready: &Ready, emulated: &Emulated, moves
         session.put(key("VAL"), format!("{target:.3}")).await?;
         let sent = Instant::now();
         let end = loop {
-            if let Some(end) = emulated.motion_end(ready.channel) {
+            if let Some(end) = emulated.motion_end(ready.emulated(ready.channel)) {
                 break end;
             }
             if sent.elapsed() > Duration::from_secs(5) {
