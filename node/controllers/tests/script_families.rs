@@ -71,6 +71,30 @@ fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
     common::a_move_goes_once_and_a_new_connection_only_reads(&mut lb, 1, common::text, is_move, is_read);
 }
 
+/// The statuses of `common::statuses_of_a_script_on` with replies whole, checked to be the same
+/// with replies split at every byte.
+fn statuses_whole_and_in_pieces(family: &Family) -> [Vec<zmotor_core::DeviceStatus>; 2] {
+    let statuses = |chunk| {
+        common::statuses_of_a_script_on(family.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
+    };
+    let whole = statuses(usize::MAX);
+    assert_eq!(statuses(1), whole);
+    whole
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+    #[test]
+    fn no_sequence_of_record_commands_makes_a_malformed_line_in_any_family(
+        family in 0usize..4,
+        commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
+    ) {
+        let family = [&KOHZU, &MICRONIX, &PICOMOTOR, &PIEZO][family];
+        let lb = family.loopback(&[0, 1], Faults::default());
+        common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
+    }
+}
+
 fn no_failed_exchange(events: &[ControllerEvent]) {
     assert!(!events.iter().any(|e| matches!(e, ControllerEvent::Failed { .. })), "{events:?}");
 }
@@ -147,17 +171,6 @@ mod kohzu {
             reads,
         );
     }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
-        #[test]
-        fn no_sequence_of_record_commands_makes_a_malformed_line(
-            commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
-        ) {
-            let lb = KOHZU.loopback(&[0, 1], Faults::default());
-            common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
-        }
-    }
 }
 
 mod micronix {
@@ -210,11 +223,7 @@ mod micronix {
     fn replies_split_at_every_byte_give_the_same_statuses() {
         // The common script's position set of -77 is refused here (ZRO sets 0 only): the
         // statuses are compared as they are.
-        let statuses = |chunk| {
-            common::statuses_of_a_script_on(MICRONIX.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
-        };
-        let whole = statuses(usize::MAX);
-        assert_eq!(statuses(1), whole);
+        let whole = super::statuses_whole_and_in_pieces(&MICRONIX);
         assert!(whole[1].last().is_some_and(|s| s.msta & msta::DONE != 0 && s.position > 0.0), "{:?}", whole[1].last());
     }
 
@@ -226,17 +235,6 @@ mod micronix {
             |l| l.contains("MVA"),
             reads,
         );
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
-        #[test]
-        fn no_sequence_of_record_commands_makes_a_malformed_line(
-            commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
-        ) {
-            let lb = MICRONIX.loopback(&[0, 1], Faults::default());
-            common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
-        }
     }
 }
 
@@ -317,11 +315,7 @@ mod picomotor {
     fn replies_split_at_every_byte_give_the_same_statuses() {
         // The common script's speeds are above the 8742's (refused): the statuses are compared
         // as they are.
-        let statuses = |chunk| {
-            common::statuses_of_a_script_on(PICOMOTOR.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
-        };
-        let whole = statuses(usize::MAX);
-        assert_eq!(statuses(1), whole);
+        let whole = super::statuses_whole_and_in_pieces(&PICOMOTOR);
         assert!(!whole[0].is_empty() && !whole[1].is_empty());
     }
 
@@ -333,17 +327,6 @@ mod picomotor {
             |l| l.contains(" PA "),
             reads,
         );
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
-        #[test]
-        fn no_sequence_of_record_commands_makes_a_malformed_line(
-            commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
-        ) {
-            let lb = PICOMOTOR.loopback(&[0, 1], Faults::default());
-            common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
-        }
     }
 }
 
@@ -395,11 +378,7 @@ mod piezojena {
 
     #[test]
     fn replies_split_at_every_byte_give_the_same_statuses() {
-        let statuses = |chunk| {
-            common::statuses_of_a_script_on(PIEZO.loopback(&[0, 1], Faults::default()).with_chunks(chunk), &[0, 1])
-        };
-        let whole = statuses(usize::MAX);
-        assert_eq!(statuses(1), whole);
+        let whole = super::statuses_whole_and_in_pieces(&PIEZO);
         assert!(whole[0].iter().any(|s| s.position == 3000.0), "{:?}", whole[0]);
     }
 
@@ -411,16 +390,5 @@ mod piezojena {
             |l| l.starts_with("set,"),
             reads,
         );
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 16, ..ProptestConfig::default() })]
-        #[test]
-        fn no_sequence_of_record_commands_makes_a_malformed_line(
-            commands in proptest::collection::vec((0usize..2, common::command(), 0u64..300), 1..10)
-        ) {
-            let lb = PIEZO.loopback(&[0, 1], Faults::default());
-            common::no_malformed_frames_on(lb, &[0, 1], common::Start::AsPoweredUp, &commands);
-        }
     }
 }
