@@ -265,7 +265,8 @@ const READY: [Ready; 17] = [
         include_str!("../../../launch/piezojena-nv40.toml"),
         Reach::Pty("/tmp/zmotor-nv40"),
         "piezo0",
-        [10.0, 20.0],
+        // Moves of 24 µm at least: 2.4 ms at the NV40's slew, long enough to be seen moving.
+        [10.0, 90.0],
         ReadyScript {
             named: "scripts/piezojena_nv40.lua",
             text: include_str!("../../../launch/scripts/piezojena_nv40.lua"),
