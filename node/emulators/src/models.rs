@@ -2,9 +2,9 @@
 //! vocabulary, which the drivers share; `zmotor-sim-controller`'s tests check both lists agree).
 
 use crate::{
-    mcs2_positioner, stage, AmcEmulator, Emulator, Esp300Emulator, GalilEmulator, Gcs2Emulator, KohzuScEmulator,
-    MaxnetEmulator, Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, Nv40Emulator, PhymotionEmulator,
-    Picomotor8742Emulator, Pm304Emulator, PmacEmulator, Smc100Emulator, VmcEmulator, XpsEmulator,
+    mcs2_positioner, stage, AmcEmulator, Emulator, Esp300Emulator, FaulhaberEmulator, GalilEmulator, Gcs2Emulator,
+    KohzuScEmulator, MaxnetEmulator, Mcb4bEmulator, Mcs2Emulator, MdriveEmulator, MmcEmulator, Nv40Emulator,
+    PhymotionEmulator, Picomotor8742Emulator, Pm304Emulator, PmacEmulator, Smc100Emulator, VmcEmulator, XpsEmulator,
 };
 
 /// A controller model this crate emulates.
@@ -47,11 +47,13 @@ pub enum Model {
     AttocubeAmc,
     /// A piezosystem jena NV40/3 CLE three-channel piezo amplifier; driven by a script.
     PiezojenaNv40,
+    /// Faulhaber MCDC 300x drives (ASCII) at node numbers 1 … on one line; driven by a script.
+    FaulhaberMc,
 }
 
 impl Model {
     /// Every model.
-    pub const ALL: [Model; 18] = [
+    pub const ALL: [Model; 19] = [
         Model::AcsMcb4b,
         Model::NewportSmc100,
         Model::PiGcs2,
@@ -70,6 +72,7 @@ impl Model {
         Model::NewFocus8742,
         Model::AttocubeAmc,
         Model::PiezojenaNv40,
+        Model::FaulhaberMc,
     ];
 
     /// The protocol it speaks, as launch files name it; for a controller a script drives
@@ -94,6 +97,7 @@ impl Model {
             Model::NewFocus8742 => "newfocus_8742",
             Model::AttocubeAmc => "attocube_amc",
             Model::PiezojenaNv40 => "piezojena_nv40",
+            Model::FaulhaberMc => "faulhaber_mc",
         }
     }
 
@@ -131,7 +135,8 @@ impl Model {
             | Model::KohzuSc
             | Model::MicronixMmc
             | Model::NewFocus8742
-            | Model::AttocubeAmc => 9_600,
+            | Model::AttocubeAmc
+            | Model::FaulhaberMc => 9_600,
         }
     }
 
@@ -163,6 +168,8 @@ impl Model {
             Model::MicronixMmc => 2,
             // Axes (channels) 0 to 2, a script's AXIS.
             Model::AttocubeAmc | Model::PiezojenaNv40 => 3,
+            // Node numbers 1 and 2, a script's AXIS; node 0 reaches every drive.
+            Model::FaulhaberMc => 3,
         }
     }
 
@@ -203,6 +210,8 @@ impl Model {
             Model::NewFocus8742 => Box::new(Picomotor8742Emulator::new(channels.clamp(1, 4), &mechanics)),
             Model::AttocubeAmc => Box::new(AmcEmulator::new(channels.clamp(1, 3), &mechanics).with_outputs_on()),
             Model::PiezojenaNv40 => Box::new(Nv40Emulator::new(channels.clamp(1, 3), &mechanics)),
+            // Node numbers 1 to `channels` − 1 (one at least).
+            Model::FaulhaberMc => Box::new(FaulhaberEmulator::new(channels.saturating_sub(1).max(1), &mechanics)),
         }
     }
 }
