@@ -125,7 +125,7 @@ impl Ready {
     }
 }
 
-const READY: [Ready; 17] = [
+const READY: [Ready; 18] = [
     native(
         ProtocolKind::AcsMcb4b,
         include_str!("../../../launch/acs-mcb4b.toml"),
@@ -273,6 +273,19 @@ const READY: [Ready; 17] = [
             model: Model::PiezojenaNv40,
             first_axis: 0,
             homes: false,
+        },
+    ),
+    scripted(
+        include_str!("../../../launch/faulhaber-mc.toml"),
+        Reach::Pty("/tmp/zmotor-faulhaber"),
+        "fau1",
+        [1.0, 1.5],
+        ReadyScript {
+            named: "scripts/faulhaber_mc.lua",
+            text: include_str!("../../../launch/scripts/faulhaber_mc.lua"),
+            model: Model::FaulhaberMc,
+            first_axis: 0,
+            homes: true,
         },
     ),
     scripted(

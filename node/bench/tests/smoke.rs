@@ -41,6 +41,7 @@ fn the_benchmark_runs_in_smoke_mode() {
         "micronix_mmc",
         "newfocus_8742",
         "piezojena_nv40",
+        "faulhaber_mc",
         "vmc",
         "7. a storm of writes",
         "8. Channel Access beside Zenoh",

@@ -31,30 +31,31 @@ fn zmotor(args: &[&str]) -> Running {
     Running(child)
 }
 
-/// `zmotor launch FILE --listen ENDPOINT`, its state in `state`.
+/// `zmotor launch FILE --listen ENDPOINT`, its state in `state` and its log in `state/node.log`
+/// (a failure shows it).
 fn launch_node(file: &std::path::Path, endpoint: &str, state: &std::path::Path) -> Running {
+    let log = std::fs::File::create(state.join("node.log")).unwrap();
     let node = Command::new(env!("CARGO_BIN_EXE_zmotor"))
         .args(["launch", file.to_str().unwrap(), "--listen", endpoint])
         .env("ZMOTOR_STATE_DIR", state)
-        .env("RUST_LOG", "warn")
+        .env("RUST_LOG", "info")
         .stdout(Stdio::null())
-        .stderr(Stdio::null())
+        .stderr(log)
         .spawn()
         .unwrap();
     Running(node)
 }
 
-/// One phase of tests/python/controller_client.py; panics with what it said if it failed.
-fn client(phase: &str, endpoint: &str, axis: &str) {
-    client_with(phase, endpoint, axis, &[]);
-}
-
-/// `client` with more arguments (`--no-home`).
-fn client_with(phase: &str, endpoint: &str, axis: &str, more: &[&str]) {
+/// One phase of tests/python/controller_client.py against the node whose state is in `state`;
+/// panics with what the client said and the node logged if it failed.
+fn client_with(phase: &str, endpoint: &str, axis: &str, more: &[&str], state: &std::path::Path) {
     let output =
         environment::python_script("controller_client.py").args([phase, endpoint, axis]).args(more).output().unwrap();
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
-    assert!(output.status.success() && said.contains(&format!("{phase} ok")), "{said}");
+    if !(output.status.success() && said.contains(&format!("{phase} ok"))) {
+        let log = std::fs::read_to_string(state.join("node.log")).unwrap_or_default();
+        panic!("{said}\nthe node logged:\n{log}");
+    }
 }
 
 /// How a launch file reaches its controller: the TCP address or serial device it names.
@@ -91,11 +92,11 @@ fn drive_through_loss_and_recovery_with(protocol: &str, launch: &str, reach: Rea
     let emulator = emulate();
     let _node = launch_node(&file, &endpoint, dir.path());
 
-    client_with("motion", &endpoint, axis, more);
+    client_with("motion", &endpoint, axis, more, dir.path());
     drop(emulator);
-    client("lost", &endpoint, axis);
+    client_with("lost", &endpoint, axis, &[], dir.path());
     let _emulator = emulate();
-    client("recovered", &endpoint, axis);
+    client_with("recovered", &endpoint, axis, &[], dir.path());
 }
 
 #[test]
@@ -200,6 +201,12 @@ fn piezojena_nv40_by_script_on_a_serial_line() {
     let nv40 = Reach::Pty("/tmp/zmotor-nv40");
     let flags = ["--no-home", "--settles-at-once"];
     drive_through_loss_and_recovery_with("piezojena_nv40", "launch/piezojena-nv40.toml", nv40, "piezo0", &flags);
+}
+
+#[test]
+fn faulhaber_mc_by_script_on_a_serial_line() {
+    let mcdc = Reach::Pty("/tmp/zmotor-faulhaber");
+    drive_through_loss_and_recovery("faulhaber_mc", "launch/faulhaber-mc.toml", mcdc, "fau1");
 }
 
 #[test]
