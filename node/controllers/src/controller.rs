@@ -242,6 +242,8 @@ enum Link {
 struct Channel {
     /// The last status reported.
     status: DeviceStatus,
+    /// `status` was read on this connection: shown once the link is up.
+    read_on_this_link: bool,
     /// When the poll that read it was queued, in the controller's sequence.
     status_issued: u64,
     /// The sequence number of the last home or position set queued: either may reference it.
@@ -763,6 +765,12 @@ impl<P: Protocol> Controller<P> {
         if initialising && matches!(transaction.kind, Kind::Init | Kind::Poll) && last {
             self.link = Link::Up;
             self.next_poll = Some(self.now + self.config.idle_poll);
+            // The statuses the initialisation read, held until now: an axis shown out of its
+            // COMM alarm takes commands, which a link still initialising refuses.
+            for (channel, state) in self.channels.iter().enumerate().filter(|(_, s)| s.read_on_this_link) {
+                let (status, motions) = (state.status, state.motions);
+                self.events.push_back(ControllerEvent::Status { channel, status, motions });
+            }
             self.check_scales();
         }
     }
@@ -899,8 +907,9 @@ impl<P: Protocol> Controller<P> {
                 }
                 state.status = status;
                 state.status_issued = issued;
+                state.read_on_this_link = true;
                 let motions = state.motions;
-                if matches!(self.link, Link::Initialising { .. } | Link::Up) {
+                if self.link == Link::Up {
                     self.events.push_back(ControllerEvent::Status { channel, status, motions });
                 }
             }
@@ -1016,6 +1025,9 @@ impl<P: Protocol> Controller<P> {
         self.transmit.clear();
         self.next_poll = None;
         self.failures = 0;
+        for state in &mut self.channels {
+            state.read_on_this_link = false;
+        }
         if matches!(self.link, Link::Initialising { .. } | Link::Up) {
             self.events.push_back(ControllerEvent::Disconnect);
         }
@@ -1038,6 +1050,11 @@ impl<P: Protocol> Controller<P> {
     fn report_problem(&mut self, channel: usize) {
         let Some(state) = self.channels.get_mut(channel) else { return };
         state.problem = true;
+        if self.link != Link::Up {
+            // Not out of the COMM alarm before the link is up.
+            self.report_lost(channel);
+            return;
+        }
         let mut status = state.status;
         status.msta |= msta::PROBLEM;
         if state.moving {

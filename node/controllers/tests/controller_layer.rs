@@ -306,6 +306,33 @@ fn late_replies_are_never_taken_for_the_next_requests() {
 }
 
 #[test]
+fn no_channel_leaves_its_comm_alarm_before_the_link_takes_commands() {
+    // Each reply 10 ms late: channel 0 is read long before channel 2, and the link is up only
+    // once both are.
+    let mut lb = loopback(ACS, &[0, 2], Faults { delay: Duration::from_millis(10), ..Faults::default() });
+    let mut shown = Vec::new();
+    for _ in 0..2000 {
+        lb.run_for(MS);
+        for event in lb.take_events() {
+            if let ControllerEvent::Status { channel, status, .. } = event {
+                if status.msta & msta::COMM_ERR == 0 {
+                    assert!(lb.controller.is_up(), "channel {channel} shown reachable while the link initialises");
+                    shown.push(channel);
+                }
+            }
+        }
+        if lb.controller.is_up() {
+            break;
+        }
+    }
+    assert!(lb.controller.is_up());
+    assert_eq!(shown, [0, 2], "both statuses the initialisation read, once it is over");
+    lb.command(0, &go(100.0));
+    let refused = lb.take_events().into_iter().any(|e| matches!(e, ControllerEvent::Refused { .. }));
+    assert!(!refused, "a move once shown reachable is taken");
+}
+
+#[test]
 fn a_stop_is_taken_while_the_link_initialises_and_owed_while_it_is_down() {
     let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(10), ..Faults::default() });
     lb.run_for(Duration::from_millis(5));
