@@ -373,6 +373,7 @@ async fn measure(programs: &Programs, ready: &Ready, window: f64, moves: usize) 
         line: match transport {
             Transport::Serial(settings) => format!("serial {} baud", settings.baud),
             Transport::Tcp { .. } => "tcp".into(),
+            Transport::None => "none".into(),
         },
         round_trips_per_s: round_trips as f64 / elapsed.as_secs_f64(),
         poll_one,
@@ -438,6 +439,7 @@ impl Driven {
                 }
                 port
             }
+            Transport::None => return Err("a controller without a connection has no round trips to time".into()),
         };
         let config = ControllerConfig {
             idle_poll: POLL_PERIOD,

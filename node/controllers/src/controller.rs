@@ -577,6 +577,15 @@ impl<P: Protocol> AnyController for Controller<P> {
                     }
                 }
             }
+            // The runner answers a key access with one whole frame.
+            Lane::Keys => {
+                if self.in_flight.as_ref().is_some_and(|f| f.request.lane == Lane::Keys) {
+                    self.on_frame(bytes);
+                } else {
+                    let what = format!("an answer of the key space nothing waits for: {}", crate::protocol::printable(bytes));
+                    self.events.push_back(ControllerEvent::Failed { what });
+                }
+            }
         }
         self.pump();
     }
@@ -719,7 +728,7 @@ impl<P: Protocol> Controller<P> {
         // What arrived before this request belongs to nothing: a late reply to an exchange
         // given up must not pass for this one's.
         self.received.clear();
-        self.transmit.push_back((Lane::Main, request.bytes.clone()));
+        self.transmit.push_back((request.lane, request.bytes.clone()));
         if request.answered {
             self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts });
         }
@@ -834,6 +843,7 @@ impl<P: Protocol> Controller<P> {
         let buffer = match lane {
             Lane::Main => &mut self.received,
             Lane::Motion(channel) => &mut self.motion_lanes.entry(channel).or_default().received,
+            Lane::Keys => return,
         };
         if buffer.len() > MAX_UNFRAMED {
             let what = format!("{} bytes that are no frame of the protocol, dropped", buffer.len());

@@ -12,6 +12,7 @@ mod acs;
 mod controller;
 mod galil;
 mod ims_mdrive;
+mod keys;
 #[cfg(feature = "testing")]
 mod loopback;
 mod mclennan_pm304;
@@ -29,6 +30,7 @@ mod smaract_mcs2;
 mod spec;
 
 pub use controller::{AnyController, Controller, ControllerConfig, ControllerEvent, Refusal};
+pub use keys::{KeyAccess, KeyName, KeyNameError, KeyReply, KeyValue};
 #[cfg(feature = "testing")]
 pub use loopback::Loopback;
 pub use protocol::{

@@ -2,6 +2,9 @@
 //! for byte, with the link's faults, without a socket or a clock.
 
 use crate::controller::{AnyController, ControllerEvent};
+use crate::keys::{KeyAccess, KeyReply, KeyValue};
+use crate::protocol::Lane;
+use std::collections::BTreeMap;
 use std::time::Duration;
 use zmotor_core::{DeviceStatus, Instant};
 use zmotor_emulators::{Emulator, Faults, WithFaults};
@@ -24,7 +27,12 @@ pub struct Loopback {
     connected: bool,
     events: Vec<ControllerEvent>,
     written: Vec<Vec<u8>>,
+    /// The key space a script reads and writes (`epics.get`/`put`), by key (prefix `motor`).
+    pub keys: BTreeMap<String, KeyValue>,
 }
+
+/// The key prefix of the loopback's key space.
+const KEY_PREFIX: &str = "motor";
 
 impl Loopback {
     /// `controller`, made at time zero, driving `emulator` through `faults`.
@@ -38,6 +46,7 @@ impl Loopback {
             connected: false,
             events: Vec::new(),
             written: Vec::new(),
+            keys: BTreeMap::new(),
         }
     }
 
@@ -109,6 +118,21 @@ impl Loopback {
         &self.written
     }
 
+    /// A script's access to the key space, carried out on `keys` as a node would.
+    fn key_space(&mut self, bytes: &[u8]) -> KeyReply {
+        match KeyAccess::decode(bytes) {
+            Some(KeyAccess::Get(name)) => {
+                let key = name.key(KEY_PREFIX);
+                self.keys.get(&key).cloned().map_or(KeyReply::Failed(format!("nothing answers for {key}")), KeyReply::Value)
+            }
+            Some(KeyAccess::Put(name, value)) => {
+                self.keys.insert(name.key(KEY_PREFIX), value.clone());
+                KeyReply::Value(value)
+            }
+            None => KeyReply::Failed("not a key access".into()),
+        }
+    }
+
     fn step_to(&mut self, t: Instant) {
         self.now = self.now.max(t);
         self.link.handle_timeout(self.now);
@@ -141,13 +165,19 @@ impl Loopback {
             }
             // The controller's lanes are the emulator's connections, in the same order.
             let lanes = self.controller.lanes();
+            let mut answers = Vec::new();
             while let Some((lane, bytes)) = self.controller.poll_transmit() {
                 moved = true;
-                if self.connected {
+                if lane == Lane::Keys {
+                    answers.push(self.key_space(&bytes));
+                } else if self.connected {
                     let connection = lanes.iter().position(|l| *l == lane).expect("a lane of the controller");
                     self.link.handle_input_on(self.now, connection, &bytes);
                 }
                 self.written.push(bytes);
+            }
+            for answer in answers {
+                self.controller.handle_input(self.now, Lane::Keys, &answer.encode());
             }
             while let Some((connection, reply)) = self.link.poll_transmit_on() {
                 moved = true;

@@ -29,6 +29,9 @@ pub enum Lane {
     /// The connection of the motion of one channel: requests are written without waiting,
     /// their replies read whenever they come.
     Motion(usize),
+    /// The node's own key space, which a script reads and writes (`epics.get`/`epics.put`): a
+    /// `KeyAccess` the runner carries out, answered by one `KeyReply` frame. No connection.
+    Keys,
 }
 
 /// One exchange with the controller: the bytes to write, and whether one reply frame answers
@@ -55,6 +58,11 @@ impl<S> Request<S> {
     /// silent).
     pub fn silent(bytes: impl Into<Vec<u8>>, step: S) -> Self {
         Self { bytes: bytes.into(), answered: false, step, lane: Lane::Main }
+    }
+
+    /// A script's access to the node's key space, answered as any query.
+    pub fn key(access: &crate::keys::KeyAccess, step: S) -> Self {
+        Self { bytes: access.encode(), answered: true, step, lane: Lane::Keys }
     }
 
     /// A motion call of `channel` answered when the motion ends: written on the channel's

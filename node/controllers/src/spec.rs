@@ -31,6 +31,9 @@ pub enum Transport {
     },
     /// A serial port.
     Serial(SerialSettings),
+    /// No connection: a script that reads and writes only the node's keys (motorScriptMotor's
+    /// `softMotor.lua`). What it writes to a controller reaches none, and goes unanswered.
+    None,
 }
 
 impl std::fmt::Display for Transport {
@@ -38,6 +41,7 @@ impl std::fmt::Display for Transport {
         match self {
             Transport::Tcp { address } => write!(f, "tcp {address}"),
             Transport::Serial(s) => write!(f, "serial {} {}", s.device, s.baud),
+            Transport::None => write!(f, "no connection"),
         }
     }
 }

@@ -118,7 +118,13 @@ impl ControllerSection {
                 }
                 Transport::Serial(settings)
             }
-            _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port".into())),
+            // A script may talk to the node's keys only (softMotor.lua).
+            (None, None) if protocol == ProtocolKind::Script => Transport::None,
+            (None, None) => {
+                let why = "give one of tcp = \"host:port\" or a [controller.serial] port (only a script may have neither)";
+                return Err(at(&["name"], why.into()));
+            }
+            _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port, not both".into())),
         };
         let mut names = BTreeMap::new();
         for (channel, name) in &self.axis_names {
@@ -127,7 +133,10 @@ impl ControllerSection {
             })?;
             names.insert(number, name.clone());
         }
-        let script = self.script_source(protocol).map_err(|(key, message)| at(&[key], message))?;
+        let mut script = self.script_source(protocol).map_err(|(key, message)| at(&[key], message))?;
+        if let Some(source) = &mut script {
+            source.record_resolution = axes.iter().map(|(channel, units)| (*channel, units.mres)).collect();
+        }
         let settings = match &script {
             Some(source) => ScriptSettings::of(source).map_err(|e| at(&["script"], e.to_string()))?,
             None => ScriptSettings::default(),
@@ -229,6 +238,7 @@ impl ControllerSection {
             driver: self.name.clone(),
             macros: macros(&self.macros, "macros")?,
             axis_macros,
+            record_resolution: BTreeMap::new(),
         }))
     }
 }

@@ -305,7 +305,11 @@ fn controller_errors_name_the_file_line_and_key() {
     assert!(refused("moving_poll = 0.05", "parity = \"odd\"").starts_with("<launch>:5: unknown field `parity`"));
     assert_eq!(
         refused("tcp = \"127.0.0.1:4001\"", "tcp = \"h:1\"\nserial = { device = \"/dev/ttyS0\" }"),
-        "<launch>:2: controller 'mcb': name: give one of tcp = \"host:port\" or a [controller.serial] port"
+        "<launch>:2: controller 'mcb': name: give one of tcp = \"host:port\" or a [controller.serial] port, not both"
+    );
+    assert_eq!(
+        refused("tcp = \"127.0.0.1:4001\"", ""),
+        "<launch>:2: controller 'mcb': name: give one of tcp = \"host:port\" or a [controller.serial] port (only a script may have neither)"
     );
     assert_eq!(
         refused("controller = \"mcb\"", "controller = \"other\""),

@@ -11,7 +11,11 @@ use std::task::Poll;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncWrite, AsyncWriteExt, ReadBuf, ReadHalf, WriteHalf};
 use tokio::sync::{mpsc, oneshot, watch};
+use zenoh::bytes::Encoding;
+use zenoh::Session;
 use zmotor_controllers::{AnyController, ControllerEvent, Lane, ProtocolOptions, ScriptSource};
+use zmotor_controllers::{KeyAccess, KeyName, KeyReply, KeyValue};
+use zmotor_msgs::{decode_scalar, Field, KeyLayout, PayloadEncoding, Value};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_controllers::{ControllerUnit, Finding, Scale, ScaleCheck, VendorError};
 use zmotor_core::DeviceStatus;
@@ -74,9 +78,84 @@ pub(crate) struct RunningController {
     pub(crate) scripted: bool,
 }
 
-/// Start the runner of one controller; it ends when `stopped` turns true.
-pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> RunningController {
+/// The node's key space, as a script reaches it (`epics.get`/`epics.put`).
+#[derive(Clone)]
+pub(crate) struct KeySpace {
+    pub(crate) session: Session,
+    pub(crate) layout: KeyLayout,
+}
+
+impl KeySpace {
+    /// Carry out a script's key access (`Lane::Keys` bytes), answering within `within`.
+    async fn carry_out(&self, bytes: &[u8], within: Duration) -> KeyReply {
+        let Some(access) = KeyAccess::decode(bytes) else {
+            return KeyReply::Failed("not a key access".into());
+        };
+        let (key, payload) = match &access {
+            KeyAccess::Get(name) => (self.read_key(name), None),
+            KeyAccess::Put(name, value) => {
+                let text = match value {
+                    KeyValue::Number(n) => n.to_string(),
+                    KeyValue::Text(text) => text.clone(),
+                };
+                (self.write_key(name), Some(text))
+            }
+        };
+        let mut get = self.session.get(&key).timeout(within);
+        if let Some(text) = payload {
+            get = get.payload(text).encoding(Encoding::TEXT_PLAIN);
+        }
+        let replies = match get.await {
+            Ok(replies) => replies,
+            Err(e) => return KeyReply::Failed(format!("{key}: {e}")),
+        };
+        let Ok(reply) = replies.recv_async().await else {
+            return KeyReply::Failed(format!("nothing answers for {key}"));
+        };
+        match (reply.result(), access) {
+            (Err(refused), _) => KeyReply::Failed(format!("{key}: {}", String::from_utf8_lossy(&refused.payload().to_bytes()))),
+            (Ok(_), KeyAccess::Put(_, value)) => KeyReply::Value(value),
+            (Ok(sample), KeyAccess::Get(_)) => {
+                let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+                match decode_scalar(&sample.payload().to_bytes(), encoding) {
+                    Ok(Value::Int(n)) => KeyReply::Value(KeyValue::Number(n as f64)),
+                    Ok(Value::Float(x)) => KeyReply::Value(KeyValue::Number(x)),
+                    Ok(Value::Text(text)) => KeyReply::Value(KeyValue::Text(text)),
+                    Err(e) => KeyReply::Failed(format!("{key}: {e}")),
+                }
+            }
+        }
+    }
+
+    /// Where a read of `name` goes: a catalogue field's key, or the key named.
+    fn read_key(&self, name: &KeyName) -> String {
+        match name {
+            KeyName::Field { record, field } => match Field::from_name(field) {
+                Some(field) => self.layout.field(record, field),
+                None => name.key(self.layout.prefix()),
+            },
+            KeyName::Key(key) => key.clone(),
+        }
+    }
+
+    /// Where a confirmed write of `name` goes: a catalogue field's write key (answered with or
+    /// without access control), or the key named.
+    fn write_key(&self, name: &KeyName) -> String {
+        match name {
+            KeyName::Field { record, field } => match Field::from_name(field) {
+                Some(field) => self.layout.write(record, field),
+                None => name.key(self.layout.prefix()),
+            },
+            KeyName::Key(key) => key.clone(),
+        }
+    }
+}
+
+/// Start the runner of one controller; it ends when `stopped` turns true. Its script, if it has
+/// one, reads and writes `keys`.
+pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>, keys: KeySpace) -> RunningController {
     let (sender, commands) = mpsc::unbounded_channel();
+    let (key_answers, answered) = mpsc::unbounded_channel();
     let (first_in, first) = oneshot::channel();
     let origin = tokio::time::Instant::now();
     let controller = spec.protocol.controller(&spec.options, spec.config.clone(), Instant::ZERO);
@@ -100,8 +179,10 @@ pub(crate) fn start(spec: ControllerSpec, stopped: watch::Receiver<bool>) -> Run
         was_up: false,
         unreachable: false,
         repeats: Repeats::default(),
+        keys,
+        key_answers,
     };
-    let task = tokio::spawn(async move { runner.run(commands, stopped).await });
+    let task = tokio::spawn(async move { runner.run(commands, answered, stopped).await });
     RunningController { name, sender, first, task, scripted }
 }
 
@@ -130,6 +211,9 @@ struct Runner {
     unreachable: bool,
     /// The controller's last error message and its repeats, so the log names it once.
     repeats: Repeats,
+    keys: KeySpace,
+    /// Where the answers of key accesses carried out meanwhile come back.
+    key_answers: mpsc::UnboundedSender<KeyReply>,
 }
 
 /// A controller's error named once, its repeats counted: a move the controller refuses is
@@ -177,7 +261,12 @@ impl Runner {
         Instant::after(self.origin.elapsed())
     }
 
-    async fn run(&mut self, mut commands: mpsc::UnboundedReceiver<ToController>, mut stopped: watch::Receiver<bool>) {
+    async fn run(
+        &mut self,
+        mut commands: mpsc::UnboundedReceiver<ToController>,
+        mut key_answers: mpsc::UnboundedReceiver<KeyReply>,
+        mut stopped: watch::Receiver<bool>,
+    ) {
         let mut buffer = vec![0u8; 4096];
         self.controller.handle_timeout(self.now());
         loop {
@@ -197,6 +286,9 @@ impl Runner {
                     }
                     ToController::Reload => self.reload(),
                 },
+                Some(answer) = key_answers.recv() => {
+                    self.controller.handle_input(self.now(), Lane::Keys, &answer.encode());
+                }
                 (lane, read) = read_any(&mut self.readers, &mut buffer) => match read {
                     Ok(n) if n > 0 => self.controller.handle_input(self.now(), self.lanes[lane], &buffer[..n]),
                     Ok(_) => self.closed("the controller closed the connection"),
@@ -237,6 +329,14 @@ impl Runner {
                 self.on_event(event);
             }
             let Some((lane, bytes)) = self.controller.poll_transmit() else { break };
+            if lane == Lane::Keys {
+                // Carried out meanwhile, answered before the layer's timeout.
+                let (keys, answers, within) = (self.keys.clone(), self.key_answers.clone(), self.write_timeout / 2);
+                tokio::spawn(async move {
+                    let _ = answers.send(keys.carry_out(&bytes, within).await);
+                });
+                continue;
+            }
             let connection = self.lanes.iter().position(|l| *l == lane);
             let Some(writer) = connection.and_then(|c| self.writers.get_mut(c)) else { continue };
             let written = async {
@@ -428,19 +528,20 @@ fn open(transport: Transport, connections: usize) -> Opening {
                         let stream = tokio::net::TcpStream::connect(address.as_str()).await?;
                         // Requests are small and each waits for its reply: no Nagle delay.
                         stream.set_nodelay(true)?;
-                        Ok(Box::new(stream) as Stream)
+                        Ok(Some(Box::new(stream) as Stream))
                     }
                     Transport::Serial(_) if opened > 0 => Err(std::io::Error::new(
                         std::io::ErrorKind::Unsupported,
                         "the protocol needs several connections, and a serial line is one",
                     )),
-                    Transport::Serial(settings) => open_serial(settings),
+                    Transport::Serial(settings) => open_serial(settings).map(Some),
+                    Transport::None => return Ok(None),
                 }
             };
             let stream = tokio::time::timeout(OPEN_TIMEOUT, opening)
                 .await
                 .unwrap_or_else(|_| Err(std::io::Error::new(std::io::ErrorKind::TimedOut, "no answer in time")))?;
-            streams.push(stream);
+            streams.extend(stream);
         }
         Ok(streams)
     })

@@ -5,6 +5,7 @@
 //! instructions between two exchanges.
 
 use super::{MacroValue, ScriptError, ScriptSource};
+use crate::keys::{KeyAccess, KeyName, KeyReply, KeyValue};
 use mlua::thread::ThreadStatus;
 use mlua::{HookTriggers, Lua, LuaOptions, MultiValue, StdLib, Table, Thread, Value, Variadic, VmState};
 use std::collections::HashMap;
@@ -42,7 +43,8 @@ const STATUS_PARAMS: [(&str, u32); 15] = [
 /// The Lua that makes the `asyn` and `epics` libraries, `require` and the sandbox's edges. Its
 /// I/O functions yield `token, kind, bytes, input terminator` to the driver, which resumes them
 /// with the reply (asyn appends `OutTerminator` to what is written and reads up to
-/// `InTerminator`, both looked up at each call, as the lua module does).
+/// `InTerminator`, both looked up at each call, as the lua module does); `epics.get`/`put`
+/// yield `token, kind, name[, value]` and are resumed with `true, value` or `false, why`.
 const PRELUDE: &str = r##"
 local token, params, find_module, log = ...
 local yield, tostring, type, rawset = coroutine.yield, tostring, type, rawset
@@ -73,8 +75,15 @@ asyn = {
 }
 
 epics = {
-  get = function(name) error("epics.get(" .. tostring(name) .. "): a zmotor script reads no PV", 2) end,
-  put = function(name) error("epics.put(" .. tostring(name) .. "): a zmotor script writes no PV", 2) end,
+  get = function(name)
+    local ok, value = yield(token, "get", tostring(name))
+    if not ok then error("epics.get(" .. tostring(name) .. "): " .. value, 2) end
+    return value
+  end,
+  put = function(name, value)
+    local ok, why = yield(token, "put", tostring(name), value)
+    if not ok then error("epics.put(" .. tostring(name) .. "): " .. why, 2) end
+  end,
 }
 
 package = { loaded = { asyn = asyn, epics = epics }, path = "", cpath = "" }
@@ -113,6 +122,14 @@ pub(super) enum Ran {
         bytes: Vec<u8>,
         /// Where the reply ends.
         terminator: Vec<u8>,
+    },
+    /// It waits for the node's key space (`epics.get`/`epics.put`), after the bytes it wrote
+    /// unanswered before.
+    Key {
+        /// The read or write.
+        access: KeyAccess,
+        /// What it wrote last without reading.
+        written: Vec<u8>,
     },
     /// It returned; these bytes were written before, unanswered.
     Returned {
@@ -167,7 +184,11 @@ impl AxisLua {
         let token = lua.create_table().map_err(|e| ScriptError::load(source, &e))?;
         let prepared = (|| -> mlua::Result<()> {
             lua.set_memory_limit(MEMORY_LIMIT)?;
-            lua.set_app_data(Params::default());
+            let mut given = Params::default();
+            if let Some(&mres) = source.record_resolution.get(&axis) {
+                given.doubles.insert("MOTOR_REC_RESOLUTION".into(), mres);
+            }
+            lua.set_app_data(given);
             lua.set_app_data(Budget::default());
             let every = HookTriggers::new().every_nth_instruction(BUDGET_STRIDE);
             lua.set_global_hook(every, |lua, debug| {
@@ -259,6 +280,12 @@ impl AxisLua {
         self.run(MultiValue::from_iter([Value::String(reply)]))
     }
 
+    /// Resume the call under way, which waits for the key space, with its answer.
+    pub(super) fn resume_key(&mut self, reply: KeyReply) -> Result<Ran, String> {
+        let answer = key_answer(&self.lua, reply).map_err(|e| message(&e))?;
+        self.run(answer)
+    }
+
     /// The Lua state, for tests to look into.
     #[cfg(test)]
     pub(super) fn lua_for_tests(&self) -> &Lua {
@@ -296,6 +323,19 @@ impl AxisLua {
                 );
             }
             let kind = text(values.next());
+            if kind == "get" || kind == "put" {
+                let name = text(values.next());
+                match key_access(&kind, &name, values.next()) {
+                    Ok(access) => {
+                        let (_, written) = self.call.as_mut().expect("checked above");
+                        return Ok(Ran::Key { access, written: std::mem::take(written) });
+                    }
+                    Err(why) => {
+                        args = key_answer(&self.lua, KeyReply::Failed(why)).map_err(|e| message(&e))?;
+                        continue;
+                    }
+                }
+            }
             let data = bytes_of(values.next());
             let terminator = bytes_of(values.next());
             let (_, written) = self.call.as_mut().expect("checked above");
@@ -308,6 +348,34 @@ impl AxisLua {
             return Ok(Ran::Exchange { bytes, terminator });
         }
     }
+}
+
+/// What `epics.get(name)` or `epics.put(name, value)` asks, or why it cannot be asked.
+fn key_access(kind: &str, name: &str, value: Option<Value>) -> Result<KeyAccess, String> {
+    let name = KeyName::parse(name).map_err(|e| e.to_string())?;
+    if kind == "get" {
+        return Ok(KeyAccess::Get(name));
+    }
+    let value = match value {
+        Some(Value::Integer(n)) => KeyValue::Number(n as f64),
+        Some(Value::Number(n)) if n.is_finite() => KeyValue::Number(n),
+        Some(Value::Number(n)) => return Err(format!("{n} is not a value to write")),
+        Some(Value::Boolean(b)) => KeyValue::Number(f64::from(u8::from(b))),
+        Some(Value::String(text)) => KeyValue::Text(text.to_string_lossy()),
+        other => return Err(format!("a number or a string to write, not {}", other.map_or("nothing", |v| v.type_name()))),
+    };
+    Ok(KeyAccess::Put(name, value))
+}
+
+/// The values `epics.get`/`epics.put` are resumed with.
+fn key_answer(lua: &Lua, reply: KeyReply) -> mlua::Result<MultiValue> {
+    Ok(match reply {
+        KeyReply::Value(KeyValue::Number(n)) => MultiValue::from_iter([Value::Boolean(true), Value::Number(n)]),
+        KeyReply::Value(KeyValue::Text(text)) => {
+            MultiValue::from_iter([Value::Boolean(true), Value::String(lua.create_string(text)?)])
+        }
+        KeyReply::Failed(why) => MultiValue::from_iter([Value::Boolean(false), Value::String(lua.create_string(why)?)]),
+    })
 }
 
 /// A launch file's macro value as Lua sees it.

@@ -15,16 +15,21 @@
 //! - the status a poll's parameters make is reported when `poll()` returns
 //!   (`asyn.callParamCallbacks` elsewhere posts nothing: a move that posted its axis's last
 //!   DONE would end itself);
-//! - `epics.get`/`epics.put` raise an error naming the PV (zmotor scripts read no PVs yet);
+//! - `epics.get(name)`/`epics.put(name, value)` read and write the node's key space (`Lane::Keys`,
+//!   carried out by the runner): `axis.FIELD` is `<prefix>/axis/FIELD` (a PV's record.FIELD),
+//!   `axis` its VAL, a name with `/` the key itself; a write is confirmed, and a read or write
+//!   that fails is a Lua error naming why;
+//! - `MOTOR_REC_RESOLUTION` is the axis's MRES as the launch file gives it;
 //! - a script error is a driver error naming the script's file and line (the axis shows a
 //!   problem), never a crash; a call running 20 million instructions without an exchange is
 //!   stopped.
 
 mod lua;
 
+use crate::keys::KeyReply;
 use crate::protocol::{
-    line_frame, CommandError, Frame, Prepared, Protocol, ProtocolOptions, Purpose, ReloadError, ReplyError, ReplyEvent,
-    Request, VendorError,
+    line_frame, CommandError, Frame, Lane, Prepared, Protocol, ProtocolOptions, Purpose, ReloadError, ReplyError,
+    ReplyEvent, Request, VendorError,
 };
 use crate::scale::Scale;
 use lua::{AxisLua, Ran};
@@ -51,6 +56,9 @@ pub struct ScriptSource {
     pub macros: BTreeMap<String, MacroValue>,
     /// Each channel's own globals, over the controller's (`OPEN_LOOP`, ...).
     pub axis_macros: BTreeMap<usize, BTreeMap<String, MacroValue>>,
+    /// Each channel's axis's MRES, the `MOTOR_REC_RESOLUTION` parameter its script reads (as
+    /// the record's device support gives it).
+    pub record_resolution: BTreeMap<usize, f64>,
 }
 
 impl ScriptSource {
@@ -261,12 +269,13 @@ impl Script {
         Request::silent(Vec::new(), ScriptStep { channel, call: self.calls, part: Part::Start(call) })
     }
 
-    /// What a call that ran to an exchange or its end, or failed, means for the layer.
+    /// What a call that ran to an exchange or its end, or failed, means for the layer: the
+    /// requests to send next, in order, and what to report.
     fn carry_on(
         &mut self,
         current: Current,
         ran: Result<Option<Ran>, ScriptError>,
-    ) -> (Option<Request<ScriptStep>>, Vec<ReplyEvent<ScriptStep>>) {
+    ) -> (Vec<Request<ScriptStep>>, Vec<ReplyEvent<ScriptStep>>) {
         let channel = current.channel;
         let step = ScriptStep { channel, call: current.number, part: Part::Exchange(current.call) };
         let ran = match ran {
@@ -282,17 +291,21 @@ impl Script {
                 } else {
                     ReplyEvent::Refused(error)
                 };
-                return (None, vec![event]);
+                return (Vec::new(), vec![event]);
             }
         };
         match ran {
             Ran::Exchange { bytes, terminator } => {
                 self.terminator = terminator;
-                (Some(Request::query(bytes, step)), Vec::new())
+                (vec![Request::query(bytes, step)], Vec::new())
+            }
+            Ran::Key { access, written } => {
+                let written = (!written.is_empty()).then(|| Request::silent(written, step));
+                (written.into_iter().chain([Request::key(&access, step)]).collect(), Vec::new())
             }
             Ran::Returned { written } => {
                 self.current = None;
-                let last = (!written.is_empty()).then(|| Request::silent(written, step));
+                let last = (!written.is_empty()).then(|| Request::silent(written, step)).into_iter().collect();
                 let mut events = Vec::new();
                 if current.call == Call::Poll {
                     if let Ok(axis) = self.axis(channel) {
@@ -388,7 +401,13 @@ impl Protocol for Script {
             Ok(axis) => call.start(axis).map_err(|message| ScriptError::Call { function: call.function(), message }),
             Err(e) => Err(e.clone()),
         };
-        let (request, events) = self.carry_on(current, ran);
+        let (requests, mut events) = self.carry_on(current, ran);
+        let mut requests = requests.into_iter();
+        let request = requests.next();
+        let after: Vec<_> = requests.collect();
+        if !after.is_empty() {
+            events.push(ReplyEvent::FollowUp(after));
+        }
         Prepared { request, events }
     }
 
@@ -420,16 +439,27 @@ impl Protocol for Script {
         let (Some(current), Part::Exchange(_)) = (current, step.part) else {
             return Err(ReplyError::new(request, frame, "the script call it answers was given up"));
         };
-        let body = frame.strip_suffix(self.terminator.as_slice()).unwrap_or(frame);
+        let key_reply = match request.lane {
+            Lane::Keys => {
+                let reply = KeyReply::decode(frame);
+                Some(reply.ok_or_else(|| ReplyError::new(request, frame, "not an answer of the key space"))?)
+            }
+            _ => None,
+        };
+        let terminator = self.terminator.clone();
         let ran = match self.axis(step.channel) {
-            Ok(axis) => axis
-                .resume(body)
-                .map(Some)
-                .map_err(|message| ScriptError::Call { function: current.call.function(), message }),
+            Ok(axis) => match key_reply {
+                Some(reply) => axis.resume_key(reply),
+                None => axis.resume(frame.strip_suffix(terminator.as_slice()).unwrap_or(frame)),
+            }
+            .map(Some)
+            .map_err(|message| ScriptError::Call { function: current.call.function(), message }),
             Err(e) => Err(e.clone()),
         };
         let (next, mut events) = self.carry_on(current, ran);
-        events.extend(next.map(|request| ReplyEvent::FollowUp(vec![request])));
+        if !next.is_empty() {
+            events.push(ReplyEvent::FollowUp(next));
+        }
         Ok(events)
     }
 }
