@@ -186,6 +186,38 @@ fn a_script_reloaded_during_a_move_stops_it_and_runs_and_a_broken_one_is_refused
     assert!(output.status.success() && said.contains("script reload ok"), "{said}");
 }
 
+/// motorScriptMotor's `softMotor.lua`, unchanged, on a controller without a connection: its
+/// `epics.put`/`epics.get` drive another axis of the node by its keys. A move of soft1 writes
+/// gap.VAL, and soft1 is done, where gap is, once gap.RBV says it arrived. (Its `stop` writes
+/// MOTOR_POSITION, in steps, as a target in EGU: the script's own slip, shown in virtual time.)
+#[test]
+fn soft_motor_lua_of_motor_script_motor_drives_another_axis_by_its_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let original = common::repo_file("launch/soft-motor-script.toml");
+    let beside = original.parent().unwrap().display().to_string();
+    let text = std::fs::read_to_string(&original).unwrap();
+    let text = text.replace("script = \"", &format!("script = \"{beside}/")).replace("tcp/127.0.0.1:7447", &endpoint);
+    let file = dir.path().join("launch.toml");
+    std::fs::write(&file, text).unwrap();
+    let _node = launch_node(&file, &endpoint, dir.path());
+    let host = common::Host::default();
+    // Out of its COMM alarm once its script has read gap.RBV (gap is served after the first poll).
+    const COMM_ERR: u32 = 0x1000;
+    host.wait_for(&endpoint, "soft1", "MSTA", |msta| (msta as u32) & COMM_ERR == 0);
+    let put = |args: &[&str]| {
+        let output = host.zmotor(&["put", "soft1"]).args(args).args(["--connect", &endpoint]).output().unwrap();
+        String::from_utf8_lossy(&output.stdout).into_owned() + &String::from_utf8_lossy(&output.stderr)
+    };
+    let said = put(&["VAL", "2", "--wait"]);
+    let log = || std::fs::read_to_string(dir.path().join("node.log")).unwrap_or_default();
+    assert!(said.contains("reached=1") && said.contains("RBV=2 "), "{said}\nthe node logged:\n{}", log());
+    assert_eq!(host.get(&endpoint, "gap", "RBV"), Some(2.0), "gap is where soft1 went");
+    let said = put(&["VAL", "-1.5", "--wait"]);
+    assert!(said.contains("reached=1") && said.contains("RBV=-1.5 "), "{said}\nthe node logged:\n{}", log());
+    assert_eq!(host.get(&endpoint, "gap", "RBV"), Some(-1.5));
+}
+
 #[test]
 fn kohzu_sc_by_script_on_a_serial_line() {
     drive_through_loss_and_recovery("kohzu_sc", "launch/kohzu-sc.toml", Reach::Pty("/tmp/zmotor-kohzu"), "kohzu1");

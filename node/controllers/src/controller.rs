@@ -582,7 +582,8 @@ impl<P: Protocol> AnyController for Controller<P> {
                 if self.in_flight.as_ref().is_some_and(|f| f.request.lane == Lane::Keys) {
                     self.on_frame(bytes);
                 } else {
-                    let what = format!("an answer of the key space nothing waits for: {}", crate::protocol::printable(bytes));
+                    let what =
+                        format!("an answer of the key space nothing waits for: {}", crate::protocol::printable(bytes));
                     self.events.push_back(ControllerEvent::Failed { what });
                 }
             }

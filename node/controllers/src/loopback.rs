@@ -123,7 +123,10 @@ impl Loopback {
         match KeyAccess::decode(bytes) {
             Some(KeyAccess::Get(name)) => {
                 let key = name.key(KEY_PREFIX);
-                self.keys.get(&key).cloned().map_or(KeyReply::Failed(format!("nothing answers for {key}")), KeyReply::Value)
+                self.keys
+                    .get(&key)
+                    .cloned()
+                    .map_or(KeyReply::Failed(format!("nothing answers for {key}")), KeyReply::Value)
             }
             Some(KeyAccess::Put(name, value)) => {
                 self.keys.insert(name.key(KEY_PREFIX), value.clone());

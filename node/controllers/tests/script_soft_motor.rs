@@ -15,8 +15,7 @@ const SOFT_MOTOR: &str = "node/controllers/tests/scripts/motorScriptMotor/softMo
 /// softMotor.lua on channel 0, its axis's MRES 0.001, reading `readback` and driving `gap.VAL`;
 /// the readback key holds 0. The loopback's controller (a VMC's emulator) is never written to.
 fn soft_motor(readback: &str) -> Loopback {
-    let macros =
-        [("DRIVE_PV", MacroValue::Text("gap.VAL".into())), ("READBACK_PV", MacroValue::Text(readback.into()))];
+    let macros = [("DRIVE_PV", MacroValue::Text("gap.VAL".into())), ("READBACK_PV", MacroValue::Text(readback.into()))];
     let mut source = script_source(SOFT_MOTOR, "SOFT", &macros);
     source.record_resolution = [(0, 0.001)].into();
     let mut lb = script_loopback(&source, Model::Vmc, &[0], Faults::default());
@@ -83,7 +82,8 @@ fn a_key_nobody_serves_is_a_problem_naming_the_key_the_script_and_its_line() {
     let (channel, _, meaning) = errors.first().expect("an error");
     assert_eq!(*channel, Some(0));
     assert!(
-        meaning.contains("softMotor.lua:36:") && meaning.contains("epics.get(slit.RBV): nothing answers for motor/slit/RBV"),
+        meaning.contains("softMotor.lua:36:")
+            && meaning.contains("epics.get(slit.RBV): nothing answers for motor/slit/RBV"),
         "{meaning}"
     );
 }

@@ -121,10 +121,16 @@ impl ControllerSection {
             // A script may talk to the node's keys only (softMotor.lua).
             (None, None) if protocol == ProtocolKind::Script => Transport::None,
             (None, None) => {
-                let why = "give one of tcp = \"host:port\" or a [controller.serial] port (only a script may have neither)";
+                let why =
+                    "give one of tcp = \"host:port\" or a [controller.serial] port (only a script may have neither)";
                 return Err(at(&["name"], why.into()));
             }
-            _ => return Err(at(&["name"], "give one of tcp = \"host:port\" or a [controller.serial] port, not both".into())),
+            _ => {
+                return Err(at(
+                    &["name"],
+                    "give one of tcp = \"host:port\" or a [controller.serial] port, not both".into(),
+                ))
+            }
         };
         let mut names = BTreeMap::new();
         for (channel, name) in &self.axis_names {

@@ -14,14 +14,14 @@ use tokio::sync::{mpsc, oneshot, watch};
 use zenoh::bytes::Encoding;
 use zenoh::Session;
 use zmotor_controllers::{AnyController, ControllerEvent, Lane, ProtocolOptions, ScriptSource};
-use zmotor_controllers::{KeyAccess, KeyName, KeyReply, KeyValue};
-use zmotor_msgs::{decode_scalar, Field, KeyLayout, PayloadEncoding, Value};
 use zmotor_controllers::{ControllerSpec, FlowControl, Parity, SerialSettings, Transport};
 use zmotor_controllers::{ControllerUnit, Finding, Scale, ScaleCheck, VendorError};
+use zmotor_controllers::{KeyAccess, KeyName, KeyReply, KeyValue};
 use zmotor_core::DeviceStatus;
 use zmotor_core::Instant;
 use zmotor_deploy::ScriptFiles;
 use zmotor_msgs::DriverCommand;
+use zmotor_msgs::{decode_scalar, Field, KeyLayout, PayloadEncoding, Value};
 
 /// Longest wait for a TCP connection or a serial port to open.
 const OPEN_TIMEOUT: Duration = Duration::from_secs(3);
@@ -113,7 +113,9 @@ impl KeySpace {
             return KeyReply::Failed(format!("nothing answers for {key}"));
         };
         match (reply.result(), access) {
-            (Err(refused), _) => KeyReply::Failed(format!("{key}: {}", String::from_utf8_lossy(&refused.payload().to_bytes()))),
+            (Err(refused), _) => {
+                KeyReply::Failed(format!("{key}: {}", String::from_utf8_lossy(&refused.payload().to_bytes())))
+            }
             (Ok(_), KeyAccess::Put(_, value)) => KeyReply::Value(value),
             (Ok(sample), KeyAccess::Get(_)) => {
                 let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());

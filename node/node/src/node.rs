@@ -90,14 +90,13 @@ impl Node {
         let NodeContents { plans, calcs, values, controllers, guarded } = contents;
         let (stop, stopped) = tokio::sync::watch::channel(false);
         let (stop_controllers, controllers_stopped) = tokio::sync::watch::channel(false);
-        let mut running: Vec<RunningController> =
-            controllers
-                .into_iter()
-                .map(|spec| {
-                    let keys = crate::controllers::KeySpace { session: session.clone(), layout: layout.clone() };
-                    crate::controllers::start(spec, controllers_stopped.clone(), keys)
-                })
-                .collect();
+        let mut running: Vec<RunningController> = controllers
+            .into_iter()
+            .map(|spec| {
+                let keys = crate::controllers::KeySpace { session: session.clone(), layout: layout.clone() };
+                crate::controllers::start(spec, controllers_stopped.clone(), keys)
+            })
+            .collect();
         let mut first_statuses = HashMap::new();
         for controller in &mut running {
             let first = tokio::time::timeout(CONTROLLER_BOOT_WAIT, &mut controller.first).await;

@@ -362,7 +362,9 @@ fn key_access(kind: &str, name: &str, value: Option<Value>) -> Result<KeyAccess,
         Some(Value::Number(n)) => return Err(format!("{n} is not a value to write")),
         Some(Value::Boolean(b)) => KeyValue::Number(f64::from(u8::from(b))),
         Some(Value::String(text)) => KeyValue::Text(text.to_string_lossy()),
-        other => return Err(format!("a number or a string to write, not {}", other.map_or("nothing", |v| v.type_name()))),
+        other => {
+            return Err(format!("a number or a string to write, not {}", other.map_or("nothing", |v| v.type_name())))
+        }
     };
     Ok(KeyAccess::Put(name, value))
 }
