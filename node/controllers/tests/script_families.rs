@@ -516,7 +516,7 @@ mod faulhaber {
 
     #[test]
     fn a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing() {
-        let reads = |l: &str| ["POS", "OST", "GN"].iter().any(|q| l.len() > 1 && &l[1..] == format!("{q}\r"));
+        let reads = |l: &str| ["POS", "OST", "GN"].iter().any(|q| l.len() > 1 && l[1..] == format!("{q}\r"));
         super::a_lost_reply_sends_no_move_twice_and_a_new_connection_moves_nothing(
             &FAULHABER,
             |l| l.contains("LA"),

@@ -537,7 +537,7 @@ fn open(transport: Transport, connections: usize) -> Opening {
                         "the protocol needs several connections, and a serial line is one",
                     )),
                     Transport::Serial(settings) => open_serial(settings).map(Some),
-                    Transport::None => return Ok(None),
+                    Transport::None => Ok(None),
                 }
             };
             let stream = tokio::time::timeout(OPEN_TIMEOUT, opening)
