@@ -47,6 +47,8 @@ struct ReadyScript {
     named: &'static str,
     text: &'static str,
     model: Model,
+    /// The launch file's channel (the script's `AXIS`) of the axis moved.
+    channel: usize,
     /// The emulator's number for the script's channel c is c + this (AXIS 0 is axis 1).
     first_axis: usize,
     homes: bool,
@@ -64,7 +66,7 @@ const fn native(
     Ready { kind, launch, reach, axis, channel, targets, script: None }
 }
 
-/// A script-driven family's ready launch file, its axis on the script's channel 0.
+/// A script-driven family's ready launch file, its axis on the script's channel `script.channel`.
 const fn scripted(
     launch: &'static str,
     reach: Reach,
@@ -72,7 +74,8 @@ const fn scripted(
     targets: [f64; 2],
     script: ReadyScript,
 ) -> Ready {
-    Ready { kind: ProtocolKind::Script, launch, reach, axis, channel: 0, targets, script: Some(script) }
+    let channel = script.channel;
+    Ready { kind: ProtocolKind::Script, launch, reach, axis, channel, targets, script: Some(script) }
 }
 
 impl Ready {
@@ -231,6 +234,7 @@ const READY: [Ready; 18] = [
             named: "scripts/kohzu_sc.lua",
             text: include_str!("../../../launch/scripts/kohzu_sc.lua"),
             model: Model::KohzuSc,
+            channel: 0,
             first_axis: 1,
             homes: true,
         },
@@ -244,6 +248,7 @@ const READY: [Ready; 18] = [
             named: "scripts/micronix_mmc.lua",
             text: include_str!("../../../launch/scripts/micronix_mmc.lua"),
             model: Model::MicronixMmc,
+            channel: 0,
             first_axis: 1,
             homes: true,
         },
@@ -257,6 +262,7 @@ const READY: [Ready; 18] = [
             named: "scripts/newfocus_8742.lua",
             text: include_str!("../../../launch/scripts/newfocus_8742.lua"),
             model: Model::NewFocus8742,
+            channel: 0,
             first_axis: 1,
             homes: false,
         },
@@ -271,6 +277,7 @@ const READY: [Ready; 18] = [
             named: "scripts/piezojena_nv40.lua",
             text: include_str!("../../../launch/scripts/piezojena_nv40.lua"),
             model: Model::PiezojenaNv40,
+            channel: 0,
             first_axis: 0,
             homes: false,
         },
@@ -284,6 +291,7 @@ const READY: [Ready; 18] = [
             named: "scripts/faulhaber_mc.lua",
             text: include_str!("../../../launch/scripts/faulhaber_mc.lua"),
             model: Model::FaulhaberMc,
+            channel: 1,
             first_axis: 0,
             homes: true,
         },
@@ -297,6 +305,7 @@ const READY: [Ready; 18] = [
             named: "../node/controllers/tests/scripts/motorScriptMotor/vmc.lua",
             text: include_str!("../../controllers/tests/scripts/motorScriptMotor/vmc.lua"),
             model: Model::Vmc,
+            channel: 0,
             first_axis: 1,
             homes: false,
         },
