@@ -26,6 +26,7 @@ mod pmac;
 mod protocol;
 mod scale;
 mod script;
+mod script_source;
 mod smaract_mcs2;
 mod spec;
 
@@ -38,7 +39,8 @@ pub use protocol::{
     ReplyError, ReplyEvent, Request, VendorError,
 };
 pub use scale::{ControllerUnit, RecordUnits, Scale, ScaleCheck, ScaleMismatch, ScaleSource};
-pub use script::{MacroValue, ScriptError, ScriptSettings, ScriptSource};
+pub use script::ScriptSettings;
+pub use script_source::{MacroValue, ScriptError, ScriptSource};
 pub use spec::{ControllerSpec, FlowControl, Parity, SerialSettings, SpecError, Transport};
 use zmotor_core::Instant;
 

@@ -16,7 +16,7 @@ pub struct ProtocolOptions {
     /// positioners, `GROUP.POSITIONER`); a channel not named has the protocol's default name.
     pub names: std::collections::BTreeMap<usize, String>,
     /// The script of a script controller, and what the launch file gives it.
-    pub script: Option<crate::script::ScriptSource>,
+    pub script: Option<crate::script_source::ScriptSource>,
 }
 
 /// Which of a controller's connections a request travels on. Most protocols use one; a
@@ -191,7 +191,7 @@ pub enum ReloadError {
     Unsupported(&'static str),
     /// The new script does not load; the old one runs on.
     #[error("{0}; the running script is kept")]
-    Script(#[from] crate::script::ScriptError),
+    Script(#[from] crate::script_source::ScriptError),
 }
 
 /// A reply that cannot be understood.

@@ -4,8 +4,8 @@
 //! `os`, no `io`, no files but the script directory's modules, a bounded memory and a budget of
 //! instructions between two exchanges.
 
-use super::{MacroValue, ScriptError, ScriptSource};
 use crate::keys::{KeyAccess, KeyName, KeyReply, KeyValue};
+use crate::script_source::{MacroValue, ScriptError, ScriptSource};
 use mlua::thread::ThreadStatus;
 use mlua::{HookTriggers, Lua, LuaOptions, MultiValue, StdLib, Table, Thread, Value, Variadic, VmState};
 use std::collections::HashMap;

@@ -1,4 +1,5 @@
 use super::*;
+use crate::script_source::MacroValue;
 use zmotor_msgs::bits::msta;
 
 fn source(text: &str) -> ScriptSource {
