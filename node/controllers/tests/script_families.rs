@@ -109,6 +109,23 @@ fn no_failed_exchange(events: &[ControllerEvent]) {
     assert!(!events.iter().any(|e| matches!(e, ControllerEvent::Failed { .. })), "{events:?}");
 }
 
+/// A move at `max_velocity` steps/s, which the controller on `channel` cannot take: the script
+/// refuses it (its error names each of `says`), the channel shows a problem, and no line
+/// containing `command` is written.
+fn a_speed_is_refused_unsent(lb: &mut Loopback, channel: usize, max_velocity: f64, says: &[&str], command: &str) {
+    let from = lb.written().len();
+    let fast_or_slow =
+        DriverCommand::Move { position: 100.0, relative: false, min_velocity: 0.0, max_velocity, acceleration: 1e5 };
+    lb.command(channel, &fast_or_slow);
+    lb.run_for(Duration::from_millis(500));
+    let events = lb.take_events();
+    let errors = common::controller_errors(&events);
+    let said = |(c, _, m): &(Option<usize>, String, String)| *c == Some(channel) && says.iter().all(|s| m.contains(s));
+    assert!(errors.iter().any(said), "{events:?}");
+    assert_ne!(common::last_status(&events, channel).msta & msta::PROBLEM, 0);
+    assert!(!written_since(lb, from).iter().any(|l| l.contains(command)), "nothing sent");
+}
+
 mod kohzu {
     use super::*;
 
@@ -144,24 +161,7 @@ mod kohzu {
     #[test]
     fn a_speed_beyond_the_controller_is_refused_not_clamped() {
         let mut lb = KOHZU.up();
-        let from = lb.written().len();
-        let fast = DriverCommand::Move {
-            position: 100.0,
-            relative: false,
-            min_velocity: 0.0,
-            max_velocity: 5e6,
-            acceleration: 1e6,
-        };
-        lb.command(0, &fast);
-        lb.run_for(Duration::from_millis(500));
-        let events = lb.take_events();
-        let refusal = events.iter().find_map(|e| match e {
-            ControllerEvent::ControllerError(error) => Some(error.meaning.clone()),
-            _ => None,
-        });
-        assert!(refusal.as_deref().is_some_and(|m| m.contains("kohzu_sc.lua:") && m.contains("4095500")), "{events:?}");
-        assert!(!written_since(&lb, from).iter().any(|l| l.contains("APS")), "nothing moved");
-        assert_ne!(common::last_status(&events, 0).msta & msta::PROBLEM, 0);
+        a_speed_is_refused_unsent(&mut lb, 0, 5e6, &["kohzu_sc.lua:", "4095500"], "APS");
     }
 
     #[test]
@@ -274,24 +274,7 @@ mod picomotor {
     #[test]
     fn a_speed_beyond_the_controller_is_refused_unsent_and_a_refusal_of_its_own_is_in_its_words() {
         let mut lb = PICOMOTOR.up();
-        let from = lb.written().len();
-        let fast = DriverCommand::Move {
-            position: 10.0,
-            relative: false,
-            min_velocity: 0.0,
-            max_velocity: 5000.0,
-            acceleration: 1e5,
-        };
-        lb.command(0, &fast);
-        lb.run_for(Duration::from_millis(500));
-        let events = lb.take_events();
-        let errors = common::controller_errors(&events);
-        assert!(
-            errors.iter().any(|(c, _, m)| *c == Some(0) && m.contains("outside the 8742's 1 to 2000")),
-            "{events:?}"
-        );
-        assert_ne!(common::last_status(&events, 0).msta & msta::PROBLEM, 0);
-        assert!(!written_since(&lb, from).iter().any(|l| l.contains(" PA ")), "nothing sent");
+        a_speed_is_refused_unsent(&mut lb, 0, 5000.0, &["outside the 8742's 1 to 2000"], " PA ");
         // A position set while moving: the controller's own refusal, read from its error queue.
         lb.command(0, &go(3000.0, false));
         lb.run_for(Duration::from_millis(300));
@@ -455,24 +438,7 @@ mod faulhaber {
     #[test]
     fn a_speed_under_one_rpm_is_refused_unsent() {
         let mut lb = FAULHABER.up();
-        let from = lb.written().len();
-        let slow = DriverCommand::Move {
-            position: 100.0,
-            relative: false,
-            min_velocity: 0.0,
-            max_velocity: 20.0,
-            acceleration: 1e4,
-        };
-        lb.command(1, &slow);
-        lb.run_for(Duration::from_millis(500));
-        let events = lb.take_events();
-        let errors = common::controller_errors(&events);
-        let said = |(c, _, m): &(Option<usize>, String, String)| {
-            *c == Some(1) && m.contains("faulhaber_mc.lua:") && m.contains("under 1 rpm")
-        };
-        assert!(errors.iter().any(said), "{events:?}");
-        assert!(!written_since(&lb, from).iter().any(|l| l.contains("LA") || l.contains("SP")), "nothing sent");
-        assert_ne!(common::last_status(&events, 1).msta & msta::PROBLEM, 0);
+        a_speed_is_refused_unsent(&mut lb, 1, 20.0, &["faulhaber_mc.lua:", "under 1 rpm"], "SP");
     }
 
     #[test]
