@@ -6,7 +6,7 @@
 //! subscriber declaration re-evaluates every listener.)
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 use zenoh::sample::Locality;
 use zenoh::Session;
 use zmotor_msgs::{Field, KeyLayout};
@@ -22,13 +22,26 @@ impl FieldDemand {
         for field in Field::all() {
             let probe =
                 session.declare_publisher(layout.field("*", field)).allowed_destination(Locality::Remote).await?;
+            // Wanted until known: Zenoh reports changes, not the status at the declaration, so
+            // the status is read once the listener is there; a change reported meanwhile wins.
             let flag = Arc::new(AtomicBool::new(true));
-            let listener = flag.clone();
+            let reported = Arc::new(Mutex::new(false));
+            let (listener, reporter) = (flag.clone(), reported.clone());
             probe
                 .matching_listener()
-                .callback(move |status| listener.store(status.matching(), Ordering::Release))
+                .callback(move |status| {
+                    let mut reported = reporter.lock().unwrap_or_else(PoisonError::into_inner);
+                    *reported = true;
+                    listener.store(status.matching(), Ordering::Release);
+                })
                 .background()
                 .await?;
+            let matching = probe.matching_status().await?.matching();
+            let reported = reported.lock().unwrap_or_else(PoisonError::into_inner);
+            if !*reported {
+                flag.store(matching, Ordering::Release);
+            }
+            drop(reported);
             wanted.push(flag);
             probes.push(probe);
         }
@@ -37,5 +50,46 @@ impl FieldDemand {
 
     pub(crate) fn wanted(&self, field: Field) -> bool {
         self.wanted[field as usize].load(Ordering::Acquire)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::Duration;
+
+    async fn session(endpoints: (&str, &str)) -> Session {
+        let mut config = zenoh::Config::default();
+        for (key, value) in [("mode", "\"peer\""), endpoints, ("scouting/multicast/enabled", "false")] {
+            config.insert_json5(key, value).unwrap();
+        }
+        zenoh::open(config).await.unwrap()
+    }
+
+    async fn until(demand: &FieldDemand, field: Field, wanted: bool) {
+        for _ in 0..500 {
+            if demand.wanted(field) == wanted {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("{field} still {} after 5 s", demand.wanted(field));
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn a_field_is_wanted_while_a_subscriber_elsewhere_covers_it_and_not_before() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let endpoint = format!("[\"tcp/127.0.0.1:{port}\"]");
+        let node = session(("listen/endpoints", &endpoint)).await;
+        let client = session(("connect/endpoints", &endpoint)).await;
+        let layout = KeyLayout::default();
+        let demand = FieldDemand::declare(&node, &layout).await.unwrap();
+        // Nobody subscribes: nothing is wanted, from the start (no change is ever reported).
+        assert!(!demand.wanted(Field::RBV) && !demand.wanted(Field::DRBV));
+        let subscriber = client.declare_subscriber(layout.field("m1", Field::RBV)).await.unwrap();
+        until(&demand, Field::RBV, true).await;
+        assert!(!demand.wanted(Field::DRBV), "a field nobody covers");
+        drop(subscriber);
+        until(&demand, Field::RBV, false).await;
     }
 }
