@@ -10,6 +10,7 @@ use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
 use crate::refusal::{self, refuse};
+use crate::ticker::AxisClock;
 use crate::writer::Writer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
@@ -136,12 +137,12 @@ pub(crate) struct AxisCore {
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
     /// Fields posted once so far (with a session put).
     posted_once: Vec<Field>,
-    /// Wakes the axis's task when an input handled elsewhere may have moved its deadlines.
-    pub(crate) rearm: Arc<Notify>,
+    /// Where the axis's deadlines go: its ticks come from there.
+    clock: Arc<AxisClock>,
     /// A field autosave keeps changed since the task last looked.
     pub(crate) unsaved: Arc<AtomicBool>,
-    /// A tick the task delivered is not handled yet (`AxisTask::tick_pending`).
-    pub(crate) tick_pending: Arc<AtomicBool>,
+    /// Wakes the axis's task when `unsaved` is set.
+    pub(crate) save_due: Arc<Notify>,
 }
 
 impl AxisCore {
@@ -151,6 +152,7 @@ impl AxisCore {
         controller: Option<ControllerPort>,
         follows: Follows,
         holds: Holds,
+        clock: Arc<AxisClock>,
     ) -> Self {
         Self {
             service,
@@ -161,10 +163,15 @@ impl AxisCore {
             trace: None,
             hot: Vec::new(),
             posted_once: Vec::new(),
-            rearm: Arc::default(),
+            clock,
             unsaved: Arc::default(),
-            tick_pending: Arc::default(),
+            save_due: Arc::default(),
         }
+    }
+
+    /// Hand the axis's next deadlines to its clock.
+    pub(crate) fn schedule_ticks(&self) {
+        self.clock.schedule(self.service.poll_timeout(), self.service.event_timeout());
     }
 
     /// The axis's clock.
@@ -362,20 +369,15 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::SimQuery(query) => self.on_sim_query(now, query),
             AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
             AxisInput::ControllerMessage(message) => self.service.controller_message(message),
-            AxisInput::Tick => {
-                self.tick_pending.store(false, Ordering::Release);
-                self.service.handle_timeout(now);
-            }
+            AxisInput::Tick => self.service.handle_timeout(now),
             AxisInput::LinkUpdate(link, value) => self.service.link_update(now, link, value),
             AxisInput::HoldReleased(token) => self.service.hold_released(now, &token),
             AxisInput::StopMotion => self.service.stop_motion(now),
         }
         self.flush();
-        if self.service.take_unsaved_change() {
-            self.unsaved.store(true, Ordering::Release);
+        if self.service.take_unsaved_change() && !self.unsaved.swap(true, Ordering::AcqRel) {
+            self.save_due.notify_one();
         }
-        // Only a task waiting right now is woken: the task computes its deadlines after it
-        // registers, so an input handled before that is already in what it computes.
-        self.rearm.notify_waiters();
+        self.schedule_ticks();
     }
 }

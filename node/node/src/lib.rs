@@ -18,7 +18,7 @@ mod node;
 mod refusal;
 mod router;
 mod routes;
-mod timer;
+mod ticker;
 mod tokens;
 mod writer;
 

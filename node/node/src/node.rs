@@ -11,7 +11,7 @@ use crate::input::{AxisInput, Deliver};
 use crate::links::{CalcTask, Follows, LocalFollowers, PostsFollowed, ValueHolder};
 use crate::router::Router;
 use crate::routes::Routes;
-use crate::timer::Timer;
+use crate::ticker::Ticker;
 use crate::tokens::Tokens;
 use crate::writer::Writer;
 use std::collections::{BTreeMap, HashMap};
@@ -38,9 +38,9 @@ pub enum NodeError {
     /// A calc link cannot be built.
     #[error(transparent)]
     Calc(#[from] LinkError),
-    /// The timer thread cannot be started.
-    #[error("cannot start the timer thread: {0}")]
-    Timer(std::io::Error),
+    /// The clock's worker threads cannot be started.
+    #[error("cannot start the axes' clock: {0}")]
+    Clock(std::io::Error),
     /// An axis names a controller the node does not run.
     #[error("axis '{axis}': no controller '{controller}' in this node")]
     UnknownController {
@@ -61,6 +61,13 @@ impl From<zenoh::Error> for NodeError {
 /// boot in COMM alarm and follow the controller when it answers.
 const CONTROLLER_BOOT_WAIT: Duration = Duration::from_secs(10);
 
+/// How many threads tick the axes of a node: one per core. (On two cores, 1,000 axes read
+/// back at 100 Hz with every field subscribed: one worker kept 66-83 of 100 samples per axis and
+/// second, two 85; BENCHMARKS.md 3.)
+fn tick_workers() -> usize {
+    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+}
+
 /// A running node: its axes' and calc links' tasks, stopped when dropped or on `shutdown`.
 pub struct Node {
     axis_tasks: Vec<tokio::task::JoinHandle<()>>,
@@ -70,6 +77,8 @@ pub struct Node {
     /// Stops the controllers, after the axes (their last stop commands go through them).
     stop_controllers: tokio::sync::watch::Sender<bool>,
     _router: Router,
+    /// Ticks the axes; its workers end with the node.
+    _ticker: Ticker,
     _values: Vec<ValueHolder>,
     /// The reload keys of the script controllers.
     _reloads: Vec<zenoh::pubsub::Subscriber<()>>,
@@ -103,7 +112,9 @@ impl Node {
             first_statuses.insert(controller.name.clone(), first.ok().and_then(Result::ok).unwrap_or_default());
         }
         let mut on_controllers: HashMap<String, Vec<(usize, Arc<AxisInbox>)>> = HashMap::new();
-        let timer = Timer::start().map_err(NodeError::Timer)?;
+        let clock = tokio::time::Instant::now();
+        let ticker = Ticker::start(tick_workers(), clock.into_std(), tokio::runtime::Handle::current())
+            .map_err(NodeError::Clock)?;
         let side = NodeSide {
             session: session.clone(),
             layout: layout.clone(),
@@ -112,7 +123,7 @@ impl Node {
             demand: Arc::new(FieldDemand::declare(&session, &layout).await?),
             budget: Arc::new(AtomicUsize::new(PUBLISHER_BUDGET)),
             guarded,
-            clock: tokio::time::Instant::now(),
+            clock,
         };
         let mut tokens = Tokens::default();
         let mut routes = Routes::new();
@@ -148,26 +159,18 @@ impl Node {
             let jog_hold = plan.jog_hold;
             let service =
                 AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status)).with_jog_hold(jog_hold);
-            let core = AxisCore::new(service, side.clone(), controller, follows, holds);
-            let (rearm, unsaved, tick_pending) = (core.rearm.clone(), core.unsaved.clone(), core.tick_pending.clone());
+            let axis_clock = ticker.clock();
+            let core = AxisCore::new(service, side.clone(), controller, follows, holds, axis_clock.clone());
+            let (unsaved, save_due) = (core.unsaved.clone(), core.save_due.clone());
             let axis = Arc::new(Inbox::new(core));
+            axis_clock.attach(Arc::downgrade(&axis) as std::sync::Weak<dyn Deliver>);
+            axis.inspect(AxisCore::schedule_ticks);
             links.attach(&axis);
             routes.insert(name.clone(), axis.clone() as Arc<dyn Deliver>);
             if let Some((controller, channel)) = on_controller {
                 on_controllers.entry(controller).or_default().push((channel, axis.clone()));
             }
-            axis_tasks.push(AxisTask {
-                axis,
-                rearm,
-                unsaved,
-                tick_pending,
-                released,
-                saver,
-                timer: timer.clone(),
-                token: tokens.slot(&name),
-                clock: side.clock,
-                name,
-            });
+            axis_tasks.push(AxisTask { axis, unsaved, save_due, released, saver, token: tokens.slot(&name), name });
         }
         for controller in &running {
             let axes = on_controllers.remove(&controller.name).unwrap_or_default();
@@ -211,6 +214,7 @@ impl Node {
             stop,
             stop_controllers,
             _router: router,
+            _ticker: ticker,
             _values: holders,
             _reloads: reloads,
             followers: side.followers.clone(),
