@@ -78,7 +78,7 @@ fn demo_motion() -> Result<Duration, Error> {
 
 /// Until `subscriber` hears from the node (its subscription reached the node): confirmed moves
 /// of axis `i` between the latency targets.
-async fn until_heard(
+pub(crate) async fn until_heard(
     client: &Client,
     axis: &str,
     subscriber: &zenoh::pubsub::Subscriber<zenoh::handlers::FifoChannelHandler<Sample>>,
@@ -462,6 +462,7 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
             println!("      moving: not measured (beyond --moving-up-to)");
             continue;
         }
+        let mut rows = Vec::new();
         for (who, publisher, watch) in [
             ("node, subscriber of every key", Publisher::Node, Watch::Everything),
             ("node, subscriber of RBV and DMOV", Publisher::Node, Watch::ReadbackAndDone),
@@ -475,9 +476,41 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
                 p.rbv_per_axis_per_s,
                 seconds(p.settled_after)
             );
+            rows.push(p);
+        }
+        if let [everything, readback, alone] = &rows[..] {
+            print_scale_targets(everything, readback, alone);
         }
     }
     Ok(())
+}
+
+/// The targets of the scale figures (issue 26), beside what was measured.
+fn print_scale_targets(everything: &Publishing, readback: &Publishing, alone: &Publishing) {
+    let met = |ok: bool| if ok { "met" } else { "MISSED" };
+    let delivered = everything.rbv_per_axis_per_s.min(readback.rbv_per_axis_per_s);
+    println!(
+        "      targets: every RBV delivered, >= 99 per axis/s: {:.1} {}; node under one core: {} {};",
+        delivered,
+        met(delivered >= 99.0),
+        percent(everything.cpu),
+        met(everything.cpu < 1.0)
+    );
+    println!(
+        "               node <= 1.1 x Zenoh alone ({}): {:.2} x {}; RBV and DMOV cheaper than every key: {} < {} {}",
+        percent(alone.cpu),
+        everything.cpu / alone.cpu,
+        met(everything.cpu <= 1.1 * alone.cpu),
+        percent(readback.cpu),
+        percent(everything.cpu),
+        met(readback.cpu < everything.cpu)
+    );
+    let settled = everything.settled_after.zip(readback.settled_after).map(|(a, b)| a.max(b));
+    println!(
+        "               first moves settled in < 2 s: {} s {}",
+        seconds(settled),
+        met(settled.is_some_and(|s| s < Duration::from_secs(2)))
+    );
 }
 
 pub(crate) async fn epics_load_part(programs: &Programs, options: &BenchOptions) -> Result<(), Error> {
@@ -599,7 +632,7 @@ struct WriteStorm {
 }
 
 /// The `k`-th target of the storm: distinct from the one before on the same axis.
-fn storm_target(k: u64) -> String {
+pub(crate) fn storm_target(k: u64) -> String {
     format!("{:.3}", ((k * 7919) % 100_000) as f64 / 1000.0 - 50.0)
 }
 

@@ -12,6 +12,7 @@ mod controller_bench;
 mod floor;
 mod process;
 mod ros2_bench;
+mod soak;
 mod stats;
 
 use clap::{Parser, Subcommand};
@@ -47,6 +48,9 @@ struct Cli {
     /// Seconds each storm of writes lasts (default 60).
     #[arg(long)]
     storm: Option<f64>,
+    /// Minutes the soak lasts (default 60); the soak runs only when named in --parts.
+    #[arg(long)]
+    minutes: Option<f64>,
     #[command(subcommand)]
     floor: Option<FloorCommand>,
 }
@@ -79,9 +83,12 @@ enum Part {
     Holds,
     /// 10. ROS 2 joints beside zmotor's keys.
     Ros2,
+    /// 11. the soak (only when named: it lasts --minutes).
+    Soak,
 }
 
 impl Part {
+    /// What a run measures unless told: every part but the soak, which lasts an hour.
     const ALL: [Part; 9] = [
         Part::Latency,
         Part::Scale,
@@ -122,6 +129,8 @@ struct BenchOptions {
     storm: f64,
     /// One-step moves each way for the Channel Access figures.
     ca_moves: usize,
+    /// Minutes the soak lasts.
+    soak_minutes: f64,
     /// Jogging clients killed for the deadman figure.
     holds: usize,
 }
@@ -141,6 +150,7 @@ impl BenchOptions {
             parts: Part::ALL.to_vec(),
             storm: 60.0,
             ca_moves: 100,
+            soak_minutes: 60.0,
             holds: 20,
         }
     }
@@ -157,9 +167,10 @@ impl BenchOptions {
             epics_load_axes: 10,
             controller_window: 0.2,
             controller_moves: 2,
-            parts: Part::ALL.to_vec(),
+            parts: Part::ALL.into_iter().chain([Part::Soak]).collect(),
             storm: 1.0,
             ca_moves: 3,
+            soak_minutes: 0.1,
             holds: 2,
         }
     }
@@ -189,6 +200,7 @@ async fn run(cli: Cli) -> Result<(), Error> {
     let mut options = if cli.smoke { BenchOptions::smoke() } else { BenchOptions::full() };
     options.parts = cli.parts.unwrap_or(options.parts);
     options.storm = cli.storm.unwrap_or(options.storm);
+    options.soak_minutes = cli.minutes.unwrap_or(options.soak_minutes);
     options.moves = cli.moves.unwrap_or(options.moves);
     options.scales = cli.scales.unwrap_or(options.scales);
     options.moving_up_to = cli.moving_up_to.unwrap_or(options.moving_up_to);
@@ -220,6 +232,7 @@ async fn run(cli: Cli) -> Result<(), Error> {
             Part::ChannelAccess => channel_access_part(&programs, &options).await?,
             Part::Holds => bench::holds_part(&programs, &options).await?,
             Part::Ros2 => ros2_bench::ros2_part(&programs, &options).await?,
+            Part::Soak => soak::soak_part(&programs, &options).await?,
         }
     }
     Ok(())

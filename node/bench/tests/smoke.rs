@@ -1,4 +1,4 @@
-//! `zmotor bench --smoke` runs every part of the benchmark in seconds. Not a timed test: it
+//! `zmotor bench --smoke` runs every part of the benchmark in seconds (the soak too). Not a timed test: it
 //! proves the harness works (through `zmotor bench`, which runs this crate's program) and
 //! prints what it measured.
 
@@ -53,6 +53,8 @@ fn the_benchmark_runs_in_smoke_mode() {
         "10. ROS 2",
         "JointState arrival − RBV arrival",
         "with [ros2], 10 joints",
+        "11. the soak",
+        "target: growth after the warm-up",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
