@@ -345,3 +345,37 @@ async fn the_node_hands_its_posts_to_an_in_process_follower_until_it_lets_go() {
     rec.wait_for("DMOV", |v| *v == int(1)).await;
     assert!(posts.try_recv().is_err(), "nothing of the second move after letting go");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_post_is_stamped_with_the_time_its_status_was_read() {
+    let node = TestNode::start(vec![fast_axis("m1")]).await;
+    let client = node.client().await;
+    let subscriber = client.declare_subscriber("motor/m1/*").await.unwrap();
+    node.until_subscribed("motor/m1/*").await;
+    let written = std::time::SystemTime::now();
+    put_text(&client, &node.key("m1", Field::VAL), "2").await;
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    let mut stamps = Vec::new();
+    loop {
+        let sample = tokio::time::timeout_at(deadline, subscriber.recv_async()).await.unwrap().unwrap();
+        let arrived = std::time::SystemTime::now();
+        if sample.attachment().is_none() {
+            continue; // the client's own write
+        }
+        let stamp =
+            sample.timestamp().unwrap_or_else(|| panic!("{} unstamped", sample.key_expr())).get_time().to_system_time();
+        assert!(
+            written <= stamp && stamp <= arrived,
+            "{}: stamped {stamp:?}, written {written:?}, arrived {arrived:?}",
+            sample.key_expr()
+        );
+        stamps.push(stamp);
+        let done = sample.key_expr().as_str().ends_with("/DMOV")
+            && decode_cbor_value(&sample.payload().to_bytes()).is_ok_and(|v| v == int(1));
+        if done {
+            break;
+        }
+    }
+    assert!(stamps.windows(2).all(|w| w[0] <= w[1]), "stamps in the order of the posts");
+    assert!(stamps.first() < stamps.last(), "a move's posts span its time: {stamps:?}");
+}

@@ -19,6 +19,7 @@ use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::Locality;
+use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
 use zmotor_core::{AxisService, Instant, Reply, ServiceOutput, WriteRequest};
 use zmotor_inbox::{Handler, Inbox};
@@ -229,9 +230,15 @@ impl AxisCore {
     /// Send everything the service has for the network.
     fn flush(&mut self) {
         let mut traced = None;
+        // The posts of one input share the time it was handled: when the status they come
+        // from was read (a subscriber's latency is its arrival less this).
+        let mut stamp = None;
         while let Some(output) = self.service.poll_output() {
             match output {
-                ServiceOutput::Publish { field, value, marker } => self.publish(field, &value, &marker),
+                ServiceOutput::Publish { field, value, marker } => {
+                    let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
+                    self.publish(field, &value, &marker, stamp);
+                }
                 ServiceOutput::Refusal { kind, message, marker } => {
                     let key = self.node.layout.err(self.name());
                     let attachment = ZBytes::from(marker.encode());
@@ -305,7 +312,7 @@ impl AxisCore {
     /// network when a subscriber there wants that field (as the record posts a monitor only to
     /// those who asked). Publications go to other processes only: the node hears itself
     /// in-process.
-    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker) {
+    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker, stamp: Timestamp) {
         self.node.followers.deliver(self.service.name(), field, value);
         if !self.node.demand.wanted(field) {
             return;
@@ -344,7 +351,7 @@ impl AxisCore {
         };
         let attachment = ZBytes::from(marker.encode());
         let _ = match declared {
-            Some(index) => self.hot[index].1.put(encode_cbor(value)).attachment(attachment).wait(),
+            Some(index) => self.hot[index].1.put(encode_cbor(value)).attachment(attachment).timestamp(stamp).wait(),
             None => self
                 .node
                 .session
@@ -352,6 +359,7 @@ impl AxisCore {
                 .encoding(Encoding::APPLICATION_CBOR)
                 .allowed_destination(Locality::Remote)
                 .attachment(attachment)
+                .timestamp(stamp)
                 .wait(),
         };
     }
