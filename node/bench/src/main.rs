@@ -9,6 +9,7 @@ mod axes;
 mod bench;
 mod ca_bench;
 mod controller_bench;
+mod fast_readback;
 mod floor;
 mod process;
 mod ros2_bench;
@@ -85,11 +86,13 @@ enum Part {
     Ros2,
     /// 11. the soak (only when named: it lasts --minutes).
     Soak,
+    /// 12. fast readback: 16 axes at 1 kHz.
+    FastReadback,
 }
 
 impl Part {
     /// What a run measures unless told: every part but the soak, which lasts an hour.
-    const ALL: [Part; 9] = [
+    const ALL: [Part; 10] = [
         Part::Latency,
         Part::Scale,
         Part::EpicsLoad,
@@ -99,6 +102,7 @@ impl Part {
         Part::ChannelAccess,
         Part::Holds,
         Part::Ros2,
+        Part::FastReadback,
     ];
 }
 
@@ -131,6 +135,8 @@ struct BenchOptions {
     ca_moves: usize,
     /// Minutes the soak lasts.
     soak_minutes: f64,
+    /// Seconds the fast readback is recorded.
+    fast_readback_window: f64,
     /// Jogging clients killed for the deadman figure.
     holds: usize,
 }
@@ -151,6 +157,7 @@ impl BenchOptions {
             storm: 60.0,
             ca_moves: 100,
             soak_minutes: 60.0,
+            fast_readback_window: 10.0,
             holds: 20,
         }
     }
@@ -171,6 +178,7 @@ impl BenchOptions {
             storm: 1.0,
             ca_moves: 3,
             soak_minutes: 0.1,
+            fast_readback_window: 0.5,
             holds: 2,
         }
     }
@@ -233,6 +241,7 @@ async fn run(cli: Cli) -> Result<(), Error> {
             Part::Holds => bench::holds_part(&programs, &options).await?,
             Part::Ros2 => ros2_bench::ros2_part(&programs, &options).await?,
             Part::Soak => soak::soak_part(&programs, &options).await?,
+            Part::FastReadback => fast_readback::fast_readback_part(&programs, &options).await?,
         }
     }
     Ok(())

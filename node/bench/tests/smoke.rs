@@ -54,6 +54,8 @@ fn the_benchmark_runs_in_smoke_mode() {
         "JointState arrival − RBV arrival",
         "with [ros2], 10 joints",
         "11. the soak",
+        "12. fast readback",
+        "latency, arrival − the node's stamp",
         "target: growth after the warm-up",
     ] {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
