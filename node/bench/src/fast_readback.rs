@@ -9,6 +9,7 @@ use crate::process::{client_when_ready, wait_for_axes, Programs};
 use crate::stats::Percentiles;
 use crate::{BenchOptions, Error};
 use std::fmt::Write as _;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
 use zenoh::bytes::Encoding;
@@ -64,14 +65,15 @@ pub(crate) async fn fast_readback_part(programs: &Programs, options: &BenchOptio
     let session = client.session().clone();
     wait_for_axes(&session, AXES, Duration::from_secs(60)).await?;
     let arrivals: Arc<Mutex<Vec<Arrival>>> = Arc::default();
-    let (into, recording) = (arrivals.clone(), Arc::new(std::sync::atomic::AtomicBool::new(false)));
-    let on = recording.clone();
+    let unstamped = Arc::new(AtomicU64::new(0));
+    let (into, recording) = (arrivals.clone(), Arc::new(AtomicBool::new(false)));
+    let (on, unstamped_seen) = (recording.clone(), unstamped.clone());
     let layout = KeyLayout::default();
     let names: Vec<String> = (0..AXES).map(bench_axis).collect();
     let _readbacks = session
         .declare_subscriber(layout.field("*", Field::RBV))
         .callback(move |sample| {
-            if !on.load(std::sync::atomic::Ordering::Relaxed) {
+            if !on.load(Relaxed) {
                 return;
             }
             let (at, now) = (Instant::now(), SystemTime::now());
@@ -79,9 +81,14 @@ pub(crate) async fn fast_readback_part(programs: &Programs, options: &BenchOptio
                 .axis_chunk(sample.key_expr().as_str())
                 .and_then(|name| names.iter().position(|n| n == name));
             let stamped = sample.timestamp().map(|t| t.get_time().to_system_time());
-            if let (Some(axis), Some(stamped)) = (axis, stamped) {
-                let latency = now.duration_since(stamped).unwrap_or_default();
-                into.lock().unwrap_or_else(|e| e.into_inner()).push(Arrival { axis, at, latency });
+            match (axis, stamped) {
+                (Some(axis), Some(stamped)) => {
+                    let latency = now.duration_since(stamped).unwrap_or_default();
+                    into.lock().unwrap_or_else(|e| e.into_inner()).push(Arrival { axis, at, latency });
+                }
+                _ => {
+                    unstamped_seen.fetch_add(1, Relaxed);
+                }
             }
         })
         .await?;
@@ -90,12 +97,17 @@ pub(crate) async fn fast_readback_part(programs: &Programs, options: &BenchOptio
     }
     // Past the acceleration and the first publications' declarations.
     tokio::time::sleep(Duration::from_secs(1)).await;
-    recording.store(true, std::sync::atomic::Ordering::Relaxed);
+    recording.store(true, Relaxed);
     tokio::time::sleep(window).await;
-    recording.store(false, std::sync::atomic::Ordering::Relaxed);
+    recording.store(false, Relaxed);
     let arrivals = std::mem::take(&mut *arrivals.lock().unwrap_or_else(|e| e.into_inner()));
     if arrivals.len() < AXES * 2 {
-        return Err(format!("{} RBV samples of {AXES} axes in {window:?}", arrivals.len()).into());
+        let unstamped = unstamped.load(Relaxed);
+        return Err(format!(
+            "{} stamped RBV samples of {AXES} axes in {window:?} ({unstamped} without a timestamp: a zmotor older than its stamps?)",
+            arrivals.len()
+        )
+        .into());
     }
     let mut jitter = Vec::new();
     for axis in 0..AXES {
