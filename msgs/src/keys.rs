@@ -15,6 +15,8 @@ pub const BRIDGE_PREFIX: &str = "bridge";
 pub const ERR_KEY: &str = "ERR";
 /// Key suffix of the driver-command trace.
 pub const DRIVER_CMD_KEY: &str = "@driver/cmd";
+/// Key suffix of an axis's readback bundle (`KeyLayout::readback`).
+pub const READBACK_KEY: &str = "@readback";
 /// The chunk of a write key (`KeyLayout::write`).
 pub const WRITE_CHUNK: &str = "@write";
 /// Selector parameter of a put-with-completion (`<prefix>/<axis>/<FIELD>?wait`).
@@ -76,6 +78,13 @@ impl KeyLayout {
     /// `<prefix>/<axis>/ERR`: where refused fire-and-forget writes are reported as text.
     pub fn err(&self, axis: &str) -> String {
         format!("{}/{axis}/{ERR_KEY}", self.prefix)
+    }
+
+    /// `<prefix>/<axis>/@readback`: the axis's readback bundle (`Readback`), one sample per
+    /// poll or write that changed any of its fields. Opt-in: `*` and `**` never match a chunk
+    /// that starts with `@`, so only a subscriber that names it gets it.
+    pub fn readback(&self, axis: &str) -> String {
+        format!("{}/{axis}/{READBACK_KEY}", self.prefix)
     }
 
     /// `<prefix>/<axis>/@driver/cmd`: the axis's driver-command trace.

@@ -30,4 +30,4 @@ pub use schema::{catalogue_json, message_schemas};
 pub use toml_value::{field_value, to_toml};
 pub use units::{Dimension, Unit};
 pub use value::Value;
-pub use wire::{Completion, DriverCommand, DriverTrace, Gain, Hold, SimState, StateMarker};
+pub use wire::{Completion, DriverCommand, DriverTrace, Gain, Hold, Readback, SimState, StateMarker};

@@ -3,7 +3,7 @@
 
 use crate::catalogue::{Kind, FIELDS};
 use crate::value::Value;
-use crate::wire::{Completion, DriverTrace, Hold, SimState, StateMarker};
+use crate::wire::{Completion, DriverTrace, Hold, Readback, SimState, StateMarker};
 
 /// (file name, schema) for every message type on the wire.
 pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
@@ -17,6 +17,7 @@ pub fn message_schemas() -> Vec<(&'static str, serde_json::Value)> {
         ("driver-command.schema.json", json::<DriverTrace>()),
         ("sim-state.schema.json", json::<SimState>()),
         ("completion.schema.json", json::<Completion>()),
+        ("readback.schema.json", json::<Readback>()),
     ]
 }
 

@@ -196,6 +196,43 @@ pub struct DriverTrace {
     pub seq: u64,
 }
 
+/// An axis's readback state in one sample, on `<prefix>/<axis>/@readback` (opt-in: a subscriber
+/// must name the key; the per-field keys are published as ever). Sent after each poll or write
+/// that changed any of `Readback::FIELDS`, with every one of them as it is then: a CBOR map of
+/// the fields by name, as their own keys carry them (e.g. `{"RBV": 1.5, "DMOV": 0, ...}`), and
+/// the state marker's `seq` of the last post it follows. The sample carries the state marker and
+/// the timestamp of those posts.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+pub struct Readback {
+    /// RBV, DRBV, RRBV, RMP, DIFF, RDIF, DMOV, MOVN and MSTA by name.
+    #[serde(flatten)]
+    pub fields: std::collections::BTreeMap<String, crate::Value>,
+    /// The per-axis sequence number of the last post this state follows.
+    pub seq: u64,
+}
+
+impl Readback {
+    /// The fields a readback bundle carries: what a poll of a moving axis changes, and whether
+    /// it moves.
+    pub const FIELDS: [crate::Field; 9] = [
+        crate::Field::RBV,
+        crate::Field::DRBV,
+        crate::Field::RRBV,
+        crate::Field::RMP,
+        crate::Field::DIFF,
+        crate::Field::RDIF,
+        crate::Field::DMOV,
+        crate::Field::MOVN,
+        crate::Field::MSTA,
+    ];
+
+    /// The bundle of `fields` as they are now, after the post numbered `seq`.
+    pub fn of(fields: &crate::Fields, seq: u64) -> Self {
+        let fields = Self::FIELDS.iter().map(|&f| (f.name().to_string(), fields.get(f))).collect();
+        Self { fields, seq }
+    }
+}
+
 /// The answer to a put-with-completion (`<prefix>/<axis>/<FIELD>?wait`), sent when the motion
 /// the write started has finished (DMOV back to 1). A CBOR map: the written field by its name
 /// with its value now, the readback, the end-of-motion flags and whether the target was reached.

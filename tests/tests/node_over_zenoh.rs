@@ -379,3 +379,48 @@ async fn every_post_is_stamped_with_the_time_its_status_was_read() {
     assert!(stamps.windows(2).all(|w| w[0] <= w[1]), "stamps in the order of the posts");
     assert!(stamps.first() < stamps.last(), "a move's posts span its time: {stamps:?}");
 }
+
+fn readback(bytes: &[u8]) -> zmotor_msgs::Readback {
+    ciborium::from_reader(bytes).unwrap()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_readback_bundle_goes_to_those_who_name_it_with_the_state_after_each_poll() {
+    let node = TestNode::start(vec![fast_axis("m1")]).await;
+    let client = node.client().await;
+    let bundles = client.declare_subscriber("motor/m1/@readback").await.unwrap();
+    node.until_subscribed("motor/m1/@readback").await;
+    let mut every_field = Recorder::new(&node, &client, "motor/**").await;
+    put_text(&client, &node.key("m1", Field::VAL), "2").await;
+    every_field.wait_for("DMOV", |v| *v == int(1)).await;
+    let mut seen = Vec::new();
+    while let Ok(Ok(sample)) = tokio::time::timeout(Duration::from_millis(200), bundles.recv_async()).await {
+        let marker = sample.attachment().and_then(|a| zmotor_msgs::StateMarker::decode(&a.to_bytes()));
+        assert!(marker.is_some() && sample.timestamp().is_some(), "a bundle is marked state and stamped");
+        seen.push(readback(&sample.payload().to_bytes()));
+    }
+    assert!(seen.len() >= 3, "a bundle per poll of the move: {seen:?}");
+    let last = seen.last().unwrap();
+    assert_eq!((last.fields["DMOV"].clone(), last.fields["MOVN"].clone()), (int(1), int(0)));
+    assert!(near(&last.fields["RBV"], 2.0), "{last:?}");
+    assert_eq!(last.fields.len(), 9, "{last:?}");
+    assert!(seen.windows(2).all(|w| w[0].seq < w[1].seq), "in the order of the posts");
+    // Each bundle follows posts the per-field subscriber saw: its seq is one of theirs.
+    let posted: Vec<u64> = every_field.seen.iter().map(|s| s.marker.seq).collect();
+    assert!(
+        seen.iter().all(|b| posted.contains(&b.seq)),
+        "{:?} / {posted:?}",
+        seen.iter().map(|b| b.seq).collect::<Vec<_>>()
+    );
+    // Opt-in: `**` does not reach it, and the per-field keys are published as ever.
+    assert!(every_field.seen.iter().all(|s| !s.key.ends_with("@readback")));
+    assert!(every_field.values("RBV").len() >= 3, "RBV on its own key too");
+    // A get names it too, and a write to it is refused.
+    let replies = client.get("motor/*/@readback").await.unwrap();
+    let reply = replies.recv_async().await.unwrap().into_result().unwrap();
+    assert_eq!(reply.key_expr().as_str(), "motor/m1/@readback");
+    let now = readback(&reply.payload().to_bytes());
+    assert_eq!(now.fields, last.fields);
+    let err = confirmed_write(&client, "motor/m1/@readback", "3", PATIENCE).await.unwrap_err();
+    assert!(err.contains("read-only"), "{err}");
+}

@@ -548,6 +548,12 @@ impl<R: Clone> AxisService<R> {
         self.outputs.push_back(ServiceOutput::Refusal { kind: refusal.kind(), message: refusal.to_string(), marker });
     }
 
+    /// The sequence number of the last publication or trace (0 before the first).
+    #[must_use]
+    pub fn last_seq(&self) -> u64 {
+        self.seq
+    }
+
     fn next_seq(&mut self) -> u64 {
         self.seq += 1;
         self.seq

@@ -23,7 +23,9 @@ use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
 use zmotor_core::{AxisService, Instant, Reply, ServiceOutput, WriteRequest};
 use zmotor_inbox::{Handler, Inbox};
-use zmotor_msgs::{encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, RefusalKind, StateMarker, Value};
+use zmotor_msgs::{
+    encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
+};
 
 /// Publishers one node declares at most (fields and traces). Zenoh numbers a session's
 /// declarations with 16 bits and remaps them beyond (logging "Remapping unsupported"); 10,000
@@ -133,6 +135,8 @@ pub(crate) struct AxisCore {
     holds: Holds,
     /// Declared at the first driver command, so idle axes cost no publisher.
     trace: Option<zenoh::pubsub::Publisher<'static>>,
+    /// The readback bundle's publisher, declared at its first sample.
+    readback: Option<zenoh::pubsub::Publisher<'static>>,
     /// Publishers of the fields this axis posts again and again, declared at their second post:
     /// a declared publisher's put costs a fraction of a session put (the key is resolved once).
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
@@ -162,6 +166,7 @@ impl AxisCore {
             follows,
             holds,
             trace: None,
+            readback: None,
             hot: Vec::new(),
             posted_once: Vec::new(),
             clock,
@@ -191,6 +196,11 @@ impl AxisCore {
     fn on_query(&mut self, now: Instant, query: Query) {
         let layout = &self.node.layout;
         let key = query.key_expr().as_str();
+        let readback =
+            KeyExpr::try_from(layout.readback(self.service.name())).expect("axis names are checked at launch");
+        if query.key_expr().intersects(&readback) {
+            return self.reply_readback(&query, readback);
+        }
         let written = layout.written_field_name(self.service.name(), key);
         let name = written.or_else(|| layout.field_name(self.service.name(), key)).map(str::to_string);
         match (name, query.payload().map(|p| p.to_bytes().into_owned())) {
@@ -219,6 +229,16 @@ impl AxisCore {
         }
     }
 
+    /// The readback bundle as it is now; a write to it is refused (it is read-only).
+    fn reply_readback(&self, query: &Query, key: KeyExpr<'static>) {
+        if query.payload().is_some() {
+            let message = format!("{}: the readback bundle is read-only", query.key_expr());
+            return refuse(query, RefusalKind::ReadOnly, message);
+        }
+        let bundle = encode_cbor(&Readback::of(self.service.fields(), self.service.last_seq()));
+        let _ = query.reply(key, bundle).encoding(Encoding::APPLICATION_CBOR).wait();
+    }
+
     fn on_sim_query(&mut self, now: Instant, query: Query) {
         let selected = query.key_expr().clone();
         let axis = self.name().to_string();
@@ -233,11 +253,16 @@ impl AxisCore {
         // The posts of one input share the time it was handled: when the status they come
         // from was read (a subscriber's latency is its arrival less this).
         let mut stamp = None;
+        // The marker of the last post of a field the readback bundle carries.
+        let mut readback = None;
         while let Some(output) = self.service.poll_output() {
             match output {
                 ServiceOutput::Publish { field, value, marker } => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
                     self.publish(field, &value, &marker, stamp);
+                    if Readback::FIELDS.contains(&field) {
+                        readback = Some((marker, stamp));
+                    }
                 }
                 ServiceOutput::Refusal { kind, message, marker } => {
                     let key = self.node.layout.err(self.name());
@@ -272,6 +297,34 @@ impl AxisCore {
                 }
             }
         }
+        if let Some((marker, stamp)) = readback.filter(|_| self.node.demand.readback_wanted()) {
+            self.publish_readback(&marker, stamp);
+        }
+    }
+
+    /// Publish the readback bundle: the state after the posts of this input, in one sample.
+    fn publish_readback(&mut self, marker: &StateMarker, stamp: Timestamp) {
+        if self.readback.is_none()
+            && self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok()
+        {
+            let key = self.node.layout.readback(self.name());
+            let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
+            self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
+        }
+        let bundle = encode_cbor(&Readback::of(self.service.fields(), marker.seq));
+        let attachment = ZBytes::from(marker.encode());
+        let _ = match &self.readback {
+            Some(publisher) => publisher.put(bundle).attachment(attachment).timestamp(stamp).wait(),
+            None => self
+                .node
+                .session
+                .put(self.node.layout.readback(self.name()), bundle)
+                .encoding(Encoding::APPLICATION_CBOR)
+                .allowed_destination(Locality::Remote)
+                .attachment(attachment)
+                .timestamp(stamp)
+                .wait(),
+        };
     }
 
     /// The trace publisher, declared at the first driver command; it must exist whatever the

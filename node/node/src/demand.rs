@@ -7,12 +7,15 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
+use zenoh::pubsub::Publisher;
 use zenoh::sample::Locality;
 use zenoh::Session;
 use zmotor_msgs::{Field, KeyLayout};
 
 pub(crate) struct FieldDemand {
     wanted: Vec<Arc<AtomicBool>>,
+    /// Whether anyone subscribes to some axis's readback bundle (`<prefix>/*/@readback`).
+    readback: Arc<AtomicBool>,
     _probes: Vec<zenoh::pubsub::Publisher<'static>>,
 }
 
@@ -20,37 +23,49 @@ impl FieldDemand {
     pub(crate) async fn declare(session: &Session, layout: &KeyLayout) -> Result<Self, zenoh::Error> {
         let (mut wanted, mut probes) = (Vec::new(), Vec::new());
         for field in Field::all() {
-            let probe =
-                session.declare_publisher(layout.field("*", field)).allowed_destination(Locality::Remote).await?;
-            // Wanted until known: Zenoh reports changes, not the status at the declaration, so
-            // the status is read once the listener is there; a change reported meanwhile wins.
-            let flag = Arc::new(AtomicBool::new(true));
-            let reported = Arc::new(Mutex::new(false));
-            let (listener, reporter) = (flag.clone(), reported.clone());
-            probe
-                .matching_listener()
-                .callback(move |status| {
-                    let mut reported = reporter.lock().unwrap_or_else(PoisonError::into_inner);
-                    *reported = true;
-                    listener.store(status.matching(), Ordering::Release);
-                })
-                .background()
-                .await?;
-            let matching = probe.matching_status().await?.matching();
-            let reported = reported.lock().unwrap_or_else(PoisonError::into_inner);
-            if !*reported {
-                flag.store(matching, Ordering::Release);
-            }
-            drop(reported);
+            let (flag, probe) = watch(session, layout.field("*", field)).await?;
             wanted.push(flag);
             probes.push(probe);
         }
-        Ok(Self { wanted, _probes: probes })
+        let (readback, probe) = watch(session, layout.readback("*")).await?;
+        probes.push(probe);
+        Ok(Self { wanted, readback, _probes: probes })
+    }
+
+    /// Whether anyone subscribes to some axis's readback bundle.
+    pub(crate) fn readback_wanted(&self) -> bool {
+        self.readback.load(Ordering::Acquire)
     }
 
     pub(crate) fn wanted(&self, field: Field) -> bool {
         self.wanted[field as usize].load(Ordering::Acquire)
     }
+}
+
+/// A probe publisher on `key` and the flag its matching status keeps: wanted until known.
+/// Zenoh reports changes, not the status at the declaration, so the status is read once the
+/// listener is there; a change reported meanwhile wins.
+async fn watch(session: &Session, key: String) -> Result<(Arc<AtomicBool>, Publisher<'static>), zenoh::Error> {
+    let probe = session.declare_publisher(key).allowed_destination(Locality::Remote).await?;
+    let flag = Arc::new(AtomicBool::new(true));
+    let reported = Arc::new(Mutex::new(false));
+    let (listener, reporter) = (flag.clone(), reported.clone());
+    probe
+        .matching_listener()
+        .callback(move |status| {
+            let mut reported = reporter.lock().unwrap_or_else(PoisonError::into_inner);
+            *reported = true;
+            listener.store(status.matching(), Ordering::Release);
+        })
+        .background()
+        .await?;
+    let matching = probe.matching_status().await?.matching();
+    let reported = reported.lock().unwrap_or_else(PoisonError::into_inner);
+    if !*reported {
+        flag.store(matching, Ordering::Release);
+    }
+    drop(reported);
+    Ok((flag, probe))
 }
 
 #[cfg(test)]

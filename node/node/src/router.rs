@@ -20,6 +20,8 @@ pub(crate) struct Router {
     _writes: zenoh::pubsub::Subscriber<()>,
     _queries: zenoh::query::Queryable<()>,
     _confirmed_writes: zenoh::query::Queryable<()>,
+    /// Gets of the readback bundles (`**` does not reach a chunk that starts with `@`).
+    _readbacks: zenoh::query::Queryable<()>,
     _sim_writes: zenoh::pubsub::Subscriber<()>,
     _sim_queries: zenoh::query::Queryable<()>,
 }
@@ -38,6 +40,7 @@ impl Router {
         let (r1, s1) = (routes.clone(), fields.clone());
         let (r2, s2) = (routes.clone(), fields.clone());
         let (r5, s5) = (routes.clone(), fields);
+        let (r6, l6) = (routes.clone(), layout.clone());
         let (r3, r4) = (routes.clone(), routes);
         // The node's own publications do not come back to it: what it writes to its own axes
         // goes through `Writer`.
@@ -59,6 +62,10 @@ impl Router {
             _confirmed_writes: session
                 .declare_queryable(layout.every_write())
                 .callback(move |q| route_query(&r5, &s5, q, AxisInput::Query))
+                .await?,
+            _readbacks: session
+                .declare_queryable(layout.readback("*"))
+                .callback(move |q| route_readback(&r6, &l6, &q))
                 .await?,
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
@@ -87,6 +94,15 @@ fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Writte
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         let hold = sample.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
         handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
+    }
+}
+
+/// A get of readback bundles goes to every axis of ours whose bundle it names.
+fn route_readback(routes: &Routes, layout: &KeyLayout, query: &Query) {
+    for (axis, handle) in routes.iter() {
+        if KeyExpr::try_from(layout.readback(axis)).is_ok_and(|key| query.key_expr().intersects(&key)) {
+            handle.deliver(AxisInput::Query(query.clone()));
+        }
     }
 }
 
