@@ -21,7 +21,7 @@ use zmotor_client::{free_local_endpoint, Client, WriteOptions, WriteOutcome};
 use zmotor_core::{Axis, Instant as Virtual};
 use zmotor_deploy::{AutosaveSection, Launch, LaunchFile};
 use zmotor_msgs::decode_cbor_value;
-use zmotor_msgs::{Field, KeyLayout, Value};
+use zmotor_msgs::{keys, Field, KeyLayout, Value};
 
 /// A launch file of `n` simulated axes b0, b1, … whose moves take real time (10 mm/s),
 /// read back `readback_hz` times a second while moving; no autosave.
@@ -236,7 +236,13 @@ impl Received {
 
     fn count(&self, sample: &Sample) {
         self.all.fetch_add(1, Relaxed);
-        match sample.key_expr().as_str().rsplit('/').next().and_then(Field::from_name) {
+        let last_chunk = sample.key_expr().as_str().rsplit('/').next();
+        if last_chunk == Some(keys::READBACK_KEY) {
+            // A bundle carries one RBV sample.
+            self.rbv.fetch_add(1, Relaxed);
+            return;
+        }
+        match last_chunk.and_then(Field::from_name) {
             Some(Field::RBV) => {
                 self.rbv.fetch_add(1, Relaxed);
             }
@@ -255,6 +261,8 @@ enum Watch {
     Everything,
     /// RBV and DMOV of every axis, as a display or a robot stack following positions would.
     ReadbackAndDone,
+    /// The readback bundle of every axis (`motor/*/@readback`): an axis's state in one sample.
+    Bundles,
 }
 
 impl Watch {
@@ -263,6 +271,7 @@ impl Watch {
         match self {
             Watch::Everything => vec![layout.everything()],
             Watch::ReadbackAndDone => vec![layout.field("*", Field::RBV), layout.field("*", Field::DMOV)],
+            Watch::Bundles => vec![layout.readback("*")],
         }
     }
 }
@@ -449,7 +458,8 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
         "   readback at {} Hz, one subscriber here: of every key (motor/**), then of RBV and DMOV only; then",
         Load::LongMoves.readback_hz()
     );
-    println!("   Zenoh alone publishing what the node publishes, no record. Settled: from the commands to all");
+    println!("   Zenoh alone publishing what the node publishes, no record; then the node with a subscriber of the");
+    println!("   readback bundles (motor/*/@readback, one sample per poll). Settled: from the commands to all");
     println!("   readbacks flowing (the CPU window opens then).");
     let (_, one_axis_kb) = fresh_node(programs, 1).await?;
     println!("   a node of 1 axis: {:.1} MB resident", one_axis_kb / 1024.0);
@@ -467,6 +477,7 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
             ("node, subscriber of every key", Publisher::Node, Watch::Everything),
             ("node, subscriber of RBV and DMOV", Publisher::Node, Watch::ReadbackAndDone),
             ("Zenoh alone, every key", Publisher::ZenohAlone, Watch::Everything),
+            ("node, subscriber of the bundles", Publisher::Node, Watch::Bundles),
         ] {
             let p = publishing(programs, n, options.window, publisher, Load::LongMoves, watch).await?;
             println!(
@@ -478,7 +489,7 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
             );
             rows.push(p);
         }
-        if let [everything, readback, alone] = &rows[..] {
+        if let [everything, readback, alone, _] = &rows[..] {
             print_scale_targets(everything, readback, alone);
         }
     }
