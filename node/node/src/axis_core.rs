@@ -312,19 +312,8 @@ impl AxisCore {
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
         }
         let bundle = encode_cbor(&Readback::of(self.service.fields(), marker.seq));
-        let attachment = ZBytes::from(marker.encode());
-        let _ = match &self.readback {
-            Some(publisher) => publisher.put(bundle).attachment(attachment).timestamp(stamp).wait(),
-            None => self
-                .node
-                .session
-                .put(self.node.layout.readback(self.name()), bundle)
-                .encoding(Encoding::APPLICATION_CBOR)
-                .allowed_destination(Locality::Remote)
-                .attachment(attachment)
-                .timestamp(stamp)
-                .wait(),
-        };
+        let key = || KeyExpr::try_from(self.node.layout.readback(self.name()));
+        put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp);
     }
 
     /// The trace publisher, declared at the first driver command; it must exist whatever the
@@ -402,20 +391,30 @@ impl AxisCore {
             }
             None => None,
         };
-        let attachment = ZBytes::from(marker.encode());
-        let _ = match declared {
-            Some(index) => self.hot[index].1.put(encode_cbor(value)).attachment(attachment).timestamp(stamp).wait(),
-            None => self
-                .node
-                .session
-                .put(self.field_key(field), encode_cbor(value))
-                .encoding(Encoding::APPLICATION_CBOR)
-                .allowed_destination(Locality::Remote)
-                .attachment(attachment)
-                .timestamp(stamp)
-                .wait(),
-        };
+        let publisher = declared.map(|index| &self.hot[index].1);
+        let key = || Ok::<_, zenoh::Error>(self.field_key(field));
+        put_state(&self.node.session, publisher, key, encode_cbor(value), marker, stamp);
     }
+}
+
+/// Send a state sample to other processes: through its declared publisher, or with a session
+/// put on `key` when it has none (past the budget).
+fn put_state(
+    session: &Session,
+    publisher: Option<&zenoh::pubsub::Publisher<'static>>,
+    key: impl FnOnce() -> Result<KeyExpr<'static>, zenoh::Error>,
+    payload: Vec<u8>,
+    marker: &StateMarker,
+    stamp: Timestamp,
+) {
+    let attachment = ZBytes::from(marker.encode());
+    let _ = match publisher {
+        Some(publisher) => publisher.put(payload).attachment(attachment).timestamp(stamp).wait(),
+        None => key().and_then(|key| {
+            let put = session.put(key, payload).encoding(Encoding::APPLICATION_CBOR);
+            put.allowed_destination(Locality::Remote).attachment(attachment).timestamp(stamp).wait()
+        }),
+    };
 }
 
 impl Handler<AxisInput> for AxisCore {
