@@ -393,8 +393,10 @@ async fn the_readback_bundle_goes_to_those_who_name_it_with_the_state_after_each
     let mut every_field = Recorder::new(&node, &client, "motor/**").await;
     put_text(&client, &node.key("m1", Field::VAL), "2").await;
     every_field.wait_for("DMOV", |v| *v == int(1)).await;
-    let mut seen = Vec::new();
-    while let Ok(Ok(sample)) = tokio::time::timeout(Duration::from_millis(200), bundles.recv_async()).await {
+    // Bundles up to the one that says the move is done (it follows the DMOV 1 post).
+    let mut seen: Vec<zmotor_msgs::Readback> = Vec::new();
+    while seen.last().is_none_or(|b| b.fields["DMOV"] != int(1)) {
+        let sample = tokio::time::timeout(PATIENCE, bundles.recv_async()).await.unwrap().unwrap();
         let marker = sample.attachment().and_then(|a| zmotor_msgs::StateMarker::decode(&a.to_bytes()));
         assert!(marker.is_some() && sample.timestamp().is_some(), "a bundle is marked state and stamped");
         seen.push(readback(&sample.payload().to_bytes()));

@@ -26,12 +26,17 @@ use zmotor_msgs::{keys, Field, KeyLayout, Value};
 /// A launch file of `n` simulated axes b0, b1, … whose moves take real time (10 mm/s),
 /// read back `readback_hz` times a second while moving; no autosave.
 pub(crate) fn bench_launch(n: usize, readback_hz: f64) -> String {
+    bench_launch_at(n, |_| readback_hz)
+}
+
+/// As `bench_launch`, axis `i` read back `readback_hz(i)` times a second.
+pub(crate) fn bench_launch_at(n: usize, readback_hz: impl Fn(usize) -> f64) -> String {
     let mut text = String::from("[autosave]\nenabled = false\n");
     for i in 0..n {
-        let name = bench_axis(i);
+        let (name, hz) = (bench_axis(i), readback_hz(i));
         let _ = write!(
             text,
-            "[[axis]]\nname = \"{name}\"\nreadback_rate = {readback_hz}\n[axis.fields]\nMRES = 0.001\nVELO = 10\nACCL = 0.1\n"
+            "[[axis]]\nname = \"{name}\"\nreadback_rate = {hz}\n[axis.fields]\nMRES = 0.001\nVELO = 10\nACCL = 0.1\n"
         );
     }
     text

@@ -4,11 +4,10 @@
 //! beside Zenoh's own one-way latency to an echo process.
 
 use crate::axes::{bench_axis, bench_key};
-use crate::bench::Echo;
+use crate::bench::{bench_launch, Echo};
 use crate::process::{client_when_ready, wait_for_axes, Programs};
 use crate::stats::Percentiles;
 use crate::{BenchOptions, Error};
-use std::fmt::Write as _;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant, SystemTime};
@@ -30,18 +29,6 @@ struct Arrival {
     latency: Duration,
 }
 
-fn launch_text() -> String {
-    let mut text = String::from("[autosave]\nenabled = false\n");
-    for i in 0..AXES {
-        let _ = write!(
-            text,
-            "[[axis]]\nname = \"{}\"\nreadback_rate = {READBACK_HZ}\n[axis.fields]\nMRES = 0.001\nVELO = 10\nACCL = 0.1\n",
-            bench_axis(i)
-        );
-    }
-    text
-}
-
 pub(crate) async fn fast_readback_part(programs: &Programs, options: &BenchOptions) -> Result<(), Error> {
     let window = Duration::from_secs_f64(options.fast_readback_window);
     println!("\n12. fast readback, as a robot arm reads its joints: {AXES} axes moving, readback {READBACK_HZ:.0} Hz, in a node");
@@ -60,7 +47,7 @@ pub(crate) async fn fast_readback_part(programs: &Programs, options: &BenchOptio
         }
     }
     drop(echo);
-    let (_node, endpoint) = programs.launch("fast-readback", &launch_text())?;
+    let (_node, endpoint) = programs.launch("fast-readback", &bench_launch(AXES, READBACK_HZ))?;
     let client = client_when_ready(&endpoint).await?;
     let session = client.session().clone();
     wait_for_axes(&session, AXES, Duration::from_secs(60)).await?;

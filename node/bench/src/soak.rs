@@ -4,11 +4,10 @@
 //! made) the memory must stay flat.
 
 use crate::axes::{bench_axis, bench_key};
-use crate::bench::{storm_target, until_heard};
+use crate::bench::{bench_launch_at, storm_target, until_heard};
 use crate::process::{client_when_ready, wait_for_axes, Programs};
 use crate::stats::{cpu_seconds, percent, rss_kb};
 use crate::{BenchOptions, Error};
-use std::fmt::Write as _;
 use std::sync::atomic::{AtomicU64, Ordering::Relaxed};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -28,19 +27,6 @@ const TURN_EVERY: Duration = Duration::from_secs(60);
 /// 45 minutes of an hour).
 const GROWTH_LIMIT_MB: f64 = 1.0;
 
-fn soak_launch() -> String {
-    let mut text = String::from("[autosave]\nenabled = false\n");
-    for i in 0..STORM_AXES + MOVING_AXES {
-        let readback_hz = if i < STORM_AXES { 10 } else { 100 };
-        let _ = write!(
-            text,
-            "[[axis]]\nname = \"{}\"\nreadback_rate = {readback_hz}\n[axis.fields]\nMRES = 0.001\nVELO = 10\nACCL = 0.1\n",
-            bench_axis(i)
-        );
-    }
-    text
-}
-
 pub(crate) async fn soak_part(programs: &Programs, options: &BenchOptions) -> Result<(), Error> {
     let minutes = options.soak_minutes;
     println!(
@@ -48,7 +34,8 @@ pub(crate) async fn soak_part(programs: &Programs, options: &BenchOptions) -> Re
     );
     println!("   of {STORM_WRITES_PER_S:.0} VAL writes/s (as part 7) and {MOVING_AXES} axes moving all along, readback 100 Hz;");
     println!("   one subscriber of every key here. Resident memory sampled; the first quarter is the warm-up.");
-    let (node, endpoint) = programs.launch("soak", &soak_launch())?;
+    let (node, endpoint) = programs
+        .launch("soak", &bench_launch_at(STORM_AXES + MOVING_AXES, |i| if i < STORM_AXES { 10.0 } else { 100.0 }))?;
     let pid = node.pid();
     let client = client_when_ready(&endpoint).await?;
     let session = client.session().clone();
