@@ -50,7 +50,7 @@ struct ClientArgs {
     /// Key prefix of the axes.
     #[arg(long, default_value = zmotor_msgs::keys::DEFAULT_PREFIX)]
     prefix: String,
-    /// PEM file of the certificate authority to trust (tls/... endpoints).
+    /// PEM file of the certificate authority to trust (tls/... and quic/... endpoints).
     #[arg(long)]
     ca: Option<PathBuf>,
     /// PEM file of this client's certificate, for mutual TLS (with --key).

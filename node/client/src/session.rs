@@ -82,6 +82,13 @@ mod tests {
     use zmotor_msgs::{Field, KeyLayout};
 
     #[test]
+    fn a_quic_endpoint_on_one_stream_is_one_zenoh_takes() {
+        let section = ZenohConfig { listen: vec!["quic/127.0.0.1:7447".into()], ..ZenohConfig::default() };
+        let zenoh = zenoh_config(&section).unwrap();
+        assert_eq!(zenoh.get_json("listen/endpoints").unwrap(), r#"["quic/127.0.0.1:7447?multistream=0"]"#);
+    }
+
+    #[test]
     fn every_mode_makes_a_configuration_zenoh_takes() {
         for mode in [Mode::Peer, Mode::Client, Mode::Router] {
             let config = ZenohConfig { mode, ..ZenohConfig::default() };
