@@ -14,7 +14,8 @@
   - A poll reads POS? (theoretical and encoder positions), STA? (limits, stopped, error), MOT?
     (the motor's power) and HOM? (homed since power-up; motorMicronix does not read it). An error flagged by STA? is read and cleared with ERR?, shown as
     the axis's problem and in the node's log.
-  - A jog faster than the axis's top speed is refused, never clamped.
+  - A jog faster than the axis's top speed is refused, never clamped; so is a speed or an
+    acceleration too small to be written with the MMC's three decimals.
 --]]
 
 InTerminator = "\n\r"
@@ -46,10 +47,22 @@ local function ask(query)
   return value
 end
 
+-- A setting as the MMC takes it (three decimals, above 0): one that would be 0.000 there is
+-- refused, never raised to the least the controller takes.
+local function setting(name, value, unit)
+  local text = string.format("%.3f", value)
+  if tonumber(text) <= 0 then
+    error(string.format("%s %.6f %s is below the least the MMC takes, 0.001 %s", name, value, unit, unit))
+  end
+  return text
+end
+
 local function speeds(maxVel, accel)
-  say("VEL%.3f", math.abs(maxVel) * mm_per_step())
-  say("ACC%.3f", accel * mm_per_step())
-  say("DEC%.3f", accel * mm_per_step())
+  local velocity = setting("a speed of", math.abs(maxVel) * mm_per_step(), "mm/s")
+  local acceleration = setting("an acceleration of", accel * mm_per_step(), "mm/s^2")
+  say("VEL%s", velocity)
+  say("ACC%s", acceleration)
+  say("DEC%s", acceleration)
 end
 
 function move(position, relative, minVel, maxVel, accel)
@@ -69,8 +82,10 @@ function moveVelocity(minVel, maxVel, accel)
   if math.abs(percent) > 100 then
     error(string.format("a jog at %.3f mm/s is faster than the axis's top speed, %.3f mm/s", math.abs(maxVel) * mm_per_step(), top_speed))
   end
-  say("JAC%.3f", accel * mm_per_step())
-  say("JOG%.3f", percent)
+  local acceleration = setting("a jog acceleration of", accel * mm_per_step(), "mm/s^2")
+  local speed = setting("a jog at", math.abs(percent), "% of the top speed")
+  say("JAC%s", acceleration)
+  say("JOG%s%s", percent < 0 and "-" or "", speed)
 end
 
 function home(minVel, maxVel, accel, forwards)

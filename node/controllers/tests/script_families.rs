@@ -230,6 +230,37 @@ mod micronix {
     }
 
     #[test]
+    fn a_speed_or_acceleration_below_the_controllers_three_decimals_is_refused_unsent() {
+        // 1 nm a step: 100 steps/s² is 0.0001 mm/s², 0.000 as the MMC is written to.
+        let too_slow = [
+            DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: -10.0, acceleration: 100.0 },
+            DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 5000.0, acceleration: 100.0 },
+            DriverCommand::Move {
+                position: 1000.0,
+                relative: false,
+                min_velocity: 0.0,
+                max_velocity: 400.0,
+                acceleration: 2e5,
+            },
+            DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 400.0 },
+        ];
+        for command in too_slow {
+            let mut lb = MICRONIX.up();
+            let from = lb.written().len();
+            lb.command(0, &command);
+            lb.run_for(Duration::from_millis(300));
+            let errors = common::controller_errors(&lb.take_events());
+            assert!(
+                errors.iter().any(|(_, _, m)| m.contains("below the least the MMC takes")),
+                "{command:?}: {errors:?}"
+            );
+            let sent = written_since(&lb, from);
+            assert!(sent.iter().all(|l| l.ends_with("?\r")), "only queries: {command:?}: {sent:?}");
+            assert_eq!(lb.link.malformed(), 0);
+        }
+    }
+
+    #[test]
     fn replies_split_at_every_byte_give_the_same_statuses() {
         // The common script's position set of -77 is refused here (ZRO sets 0 only): the
         // statuses are compared as they are.
