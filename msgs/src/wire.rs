@@ -226,10 +226,29 @@ impl Readback {
         crate::Field::MSTA,
     ];
 
-    /// The bundle of `fields` as they are now, after the post numbered `seq`.
-    pub fn of(fields: &crate::Fields, seq: u64) -> Self {
-        let fields = Self::FIELDS.iter().map(|&f| (f.name().to_string(), fields.get(f))).collect();
-        Self { fields, seq }
+    /// The bundle of `fields` as they are now, after the post numbered `seq`, encoded: the
+    /// CBOR of a `Readback`, written straight from the fields (a node sends one per poll).
+    #[must_use]
+    pub fn encode(fields: &crate::Fields, seq: u64) -> Vec<u8> {
+        crate::codec::encode_cbor(&ReadbackOf { fields, seq })
+    }
+}
+
+/// A `Readback` as it serializes, borrowing the fields instead of collecting them in a map.
+struct ReadbackOf<'a> {
+    fields: &'a crate::Fields,
+    seq: u64,
+}
+
+impl Serialize for ReadbackOf<'_> {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = serializer.serialize_map(Some(Readback::FIELDS.len() + 1))?;
+        for field in Readback::FIELDS {
+            map.serialize_entry(field.name(), &self.fields.get(field))?;
+        }
+        map.serialize_entry("seq", &self.seq)?;
+        map.end()
     }
 }
 
@@ -290,6 +309,22 @@ pub struct SimState {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_readback_bundle_decodes_to_each_field_as_its_own_key_carries_it() {
+        let mut fields = crate::Fields::default();
+        for (field, value) in [(crate::Field::RBV, 1.5), (crate::Field::DIFF, -0.25), (crate::Field::RRBV, 1500.0)] {
+            fields.set(field, &crate::Value::Float(value));
+        }
+        let bundle: Readback = ciborium::from_reader(&Readback::encode(&fields, 42)[..]).unwrap();
+        assert_eq!(bundle.seq, 42);
+        let names: Vec<_> = bundle.fields.keys().map(String::as_str).collect();
+        assert_eq!(names, ["DIFF", "DMOV", "DRBV", "MOVN", "MSTA", "RBV", "RDIF", "RMP", "RRBV"]);
+        for field in Readback::FIELDS {
+            assert_eq!(bundle.fields[field.name()], fields.get(field), "{field}");
+        }
+        assert_eq!(bundle.fields["RRBV"], crate::Value::Int(1500));
+    }
+
     use super::*;
 
     #[test]

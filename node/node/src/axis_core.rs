@@ -235,7 +235,7 @@ impl AxisCore {
             let message = format!("{}: the readback bundle is read-only", query.key_expr());
             return refuse(query, RefusalKind::ReadOnly, message);
         }
-        let bundle = encode_cbor(&Readback::of(self.service.fields(), self.service.last_seq()));
+        let bundle = Readback::encode(self.service.fields(), self.service.last_seq());
         let _ = query.reply(key, bundle).encoding(Encoding::APPLICATION_CBOR).wait();
     }
 
@@ -311,7 +311,7 @@ impl AxisCore {
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
         }
-        let bundle = encode_cbor(&Readback::of(self.service.fields(), marker.seq));
+        let bundle = Readback::encode(self.service.fields(), marker.seq);
         let key = || KeyExpr::try_from(self.node.layout.readback(self.name()));
         put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp);
     }
