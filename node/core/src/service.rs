@@ -16,7 +16,7 @@ use zmotor_msgs::keys::PlainKeyError;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
     decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout, Kind,
-    LinkKeyError, MalformedPayload, PayloadEncoding, RefusalKind, SimState, StateMarker, Value,
+    LinkKeyError, MalformedPayload, PayloadEncoding, Readback, RefusalKind, SimState, StateMarker, Value,
 };
 
 /// Why a request was refused. The message says it in plain words and names the field.
@@ -137,6 +137,14 @@ pub enum ServiceOutput<R> {
         /// Its new value.
         value: Value,
         /// The attachment that marks the sample as state.
+        marker: StateMarker,
+    },
+    /// The input posted one or more of the readback bundle's fields (`Readback::FIELDS`): the
+    /// bundle on `<prefix>/<axis>/@readback` is `Readback::encode(AxisService::fields(),
+    /// marker.seq)`, the state after them, with the marker of the last. One per input, after
+    /// its posts; the adapter sends it only while someone subscribes to it.
+    Readback {
+        /// The marker of the last readback field posted.
         marker: StateMarker,
     },
     /// Publish why a write was refused on `<prefix>/<axis>/ERR`, the kind as the schema of its
@@ -585,11 +593,15 @@ impl<R: Clone> AxisService<R> {
     /// Turn what the axis produced into outputs; a completion answers the writes it ends.
     fn collect(&mut self) {
         let events: Vec<AxisEvent> = self.axis.drain_events().collect();
+        let mut readback = None;
         for event in events {
             match event {
                 AxisEvent::Post(field, value) => {
                     self.unsaved |= field.autosave().is_some();
                     let marker = self.marker();
+                    if Readback::FIELDS.contains(&field) {
+                        readback = Some(marker.clone());
+                    }
                     self.outputs.push_back(ServiceOutput::Publish { field, value, marker });
                 }
                 AxisEvent::Driver { command, at } => {
@@ -614,6 +626,9 @@ impl<R: Clone> AxisService<R> {
                     }
                 }
             }
+        }
+        if let Some(marker) = readback {
+            self.outputs.push_back(ServiceOutput::Readback { marker });
         }
     }
 }
@@ -966,6 +981,48 @@ mod tests {
             })
             .collect();
         assert_eq!(selected, vec![Field::DRBV]);
+    }
+
+    #[test]
+    fn each_input_that_posts_a_readback_field_ends_with_one_bundle_of_the_last_ones_marker() {
+        let mut s = service();
+        s.put(at(0.0), WriteRequest::new("VAL", b"10", Text));
+        let mut inputs = vec![drain(&mut s)];
+        while s.fields().dmov == 0 {
+            let t = s.poll_timeout().expect("a simulated axis is polled");
+            s.handle_timeout(t);
+            inputs.push(drain(&mut s));
+        }
+        // An input that posts none of the fields (VELO) has no bundle.
+        s.put(at(60.0), WriteRequest::new("VELO", b"5", Text));
+        inputs.push(drain(&mut s));
+        let mut bundles = 0;
+        for outputs in &inputs {
+            let last_readback = outputs.iter().rev().find_map(|o| match o {
+                ServiceOutput::Publish { field, marker, .. } if Readback::FIELDS.contains(field) => Some(marker),
+                _ => None,
+            });
+            let bundle: Vec<_> = outputs
+                .iter()
+                .enumerate()
+                .filter_map(|(i, o)| match o {
+                    ServiceOutput::Readback { marker } => Some((i, marker)),
+                    _ => None,
+                })
+                .collect();
+            match last_readback {
+                None => assert!(bundle.is_empty(), "{outputs:?}"),
+                Some(last) => {
+                    assert_eq!(bundle.len(), 1, "{outputs:?}");
+                    let (index, marker) = bundle[0];
+                    assert_eq!(marker, last);
+                    let publishes = outputs.iter().rposition(|o| matches!(o, ServiceOutput::Publish { .. }));
+                    assert!(publishes.is_some_and(|p| p < index), "after the input's posts: {outputs:?}");
+                    bundles += 1;
+                }
+            }
+        }
+        assert!(bundles > 5 && inputs.last().is_some_and(|o| !o.is_empty()), "{bundles} bundles");
     }
 
     #[test]

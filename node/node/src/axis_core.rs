@@ -253,17 +253,17 @@ impl AxisCore {
         // The posts of one input share the time it was handled: when the status they come
         // from was read (a subscriber's latency is its arrival less this).
         let mut stamp = None;
-        // The marker of the last post of a field the readback bundle carries.
-        let mut readback = None;
         while let Some(output) = self.service.poll_output() {
             match output {
                 ServiceOutput::Publish { field, value, marker } => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
                     self.publish(field, &value, &marker, stamp);
-                    if Readback::FIELDS.contains(&field) {
-                        readback = Some((marker, stamp));
-                    }
                 }
+                ServiceOutput::Readback { marker } if self.node.demand.readback_wanted() => {
+                    let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
+                    self.publish_readback(&marker, stamp);
+                }
+                ServiceOutput::Readback { .. } => {}
                 ServiceOutput::Refusal { kind, message, marker } => {
                     let key = self.node.layout.err(self.name());
                     let attachment = ZBytes::from(marker.encode());
@@ -296,9 +296,6 @@ impl AxisCore {
                     }
                 }
             }
-        }
-        if let Some((marker, stamp)) = readback.filter(|_| self.node.demand.readback_wanted()) {
-            self.publish_readback(&marker, stamp);
         }
     }
 
