@@ -105,9 +105,10 @@ pub(crate) fn fields_posted_per_poll() -> Vec<Field> {
     axis.drain_events().filter_map(|e| if let AxisEvent::Post(field, _) = e { Some(field) } else { None }).collect()
 }
 
-/// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second from one task:
-/// each field of `fields_posted_per_poll` through a declared publisher, a CBOR number with a state
-/// marker, as the node sends it.
+/// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second on a thread of its
+/// own, on a fixed cadence (a precise sleep, as the node's tick workers; tokio's timer rounds to
+/// the millisecond): each field of `fields_posted_per_poll` through a declared publisher, a CBOR
+/// number with a state marker, as the node sends it.
 async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
     let fields = fields_posted_per_poll();
     let layout = KeyLayout::default();
@@ -118,16 +119,23 @@ async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Res
             publishers.push(session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).await?);
         }
     }
-    let mut polls = tokio::time::interval(Duration::from_secs_f64(1.0 / rate));
-    let mut seq = 0;
-    loop {
-        polls.tick().await;
-        for publisher in &publishers {
-            seq += 1;
-            let value = Value::Float(seq as f64 * 1e-3);
-            publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+    let period = Duration::from_secs_f64(1.0 / rate);
+    let polls = tokio::task::spawn_blocking(move || -> Result<(), Error> {
+        let start = std::time::Instant::now();
+        let mut seq = 0;
+        for poll in 1u32.. {
+            for publisher in &publishers {
+                seq += 1;
+                let value = Value::Float(seq as f64 * 1e-3);
+                publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+            }
+            if let Some(wait) = (start + period * poll).checked_duration_since(std::time::Instant::now()) {
+                std::thread::sleep(wait);
+            }
         }
-    }
+        Ok(())
+    });
+    polls.await?
 }
 
 #[cfg(test)]

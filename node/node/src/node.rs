@@ -61,12 +61,11 @@ impl From<zenoh::Error> for NodeError {
 /// boot in COMM alarm and follow the controller when it answers.
 const CONTROLLER_BOOT_WAIT: Duration = Duration::from_secs(10);
 
-/// How many threads tick the axes of a node: one per core. (On two cores, 1,000 axes read
-/// back at 100 Hz with every field subscribed: one worker kept 66-83 of 100 samples per axis and
-/// second, two 85; BENCHMARKS.md 3.)
-fn tick_workers() -> usize {
-    std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
-}
+/// How many threads tick the axes of a node: one. Two threads posting at once contend for
+/// Zenoh's routing tables and each link's queue, whose sender then waits for tokio's next
+/// millisecond: 16 axes read back at 1 kHz saw p99 latencies of 1.2 ms with two workers, 0.2 ms
+/// with one; at 1,000 axes at 100 Hz one worker carries as much at less CPU (BENCHMARKS.md 3b, 12).
+const TICK_WORKERS: usize = 1;
 
 /// A running node: its axes' and calc links' tasks, stopped when dropped or on `shutdown`.
 pub struct Node {
@@ -113,7 +112,7 @@ impl Node {
         }
         let mut on_controllers: HashMap<String, Vec<(usize, Arc<AxisInbox>)>> = HashMap::new();
         let clock = tokio::time::Instant::now();
-        let ticker = Ticker::start(tick_workers(), clock.into_std(), tokio::runtime::Handle::current())
+        let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
         let side = NodeSide {
             session: session.clone(),
