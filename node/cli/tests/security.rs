@@ -35,15 +35,27 @@ DHLM = 100
 DLLM = -100
 "#;
 
-/// A guarded node on 127.0.0.1 and its endpoint.
-fn guarded_node(pki: &Pki) -> (Running, String) {
-    let endpoint = zmotor_client::free_local_endpoint().unwrap().replace("tcp/", "tls/");
+/// A guarded node on 127.0.0.1 and its endpoint, `tls` or `quic`.
+fn guarded_node(pki: &Pki, protocol: &str) -> (Running, String) {
+    let endpoint = zmotor_client::free_local_endpoint().unwrap().replace("tcp/", &format!("{protocol}/"));
     let node = pki.issue("node", &["127.0.0.1"]);
     let text = format!("[zenoh]\nlisten = [\"{endpoint}\"]\n{}{RULES}", pki.launch_section(&node));
     let file = pki.dir.path().join("guarded.toml");
     std::fs::write(&file, text).unwrap();
     let running = Host::default().spawn(&["launch", file.to_str().unwrap()], &pki.dir.path().join("state"));
     (running, endpoint)
+}
+
+/// A confirmed write by a stock Python client showing `who`'s certificate: what it was answered.
+fn stock_write(pki: &Pki, endpoint: &str, who: &Identity, key: &str, value: &str) -> String {
+    let output = zmotor_tests::environment::python_script("guarded_write.py")
+        .args([endpoint, pki.ca().to_str().unwrap()])
+        .args([&who.certificate, &who.key])
+        .args([key, value])
+        .output()
+        .unwrap();
+    assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
+    String::from_utf8_lossy(&output.stdout).trim().to_string()
 }
 
 fn client(pki: &Pki, identity: &Identity) -> Host {
@@ -53,7 +65,7 @@ fn client(pki: &Pki, identity: &Identity) -> Host {
 #[test]
 fn only_the_clients_the_rules_allow_read_drive_or_configure() {
     let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki);
+    let (_node, endpoint) = guarded_node(&pki, "tls");
     let operator = client(&pki, &pki.issue("operator", &[]));
     let driver = client(&pki, &pki.issue("driver", &[]));
     let viewer = client(&pki, &pki.issue("viewer", &[]));
@@ -94,19 +106,10 @@ fn only_the_clients_the_rules_allow_read_drive_or_configure() {
 #[test]
 fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_where_writes_go() {
     let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki);
+    let (_node, endpoint) = guarded_node(&pki, "tls");
     let operator = client(&pki, &pki.issue("operator", &[]));
     operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
-    let write = |who: &Identity, key: &str, value: &str| {
-        let output = zmotor_tests::environment::python_script("guarded_write.py")
-            .args([&endpoint, pki.ca().to_str().unwrap()])
-            .args([&who.certificate, &who.key])
-            .args([key, value])
-            .output()
-            .unwrap();
-        assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
-        String::from_utf8_lossy(&output.stdout).trim().to_string()
-    };
+    let write = |who: &Identity, key: &str, value: &str| stock_write(&pki, &endpoint, who, key, value);
     // A reader may query a field key (a read): a payload there is refused by the node.
     let viewer = pki.issue("viewer", &[]);
     let refused = write(&viewer, "motor/m1/VAL", "5");
@@ -121,9 +124,24 @@ fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_whe
 }
 
 #[test]
+fn over_quic_a_stock_client_with_its_certificate_drives_and_the_rules_hold() {
+    // The stock client keeps Zenoh's default (a QUIC stream per priority); the node listens on
+    // one stream: they agree on one.
+    let pki = Pki::new("zmotor test authority");
+    let (_node, endpoint) = guarded_node(&pki, "quic");
+    let operator = client(&pki, &pki.issue("operator", &[]));
+    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let answer = stock_write(&pki, &endpoint, &pki.issue("operator", &[]), "motor/m1/@write/VAL", "0.5");
+    assert!(answer.starts_with("ok "), "{answer}");
+    operator.wait_for(&endpoint, "m1", "RBV", |v| v == 0.5);
+    assert_eq!(stock_write(&pki, &endpoint, &pki.issue("viewer", &[]), "motor/m1/@write/VAL", "5"), "none");
+    assert_eq!(operator.answer(&endpoint, "m1", "VAL"), 0.5);
+}
+
+#[test]
 fn a_client_without_a_certificate_the_authority_signed_cannot_connect() {
     let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki);
+    let (_node, endpoint) = guarded_node(&pki, "tls");
     let operator = client(&pki, &pki.issue("operator", &[]));
     operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
     let no_certificate = Host { netns: None, client_args: vec!["--ca".into(), pki.ca().display().to_string()] };
