@@ -35,15 +35,19 @@ DHLM = 100
 DLLM = -100
 "#;
 
-/// A guarded node on 127.0.0.1 and its endpoint, `tls` or `quic`.
-fn guarded_node(pki: &Pki, protocol: &str) -> (Running, String) {
+/// A guarded node on 127.0.0.1 over `tls` or `quic`, once it serves: the authority of its
+/// certificates, the node, its endpoint and a client of the operators' rule.
+fn guarded_node(protocol: &str) -> (Pki, Running, String, Host) {
+    let pki = Pki::new("zmotor test authority");
     let endpoint = zmotor_client::free_local_endpoint().unwrap().replace("tcp/", &format!("{protocol}/"));
     let node = pki.issue("node", &["127.0.0.1"]);
     let text = format!("[zenoh]\nlisten = [\"{endpoint}\"]\n{}{RULES}", pki.launch_section(&node));
     let file = pki.dir.path().join("guarded.toml");
     std::fs::write(&file, text).unwrap();
     let running = Host::default().spawn(&["launch", file.to_str().unwrap()], &pki.dir.path().join("state"));
-    (running, endpoint)
+    let operator = client(&pki, &pki.issue("operator", &[]));
+    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    (pki, running, endpoint, operator)
 }
 
 /// A confirmed write by a stock Python client showing `who`'s certificate: what it was answered.
@@ -64,15 +68,12 @@ fn client(pki: &Pki, identity: &Identity) -> Host {
 
 #[test]
 fn only_the_clients_the_rules_allow_read_drive_or_configure() {
-    let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki, "tls");
-    let operator = client(&pki, &pki.issue("operator", &[]));
+    let (pki, _node, endpoint, operator) = guarded_node("tls");
     let driver = client(&pki, &pki.issue("driver", &[]));
     let viewer = client(&pki, &pki.issue("viewer", &[]));
     let stranger = client(&pki, &pki.issue("stranger", &[]));
 
     // The operator drives and configures; the viewer reads what it did.
-    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
     let moved = operator.put(&endpoint, "m1", "VAL", "1", true).unwrap();
     assert!(moved.contains("reached=1"), "{moved}");
     operator.put(&endpoint, "m1", "HLM", "50", false).unwrap();
@@ -105,10 +106,7 @@ fn only_the_clients_the_rules_allow_read_drive_or_configure() {
 
 #[test]
 fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_where_writes_go() {
-    let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki, "tls");
-    let operator = client(&pki, &pki.issue("operator", &[]));
-    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (pki, _node, endpoint, operator) = guarded_node("tls");
     let write = |who: &Identity, key: &str, value: &str| stock_write(&pki, &endpoint, who, key, value);
     // A reader may query a field key (a read): a payload there is refused by the node.
     let viewer = pki.issue("viewer", &[]);
@@ -127,10 +125,7 @@ fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_whe
 fn over_quic_a_stock_client_with_its_certificate_drives_and_the_rules_hold() {
     // The stock client keeps Zenoh's default (a QUIC stream per priority); the node listens on
     // one stream: they agree on one.
-    let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki, "quic");
-    let operator = client(&pki, &pki.issue("operator", &[]));
-    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (pki, _node, endpoint, operator) = guarded_node("quic");
     let answer = stock_write(&pki, &endpoint, &pki.issue("operator", &[]), "motor/m1/@write/VAL", "0.5");
     assert!(answer.starts_with("ok "), "{answer}");
     operator.wait_for(&endpoint, "m1", "RBV", |v| v == 0.5);
@@ -140,10 +135,7 @@ fn over_quic_a_stock_client_with_its_certificate_drives_and_the_rules_hold() {
 
 #[test]
 fn a_client_without_a_certificate_the_authority_signed_cannot_connect() {
-    let pki = Pki::new("zmotor test authority");
-    let (_node, endpoint) = guarded_node(&pki, "tls");
-    let operator = client(&pki, &pki.issue("operator", &[]));
-    operator.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (pki, _node, endpoint, operator) = guarded_node("tls");
     let no_certificate = Host { netns: None, client_args: vec!["--ca".into(), pki.ca().display().to_string()] };
     let rogue = Pki::new("another authority");
     let forged = client(&pki, &rogue.issue("operator", &[]));
