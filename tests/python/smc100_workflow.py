@@ -13,6 +13,7 @@ Usage: smc100_workflow.py <serial device>; prints "smc100 workflow ok" when all 
 """
 
 import os
+import random
 import socket
 import subprocess
 import sys
@@ -28,9 +29,23 @@ except ImportError:  # Python < 3.11
 
 
 def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A free port below the kernel's ephemeral range: a port 0 probe may be handed to an
+    outgoing connection before the daemon binds it."""
+    try:
+        with open("/proc/sys/net/ipv4/ip_local_port_range") as f:
+            ephemeral = int(f.read().split()[0])
+    except OSError:
+        ephemeral = 0
+    candidates = list(range(10000, ephemeral)) if ephemeral > 11000 else [0]
+    random.shuffle(candidates)
+    for port in candidates[:1000]:
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return s.getsockname()[1]
+    raise SystemExit("no free port on 127.0.0.1")
 
 
 def wait_for(what, check, timeout):

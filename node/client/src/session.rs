@@ -70,9 +70,42 @@ pub async fn open_waiting(section: &ZenohConfig) -> Result<zenoh::Session, Sessi
 }
 
 /// A TCP endpoint on 127.0.0.1 with a port that is free now, for tests and benchmarks.
+///
+/// The port is taken below the kernel's ephemeral range: a port the kernel hands out (port 0)
+/// may be given again to any outgoing connection between this probe and the listener's bind,
+/// and a test suite opens many such connections.
 pub fn free_local_endpoint() -> std::io::Result<String> {
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let port = free_local_port()?;
     Ok(format!("tcp/127.0.0.1:{port}"))
+}
+
+/// The first free port of 127.0.0.1 from a starting point this process has not used,
+/// among the ports no outgoing connection takes; the kernel's choice where that range is unknown.
+fn free_local_port() -> std::io::Result<u16> {
+    use std::hash::{BuildHasher, RandomState};
+    use std::sync::atomic::{AtomicU16, Ordering};
+    const LOWEST: u16 = 10_000;
+    static NEXT: AtomicU16 = AtomicU16::new(0);
+    let Some(ephemeral) = first_ephemeral_port().filter(|first| *first > LOWEST + 1_000) else {
+        return Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port());
+    };
+    let span = ephemeral - LOWEST;
+    // Each process starts somewhere else (tests of several binaries may run at once), then walks on.
+    let start = (RandomState::new().hash_one(std::process::id()) % u64::from(span)) as u16;
+    let _ = NEXT.compare_exchange(0, start.max(1), Ordering::Relaxed, Ordering::Relaxed);
+    for _ in 0..span {
+        let port = LOWEST + NEXT.fetch_add(1, Ordering::Relaxed) % span;
+        if std::net::TcpListener::bind(("127.0.0.1", port)).is_ok() {
+            return Ok(port);
+        }
+    }
+    Err(std::io::Error::new(std::io::ErrorKind::AddrInUse, "no free port on 127.0.0.1"))
+}
+
+/// The lowest port Linux gives outgoing connections, where it says.
+fn first_ephemeral_port() -> Option<u16> {
+    let range = std::fs::read_to_string("/proc/sys/net/ipv4/ip_local_port_range").ok()?;
+    range.split_whitespace().next()?.parse().ok()
 }
 
 #[cfg(test)]
@@ -80,6 +113,20 @@ mod tests {
     use super::*;
     use zmotor_deploy::Mode;
     use zmotor_msgs::{Field, KeyLayout};
+
+    #[test]
+    fn a_free_local_endpoint_is_bindable_below_the_ports_outgoing_connections_take() {
+        let ports: Vec<u16> = (0..3)
+            .map(|_| free_local_endpoint().unwrap().strip_prefix("tcp/127.0.0.1:").unwrap().parse().unwrap())
+            .collect();
+        assert!(ports[0] != ports[1] && ports[1] != ports[2], "{ports:?}");
+        for port in ports {
+            if let Some(ephemeral) = first_ephemeral_port() {
+                assert!(port < ephemeral, "{port} is in the ephemeral range from {ephemeral}");
+            }
+            std::net::TcpListener::bind(("127.0.0.1", port)).unwrap();
+        }
+    }
 
     #[test]
     fn a_quic_endpoint_on_one_stream_is_one_zenoh_takes() {

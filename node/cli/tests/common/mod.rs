@@ -131,10 +131,18 @@ impl Running {
 }
 
 impl Drop for Running {
+    /// Kill the process; when a test fails, show what it logged (its stderr, where piped).
     fn drop(&mut self) {
         if let Some(mut child) = self.0.take() {
             let _ = child.kill();
             let _ = child.wait();
+            if std::thread::panicking() {
+                if let Some(mut stderr) = child.stderr.take() {
+                    let mut log = String::new();
+                    let _ = std::io::Read::read_to_string(&mut stderr, &mut log);
+                    eprintln!("--- stderr of process {} ---\n{log}--- end ---", child.id());
+                }
+            }
         }
     }
 }
