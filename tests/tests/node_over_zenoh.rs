@@ -426,3 +426,67 @@ async fn the_readback_bundle_goes_to_those_who_name_it_with_the_state_after_each
     let err = confirmed_write(&client, "motor/m1/@readback", "3", PATIENCE).await.unwrap_err();
     assert!(err.contains("read-only"), "{err}");
 }
+
+/// A subscriber of everything that stops reading for a while (its callback sleeps, so Zenoh's
+/// link to it congests and readbacks are dropped) still gets each axis's last state once it
+/// reads again: the end of every move (DMOV 1) and the final readback, last.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_subscriber_that_stalls_mid_move_still_gets_every_axis_s_end_of_move() {
+    const AXES: usize = 40;
+    // Long enough for the link to fill; a client that stops reading for two seconds loses its
+    // link (Zenoh takes it for gone), and would see nothing more.
+    const STALL: Duration = Duration::from_millis(1000);
+    let names: Vec<String> = (0..AXES).map(|i| format!("m{i}")).collect();
+    let plans = names
+        .iter()
+        .map(|name| {
+            let mut plan = fast_axis(name);
+            // A one-second move read back at 1 kHz: megabytes a second for the link to carry.
+            plan.fields.velo = 10.0;
+            plan.rates.moving = Duration::from_millis(1);
+            plan
+        })
+        .collect();
+    let node = TestNode::start(plans).await;
+    let (client, reader) = (node.client().await, node.client().await);
+    let last = std::sync::Arc::new(std::sync::Mutex::new(std::collections::HashMap::<String, Value>::new()));
+    let stalled = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    let (seen, stall_once) = (last.clone(), stalled.clone());
+    let _subscriber = client
+        .declare_subscriber("motor/**")
+        .callback(move |sample| {
+            if !stall_once.swap(true, std::sync::atomic::Ordering::AcqRel) {
+                std::thread::sleep(STALL);
+            }
+            if let Ok(value) = decode_cbor_value(&sample.payload().to_bytes()) {
+                seen.lock().unwrap().insert(sample.key_expr().to_string(), value);
+            }
+        })
+        .await
+        .unwrap();
+    node.until_subscribed("motor/m0/RBV").await;
+    for name in &names {
+        put_text(&reader, &node.key(name, Field::VAL), "10").await;
+    }
+    for name in &names {
+        let deadline = Instant::now() + PATIENCE;
+        while get_f64(&reader, &node.key(name, Field::DMOV)).await != 1.0 {
+            assert!(Instant::now() < deadline, "{name} never done");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+    let ended = |name: &String| {
+        let last = last.lock().unwrap();
+        let field = |field| last.get(&node.key(name, field)).cloned();
+        field(Field::DMOV) == Some(int(1)) && field(Field::RBV).is_some_and(|v| near(&v, 10.0))
+    };
+    let deadline = Instant::now() + PATIENCE;
+    while !names.iter().all(ended) {
+        if Instant::now() > deadline {
+            let missed: Vec<&String> = names.iter().filter(|n| !ended(n)).collect();
+            panic!("the subscriber never saw the end of the moves of {missed:?}");
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    assert!(stalled.load(std::sync::atomic::Ordering::Acquire));
+}

@@ -126,6 +126,24 @@ pub enum Reply {
     SimSetting(SimSetting, Value),
 }
 
+/// How a publication must reach subscribers when a link cannot carry every sample.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Delivery {
+    /// A readback of a poll during a motion: the next poll's supersedes it, so it may be dropped
+    /// where a link is congested rather than delay what follows (a robot's readback stream).
+    Stream,
+    /// A change of state (a write's effect, a motion's start or end, an alarm, a readback of an
+    /// axis at rest): its last value must arrive, in order with the axis's other posts, however
+    /// slow a link; values a slow link has not taken yet may be replaced by newer ones.
+    Event,
+}
+
+impl Delivery {
+    /// The fields a poll posts again and again while an axis moves (spec §13's readback posts).
+    pub const STREAM_FIELDS: [Field; 8] =
+        [Field::RBV, Field::DRBV, Field::RRBV, Field::RMP, Field::REP, Field::RVEL, Field::DIFF, Field::RDIF];
+}
+
 /// What the adapter must send, in order. Not `#[non_exhaustive]`: each is an action the adapter
 /// must carry out, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
@@ -138,6 +156,9 @@ pub enum ServiceOutput<R> {
         value: Value,
         /// The attachment that marks the sample as state.
         marker: StateMarker,
+        /// Whether it may be dropped on a congested link: `Stream` when every post of the input
+        /// is a `Delivery::STREAM_FIELDS` field and the axis still moves after it.
+        delivery: Delivery,
     },
     /// The input posted one or more of the readback bundle's fields (`Readback::FIELDS`): the
     /// bundle on `<prefix>/<axis>/@readback` is `Readback::encode(AxisService::fields(),
@@ -146,6 +167,8 @@ pub enum ServiceOutput<R> {
     Readback {
         /// The marker of the last readback field posted.
         marker: StateMarker,
+        /// As the input's posts'.
+        delivery: Delivery,
     },
     /// Publish why a write was refused on `<prefix>/<axis>/ERR`, the kind as the schema of its
     /// encoding (`RefusalKind::mime`).
@@ -593,6 +616,14 @@ impl<R: Clone> AxisService<R> {
     /// Turn what the axis produced into outputs; a completion answers the writes it ends.
     fn collect(&mut self) {
         let events: Vec<AxisEvent> = self.axis.drain_events().collect();
+        let streams = |event: &AxisEvent| match event {
+            AxisEvent::Post(field, _) => Delivery::STREAM_FIELDS.contains(field),
+            _ => true,
+        };
+        let delivery = match self.axis.fields().dmov == 0 && events.iter().all(streams) {
+            true => Delivery::Stream,
+            false => Delivery::Event,
+        };
         let mut readback = None;
         for event in events {
             match event {
@@ -602,7 +633,7 @@ impl<R: Clone> AxisService<R> {
                     if Readback::FIELDS.contains(&field) {
                         readback = Some(marker.clone());
                     }
-                    self.outputs.push_back(ServiceOutput::Publish { field, value, marker });
+                    self.outputs.push_back(ServiceOutput::Publish { field, value, marker, delivery });
                 }
                 AxisEvent::Driver { command, at } => {
                     self.outputs.push_back(ServiceOutput::DriverCommand { command, at })
@@ -628,7 +659,7 @@ impl<R: Clone> AxisService<R> {
             }
         }
         if let Some(marker) = readback {
-            self.outputs.push_back(ServiceOutput::Readback { marker });
+            self.outputs.push_back(ServiceOutput::Readback { marker, delivery });
         }
     }
 }
@@ -1006,7 +1037,7 @@ mod tests {
                 .iter()
                 .enumerate()
                 .filter_map(|(i, o)| match o {
-                    ServiceOutput::Readback { marker } => Some((i, marker)),
+                    ServiceOutput::Readback { marker, .. } => Some((i, marker)),
                     _ => None,
                 })
                 .collect();
@@ -1023,6 +1054,47 @@ mod tests {
             }
         }
         assert!(bundles > 5 && inputs.last().is_some_and(|o| !o.is_empty()), "{bundles} bundles");
+    }
+
+    #[test]
+    fn only_the_readback_polls_of_a_moving_axis_may_be_dropped_the_start_and_end_must_arrive() {
+        let mut s = service();
+        s.put(at(0.0), WriteRequest::new("VAL", b"10", Text));
+        let mut inputs = vec![(drain(&mut s), s.fields().dmov)];
+        while s.fields().dmov == 0 {
+            let t = s.poll_timeout().expect("a simulated axis is polled");
+            s.handle_timeout(t);
+            inputs.push((drain(&mut s), s.fields().dmov));
+        }
+        let deliveries: Vec<Vec<Delivery>> = inputs
+            .iter()
+            .map(|(outputs, _)| {
+                outputs
+                    .iter()
+                    .filter_map(|o| match o {
+                        ServiceOutput::Publish { delivery, .. } | ServiceOutput::Readback { delivery, .. } => {
+                            Some(*delivery)
+                        }
+                        _ => None,
+                    })
+                    .collect()
+            })
+            .collect();
+        for ((outputs, dmov), delivery) in inputs.iter().zip(&deliveries) {
+            let posted = outputs.iter().filter_map(|o| match o {
+                ServiceOutput::Publish { field, .. } => Some(field),
+                _ => None,
+            });
+            let expected = match *dmov == 0 && posted.clone().all(|f| Delivery::STREAM_FIELDS.contains(f)) {
+                true => Delivery::Stream,
+                false => Delivery::Event,
+            };
+            assert!(delivery.iter().all(|d| *d == expected), "{outputs:?}");
+        }
+        assert_eq!(deliveries[0][0], Delivery::Event, "the move's start");
+        assert_eq!(deliveries.last().unwrap()[0], Delivery::Event, "the move's end");
+        let streamed = deliveries.iter().filter(|d| d.first() == Some(&Delivery::Stream)).count();
+        assert!(streamed > 5, "{streamed} polls in motion streamed");
     }
 
     #[test]

@@ -6,10 +6,12 @@
 
 use crate::controllers::ControllerPort;
 use crate::demand::FieldDemand;
+use crate::event_posts::{EventOutbox, EventPost};
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
 use crate::refusal::{self, refuse};
+use crate::streamed::{Congestion, StreamLog, Streamed};
 use crate::ticker::AxisClock;
 use crate::writer::Writer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -21,7 +23,7 @@ use zenoh::query::Query;
 use zenoh::sample::Locality;
 use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
-use zmotor_core::{AxisService, Instant, Reply, ServiceOutput, WriteRequest};
+use zmotor_core::{AxisService, Delivery, Instant, Reply, ServiceOutput, WriteRequest};
 use zmotor_inbox::{Handler, Inbox};
 use zmotor_msgs::{
     encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
@@ -111,6 +113,10 @@ pub(crate) struct NodeSide {
     pub(crate) layout: KeyLayout,
     /// The node's plain writes to keys.
     pub(crate) writer: Writer,
+    /// Where posts that must arrive go (`Delivery::Event`).
+    pub(crate) events: EventOutbox,
+    /// When a droppable put last found a link congested.
+    pub(crate) congestion: Arc<Congestion>,
     /// Links of this node that follow its axes' fields.
     pub(crate) followers: Arc<LocalFollowers>,
     /// Which fields anyone on the network subscribes to.
@@ -142,6 +148,11 @@ pub(crate) struct AxisCore {
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
     /// Fields posted once so far (with a session put).
     posted_once: Vec<Field>,
+    /// This axis's posts handed to `NodeSide::events` and not sent yet: while there are any, its
+    /// stream posts queue behind them (an axis's posts arrive in order).
+    events_waiting: Arc<AtomicUsize>,
+    /// What it sent the droppable way since its last event post.
+    stream_log: StreamLog,
     /// Where the axis's deadlines go: its ticks come from there.
     clock: Arc<AxisClock>,
     /// A field autosave keeps changed since the task last looked.
@@ -169,6 +180,8 @@ impl AxisCore {
             readback: None,
             hot: Vec::new(),
             posted_once: Vec::new(),
+            events_waiting: Arc::default(),
+            stream_log: StreamLog::default(),
             clock,
             unsaved: Arc::default(),
             save_due: Arc::default(),
@@ -255,20 +268,21 @@ impl AxisCore {
         let mut stamp = None;
         while let Some(output) = self.service.poll_output() {
             match output {
-                ServiceOutput::Publish { field, value, marker } => {
+                ServiceOutput::Publish { field, value, marker, delivery } => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
-                    self.publish(field, &value, &marker, stamp);
+                    self.publish(field, &value, &marker, stamp, delivery);
                 }
-                ServiceOutput::Readback { marker } if self.node.demand.readback_wanted() => {
+                ServiceOutput::Readback { marker, delivery } if self.node.demand.readback_wanted() => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
-                    self.publish_readback(&marker, stamp);
+                    self.publish_readback(&marker, stamp, delivery);
                 }
                 ServiceOutput::Readback { .. } => {}
                 ServiceOutput::Refusal { kind, message, marker } => {
-                    let key = self.node.layout.err(self.name());
-                    let attachment = ZBytes::from(marker.encode());
-                    let put = self.node.session.put(key, message).encoding(refusal::encoding(kind));
-                    let _ = put.attachment(attachment).wait();
+                    let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
+                    if let Ok(key) = KeyExpr::try_from(self.node.layout.err(self.name())) {
+                        let payload = message.into_bytes();
+                        self.post_event(key, payload, refusal::encoding(kind), &marker, stamp, false);
+                    }
                 }
                 ServiceOutput::Reply { to, reply } => self.reply(&to, reply),
                 ServiceOutput::DriverCommand { command, at } => {
@@ -299,8 +313,60 @@ impl AxisCore {
         }
     }
 
+    /// Whether a post goes straight to the network, droppable: a stream post of an axis with no
+    /// event post waiting.
+    fn streams(&self, delivery: Delivery) -> bool {
+        delivery == Delivery::Stream && self.events_waiting.load(Ordering::Acquire) == 0
+    }
+
+    /// Hand a post that must arrive to the node's event sender: an event or a message, or a
+    /// stream sample that queues behind them (`replaceable` by its key's next). First, if the network may have dropped some of the axis's stream samples since
+    /// its last event post, their keys' last values again, as they were sent.
+    fn post_event(
+        &mut self,
+        key: KeyExpr<'static>,
+        payload: Vec<u8>,
+        encoding: Encoding,
+        marker: &StateMarker,
+        stamp: Timestamp,
+        replaceable: bool,
+    ) {
+        for (sample, marker, stamp) in self.stream_log.take_unsure(&self.node.congestion) {
+            let (key, payload) = match sample {
+                Streamed::Field(field, value) => (self.field_key(field), encode_cbor(&value)),
+                Streamed::Bundle(bundle) => match KeyExpr::try_from(self.node.layout.readback(self.name())) {
+                    Ok(key) => (key, bundle),
+                    Err(_) => continue,
+                },
+            };
+            self.send_event(key, payload, Encoding::APPLICATION_CBOR, &marker, stamp, true);
+        }
+        self.send_event(key, payload, encoding, marker, stamp, replaceable);
+    }
+
+    fn send_event(
+        &self,
+        key: KeyExpr<'static>,
+        payload: Vec<u8>,
+        encoding: Encoding,
+        marker: &StateMarker,
+        stamp: Timestamp,
+        replaceable: bool,
+    ) {
+        let (attachment, waiting) = (marker.encode(), self.events_waiting.clone());
+        self.node.events.post(EventPost { key, payload, encoding, attachment, stamp, replaceable, waiting });
+    }
+
     /// Publish the readback bundle: the state after the posts of this input, in one sample.
-    fn publish_readback(&mut self, marker: &StateMarker, stamp: Timestamp) {
+    fn publish_readback(&mut self, marker: &StateMarker, stamp: Timestamp, delivery: Delivery) {
+        let bundle = Readback::encode(self.service.fields(), marker.seq);
+        if !self.streams(delivery) {
+            if let Ok(key) = KeyExpr::try_from(self.node.layout.readback(self.name())) {
+                let replaceable = delivery == Delivery::Stream;
+                self.post_event(key, bundle, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
+            }
+            return;
+        }
         if self.readback.is_none()
             && self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok()
         {
@@ -308,9 +374,11 @@ impl AxisCore {
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
         }
-        let bundle = Readback::encode(self.service.fields(), marker.seq);
+        let now = self.node.congestion.now();
+        self.stream_log.record(now, Streamed::Bundle(bundle.clone()), marker, stamp);
         let key = || KeyExpr::try_from(self.node.layout.readback(self.name()));
-        put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp);
+        let congestion = &self.node.congestion;
+        congestion.timed(|| put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp));
     }
 
     /// The trace publisher, declared at the first driver command; it must exist whatever the
@@ -351,10 +419,15 @@ impl AxisCore {
     /// network when a subscriber there wants that field (as the record posts a monitor only to
     /// those who asked). Publications go to other processes only: the node hears itself
     /// in-process.
-    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker, stamp: Timestamp) {
+    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker, stamp: Timestamp, delivery: Delivery) {
         self.node.followers.deliver(self.service.name(), field, value);
         if !self.node.demand.wanted(field) {
             return;
+        }
+        if !self.streams(delivery) {
+            let (key, payload) = (self.field_key(field), encode_cbor(value));
+            let replaceable = delivery == Delivery::Stream;
+            return self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
         }
         let declared = match self.hot.iter().position(|(f, _)| *f == field) {
             Some(index) => Some(index),
@@ -388,9 +461,13 @@ impl AxisCore {
             }
             None => None,
         };
+        let now = self.node.congestion.now();
+        self.stream_log.record(now, Streamed::Field(field, value.clone()), marker, stamp);
         let publisher = declared.map(|index| &self.hot[index].1);
         let key = || Ok::<_, zenoh::Error>(self.field_key(field));
-        put_state(&self.node.session, publisher, key, encode_cbor(value), marker, stamp);
+        let payload = encode_cbor(value);
+        let congestion = &self.node.congestion;
+        congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
     }
 }
 

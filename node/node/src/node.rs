@@ -6,11 +6,13 @@ use crate::axis_core::{AxisCore, AxisInbox, LinkInbox, NodeSide, PUBLISHER_BUDGE
 use crate::axis_task::AxisTask;
 use crate::controllers::{ControllerAxes, ControllerPort, RunningController, ToController};
 use crate::demand::FieldDemand;
+use crate::event_posts::EventPosts;
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{CalcTask, Follows, LocalFollowers, PostsFollowed, ValueHolder};
 use crate::router::Router;
 use crate::routes::Routes;
+use crate::streamed::Congestion;
 use crate::ticker::Ticker;
 use crate::tokens::Tokens;
 use crate::writer::Writer;
@@ -41,6 +43,9 @@ pub enum NodeError {
     /// The clock's worker threads cannot be started.
     #[error("cannot start the axes' clock: {0}")]
     Clock(std::io::Error),
+    /// The thread that sends the posts that must arrive cannot be started.
+    #[error("cannot start the event sender: {0}")]
+    EventSender(std::io::Error),
     /// An axis names a controller the node does not run.
     #[error("axis '{axis}': no controller '{controller}' in this node")]
     UnknownController {
@@ -78,6 +83,8 @@ pub struct Node {
     _router: Router,
     /// Ticks the axes; its workers end with the node.
     _ticker: Ticker,
+    /// Sends the posts that must arrive; what waits is sent at `shutdown`.
+    events: Option<EventPosts>,
     _values: Vec<ValueHolder>,
     /// The reload keys of the script controllers.
     _reloads: Vec<zenoh::pubsub::Subscriber<()>>,
@@ -114,10 +121,13 @@ impl Node {
         let clock = tokio::time::Instant::now();
         let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
+        let events = EventPosts::start(session.clone()).map_err(NodeError::EventSender)?;
         let side = NodeSide {
             session: session.clone(),
             layout: layout.clone(),
             writer: Writer::new(&session, &layout),
+            events: events.outbox(),
+            congestion: Arc::new(Congestion::new(clock)),
             followers: Arc::new(LocalFollowers::new(layout.clone())),
             demand: Arc::new(FieldDemand::declare(&session, &layout).await?),
             budget: Arc::new(AtomicUsize::new(PUBLISHER_BUDGET)),
@@ -214,6 +224,7 @@ impl Node {
             stop_controllers,
             _router: router,
             _ticker: ticker,
+            events: Some(events),
             _values: holders,
             _reloads: reloads,
             followers: side.followers.clone(),
@@ -244,6 +255,10 @@ impl Node {
         let _ = self.stop_controllers.send(true);
         for task in std::mem::take(&mut self.controller_tasks) {
             let _ = task.await;
+        }
+        // The axes' last posts (their stops' ends) reach the network before the session closes.
+        if let Some(events) = self.events.take() {
+            let _ = tokio::task::spawn_blocking(move || events.finish()).await;
         }
     }
 }

@@ -1,0 +1,187 @@
+//! The posts that must arrive (`Delivery::Event`, refusals on ERR): sent from a thread of their
+//! own with congestion control Block, so a slow link makes them wait, never drops them; the tick
+//! workers only hand them over, and never wait for a link. Each is sent (a null move's DMOV 0
+//! and 1 are two samples). An axis's stream samples queue behind its events while any wait (an
+//! axis's posts arrive in order); while one waits, its key's next replaces it (a slow link gets
+//! each readback's last value, as a Channel Access server's queue does for a slow client).
+
+use std::collections::HashMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
+use zenoh::bytes::{Encoding, ZBytes};
+use zenoh::key_expr::KeyExpr;
+use zenoh::qos::CongestionControl;
+use zenoh::sample::Locality;
+use zenoh::time::Timestamp;
+use zenoh::{Session, Wait};
+
+/// One sample for other processes.
+pub(crate) struct EventPost {
+    pub(crate) key: KeyExpr<'static>,
+    pub(crate) payload: Vec<u8>,
+    pub(crate) encoding: Encoding,
+    pub(crate) attachment: Vec<u8>,
+    pub(crate) stamp: Timestamp,
+    /// A stream sample, which its key's next stream sample replaces while it waits.
+    pub(crate) replaceable: bool,
+    /// The posts of its axis not sent yet, this one among them.
+    pub(crate) waiting: Arc<AtomicUsize>,
+}
+
+#[derive(Default)]
+struct Pending {
+    /// In the order they were posted; `None` where a stream sample was replaced.
+    posts: Vec<Option<EventPost>>,
+    /// Where each key's waiting stream sample is in `posts`.
+    at: HashMap<KeyExpr<'static>, usize>,
+    closing: bool,
+}
+
+#[derive(Default)]
+struct Shared {
+    pending: Mutex<Pending>,
+    wake: Condvar,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Pending> {
+        self.pending.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+}
+
+/// The node's sender of posts that must arrive.
+pub(crate) struct EventPosts {
+    shared: Arc<Shared>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl EventPosts {
+    pub(crate) fn start(session: Session) -> std::io::Result<Self> {
+        let shared = Arc::new(Shared::default());
+        let sender = shared.clone();
+        let thread = std::thread::Builder::new().name("zmotor-events".into()).spawn(move || send(&sender, &session))?;
+        Ok(Self { shared, thread: Some(thread) })
+    }
+
+    /// Where the axes hand their posts.
+    pub(crate) fn outbox(&self) -> EventOutbox {
+        EventOutbox(self.shared.clone())
+    }
+
+    /// Send what waits, then stop (blocks until sent: at most Zenoh's wait before it closes a
+    /// congested link for each).
+    pub(crate) fn finish(mut self) {
+        self.close();
+        if let Some(thread) = self.thread.take() {
+            let _ = thread.join();
+        }
+    }
+
+    fn close(&self) {
+        self.shared.lock().closing = true;
+        self.shared.wake.notify_one();
+    }
+}
+
+impl Drop for EventPosts {
+    fn drop(&mut self) {
+        self.close();
+    }
+}
+
+/// Hands posts to the node's event sender.
+#[derive(Clone)]
+pub(crate) struct EventOutbox(Arc<Shared>);
+
+impl EventOutbox {
+    /// Queue `post`, replacing its key's stream sample not sent yet if it is one too.
+    pub(crate) fn post(&self, post: EventPost) {
+        let mut pending = self.0.lock();
+        let next = pending.posts.len();
+        let replaced = match post.replaceable {
+            true => pending.at.insert(post.key.clone(), next),
+            false => None,
+        };
+        match replaced {
+            // Its axis's count already holds the replaced post.
+            Some(replaced) => pending.posts[replaced] = None,
+            None => {
+                post.waiting.fetch_add(1, Ordering::AcqRel);
+            }
+        }
+        pending.posts.push(Some(post));
+        drop(pending);
+        self.0.wake.notify_one();
+    }
+}
+
+/// The sender thread: take what waits, send it in order, until closed and empty.
+fn send(shared: &Shared, session: &Session) {
+    loop {
+        let posts = {
+            let mut pending = shared.lock();
+            while pending.posts.is_empty() && !pending.closing {
+                pending = shared.wake.wait(pending).unwrap_or_else(PoisonError::into_inner);
+            }
+            if pending.posts.is_empty() {
+                return;
+            }
+            pending.at.clear();
+            std::mem::take(&mut pending.posts)
+        };
+        for post in posts.into_iter().flatten() {
+            let put = session
+                .put(post.key, post.payload)
+                .encoding(post.encoding)
+                .congestion_control(CongestionControl::Block)
+                .allowed_destination(Locality::Remote)
+                .attachment(ZBytes::from(post.attachment))
+                .timestamp(post.stamp);
+            if let Err(e) = put.wait() {
+                tracing::warn!("an event post failed: {e}");
+            }
+            post.waiting.fetch_sub(1, Ordering::AcqRel);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use zenoh::time::{TimestampId, NTP64};
+
+    fn post(key: &str, payload: &str, replaceable: bool, waiting: &Arc<AtomicUsize>) -> EventPost {
+        EventPost {
+            key: KeyExpr::try_from(key.to_string()).unwrap(),
+            payload: payload.as_bytes().to_vec(),
+            encoding: Encoding::TEXT_PLAIN,
+            attachment: Vec::new(),
+            stamp: Timestamp::new(NTP64(0), TimestampId::rand()),
+            replaceable,
+            waiting: waiting.clone(),
+        }
+    }
+
+    fn queued(shared: &Shared) -> Vec<(String, String)> {
+        let pending = shared.lock();
+        let posts = pending.posts.iter().flatten();
+        posts.map(|p| (p.key.to_string(), String::from_utf8(p.payload.clone()).unwrap())).collect()
+    }
+
+    #[test]
+    fn events_are_each_kept_in_order_and_a_waiting_stream_sample_gives_way_to_its_keys_next() {
+        let shared = Arc::new(Shared::default());
+        let (outbox, waiting) = (EventOutbox(shared.clone()), Arc::new(AtomicUsize::new(0)));
+        outbox.post(post("m/DMOV", "0", false, &waiting));
+        outbox.post(post("m/RBV", "1", true, &waiting));
+        outbox.post(post("m/DMOV", "1", false, &waiting));
+        outbox.post(post("m/RBV", "2", true, &waiting));
+        outbox.post(post("m/ERR", "refused", false, &waiting));
+        outbox.post(post("m/ERR", "refused again", false, &waiting));
+        let expected =
+            [("m/DMOV", "0"), ("m/DMOV", "1"), ("m/RBV", "2"), ("m/ERR", "refused"), ("m/ERR", "refused again")];
+        let expected: Vec<(String, String)> = expected.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+        assert_eq!(queued(&shared), expected);
+        assert_eq!(waiting.load(Ordering::Acquire), 5, "the axis counts what it waits for, not what was replaced");
+    }
+}
