@@ -314,9 +314,14 @@ impl AxisCore {
     }
 
     /// Whether a post goes straight to the network, droppable: a stream post of an axis with no
-    /// event post waiting.
+    /// event post waiting, while no link was seen congested lately. On a congested link, droppable
+    /// puts would take each batch that frees before a blocking one (which Zenoh, past five
+    /// seconds, takes for a dead link and closes); so then every post goes the events' way, a
+    /// waiting stream sample giving way to its key's next.
     fn streams(&self, delivery: Delivery) -> bool {
-        delivery == Delivery::Stream && self.events_waiting.load(Ordering::Acquire) == 0
+        delivery == Delivery::Stream
+            && self.events_waiting.load(Ordering::Acquire) == 0
+            && !self.node.congestion.recent()
     }
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
@@ -333,10 +338,10 @@ impl AxisCore {
     ) {
         for (sample, marker, stamp) in self.stream_log.take_unsure(&self.node.congestion) {
             let (key, payload) = match sample {
-                Streamed::Field(field, value) => (self.field_key(field), encode_cbor(&value)),
-                Streamed::Bundle(bundle) => match KeyExpr::try_from(self.node.layout.readback(self.name())) {
-                    Ok(key) => (key, bundle),
-                    Err(_) => continue,
+                Streamed::Field(field, value) => (self.key_of(field), encode_cbor(&value)),
+                Streamed::Bundle(bundle) => match self.readback_key() {
+                    Some(key) => (key, bundle),
+                    None => continue,
                 },
             };
             self.send_event(key, payload, Encoding::APPLICATION_CBOR, &marker, stamp, true);
@@ -360,13 +365,6 @@ impl AxisCore {
     /// Publish the readback bundle: the state after the posts of this input, in one sample.
     fn publish_readback(&mut self, marker: &StateMarker, stamp: Timestamp, delivery: Delivery) {
         let bundle = Readback::encode(self.service.fields(), marker.seq);
-        if !self.streams(delivery) {
-            if let Ok(key) = KeyExpr::try_from(self.node.layout.readback(self.name())) {
-                let replaceable = delivery == Delivery::Stream;
-                self.post_event(key, bundle, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
-            }
-            return;
-        }
         if self.readback.is_none()
             && self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok()
         {
@@ -374,11 +372,26 @@ impl AxisCore {
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
         }
+        if !self.streams(delivery) {
+            if let Some(key) = self.readback_key() {
+                let replaceable = delivery == Delivery::Stream;
+                self.post_event(key, bundle, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
+            }
+            return;
+        }
         let now = self.node.congestion.now();
         self.stream_log.record(now, Streamed::Bundle(bundle.clone()), marker, stamp);
         let key = || KeyExpr::try_from(self.node.layout.readback(self.name()));
         let congestion = &self.node.congestion;
         congestion.timed(|| put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp));
+    }
+
+    /// The bundle's key, declared where it has a publisher.
+    fn readback_key(&self) -> Option<KeyExpr<'static>> {
+        match &self.readback {
+            Some(publisher) => Some(publisher.key_expr().clone()),
+            None => KeyExpr::try_from(self.node.layout.readback(self.name())).ok(),
+        }
     }
 
     /// The trace publisher, declared at the first driver command; it must exist whatever the
@@ -424,50 +437,58 @@ impl AxisCore {
         if !self.node.demand.wanted(field) {
             return;
         }
+        let declared = self.hot_publisher(field);
+        let payload = encode_cbor(value);
         if !self.streams(delivery) {
-            let (key, payload) = (self.field_key(field), encode_cbor(value));
+            let key = self.key_of(field);
             let replaceable = delivery == Delivery::Stream;
             return self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
         }
-        let declared = match self.hot.iter().position(|(f, _)| *f == field) {
-            Some(index) => Some(index),
-            None if !self.posted_once.contains(&field) => {
-                self.posted_once.push(field);
-                None
-            }
-            None if self
-                .node
-                .budget
-                .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
-                .is_ok() =>
-            {
-                let declared = self
-                    .node
-                    .session
-                    .declare_publisher(self.field_key(field))
-                    .encoding(Encoding::APPLICATION_CBOR)
-                    .allowed_destination(Locality::Remote)
-                    .wait();
-                match declared {
-                    Ok(publisher) => {
-                        self.hot.push((field, publisher));
-                        Some(self.hot.len() - 1)
-                    }
-                    Err(e) => {
-                        tracing::warn!(axis = %self.name(), %field, "cannot declare a publisher: {e}");
-                        None
-                    }
-                }
-            }
-            None => None,
-        };
         let now = self.node.congestion.now();
         self.stream_log.record(now, Streamed::Field(field, value.clone()), marker, stamp);
         let publisher = declared.map(|index| &self.hot[index].1);
         let key = || Ok::<_, zenoh::Error>(self.field_key(field));
-        let payload = encode_cbor(value);
         let congestion = &self.node.congestion;
         congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
+    }
+
+    /// The index in `hot` of the field's publisher, declared at its second post (within the
+    /// budget), whichever way its posts go.
+    fn hot_publisher(&mut self, field: Field) -> Option<usize> {
+        if let Some(index) = self.hot.iter().position(|(f, _)| *f == field) {
+            return Some(index);
+        }
+        if !self.posted_once.contains(&field) {
+            self.posted_once.push(field);
+            return None;
+        }
+        self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).ok()?;
+        let declared = self
+            .node
+            .session
+            .declare_publisher(self.field_key(field))
+            .encoding(Encoding::APPLICATION_CBOR)
+            .allowed_destination(Locality::Remote)
+            .wait();
+        match declared {
+            Ok(publisher) => {
+                self.hot.push((field, publisher));
+                Some(self.hot.len() - 1)
+            }
+            Err(e) => {
+                tracing::warn!(axis = %self.name(), %field, "cannot declare a publisher: {e}");
+                None
+            }
+        }
+    }
+
+    /// A field's key, declared (Zenoh resolves a declared key once, a string key at each put)
+    /// where the field has a publisher.
+    fn key_of(&self, field: Field) -> KeyExpr<'static> {
+        match self.hot.iter().find(|(f, _)| *f == field) {
+            Some((_, publisher)) => publisher.key_expr().clone(),
+            None => self.field_key(field),
+        }
     }
 }
 

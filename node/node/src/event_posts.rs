@@ -15,6 +15,8 @@ use zenoh::sample::Locality;
 use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
 
+use crate::streamed::Congestion;
+
 /// One sample for other processes.
 pub(crate) struct EventPost {
     pub(crate) key: KeyExpr<'static>,
@@ -51,21 +53,22 @@ impl Shared {
 
 /// The node's sender of posts that must arrive.
 pub(crate) struct EventPosts {
-    shared: Arc<Shared>,
+    outbox: EventOutbox,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl EventPosts {
-    pub(crate) fn start(session: Session) -> std::io::Result<Self> {
+    pub(crate) fn start(session: Session, congestion: Arc<Congestion>) -> std::io::Result<Self> {
         let shared = Arc::new(Shared::default());
-        let sender = shared.clone();
-        let thread = std::thread::Builder::new().name("zmotor-events".into()).spawn(move || send(&sender, &session))?;
-        Ok(Self { shared, thread: Some(thread) })
+        let outbox = EventOutbox { shared: shared.clone(), session, congestion };
+        let sender = outbox.clone();
+        let thread = std::thread::Builder::new().name("zmotor-events".into()).spawn(move || sender.send_queued())?;
+        Ok(Self { outbox, thread: Some(thread) })
     }
 
     /// Where the axes hand their posts.
     pub(crate) fn outbox(&self) -> EventOutbox {
-        EventOutbox(self.shared.clone())
+        self.outbox.clone()
     }
 
     /// Send what waits, then stop (blocks until sent: at most Zenoh's wait before it closes a
@@ -78,8 +81,8 @@ impl EventPosts {
     }
 
     fn close(&self) {
-        self.shared.lock().closing = true;
-        self.shared.wake.notify_one();
+        self.outbox.shared.lock().closing = true;
+        self.outbox.shared.wake.notify_one();
     }
 }
 
@@ -91,12 +94,67 @@ impl Drop for EventPosts {
 
 /// Hands posts to the node's event sender.
 #[derive(Clone)]
-pub(crate) struct EventOutbox(Arc<Shared>);
+pub(crate) struct EventOutbox {
+    shared: Arc<Shared>,
+    session: Session,
+    congestion: Arc<Congestion>,
+}
 
 impl EventOutbox {
-    /// Queue `post`, replacing its key's stream sample not sent yet if it is one too.
+    /// Send `post` now, on this thread, if no link was seen congested lately and its axis has
+    /// nothing waiting (a put then finds room at once: a hand-over would cost every event tens
+    /// of microseconds); queue it for the sender thread otherwise.
     pub(crate) fn post(&self, post: EventPost) {
-        let mut pending = self.0.lock();
+        if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent() {
+            self.put(post);
+        } else {
+            self.shared.queue(post);
+        }
+    }
+
+    /// The sender thread: take what waits, send it in order, until closed and empty.
+    fn send_queued(&self) {
+        loop {
+            let posts = {
+                let mut pending = self.shared.lock();
+                while pending.posts.is_empty() && !pending.closing {
+                    pending = self.shared.wake.wait(pending).unwrap_or_else(PoisonError::into_inner);
+                }
+                if pending.posts.is_empty() {
+                    return;
+                }
+                pending.at.clear();
+                std::mem::take(&mut pending.posts)
+            };
+            for post in posts.into_iter().flatten() {
+                let waiting = post.waiting.clone();
+                self.put(post);
+                waiting.fetch_sub(1, Ordering::AcqRel);
+            }
+        }
+    }
+
+    fn put(&self, post: EventPost) {
+        let put = self
+            .session
+            .put(post.key, post.payload)
+            .encoding(post.encoding)
+            .congestion_control(CongestionControl::Block)
+            .allowed_destination(Locality::Remote)
+            .attachment(ZBytes::from(post.attachment))
+            .timestamp(post.stamp);
+        self.congestion.timed(|| {
+            if let Err(e) = put.wait() {
+                tracing::warn!("an event post failed: {e}");
+            }
+        });
+    }
+}
+
+impl Shared {
+    /// Queue `post`, replacing its key's stream sample not sent yet if it is one too.
+    fn queue(&self, post: EventPost) {
+        let mut pending = self.lock();
         let next = pending.posts.len();
         let replaced = match post.replaceable {
             true => pending.at.insert(post.key.clone(), next),
@@ -111,37 +169,7 @@ impl EventOutbox {
         }
         pending.posts.push(Some(post));
         drop(pending);
-        self.0.wake.notify_one();
-    }
-}
-
-/// The sender thread: take what waits, send it in order, until closed and empty.
-fn send(shared: &Shared, session: &Session) {
-    loop {
-        let posts = {
-            let mut pending = shared.lock();
-            while pending.posts.is_empty() && !pending.closing {
-                pending = shared.wake.wait(pending).unwrap_or_else(PoisonError::into_inner);
-            }
-            if pending.posts.is_empty() {
-                return;
-            }
-            pending.at.clear();
-            std::mem::take(&mut pending.posts)
-        };
-        for post in posts.into_iter().flatten() {
-            let put = session
-                .put(post.key, post.payload)
-                .encoding(post.encoding)
-                .congestion_control(CongestionControl::Block)
-                .allowed_destination(Locality::Remote)
-                .attachment(ZBytes::from(post.attachment))
-                .timestamp(post.stamp);
-            if let Err(e) = put.wait() {
-                tracing::warn!("an event post failed: {e}");
-            }
-            post.waiting.fetch_sub(1, Ordering::AcqRel);
-        }
+        self.wake.notify_one();
     }
 }
 
@@ -170,14 +198,13 @@ mod tests {
 
     #[test]
     fn events_are_each_kept_in_order_and_a_waiting_stream_sample_gives_way_to_its_keys_next() {
-        let shared = Arc::new(Shared::default());
-        let (outbox, waiting) = (EventOutbox(shared.clone()), Arc::new(AtomicUsize::new(0)));
-        outbox.post(post("m/DMOV", "0", false, &waiting));
-        outbox.post(post("m/RBV", "1", true, &waiting));
-        outbox.post(post("m/DMOV", "1", false, &waiting));
-        outbox.post(post("m/RBV", "2", true, &waiting));
-        outbox.post(post("m/ERR", "refused", false, &waiting));
-        outbox.post(post("m/ERR", "refused again", false, &waiting));
+        let (shared, waiting) = (Shared::default(), Arc::new(AtomicUsize::new(0)));
+        shared.queue(post("m/DMOV", "0", false, &waiting));
+        shared.queue(post("m/RBV", "1", true, &waiting));
+        shared.queue(post("m/DMOV", "1", false, &waiting));
+        shared.queue(post("m/RBV", "2", true, &waiting));
+        shared.queue(post("m/ERR", "refused", false, &waiting));
+        shared.queue(post("m/ERR", "refused again", false, &waiting));
         let expected =
             [("m/DMOV", "0"), ("m/DMOV", "1"), ("m/RBV", "2"), ("m/ERR", "refused"), ("m/ERR", "refused again")];
         let expected: Vec<(String, String)> = expected.iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();

@@ -121,13 +121,14 @@ impl Node {
         let clock = tokio::time::Instant::now();
         let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
-        let events = EventPosts::start(session.clone()).map_err(NodeError::EventSender)?;
+        let congestion = Arc::new(Congestion::new(clock));
+        let events = EventPosts::start(session.clone(), congestion.clone()).map_err(NodeError::EventSender)?;
         let side = NodeSide {
             session: session.clone(),
             layout: layout.clone(),
             writer: Writer::new(&session, &layout),
             events: events.outbox(),
-            congestion: Arc::new(Congestion::new(clock)),
+            congestion,
             followers: Arc::new(LocalFollowers::new(layout.clone())),
             demand: Arc::new(FieldDemand::declare(&session, &layout).await?),
             budget: Arc::new(AtomicUsize::new(PUBLISHER_BUDGET)),

@@ -12,6 +12,10 @@ use zmotor_msgs::{Field, StateMarker, Value};
 /// A put this slow found a link's queue full: samples may be dropped from then on.
 const SLOW_PUT: Duration = Duration::from_micros(500);
 
+/// How long after a slow put the node takes its links for congested (while a link stays
+/// congested, Zenoh drops at once and its next wait comes within milliseconds).
+const CONGESTED_FOR: Duration = Duration::from_secs(1);
+
 /// When a put of the node last found a link congested, on the node's clock.
 pub(crate) struct Congestion {
     origin: tokio::time::Instant,
@@ -29,7 +33,7 @@ impl Congestion {
         u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1)
     }
 
-    /// Run a droppable put, noting congestion if it was slow.
+    /// Run a put, noting congestion if it was slow.
     pub(crate) fn timed(&self, put: impl FnOnce()) {
         let start = std::time::Instant::now();
         put();
@@ -40,6 +44,13 @@ impl Congestion {
 
     fn since(&self, at: u64) -> bool {
         self.last.load(Ordering::Acquire) >= at
+    }
+
+    /// Whether a put was slow lately (`CONGESTED_FOR`).
+    pub(crate) fn recent(&self) -> bool {
+        let last = self.last.load(Ordering::Acquire);
+        let window = u64::try_from(CONGESTED_FOR.as_micros()).unwrap_or(u64::MAX);
+        last != 0 && self.now().saturating_sub(last) < window
     }
 }
 
