@@ -2,15 +2,17 @@
 //! when the network may have dropped some of it, the axis's next event post sends those keys'
 //! last values again first: a motion's last readback may come a poll before its end (DMOV 1).
 //! Zenoh does not say which sample it dropped, but it drops only after a put found a link's
-//! queue full for `wait_before_drop` (1 ms): a put that took half that marks the node congested.
+//! queue full for `wait_before_drop` (1 ms): a put that took that long marks the node congested.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use zenoh::time::Timestamp;
 use zmotor_msgs::{Field, StateMarker, Value};
 
-/// A put this slow found a link's queue full: samples may be dropped from then on.
-const SLOW_PUT: Duration = Duration::from_micros(500);
+/// A put this slow found a link's queue full (Zenoh's `wait_before_drop`): samples may be
+/// dropped from then on. (Half of it was too little: on two busy cores a thread is often
+/// preempted that long, and the node took every such put for congestion.)
+const SLOW_PUT: Duration = Duration::from_millis(1);
 
 /// How long after a slow put the node takes its links for congested (while a link stays
 /// congested, Zenoh drops at once and its next wait comes within milliseconds).
