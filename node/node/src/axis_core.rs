@@ -358,8 +358,10 @@ impl AxisCore {
         stamp: Timestamp,
         replaceable: bool,
     ) {
-        let (attachment, waiting) = (marker.encode(), self.events_waiting.clone());
-        self.node.events.post(EventPost { key, payload, encoding, attachment, stamp, replaceable, waiting });
+        let (attachment, stamp, destination) = (Some(marker.encode()), Some(stamp), Locality::Remote);
+        let waiting = self.events_waiting.clone();
+        let post = EventPost { key, payload, encoding, attachment, stamp, destination, replaceable, waiting };
+        self.node.events.post(post);
     }
 
     /// Publish the readback bundle: the state after the posts of this input, in one sample.

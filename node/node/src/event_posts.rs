@@ -1,4 +1,4 @@
-//! The posts that must arrive (`Delivery::Event`, refusals on ERR): sent from a thread of their
+//! The posts that must arrive (`Delivery::Event`, refusals on ERR, the node's writes): sent from a thread of their
 //! own with congestion control Block, so a slow link makes them wait, never drops them; the tick
 //! workers only hand them over, and never wait for a link. Each is sent (a null move's DMOV 0
 //! and 1 are two samples). An axis's stream samples queue behind its events while any wait (an
@@ -17,13 +17,14 @@ use zenoh::{Session, Wait};
 
 use crate::streamed::Congestion;
 
-/// One sample for other processes.
+/// One sample: an axis's post (marked, stamped, for other sessions) or a write.
 pub(crate) struct EventPost {
     pub(crate) key: KeyExpr<'static>,
     pub(crate) payload: Vec<u8>,
     pub(crate) encoding: Encoding,
-    pub(crate) attachment: Vec<u8>,
-    pub(crate) stamp: Timestamp,
+    pub(crate) attachment: Option<Vec<u8>>,
+    pub(crate) stamp: Option<Timestamp>,
+    pub(crate) destination: Locality,
     /// A stream sample, which its key's next stream sample replaces while it waits.
     pub(crate) replaceable: bool,
     /// The posts of its axis not sent yet, this one among them.
@@ -140,8 +141,8 @@ impl EventOutbox {
             .put(post.key, post.payload)
             .encoding(post.encoding)
             .congestion_control(CongestionControl::Block)
-            .allowed_destination(Locality::Remote)
-            .attachment(ZBytes::from(post.attachment))
+            .allowed_destination(post.destination)
+            .attachment(post.attachment.map(ZBytes::from))
             .timestamp(post.stamp);
         self.congestion.timed(|| {
             if let Err(e) = put.wait() {
@@ -183,8 +184,9 @@ mod tests {
             key: KeyExpr::try_from(key.to_string()).unwrap(),
             payload: payload.as_bytes().to_vec(),
             encoding: Encoding::TEXT_PLAIN,
-            attachment: Vec::new(),
-            stamp: Timestamp::new(NTP64(0), TimestampId::rand()),
+            attachment: None,
+            stamp: Some(Timestamp::new(NTP64(0), TimestampId::rand())),
+            destination: Locality::Remote,
             replaceable,
             waiting: waiting.clone(),
         }

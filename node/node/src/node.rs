@@ -126,7 +126,7 @@ impl Node {
         let side = NodeSide {
             session: session.clone(),
             layout: layout.clone(),
-            writer: Writer::new(&session, &layout),
+            writer: Writer::new(events.outbox(), &layout),
             events: events.outbox(),
             congestion,
             followers: Arc::new(LocalFollowers::new(layout.clone())),

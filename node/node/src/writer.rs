@@ -1,27 +1,34 @@
 //! Plain writes this node makes to keys: link outputs, directives, calc results. The node's own
 //! subscribers do not hear its session (so publishing costs it no delivery to itself), so a
 //! write to one of its own axes is handed to that axis here, and put on the network for
-//! everyone else.
+//! everyone else, as a post that must arrive (`event_posts.rs`): a write is a command, never
+//! dropped for a congested link.
 
+use crate::event_posts::{EventOutbox, EventPost};
 use crate::input::{AxisInput, Written};
 use crate::routes::{Routes, Space};
+use std::sync::atomic::AtomicUsize;
 use std::sync::{Arc, OnceLock, Weak};
 use zenoh::bytes::Encoding;
-use zenoh::{Session, Wait};
+use zenoh::key_expr::KeyExpr;
+use zenoh::sample::Locality;
 use zmotor_msgs::{KeyLayout, PayloadEncoding};
 
 /// The node's plain writes.
 #[derive(Clone)]
 pub(crate) struct Writer {
-    session: Session,
+    outbox: EventOutbox,
+    /// The writes handed to the outbox and not sent yet (they go out in order).
+    waiting: Arc<AtomicUsize>,
     fields: Space,
     /// The node's axes, once its router exists; weak, as the axes hold this writer.
     local: Arc<OnceLock<Weak<Routes>>>,
 }
 
 impl Writer {
-    pub(crate) fn new(session: &Session, layout: &KeyLayout) -> Self {
-        Self { session: session.clone(), fields: Space::Fields(layout.clone()), local: Arc::default() }
+    pub(crate) fn new(outbox: EventOutbox, layout: &KeyLayout) -> Self {
+        let (waiting, local) = (Arc::default(), Arc::default());
+        Self { outbox, waiting, fields: Space::Fields(layout.clone()), local }
     }
 
     /// The node's axes are `routes` from now on.
@@ -41,8 +48,20 @@ impl Writer {
                 }
             }
         }
-        if let Err(e) = self.session.put(key, value).encoding(Encoding::TEXT_PLAIN).wait() {
-            tracing::warn!(key, "put failed: {e}");
-        }
+        let key = match KeyExpr::try_from(key.to_string()) {
+            Ok(key) => key,
+            Err(e) => return tracing::warn!(key, "put failed: {e}"),
+        };
+        self.outbox.post(EventPost {
+            key,
+            payload: value.into_bytes(),
+            encoding: Encoding::TEXT_PLAIN,
+            attachment: None,
+            stamp: None,
+            // The node's own value holders and links follow keys on its session too.
+            destination: Locality::Any,
+            replaceable: false,
+            waiting: self.waiting.clone(),
+        });
     }
 }
