@@ -325,8 +325,9 @@ impl AxisCore {
     }
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
-    /// stream sample that queues behind them (`replaceable` by its key's next). First, if the network may have dropped some of the axis's stream samples since
-    /// its last event post, their keys' last values again, as they were sent.
+    /// stream sample that queues behind them (`replaceable` by its key's next). First, if the
+    /// network may have dropped some of the axis's stream samples since its last event post,
+    /// their keys' last values again, as they were sent.
     fn post_event(
         &mut self,
         key: KeyExpr<'static>,
@@ -336,32 +337,22 @@ impl AxisCore {
         stamp: Timestamp,
         replaceable: bool,
     ) {
-        for (sample, marker, stamp) in self.stream_log.take_unsure(&self.node.congestion) {
+        let unsure = self.stream_log.take_unsure(&self.node.congestion);
+        let resent = unsure.into_iter().filter_map(|(sample, marker, stamp)| {
             let (key, payload) = match sample {
                 Streamed::Field(field, value) => (self.key_of(field), encode_cbor(&value)),
-                Streamed::Bundle(bundle) => match self.readback_key() {
-                    Some(key) => (key, bundle),
-                    None => continue,
-                },
+                Streamed::Bundle(bundle) => (self.readback_key()?, bundle),
             };
-            self.send_event(key, payload, Encoding::APPLICATION_CBOR, &marker, stamp, true);
+            Some((key, payload, Encoding::APPLICATION_CBOR, marker, stamp, true))
+        });
+        let this = (key, payload, encoding, marker.clone(), stamp, replaceable);
+        for (key, payload, encoding, marker, stamp, replaceable) in resent.collect::<Vec<_>>().into_iter().chain([this])
+        {
+            let (attachment, stamp, destination) = (Some(marker.encode()), Some(stamp), Locality::Remote);
+            let waiting = self.events_waiting.clone();
+            let post = EventPost { key, payload, encoding, attachment, stamp, destination, replaceable, waiting };
+            self.node.events.post(post);
         }
-        self.send_event(key, payload, encoding, marker, stamp, replaceable);
-    }
-
-    fn send_event(
-        &self,
-        key: KeyExpr<'static>,
-        payload: Vec<u8>,
-        encoding: Encoding,
-        marker: &StateMarker,
-        stamp: Timestamp,
-        replaceable: bool,
-    ) {
-        let (attachment, stamp, destination) = (Some(marker.encode()), Some(stamp), Locality::Remote);
-        let waiting = self.events_waiting.clone();
-        let post = EventPost { key, payload, encoding, attachment, stamp, destination, replaceable, waiting };
-        self.node.events.post(post);
     }
 
     /// Publish the readback bundle: the state after the posts of this input, in one sample.
