@@ -78,7 +78,7 @@ async fn garbage_is_refused_and_the_node_keeps_working() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stop_mid_move_leaves_val_at_the_readback() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 20.0;
+    plan.fields.velo = 10.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
@@ -96,7 +96,7 @@ async fn stop_mid_move_leaves_val_at_the_readback() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pause_holds_the_motion_and_go_resumes_it() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 20.0;
+    plan.fields.velo = 10.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
@@ -130,7 +130,7 @@ async fn a_limit_violation_moves_nothing_and_says_why() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn put_with_wait_replies_only_when_motion_has_ended() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 20.0;
+    plan.fields.velo = 10.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;
@@ -427,21 +427,23 @@ async fn the_readback_bundle_goes_to_those_who_name_it_with_the_state_after_each
     assert!(err.contains("read-only"), "{err}");
 }
 
-/// A subscriber of everything that stops reading for a while (its callback sleeps, so Zenoh's
-/// link to it congests and readbacks are dropped) still gets each axis's last state once it
-/// reads again: the end of every move (DMOV 1) and the final readback, last.
+/// A subscriber of everything that stops reading while the moves end (its callback sleeps, so
+/// Zenoh's link to it congests and readbacks are dropped) still gets each axis's last state once
+/// it reads again: the end of every move (DMOV 1) and the final readback, last. (With every post
+/// droppable it missed some in each of four runs. The resend of a final readback that a poll
+/// before DMOV 1 lost, at the onset of congestion, is tested in zmotor-node's streamed.rs.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_subscriber_that_stalls_mid_move_still_gets_every_axis_s_end_of_move() {
     const AXES: usize = 40;
-    // Long enough for the link to fill; a client that stops reading for two seconds loses its
-    // link (Zenoh takes it for gone), and would see nothing more.
-    const STALL: Duration = Duration::from_millis(1000);
+    // Long enough for the link to fill before the moves end; shorter than the node's lease (1 s):
+    // a client that read nothing for 2 s saw nothing more (taken for gone, inferred).
+    const STALL: Duration = Duration::from_millis(800);
     let names: Vec<String> = (0..AXES).map(|i| format!("m{i}")).collect();
     let plans = names
         .iter()
         .map(|name| {
             let mut plan = fast_axis(name);
-            // A one-second move read back at 1 kHz: megabytes a second for the link to carry.
+            // A half-second move read back at 1 kHz: megabytes a second for the link to carry.
             plan.fields.velo = 10.0;
             plan.rates.moving = Duration::from_millis(1);
             plan
@@ -466,7 +468,7 @@ async fn a_subscriber_that_stalls_mid_move_still_gets_every_axis_s_end_of_move()
         .unwrap();
     node.until_subscribed("motor/m0/RBV").await;
     for name in &names {
-        put_text(&reader, &node.key(name, Field::VAL), "10").await;
+        put_text(&reader, &node.key(name, Field::VAL), "5").await;
     }
     for name in &names {
         let deadline = Instant::now() + PATIENCE;
@@ -478,7 +480,7 @@ async fn a_subscriber_that_stalls_mid_move_still_gets_every_axis_s_end_of_move()
     let ended = |name: &String| {
         let last = last.lock().unwrap();
         let field = |field| last.get(&node.key(name, field)).cloned();
-        field(Field::DMOV) == Some(int(1)) && field(Field::RBV).is_some_and(|v| near(&v, 10.0))
+        field(Field::DMOV) == Some(int(1)) && field(Field::RBV).is_some_and(|v| near(&v, 5.0))
     };
     let deadline = Instant::now() + PATIENCE;
     while !names.iter().all(ended) {
