@@ -455,6 +455,16 @@ impl Field {
 }
 
 impl Field {
+    /// A readback a poll posts again and again while the axis moves (spec §13's readback posts):
+    /// each is superseded by the next poll's, so a congested link may drop it
+    /// (`zmotor_core::Delivery::Stream`).
+    pub fn is_readback_stream(self) -> bool {
+        use Field::*;
+        matches!(self, RBV | DRBV | RRBV | RMP | REP | RVEL | DIFF | RDIF)
+    }
+}
+
+impl Field {
     /// A link the record writes through (OUT, STOO, RLNK, FLNK); its other links are read.
     pub fn is_output_link(self) -> bool {
         matches!(self, Field::OUT | Field::STOO | Field::RLNK | Field::FLNK)

@@ -138,12 +138,6 @@ pub enum Delivery {
     Event,
 }
 
-impl Delivery {
-    /// The fields a poll posts again and again while an axis moves (spec §13's readback posts).
-    pub const STREAM_FIELDS: [Field; 8] =
-        [Field::RBV, Field::DRBV, Field::RRBV, Field::RMP, Field::REP, Field::RVEL, Field::DIFF, Field::RDIF];
-}
-
 /// What the adapter must send, in order. Not `#[non_exhaustive]`: each is an action the adapter
 /// must carry out, and a new one must stop the build of an adapter that would drop it.
 #[derive(Clone, Debug, PartialEq)]
@@ -157,7 +151,7 @@ pub enum ServiceOutput<R> {
         /// The attachment that marks the sample as state.
         marker: StateMarker,
         /// Whether it may be dropped on a congested link: `Stream` when every post of the input
-        /// is a `Delivery::STREAM_FIELDS` field and the axis still moves after it.
+        /// is a readback stream (`Field::is_readback_stream`) and the axis still moves after it.
         delivery: Delivery,
     },
     /// The input posted one or more of the readback bundle's fields (`Readback::FIELDS`): the
@@ -617,7 +611,7 @@ impl<R: Clone> AxisService<R> {
     fn collect(&mut self) {
         let events: Vec<AxisEvent> = self.axis.drain_events().collect();
         let streams = |event: &AxisEvent| match event {
-            AxisEvent::Post(field, _) => Delivery::STREAM_FIELDS.contains(field),
+            AxisEvent::Post(field, _) => field.is_readback_stream(),
             _ => true,
         };
         let delivery = match self.axis.fields().dmov == 0 && events.iter().all(streams) {
@@ -1085,7 +1079,7 @@ mod tests {
                 ServiceOutput::Publish { field, .. } => Some(field),
                 _ => None,
             });
-            let expected = match *dmov == 0 && posted.clone().all(|f| Delivery::STREAM_FIELDS.contains(f)) {
+            let expected = match *dmov == 0 && posted.clone().all(|f| f.is_readback_stream()) {
                 true => Delivery::Stream,
                 false => Delivery::Event,
             };
