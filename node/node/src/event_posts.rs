@@ -37,6 +37,9 @@ struct Pending {
     posts: Vec<Option<EventPost>>,
     /// Where each key's waiting stream sample is in `posts`.
     at: HashMap<KeyExpr<'static>, usize>,
+    /// The sender waits for posts: the next post must wake it (a wake is a system call; a
+    /// sender at work takes every queued post on its next round without one).
+    sender_waits: bool,
     closing: bool,
 }
 
@@ -119,8 +122,10 @@ impl EventOutbox {
             let posts = {
                 let mut pending = self.shared.lock();
                 while pending.posts.is_empty() && !pending.closing {
+                    pending.sender_waits = true;
                     pending = self.shared.wake.wait(pending).unwrap_or_else(PoisonError::into_inner);
                 }
+                pending.sender_waits = false;
                 if pending.posts.is_empty() {
                     return;
                 }
@@ -169,8 +174,11 @@ impl Shared {
             }
         }
         pending.posts.push(Some(post));
+        let wake = std::mem::take(&mut pending.sender_waits);
         drop(pending);
-        self.wake.notify_one();
+        if wake {
+            self.wake.notify_one();
+        }
     }
 }
 
