@@ -1,8 +1,9 @@
 //! The floor beside every figure: Zenoh alone, in processes of this program with no zmotor
 //! code on the measured path. `zmotor-bench floor echo` answers pings as Zenoh's z_pong does
 //! (from the subscriber's callback, through a declared publisher) and gets of one value;
-//! `floor publish` publishes what as many moving axes publish, at the same rate; `floor get`
-//! is a one-shot client, as a stock tool's `get` is.
+//! `floor publish` publishes what as many moving axes publish, at the same rate; `floor tokens`
+//! declares as many axes' liveliness tokens; `floor get` is a one-shot client, as a stock
+//! tool's `get` is.
 
 use crate::Error;
 use std::time::Duration;
@@ -36,6 +37,13 @@ pub(crate) enum Floor {
         #[arg(long)]
         rate: f64,
     },
+    /// Declare the liveliness tokens of AXES axes, listening on ENDPOINT, and keep them.
+    Tokens {
+        #[arg(long)]
+        listen: String,
+        #[arg(long)]
+        axes: usize,
+    },
     /// One get of `bench/value` from ENDPOINT, then exit (a stock client's one-shot get).
     Get {
         #[arg(long)]
@@ -68,6 +76,16 @@ pub(crate) async fn run(floor: Floor) -> Result<(), Error> {
         Floor::Publish { listen, axes, rate } => {
             let session = listening(&listen).await?;
             publish_like_moving_axes(&session, axes, rate).await
+        }
+        Floor::Tokens { listen, axes } => {
+            let session = listening(&listen).await?;
+            let layout = KeyLayout::default();
+            let mut tokens = Vec::with_capacity(axes);
+            for i in 0..axes {
+                tokens.push(session.liveliness().declare_token(layout.axis(&crate::axes::bench_axis(i))).await?);
+            }
+            std::future::pending::<()>().await;
+            Ok(())
         }
         Floor::Get { connect } => {
             let session = zmotor_client::open(&ZenohConfig::client(&connect)).await?;
