@@ -78,7 +78,7 @@ async fn garbage_is_refused_and_the_node_keeps_working() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stop_mid_move_leaves_val_at_the_readback() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 10.0;
+    plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
@@ -96,7 +96,7 @@ async fn stop_mid_move_leaves_val_at_the_readback() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pause_holds_the_motion_and_go_resumes_it() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 10.0;
+    plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
@@ -130,7 +130,7 @@ async fn a_limit_violation_moves_nothing_and_says_why() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn put_with_wait_replies_only_when_motion_has_ended() {
     let mut plan = fast_axis("m1");
-    plan.fields.velo = 10.0;
+    plan.fields.velo = 20.0;
     let node = TestNode::start(vec![plan]).await;
     let client = node.client().await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/DMOV").await;

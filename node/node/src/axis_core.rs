@@ -339,11 +339,8 @@ impl AxisCore {
     ) {
         let unsure = self.stream_log.take_unsure(&self.node.congestion);
         let resent = unsure.into_iter().filter_map(|(sample, marker, stamp)| {
-            let (key, payload) = match sample {
-                Streamed::Field(field, value) => (self.key_of(field), encode_cbor(&value)),
-                Streamed::Bundle(bundle) => (self.readback_key()?, bundle),
-            };
-            Some((key, payload, Encoding::APPLICATION_CBOR, marker, stamp, true))
+            let key = self.sample_key(&sample)?;
+            Some((key, sample.into_payload(), Encoding::APPLICATION_CBOR, marker, stamp, true))
         });
         let this = (key, payload, encoding, marker.clone(), stamp, replaceable);
         for (key, payload, encoding, marker, stamp, replaceable) in resent.collect::<Vec<_>>().into_iter().chain([this])
@@ -365,18 +362,45 @@ impl AxisCore {
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
         }
+        self.send_state(Streamed::Bundle(bundle.clone()), bundle, marker, stamp, delivery);
+    }
+
+    /// Send one state sample of this axis, `payload` its bytes: the events' way (it must arrive,
+    /// or the network is congested), or straight out, droppable, and logged to be sent again
+    /// should congestion follow.
+    fn send_state(
+        &mut self,
+        sample: Streamed,
+        payload: Vec<u8>,
+        marker: &StateMarker,
+        stamp: Timestamp,
+        delivery: Delivery,
+    ) {
         if !self.streams(delivery) {
-            if let Some(key) = self.readback_key() {
+            if let Some(key) = self.sample_key(&sample) {
                 let replaceable = delivery == Delivery::Stream;
-                self.post_event(key, bundle, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
+                self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
             }
             return;
         }
-        let now = self.node.congestion.now();
-        self.stream_log.record(now, Streamed::Bundle(bundle.clone()), marker, stamp);
-        let key = || KeyExpr::try_from(self.node.layout.readback(self.name()));
-        let congestion = &self.node.congestion;
-        congestion.timed(|| put_state(&self.node.session, self.readback.as_ref(), key, bundle, marker, stamp));
+        let (publisher, field) = match &sample {
+            Streamed::Field(field, _) => (self.hot.iter().find(|(f, _)| f == field).map(|(_, p)| p), Some(*field)),
+            Streamed::Bundle(_) => (self.readback.as_ref(), None),
+        };
+        self.stream_log.record(self.node.congestion.now(), sample, marker, stamp);
+        let key = || match field {
+            Some(field) => Ok(self.field_key(field)),
+            None => KeyExpr::try_from(self.node.layout.readback(self.name())),
+        };
+        self.node.congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
+    }
+
+    /// A sample's key, declared where it has a publisher.
+    fn sample_key(&self, sample: &Streamed) -> Option<KeyExpr<'static>> {
+        match sample {
+            Streamed::Field(field, _) => Some(self.key_of(*field)),
+            Streamed::Bundle(_) => self.readback_key(),
+        }
     }
 
     /// The bundle's key, declared where it has a publisher.
@@ -430,32 +454,22 @@ impl AxisCore {
         if !self.node.demand.wanted(field) {
             return;
         }
-        let declared = self.hot_publisher(field);
-        let payload = encode_cbor(value);
-        if !self.streams(delivery) {
-            let key = self.key_of(field);
-            let replaceable = delivery == Delivery::Stream;
-            return self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
-        }
-        let now = self.node.congestion.now();
-        self.stream_log.record(now, Streamed::Field(field, value.clone()), marker, stamp);
-        let publisher = declared.map(|index| &self.hot[index].1);
-        let key = || Ok::<_, zenoh::Error>(self.field_key(field));
-        let congestion = &self.node.congestion;
-        congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
+        self.declare_hot_publisher(field);
+        self.send_state(Streamed::Field(field, value.clone()), encode_cbor(value), marker, stamp, delivery);
     }
 
-    /// The index in `hot` of the field's publisher, declared at its second post (within the
-    /// budget), whichever way its posts go.
-    fn hot_publisher(&mut self, field: Field) -> Option<usize> {
-        if let Some(index) = self.hot.iter().position(|(f, _)| *f == field) {
-            return Some(index);
+    /// Declare the field's publisher at its second post (within the budget), whichever way its
+    /// posts go.
+    fn declare_hot_publisher(&mut self, field: Field) {
+        if self.hot.iter().any(|(f, _)| *f == field) {
+            return;
         }
         if !self.posted_once.contains(&field) {
-            self.posted_once.push(field);
-            return None;
+            return self.posted_once.push(field);
         }
-        self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).ok()?;
+        if self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_err() {
+            return;
+        }
         let declared = self
             .node
             .session
@@ -464,14 +478,8 @@ impl AxisCore {
             .allowed_destination(Locality::Remote)
             .wait();
         match declared {
-            Ok(publisher) => {
-                self.hot.push((field, publisher));
-                Some(self.hot.len() - 1)
-            }
-            Err(e) => {
-                tracing::warn!(axis = %self.name(), %field, "cannot declare a publisher: {e}");
-                None
-            }
+            Ok(publisher) => self.hot.push((field, publisher)),
+            Err(e) => tracing::warn!(axis = %self.name(), %field, "cannot declare a publisher: {e}"),
         }
     }
 

@@ -69,6 +69,14 @@ pub(crate) enum Streamed {
 }
 
 impl Streamed {
+    /// The sample's bytes on the wire.
+    pub(crate) fn into_payload(self) -> Vec<u8> {
+        match self {
+            Streamed::Field(_, value) => zmotor_msgs::encode_cbor(&value),
+            Streamed::Bundle(bundle) => bundle,
+        }
+    }
+
     fn same_key(&self, other: &Streamed) -> bool {
         match (self, other) {
             (Streamed::Field(a, _), Streamed::Field(b, _)) => a == b,
