@@ -126,7 +126,8 @@ pub(crate) fn fields_posted_per_poll() -> Vec<Field> {
 /// Zenoh alone doing the publishing of `n` moving axes, `rate` times a second on a thread of its
 /// own, on a fixed cadence (a precise sleep, as the node's tick workers; tokio's timer rounds to
 /// the millisecond): each field of `fields_posted_per_poll` through a declared publisher, a CBOR
-/// number with a state marker, as the node sends it.
+/// number with a state marker and a timestamp, as the node sends it (one stamp for the fields
+/// of one axis's poll).
 async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Result<(), Error> {
     let fields = fields_posted_per_poll();
     let layout = KeyLayout::default();
@@ -138,14 +139,19 @@ async fn publish_like_moving_axes(session: &Session, n: usize, rate: f64) -> Res
         }
     }
     let period = Duration::from_secs_f64(1.0 / rate);
+    let session = session.clone();
     let polls = tokio::task::spawn_blocking(move || -> Result<(), Error> {
         let start = std::time::Instant::now();
         let mut seq = 0;
         for poll in 1u32.. {
-            for publisher in &publishers {
-                seq += 1;
-                let value = Value::Float(seq as f64 * 1e-3);
-                publisher.put(encode_cbor(&value)).attachment(StateMarker::new(seq, 0, 0).encode()).wait()?;
+            for axis in publishers.chunks(fields.len()) {
+                let stamp = session.new_timestamp();
+                for publisher in axis {
+                    seq += 1;
+                    let value = Value::Float(seq as f64 * 1e-3);
+                    let marker = StateMarker::new(seq, 0, 0).encode();
+                    publisher.put(encode_cbor(&value)).attachment(marker).timestamp(stamp).wait()?;
+                }
             }
             if let Some(wait) = (start + period * poll).checked_duration_since(std::time::Instant::now()) {
                 std::thread::sleep(wait);
