@@ -3,13 +3,15 @@
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 
 /// Attachment of every publication a node makes. Its presence marks a sample as state, never a
 /// command, so nodes, bridges and UIs can share one key space without echo loops.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct StateMarker {
     /// Always "state".
-    pub kind: String,
+    // Borrowed when made here: a node makes one for every post.
+    pub kind: Cow<'static, str>,
     /// Per-axis publication sequence number.
     pub seq: u64,
     /// Alarm status (menuAlarmStat index) when the value was published.
@@ -24,12 +26,15 @@ impl StateMarker {
 
     /// The marker of publication `seq`, with the axis's alarm status and severity at that moment.
     pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
-        Self { kind: Self::KIND.to_string(), seq, stat, sevr }
+        Self { kind: Cow::Borrowed(Self::KIND), seq, stat, sevr }
     }
 
     /// The marker as CBOR, the bytes of the attachment.
     pub fn encode(&self) -> Vec<u8> {
-        crate::codec::encode_cbor(self)
+        // Room for the longest marker (a 64-bit seq), so writing it never grows the buffer.
+        let mut out = Vec::with_capacity(48);
+        ciborium::into_writer(self, &mut out).expect("writing CBOR to a Vec cannot fail");
+        out
     }
 
     /// The marker carried by an attachment, if it is one.
@@ -344,6 +349,10 @@ mod tests {
         assert_eq!(StateMarker::decode(&m.encode()), Some(m));
         assert_eq!(StateMarker::decode(b"hello"), None);
         assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);
+        let longest = StateMarker::new(u64::MAX, u16::MAX, u16::MAX);
+        let bytes = longest.encode();
+        assert!(bytes.len() <= bytes.capacity() && bytes.capacity() == 48, "written in the room made for it");
+        assert_eq!(StateMarker::decode(&bytes), Some(longest));
     }
 
     #[test]

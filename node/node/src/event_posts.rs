@@ -116,10 +116,12 @@ impl EventOutbox {
         }
     }
 
-    /// The sender thread: take what waits, send it in order, until closed and empty.
+    /// The sender thread: take what waits, send it in order, until closed and empty. The queue
+    /// and the round being sent swap places, so neither grows again from nothing each round.
     fn send_queued(&self) {
+        let mut posts = Vec::new();
         loop {
-            let posts = {
+            {
                 let mut pending = self.shared.lock();
                 while pending.posts.is_empty() && !pending.closing {
                     pending.sender_waits = true;
@@ -130,9 +132,9 @@ impl EventOutbox {
                     return;
                 }
                 pending.at.clear();
-                std::mem::take(&mut pending.posts)
-            };
-            for post in posts.into_iter().flatten() {
+                std::mem::swap(&mut pending.posts, &mut posts);
+            }
+            for post in posts.drain(..).flatten() {
                 let waiting = post.waiting.clone();
                 self.put(post);
                 waiting.fetch_sub(1, Ordering::AcqRel);
