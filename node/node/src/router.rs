@@ -1,9 +1,10 @@
 //! The node's Zenoh entities for all its axes: one subscriber and one queryable per key space
 //! (not per axis: Zenoh's cost per declaration grows with the declarations already there, and
 //! thousands of axes would pay it squared). Their callbacks hand each sample or query to its
-//! axis by name and never block: the node's own publications pass through them too.
+//! axis by name, through the node's inputs thread, and never block: the node's own publications
+//! pass through them too.
 
-use crate::input::{AxisInput, Written};
+use crate::input::{AxisInput, Deliver, Written};
 use crate::links::is_state;
 use crate::refusal::refuse;
 use crate::routes::{Routes, Space};
@@ -36,12 +37,13 @@ impl Router {
     ) -> Result<Self, zenoh::Error> {
         let routes = Arc::new(routes);
         writer.reach(&routes);
+        let inputs = Inputs::start(tokio::runtime::Handle::current())?;
         let fields = Space::Fields(layout.clone());
-        let (r1, s1) = (routes.clone(), fields.clone());
-        let (r2, s2) = (routes.clone(), fields.clone());
-        let (r5, s5) = (routes.clone(), fields);
-        let (r6, l6) = (routes.clone(), layout.clone());
-        let (r3, r4) = (routes.clone(), routes);
+        let (r1, s1, i1) = (routes.clone(), fields.clone(), inputs.clone());
+        let (r2, s2, i2) = (routes.clone(), fields.clone(), inputs.clone());
+        let (r5, s5, i5) = (routes.clone(), fields, inputs.clone());
+        let (r6, l6, i6) = (routes.clone(), layout.clone(), inputs.clone());
+        let (r3, r4, i3, i4) = (routes.clone(), routes, inputs.clone(), inputs);
         // The node's own publications do not come back to it: what it writes to its own axes
         // goes through `Writer`.
         Ok(Self {
@@ -50,42 +52,42 @@ impl Router {
                 .allowed_origin(Locality::Remote)
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r1, &s1, &sample, AxisInput::Write);
+                        route_sample(&r1, &s1, &i1, &sample, AxisInput::Write);
                     }
                 })
                 .await?,
             _queries: session
                 .declare_queryable(layout.everything())
-                .callback(move |q| route_query(&r2, &s2, q, AxisInput::Query))
+                .callback(move |q| route_query(&r2, &s2, &i2, q, AxisInput::Query))
                 .await?,
             // `<prefix>/**` does not cover the `@write` chunk: write keys are served apart.
             _confirmed_writes: session
                 .declare_queryable(layout.every_write())
-                .callback(move |q| route_query(&r5, &s5, q, AxisInput::Query))
+                .callback(move |q| route_query(&r5, &s5, &i5, q, AxisInput::Query))
                 .await?,
             _readbacks: session
                 .declare_queryable(layout.readback("*"))
-                .callback(move |q| route_readback(&r6, &l6, &q))
+                .callback(move |q| route_readback(&r6, &l6, &i6, &q))
                 .await?,
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
                 .allowed_origin(Locality::Remote)
                 .callback(move |sample| {
                     if !is_state(&sample) {
-                        route_sample(&r3, &Space::Sim, &sample, AxisInput::SimWrite);
+                        route_sample(&r3, &Space::Sim, &i3, &sample, AxisInput::SimWrite);
                     }
                 })
                 .await?,
             _sim_queries: session
                 .declare_queryable(keys::sim_key("*", "**"))
-                .callback(move |q| route_query(&r4, &Space::Sim, q, AxisInput::SimQuery))
+                .callback(move |q| route_query(&r4, &Space::Sim, &i4, q, AxisInput::SimQuery))
                 .await?,
         })
     }
 }
 
 /// A sample goes to the axis its key names, if it is one of ours.
-fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Written) -> AxisInput) {
+fn route_sample(routes: &Routes, space: &Space, inputs: &Inputs, sample: &Sample, wrap: fn(Written) -> AxisInput) {
     if sample.key_expr().as_str().contains(['*', '$']) {
         tracing::warn!(key = %sample.key_expr(), "a put to a key with wildcards is not a write; ignored");
         return;
@@ -93,21 +95,21 @@ fn route_sample(routes: &Routes, space: &Space, sample: &Sample, wrap: fn(Writte
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         let hold = sample.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
-        handle.deliver(wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
+        inputs.hand(handle, wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
     }
 }
 
 /// A get of readback bundles goes to every axis of ours whose bundle it names.
-fn route_readback(routes: &Routes, layout: &KeyLayout, query: &Query) {
+fn route_readback(routes: &Routes, layout: &KeyLayout, inputs: &Inputs, query: &Query) {
     for (axis, handle) in routes.iter() {
         if KeyExpr::try_from(layout.readback(axis)).is_ok_and(|key| query.key_expr().intersects(&key)) {
-            handle.deliver(AxisInput::Query(query.clone()));
+            inputs.hand(handle, AxisInput::Query(query.clone()));
         }
     }
 }
 
 /// A query goes to every axis of ours it can concern (one, or all for a wildcard).
-fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> AxisInput) {
+fn route_query(routes: &Routes, space: &Space, inputs: &Inputs, query: Query, wrap: fn(Query) -> AxisInput) {
     if query.payload().is_some() && query.key_expr().as_str().contains(['*', '$']) {
         // Answering with the fields' values would look like success, and writing every match
         // is not what a write means: refused, naming the key.
@@ -118,14 +120,95 @@ fn route_query(routes: &Routes, space: &Space, query: Query, wrap: fn(Query) -> 
     let chunk = space.axis_chunk(query.key_expr().as_str()).unwrap_or("");
     if !chunk.is_empty() && !chunk.contains(['*', '$']) {
         if let Some(handle) = routes.get(chunk) {
-            handle.deliver(wrap(query));
+            inputs.hand(handle, wrap(query));
         }
         return;
     }
     for (axis, handle) in routes.iter() {
         let Ok(all) = KeyExpr::try_from(space.everything_of(axis)) else { continue };
         if query.key_expr().intersects(&all) {
-            handle.deliver(wrap(query.clone()));
+            inputs.hand(handle, wrap(query.clone()));
         }
+    }
+}
+
+/// Hands what the network brings to the node's inputs thread (`zmotor-inputs`), in the order it
+/// came: Zenoh's receiving thread goes back to its link at once. Handled on that thread, the
+/// first moves of many axes (a publisher declared for each field, each new key matched against
+/// every other: milliseconds apiece at a thousand axes) kept the link unread, and a client's
+/// puts, which Zenoh drops by default when the link does not drain, were lost.
+#[derive(Clone)]
+struct Inputs(std::sync::mpsc::Sender<(Arc<dyn Deliver>, AxisInput)>);
+
+impl Inputs {
+    /// The thread, handling in `runtime`'s context (an axis may spawn onto it); it ends when
+    /// the last callback holding an `Inputs` is dropped, after what was handed before.
+    fn start(runtime: tokio::runtime::Handle) -> std::io::Result<Self> {
+        let (sender, handed) = std::sync::mpsc::channel::<(Arc<dyn Deliver>, AxisInput)>();
+        std::thread::Builder::new().name("zmotor-inputs".into()).spawn(move || {
+            let _context = runtime.enter();
+            for (axis, input) in handed {
+                axis.deliver(input);
+            }
+        })?;
+        Ok(Self(sender))
+    }
+
+    fn hand(&self, axis: &Arc<dyn Deliver>, input: AxisInput) {
+        // Fails only once the thread is gone, when the node no longer serves.
+        let _ = self.0.send((axis.clone(), input));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::mpsc;
+    use std::sync::Mutex;
+    use std::time::Duration;
+
+    /// An axis whose handling waits to be released.
+    struct Held {
+        entered: Mutex<mpsc::Sender<()>>,
+        release: Mutex<mpsc::Receiver<()>>,
+        handled: AtomicUsize,
+    }
+
+    impl Deliver for Held {
+        fn deliver(&self, _input: AxisInput) {
+            let _ = self.entered.lock().unwrap().send(());
+            let _ = self.release.lock().unwrap().recv();
+            self.handled.fetch_add(1, Ordering::AcqRel);
+        }
+    }
+
+    #[test]
+    fn the_receiving_thread_hands_inputs_over_and_goes_on_while_an_axis_is_slow_to_handle_them() {
+        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let inputs = Inputs::start(runtime.handle().clone()).unwrap();
+        let ((entered, entering), (releasing, release)) = (mpsc::channel(), mpsc::channel());
+        let held = Arc::new(Held { entered: Mutex::new(entered), release: Mutex::new(release), handled: 0.into() });
+        let axis: Arc<dyn Deliver> = held.clone();
+        let (handed, handing) = mpsc::channel();
+        std::thread::spawn(move || {
+            for _ in 0..3 {
+                inputs.hand(&axis, AxisInput::Tick);
+            }
+            let _ = handed.send(());
+        });
+        entering.recv_timeout(Duration::from_secs(10)).expect("the first input reaches the axis");
+        handing.recv_timeout(Duration::from_secs(10)).expect("every input handed while the first is being handled");
+        assert_eq!(held.handled.load(Ordering::Acquire), 0);
+        for _ in 0..3 {
+            releasing.send(()).unwrap();
+        }
+        for _ in 0..1000 {
+            if held.handled.load(Ordering::Acquire) == 3 {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        panic!("{} of 3 inputs handled", held.handled.load(Ordering::Acquire));
     }
 }
