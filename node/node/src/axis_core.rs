@@ -11,7 +11,7 @@ use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
 use crate::refusal::{self, refuse};
-use crate::streamed::{Congestion, StreamLog, Streamed};
+use crate::streamed::{Congestion, KeyWork, StreamLog, Streamed};
 use crate::ticker::AxisClock;
 use crate::writer::Writer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -117,6 +117,8 @@ pub(crate) struct NodeSide {
     pub(crate) events: EventOutbox,
     /// When a droppable put last found a link congested.
     pub(crate) congestion: Arc<Congestion>,
+    /// When an axis last did slow work for a new key.
+    pub(crate) key_work: Arc<KeyWork>,
     /// Links of this node that follow its axes' fields.
     pub(crate) followers: Arc<LocalFollowers>,
     /// Which fields anyone on the network subscribes to.
@@ -358,6 +360,7 @@ impl AxisCore {
         if self.readback.is_none()
             && self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok()
         {
+            self.node.key_work.note();
             let key = self.node.layout.readback(self.name());
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
@@ -388,9 +391,13 @@ impl AxisCore {
             Streamed::Bundle(_) => (self.readback.as_ref(), None),
         };
         self.stream_log.record(self.node.congestion.now(), sample, marker, stamp);
-        let key = || match field {
-            Some(field) => Ok(self.field_key(field)),
-            None => KeyExpr::try_from(self.node.layout.readback(self.name())),
+        // Asked for only when there is no publisher: a put to a key Zenoh matches afresh.
+        let key = || {
+            self.node.key_work.note();
+            match field {
+                Some(field) => Ok(self.field_key(field)),
+                None => KeyExpr::try_from(self.node.layout.readback(self.name())),
+            }
         };
         self.node.congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
     }
@@ -416,6 +423,7 @@ impl AxisCore {
     fn trace_publisher(&mut self) -> Option<&zenoh::pubsub::Publisher<'static>> {
         if self.trace.is_none() {
             let key = self.node.layout.driver_cmd(self.name());
+            self.node.key_work.note();
             self.trace = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).wait().ok();
             let _ = self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1));
         }
@@ -470,6 +478,7 @@ impl AxisCore {
         if self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_err() {
             return;
         }
+        self.node.key_work.note();
         let declared = self
             .node
             .session
@@ -488,7 +497,10 @@ impl AxisCore {
     fn key_of(&self, field: Field) -> KeyExpr<'static> {
         match self.hot.iter().find(|(f, _)| *f == field) {
             Some((_, publisher)) => publisher.key_expr().clone(),
-            None => self.field_key(field),
+            None => {
+                self.node.key_work.note();
+                self.field_key(field)
+            }
         }
     }
 }

@@ -12,7 +12,7 @@ use crate::input::{AxisInput, Deliver};
 use crate::links::{CalcTask, Follows, LocalFollowers, PostsFollowed, ValueHolder};
 use crate::router::Router;
 use crate::routes::Routes;
-use crate::streamed::Congestion;
+use crate::streamed::{Congestion, KeyWork};
 use crate::ticker::Ticker;
 use crate::tokens::Tokens;
 use crate::writer::Writer;
@@ -122,6 +122,7 @@ impl Node {
         let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
         let congestion = Arc::new(Congestion::new(clock));
+        let key_work = Arc::new(KeyWork::new(clock.into_std()));
         let events = EventPosts::start(session.clone(), congestion.clone()).map_err(NodeError::EventSender)?;
         let side = NodeSide {
             session: session.clone(),
@@ -129,6 +130,7 @@ impl Node {
             writer: Writer::new(events.outbox(), &layout),
             events: events.outbox(),
             congestion,
+            key_work: key_work.clone(),
             followers: Arc::new(LocalFollowers::new(layout.clone())),
             demand: Arc::new(FieldDemand::declare(&session, &layout).await?),
             budget: Arc::new(AtomicUsize::new(PUBLISHER_BUDGET)),
@@ -199,7 +201,7 @@ impl Node {
             reloads.push(subscriber);
         }
         let controller_tasks = running.into_iter().map(|r| r.task).collect();
-        let router = Router::declare(&session, &layout, routes, &side.writer).await?;
+        let router = Router::declare(&session, &layout, routes, &side.writer, key_work).await?;
         // The axes answer as soon as the router exists; their liveliness tokens follow.
         tokens.declare_in_background(&session, &layout, stopped.clone());
         let mut holders = Vec::new();

@@ -1,14 +1,16 @@
 //! The node's Zenoh entities for all its axes: one subscriber and one queryable per key space
 //! (not per axis: Zenoh's cost per declaration grows with the declarations already there, and
 //! thousands of axes would pay it squared). Their callbacks hand each sample or query to its
-//! axis by name, through the node's inputs thread, and never block: the node's own publications
-//! pass through them too.
+//! axis by name and never block (the node's own publications pass through them too): handled
+//! on Zenoh's receiving thread, or on the node's inputs thread while axes do slow work.
 
 use crate::input::{AxisInput, Deliver, Written};
 use crate::links::is_state;
 use crate::refusal::refuse;
 use crate::routes::{Routes, Space};
+use crate::streamed::KeyWork;
 use crate::writer::Writer;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
@@ -34,10 +36,11 @@ impl Router {
         layout: &KeyLayout,
         routes: Routes,
         writer: &Writer,
+        key_work: Arc<KeyWork>,
     ) -> Result<Self, zenoh::Error> {
         let routes = Arc::new(routes);
         writer.reach(&routes);
-        let inputs = Inputs::start(tokio::runtime::Handle::current())?;
+        let inputs = Inputs::start(tokio::runtime::Handle::current(), key_work)?;
         let fields = Space::Fields(layout.clone());
         let (r1, s1, i1) = (routes.clone(), fields.clone(), inputs.clone());
         let (r2, s2, i2) = (routes.clone(), fields.clone(), inputs.clone());
@@ -132,31 +135,47 @@ fn route_query(routes: &Routes, space: &Space, inputs: &Inputs, query: Query, wr
     }
 }
 
-/// Hands what the network brings to the node's inputs thread (`zmotor-inputs`), in the order it
-/// came: Zenoh's receiving thread goes back to its link at once. Handled on that thread, the
-/// first moves of many axes (a publisher declared for each field, each new key matched against
-/// every other: milliseconds apiece at a thousand axes) kept the link unread, and a client's
-/// puts, which Zenoh drops by default when the link does not drain, were lost.
+/// Hands what the network brings to its axis: on Zenoh's receiving thread (no hop: a command's
+/// first post leaves sooner), unless an axis of the node did slow work for a new key lately or an
+/// input handed over still waits; then to the node's inputs thread (`zmotor-inputs`), in the
+/// order it came, and the receiving thread goes back to its link at once. Handled on that thread,
+/// the first moves of many axes (a publisher declared for each field, each matched against every
+/// key: milliseconds apiece at a thousand axes) kept the link unread, and a client's puts, which
+/// Zenoh drops by default when the link does not drain, were lost.
 #[derive(Clone)]
-struct Inputs(std::sync::mpsc::Sender<(Arc<dyn Deliver>, AxisInput)>);
+struct Inputs {
+    sender: std::sync::mpsc::Sender<(Arc<dyn Deliver>, AxisInput)>,
+    /// Handed over and not yet delivered to their axes: while any wait, the next waits behind.
+    waiting: Arc<AtomicUsize>,
+    key_work: Arc<KeyWork>,
+}
 
 impl Inputs {
     /// The thread, handling in `runtime`'s context (an axis may spawn onto it); it ends when
     /// the last callback holding an `Inputs` is dropped, after what was handed before.
-    fn start(runtime: tokio::runtime::Handle) -> std::io::Result<Self> {
+    fn start(runtime: tokio::runtime::Handle, key_work: Arc<KeyWork>) -> std::io::Result<Self> {
         let (sender, handed) = std::sync::mpsc::channel::<(Arc<dyn Deliver>, AxisInput)>();
+        let waiting = Arc::new(AtomicUsize::new(0));
+        let delivered = waiting.clone();
         std::thread::Builder::new().name("zmotor-inputs".into()).spawn(move || {
             let _context = runtime.enter();
             for (axis, input) in handed {
                 axis.deliver(input);
+                delivered.fetch_sub(1, Ordering::AcqRel);
             }
         })?;
-        Ok(Self(sender))
+        Ok(Self { sender, waiting, key_work })
     }
 
     fn hand(&self, axis: &Arc<dyn Deliver>, input: AxisInput) {
-        // Fails only once the thread is gone, when the node no longer serves.
-        let _ = self.0.send((axis.clone(), input));
+        if self.waiting.load(Ordering::Acquire) == 0 && !self.key_work.lately() {
+            return axis.deliver(input);
+        }
+        self.waiting.fetch_add(1, Ordering::AcqRel);
+        if self.sender.send((axis.clone(), input)).is_err() {
+            // The thread is gone only when the node no longer serves.
+            self.waiting.fetch_sub(1, Ordering::AcqRel);
+        }
     }
 }
 
@@ -183,17 +202,38 @@ mod tests {
         }
     }
 
-    #[test]
-    fn the_receiving_thread_hands_inputs_over_and_goes_on_while_an_axis_is_slow_to_handle_them() {
-        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
-        let inputs = Inputs::start(runtime.handle().clone()).unwrap();
+    fn held() -> (Arc<Held>, mpsc::Receiver<()>, mpsc::Sender<()>) {
         let ((entered, entering), (releasing, release)) = (mpsc::channel(), mpsc::channel());
         let held = Arc::new(Held { entered: Mutex::new(entered), release: Mutex::new(release), handled: 0.into() });
+        (held, entering, releasing)
+    }
+
+    fn handled_within_seconds(held: &Held, n: usize) {
+        for _ in 0..1000 {
+            if held.handled.load(Ordering::Acquire) == n {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        panic!("{} of {n} inputs handled", held.handled.load(Ordering::Acquire));
+    }
+
+    #[test]
+    fn while_axes_do_slow_key_work_the_receiving_thread_hands_inputs_over_and_goes_on() {
+        let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
+        let key_work = Arc::new(KeyWork::new(std::time::Instant::now()));
+        let inputs = Inputs::start(runtime.handle().clone(), key_work.clone()).unwrap();
+        let (held, entering, releasing) = held();
         let axis: Arc<dyn Deliver> = held.clone();
+        key_work.note();
         let (handed, handing) = mpsc::channel();
+        let receiving = inputs.clone();
         std::thread::spawn(move || {
-            for _ in 0..3 {
-                inputs.hand(&axis, AxisInput::Tick);
+            receiving.hand(&axis, AxisInput::Tick);
+            // The slow work is past, but an input handed over waits: the next waits behind it.
+            key_work.forget();
+            for _ in 0..2 {
+                receiving.hand(&axis, AxisInput::Tick);
             }
             let _ = handed.send(());
         });
@@ -203,12 +243,16 @@ mod tests {
         for _ in 0..3 {
             releasing.send(()).unwrap();
         }
+        handled_within_seconds(&held, 3);
         for _ in 0..1000 {
-            if held.handled.load(Ordering::Acquire) == 3 {
-                return;
+            if inputs.waiting.load(Ordering::Acquire) == 0 {
+                break;
             }
             std::thread::sleep(Duration::from_millis(10));
         }
-        panic!("{} of 3 inputs handled", held.handled.load(Ordering::Acquire));
+        // Nothing waits and no slow work was done lately: handled on the receiving thread.
+        releasing.send(()).unwrap();
+        inputs.hand(&(held.clone() as Arc<dyn Deliver>), AxisInput::Tick);
+        assert_eq!(held.handled.load(Ordering::Acquire), 4, "handled before the hand returned");
     }
 }

@@ -61,6 +61,45 @@ impl Congestion {
     }
 }
 
+/// How long after an axis's last slow work for a new key the network's inputs are handed to the
+/// inputs thread (a storm of first moves does that work without pause; a lone one is past).
+const KEY_WORK_FOR: Duration = Duration::from_secs(1);
+
+/// When an axis of the node last did Zenoh's slow work for a new key: declared a publisher (each
+/// declaration is matched against every key already there: a millisecond at a thousand axes) or
+/// put to a key that has none.
+pub(crate) struct KeyWork {
+    origin: std::time::Instant,
+    /// Microseconds since `origin`, plus one; 0 while never.
+    last: AtomicU64,
+}
+
+impl KeyWork {
+    pub(crate) fn new(origin: std::time::Instant) -> Self {
+        Self { origin, last: AtomicU64::new(0) }
+    }
+
+    /// Some is being done now.
+    pub(crate) fn note(&self) {
+        let now = u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1);
+        self.last.store(now, Ordering::Release);
+    }
+
+    /// Whether some was done within `KEY_WORK_FOR`.
+    pub(crate) fn lately(&self) -> bool {
+        let last = self.last.load(Ordering::Acquire);
+        let now = u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1);
+        let window = u64::try_from(KEY_WORK_FOR.as_micros()).unwrap_or(u64::MAX);
+        last != 0 && now.saturating_sub(last) < window
+    }
+
+    /// As if none had ever been done.
+    #[cfg(test)]
+    pub(crate) fn forget(&self) {
+        self.last.store(0, Ordering::Release);
+    }
+}
+
 /// One sample sent the droppable way.
 pub(crate) enum Streamed {
     Field(Field, Value),
