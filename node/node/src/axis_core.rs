@@ -291,6 +291,11 @@ impl AxisCore {
                     if let Some(controller) = &self.controller {
                         controller.send(command.clone());
                     }
+                    // Nobody traces any axis: no publisher (a declaration is matched against
+                    // every key, and a thousand axes' first moves would pay it for nothing).
+                    if !self.node.demand.traces_wanted() {
+                        continue;
+                    }
                     let trace_publisher = self.trace_publisher();
                     let listening = *traced.get_or_insert_with(|| {
                         trace_publisher.is_some_and(|p| p.matching_status().wait().is_ok_and(|m| m.matching()))
@@ -418,7 +423,7 @@ impl AxisCore {
         }
     }
 
-    /// The trace publisher, declared at the first driver command; it must exist whatever the
+    /// The trace publisher, declared at the first driver command traced; it must exist whatever the
     /// budget, and counts against it all the same.
     fn trace_publisher(&mut self) -> Option<&zenoh::pubsub::Publisher<'static>> {
         if self.trace.is_none() {

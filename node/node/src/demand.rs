@@ -16,6 +16,8 @@ pub(crate) struct FieldDemand {
     wanted: Vec<Arc<AtomicBool>>,
     /// Whether anyone subscribes to some axis's readback bundle (`<prefix>/*/@readback`).
     readback: Arc<AtomicBool>,
+    /// Whether anyone subscribes to some axis's driver-command trace (`<prefix>/*/@driver/cmd`).
+    traces: Arc<AtomicBool>,
     _probes: Vec<zenoh::pubsub::Publisher<'static>>,
 }
 
@@ -29,12 +31,19 @@ impl FieldDemand {
         }
         let (readback, probe) = watch(session, layout.readback("*")).await?;
         probes.push(probe);
-        Ok(Self { wanted, readback, _probes: probes })
+        let (traces, probe) = watch(session, layout.driver_cmd("*")).await?;
+        probes.push(probe);
+        Ok(Self { wanted, readback, traces, _probes: probes })
     }
 
     /// Whether anyone subscribes to some axis's readback bundle.
     pub(crate) fn readback_wanted(&self) -> bool {
         self.readback.load(Ordering::Acquire)
+    }
+
+    /// Whether anyone subscribes to some axis's driver-command trace.
+    pub(crate) fn traces_wanted(&self) -> bool {
+        self.traces.load(Ordering::Acquire)
     }
 
     pub(crate) fn wanted(&self, field: Field) -> bool {
@@ -106,5 +115,17 @@ mod tests {
         assert!(!demand.wanted(Field::DRBV), "a field nobody covers");
         drop(subscriber);
         until(&demand, Field::RBV, false).await;
+        // Driver-command traces likewise: no trace publisher is declared while nobody traces.
+        assert!(!demand.traces_wanted());
+        let tracer = client.declare_subscriber(layout.driver_cmd("m1")).await.unwrap();
+        for _ in 0..500 {
+            if demand.traces_wanted() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        assert!(demand.traces_wanted(), "a subscriber of one axis's trace");
+        assert!(!demand.wanted(Field::RBV), "a trace subscriber wants no field");
+        drop(tracer);
     }
 }
