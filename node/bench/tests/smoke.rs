@@ -64,6 +64,10 @@ fn the_benchmark_runs_in_smoke_mode() {
         assert!(stdout.contains(part), "missing '{part}' in:\n{stdout}");
     }
     assert!(!stdout.contains("failed"), "{stdout}");
+    // The scale part's axes all got their writes (plain puts), at 1 and 10 axes.
+    let handled: Vec<&str> = stdout.lines().filter(|l| l.contains("every axis's write handled")).collect();
+    assert_eq!(handled.len(), 2, "{stdout}");
+    assert!(handled.iter().all(|l| l.ends_with(" met")), "{handled:?}");
     // The EPICS load really moved the axes: the subscriber saw moves end.
     let ended: f64 = stdout
         .split("moves/s ended ")
