@@ -3,7 +3,7 @@
 //! as a user starts it (`zmotor launch FILE`), and every figure is printed beside its floor,
 //! measured in the same run: Zenoh alone, with no zmotor code on its path.
 
-use crate::axes::{bench_axis, bench_key};
+use crate::axes::{bench_axis, bench_axis_index, bench_key};
 use crate::floor::{PING, PONG};
 use crate::process::{client_when_ready, wait_for_axes, Process, Programs};
 use crate::stats::{cpu_seconds, percent, rss_kb, Percentiles};
@@ -248,7 +248,7 @@ impl Received {
     }
 
     fn heard_from(&self, key: &str) {
-        let axis = KeyLayout::default().axis_chunk(key).and_then(|a| a.strip_prefix('b')?.parse::<usize>().ok());
+        let axis = KeyLayout::default().axis_chunk(key).and_then(bench_axis_index);
         if let Some(heard) = axis.and_then(|i| self.heard.get(i)) {
             heard.store(true, Relaxed);
         }

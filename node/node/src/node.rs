@@ -121,7 +121,7 @@ impl Node {
         let clock = tokio::time::Instant::now();
         let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
-        let congestion = Arc::new(Congestion::new(clock));
+        let congestion = Arc::new(Congestion::new(clock.into_std()));
         let key_work = Arc::new(KeyWork::new(clock.into_std()));
         let events = EventPosts::start(session.clone(), congestion.clone()).map_err(NodeError::EventSender)?;
         let side = NodeSide {

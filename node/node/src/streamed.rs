@@ -18,21 +18,49 @@ const SLOW_PUT: Duration = Duration::from_millis(1);
 /// congested, Zenoh drops at once and its next wait comes within milliseconds).
 const CONGESTED_FOR: Duration = Duration::from_secs(1);
 
-/// When a put of the node last found a link congested, on the node's clock.
-pub(crate) struct Congestion {
-    origin: tokio::time::Instant,
+/// When something last happened, on the node's clock: read as "since" a moment or "within" a
+/// window. Shared by threads, so an atomic.
+struct LastSeen {
+    origin: std::time::Instant,
     /// Microseconds since `origin`, plus one; 0 while never.
     last: AtomicU64,
 }
 
-impl Congestion {
-    pub(crate) fn new(origin: tokio::time::Instant) -> Self {
+impl LastSeen {
+    fn new(origin: std::time::Instant) -> Self {
         Self { origin, last: AtomicU64::new(0) }
+    }
+
+    fn now(&self) -> u64 {
+        u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1)
+    }
+
+    fn mark(&self) {
+        self.last.store(self.now(), Ordering::Release);
+    }
+
+    fn since(&self, at: u64) -> bool {
+        self.last.load(Ordering::Acquire) >= at
+    }
+
+    fn within(&self, window: Duration) -> bool {
+        let last = self.last.load(Ordering::Acquire);
+        let window = u64::try_from(window.as_micros()).unwrap_or(u64::MAX);
+        last != 0 && self.now().saturating_sub(last) < window
+    }
+}
+
+/// When a put of the node last found a link congested.
+pub(crate) struct Congestion(LastSeen);
+
+impl Congestion {
+    pub(crate) fn new(origin: std::time::Instant) -> Self {
+        Self(LastSeen::new(origin))
     }
 
     /// Now on the node's clock, as `StreamLog` counts it.
     pub(crate) fn now(&self) -> u64 {
-        u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1)
+        self.0.now()
     }
 
     /// Run a put, noting congestion if it was slow.
@@ -45,19 +73,17 @@ impl Congestion {
     /// A put took `elapsed`.
     fn took(&self, elapsed: Duration) {
         if elapsed >= SLOW_PUT {
-            self.last.store(self.now(), Ordering::Release);
+            self.0.mark();
         }
     }
 
     fn since(&self, at: u64) -> bool {
-        self.last.load(Ordering::Acquire) >= at
+        self.0.since(at)
     }
 
     /// Whether a put was slow lately (`CONGESTED_FOR`).
     pub(crate) fn recent(&self) -> bool {
-        let last = self.last.load(Ordering::Acquire);
-        let window = u64::try_from(CONGESTED_FOR.as_micros()).unwrap_or(u64::MAX);
-        last != 0 && self.now().saturating_sub(last) < window
+        self.0.within(CONGESTED_FOR)
     }
 }
 
@@ -68,35 +94,27 @@ const KEY_WORK_FOR: Duration = Duration::from_secs(1);
 /// When an axis of the node last did Zenoh's slow work for a new key: declared a publisher (each
 /// declaration is matched against every key already there: a millisecond at a thousand axes) or
 /// put to a key that has none.
-pub(crate) struct KeyWork {
-    origin: std::time::Instant,
-    /// Microseconds since `origin`, plus one; 0 while never.
-    last: AtomicU64,
-}
+pub(crate) struct KeyWork(LastSeen);
 
 impl KeyWork {
     pub(crate) fn new(origin: std::time::Instant) -> Self {
-        Self { origin, last: AtomicU64::new(0) }
+        Self(LastSeen::new(origin))
     }
 
     /// Some is being done now.
     pub(crate) fn note(&self) {
-        let now = u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1);
-        self.last.store(now, Ordering::Release);
+        self.0.mark();
     }
 
     /// Whether some was done within `KEY_WORK_FOR`.
     pub(crate) fn lately(&self) -> bool {
-        let last = self.last.load(Ordering::Acquire);
-        let now = u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1);
-        let window = u64::try_from(KEY_WORK_FOR.as_micros()).unwrap_or(u64::MAX);
-        last != 0 && now.saturating_sub(last) < window
+        self.0.within(KEY_WORK_FOR)
     }
 
     /// As if none had ever been done.
     #[cfg(test)]
     pub(crate) fn forget(&self) {
-        self.last.store(0, Ordering::Release);
+        self.0.last.store(0, Ordering::Release);
     }
 }
 
@@ -178,7 +196,7 @@ mod tests {
 
     #[test]
     fn after_a_slow_put_an_event_sends_each_stream_keys_last_sample_again_and_otherwise_nothing() {
-        let congestion = Congestion::new(tokio::time::Instant::now());
+        let congestion = Congestion::new(std::time::Instant::now());
         let stamp = Timestamp::new(NTP64(0), TimestampId::rand());
         let mut log = StreamLog::default();
         for (seq, field) in [(1, Field::RBV), (2, Field::DRBV), (3, Field::RBV)] {
