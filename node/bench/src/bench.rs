@@ -10,8 +10,8 @@ use crate::stats::{cpu_seconds, percent, rss_kb, Percentiles};
 use crate::{BenchOptions, Error};
 use std::collections::HashSet;
 use std::fmt::Write as _;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering::Relaxed};
-use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering::Relaxed};
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 use zenoh::bytes::Encoding;
 use zenoh::qos::CongestionControl;
@@ -234,12 +234,24 @@ struct Received {
     done: AtomicU64,
     /// Bench axis `i` sent a readback (it moves: an axis whose write was lost sends none).
     heard: Vec<AtomicBool>,
+    /// How many have.
+    heard_count: AtomicUsize,
+    /// When the last of them was first heard.
+    all_heard_at: OnceLock<Instant>,
 }
 
 impl Received {
     fn new(axes: usize) -> Self {
         let heard = (0..axes).map(|_| AtomicBool::new(false)).collect();
-        Self { all: AtomicU64::new(0), rbv: AtomicU64::new(0), done: AtomicU64::new(0), heard }
+        let (heard_count, all_heard_at) = (AtomicUsize::new(0), OnceLock::new());
+        Self {
+            all: AtomicU64::new(0),
+            rbv: AtomicU64::new(0),
+            done: AtomicU64::new(0),
+            heard,
+            heard_count,
+            all_heard_at,
+        }
     }
 
     /// How many axes sent a readback.
@@ -250,7 +262,9 @@ impl Received {
     fn heard_from(&self, key: &str) {
         let axis = KeyLayout::default().axis_chunk(key).and_then(bench_axis_index);
         if let Some(heard) = axis.and_then(|i| self.heard.get(i)) {
-            heard.store(true, Relaxed);
+            if !heard.swap(true, Relaxed) && self.heard_count.fetch_add(1, Relaxed) + 1 == self.heard.len() {
+                let _ = self.all_heard_at.set(Instant::now());
+            }
         }
     }
 
@@ -347,6 +361,9 @@ struct Publishing {
     moves_per_s: f64,
     /// Axes whose readback the subscriber got at all (each was commanded a move).
     axes_heard: usize,
+    /// From the first command until every axis had been heard: the cost of the first moves
+    /// (a key's first publication), apart from the rate the subscriber takes afterwards.
+    all_heard_after: Option<Duration>,
     /// From the first command to the measurement window: until the readbacks (long moves) or
     /// the ends of moves (short moves) arrived at 90 % of their rate. None when `SETTLE_LIMIT`
     /// passed first.
@@ -455,12 +472,18 @@ async fn publishing(
         rbv_per_axis_per_s: (rbv1 - rbv0) as f64 / elapsed / n as f64,
         moves_per_s: (done1 - done0) as f64 / elapsed,
         axes_heard: received.axes_heard(),
+        all_heard_after: received.all_heard_at.get().map(|at| at.saturating_duration_since(settling)),
         settled_after,
     })
 }
 
 fn seconds(settled: Option<Duration>) -> String {
     settled.map_or_else(|| format!("> {}", SETTLE_LIMIT.as_secs()), |d| format!("{:.1}", d.as_secs_f64()))
+}
+
+/// When the last axis was first heard, if it was.
+fn all_heard(after: Option<Duration>) -> String {
+    after.map_or_else(|| "not all".to_string(), |d| format!("all in {:.1} s", d.as_secs_f64()))
 }
 
 /// A node process of `n` idle axes: from its start to every axis answering, and its memory then.
@@ -510,12 +533,13 @@ pub(crate) async fn scale_part(programs: &Programs, options: &BenchOptions) -> R
         ] {
             let p = publishing(programs, n, options.window, publisher, Load::LongMoves, watch).await?;
             println!(
-                "      {who:<34} CPU {:>6}  {:>8.0} samples/s  {:>5.1} RBV/axis/s  settled {} s  {} of {n} axes heard",
+                "      {who:<34} CPU {:>6}  {:>8.0} samples/s  {:>5.1} RBV/axis/s  settled {} s  {} of {n} axes heard, {}",
                 percent(p.cpu),
                 p.publications_per_s,
                 p.rbv_per_axis_per_s,
                 seconds(p.settled_after),
-                p.axes_heard
+                p.axes_heard,
+                all_heard(p.all_heard_after)
             );
             rows.push(p);
         }
@@ -551,9 +575,10 @@ fn print_scale_targets(n: usize, everything: &Publishing, readback: &Publishing,
     );
     let settled = everything.settled_after.zip(readback.settled_after).map(|(a, b)| a.max(b));
     println!(
-        "               first moves settled in < 2 s: {} s {} (Zenoh alone's samples flowing at 90 % after {} s)",
+        "               first moves settled in < 2 s: {} s {} (axes heard with every key: {}; Zenoh alone's samples flowing at 90 % after {} s)",
         seconds(settled),
         met(settled.is_some_and(|s| s < Duration::from_secs(2))),
+        all_heard(everything.all_heard_after),
         seconds(alone.settled_after)
     );
     // Each axis was commanded by a plain put, droppable as a stock client's: one never heard
