@@ -472,12 +472,14 @@ impl AxisCore {
     }
 
     /// Declare the field's publisher at its second post (within the budget), whichever way its
-    /// posts go.
+    /// posts go; a readback's at its first, for a moving axis posts it at every poll (a first
+    /// post without publisher would cost Zenoh a walk of every key for nothing, here and at
+    /// each subscriber).
     fn declare_hot_publisher(&mut self, field: Field) {
         if self.hot.iter().any(|(f, _)| *f == field) {
             return;
         }
-        if !self.posted_once.contains(&field) {
+        if !field.is_readback_stream() && !self.posted_once.contains(&field) {
             return self.posted_once.push(field);
         }
         if self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_err() {
