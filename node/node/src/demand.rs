@@ -90,14 +90,15 @@ mod tests {
         zenoh::open(config).await.unwrap()
     }
 
-    async fn until(demand: &FieldDemand, field: Field, wanted: bool) {
+    /// Waits (5 s at most) for `holds`, which the node learns from the network.
+    async fn until(what: &str, holds: impl Fn() -> bool) {
         for _ in 0..500 {
-            if demand.wanted(field) == wanted {
+            if holds() {
                 return;
             }
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
-        panic!("{field} still {} after 5 s", demand.wanted(field));
+        panic!("still not {what} after 5 s");
     }
 
     #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -111,20 +112,14 @@ mod tests {
         // Nobody subscribes: nothing is wanted, from the start (no change is ever reported).
         assert!(!demand.wanted(Field::RBV) && !demand.wanted(Field::DRBV));
         let subscriber = client.declare_subscriber(layout.field("m1", Field::RBV)).await.unwrap();
-        until(&demand, Field::RBV, true).await;
+        until("RBV wanted", || demand.wanted(Field::RBV)).await;
         assert!(!demand.wanted(Field::DRBV), "a field nobody covers");
         drop(subscriber);
-        until(&demand, Field::RBV, false).await;
+        until("RBV unwanted", || !demand.wanted(Field::RBV)).await;
         // Driver-command traces likewise: no trace publisher is declared while nobody traces.
         assert!(!demand.traces_wanted());
         let tracer = client.declare_subscriber(layout.driver_cmd("m1")).await.unwrap();
-        for _ in 0..500 {
-            if demand.traces_wanted() {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        assert!(demand.traces_wanted(), "a subscriber of one axis's trace");
+        until("traces wanted for a subscriber of one axis's trace", || demand.traces_wanted()).await;
         assert!(!demand.wanted(Field::RBV), "a trace subscriber wants no field");
         drop(tracer);
     }
