@@ -4,8 +4,10 @@
 
 pub mod environment;
 
+use std::collections::HashMap;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
+use zenoh::key_expr::KeyExpr;
 use zenoh::sample::Locality;
 use zenoh::Session;
 use zmotor_client::free_local_endpoint;
@@ -86,13 +88,16 @@ impl TestNode {
         zmotor_client::open(&ZenohConfig::client(&self.endpoint)).await.unwrap()
     }
 
-    /// Wait until a subscriber of another session covers `key_expr`, as this node sees it: the
-    /// condition under which its publications reach that subscriber.
+    /// Wait until a subscriber of another session covers `key_expr`, as this node sees it: its
+    /// session routes there, and the node knows it (it publishes only what someone wants, and
+    /// learns of a subscriber a moment after its session does).
     pub async fn until_subscribed(&self, key_expr: &str) {
         let probe = self.session.declare_publisher(key_expr.to_string()).allowed_destination(Locality::Remote);
         let probe = probe.await.unwrap();
+        let wanted = KeyExpr::try_from(key_expr).unwrap();
+        let known = || self.node.as_ref().is_none_or(|node| node.knows_subscribers_of(&wanted));
         let deadline = tokio::time::Instant::now() + PATIENCE;
-        while !probe.matching_status().await.unwrap().matching() {
+        while !(probe.matching_status().await.unwrap().matching() && known()) {
             assert!(
                 tokio::time::Instant::now() < deadline,
                 "no subscriber of {key_expr} reached the node in {PATIENCE:?}"
@@ -220,7 +225,37 @@ impl Recorder {
     }
 }
 
+/// Whether `(key, seq)` samples came in the order the node posted them: each with a larger
+/// seq than any before it, except a sample sent again (after congestion the node sends each
+/// readback key's last sample again: the same sample, as a repeat of that key's latest).
+pub fn in_post_order<'a>(samples: impl IntoIterator<Item = (&'a str, u64)>) -> bool {
+    let mut latest: HashMap<&str, u64> = HashMap::new();
+    let mut newest = None;
+    samples.into_iter().all(|(key, seq)| {
+        let again = latest.get(key) == Some(&seq);
+        let next = newest.is_none_or(|newest| seq > newest);
+        if next {
+            newest = Some(seq);
+            latest.insert(key, seq);
+        }
+        again || next
+    })
+}
+
 /// `Value::Int(v)`, for short expectations.
 pub fn int(v: i64) -> Value {
     Value::Int(v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::in_post_order;
+
+    #[test]
+    fn post_order_allows_only_a_key_s_latest_sample_again() {
+        assert!(in_post_order([("RBV", 1), ("DRBV", 2), ("RBV", 1), ("DRBV", 2), ("DMOV", 3)]));
+        assert!(!in_post_order([("RBV", 2), ("DRBV", 1)]), "an older sample, never seen");
+        assert!(!in_post_order([("RBV", 1), ("RBV", 2), ("RBV", 1)]), "not the key's latest");
+        assert!(!in_post_order([("RBV", 1), ("DRBV", 1)]), "another key's seq");
+    }
 }

@@ -7,6 +7,7 @@
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
+use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::sample::Locality;
 use zenoh::Session;
@@ -18,7 +19,8 @@ pub(crate) struct FieldDemand {
     readback: Arc<AtomicBool>,
     /// Whether anyone subscribes to some axis's driver-command trace (`<prefix>/*/@driver/cmd`).
     traces: Arc<AtomicBool>,
-    _probes: Vec<zenoh::pubsub::Publisher<'static>>,
+    /// In the order of the flags: the fields', the readback bundle's, the traces'.
+    probes: Vec<zenoh::pubsub::Publisher<'static>>,
 }
 
 impl FieldDemand {
@@ -33,7 +35,7 @@ impl FieldDemand {
         probes.push(probe);
         let (traces, probe) = watch(session, layout.driver_cmd("*")).await?;
         probes.push(probe);
-        Ok(Self { wanted, readback, traces, _probes: probes })
+        Ok(Self { wanted, readback, traces, probes })
     }
 
     /// Whether anyone subscribes to some axis's readback bundle.
@@ -48,6 +50,18 @@ impl FieldDemand {
 
     pub(crate) fn wanted(&self, field: Field) -> bool {
         self.wanted[field as usize].load(Ordering::Acquire)
+    }
+
+    /// Whether every kind of publication whose keys `key_expr` meets is wanted. Zenoh reports a
+    /// new subscriber to the probes' listeners from a task of its own, a moment after the
+    /// subscriber reached the session: until then its publications are not sent.
+    pub(crate) fn covers(&self, key_expr: &KeyExpr<'_>) -> bool {
+        let flags = self.wanted.iter().chain([&self.readback, &self.traces]);
+        self.probes
+            .iter()
+            .zip(flags)
+            .filter(|(probe, _)| probe.key_expr().intersects(key_expr))
+            .all(|(_, flag)| flag.load(Ordering::Acquire))
     }
 }
 
@@ -114,6 +128,8 @@ mod tests {
         let subscriber = client.declare_subscriber(layout.field("m1", Field::RBV)).await.unwrap();
         until("RBV wanted", || demand.wanted(Field::RBV)).await;
         assert!(!demand.wanted(Field::DRBV), "a field nobody covers");
+        let covered = |key: &str| demand.covers(&KeyExpr::try_from(key).unwrap());
+        assert!(covered("motor/m2/RBV") && !covered("motor/m1/*") && !covered("motor/m1/@readback"));
         drop(subscriber);
         until("RBV unwanted", || !demand.wanted(Field::RBV)).await;
         // Driver-command traces likewise: no trace publisher is declared while nobody traces.
@@ -121,6 +137,7 @@ mod tests {
         let tracer = client.declare_subscriber(layout.driver_cmd("m1")).await.unwrap();
         until("traces wanted for a subscriber of one axis's trace", || demand.traces_wanted()).await;
         assert!(!demand.wanted(Field::RBV), "a trace subscriber wants no field");
+        assert!(covered("motor/m1/@driver/cmd") && !covered("motor/**"), "`**` meets no `@` chunk, fields do");
         drop(tracer);
     }
 }

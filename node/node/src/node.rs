@@ -20,6 +20,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
+use zenoh::key_expr::KeyExpr;
 use zenoh::Session;
 use zmotor_bridge::{CalcLink, LinkError};
 use zmotor_core::{AxisService, DeviceStatus, DriverPlan, Instant};
@@ -89,6 +90,7 @@ pub struct Node {
     /// The reload keys of the script controllers.
     _reloads: Vec<zenoh::pubsub::Subscriber<()>>,
     followers: Arc<LocalFollowers>,
+    demand: Arc<FieldDemand>,
 }
 
 impl Node {
@@ -231,6 +233,7 @@ impl Node {
             _values: holders,
             _reloads: reloads,
             followers: side.followers.clone(),
+            demand: side.demand.clone(),
         })
     }
 
@@ -242,6 +245,16 @@ impl Node {
     #[must_use = "following ends when the returned value is dropped"]
     pub fn follow_posts(&self, keys: &[String], sink: impl Fn(usize, f64) + Send + Sync + 'static) -> PostsFollowed {
         PostsFollowed::new(self.followers.clone(), keys, Arc::new(sink))
+    }
+
+    /// Whether the node knows of subscribers elsewhere for every kind of publication (field,
+    /// readback bundle, driver-command trace) whose keys `key_expr` meets: it publishes only
+    /// those someone subscribes to. Zenoh tells the node of a new subscriber a moment after the
+    /// subscriber reached its session, and what the node posts in between is not sent: a
+    /// subscriber that must not miss the first post waits for this before commanding.
+    #[must_use]
+    pub fn knows_subscribers_of(&self, key_expr: &KeyExpr<'_>) -> bool {
+        self.demand.covers(key_expr)
     }
 
     /// Stop every moving axis, wait (at most five seconds) until they are done, save their
