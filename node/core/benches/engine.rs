@@ -3,9 +3,10 @@
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
-use zmotor_core::{Axis, DeviceStatus, Instant, MotorRecord, PollRates, SimAxis, SimConfig};
+use std::time::Duration;
+use zmotor_core::{Axis, AxisService, DeviceStatus, Instant, MotorRecord, PollRates, SimAxis, SimConfig, WriteRequest};
 use zmotor_msgs::bits::msta;
-use zmotor_msgs::{Field, Fields, Value};
+use zmotor_msgs::{Field, Fields, KeyLayout, PayloadEncoding, Value};
 
 fn status(position: f64, done: bool) -> DeviceStatus {
     DeviceStatus { position, msta: if done { msta::DONE } else { 0 }, ..DeviceStatus::default() }
@@ -69,5 +70,28 @@ fn engine(c: &mut Criterion) {
     });
 }
 
-criterion_group!(benches, engine);
+/// A request's reply handle as large as a Zenoh query (120 bytes), which the node's service holds.
+type QuerySized = [u64; 15];
+
+/// A moving axis's readback poll as the node runs it: the service advances the simulator to the
+/// poll and the node takes its outputs (the six readback posts of a poll, with their markers).
+fn poll(c: &mut Criterion) {
+    let rates = PollRates { moving: Duration::from_millis(10), idle: Duration::from_secs(1) };
+    let sim = SimAxis::new(SimConfig::default());
+    let axis = Axis::new(Fields { mres: 0.001, velo: 1.0, ..Fields::default() }, Box::new(sim), rates, Instant::ZERO);
+    let mut service: AxisService<QuerySized> = AxisService::new(&KeyLayout::default(), "m1", axis);
+    // A move long enough for every poll criterion makes (a micrometre a poll).
+    service.put(Instant::ZERO, WriteRequest::new("VAL", b"1000000", PayloadEncoding::Text));
+    while service.poll_output().is_some() {}
+    let mut now = Instant::ZERO;
+    let mut next_poll = || {
+        now = service.poll_timeout().unwrap_or(now);
+        service.handle_timeout(now);
+        std::iter::from_fn(|| service.poll_output()).count()
+    };
+    assert!(next_poll() >= 6, "a moving axis posts its readbacks at each poll");
+    c.bench_function("a moving axis's readback poll through the service, its posts taken", |b| b.iter(&mut next_poll));
+}
+
+criterion_group!(benches, engine, poll);
 criterion_main!(benches);

@@ -24,5 +24,5 @@ pub use driver::Driver;
 pub use engine::{
     nint, Adjustment, Busy, DeviceStatus, Inaction, LimitSwitch, MotorCommand, MotorRecord, Output, WriteError,
 };
-pub use service::{AxisService, Delivery, Reply, RequestError, ServiceOutput, WriteRequest};
+pub use service::{Answer, AxisService, Delivery, Reply, RequestError, ServiceOutput, WriteRequest};
 pub use time::Instant;

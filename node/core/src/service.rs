@@ -126,6 +126,15 @@ pub enum Reply {
     SimSetting(SimSetting, Value),
 }
 
+/// An answer and the request it answers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Answer<R> {
+    /// The request's reply handle.
+    pub to: R,
+    /// The answer.
+    pub reply: Reply,
+}
+
 /// How a publication must reach subscribers when a link cannot carry every sample.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Delivery {
@@ -174,13 +183,10 @@ pub enum ServiceOutput<R> {
         /// The attachment that marks the sample as state.
         marker: StateMarker,
     },
-    /// Answer a request.
-    Reply {
-        /// The request's reply handle.
-        to: R,
-        /// The answer.
-        reply: Reply,
-    },
+    /// Answer a request. Boxed: a publication, many times more frequent, moves through the
+    /// outputs in a value as large as the largest (measured: copying a request's handle inline
+    /// was 8 % of a node's CPU at a thousand moving axes).
+    Reply(Box<Answer<R>>),
     /// A command delivered to the driver: traced on `@driver/cmd` if anyone listens
     /// (`AxisService::stamp_trace` numbers it).
     DriverCommand {
@@ -426,18 +432,18 @@ impl<R: Clone> AxisService<R> {
             Err(refusal) => {
                 tracing::warn!(axis = %self.name, field = name, "confirmed write refused: {refusal}");
                 self.refuse(&refusal);
-                self.outputs.push_back(ServiceOutput::Reply { to, reply: Reply::Refused(refusal) });
+                self.answer(to, Reply::Refused(refusal));
             }
             Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
                 self.waiting.push(Waiter { to, field, accepted, controller_messages: Vec::new() });
             }
             Ok((field, _)) if wait => {
                 let reply = Reply::Completion(field, self.completion(field, Vec::new()));
-                self.outputs.push_back(ServiceOutput::Reply { to, reply });
+                self.answer(to, reply);
             }
             Ok((field, _)) => {
                 let reply = Reply::Value(field, self.axis.record().get(field));
-                self.outputs.push_back(ServiceOutput::Reply { to, reply });
+                self.answer(to, reply);
             }
         }
         self.collect();
@@ -449,14 +455,14 @@ impl<R: Clone> AxisService<R> {
             Ok(field) => Reply::Value(field, self.axis.record().get(field)),
             Err(unknown) => Reply::Refused(unknown),
         };
-        self.outputs.push_back(ServiceOutput::Reply { to, reply });
+        self.answer(to, reply);
     }
 
     /// A read of every field `selects` (a wildcard read): one reply per field.
     pub fn read_selected(&mut self, selects: impl Fn(Field) -> bool, to: R) {
         for field in Field::all().filter(|f| selects(*f)) {
             let reply = Reply::Value(field, self.axis.record().get(field));
-            self.outputs.push_back(ServiceOutput::Reply { to: to.clone(), reply });
+            self.answer(to.clone(), reply);
         }
     }
 
@@ -496,7 +502,7 @@ impl<R: Clone> AxisService<R> {
             replies.push(Reply::SimSetting(setting, sim.setting(setting)));
         }
         for reply in replies {
-            self.outputs.push_back(ServiceOutput::Reply { to: to.clone(), reply });
+            self.answer(to.clone(), reply);
         }
     }
 
@@ -566,6 +572,10 @@ impl<R: Clone> AxisService<R> {
             self.outputs.push_back(ServiceOutput::WatchHold { token: token.clone() });
         }
         self.held.push(Held { token, release });
+    }
+
+    fn answer(&mut self, to: R, reply: Reply) {
+        self.outputs.push_back(ServiceOutput::Reply(Box::new(Answer { to, reply })));
     }
 
     fn refuse(&mut self, refusal: &RequestError) {
@@ -647,7 +657,7 @@ impl<R: Clone> AxisService<R> {
                     for waiter in ended {
                         let reply =
                             Reply::Completion(waiter.field, self.completion(waiter.field, waiter.controller_messages));
-                        self.outputs.push_back(ServiceOutput::Reply { to: waiter.to, reply });
+                        self.answer(waiter.to, reply);
                     }
                 }
             }
@@ -702,7 +712,7 @@ mod tests {
         outputs
             .iter()
             .filter_map(|o| match o {
-                ServiceOutput::Reply { to, reply } => Some((*to, reply.clone())),
+                ServiceOutput::Reply(answer) => Some((answer.to, answer.reply.clone())),
                 _ => None,
             })
             .collect()
@@ -765,7 +775,7 @@ mod tests {
         assert_eq!(completion.written["VAL"], Value::Float(1.0));
         // The completion comes after the DMOV 1 it reports.
         let dmov_at = rest.iter().position(|o| matches!(o, ServiceOutput::Publish { field: Field::DMOV, .. }));
-        let reply_at = rest.iter().position(|o| matches!(o, ServiceOutput::Reply { .. }));
+        let reply_at = rest.iter().position(|o| matches!(o, ServiceOutput::Reply(_)));
         assert!(dmov_at < reply_at, "{rest:?}");
     }
 

@@ -286,7 +286,7 @@ impl AxisCore {
                         self.post_event(key, payload, refusal::encoding(kind), &marker, stamp, false);
                     }
                 }
-                ServiceOutput::Reply { to, reply } => self.reply(&to, reply),
+                ServiceOutput::Reply(answer) => self.reply(&answer.to, answer.reply),
                 ServiceOutput::DriverCommand { command, at } => {
                     if let Some(controller) = &self.controller {
                         controller.send(command.clone());
