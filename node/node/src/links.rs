@@ -3,6 +3,7 @@
 
 use crate::writer::Writer;
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
@@ -31,11 +32,13 @@ fn same_sink(a: &LinkSink, b: &LinkSink) -> bool {
 pub(crate) struct LocalFollowers {
     layout: KeyLayout,
     by_axis: std::sync::RwLock<HashMap<String, Vec<(Field, Follower)>>>,
+    /// How many follow, in all: each post of each axis asks, and mostly none does.
+    followers: AtomicUsize,
 }
 
 impl LocalFollowers {
     pub(crate) fn new(layout: KeyLayout) -> Self {
-        Self { layout, by_axis: Default::default() }
+        Self { layout, by_axis: Default::default(), followers: AtomicUsize::new(0) }
     }
 
     /// Follow `key` if it is a field of an axis (of this node or not: cheap to keep).
@@ -44,13 +47,16 @@ impl LocalFollowers {
         let Some(field) = self.layout.field_name(axis, key).and_then(Field::from_name) else { return };
         let mut by_axis = self.by_axis.write().unwrap_or_else(|e| e.into_inner());
         by_axis.entry(axis.to_string()).or_default().push((field, follower));
+        self.followers.fetch_add(1, Ordering::Release);
     }
 
     /// Stop following whatever `follower` followed.
     fn unregister(&self, follower: &Follower) {
         let mut by_axis = self.by_axis.write().unwrap_or_else(|e| e.into_inner());
         for followers in by_axis.values_mut() {
+            let before = followers.len();
             followers.retain(|(_, (sink, index))| !(same_sink(sink, &follower.0) && *index == follower.1));
+            self.followers.fetch_sub(before - followers.len(), Ordering::Release);
         }
     }
 
@@ -58,6 +64,9 @@ impl LocalFollowers {
     /// gets the value before anything `axis` sends after it (a `?wait` reply, say) can lead to a
     /// write of the follower.
     pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) {
+        if self.followers.load(Ordering::Acquire) == 0 {
+            return;
+        }
         let Some(number) = value.as_f64() else { return };
         // Taken out of the lock: a follower may handle the value at once, and post in turn.
         let sinks: Vec<(LinkSink, usize)> = {
