@@ -189,6 +189,8 @@ pub struct Axis {
     next_poll: Option<Instant>,
     rates: PollRates,
     events: Vec<AxisEvent>,
+    /// The record's outputs being handled, kept for their room (an axis polls a hundred times a second).
+    record_outputs: Vec<Output>,
     held: Option<HeldMotion>,
     /// DMOV 0 has been posted and DMOV 1 not yet: a motion is under way.
     motion_posted: bool,
@@ -263,6 +265,7 @@ impl Axis {
             next_poll: None,
             rates,
             events: Vec::new(),
+            record_outputs: Vec::new(),
             held: None,
             motion_posted: false,
             done_due: None,
@@ -455,6 +458,12 @@ impl Axis {
         self.events.drain(..)
     }
 
+    /// The events so far, moved into `into` (empty: its room serves the next ones).
+    pub(crate) fn take_events(&mut self, into: &mut Vec<AxisEvent>) {
+        debug_assert!(into.is_empty());
+        std::mem::swap(&mut self.events, into);
+    }
+
     /// The simulator behind this axis, if it is simulated.
     pub fn simulation(&mut self) -> Option<&mut crate::driver::sim::SimAxis> {
         match &mut self.device {
@@ -589,10 +598,11 @@ impl Axis {
     /// Carry out the record's outputs; a transaction that asks for fresh status gets a
     /// callback processing, as asyn device support does when the driver write returns.
     fn pump(&mut self) {
+        let mut outputs = std::mem::take(&mut self.record_outputs);
         for _ in 0..MAX_CALLBACK_ROUNDS {
-            let outputs: Vec<Output> = self.record.drain_outputs().collect();
+            self.record.take_outputs(&mut outputs);
             let mut wants_callback = false;
-            for output in outputs {
+            for output in outputs.drain(..) {
                 match output {
                     Output::Post(field, value) => {
                         let completed = field == Field::DMOV
@@ -621,11 +631,13 @@ impl Axis {
                 }
             }
             if !wants_callback {
+                self.record_outputs = outputs;
                 return;
             }
             self.last_status = self.device_status();
             self.record.callback(self.last_status);
         }
+        self.record_outputs = outputs;
         tracing::warn!("status callbacks kept asking for more status; stopped after {MAX_CALLBACK_ROUNDS} rounds");
     }
 }

@@ -287,6 +287,8 @@ pub struct AxisService<R> {
     seq: u64,
     waiting: Vec<Waiter<R>>,
     outputs: VecDeque<ServiceOutput<R>>,
+    /// The axis's events being handled, kept for their room (an axis polls a hundred times a second).
+    events: Vec<AxisEvent>,
     /// A field autosave keeps changed since `take_unsaved_change`.
     unsaved: bool,
     jog_hold: JogHold,
@@ -308,6 +310,7 @@ impl<R: Clone> AxisService<R> {
             seq: 0,
             waiting: Vec::new(),
             outputs: VecDeque::new(),
+            events: Vec::new(),
             // Boot may have changed the position (RSTM): the saved state follows what is.
             unsaved: true,
             jog_hold: JogHold::Optional,
@@ -619,7 +622,8 @@ impl<R: Clone> AxisService<R> {
 
     /// Turn what the axis produced into outputs; a completion answers the writes it ends.
     fn collect(&mut self) {
-        let events: Vec<AxisEvent> = self.axis.drain_events().collect();
+        let mut events = std::mem::take(&mut self.events);
+        self.axis.take_events(&mut events);
         let streams = |event: &AxisEvent| match event {
             AxisEvent::Post(field, _) => field.is_readback_stream(),
             _ => true,
@@ -629,7 +633,7 @@ impl<R: Clone> AxisService<R> {
             false => Delivery::Event,
         };
         let mut readback = None;
-        for event in events {
+        for event in events.drain(..) {
             match event {
                 AxisEvent::Post(field, value) => {
                     self.unsaved |= field.autosave().is_some();
@@ -662,6 +666,7 @@ impl<R: Clone> AxisService<R> {
                 }
             }
         }
+        self.events = events;
         if let Some(marker) = readback {
             self.outputs.push_back(ServiceOutput::Readback { marker, delivery });
         }

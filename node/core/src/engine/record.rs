@@ -135,6 +135,12 @@ impl MotorRecord {
         self.outputs.drain(..)
     }
 
+    /// The outputs so far, moved into `into` (empty: its room serves the next ones).
+    pub(crate) fn take_outputs(&mut self, into: &mut Vec<Output>) {
+        debug_assert!(into.is_empty());
+        std::mem::swap(&mut self.outputs, into);
+    }
+
     // ------------------------------------------------------------------ inputs
 
     /// A put to a field (§0.1 and §7): refused when read-only or when special() says so,
