@@ -77,7 +77,13 @@ impl Host {
         panic!("{axis}.{field} never as expected within {PATIENCE:?}; last {last:?}");
     }
 
-    /// A confirmed write; Ok(the node's answer) or Err(its refusal).
+    /// A confirmed write; Ok(the node's answer) or Err(its refusal). A write whose client never
+    /// saw the axis ("no node serves the axis": its query and its liveliness query both ended
+    /// unanswered, so the node did not see it) is sent again, twice at most: seen once in a
+    /// loaded CI run over tls/, right after an answered write of the same identity, and not
+    /// reproduced in 8 runs under load here (Zenoh 1.10 loses a new client's first queries over
+    /// quic/ with several streams: README, "multistream"). A refused or unanswered write is not
+    /// sent again.
     pub(crate) fn put(
         &self,
         endpoint: &str,
@@ -90,11 +96,17 @@ impl Host {
         if wait {
             args.push("--wait");
         }
-        let output = self.client(&args);
-        if output.status.success() {
-            Ok(String::from_utf8_lossy(&output.stdout).trim().to_string())
-        } else {
-            Err(String::from_utf8_lossy(&output.stderr).trim().to_string())
+        let mut attempts = 0;
+        loop {
+            attempts += 1;
+            let output = self.client(&args);
+            if output.status.success() {
+                return Ok(String::from_utf8_lossy(&output.stdout).trim().to_string());
+            }
+            let said = String::from_utf8_lossy(&output.stderr).trim().to_string();
+            if attempts == 3 || !said.contains("no node serves the axis") {
+                return Err(said);
+            }
         }
     }
 }
