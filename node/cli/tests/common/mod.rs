@@ -79,7 +79,7 @@ impl Host {
 
     /// A confirmed write; Ok(the node's answer) or Err(its refusal). A write whose client never
     /// saw the axis ("no node serves the axis": its query and its liveliness query both ended
-    /// unanswered, so the node did not see it) is sent again, twice at most: seen once in a
+    /// unanswered) is sent again, twice at most: seen once in a
     /// loaded CI run over tls/, right after an answered write of the same identity, and not
     /// reproduced in 8 runs under load here (Zenoh 1.10 loses a new client's first queries over
     /// quic/ with several streams: README, "multistream"). A refused or unanswered write is not
