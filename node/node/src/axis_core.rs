@@ -148,7 +148,7 @@ pub(crate) struct AxisCore {
     /// Publishers of the fields this axis posts again and again, declared at their second post:
     /// a declared publisher's put costs a fraction of a session put (the key is resolved once).
     hot: Vec<(Field, zenoh::pubsub::Publisher<'static>)>,
-    /// Fields posted once so far (with a session put).
+    /// Fields posted at least once (the first post of each has Zenoh match a new key).
     posted_once: Vec<Field>,
     /// This axis's posts handed to `NodeSide::events` and not sent yet: while there are any, its
     /// stream posts queue behind them (an axis's posts arrive in order).
@@ -365,7 +365,7 @@ impl AxisCore {
         if self.readback.is_none()
             && self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_ok()
         {
-            self.node.key_work.note();
+            self.node.key_work.note_new_key();
             let key = self.node.layout.readback(self.name());
             let declared = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR);
             self.readback = declared.allowed_destination(Locality::Remote).wait().ok();
@@ -428,7 +428,7 @@ impl AxisCore {
     fn trace_publisher(&mut self) -> Option<&zenoh::pubsub::Publisher<'static>> {
         if self.trace.is_none() {
             let key = self.node.layout.driver_cmd(self.name());
-            self.node.key_work.note();
+            self.node.key_work.note_new_key();
             self.trace = self.node.session.declare_publisher(key).encoding(Encoding::APPLICATION_CBOR).wait().ok();
             let _ = self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1));
         }
@@ -474,18 +474,23 @@ impl AxisCore {
     /// Declare the field's publisher at its second post (within the budget), whichever way its
     /// posts go; a readback's at its first, for a moving axis posts it at every poll (a first
     /// post without publisher would cost Zenoh a walk of every key for nothing, here and at
-    /// each subscriber).
+    /// each subscriber). A field's first post, declared or not, has Zenoh match a new key.
     fn declare_hot_publisher(&mut self, field: Field) {
         if self.hot.iter().any(|(f, _)| *f == field) {
             return;
         }
-        if !field.is_readback_stream() && !self.posted_once.contains(&field) {
-            return self.posted_once.push(field);
+        let first_post = !self.posted_once.contains(&field);
+        if first_post {
+            self.posted_once.push(field);
+            self.node.key_work.note_new_key();
+        }
+        if first_post && !field.is_readback_stream() {
+            return;
         }
         if self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_err() {
             return;
         }
-        self.node.key_work.note();
+        self.node.key_work.note_new_key();
         let declared = self
             .node
             .session

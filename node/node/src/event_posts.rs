@@ -110,7 +110,7 @@ impl EventOutbox {
     /// of microseconds); queue it for the sender thread otherwise.
     pub(crate) fn post(&self, post: EventPost) {
         if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent() {
-            self.put(post);
+            self.congestion.timed(|| self.put(post));
         } else {
             self.shared.queue(post);
         }
@@ -136,7 +136,7 @@ impl EventOutbox {
             }
             for post in posts.drain(..).flatten() {
                 let waiting = post.waiting.clone();
-                self.put(post);
+                self.congestion.sending(|| self.put(post));
                 waiting.fetch_sub(1, Ordering::AcqRel);
             }
         }
@@ -151,11 +151,9 @@ impl EventOutbox {
             .allowed_destination(post.destination)
             .attachment(post.attachment.map(ZBytes::from))
             .timestamp(post.stamp);
-        self.congestion.timed(|| {
-            if let Err(e) = put.wait() {
-                tracing::warn!("an event post failed: {e}");
-            }
-        });
+        if let Err(e) = put.wait() {
+            tracing::warn!("an event post failed: {e}");
+        }
     }
 }
 

@@ -12,7 +12,7 @@ use crate::input::{AxisInput, Deliver};
 use crate::links::{CalcTask, Follows, LocalFollowers, PostsFollowed, ValueHolder};
 use crate::router::Router;
 use crate::routes::Routes;
-use crate::streamed::{Congestion, KeyWork};
+use crate::streamed::{Congestion, KeyWork, NodeClock};
 use crate::ticker::Ticker;
 use crate::tokens::Tokens;
 use crate::writer::Writer;
@@ -123,8 +123,9 @@ impl Node {
         let clock = tokio::time::Instant::now();
         let ticker = Ticker::start(TICK_WORKERS, clock.into_std(), tokio::runtime::Handle::current())
             .map_err(NodeError::Clock)?;
-        let congestion = Arc::new(Congestion::new(clock.into_std()));
-        let key_work = Arc::new(KeyWork::new(clock.into_std()));
+        let node_clock = NodeClock::new(clock.into_std());
+        let key_work = Arc::new(KeyWork::new(node_clock));
+        let congestion = Arc::new(Congestion::new(node_clock, key_work.clone()));
         let events = EventPosts::start(session.clone(), congestion.clone()).map_err(NodeError::EventSender)?;
         let side = NodeSide {
             session: session.clone(),

@@ -182,6 +182,7 @@ impl Inputs {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::streamed::NodeClock;
     use std::sync::atomic::{AtomicUsize, Ordering};
     use std::sync::mpsc;
     use std::sync::Mutex;
@@ -221,7 +222,7 @@ mod tests {
     #[test]
     fn while_axes_do_slow_key_work_the_receiving_thread_hands_inputs_over_and_goes_on() {
         let runtime = tokio::runtime::Builder::new_current_thread().build().unwrap();
-        let key_work = Arc::new(KeyWork::new(std::time::Instant::now()));
+        let key_work = Arc::new(KeyWork::new(NodeClock::new(std::time::Instant::now())));
         let inputs = Inputs::start(runtime.handle().clone(), key_work.clone()).unwrap();
         let (held, entering, releasing) = held();
         let axis: Arc<dyn Deliver> = held.clone();

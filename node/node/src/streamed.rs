@@ -2,9 +2,11 @@
 //! when the network may have dropped some of it, the axis's next event post sends those keys'
 //! last values again first: a motion's last readback may come a poll before its end (DMOV 1).
 //! Zenoh does not say which sample it dropped, but it drops only after a put found a link's
-//! queue full for `wait_before_drop` (1 ms): a put that took that long marks the node congested.
+//! queue full for `wait_before_drop` (1 ms): a put that took that long may have dropped its
+//! sample, and marks the node congested unless something else explains it (`Congestion`).
 
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 use zenoh::time::Timestamp;
 use zmotor_msgs::{Field, StateMarker, Value};
@@ -18,72 +20,140 @@ const SLOW_PUT: Duration = Duration::from_millis(1);
 /// congested, Zenoh drops at once and its next wait comes within milliseconds).
 const CONGESTED_FOR: Duration = Duration::from_secs(1);
 
+/// How long after an axis began matching a new key a slow put is put down to that work rather
+/// than to the network: one match takes milliseconds at a thousand axes (2.5-5.9 ms measured),
+/// and the put itself or a thread it preempts is that much slower.
+const NEW_KEY_SLOWS_FOR: Duration = Duration::from_millis(50);
+
+/// Microseconds on the node's clock since its origin, plus one (0 stands for never).
+type Micros = u64;
+
+fn micros(duration: Duration) -> Micros {
+    u64::try_from(duration.as_micros()).unwrap_or(u64::MAX)
+}
+
+/// A clock shared by threads: the node's origin.
+#[derive(Clone, Copy)]
+pub(crate) struct NodeClock(std::time::Instant);
+
+impl NodeClock {
+    pub(crate) fn new(origin: std::time::Instant) -> Self {
+        Self(origin)
+    }
+
+    fn now(self) -> Micros {
+        micros(self.0.elapsed()).saturating_add(1)
+    }
+}
+
 /// When something last happened, on the node's clock: read as "since" a moment or "within" a
 /// window. Shared by threads, so an atomic.
-struct LastSeen {
-    origin: std::time::Instant,
-    /// Microseconds since `origin`, plus one; 0 while never.
-    last: AtomicU64,
-}
+#[derive(Default)]
+struct LastSeen(AtomicU64);
 
 impl LastSeen {
-    fn new(origin: std::time::Instant) -> Self {
-        Self { origin, last: AtomicU64::new(0) }
+    fn mark(&self, now: Micros) {
+        self.0.store(now, Ordering::Release);
     }
 
-    fn now(&self) -> u64 {
-        u64::try_from(self.origin.elapsed().as_micros()).unwrap_or(u64::MAX).saturating_add(1)
+    /// As if it had never happened.
+    fn clear(&self) {
+        self.0.store(0, Ordering::Release);
     }
 
-    fn mark(&self) {
-        self.last.store(self.now(), Ordering::Release);
+    fn since(&self, at: Micros) -> bool {
+        self.0.load(Ordering::Acquire) >= at
     }
 
-    fn since(&self, at: u64) -> bool {
-        self.last.load(Ordering::Acquire) >= at
+    fn within(&self, now: Micros, window: Duration) -> bool {
+        let last = self.0.load(Ordering::Acquire);
+        last != 0 && now.saturating_sub(last) < micros(window)
     }
 
-    fn within(&self, window: Duration) -> bool {
-        let last = self.last.load(Ordering::Acquire);
-        let window = u64::try_from(window.as_micros()).unwrap_or(u64::MAX);
-        last != 0 && self.now().saturating_sub(last) < window
+    /// Whether it happened, `window` ago or longer.
+    fn before(&self, now: Micros, window: Duration) -> bool {
+        let last = self.0.load(Ordering::Acquire);
+        last != 0 && now.saturating_sub(last) >= micros(window)
     }
 }
 
-/// When a put of the node last found a link congested.
-pub(crate) struct Congestion(LastSeen);
+/// Whether the node's links are congested, judged by how long its puts take.
+///
+/// Two kinds of slowness are not the network's and must not switch the node into its congested
+/// mode (every post through the event sender, for `CONGESTED_FOR`), which at a thousand moving
+/// axes on two busy cores renewed itself for as long as they moved: Zenoh matching a new key
+/// (the first moves), and the event sender preempted inside a put (it makes most of its puts
+/// while the node is congested). A slow put while a new key is matched still makes the axes
+/// send their stream keys' last samples again at their next event; the event sender counts as
+/// congested while it has waited in one put longer than a slow one.
+pub(crate) struct Congestion {
+    clock: NodeClock,
+    key_work: Arc<KeyWork>,
+    /// When a put on the axes' way (a tick worker, the inputs thread) was last slow with no new
+    /// key matched: the links are taken for congested.
+    congested: LastSeen,
+    /// When a put on the axes' way was last slow, whatever the cause: it may have dropped.
+    slow: LastSeen,
+    /// When the event sender's put in progress began; never while it makes none. On a cache
+    /// line of its own: the sender writes it at every put, the axes read the others at every post.
+    sending: Aligned<LastSeen>,
+}
+
+#[repr(align(64))]
+struct Aligned<T>(T);
 
 impl Congestion {
-    pub(crate) fn new(origin: std::time::Instant) -> Self {
-        Self(LastSeen::new(origin))
+    pub(crate) fn new(clock: NodeClock, key_work: Arc<KeyWork>) -> Self {
+        let (congested, slow, sending) = Default::default();
+        Self { clock, key_work, congested, slow, sending: Aligned(sending) }
     }
 
     /// Now on the node's clock, as `StreamLog` counts it.
-    pub(crate) fn now(&self) -> u64 {
-        self.0.now()
+    pub(crate) fn now(&self) -> Micros {
+        self.clock.now()
     }
 
-    /// Run a put, noting congestion if it was slow.
+    /// Run a put on the axes' way, noting congestion if it was slow.
     pub(crate) fn timed(&self, put: impl FnOnce()) {
         let start = std::time::Instant::now();
         put();
-        self.took(start.elapsed());
+        self.took(self.now(), start.elapsed());
     }
 
-    /// A put took `elapsed`.
-    fn took(&self, elapsed: Duration) {
-        if elapsed >= SLOW_PUT {
-            self.0.mark();
+    /// Run a put of the event sender (congestion control Block: it waits for room, drops
+    /// nothing), counting the node congested while it waits longer than a slow put.
+    pub(crate) fn sending(&self, put: impl FnOnce()) {
+        self.sending.0.mark(self.now());
+        put();
+        self.sending.0.clear();
+    }
+
+    /// A put on the axes' way ended at `now`, after `elapsed`.
+    fn took(&self, now: Micros, elapsed: Duration) {
+        if elapsed < SLOW_PUT {
+            return;
+        }
+        self.slow.mark(now);
+        // A new key began matching during this put, or up to NEW_KEY_SLOWS_FOR before it.
+        if !self.key_work.new_key_within(now, NEW_KEY_SLOWS_FOR + elapsed) {
+            self.congested.mark(now);
         }
     }
 
-    fn since(&self, at: u64) -> bool {
-        self.0.since(at)
+    /// Whether a stream sample sent at `at` or later may have been dropped.
+    fn since(&self, at: Micros) -> bool {
+        self.slow.since(at)
     }
 
-    /// Whether a put was slow lately (`CONGESTED_FOR`).
+    /// Whether the links are taken for congested: a put on the axes' way was slow lately
+    /// (`CONGESTED_FOR`) with no new key matched, or the event sender has waited in one put
+    /// longer than a slow one.
     pub(crate) fn recent(&self) -> bool {
-        self.0.within(CONGESTED_FOR)
+        self.recent_at(self.now())
+    }
+
+    fn recent_at(&self, now: Micros) -> bool {
+        self.congested.within(now, CONGESTED_FOR) || self.sending.0.before(now, SLOW_PUT)
     }
 }
 
@@ -91,30 +161,46 @@ impl Congestion {
 /// inputs thread (a storm of first moves does that work without pause; a lone one is past).
 const KEY_WORK_FOR: Duration = Duration::from_secs(1);
 
-/// When an axis of the node last did Zenoh's slow work for a new key: declared a publisher (each
-/// declaration is matched against every key already there: a millisecond at a thousand axes) or
-/// put to a key that has none.
-pub(crate) struct KeyWork(LastSeen);
+/// When an axis of the node last did Zenoh's slow work for a key: matched a new one (declared
+/// a publisher, each matched against every key already there: a millisecond at a thousand axes;
+/// or posted a field for the first time without one) or put to a key that has no publisher.
+pub(crate) struct KeyWork {
+    clock: NodeClock,
+    any: LastSeen,
+    new_key: LastSeen,
+}
 
 impl KeyWork {
-    pub(crate) fn new(origin: std::time::Instant) -> Self {
-        Self(LastSeen::new(origin))
+    pub(crate) fn new(clock: NodeClock) -> Self {
+        Self { clock, any: LastSeen::default(), new_key: LastSeen::default() }
     }
 
-    /// Some is being done now.
+    /// Some is being done now: a put to a key without publisher.
     pub(crate) fn note(&self) {
-        self.0.mark();
+        self.any.mark(self.clock.now());
+    }
+
+    /// A new key is being matched now.
+    pub(crate) fn note_new_key(&self) {
+        let now = self.clock.now();
+        self.any.mark(now);
+        self.new_key.mark(now);
     }
 
     /// Whether some was done within `KEY_WORK_FOR`.
     pub(crate) fn lately(&self) -> bool {
-        self.0.within(KEY_WORK_FOR)
+        self.any.within(self.clock.now(), KEY_WORK_FOR)
+    }
+
+    fn new_key_within(&self, now: Micros, window: Duration) -> bool {
+        self.new_key.within(now, window)
     }
 
     /// As if none had ever been done.
     #[cfg(test)]
     pub(crate) fn forget(&self) {
-        self.0.last.store(0, Ordering::Release);
+        self.any.clear();
+        self.new_key.clear();
     }
 }
 
@@ -147,12 +233,12 @@ impl Streamed {
 #[derive(Default)]
 pub(crate) struct StreamLog {
     /// When the first of them was sent.
-    since: Option<u64>,
+    since: Option<Micros>,
     sent: Vec<(Streamed, StateMarker, Timestamp)>,
 }
 
 impl StreamLog {
-    pub(crate) fn record(&mut self, now: u64, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
+    pub(crate) fn record(&mut self, now: Micros, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
         self.since.get_or_insert(now);
         let entry = (sample, marker.clone(), stamp);
         match self.sent.iter().position(|(s, _, _)| s.same_key(&entry.0)) {
@@ -194,25 +280,82 @@ mod tests {
         sent.iter().map(|(s, m, _)| (key(s), m.seq)).collect()
     }
 
+    fn congestion() -> Congestion {
+        let clock = NodeClock::new(std::time::Instant::now());
+        Congestion::new(clock, Arc::new(KeyWork::new(clock)))
+    }
+
+    const MS: Micros = 1000;
+
     #[test]
     fn after_a_slow_put_an_event_sends_each_stream_keys_last_sample_again_and_otherwise_nothing() {
-        let congestion = Congestion::new(std::time::Instant::now());
+        let congestion = congestion();
         let stamp = Timestamp::new(NTP64(0), TimestampId::rand());
         let mut log = StreamLog::default();
         for (seq, field) in [(1, Field::RBV), (2, Field::DRBV), (3, Field::RBV)] {
-            log.record(congestion.now(), Streamed::Field(field, Value::Float(seq as f64)), &marker(seq), stamp);
+            log.record(seq * MS, Streamed::Field(field, Value::Float(seq as f64)), &marker(seq), stamp);
         }
-        congestion.took(SLOW_PUT / 2);
+        congestion.took(4 * MS, SLOW_PUT / 2);
         assert!(log.take_unsure(&congestion).is_empty(), "quick puts: nothing dropped");
         for (seq, field) in [(4, Field::RBV), (5, Field::DRBV)] {
-            log.record(congestion.now(), Streamed::Field(field, Value::Float(seq as f64)), &marker(seq), stamp);
+            log.record(seq * MS, Streamed::Field(field, Value::Float(seq as f64)), &marker(seq), stamp);
         }
-        log.record(congestion.now(), Streamed::Bundle(vec![1]), &marker(5), stamp);
-        log.record(congestion.now(), Streamed::Field(Field::RBV, Value::Float(6.0)), &marker(6), stamp);
-        congestion.took(SLOW_PUT);
+        log.record(5 * MS, Streamed::Bundle(vec![1]), &marker(5), stamp);
+        log.record(6 * MS, Streamed::Field(Field::RBV, Value::Float(6.0)), &marker(6), stamp);
+        congestion.took(7 * MS, SLOW_PUT);
         let again = log.take_unsure(&congestion);
         let expected = [("DRBV", 5), ("@readback", 5), ("RBV", 6)].map(|(k, s)| (k.to_string(), s));
         assert_eq!(keys(&again), expected);
         assert!(log.take_unsure(&congestion).is_empty(), "each is sent again once");
+    }
+
+    #[test]
+    fn a_slow_put_takes_the_links_for_congested_for_a_while() {
+        let congestion = congestion();
+        let at = 10 * MS;
+        congestion.took(at, SLOW_PUT / 2);
+        assert!(!congestion.recent_at(at), "a quick put");
+        congestion.took(at, SLOW_PUT);
+        assert!(congestion.recent_at(at));
+        assert!(congestion.recent_at(at + micros(CONGESTED_FOR) - 1));
+        assert!(!congestion.recent_at(at + micros(CONGESTED_FOR)), "no slow put since");
+    }
+
+    #[test]
+    fn a_slow_put_while_a_new_key_is_matched_does_not_congest_but_its_samples_are_sent_again() {
+        let congestion = congestion();
+        let stamp = Timestamp::new(NTP64(0), TimestampId::rand());
+        let mut log = StreamLog::default();
+        let matched = 100 * MS;
+        congestion.key_work.new_key.mark(matched);
+        log.record(matched + MS, Streamed::Field(Field::RBV, Value::Float(1.0)), &marker(1), stamp);
+        // Slow because the key is matched (2.5-5.9 ms at a thousand axes), or a put beside it.
+        let ended = matched + 6 * MS;
+        congestion.took(ended, Duration::from_millis(6));
+        assert!(!congestion.recent_at(ended), "the matching, not the network");
+        assert_eq!(keys(&log.take_unsure(&congestion)), [("RBV".to_string(), 1)], "it may have dropped all the same");
+        // A put beginning well after the key began matching is the network's again.
+        let later = matched + micros(NEW_KEY_SLOWS_FOR) + 2 * MS;
+        congestion.took(later, SLOW_PUT);
+        assert!(congestion.recent_at(later));
+    }
+
+    #[test]
+    fn the_event_sender_counts_as_congested_while_one_put_waits_longer_than_a_slow_one() {
+        let congestion = congestion();
+        let began = 10 * MS;
+        congestion.sending.0.mark(began);
+        assert!(!congestion.recent_at(began + micros(SLOW_PUT) - 1), "a put in progress");
+        assert!(congestion.recent_at(began + micros(SLOW_PUT)), "stuck in it");
+        congestion.sending.0.clear();
+        assert!(!congestion.recent_at(began + 10 * micros(SLOW_PUT)), "it is over, and leaves no mark");
+        let mut log = StreamLog::default();
+        log.record(
+            began,
+            Streamed::Field(Field::RBV, Value::Float(1.0)),
+            &marker(1),
+            Timestamp::new(NTP64(0), TimestampId::rand()),
+        );
+        assert!(log.take_unsure(&congestion).is_empty(), "the sender drops nothing");
     }
 }
