@@ -70,7 +70,7 @@ fn the_benchmark_runs_in_smoke_mode() {
     assert!(handled.iter().all(|l| l.ends_with(" met")), "{handled:?}");
     // Each row says when its last axis was first heard (every axis moved).
     let rows: Vec<&str> = stdout.lines().filter(|l| l.contains(" axes heard, ")).collect();
-    assert_eq!(rows.len(), 8, "four rows at each of two scales:\n{stdout}");
+    assert_eq!(rows.len(), 10, "five rows at each of two scales:\n{stdout}");
     assert!(rows.iter().all(|l| l.contains(", all in ")), "{rows:?}");
     // The EPICS load really moved the axes: the subscriber saw moves end.
     let ended: f64 = stdout
