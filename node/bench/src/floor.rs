@@ -247,4 +247,14 @@ mod tests {
         fields.sort_by_key(|f| f.name());
         assert_eq!(fields, [Field::DIFF, Field::DRBV, Field::RBV, Field::RDIF, Field::RMP, Field::RRBV]);
     }
+
+    #[test]
+    fn a_moves_start_posts_its_drive_and_status_fields_each_once_and_no_readback() {
+        let once = fields_posted_at_a_moves_start();
+        for field in [Field::VAL, Field::DVAL, Field::RVAL, Field::DMOV, Field::MOVN, Field::MSTA] {
+            assert!(once.contains(&field), "{field} missing from {once:?}");
+        }
+        assert!(fields_posted_per_poll().iter().all(|f| !once.contains(f)), "{once:?}");
+        assert!(once.iter().enumerate().all(|(i, f)| !once[..i].contains(f)), "each once: {once:?}");
+    }
 }
