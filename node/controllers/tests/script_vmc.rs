@@ -158,3 +158,19 @@ fn a_reload_during_a_move_stops_it_first_then_runs_the_new_script_and_a_broken_o
     let motion: Vec<String> = written_since(&lb, from).into_iter().filter(|l| !l.ends_with("?\r\n")).collect();
     assert_eq!(motion[..2], ["1 VEL 20000.000000\r\n", "1 MV 0\r\n"], "the new script's move");
 }
+
+/// Found by the property above: a move at 13,660 steps/s, then at once a move at 100 steps/s²
+/// (answered `Busy`, but its `ACC 100` set), then a stop: `AB` decelerates at `ACC`, over two
+/// minutes, as the VMC does; the stop must still end with the axis done.
+#[test]
+fn a_stop_after_a_slow_acceleration_was_set_mid_move_ends_done() {
+    let move_to = |position, max_velocity, acceleration| DriverCommand::Move {
+        position,
+        relative: false,
+        min_velocity: 0.0,
+        max_velocity,
+        acceleration,
+    };
+    let commands = [(1, move_to(-141_798.3, 13_660.1, 281_807.2), 0), (1, move_to(0.0, 10.0, 100.0), 0)];
+    common::no_malformed_frames_on(loopback(Faults::default()), &CHANNELS, common::Start::AsPoweredUp, &commands);
+}
