@@ -262,8 +262,8 @@ impl AxisCore {
         self.service.sim_read(now, selects, query);
     }
 
-    /// Send everything the service has for the network.
-    fn flush(&mut self) {
+    /// Send everything the service has for the network, at `now`.
+    fn flush(&mut self, now: Instant) {
         let mut traced = None;
         // The posts of one input share the time it was handled: when the status they come
         // from was read (a subscriber's latency is its arrival less this).
@@ -272,9 +272,9 @@ impl AxisCore {
             match output {
                 ServiceOutput::Publish { field, value, marker, delivery } => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
-                    self.publish(field, &value, &marker, stamp, delivery);
+                    self.publish(field, &value, &marker, stamp, delivery, now);
                 }
-                ServiceOutput::Readback { marker, delivery } if self.node.demand.readback_wanted() => {
+                ServiceOutput::Readback { marker, delivery } if self.node.demand.readback_wanted(delivery, now) => {
                     let stamp = *stamp.get_or_insert_with(|| self.node.session.new_timestamp());
                     self.publish_readback(&marker, stamp, delivery);
                 }
@@ -293,7 +293,7 @@ impl AxisCore {
                     }
                     // Nobody traces any axis: no publisher (a declaration is matched against
                     // every key, and a thousand axes' first moves would pay it for nothing).
-                    if !self.node.demand.traces_wanted() {
+                    if !self.node.demand.traces_wanted(now) {
                         continue;
                     }
                     let trace_publisher = self.trace_publisher();
@@ -462,9 +462,17 @@ impl AxisCore {
     /// network when a subscriber there wants that field (as the record posts a monitor only to
     /// those who asked). Publications go to other processes only: the node hears itself
     /// in-process.
-    fn publish(&mut self, field: Field, value: &Value, marker: &StateMarker, stamp: Timestamp, delivery: Delivery) {
+    fn publish(
+        &mut self,
+        field: Field,
+        value: &Value,
+        marker: &StateMarker,
+        stamp: Timestamp,
+        delivery: Delivery,
+        now: Instant,
+    ) {
         self.node.followers.deliver(self.service.name(), field, value);
-        if !self.node.demand.wanted(field) {
+        if !self.node.demand.wanted(field, delivery, now) {
             return;
         }
         self.declare_hot_publisher(field);
@@ -554,7 +562,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::HoldReleased(token) => self.service.hold_released(now, &token),
             AxisInput::StopMotion => self.service.stop_motion(now),
         }
-        self.flush();
+        self.flush(now);
         if self.service.take_unsaved_change() && !self.unsaved.swap(true, Ordering::AcqRel) {
             self.save_due.notify_one();
         }

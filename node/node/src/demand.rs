@@ -1,100 +1,143 @@
 //! Which fields some subscriber on the network wants, of any axis: one probe publisher per
-//! field on `<prefix>/*/<FIELD>` whose matching status Zenoh keeps current. A field nobody
-//! subscribes to, for any axis, is not published (the record posts monitors only to those who
-//! asked); a subscriber of any axis's field gets that field from every axis, so no subscriber is
-//! ever missed. (A matching listener per axis and field does not scale in Zenoh 1.10: every
-//! subscriber declaration re-evaluates every listener.)
+//! field on `<prefix>/*/<FIELD>`. A field nobody subscribes to, for any axis, is not published
+//! (the record posts monitors only to those who asked); a subscriber of any axis's field gets
+//! that field from every axis, so no subscriber is ever missed. (A matching listener per axis
+//! and field does not scale in Zenoh 1.10: every subscriber declaration re-evaluates every
+//! listener.)
+//!
+//! Each probe's matching listener keeps a flag, but Zenoh calls it from a task of its own, a
+//! moment after a subscriber reached the node's session, at times much later (a stock client
+//! that subscribed, then wrote VAL, missed the move's DMOV 0 in a quarter of its tries, and at
+//! times its DMOV 1 too, 0.2 s later). So where the flag says nobody wants a post, Zenoh's tables are
+//! asked: at once for an event (a client that subscribed before writing gets every post the
+//! write causes, as from any Zenoh publisher), at most every `STREAM_ASK_EVERY` for a stream
+//! sample (the next poll's supersedes it).
 
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::sample::Locality;
-use zenoh::Session;
+use zenoh::{Session, Wait};
+use zmotor_core::{Delivery, Instant};
 use zmotor_msgs::{Field, KeyLayout};
 
+/// How often stream samples nobody is known to want ask Zenoh again, per kind: a subscriber's
+/// first readbacks come at most this late when its listener's report is late or lost.
+const STREAM_ASK_EVERY: Duration = Duration::from_millis(100);
+
 pub(crate) struct FieldDemand {
-    wanted: Vec<Arc<AtomicBool>>,
-    /// Whether anyone subscribes to some axis's readback bundle (`<prefix>/*/@readback`).
-    readback: Arc<AtomicBool>,
-    /// Whether anyone subscribes to some axis's driver-command trace (`<prefix>/*/@driver/cmd`).
-    traces: Arc<AtomicBool>,
-    /// In the order of the flags: the fields', the readback bundle's, the traces'.
-    probes: Vec<zenoh::pubsub::Publisher<'static>>,
+    /// The fields', by `Field` number, then the readback bundle's (`<prefix>/*/@readback`),
+    /// then the driver-command traces' (`<prefix>/*/@driver/cmd`).
+    probes: Vec<Probe>,
+}
+
+/// One kind of publication and whether anyone subscribes to it.
+struct Probe {
+    publisher: Publisher<'static>,
+    /// As the matching listener last reported, or as Zenoh last answered.
+    wanted: Arc<AtomicBool>,
+    /// When a stream sample may ask Zenoh next, in microseconds since the node's origin.
+    next_stream_ask: AtomicU64,
 }
 
 impl FieldDemand {
     pub(crate) async fn declare(session: &Session, layout: &KeyLayout) -> Result<Self, zenoh::Error> {
-        let (mut wanted, mut probes) = (Vec::new(), Vec::new());
-        for field in Field::all() {
-            let (flag, probe) = watch(session, layout.field("*", field)).await?;
-            wanted.push(flag);
-            probes.push(probe);
+        let mut probes = Vec::new();
+        let keys = Field::all().map(|field| layout.field("*", field));
+        for key in keys.chain([layout.readback("*"), layout.driver_cmd("*")]) {
+            probes.push(Probe::watch(session, key).await?);
         }
-        let (readback, probe) = watch(session, layout.readback("*")).await?;
-        probes.push(probe);
-        let (traces, probe) = watch(session, layout.driver_cmd("*")).await?;
-        probes.push(probe);
-        Ok(Self { wanted, readback, traces, probes })
+        Ok(Self { probes })
     }
 
-    /// Whether anyone subscribes to some axis's readback bundle.
-    pub(crate) fn readback_wanted(&self) -> bool {
-        self.readback.load(Ordering::Acquire)
+    /// Whether some subscriber wants `field`'s post, sent `delivery`'s way at `now`.
+    pub(crate) fn wanted(&self, field: Field, delivery: Delivery, now: Instant) -> bool {
+        self.probes[field as usize].wanted(delivery, now)
     }
 
-    /// Whether anyone subscribes to some axis's driver-command trace.
-    pub(crate) fn traces_wanted(&self) -> bool {
-        self.traces.load(Ordering::Acquire)
+    /// Whether some subscriber wants the readback bundle.
+    pub(crate) fn readback_wanted(&self, delivery: Delivery, now: Instant) -> bool {
+        self.probes[Field::COUNT].wanted(delivery, now)
     }
 
-    pub(crate) fn wanted(&self, field: Field) -> bool {
-        self.wanted[field as usize].load(Ordering::Acquire)
+    /// Whether some subscriber wants the driver-command traces (each a change: asked at once).
+    pub(crate) fn traces_wanted(&self, now: Instant) -> bool {
+        self.probes[Field::COUNT + 1].wanted(Delivery::Event, now)
     }
 
-    /// Whether every kind of publication whose keys `key_expr` meets is wanted. Zenoh reports a
-    /// new subscriber to the probes' listeners from a task of its own, a moment after the
-    /// subscriber reached the session: until then its publications are not sent.
+    /// Whether the node knows every kind of publication whose keys `key_expr` meets to be
+    /// wanted, without asking Zenoh: whether its stream samples are sent at once.
     pub(crate) fn covers(&self, key_expr: &KeyExpr<'_>) -> bool {
-        let flags = self.wanted.iter().chain([&self.readback, &self.traces]);
-        self.probes
-            .iter()
-            .zip(flags)
-            .filter(|(probe, _)| probe.key_expr().intersects(key_expr))
-            .all(|(_, flag)| flag.load(Ordering::Acquire))
+        let meets = |probe: &&Probe| probe.publisher.key_expr().intersects(key_expr);
+        self.probes.iter().filter(meets).all(|probe| probe.wanted.load(Ordering::Acquire))
     }
 }
 
-/// A probe publisher on `key` and the flag its matching status keeps: wanted until known.
-/// Zenoh reports changes, not the status at the declaration, so the status is read once the
-/// listener is there; a change reported meanwhile wins.
-async fn watch(session: &Session, key: String) -> Result<(Arc<AtomicBool>, Publisher<'static>), zenoh::Error> {
-    let probe = session.declare_publisher(key).allowed_destination(Locality::Remote).await?;
-    let flag = Arc::new(AtomicBool::new(true));
-    let reported = Arc::new(Mutex::new(false));
-    let (listener, reporter) = (flag.clone(), reported.clone());
-    probe
-        .matching_listener()
-        .callback(move |status| {
-            let mut reported = reporter.lock().unwrap_or_else(PoisonError::into_inner);
-            *reported = true;
-            listener.store(status.matching(), Ordering::Release);
-        })
-        .background()
-        .await?;
-    let matching = probe.matching_status().await?.matching();
-    let reported = reported.lock().unwrap_or_else(PoisonError::into_inner);
-    if !*reported {
-        flag.store(matching, Ordering::Release);
+impl Probe {
+    /// A probe publisher on `key` and the flag its matching status keeps: wanted until known.
+    /// Zenoh reports changes, not the status at the declaration, so the status is read once the
+    /// listener is there; a change reported meanwhile wins.
+    async fn watch(session: &Session, key: String) -> Result<Self, zenoh::Error> {
+        let publisher = session.declare_publisher(key).allowed_destination(Locality::Remote).await?;
+        let wanted = Arc::new(AtomicBool::new(true));
+        let reported = Arc::new(Mutex::new(false));
+        let (listener, reporter) = (wanted.clone(), reported.clone());
+        publisher
+            .matching_listener()
+            .callback(move |status| {
+                let mut reported = reporter.lock().unwrap_or_else(PoisonError::into_inner);
+                *reported = true;
+                listener.store(status.matching(), Ordering::Release);
+            })
+            .background()
+            .await?;
+        let matching = publisher.matching_status().await?.matching();
+        let reported = reported.lock().unwrap_or_else(PoisonError::into_inner);
+        if !*reported {
+            wanted.store(matching, Ordering::Release);
+        }
+        drop(reported);
+        Ok(Self { publisher, wanted, next_stream_ask: AtomicU64::new(0) })
     }
-    drop(reported);
-    Ok((flag, probe))
+
+    /// For an event, the flag, or Zenoh's answer where the flag says no; for a stream sample,
+    /// Zenoh's answer every `STREAM_ASK_EVERY` (either way: a flag can also stay wanted after
+    /// the last subscriber left), the flag between.
+    fn wanted(&self, delivery: Delivery, now: Instant) -> bool {
+        let known = self.wanted.load(Ordering::Acquire);
+        match delivery {
+            Delivery::Event if !known => self.ask(),
+            Delivery::Stream if self.stream_ask_due(now) => self.ask(),
+            _ => known,
+        }
+    }
+
+    /// Whether a stream sample at `now` asks Zenoh: one of the threads posting this kind does,
+    /// every `STREAM_ASK_EVERY`.
+    fn stream_ask_due(&self, now: Instant) -> bool {
+        let now = micros(now.since_origin());
+        let next = self.next_stream_ask.load(Ordering::Relaxed);
+        let later = now.saturating_add(micros(STREAM_ASK_EVERY));
+        now >= next && self.next_stream_ask.compare_exchange(next, later, Ordering::Relaxed, Ordering::Relaxed).is_ok()
+    }
+
+    /// Zenoh's tables now: a subscriber whose declaration reached the node's session is there.
+    fn ask(&self) -> bool {
+        let matching = self.publisher.matching_status().wait().is_ok_and(|status| status.matching());
+        self.wanted.store(matching, Ordering::Release);
+        matching
+    }
+}
+
+fn micros(duration: Duration) -> u64 {
+    u64::try_from(duration.as_micros()).unwrap_or(u64::MAX)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::time::Duration;
 
     async fn session(endpoints: (&str, &str)) -> Session {
         let mut config = zenoh::Config::default();
@@ -115,29 +158,74 @@ mod tests {
         panic!("still not {what} after 5 s");
     }
 
-    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-    async fn a_field_is_wanted_while_a_subscriber_elsewhere_covers_it_and_not_before() {
+    /// What the listeners last reported (or an answer stored since) of probe `index`.
+    fn known(demand: &FieldDemand, index: usize) -> bool {
+        demand.probes[index].wanted.load(Ordering::Acquire)
+    }
+
+    fn set_known(demand: &FieldDemand, field: Field, wanted: bool) {
+        demand.probes[field as usize].wanted.store(wanted, Ordering::Release);
+    }
+
+    async fn node_and_client() -> (Session, Session) {
         let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
         let endpoint = format!("[\"tcp/127.0.0.1:{port}\"]");
         let node = session(("listen/endpoints", &endpoint)).await;
         let client = session(("connect/endpoints", &endpoint)).await;
+        (node, client)
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn the_listeners_report_a_field_wanted_while_a_subscriber_elsewhere_covers_it() {
+        let (node, client) = node_and_client().await;
         let layout = KeyLayout::default();
         let demand = FieldDemand::declare(&node, &layout).await.unwrap();
+        let (rbv, drbv, traces) = (Field::RBV as usize, Field::DRBV as usize, Field::COUNT + 1);
         // Nobody subscribes: nothing is wanted, from the start (no change is ever reported).
-        assert!(!demand.wanted(Field::RBV) && !demand.wanted(Field::DRBV));
+        assert!(!known(&demand, rbv) && !known(&demand, drbv));
         let subscriber = client.declare_subscriber(layout.field("m1", Field::RBV)).await.unwrap();
-        until("RBV wanted", || demand.wanted(Field::RBV)).await;
-        assert!(!demand.wanted(Field::DRBV), "a field nobody covers");
+        until("RBV wanted", || known(&demand, rbv)).await;
+        assert!(!known(&demand, drbv), "a field nobody covers");
         let covered = |key: &str| demand.covers(&KeyExpr::try_from(key).unwrap());
         assert!(covered("motor/m2/RBV") && !covered("motor/m1/*") && !covered("motor/m1/@readback"));
         drop(subscriber);
-        until("RBV unwanted", || !demand.wanted(Field::RBV)).await;
+        until("RBV unwanted", || !known(&demand, rbv)).await;
         // Driver-command traces likewise: no trace publisher is declared while nobody traces.
-        assert!(!demand.traces_wanted());
+        assert!(!known(&demand, traces));
         let tracer = client.declare_subscriber(layout.driver_cmd("m1")).await.unwrap();
-        until("traces wanted for a subscriber of one axis's trace", || demand.traces_wanted()).await;
-        assert!(!demand.wanted(Field::RBV), "a trace subscriber wants no field");
+        until("traces wanted for a subscriber of one axis's trace", || known(&demand, traces)).await;
+        assert!(!known(&demand, rbv), "a trace subscriber wants no field");
         assert!(covered("motor/m1/@driver/cmd") && !covered("motor/**"), "`**` meets no `@` chunk, fields do");
         drop(tracer);
+    }
+
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn where_the_flag_is_wrong_an_event_asks_zenoh_at_once_and_a_stream_sample_now_and_then() {
+        let (node, client) = node_and_client().await;
+        let layout = KeyLayout::default();
+        let demand = FieldDemand::declare(&node, &layout).await.unwrap();
+        let subscriber = client.declare_subscriber(layout.field("m1", Field::RBV)).await.unwrap();
+        until("RBV wanted", || known(&demand, Field::RBV as usize)).await;
+        let at = |ms| Instant::after(Duration::from_millis(ms));
+        // A report not come yet (or lost): an event asks Zenoh, and keeps the answer.
+        set_known(&demand, Field::RBV, false);
+        assert!(demand.wanted(Field::RBV, Delivery::Event, at(1_000)));
+        assert!(known(&demand, Field::RBV as usize));
+        // A stream sample asks at most every STREAM_ASK_EVERY, and goes by the flag between.
+        set_known(&demand, Field::RBV, false);
+        assert!(demand.wanted(Field::RBV, Delivery::Stream, at(1_000)), "the first stream sample asks");
+        set_known(&demand, Field::RBV, false);
+        assert!(!demand.wanted(Field::RBV, Delivery::Stream, at(1_099)));
+        assert!(demand.wanted(Field::RBV, Delivery::Stream, at(1_100)));
+        // The last subscriber gone, a flag left wanted: an event trusts it (a post nobody
+        // takes), the next stream sample due asks and clears it.
+        drop(subscriber);
+        until("RBV unwanted", || !known(&demand, Field::RBV as usize)).await;
+        set_known(&demand, Field::RBV, true);
+        assert!(demand.wanted(Field::RBV, Delivery::Event, at(1_150)));
+        assert!(!demand.wanted(Field::RBV, Delivery::Stream, at(1_200)));
+        assert!(!known(&demand, Field::RBV as usize));
+        // Nobody there: an event asks, and is not sent.
+        assert!(!demand.wanted(Field::DRBV, Delivery::Event, at(1_200)));
     }
 }

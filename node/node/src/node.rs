@@ -250,9 +250,10 @@ impl Node {
 
     /// Whether the node knows of subscribers elsewhere for every kind of publication (field,
     /// readback bundle, driver-command trace) whose keys `key_expr` meets: it publishes only
-    /// those someone subscribes to. Zenoh tells the node of a new subscriber a moment after the
-    /// subscriber reached its session, and what the node posts in between is not sent: a
-    /// subscriber that must not miss the first post waits for this before commanding.
+    /// those someone subscribes to. Zenoh's listeners tell the node of a new subscriber a moment
+    /// after the subscriber reached its session; until then the node asks Zenoh at each event
+    /// post and every 0.1 s of stream samples. A subscriber whose writes come from another
+    /// session (not ordered after its declaration) waits for this before commanding.
     #[must_use]
     pub fn knows_subscribers_of(&self, key_expr: &KeyExpr<'_>) -> bool {
         self.demand.covers(key_expr)
