@@ -33,14 +33,16 @@ with zenoh.open(conf) as session:
     expect(len(replies) == 1 and replies[0].ok is not None, f"get RBV: {replies}")
     start = value(replies[0].ok)
 
-    # Watch DMOV, then at once move with a plain put of text: the subscription reaches the
-    # node before the write sent after it, as with any Zenoh publisher. Subscribers come and
-    # go, as a screen's do: each try has its own, a while (0.3 s) after the last left, when the
-    # node has heard it gone (one back at once may find the node still counting the last: the
-    # node once missed DMOV 0 that way in a quarter of the tries).
+    # Watch DMOV and the driver's commands, then at once move with a plain put of text: the
+    # subscriptions reach the node before the write sent after them, as with any Zenoh
+    # publisher. Subscribers come and go, as a screen's do: each try has its own, a while
+    # (0.3 s) after the last left, when the node has heard them gone (one back at once may find
+    # the node still counting the last: the node once missed DMOV 0 that way in a quarter of
+    # the tries, and the move's trace in more).
     for attempt in range(12):
-        dmov = queue.Queue()
+        dmov, traces = queue.Queue(), queue.Queue()
         sub = session.declare_subscriber("motor/m1/DMOV", lambda s: dmov.put(value(s)))
+        tracer = session.declare_subscriber("motor/m1/@driver/cmd", lambda s: traces.put(value(s)))
         target = start + 2 if attempt % 2 == 0 else start
         session.put("motor/m1/VAL", str(target))
         seen = []
@@ -52,7 +54,10 @@ with zenoh.open(conf) as session:
         expect(seen == [0, 1], f"try {attempt}: DMOV pulse {seen}")
         rbv = value(list(session.get("motor/m1/RBV", timeout=5.0))[0].ok)
         expect(abs(rbv - target) < 1e-6, f"try {attempt}: RBV {rbv} after the move")
+        commands = [traces.get() for _ in range(traces.qsize())]
+        expect(any(c["cmd"] == "move" for c in commands), f"try {attempt}: driver commands {commands}")
         sub.undeclare()
+        tracer.undeclare()
         time.sleep(0.3)
 
     # Put with completion: the reply comes when the motion is over and says how it ended.
