@@ -8,10 +8,10 @@
 //! Each probe's matching listener keeps a flag, but Zenoh calls it from a task of its own, a
 //! moment after a subscriber reached the node's session, at times much later (a stock client
 //! that subscribed, then wrote VAL, missed the move's DMOV 0 in a quarter of its tries, and at
-//! times its DMOV 1 too, 0.2 s later). So where the flag says nobody wants a post, Zenoh's tables are
-//! asked: at once for an event (a client that subscribed before writing gets every post the
-//! write causes, as from any Zenoh publisher), at most every `STREAM_ASK_EVERY` for a stream
-//! sample (the next poll's supersedes it).
+//! times its DMOV 1 too, 0.2 s later). So where the flag says nobody wants a post, Zenoh's
+//! tables are asked: at once for an event (a client that subscribed before writing gets every
+//! post the write causes, as from any Zenoh publisher), at most every `STREAM_ASK_EVERY` for a
+//! stream sample (the next poll's supersedes it).
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
