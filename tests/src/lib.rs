@@ -89,8 +89,8 @@ impl TestNode {
     }
 
     /// Wait until a subscriber of another session covers `key_expr`, as this node sees it: its
-    /// session routes there, and the node knows it (it publishes only what someone wants, and
-    /// learns of a subscriber a moment after its session does).
+    /// session routes there, and the node sends every post there (it publishes only what
+    /// someone wants).
     pub async fn until_subscribed(&self, key_expr: &str) {
         let probe = self.session.declare_publisher(key_expr.to_string()).allowed_destination(Locality::Remote);
         let probe = probe.await.unwrap();

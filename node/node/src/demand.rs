@@ -67,11 +67,11 @@ impl FieldDemand {
         self.probes[Field::COUNT + 1].wanted(Delivery::Event, now)
     }
 
-    /// Whether the node knows every kind of publication whose keys `key_expr` meets to be
-    /// wanted, without asking Zenoh: whether its stream samples are sent at once.
+    /// Whether every kind of publication whose keys `key_expr` meets is wanted, asking Zenoh
+    /// where a flag says no: once it is, their stream samples too are sent at once.
     pub(crate) fn covers(&self, key_expr: &KeyExpr<'_>) -> bool {
         let meets = |probe: &&Probe| probe.publisher.key_expr().intersects(key_expr);
-        self.probes.iter().filter(meets).all(|probe| probe.wanted.load(Ordering::Acquire))
+        self.probes.iter().filter(meets).all(|probe| probe.wanted.load(Ordering::Acquire) || probe.ask())
     }
 }
 

@@ -248,12 +248,12 @@ impl Node {
         PostsFollowed::new(self.followers.clone(), keys, Arc::new(sink))
     }
 
-    /// Whether the node knows of subscribers elsewhere for every kind of publication (field,
-    /// readback bundle, driver-command trace) whose keys `key_expr` meets: it publishes only
-    /// those someone subscribes to. Zenoh's listeners tell the node of a new subscriber a moment
-    /// after the subscriber reached its session; until then the node asks Zenoh at each event
-    /// post and every 0.1 s of stream samples. A subscriber whose writes come from another
-    /// session (not ordered after its declaration) waits for this before commanding.
+    /// Whether subscribers elsewhere, known to the node's session, cover every kind of
+    /// publication (field, readback bundle, driver-command trace) whose keys `key_expr` meets:
+    /// the node publishes only those someone subscribes to. Once true, every post of them is
+    /// sent, its stream samples too (which otherwise wait up to 0.1 s for a subscriber Zenoh's
+    /// listeners have not reported yet). A subscriber whose writes come from another session
+    /// (not ordered after its declaration) waits for this before commanding.
     #[must_use]
     pub fn knows_subscribers_of(&self, key_expr: &KeyExpr<'_>) -> bool {
         self.demand.covers(key_expr)
