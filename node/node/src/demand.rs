@@ -13,13 +13,16 @@
 //! post the write causes, as from any Zenoh publisher), at most every `STREAM_ASK_EVERY` for a
 //! stream sample (the next poll's supersedes it).
 
+use std::future::{Future, IntoFuture};
+use std::pin::pin;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
+use std::task::{Context, Poll, Waker};
 use std::time::Duration;
 use zenoh::key_expr::KeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::sample::Locality;
-use zenoh::{Session, Wait};
+use zenoh::Session;
 use zmotor_core::{Delivery, Instant};
 use zmotor_msgs::{Field, KeyLayout};
 
@@ -124,8 +127,15 @@ impl Probe {
     }
 
     /// Zenoh's tables now: a subscriber whose declaration reached the node's session is there.
+    /// Zenoh computes the answer at the first poll; its `wait` would go through `block_in_place`
+    /// and a runtime's `block_on` for it, half the ask's cost (part 19). Were it ever pending,
+    /// the post is sent (the tests' "nobody there" case would fail).
     fn ask(&self) -> bool {
-        let matching = self.publisher.matching_status().wait().is_ok_and(|status| status.matching());
+        let mut answer = pin!(self.publisher.matching_status().into_future());
+        let matching = match answer.as_mut().poll(&mut Context::from_waker(Waker::noop())) {
+            Poll::Ready(status) => status.is_ok_and(|status| status.matching()),
+            Poll::Pending => true,
+        };
         self.wanted.store(matching, Ordering::Release);
         matching
     }
