@@ -5,13 +5,13 @@
 //! and field does not scale in Zenoh 1.10: every subscriber declaration re-evaluates every
 //! listener.)
 //!
-//! Each probe's matching listener keeps a flag, but Zenoh calls it from a task of its own, a
-//! moment after a subscriber reached the node's session, at times much later (a stock client
-//! that subscribed, then wrote VAL, missed the move's DMOV 0 in a quarter of its tries, and at
-//! times its DMOV 1 too, 0.2 s later). So where the flag says nobody wants a post, Zenoh's
-//! tables are asked: at once for an event (a client that subscribed before writing gets every
-//! post the write causes, as from any Zenoh publisher), at most every `STREAM_ASK_EVERY` for a
-//! stream sample (the next poll's supersedes it).
+//! Each probe's matching listener keeps a flag, but Zenoh calls it from a task of its own,
+//! about a millisecond after a subscriber reached the node's session: a write sent right behind
+//! the subscription was handled first, and its posts left out (a stock client that subscribed,
+//! then wrote VAL, missed the move's DMOV 0 in a quarter of its tries). So where the flag says
+//! nobody wants a post, Zenoh's tables are asked: at once for an event (a client that
+//! subscribed before writing gets every post the write causes, as from any Zenoh publisher),
+//! every `STREAM_ASK_EVERY` for a stream sample (the next poll's supersedes it).
 
 use std::future::{Future, IntoFuture};
 use std::pin::pin;
@@ -26,8 +26,8 @@ use zenoh::Session;
 use zmotor_core::{Delivery, Instant};
 use zmotor_msgs::{Field, KeyLayout};
 
-/// How often stream samples nobody is known to want ask Zenoh again, per kind: a subscriber's
-/// first readbacks come at most this late when its listener's report is late or lost.
+/// How often stream samples ask Zenoh, per kind: the flags follow reports made on another
+/// thread, and this bounds how long one may disagree with Zenoh's tables.
 const STREAM_ASK_EVERY: Duration = Duration::from_millis(100);
 
 pub(crate) struct FieldDemand {
@@ -106,8 +106,7 @@ impl Probe {
     }
 
     /// For an event, the flag, or Zenoh's answer where the flag says no; for a stream sample,
-    /// Zenoh's answer every `STREAM_ASK_EVERY` (either way: a flag can also stay wanted after
-    /// the last subscriber left), the flag between.
+    /// Zenoh's answer every `STREAM_ASK_EVERY` (kept, whichever way), the flag between.
     fn wanted(&self, delivery: Delivery, now: Instant) -> bool {
         let known = self.wanted.load(Ordering::Acquire);
         match delivery {

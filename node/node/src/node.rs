@@ -251,8 +251,8 @@ impl Node {
     /// Whether subscribers elsewhere, known to the node's session, cover every kind of
     /// publication (field, readback bundle, driver-command trace) whose keys `key_expr` meets:
     /// the node publishes only those someone subscribes to. Once true, every post of them is
-    /// sent, its stream samples too (which otherwise wait up to 0.1 s for a subscriber Zenoh's
-    /// listeners have not reported yet). A subscriber whose writes come from another session
+    /// sent, its stream samples too (which otherwise wait for Zenoh's listeners to report the
+    /// subscriber, about a millisecond, or for the next ask, 0.1 s at most). A subscriber whose writes come from another session
     /// (not ordered after its declaration) waits for this before commanding.
     #[must_use]
     pub fn knows_subscribers_of(&self, key_expr: &KeyExpr<'_>) -> bool {
