@@ -110,7 +110,8 @@ with zenoh.open(conf) as session:
             at_rest = get("RBV")
             put("STOP", 1)
             time.sleep(0.5)
-            expect(get("RBV") == at_rest and get("DMOV") == 1, "a stop at rest moved the axis")
+            later, dmov = get("RBV"), get("DMOV")
+            expect(later == at_rest and dmov == 1, f"a stop at rest moved the axis: RBV {at_rest}, then {later}, DMOV {dmov}")
             print("controller client: motion ok")
             sys.exit(0)
 
@@ -122,7 +123,8 @@ with zenoh.open(conf) as session:
         wait_for("DMOV", lambda v: v == 1, 20, "the jog never ended")
         stopped = get("RBV")
         time.sleep(0.5)
-        expect(get("RBV") == stopped and get("MOVN") == 0, "still moving after the jog ended")
+        later, movn = get("RBV"), get("MOVN")
+        expect(later == stopped and movn == 0, f"still moving after the jog ended: RBV {stopped}, then {later}, MOVN {movn}")
 
         # A long move (to near the high soft limit), stopped on the way.
         origin = get("RBV")
