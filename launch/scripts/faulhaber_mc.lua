@@ -21,8 +21,9 @@
     speed; a stop is V0 (decelerating at DEC), as motorFaulhaber's. A home sets HOSP (its sign
     the direction) and starts the homing sequence the lab configured in the drive (GOHOSEQ).
     A position set is HO. A speed under 1 rpm is refused, never rounded up.
-  - A poll reads POS, OST (the operation status: homing running, overtemperature, deviation
-    error, overvoltage, the switch inputs, position attained) and GN (the speed, rpm). The
+  - A poll reads OST (the operation status: homing running, overtemperature, deviation error,
+    overvoltage, the switch inputs, position attained), GN (the speed, rpm), then POS: read
+    after them, the position of the poll that finds a motion over is the final one. The
     inputs wired to the home switch and the limit switches are macros (HOME_INPUT,
     HIGH_LIMIT_INPUT, LOW_LIMIT_INPUT: status inputs 1 to 5, default 1, 2 and 3).
   - A positioning is done once the drive reports the position attained; a motion that stands
@@ -198,9 +199,9 @@ function setClosedLoop(on)
 end
 
 function poll()
-  local position = ask_number("POS")
   local status = math.floor(ask_number("OST"))
   local speed = ask_number("GN")
+  local position = ask_number("POS")
   local running_home = bit(status, HOMING_RUNNING) == 1
   local attained = bit(status, POSITION_ATTAINED) == 1
   local high = bit(status, input_bit(HIGH_LIMIT_INPUT, 2))

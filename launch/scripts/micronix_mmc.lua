@@ -11,9 +11,11 @@
   - A move sets VEL, ACC and DEC, then MVA/MVR; a jog JAC then JOG at a percentage of the
     axis's top speed (VMX?, read once); a home HCG (1 forward) then HOM; STP stops.
   - The MMC sets only position 0 (ZRO): another position is refused, as nothing would set it.
-  - A poll reads POS? (theoretical and encoder positions), STA? (limits, stopped, error), MOT?
-    (the motor's power) and HOM? (homed since power-up; motorMicronix does not read it). An error flagged by STA? is read and cleared with ERR?, shown as
-    the axis's problem and in the node's log.
+  - A poll reads STA? (limits, stopped, error), POS? (theoretical and encoder positions), MOT?
+    (the motor's power) and HOM? (homed since power-up; motorMicronix does not read it). An
+    error flagged by STA? is read and cleared with ERR?, shown as the axis's problem and in the
+    node's log. motorMicronix reads POS? first; read after STA?, the position of the poll that
+    finds a motion over is the final one (DMOV 1 comes with it).
   - A jog faster than the axis's top speed is refused, never clamped; so is a speed or an
     acceleration too small to be written with the MMC's three decimals.
 --]]
@@ -117,8 +119,8 @@ end
 local last_position = nil
 
 function poll()
-  local theoretical, encoder = string.match(ask("POS?"), "^%s*([-%d.]+),([-%d.]+)")
   local status = tonumber(ask("STA?"))
+  local theoretical, encoder = string.match(ask("POS?"), "^%s*([-%d.]+),([-%d.]+)")
   local powered = tonumber(ask("MOT?"))
   local homed = tonumber(ask("HOM?"))
   if theoretical == nil or status == nil or powered == nil or homed == nil then

@@ -3,8 +3,10 @@
 //! axis, two digits), a letter, and its argument: `#01G+12000` moves axis 1 to step 12000.
 //! Speeds and accelerations are indexes: speed = 115200 / V steps/s (V 2–255), acceleration =
 //! 720000 / (256 − R) steps/s² (R 1–255). The controller has no jog: a jog is a relative move
-//! of a million steps. Status is polled per axis: `P` (position), `X` (moving), `E` (limit
-//! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does.
+//! of a million steps. Status is polled per axis: `X` (moving), `P` (position), `E` (limit
+//! switches and home switch), `W` (drive power). As the EPICS driver MCB4BDriver.cpp does, but
+//! for the order of `P` and `X`: read after `X`, the position of the poll that finds a motion
+//! over is the final one (read before, the motor's last steps could show a poll later).
 
 use crate::protocol::{
     line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Frame, Protocol, Purpose, ReplyError,
@@ -60,10 +62,10 @@ pub(crate) enum Step {
 /// The readings of a channel's poll, in the order they are asked for: the last completes it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Reading {
-    /// `P`: the position, steps.
-    Position,
     /// `X`: moving or not.
     Moving,
+    /// `P`: the position, steps.
+    Position,
     /// `E`: the limit switches and the home switch.
     Switches,
     /// `W`: drive power.
@@ -140,7 +142,7 @@ impl Protocol for Mcb4b {
         let mut requests = Vec::new();
         for &channel in channels {
             for (reading, letter) in
-                [(Reading::Position, "P"), (Reading::Moving, "X"), (Reading::Switches, "E"), (Reading::Power, "W")]
+                [(Reading::Moving, "X"), (Reading::Position, "P"), (Reading::Switches, "E"), (Reading::Power, "W")]
             {
                 requests.push(Request::query(line(channel, letter), Step::Read { channel, reading }));
             }
@@ -285,12 +287,12 @@ mod tests {
     }
 
     #[test]
-    fn a_poll_reads_position_motion_switches_and_power() {
+    fn a_poll_reads_motion_position_switches_and_power() {
         let mut p = Mcb4b::new();
         let poll = p.poll(&[1]);
-        assert_eq!(sent(&poll), ["#01P\r", "#01X\r", "#01E\r", "#01W\r"]);
-        assert_eq!(p.reply(&poll[0], b"#01P=+1500\r").unwrap(), []);
-        assert_eq!(p.reply(&poll[1], b"#01X=1\r").unwrap(), []);
+        assert_eq!(sent(&poll), ["#01X\r", "#01P\r", "#01E\r", "#01W\r"]);
+        assert_eq!(p.reply(&poll[0], b"#01X=1\r").unwrap(), []);
+        assert_eq!(p.reply(&poll[1], b"#01P=+1500\r").unwrap(), []);
         assert_eq!(p.reply(&poll[2], b"#01E=101\r").unwrap(), []);
         let events = p.reply(&poll[3], b"#01W=1\r").unwrap();
         let [ReplyEvent::Status { channel: 1, status }] = &events[..] else { panic!("{events:?}") };
@@ -303,8 +305,8 @@ mod tests {
     fn a_reply_that_is_not_the_echo_of_its_query_is_refused() {
         let mut p = Mcb4b::new();
         let poll = p.poll(&[1]);
-        assert!(p.reply(&poll[0], b"#02P=+1500\r").is_err(), "another axis's reply");
-        assert!(p.reply(&poll[0], b"#01P=lots\r").is_err());
+        assert!(p.reply(&poll[1], b"#02P=+1500\r").is_err(), "another axis's reply");
+        assert!(p.reply(&poll[1], b"#01P=lots\r").is_err());
         assert!(p.reply(&poll[2], b"#01E=1\r").is_err());
     }
 }

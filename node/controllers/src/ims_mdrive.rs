@@ -35,8 +35,9 @@
 //! # Connection and polls
 //! Initialisation reads per motor `PR VR` (the firmware, logged), `PR EE` (an encoder) and
 //! `PR S1` … `PR S4`, the inputs' functions (1 home, 2 limit +, 3 limit −), as motorIms does;
-//! nothing is written. A poll reads per motor `PR P`, `PR MV`, the home and limit inputs set up
-//! (`PR I<n>`), `PR R1`, `PR ST`, `PR C2`:
+//! nothing is written. A poll reads per motor `PR MV`, then `PR P` (motorIms reads them the other
+//! way round; this way the poll that finds a motion over has its final position), the home and
+//! limit inputs set up (`PR I<n>`), `PR R1`, `PR ST`, `PR C2`:
 //!
 //! | reading | MSTA |
 //! |---|---|
@@ -224,6 +225,15 @@ impl Mdrive {
         let status = &mut motor.status;
         let on = value > 0.0;
         match reading {
+            Reading::Moving => {
+                set_bit(&mut status.msta, msta::DONE, !on);
+                set_bit(&mut status.msta, msta::MOVING, on);
+                // A motion over: its error, if any (a stall, a search ended on a limit).
+                if !on && std::mem::take(&mut motor.moving_since_command) {
+                    let query = Request::query(line(channel, "PR ER"), Step::MotionEnded { channel });
+                    return vec![ReplyEvent::FollowUp(vec![query])];
+                }
+            }
             Reading::Position => {
                 let moving = status.msta & msta::MOVING != 0;
                 set_bit(&mut status.msta, msta::DIRECTION, moving && value > status.position);
@@ -231,24 +241,16 @@ impl Mdrive {
                 if !motor.encoder {
                     status.encoder_position = value;
                 }
-            }
-            Reading::Moving => {
-                set_bit(&mut status.msta, msta::DONE, !on);
-                set_bit(&mut status.msta, msta::MOVING, on);
-                let mut next = Vec::new();
-                // A motion over: its error, if any (a stall, a search ended on a limit).
-                if !on && std::mem::take(&mut motor.moving_since_command) {
-                    next.push(Request::query(line(channel, "PR ER"), Step::MotionEnded { channel }));
-                }
                 // The switches as set up: known by now (the poll was made before the
                 // initialisation's answers, at a new connection).
+                let mut switches = Vec::new();
                 for (switch, input) in [Switch::Home, Switch::Plus, Switch::Minus].into_iter().zip(motor.inputs) {
                     if let Some(input) = input {
                         let query = line(channel, &format!("PR I{input}"));
-                        next.push(Request::query(query, Step::Read { channel, reading: Reading::Switch(switch) }));
+                        switches.push(Request::query(query, Step::Read { channel, reading: Reading::Switch(switch) }));
                     }
                 }
-                return vec![ReplyEvent::FollowUp(next)];
+                return vec![ReplyEvent::FollowUp(switches)];
             }
             Reading::Switch(Switch::Home) => set_bit(&mut status.msta, msta::HOME, on),
             Reading::Switch(Switch::Plus) => set_bit(&mut status.msta, msta::PLUS_LS, on),
@@ -361,10 +363,13 @@ impl Protocol for Mdrive {
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
-            // The switches' readings follow `MV`'s answer.
+            // `MV` before `P`: a poll that finds the motion over then carries a position read
+            // after it ended, so DMOV 1 comes with the final readback (motorIms reads `P` first,
+            // and its last steps may show a poll after the end). The switches' readings follow
+            // `P`'s answer.
             let readings = [
-                ("PR P", Reading::Position),
                 ("PR MV", Reading::Moving),
+                ("PR P", Reading::Position),
                 ("PR R1", Reading::Homed),
                 ("PR ST", Reading::Stall),
                 ("PR C2", Reading::Encoder),

@@ -54,8 +54,9 @@
 //! - Raw text: sent as written with `\r\n`; a reply is awaited when it is a query (ends with
 //!   `?`, or `TB`, `TE`, `TH`, `TP`, `TS`, `VE`, `ZT`), and taken as it comes.
 //!
-//! **Poll and status.** Per channel `TP` (position) and `TS` (four hex digits of positioner
-//! errors, two of controller state). MSTA: DONE unless HOMING, MOVING or JOGGING/TRACKING
+//! **Poll and status.** Per channel `TS` (four hex digits of positioner errors, two of
+//! controller state), then `TP` (position): EPICS reads `TP` first, and a motion that ends
+//! between the two leaves its last steps out of the poll that says it is over. MSTA: DONE unless HOMING, MOVING or JOGGING/TRACKING
 //! (the EPICS SMC100 driver reports a home as done at once, mended here); HOMED in READY,
 //! DISABLE, MOVING and JOGGING; POSITION (the drive enabled, which CNEN mirrors) in every state
 //! but DISABLE and CONFIGURATION, NOT REFERENCED included (it takes a home);
@@ -257,10 +258,10 @@ pub(crate) enum Step {
 /// What a query reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum Query {
-    /// `TP` of a poll: the position.
-    Position,
     /// `TS` of a poll: the positioner errors and the controller state.
     State,
+    /// `TP` of a poll, after its `TS`: the position.
+    Position,
     /// `TE` after a command: its error letter.
     Error,
     /// `TS` before a home: is a reset needed first?
@@ -283,8 +284,8 @@ enum Pending {
 /// What the protocol keeps of one controller.
 #[derive(Clone, Copy, Debug, Default)]
 struct ChannelState {
-    /// The position read by this poll's `TP`, steps.
-    position: f64,
+    /// The MSTA bits of this poll's `TS`, waiting for the position its `TP` reads next.
+    polled: Option<u32>,
     /// The status reported last.
     reported: DeviceStatus,
     /// The fault bits of the last `TS`: a fault is reported once, when it appears.
@@ -411,43 +412,32 @@ impl Smc100 {
         Ok((requests, None))
     }
 
-    /// The status of `channel` from its `TS`, and a fault newly reported.
-    fn status(&mut self, channel: usize, error_bits: u16, state_code: u8) -> (DeviceStatus, Option<ReplyEvent<Step>>) {
+    /// A fault among `error_bits` of `channel`'s `TS` that was not there before, to report once.
+    fn new_fault(&mut self, channel: usize, error_bits: u16) -> Option<ReplyEvent<Step>> {
         let memory = &mut self.channels[channel];
-        let mut bits = msta_of(error_bits, state_code);
-        if bits & msta::MOVING != 0 && memory.position > memory.reported.position {
-            bits |= msta::DIRECTION;
-        }
-        let status = DeviceStatus {
-            position: memory.position,
-            encoder_position: memory.position,
-            velocity: 0.0,
-            msta: bits,
-            readback: None,
-        };
         let faults = error_bits & errors::FAULTS;
         let appeared = faults & !memory.faults;
         memory.faults = faults;
-        let fault = (appeared != 0).then(|| {
+        (appeared != 0).then(|| {
             ReplyEvent::ControllerError(VendorError {
                 channel: Some(channel),
                 code: format!("{error_bits:04X}"),
                 meaning: fault_names(faults),
             })
-        });
-        (status, fault)
+        })
     }
 
-    /// A poll's `TS`: the channel's status, and the `OR` of a home once its reset is over.
+    /// A poll's `TS`: the channel's state, kept for its `TP`; a fault newly reported, and the
+    /// `OR` of a home once its reset is over.
     fn on_poll_state(&mut self, channel: usize, error_bits: u16, state_code: u8) -> Vec<ReplyEvent<Step>> {
-        let (mut status, fault) = self.status(channel, error_bits, state_code);
+        let mut bits = msta_of(error_bits, state_code);
         let mut events = Vec::new();
         if self.channels[channel].pending == Some(Pending::HomeAfterReset) {
             self.channels[channel].pending = None;
             if state_class(state_code) == Some(StateClass::NotReferenced) {
                 events.push(ReplyEvent::FollowUp(vec![setter(channel, "OR"), error_query(channel)]));
                 // The home search starts now: the motion is not over.
-                status.msta = (status.msta | msta::MOVING) & !msta::DONE;
+                bits = (bits | msta::MOVING) & !msta::DONE;
             } else {
                 events.push(ReplyEvent::ControllerError(VendorError {
                     channel: Some(channel),
@@ -456,10 +446,24 @@ impl Smc100 {
                 }));
             }
         }
-        self.channels[channel].reported = status;
-        events.push(ReplyEvent::Status { channel, status });
-        events.extend(fault);
+        self.channels[channel].polled = Some(bits);
+        events.extend(self.new_fault(channel, error_bits));
         events
+    }
+
+    /// A poll's `TP`, read after its `TS` (a poll that finds a motion over has the final
+    /// position): the channel's status.
+    fn on_poll_position(&mut self, channel: usize, position: f64) -> Vec<ReplyEvent<Step>> {
+        let memory = &mut self.channels[channel];
+        let Some(mut bits) = memory.polled.take() else {
+            return Vec::new();
+        };
+        if bits & msta::MOVING != 0 && position > memory.reported.position {
+            bits |= msta::DIRECTION;
+        }
+        let status = DeviceStatus { position, encoder_position: position, velocity: 0.0, msta: bits, readback: None };
+        memory.reported = status;
+        vec![ReplyEvent::Status { channel, status }]
     }
 
     /// The state before a home: `OR` at once when not referenced, else a reset first.
@@ -585,7 +589,9 @@ impl Protocol for Smc100 {
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels.iter().filter(|c| ADDRESSES.contains(c)) {
-            for (query, letters) in [(Query::Position, "TP"), (Query::State, "TS")] {
+            // `TS` before `TP` (as EPICS the other way round): the poll that finds a motion
+            // over then reads the position after it ended, so DMOV 1 has the final readback.
+            for (query, letters) in [(Query::State, "TS"), (Query::Position, "TP")] {
                 requests.push(Request::query(line(channel, letters), Step::Query { channel, query }));
             }
         }
@@ -628,8 +634,7 @@ impl Protocol for Smc100 {
                     return Err(ReplyError::new(request, frame, "not a position"));
                 }
                 // A millionth of a step drops the noise of decimal millimetres in binary.
-                self.channels[channel].position = (mm / self.units_per_step * 1e6).round() / 1e6;
-                Ok(Vec::new())
+                Ok(self.on_poll_position(channel, (mm / self.units_per_step * 1e6).round() / 1e6))
             }
             Query::State | Query::HomeState => {
                 let (error_bits, state_code) =
@@ -708,11 +713,12 @@ mod tests {
             .unwrap_or_else(|| panic!("no status: {events:?}"))
     }
 
-    /// Run one poll of `channel` with these replies.
+    /// Run one poll of `channel` with these replies (`TS` is asked first): the events of both.
     fn polled(p: &mut Smc100, channel: usize, tp: &[u8], ts: &[u8]) -> Vec<ReplyEvent<Step>> {
         let poll = p.poll(&[channel]);
-        assert_eq!(p.reply(&poll[0], tp).unwrap(), []);
-        p.reply(&poll[1], ts).unwrap()
+        let mut events = p.reply(&poll[0], ts).unwrap();
+        events.extend(p.reply(&poll[1], tp).unwrap());
+        events
     }
 
     #[test]
@@ -862,10 +868,10 @@ mod tests {
     }
 
     #[test]
-    fn a_poll_reads_position_then_state() {
+    fn a_poll_reads_state_then_position() {
         let mut p = Smc100::default();
         let poll = p.poll(&[1, 0, 2, 40]);
-        assert_eq!(sent(&poll), ["1TP\r\n", "1TS\r\n", "2TP\r\n", "2TS\r\n"], "only addresses 1 to 31");
+        assert_eq!(sent(&poll), ["1TS\r\n", "1TP\r\n", "2TS\r\n", "2TP\r\n"], "only addresses 1 to 31");
         let status = status_of(&polled(&mut p, 1, b"1TP-1.2345\r\n", b"1TS000032\r\n"));
         assert_eq!(status.position, -12_345.0);
         assert_eq!(status.encoder_position, -12_345.0);
@@ -905,7 +911,7 @@ mod tests {
     fn a_fault_is_reported_once_when_it_appears() {
         let mut p = Smc100::default();
         let events = polled(&mut p, 1, b"1TP0\r\n", b"1TS00203D\r\n");
-        let [ReplyEvent::Status { .. }, ReplyEvent::ControllerError(VendorError { channel: Some(1), code, meaning })] =
+        let [ReplyEvent::ControllerError(VendorError { channel: Some(1), code, meaning }), ReplyEvent::Status { .. }] =
             &events[..]
         else {
             panic!("{events:?}")
@@ -939,17 +945,17 @@ mod tests {
     fn a_reply_that_is_not_the_echo_of_its_request_is_refused() {
         let mut p = Smc100::default();
         let poll = p.poll(&[1]);
-        assert!(p.reply(&poll[0], b"2TP1.5\r\n").is_err(), "another controller's reply");
-        assert!(p.reply(&poll[0], b"11TP1.5\r\n").is_err(), "controller 11 is not 1");
-        assert!(p.reply(&poll[0], b"1TS000033\r\n").is_err(), "another query's reply");
-        assert!(p.reply(&poll[0], b"1TPlots\r\n").is_err());
-        assert!(p.reply(&poll[0], b"1TPinf\r\n").is_err());
-        assert!(p.reply(&poll[1], b"1TS00033\r\n").is_err(), "five digits");
-        assert!(p.reply(&poll[1], b"1TS+00033\r\n").is_err());
-        assert!(p.reply(&poll[1], b"1TS0000ZZ\r\n").is_err());
+        assert!(p.reply(&poll[1], b"2TP1.5\r\n").is_err(), "another controller's reply");
+        assert!(p.reply(&poll[1], b"11TP1.5\r\n").is_err(), "controller 11 is not 1");
+        assert!(p.reply(&poll[1], b"1TS000033\r\n").is_err(), "another query's reply");
+        assert!(p.reply(&poll[1], b"1TPlots\r\n").is_err());
+        assert!(p.reply(&poll[1], b"1TPinf\r\n").is_err());
+        assert!(p.reply(&poll[0], b"1TS00033\r\n").is_err(), "five digits");
+        assert!(p.reply(&poll[0], b"1TS+00033\r\n").is_err());
+        assert!(p.reply(&poll[0], b"1TS0000ZZ\r\n").is_err());
         let eleven = p.poll(&[11]);
-        assert!(p.reply(&eleven[0], b"1TP1.5\r\n").is_err());
-        assert_eq!(p.reply(&eleven[0], b"11TP1.5\r\n").unwrap(), []);
+        assert!(p.reply(&eleven[1], b"1TP1.5\r\n").is_err());
+        assert_eq!(p.reply(&eleven[1], b"11TP1.5\r\n").unwrap(), []);
     }
 
     #[test]

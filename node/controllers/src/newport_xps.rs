@@ -66,8 +66,10 @@
 //! not after a reconnection), each group as the XPS powers up (state 0; not one left
 //! uninitialised by a fault, an emergency or a kill, 1–9) is initialised, `GroupInitialize
 //! (GROUP1)`, as PI's servos are switched on: its motors powered, nothing moved. A poll reads per channel `GroupStatusGet`,
-//! `GroupPositionCurrentGet` (the encoder), `GroupPositionSetpointGet` (the position, as
-//! motorNewport reads them), `PositionerErrorGet`, `GroupVelocityCurrentGet`:
+//! `GroupVelocityCurrentGet`, `GroupPositionCurrentGet` (the encoder), `GroupPositionSetpointGet`
+//! (the position, as motorNewport reads them), `PositionerErrorGet`; motorNewport reads the speed
+//! last, but a poll whose speed finds a jog over must read the positions after it (its final
+//! position with DMOV 1):
 //!
 //! | reading | MSTA |
 //! |---|---|
@@ -400,6 +402,8 @@ impl Xps {
                 let bits = value as i64;
                 set_bit(&mut status.msta, msta::PLUS_LS, bits & END_OF_RUN_PLUS != 0);
                 set_bit(&mut status.msta, msta::MINUS_LS, bits & END_OF_RUN_MINUS != 0);
+                status.msta |= msta::PRESENT | msta::GAIN_SUPPORT;
+                return Some(ReplyEvent::Status { channel, status: *status });
             }
             Reading::Velocity => {
                 let moving = value.abs() > VELOCITY_DEADBAND;
@@ -414,8 +418,6 @@ impl Xps {
                     set_bit(&mut status.msta, msta::DIRECTION, value > 0.0);
                 }
                 status.velocity = value / units_per_step;
-                status.msta |= msta::PRESENT | msta::GAIN_SUPPORT;
-                return Some(ReplyEvent::Status { channel, status: *status });
             }
         }
         None
@@ -565,10 +567,10 @@ impl Protocol for Xps {
             let (group, positioner) = (self.group(channel), self.positioner(channel));
             let readings = [
                 (format!("GroupStatusGet ({group},int *)"), Reading::GroupState),
+                (format!("GroupVelocityCurrentGet ({positioner},double *)"), Reading::Velocity),
                 (format!("GroupPositionCurrentGet ({positioner},double *)"), Reading::Current),
                 (format!("GroupPositionSetpointGet ({positioner},double *)"), Reading::Setpoint),
                 (format!("PositionerErrorGet ({positioner},int *)"), Reading::PositionerError),
-                (format!("GroupVelocityCurrentGet ({positioner},double *)"), Reading::Velocity),
             ];
             for (text, reading) in readings {
                 requests.push(Request::query(text, Step::Read { channel, reading }));
@@ -681,7 +683,7 @@ mod tests {
             requests.iter().map(|r| String::from_utf8_lossy(&r.bytes).into_owned()).collect()
         };
         let polled = text(xps.poll(&[1, 2]));
-        assert_eq!(polled[..2], ["GroupStatusGet (FINE,int *)", "GroupPositionCurrentGet (FINE.X,double *)"]);
+        assert_eq!(polled[..2], ["GroupStatusGet (FINE,int *)", "GroupVelocityCurrentGet (FINE.X,double *)"]);
         assert_eq!(polled[5], "GroupStatusGet (GROUP2,int *)", "a channel not named keeps its default");
         let stop = xps.command(1, &DriverCommand::Stop { acceleration: 1.0 }).expect("a stop");
         assert_eq!(text(stop), ["GroupStatusGet (FINE,int *)"]);

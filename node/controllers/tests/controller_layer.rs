@@ -34,7 +34,7 @@ fn until_idle_poll_in_flight(lb: &mut Loopback) {
     for _ in 0..2000 {
         lb.run_for(MS);
         if lb.written().len() > start {
-            assert_eq!(written_since(lb, start), ["#00P\r"]);
+            assert_eq!(written_since(lb, start), ["#00X\r"]);
             return;
         }
     }
@@ -47,7 +47,7 @@ fn a_new_connection_polls_every_channel_before_it_is_up() {
     let events = bring_up(&mut lb);
     assert_eq!(events.first(), Some(&ControllerEvent::Connect));
     let polled: Vec<String> = written_since(&lb, 0);
-    assert_eq!(polled, ["#00P\r", "#00X\r", "#00E\r", "#00W\r", "#02P\r", "#02X\r", "#02E\r", "#02W\r"]);
+    assert_eq!(polled, ["#00X\r", "#00P\r", "#00E\r", "#00W\r", "#02X\r", "#02P\r", "#02E\r", "#02W\r"]);
     for channel in [0, 2] {
         let status = last_status(&events, channel);
         assert_eq!(status.msta & (msta::DONE | msta::COMM_ERR | msta::POSITION), msta::DONE | msta::POSITION);
@@ -58,9 +58,9 @@ fn a_new_connection_polls_every_channel_before_it_is_up() {
 fn one_request_is_in_flight_at_a_time() {
     let mut lb = loopback(ACS, &[0], Faults { delay: Duration::from_millis(5), ..Faults::default() });
     lb.run_for(Duration::from_millis(2));
-    assert_eq!(written_since(&lb, 0), ["#00P\r"], "the next request waits for the reply");
+    assert_eq!(written_since(&lb, 0), ["#00X\r"], "the next request waits for the reply");
     lb.run_for(Duration::from_millis(4));
-    assert_eq!(written_since(&lb, 0), ["#00P\r", "#00X\r"]);
+    assert_eq!(written_since(&lb, 0), ["#00X\r", "#00P\r"]);
 }
 
 #[test]
@@ -87,7 +87,7 @@ fn a_move_reports_not_done_at_once_then_done_within_one_moving_poll_of_its_end()
 fn polls_follow_the_moving_period_while_moving_and_the_idle_period_at_rest() {
     let mut lb = loopback(ACS, &[0], Faults::default());
     bring_up(&mut lb);
-    let polls = |lb: &Loopback, from: usize| lb.written()[from..].iter().filter(|b| b.as_slice() == b"#00P\r").count();
+    let polls = |lb: &Loopback, from: usize| lb.written()[from..].iter().filter(|b| b.as_slice() == b"#00X\r").count();
     let start = lb.written().len();
     lb.run_for(Duration::from_secs(3));
     assert_eq!(polls(&lb, start), 3, "idle: one poll a second");
@@ -148,8 +148,8 @@ fn a_lost_reply_to_a_query_is_asked_again_and_a_lost_reply_to_a_command_is_not()
     lb.run_for(Duration::from_secs(3));
     assert!(lb.controller.is_up());
     let sent = written_since(&lb, 0);
-    // The sixth reply (to the second poll's "#00X") was lost: the query went again.
-    assert_eq!(sent[4..7], ["#00P\r", "#00X\r", "#00X\r"]);
+    // The sixth reply (to the second poll's "#00P") was lost: the query went again.
+    assert_eq!(sent[4..7], ["#00X\r", "#00P\r", "#00P\r"]);
     let mut lb = loopback(ACS, &[0], Faults::default());
     bring_up(&mut lb);
     // The third reply from here, the one to "#00G", is lost.

@@ -57,7 +57,7 @@ fn a_new_connection_clears_old_errors_polls_and_moves_nothing() {
     let mut lb = loopback(SMC, &[1, 2], Faults::default());
     push_carriage(&mut lb, 2, 4.0);
     let events = bring_up(&mut lb);
-    assert_eq!(written_since(&lb, 0), ["1TE\r\n", "2TE\r\n", "1TP\r\n", "1TS\r\n", "2TP\r\n", "2TS\r\n"]);
+    assert_eq!(written_since(&lb, 0), ["1TE\r\n", "2TE\r\n", "1TS\r\n", "1TP\r\n", "2TS\r\n", "2TP\r\n"]);
     let status = last_status(&events, 2);
     assert_eq!(status.position, 40_000.0);
     // Just powered up: not referenced, enabled (it takes a home), nothing wrong.

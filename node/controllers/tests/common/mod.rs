@@ -296,6 +296,39 @@ pub(crate) fn a_jog_runs_until_stopped_or_the_limit_switch(lb: &mut Loopback, ch
     assert!(at_limit.position <= -199_999.0, "{at_limit:?}");
 }
 
+/// Moves of `channel` (up, switched on) by `go` (target, relative), there and back, and jogs
+/// stopped, each lasting a little longer than the last so that their ends fall at every moment
+/// of a poll: the status that first says done has the position the motor rests at (DMOV 1 comes
+/// with the final readback). On a slow line (`WithFaults::at_baud`) a poll's readings are
+/// milliseconds apart, and a motion may end between two of them.
+pub(crate) fn done_comes_with_the_final_position(
+    lb: &mut Loopback,
+    channel: usize,
+    go: impl Fn(f64, bool) -> DriverCommand,
+) {
+    let tick = Duration::from_millis(5);
+    lb.take_events();
+    let came_to_rest = |lb: &mut Loopback, what: &str| {
+        let done = *run_until_done(lb, channel, tick, Duration::from_secs(10)).last().expect("done");
+        lb.run_for(Duration::from_secs(1));
+        let at_rest = last_status(&lb.take_events(), channel);
+        assert_eq!(done.position, at_rest.position, "{what}: done at {done:?}, then at rest at {at_rest:?}");
+    };
+    for k in 0..40_u32 {
+        // 97 steps more each time: 4.85 ms longer at 20,000 steps/s.
+        let distance = 2000.0 + 97.0 * f64::from(k);
+        lb.command(channel, &go(distance, true));
+        came_to_rest(lb, &format!("a move of {distance} steps"));
+        lb.command(channel, &go(-distance, true));
+        came_to_rest(lb, &format!("a move of {distance} steps back"));
+        let jog = DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 5000.0, acceleration: 50_000.0 };
+        lb.command(channel, &jog);
+        lb.run_for(Duration::from_millis(300 + 3 * u64::from(k)));
+        lb.command(channel, &DriverCommand::Stop { acceleration: 50_000.0 });
+        came_to_rest(lb, "a jog stopped");
+    }
+}
+
 /// Every kind of record command on the first two of `channels` (switched on first), replies
 /// delivered whole or in pieces of `chunk` bytes: the statuses each of the two reported.
 pub(crate) fn statuses_of_a_script(kind: ProtocolKind, channels: &[usize], chunk: usize) -> [Vec<DeviceStatus>; 2] {
