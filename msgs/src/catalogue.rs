@@ -31,6 +31,26 @@ pub enum Kind {
 }
 
 impl Kind {
+    /// What a write to a field of this kind must hold, in words.
+    pub(crate) fn expected(self) -> &'static str {
+        match self {
+            Kind::Double | Kind::Float => "a number",
+            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort => "an integer",
+            Kind::Menu(_) => "a menu choice (its name or index)",
+            Kind::Str(_) => "text",
+            Kind::Link => "a key expression",
+        }
+    }
+
+    /// Whether a write may hold a boolean (as 1 or 0): whole-number fields and two-choice menus.
+    pub(crate) fn takes_a_flag(self) -> bool {
+        match self {
+            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort => true,
+            Kind::Menu(menu) => menu.choices.len() == 2,
+            Kind::Double | Kind::Float | Kind::Str(_) | Kind::Link => false,
+        }
+    }
+
     /// Allowed integer range for integer-valued kinds.
     pub fn int_range(self) -> Option<(i64, i64)> {
         match self {

@@ -141,15 +141,44 @@ pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> 
         let line = text.strip_suffix('\n').map_or(text, |t| t.strip_suffix('\r').unwrap_or(t));
         return validate(def, Value::Text(line.to_string()));
     }
-    validate(def, decode_scalar(bytes, encoding).map_err(malformed)?)
+    match decode_item(bytes, encoding).map_err(malformed)? {
+        Item::Scalar(value) => validate(def, value),
+        // A flag is 1 or 0 to a field that takes only whole numbers (a button: JOGF, STOP) or a
+        // menu of two choices (CNEN); to a position, a speed or a longer menu it is a client's
+        // mistake, not a target of 1 mm or a menu's second choice.
+        Item::Boolean(flag) if def.kind.takes_a_flag() => validate(def, Value::Int(i64::from(flag))),
+        Item::Boolean(flag) => Err(CodecError::WrongType {
+            field: def.name,
+            expected: def.kind.expected().into(),
+            got: format!("a boolean ({flag})"),
+        }),
+    }
 }
 
-/// Decode one scalar (number or text) in any accepted encoding.
+/// Decode one scalar (number or text) in any accepted encoding; a CBOR or JSON boolean reads as
+/// 1 or 0 (a value a link follows may be another publisher's flag).
 pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, MalformedPayload> {
+    Ok(match decode_item(bytes, encoding)? {
+        Item::Scalar(value) => value,
+        Item::Boolean(flag) => Value::Int(i64::from(flag)),
+    })
+}
+
+/// One decoded payload item.
+enum Item {
+    Scalar(Value),
+    Boolean(bool),
+}
+
+fn decode_item(bytes: &[u8], encoding: PayloadEncoding) -> Result<Item, MalformedPayload> {
     let malformed = |detail: String| MalformedPayload { encoding, detail };
     match encoding {
         PayloadEncoding::Cbor => {
-            let v: ciborium::Value = ciborium::from_reader(bytes).map_err(|e| malformed(e.to_string()))?;
+            let mut rest = bytes;
+            let v: ciborium::Value = ciborium::from_reader(&mut rest).map_err(|e| malformed(e.to_string()))?;
+            if !rest.is_empty() {
+                return Err(malformed(format!("{} bytes after the item", rest.len())));
+            }
             from_cbor(v)
                 .ok_or_else(|| malformed(format!("a single number or text is required, got {}", cbor_kind(bytes))))
         }
@@ -159,18 +188,18 @@ pub fn decode_scalar(bytes: &[u8], encoding: PayloadEncoding) -> Result<Value, M
         }
         PayloadEncoding::Text => {
             let text = std::str::from_utf8(bytes).map_err(|e| malformed(e.to_string()))?;
-            Ok(from_text(text))
+            Ok(Item::Scalar(from_text(text)))
         }
     }
 }
 
 /// The scalar a CBOR item holds, if it is one that fits.
-fn from_cbor(v: ciborium::Value) -> Option<Value> {
+fn from_cbor(v: ciborium::Value) -> Option<Item> {
     match v {
-        ciborium::Value::Integer(i) => i64::try_from(i128::from(i)).ok().map(Value::Int),
-        ciborium::Value::Float(f) => Some(Value::Float(f)),
-        ciborium::Value::Text(s) => Some(Value::Text(s)),
-        ciborium::Value::Bool(b) => Some(Value::Int(i64::from(b))),
+        ciborium::Value::Integer(i) => i64::try_from(i128::from(i)).ok().map(|i| Item::Scalar(Value::Int(i))),
+        ciborium::Value::Float(f) => Some(Item::Scalar(Value::Float(f))),
+        ciborium::Value::Text(s) => Some(Item::Scalar(Value::Text(s))),
+        ciborium::Value::Bool(b) => Some(Item::Boolean(b)),
         _ => None,
     }
 }
@@ -189,11 +218,13 @@ fn cbor_kind(bytes: &[u8]) -> &'static str {
 }
 
 /// The scalar a JSON value holds, if it is one.
-fn from_json(v: &serde_json::Value) -> Option<Value> {
+fn from_json(v: &serde_json::Value) -> Option<Item> {
     match v {
-        serde_json::Value::Number(n) => n.as_i64().map(Value::Int).or_else(|| n.as_f64().map(Value::Float)),
-        serde_json::Value::String(s) => Some(Value::Text(s.clone())),
-        serde_json::Value::Bool(b) => Some(Value::Int(i64::from(*b))),
+        serde_json::Value::Number(n) => {
+            n.as_i64().map(Value::Int).or_else(|| n.as_f64().map(Value::Float)).map(Item::Scalar)
+        }
+        serde_json::Value::String(s) => Some(Item::Scalar(Value::Text(s.clone()))),
+        serde_json::Value::Bool(b) => Some(Item::Boolean(*b)),
         _ => None,
     }
 }
@@ -350,9 +381,39 @@ mod tests {
         assert_eq!(write(Field::VAL, &cbor(3), PayloadEncoding::Cbor), Ok(Value::Float(3.0)));
         assert_eq!(write(Field::DIR, &cbor("Neg"), PayloadEncoding::Cbor), Ok(Value::Int(1)));
         assert_eq!(write(Field::JOGF, &cbor(true), PayloadEncoding::Cbor), Ok(Value::Int(1)));
+        assert_eq!(write(Field::CNEN, b"true", PayloadEncoding::Json), Ok(Value::Int(1)));
+        assert_eq!(write(Field::STOP, &cbor(false), PayloadEncoding::Cbor), Ok(Value::Int(0)));
         assert_eq!(write(Field::VAL, b"7.25", PayloadEncoding::Json), Ok(Value::Float(7.25)));
         assert_eq!(write(Field::SPMG, b"\"Stop\"", PayloadEncoding::Json), Ok(Value::Int(0)));
         assert_eq!(write(Field::SPMG, b"1", PayloadEncoding::Json), Ok(Value::Int(1)));
+    }
+
+    #[test]
+    fn a_boolean_is_no_position_speed_or_choice_of_several() {
+        for (field, bytes, encoding) in [
+            (Field::VAL, cbor(true), PayloadEncoding::Cbor),
+            (Field::VELO, cbor(false), PayloadEncoding::Cbor),
+            (Field::VAL, b"false".to_vec(), PayloadEncoding::Json),
+            (Field::SPMG, cbor(true), PayloadEncoding::Cbor),
+            (Field::DESC, b"true".to_vec(), PayloadEncoding::Json),
+        ] {
+            let e = write(field, &bytes, encoding).unwrap_err();
+            assert!(matches!(e, CodecError::WrongType { .. }), "{field}: {e}");
+            assert!(e.to_string().contains("a boolean"), "{e}");
+        }
+        // A link follows another publisher's flag as 1 or 0.
+        assert_eq!(decode_scalar(&cbor(true), PayloadEncoding::Cbor), Ok(Value::Int(1)));
+    }
+
+    #[test]
+    fn a_cbor_payload_is_one_item_and_nothing_after_it() {
+        let mut two = cbor(2.0);
+        two.extend(cbor("junk"));
+        for bytes in [two, [cbor(4.0), vec![0xff]].concat()] {
+            let e = write(Field::VAL, &bytes, PayloadEncoding::Cbor).unwrap_err();
+            assert!(matches!(e, CodecError::Malformed { encoding: "CBOR", .. }), "{e}");
+            assert!(e.to_string().contains("after the item"), "{e}");
+        }
     }
 
     #[test]
