@@ -22,7 +22,8 @@ pub use driver::sim::{SimAxis, SimConfig, SimSetting, SimSettingError};
 pub use driver::soft::InputLink;
 pub use driver::Driver;
 pub use engine::{
-    nint, Adjustment, Busy, DeviceStatus, Inaction, LimitSwitch, MotorCommand, MotorRecord, Output, WriteError,
+    nint, Adjustment, Busy, DeviceStatus, Inaction, LimitSwitch, MotorCommand, MotorRecord, Output, Unusable,
+    WriteError,
 };
 pub use service::{Answer, AxisService, Delivery, Reply, RequestError, ServiceOutput, WriteRequest};
 pub use time::Instant;

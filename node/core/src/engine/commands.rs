@@ -99,6 +99,15 @@ pub enum WriteError {
         /// Why.
         reason: Busy,
     },
+    /// The record refused a value it cannot work with (special() before the store): nothing
+    /// changed.
+    #[error("{field} refused: {reason}")]
+    Unusable {
+        /// The field written.
+        field: Field,
+        /// What is wrong with the value.
+        reason: Unusable,
+    },
     /// The record stored a corrected value instead, and did not process.
     #[error("{field} adjusted: {reason}")]
     Adjusted {
@@ -124,6 +133,7 @@ impl WriteError {
         match self {
             WriteError::ReadOnly(_) => RefusalKind::ReadOnly,
             WriteError::Refused { .. } => RefusalKind::Busy,
+            WriteError::Unusable { .. } => RefusalKind::BadValue,
             WriteError::Adjusted { .. } => RefusalKind::Adjusted,
             WriteError::NotActedUpon { reason, .. } => reason.kind(),
         }
@@ -146,6 +156,16 @@ pub enum Busy {
     /// STUP written while a status update runs.
     #[error("a status update is in progress")]
     StatusUpdateInProgress,
+}
+
+/// A value the record refuses whatever its state (special() before the store).
+#[non_exhaustive]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum Unusable {
+    /// Departure Z21: MRES 0, or UREV 0 (MRES = UREV / SREV). The reference stores it, zeroes the
+    /// speeds and the soft limits, and every position becomes infinitely many steps.
+    #[error("a resolution of 0 makes every position infinitely many steps")]
+    ZeroResolution,
 }
 
 /// What the record corrected instead of storing the value written.

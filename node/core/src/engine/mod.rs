@@ -6,7 +6,7 @@ mod marks;
 mod maths;
 mod record;
 
-pub use commands::{Adjustment, Busy, DeviceStatus, Inaction, LimitSwitch, MotorCommand, Output, WriteError};
+pub use commands::{Adjustment, Busy, DeviceStatus, Inaction, LimitSwitch, MotorCommand, Output, Unusable, WriteError};
 pub use maths::nint;
 pub use record::MotorRecord;
 

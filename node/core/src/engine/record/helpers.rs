@@ -141,7 +141,7 @@ impl MotorRecord {
     pub(super) fn load_pos(&mut self) {
         use Field::*;
         let newpos = self.f.dval / self.f.mres;
-        // Departure Z20: a position the driver cannot hold (MRES 0, beyond 32 bits) is not sent.
+        // Departure Z20: a position the driver cannot hold (beyond 32 bits) is not sent.
         if raw_position(newpos).is_none() {
             self.refusal =
                 Some(Inaction::PositionBeyondRawRange { dial: self.f.dval, mres: self.f.mres, steps: newpos.round() });

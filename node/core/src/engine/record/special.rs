@@ -1,7 +1,7 @@
 //! §7 special(): what a write to each field does before and after it is stored.
 
 use super::MotorRecord;
-use crate::engine::commands::{Adjustment, Busy, MotorCommand, WriteError};
+use crate::engine::commands::{Adjustment, Busy, MotorCommand, Unusable, WriteError};
 use crate::engine::maths::MoveMaths;
 use zmotor_msgs::bits::{mip, msta};
 use zmotor_msgs::menus::choice;
@@ -31,6 +31,11 @@ impl MotorRecord {
             // it, D7); a home is aborted with STOP.
             HOMF | HOMR if value.as_f64() == Some(0.0) => {
                 return Err(WriteError::Refused { field, reason: Busy::ZeroDoesNotAbortHome });
+            }
+            // Departure Z21: the reference takes a resolution of 0 (only its boot corrects it to
+            // 1) and is then left with speeds and soft limits of 0 and targets it cannot convert.
+            MRES | UREV if value.as_f64() == Some(0.0) => {
+                return Err(WriteError::Unusable { field, reason: Unusable::ZeroResolution });
             }
             STUP if self.f.stup != choice::STUP_OFF => {
                 return Err(WriteError::Refused { field, reason: Busy::StatusUpdateInProgress });

@@ -339,18 +339,39 @@ fn z20_a_target_beyond_the_raw_range_is_refused_not_clamped() {
     assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))), "nothing is sent");
     let f = rig.f();
     assert_eq!((f.val, f.dval, f.rval, f.dmov), (0.0, 0.0, 0, 1));
-    // MRES 0: no position has a raw value: the position is not loaded (no NaN sent), a move is
-    // refused, nothing clamped to i32::MAX.
-    let err = rig.put(Field::MRES, 0.0).unwrap_err();
-    assert!(err.to_string().starts_with("MRES: the position is not set"), "{err}");
-    assert!(rig.take().iter().all(|c| !matches!(c, LoadPos(_))));
-    assert_eq!((rig.f().mres, rig.f().dmov), (0.0, 1), "MRES stored, nothing under way");
-    assert!(rig.put(Field::VAL, 1.0).is_err());
-    rig.put(Field::MRES, 0.01).unwrap();
-    assert_eq!(rig.take(), vec![LoadPos(0.0), GetInfo], "a real resolution loads the position again");
+    // A resolution so fine that a millimetre is beyond 32 bits: a target there is refused too.
+    // (A new resolution loads the position, 0 steps here, and a callback completes it.)
+    rig.put(Field::MRES, 1e-300).unwrap();
+    assert_eq!(rig.take(), vec![LoadPos(0.0), GetInfo]);
     rig.cb(0.0);
-    assert_eq!((rig.f().rval, rig.f().dmov), (0, 1));
+    let err = rig.put(Field::VAL, 1.0).unwrap_err();
+    assert!(err.to_string().starts_with("VAL: target out of range"), "{err}");
+    assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))), "nothing is sent");
+    assert_eq!((rig.f().val, rig.f().dval, rig.f().dmov), (0.0, 0.0, 1));
+    rig.put(Field::MRES, 0.01).unwrap();
+    assert_eq!(rig.take(), vec![LoadPos(0.0), GetInfo]);
+    rig.cb(0.0);
     // The largest raw position that fits is a target like any other.
     rig.put(Field::VAL, f64::from(i32::MAX - 1000) * 0.01).unwrap();
     assert!(rig.take().iter().any(|c| matches!(c, MoveAbs(_))));
+}
+
+#[test]
+fn z21_a_resolution_of_0_is_refused_and_changes_nothing() {
+    let mut rig = Rig::boot(Fields { dhlm: 100.0, dllm: -100.0, ..baseline_b() }, 0.0);
+    let before = rig.f().clone();
+    // MRES = UREV / SREV: either at 0 would leave speeds and soft limits of 0 and positions of
+    // infinitely many steps (the reference stores it).
+    for field in [Field::MRES, Field::UREV] {
+        let err = rig.put(field, 0.0).unwrap_err();
+        assert_eq!(
+            err.to_string(),
+            format!("{field} refused: a resolution of 0 makes every position infinitely many steps")
+        );
+        assert_eq!(err.kind(), zmotor_msgs::RefusalKind::BadValue);
+        assert!(rig.take().is_empty(), "nothing sent");
+        assert_eq!(rig.f(), &before, "nothing changed");
+    }
+    rig.put(Field::VAL, 5.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0), "the axis moves as before");
 }
