@@ -270,6 +270,8 @@ struct Held {
 struct Waiter<R> {
     to: R,
     field: Field,
+    /// Where a write of a target asked the axis to go (VAL once the write was taken).
+    target: Option<f64>,
     accepted: WriteAccepted,
     /// What the controller reported while the motion ran, each once.
     controller_messages: Vec<String>,
@@ -438,10 +440,11 @@ impl<R: Clone> AxisService<R> {
                 self.answer(to, Reply::Refused(refusal));
             }
             Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
-                self.waiting.push(Waiter { to, field, accepted, controller_messages: Vec::new() });
+                let target = self.target_of(field);
+                self.waiting.push(Waiter { to, field, target, accepted, controller_messages: Vec::new() });
             }
             Ok((field, _)) if wait => {
-                let reply = Reply::Completion(field, self.completion(field, Vec::new()));
+                let reply = Reply::Completion(field, self.completion(field, self.target_of(field), Vec::new()));
                 self.answer(to, reply);
             }
             Ok((field, _)) => {
@@ -603,10 +606,21 @@ impl<R: Clone> AxisService<R> {
         StateMarker::new(seq, f.stat, f.sevr)
     }
 
-    /// The answer to a `?wait` write: the field, the readback and whether the target was reached.
-    fn completion(&self, field: Field, controller_messages: Vec<String>) -> Completion {
+    /// Where a write of `field` just taken asked the axis to go, if it writes a target.
+    fn target_of(&self, field: Field) -> Option<f64> {
+        use Field::*;
+        matches!(field, VAL | DVAL | RVAL | RLV | TWF | TWR).then(|| self.axis.fields().val)
+    }
+
+    /// The answer to a `?wait` write: the field, the readback and whether the target was reached:
+    /// no retries run out, no limit violation, no major alarm, and the readback within the retry
+    /// deadband of the `target` written (a motion stopped, or ended on a limit switch or short of
+    /// it with no retries, did not reach it, whatever MISS says).
+    fn completion(&self, field: Field, target: Option<f64>, controller_messages: Vec<String>) -> Completion {
         let f = self.axis.fields();
-        let reached = f.miss == 0 && f.lvio == 0 && f.sevr < severity::MAJOR;
+        let deadband = f.rdbd.max(f.mres.abs());
+        let at_target = target.is_none_or(|target| (f.rbv - target).abs() <= deadband);
+        let reached = f.miss == 0 && f.lvio == 0 && f.sevr < severity::MAJOR && at_target;
         Completion {
             written: [(field.name().to_string(), self.axis.record().get(field))].into(),
             rbv: f.rbv,
@@ -659,8 +673,8 @@ impl<R: Clone> AxisService<R> {
                         .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
                     self.waiting = waiting;
                     for waiter in ended {
-                        let reply =
-                            Reply::Completion(waiter.field, self.completion(waiter.field, waiter.controller_messages));
+                        let completion = self.completion(waiter.field, waiter.target, waiter.controller_messages);
+                        let reply = Reply::Completion(waiter.field, completion);
                         self.answer(waiter.to, reply);
                     }
                 }
@@ -755,6 +769,30 @@ mod tests {
             outputs.extend(drain(service));
         }
         outputs
+    }
+
+    #[test]
+    fn a_wait_write_whose_motion_is_stopped_short_did_not_reach_its_target() {
+        let mut s = service();
+        s.write(at(0.0), WriteRequest::new("VAL", b"5", Text), true, 7);
+        let mut outputs = drain(&mut s);
+        for _ in 0..10_000 {
+            if s.fields().rbv > 0.5 {
+                break;
+            }
+            let t = s.poll_timeout().expect("a simulated axis is polled");
+            s.handle_timeout(t);
+            outputs.extend(drain(&mut s));
+        }
+        let now = s.poll_timeout().expect("moving");
+        s.put(now, WriteRequest::new("STOP", b"1", Text));
+        outputs.extend(run_until_idle(&mut s));
+        let answers = replies(&outputs);
+        let [(7, Reply::Completion(Field::VAL, completion))] = &answers[..] else { panic!("{answers:?}") };
+        // The record stops where it is: no retries ran out, no limit, no alarm, VAL follows RBV.
+        assert_eq!((completion.miss, completion.lvio, completion.sevr, completion.dmov), (0, 0, 0, 1));
+        assert!(completion.rbv > 0.5 && completion.rbv < 4.0, "{completion:?}");
+        assert_eq!(completion.reached, 0, "stopped {} short of 5", 5.0 - completion.rbv);
     }
 
     #[test]
