@@ -194,6 +194,9 @@ pub struct Axis {
     held: Option<HeldMotion>,
     /// DMOV 0 has been posted and DMOV 1 not yet: a motion is under way.
     motion_posted: bool,
+    /// A command that starts motion went out (PREM with it) since DMOV 0: its end sends POST. A
+    /// refused move pulses DMOV with nothing sent, and sends neither.
+    motion_commanded: bool,
     /// When a DINP "done" is to be acted upon (Soft Channel).
     done_due: Option<Instant>,
     /// The last completion posted.
@@ -268,6 +271,7 @@ impl Axis {
             record_outputs: Vec::new(),
             held: None,
             motion_posted: false,
+            motion_commanded: false,
             done_due: None,
             completed: Completion::default(),
         }
@@ -536,6 +540,7 @@ impl Axis {
             self.held = None;
         }
         if starts_motion {
+            self.motion_commanded = true;
             let prem = self.record.fields().prem.clone();
             let delay = self.run_primitive(&prem);
             if delay > Duration::ZERO {
@@ -585,10 +590,16 @@ impl Axis {
         primitive.delay()
     }
 
-    /// A motion has finished (DMOV 0 → 1) or met a limit switch: POST, and FLNK on completion.
+    /// A motion has finished (DMOV 0 → 1) or met a limit switch: POST if it was commanded, and
+    /// FLNK on completion.
     fn motion_finished(&mut self, completed: bool) {
-        let post = self.record.fields().post.clone();
-        self.run_primitive(&post);
+        if self.motion_commanded {
+            let post = self.record.fields().post.clone();
+            self.run_primitive(&post);
+        }
+        if completed {
+            self.motion_commanded = false;
+        }
         let flnk = self.record.fields().flnk.clone();
         if completed && !flnk.is_empty() {
             self.events.push(AxisEvent::Put { key: flnk, value: "1".into() });
@@ -797,6 +808,26 @@ mod tests {
         assert_eq!(puts, vec![AxisEvent::Put { key: "lab/shutter/VAL".into(), value: "0".into() }]);
         assert_eq!(axis.simulation().unwrap().raw_commands(), ["HE", "PRE", "AFTER"]);
         assert_eq!(axis.fields().rbv, 1.0);
+    }
+
+    #[test]
+    fn a_refused_move_sends_neither_prem_nor_post() {
+        let fields = Fields {
+            prem: "@PUT(lab/shutter/VAL, 1)@ PRE".into(),
+            post: "@PUT(lab/shutter/VAL, 0)@ AFTER".into(),
+            dhlm: 100.0,
+            dllm: -100.0,
+            ..demo_fields()
+        };
+        let mut axis = sim_axis(fields);
+        axis.drain_events().count();
+        let err = axis.write(at(0.0), Field::VAL, &Value::Float(500.0)).unwrap_err();
+        assert!(err.to_string().starts_with("VAL: limit violation"), "{err}");
+        let events: Vec<AxisEvent> = axis.drain_events().collect();
+        let dmov: Vec<&AxisEvent> = events.iter().filter(|e| matches!(e, AxisEvent::Post(Field::DMOV, _))).collect();
+        assert_eq!(dmov.len(), 2, "the refusal pulses DMOV, as EPICS: {events:?}");
+        assert!(!events.iter().any(|e| matches!(e, AxisEvent::Put { .. })), "{events:?}");
+        assert!(axis.simulation().unwrap().raw_commands().is_empty());
     }
 
     #[test]
