@@ -613,14 +613,15 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached:
-    /// no retries run out, no limit violation, no major alarm, and the readback within the retry
-    /// deadband of the `target` written (a motion stopped, or ended on a limit switch or short of
-    /// it with no retries, did not reach it, whatever MISS says).
+    /// no retries run out, no major alarm and, after a write of a `target`, no limit violation and
+    /// the readback within the retry deadband of it (a motion stopped, or ended on a limit switch
+    /// or short of it with no retries, did not reach it, whatever MISS says). LVIO speaks of the
+    /// last target: a write of another field (VELO) is not answered with an earlier one's.
     fn completion(&self, field: Field, target: Option<f64>, controller_messages: Vec<String>) -> Completion {
         let f = self.axis.fields();
         let deadband = f.rdbd.max(f.mres.abs());
-        let at_target = target.is_none_or(|target| (f.rbv - target).abs() <= deadband);
-        let reached = f.miss == 0 && f.lvio == 0 && f.sevr < severity::MAJOR && at_target;
+        let on_target = target.is_none_or(|target| f.lvio == 0 && (f.rbv - target).abs() <= deadband);
+        let reached = f.miss == 0 && f.sevr < severity::MAJOR && on_target;
         Completion {
             written: [(field.name().to_string(), self.axis.record().get(field))].into(),
             rbv: f.rbv,
@@ -793,6 +794,20 @@ mod tests {
         assert_eq!((completion.miss, completion.lvio, completion.sevr, completion.dmov), (0, 0, 0, 1));
         assert!(completion.rbv > 0.5 && completion.rbv < 4.0, "{completion:?}");
         assert_eq!(completion.reached, 0, "stopped {} short of 5", 5.0 - completion.rbv);
+    }
+
+    #[test]
+    fn a_wait_write_of_a_speed_is_not_answered_with_an_earlier_targets_limit_violation() {
+        let mut s = service();
+        s.write(at(0.0), WriteRequest::new("DHLM", b"10", Text), false, 1);
+        s.write(at(0.0), WriteRequest::new("DLLM", b"-10", Text), false, 2);
+        s.put(at(0.0), WriteRequest::new("VAL", b"50", Text));
+        assert_eq!(s.fields().lvio, 1);
+        drain(&mut s);
+        s.write(at(0.1), WriteRequest::new("VELO", b"2", Text), true, 3);
+        let answers = replies(&drain(&mut s));
+        let [(3, Reply::Completion(Field::VELO, completion))] = &answers[..] else { panic!("{answers:?}") };
+        assert_eq!((completion.lvio, completion.reached), (1, 1));
     }
 
     #[test]
