@@ -7,7 +7,7 @@ use crate::dbr::{self, Base, Class, DbrType, Snapshot};
 use crate::directory::Directory;
 use crate::names::{Pv, Target};
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_msgs::{Field, Refusal, RefusalKind, WriteClass};
+use zmotor_msgs::{Field, Refusal, RefusalKind, Value, WriteClass};
 
 /// ECA status codes (`caerr.h`): message number << 3 | severity.
 pub(crate) mod status {
@@ -199,7 +199,7 @@ impl Circuit {
         let waiting = std::mem::take(&mut self.pending_reads);
         for pending in waiting {
             let pv = self.channels.get(&pending.sid).map(|c| c.pv.clone());
-            match pv.filter(|pv| pv.axis == axis).and_then(|pv| directory.snapshot(&pv)) {
+            match pv.filter(|pv| pv.axis == axis).and_then(|pv| self.snapshot(&pv, directory)) {
                 Some(snapshot) => self.send_read(&pending, &snapshot),
                 None => self.pending_reads.push(pending),
             }
@@ -324,7 +324,7 @@ impl Circuit {
         let Some(channel) = self.channels.get(&pending.sid) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
-        match directory.snapshot(&channel.pv) {
+        match self.snapshot(&channel.pv, directory) {
             Some(snapshot) => self.send_read(&pending, &snapshot),
             None => {
                 self.requests.push_back(Request::Fetch { axis: channel.pv.axis.clone() });
@@ -369,13 +369,23 @@ impl Circuit {
         let Some(subscription) = self.subscriptions.get(&subid) else { return };
         let (dbr, requested) = (subscription.dbr, subscription.count);
         let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
-        let Some(snapshot) = directory.snapshot(pv) else { return };
+        let Some(snapshot) = self.snapshot(pv, directory) else { return };
         let elements = snapshot.elements(requested, pv.count());
         let Some(bytes) = self.encode(dbr, &snapshot, elements) else { return };
         self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
         if let Some(subscription) = self.subscriptions.get_mut(&subid) {
             subscription.posted = true;
         }
+    }
+
+    /// What `pv` shows now: the directory's snapshot, NAME being the record's name as this
+    /// circuit's clients know it (the prefix and the axis, as an IOC's record name).
+    fn snapshot(&self, pv: &Pv, directory: &dyn Directory) -> Option<Snapshot> {
+        let mut snapshot = directory.snapshot(pv)?;
+        if pv.target == Target::Field(Field::NAME) {
+            snapshot.value = Value::Text(format!("{}{}", self.prefix, pv.axis));
+        }
+        Some(snapshot)
     }
 
     /// The DBR encoding of `elements` of a snapshot, or `None` for a type not served.

@@ -105,6 +105,17 @@ mod tests {
     }
 
     #[test]
+    fn name_reads_as_the_record_name_the_client_knows() {
+        let mut circuit = Circuit::new("bl:");
+        let directory = OneAxis { fetched: true };
+        let created =
+            request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 7, 13), b"bl:m1.NAME\0");
+        let sid = created[1].0.p2;
+        let read = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 0, 1, sid, 99), &[]);
+        assert_eq!(read[0].1[..6], *b"bl:m1\0");
+    }
+
+    #[test]
     fn writes_become_requests_and_their_outcomes_replies() {
         let mut circuit = Circuit::new("bl:");
         let directory = OneAxis { fetched: true };
