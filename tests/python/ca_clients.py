@@ -46,6 +46,10 @@ def reads():
     dial = epics.PV("m1.DVAL").get_ctrlvars()
     assert (dial["upper_ctrl_limit"], dial["lower_ctrl_limit"]) == (100.0, -100.0), dial
     assert epics.PV("m1.SPMG").get_ctrlvars()["enum_strs"][:4] == ("Stop", "Pause", "Move", "Go")
+    # The record's get_units and get_control_double: speeds in EGU/sec, raw values in steps.
+    assert epics.PV("m1.VELO").get_ctrlvars()["units"] == "mm/sec"
+    raw = epics.PV("m1.RRBV").get_ctrlvars()
+    assert (raw["upper_ctrl_limit"], raw["lower_ctrl_limit"]) == (100000, -100000), raw
     rbv = epics.PV("m1.RBV", form="time")
     assert rbv.get(timeout=10) == 0.0 and rbv.timestamp > time.time() - 3600, rbv.timestamp
     assert epics.PV("m1.RBV").write_access is False and epics.PV("m1.VELO").write_access is True

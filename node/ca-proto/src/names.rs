@@ -5,7 +5,7 @@
 //! appended to the name (`.ERR$`; `caget -S`).
 
 use crate::dbr::Base;
-use zmotor_msgs::{keys, Access, Field};
+use zmotor_msgs::{keys, Access, Field, Kind};
 
 /// What a channel shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -81,15 +81,17 @@ impl Pv {
         }
     }
 
-    /// The fields its control limits come from (high, low), as the motor record's
-    /// get_control_double gives them: the user limits for user values, the dial limits for dial
-    /// values.
-    pub fn limits(&self) -> Option<(Field, Field)> {
+    /// Where its display and control limits come from, as the motor record's get_graphic_double
+    /// and get_control_double give them (spec §17).
+    pub fn limits(&self) -> Limits {
         use Field::*;
         match self.target {
-            Target::Field(VAL | RBV | HLM | LLM | LVAL) => Some((HLM, LLM)),
-            Target::Field(DVAL | DRBV | DHLM | DLLM) => Some((DHLM, DLLM)),
-            _ => None,
+            Target::Field(VAL | RBV) => Limits::Fields(HLM, LLM),
+            Target::Field(DVAL | DRBV) => Limits::Fields(DHLM, DLLM),
+            Target::Field(RVAL | RRBV) => Limits::RawDial,
+            Target::Field(VELO) => Limits::Fields(VMAX, VBAS),
+            Target::Field(field) => Limits::Range(type_range(field.def().kind)),
+            Target::RecordType | Target::Message | Target::MessageChars => Limits::Range((0.0, 0.0)),
         }
     }
 
@@ -104,17 +106,58 @@ impl Pv {
     /// The fields its metadata comes from: alarm, units, precision, limits.
     pub fn metadata_from(&self) -> Vec<Field> {
         let mut fields = vec![Field::STAT, Field::SEVR, Field::EGU, Field::PREC];
-        fields.extend(self.limits().into_iter().flat_map(|(high, low)| [high, low]));
+        match self.limits() {
+            Limits::Fields(high, low) => fields.extend([high, low]),
+            Limits::RawDial => fields.extend([Field::DHLM, Field::DLLM, Field::MRES]),
+            Limits::Range(_) => {}
+        }
         fields.extend(self.alarm_limits().into_iter().flatten());
         fields
     }
 
-    /// Its units, given the axis's engineering units.
+    /// Its units, given the axis's engineering units, as the motor record's get_units gives
+    /// them (spec §17): speeds `EGU/sec`, times `sec`, every other field EGU, at most 15
+    /// characters.
     pub fn units(&self, egu: &str) -> String {
-        match self.target {
-            Target::Field(field) => field.def().unit.replace("EGU", egu),
+        use Field::*;
+        let units = match self.target {
+            Target::Field(VELO | VMAX | BVEL | VBAS | JVEL | HVEL) => format!("{egu}/sec"),
+            Target::Field(JAR) => format!("{egu}/s/s"),
+            Target::Field(ACCL | BACC) => "sec".into(),
+            Target::Field(S | SBAS | SBAK) => "rev/sec".into(),
+            Target::Field(SREV) => "steps/rev".into(),
+            Target::Field(UREV) => format!("{egu}/rev"),
+            Target::Field(_) => egu.into(),
             Target::RecordType | Target::Message | Target::MessageChars => String::new(),
-        }
+        };
+        units.chars().take(UNITS_CHARS).collect()
+    }
+}
+
+/// The longest units the record gives (its buffer of `dbr_units_size` less the terminator).
+const UNITS_CHARS: usize = 15;
+
+/// Where a channel's display and control limits come from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Limits {
+    /// Two fields of the axis: (high, low).
+    Fields(Field, Field),
+    /// The dial limits in steps, DHLM / MRES and DLLM / MRES, the lower one low.
+    RawDial,
+    /// EPICS's defaults, the range of the field's type (recGblGetGraphicDouble): (high, low).
+    Range((f64, f64)),
+}
+
+/// The range of a field's type, as EPICS's record support gives it by default.
+fn type_range(kind: Kind) -> (f64, f64) {
+    match kind {
+        Kind::Double => (1e300, -1e300),
+        Kind::Float => (1e30, -1e30),
+        Kind::Long => (f64::from(i32::MAX), f64::from(i32::MIN)),
+        Kind::ULong => (f64::from(u32::MAX), 0.0),
+        Kind::Short => (f64::from(i16::MAX), f64::from(i16::MIN)),
+        Kind::UShort | Kind::Menu(_) => (f64::from(u16::MAX), 0.0),
+        Kind::Str(_) | Kind::Link => (0.0, 0.0),
     }
 }
 
@@ -148,10 +191,28 @@ mod tests {
             (Base::Double, Base::Enum, Base::String)
         );
         assert_eq!(
-            (pv("m1.RBV").limits(), pv("m1.DRBV").limits()),
-            (Some((Field::HLM, Field::LLM)), Some((Field::DHLM, Field::DLLM)))
+            (pv("m1.RBV").limits(), pv("m1.DRBV").limits(), pv("m1.RRBV").limits(), pv("m1.VELO").limits()),
+            (
+                Limits::Fields(Field::HLM, Field::LLM),
+                Limits::Fields(Field::DHLM, Field::DLLM),
+                Limits::RawDial,
+                Limits::Fields(Field::VMAX, Field::VBAS)
+            )
         );
-        assert_eq!((pv("m1.VELO").units("mm"), pv("m1.RVAL").units("mm")), ("mm/s".into(), "steps".into()));
+        assert_eq!(
+            (pv("m1.HLM").limits(), pv("m1.RCNT").limits(), pv("m1.DMOV").limits()),
+            (Limits::Range((1e300, -1e300)), Limits::Range((32767.0, -32768.0)), Limits::Range((32767.0, -32768.0)))
+        );
+        let units = |name| pv(name).units("mm");
+        assert_eq!(
+            [units("m1.VELO"), units("m1.JAR"), units("m1.ACCL"), units("m1.S")],
+            ["mm/sec", "mm/s/s", "sec", "rev/sec"]
+        );
+        assert_eq!(
+            [units("m1.SREV"), units("m1.UREV"), units("m1.RVAL"), units("m1.SMAX")],
+            ["steps/rev", "mm/rev", "mm", "mm"]
+        );
+        assert_eq!(pv("m1.VELO").units("a long unit name"), "a long unit nam", "15 characters");
         assert_eq!(
             (pv("m1").alarm_limits(), pv("m1.RBV").alarm_limits()),
             (Some([Field::HIHI, Field::HIGH, Field::LOW, Field::LOLO]), None)

@@ -2,7 +2,7 @@
 //! axes a client follows, with when it arrived; a circuit reads them as its `Directory`.
 
 use std::collections::{HashMap, HashSet};
-use zmotor_ca_proto::{Directory, Pv, Snapshot, Stamp, Target};
+use zmotor_ca_proto::{Directory, Limits, Pv, Snapshot, Stamp, Target};
 use zmotor_msgs::{Field, Kind, Value};
 
 /// A field's last value, and when it arrived.
@@ -60,8 +60,22 @@ impl Directory for Values {
             Some(Value::Text(egu)) => egu.clone(),
             _ => String::new(),
         };
-        let (upper, lower) =
-            pv.limits().map_or((0.0, 0.0), |(high, low)| (self.number(&pv.axis, high), self.number(&pv.axis, low)));
+        let (upper, lower) = match pv.limits() {
+            Limits::Fields(high, low) => (self.number(&pv.axis, high), self.number(&pv.axis, low)),
+            Limits::RawDial => {
+                let mres = self.number(&pv.axis, Field::MRES);
+                let (high, low) =
+                    (self.number(&pv.axis, Field::DHLM) / mres, self.number(&pv.axis, Field::DLLM) / mres);
+                if mres == 0.0 {
+                    (0.0, 0.0)
+                } else if mres > 0.0 {
+                    (high, low)
+                } else {
+                    (low, high)
+                }
+            }
+            Limits::Range(range) => range,
+        };
         let prec = self.number(&pv.axis, Field::PREC) as i16;
         Some(Snapshot {
             value,
