@@ -30,7 +30,10 @@ impl MotorRecord {
             if stop_or_pause || stop_req {
                 if self.f.spmg == choice::SPMG_STOP || stop_req {
                     let m = self.f.mip;
-                    if m == mip::DONE || m & mip::STOP != 0 || m & mip::RETRY != 0 {
+                    // Departure Z22: a retry leg under way stops as any motion does (DMOV 1 once the
+                    // motor has stopped); the reference ends it at once, DMOV 1 while it decelerates.
+                    let retry_at_rest = m & mip::RETRY != 0 && self.f.movn == 0;
+                    if m == mip::DONE || m & mip::STOP != 0 || retry_at_rest {
                         // Departure Z9/Z14: a STOP drops a target held by SPMG (a paused move's,
                         // or one written while stopped): the axis stays where it is.
                         let held = m == mip::DONE && self.f.dval != self.f.ldvl;

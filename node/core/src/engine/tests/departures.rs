@@ -375,3 +375,28 @@ fn z21_a_resolution_of_0_is_refused_and_changes_nothing() {
     rig.put(Field::VAL, 5.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0), "the axis moves as before");
 }
+
+#[test]
+fn z22_a_stop_during_a_retry_leg_under_way_keeps_dmov_0_until_the_motor_has_stopped() {
+    // A new target behind the moving motor is approached as a retry leg (as in z17).
+    let mut rig = Rig::boot(Fields { rtry: 3, rdbd: 0.05, ..baseline_b() }, 0.0);
+    rig.put(Field::VAL, 5.0).unwrap();
+    rig.cb_moving(20.0);
+    rig.put(Field::VAL, 1.0).unwrap();
+    rig.cb_moving(21.0);
+    rig.cb(22.0);
+    rig.cb_moving(40.0);
+    assert_eq!((rig.f().mip, rig.f().movn, rig.f().dmov), (mip::RETRY | mip::MOVE, 1, 0));
+    rig.take();
+    rig.put(Field::STOP, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+    // The reference sets DMOV 1 here, while the motor decelerates.
+    assert_eq!((rig.f().dmov, rig.f().mip), (0, mip::STOP));
+    rig.cb_moving(45.0);
+    assert_eq!(rig.f().dmov, 0);
+    rig.cb(47.0);
+    let f = rig.f();
+    assert_eq!((f.dmov, f.movn), (1, 0));
+    assert!(approx(f.rbv, 0.47) && approx(f.val, 0.47), "done where it stopped: {} {}", f.rbv, f.val);
+    assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))));
+}
