@@ -175,7 +175,7 @@ enum Command {
         #[arg(long)]
         plain: bool,
         /// Seconds to wait for the answer.
-        #[arg(long, default_value_t = 600.0)]
+        #[arg(long, default_value_t = 600.0, value_parser = seconds)]
         timeout: f64,
         #[command(flatten)]
         client: ClientArgs,
@@ -584,13 +584,20 @@ fn field_named(name: &str) -> Result<Field, Error> {
 }
 
 /// Print lines until the reader goes away (e.g. `| head`).
-fn print_lines(lines: impl IntoIterator<Item = String>) {
+/// Print `lines`; false when stdout is gone (a pipe closed: `monitor ... | head -1`).
+fn print_lines(lines: impl IntoIterator<Item = String>) -> bool {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
-    for line in lines {
-        if writeln!(out, "{line}").is_err() {
-            return;
-        }
+    lines.into_iter().all(|line| writeln!(out, "{line}").and_then(|()| out.flush()).is_ok())
+}
+
+/// A number of seconds a command waits: finite, not negative, at most a year.
+fn seconds(text: &str) -> Result<f64, String> {
+    const YEAR: f64 = 365.0 * 24.0 * 3600.0;
+    match text.parse::<f64>() {
+        Ok(s) if (0.0..=YEAR).contains(&s) => Ok(s),
+        Ok(s) => Err(format!("{s} is not a number of seconds from 0 to a year")),
+        Err(e) => Err(e.to_string()),
     }
 }
 
@@ -685,9 +692,17 @@ async fn put(
             println!("{}", show(field, &value, None));
             ExitCode::SUCCESS
         }
+        // A motion that ended away from its target (stopped, on a limit, MISS, an alarm) is a
+        // failure to a script (`put ... --wait && take_image`), as its line says.
         WriteOutcome::Completed(completion) => {
+            let reached = completion.reached == 1;
             println!("{}", WriteOutcome::Completed(completion));
-            ExitCode::SUCCESS
+            if reached {
+                ExitCode::SUCCESS
+            } else {
+                eprintln!("zmotor: {axis} did not reach the target (reached=0: see MISS, LVIO, SEVR and RBV)");
+                ExitCode::FAILURE
+            }
         }
         WriteOutcome::Refused(refusal) => {
             eprintln!("zmotor: {refusal}");
@@ -739,6 +754,7 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
     let ended = |update: &zmotor_client::Update| update.value == Value::Int(1);
     let interrupted = interrupted();
     tokio::pin!(interrupted);
+    let mut jog_over = false;
     loop {
         tokio::select! {
             result = &mut interrupted => {
@@ -747,7 +763,8 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
             }
             update = dmov.next() => match update {
                 Some(update) if ended(&update) => {
-                    eprintln!("the jog ended by itself (a limit, or someone stopped it)");
+                    eprintln!("the jog ended by itself (a limit, a STOP, or SPMG not Go)");
+                    jog_over = true;
                     break;
                 }
                 Some(_) => {}
@@ -764,7 +781,9 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
             }
         }
     };
-    let _ = tokio::time::timeout(Duration::from_secs(30), settled).await;
+    if !jog_over {
+        let _ = tokio::time::timeout(Duration::from_secs(30), settled).await;
+    }
     let read = zmotor.read(axis, Selection::Field(Field::RBV)).await?;
     if let Some(rbv) = read.readings.first() {
         println!("{}", read.shown(rbv));
@@ -787,8 +806,8 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
             tokio::select! {
                 update = updates.next() => {
                     let Some(update) = update else { break };
-                    if update.field.is_none() {
-                        print_lines([monitor_line(&update, json)]);
+                    if update.field.is_none() && !print_lines([monitor_line(&update, json)]) {
+                        break;
                     }
                 }
                 _ = tokio::signal::ctrl_c() => break,
@@ -803,7 +822,9 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
         tokio::select! {
             update = updates.next() => {
                 let Some(update) = update else { break };
-                print_lines([monitor_line(&update, json)]);
+                if !print_lines([monitor_line(&update, json)]) {
+                    break;
+                }
             }
             _ = tokio::signal::ctrl_c() => break,
         }

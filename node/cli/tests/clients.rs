@@ -98,3 +98,36 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     let gone = here.zmotor(&["list", "--connect", &endpoint]).output().unwrap();
     assert!(!gone.status.success() || String::from_utf8_lossy(&gone.stdout).is_empty());
 }
+
+#[test]
+fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_seconds() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let file = dir.path().join("two.toml");
+    std::fs::write(&file, TWO_AXES).unwrap();
+    let here = Host::default();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+
+    for timeout in ["nan", "inf", "-1", "1e30"] {
+        let option = format!("--timeout={timeout}");
+        let refused = here.zmotor(&["put", "m1", "VAL", "1", "--connect", &endpoint, &option]).output().unwrap();
+        assert_eq!(refused.status.code(), Some(2), "{option}: {refused:?}");
+    }
+    assert_eq!(stdout(&here, &["get", "m1", "RBV", "--connect", &endpoint]), "0\n", "nothing was sent");
+
+    // m1 runs at 1 mm/s: stopped on its way to 5 mm, the write did not reach its target.
+    let waiting = here
+        .zmotor(&["put", "m1", "VAL", "5", "--wait", "--connect", &endpoint])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    here.wait_for(&endpoint, "m1", "RBV", |v| v > 0.2);
+    here.put(&endpoint, "m1", "STOP", "1", false).unwrap();
+    let output = waiting.wait_with_output().unwrap();
+    let (said, complained) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(said.contains("reached=0") && said.contains("DMOV=1"), "{said}");
+    assert_eq!(output.status.code(), Some(1), "{said}{complained}");
+    assert!(complained.contains("m1 did not reach the target"), "{complained}");
+}

@@ -195,6 +195,18 @@ impl SentWrite {
     }
 }
 
+/// A value of a completion line: a double to 15 significant digits, so that the last bit of a
+/// sum (7.0120000000000005) does not show; 10 stays 10.
+fn tidy(value: &Value) -> String {
+    match value {
+        Value::Float(x) if x.is_finite() => {
+            let rounded: f64 = format!("{x:.14e}").parse().unwrap_or(*x);
+            rounded.to_string()
+        }
+        other => other.to_string(),
+    }
+}
+
 impl std::fmt::Display for WriteOutcome {
     /// As the command line prints it: a value or the completion's `NAME=value` pairs, the
     /// refusal's words, or why nothing is known.
@@ -216,7 +228,7 @@ impl std::fmt::Display for WriteOutcome {
                     ("SEVR", Value::Int(c.sevr)),
                     ("reached", Value::Int(c.reached)),
                 ]);
-                let line: Vec<String> = pairs.iter().map(|(name, value)| format!("{name}={value}")).collect();
+                let line: Vec<String> = pairs.iter().map(|(name, value)| format!("{name}={}", tidy(value))).collect();
                 f.write_str(&line.join(" "))?;
                 c.err.iter().try_for_each(|message| write!(f, "\nERR: {message}"))
             }
@@ -226,5 +238,18 @@ impl std::fmt::Display for WriteOutcome {
             }
             WriteOutcome::NoAnswer(why) => write!(f, "{why}"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_completion_line_shows_doubles_without_the_last_bits_noise() {
+        assert_eq!(tidy(&Value::Float(7.012_000_000_000_000_5)), "7.012");
+        assert_eq!(tidy(&Value::Float(10.0)), "10");
+        assert_eq!(tidy(&Value::Float(-1.25e-7)), "-0.000000125");
+        assert_eq!(tidy(&Value::Int(3)), "3");
     }
 }

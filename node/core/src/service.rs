@@ -613,15 +613,15 @@ impl<R: Clone> AxisService<R> {
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached:
-    /// no retries run out, no major alarm and, after a write of a `target`, no limit violation and
+    /// no major alarm and, after a write of a `target`, no retries run out, no limit violation and
     /// the readback within the retry deadband of it (a motion stopped, or ended on a limit switch
-    /// or short of it with no retries, did not reach it, whatever MISS says). LVIO speaks of the
-    /// last target: a write of another field (VELO) is not answered with an earlier one's.
+    /// or short of it with no retries, did not reach it, whatever MISS says). MISS and LVIO speak
+    /// of the last target: a home or a write of VELO is not answered with an earlier move's.
     fn completion(&self, field: Field, target: Option<f64>, controller_messages: Vec<String>) -> Completion {
         let f = self.axis.fields();
         let deadband = f.rdbd.max(f.mres.abs());
-        let on_target = target.is_none_or(|target| f.lvio == 0 && (f.rbv - target).abs() <= deadband);
-        let reached = f.miss == 0 && f.sevr < severity::MAJOR && on_target;
+        let on_target = target.is_none_or(|target| f.miss == 0 && f.lvio == 0 && (f.rbv - target).abs() <= deadband);
+        let reached = f.sevr < severity::MAJOR && on_target;
         Completion {
             written: [(field.name().to_string(), self.axis.record().get(field))].into(),
             rbv: f.rbv,
@@ -808,6 +808,22 @@ mod tests {
         let answers = replies(&drain(&mut s));
         let [(3, Reply::Completion(Field::VELO, completion))] = &answers[..] else { panic!("{answers:?}") };
         assert_eq!((completion.lvio, completion.reached), (1, 1));
+    }
+
+    #[test]
+    fn a_home_is_not_answered_with_an_earlier_moves_miss() {
+        let mut s = service_on(Fields { rtry: 1, rdbd: 0.01, ..demo_fields() }, SimConfig::default());
+        s.sim_write(at(0.0), "fraction", b"0.5", Text);
+        s.write(at(0.0), WriteRequest::new("VAL", b"4", Text), true, 1);
+        let outputs = run_until_idle(&mut s);
+        let [(1, Reply::Completion(_, missed))] = &replies(&outputs)[..] else { panic!("{outputs:?}") };
+        assert_eq!((missed.miss, missed.reached), (1, 0), "retries ran out short of 4");
+        let now = s.poll_timeout().expect("polled");
+        s.sim_write(now, "fraction", b"1", Text);
+        s.write(now, WriteRequest::new("HOMF", b"1", Text), true, 2);
+        let outputs = run_until_idle(&mut s);
+        let [(2, Reply::Completion(Field::HOMF, homed))] = &replies(&outputs)[..] else { panic!("{outputs:?}") };
+        assert_eq!((homed.miss, homed.sevr, homed.reached), (1, 0, 1), "MISS is the earlier move's: {homed:?}");
     }
 
     #[test]
