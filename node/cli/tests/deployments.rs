@@ -282,3 +282,26 @@ fn a_node_restarted_under_a_monitoring_client_is_monitored_again() {
     assert!(moved.contains("reached=1"));
     assert!(shows_rbv(&lines, "4"), "the monitor resumed with the node");
 }
+
+#[test]
+fn a_node_that_cannot_listen_says_where_and_why_and_exits() {
+    let dir = tempfile::tempdir().unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let taken = std::net::TcpListener::bind(endpoint.trim_start_matches("tcp/")).unwrap();
+    let here = Host::default();
+    let file = repo_file("launch/sim-axis.toml");
+    let mut node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    let deadline = Instant::now() + PATIENCE;
+    let status = loop {
+        if let Some(status) = node.0.as_mut().unwrap().try_wait().unwrap() {
+            break status;
+        }
+        assert!(Instant::now() < deadline, "the node still runs on a port in use");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    let mut said = String::new();
+    std::io::Read::read_to_string(node.0.as_mut().unwrap().stderr.as_mut().unwrap(), &mut said).unwrap();
+    assert!(!status.success());
+    assert!(said.contains(&format!("zmotor: cannot listen on {endpoint}: ")), "{said}");
+    drop(taken);
+}

@@ -33,6 +33,15 @@ pub enum SessionError {
         #[source]
         source: zenoh::Error,
     },
+    /// A node's or router's session could not be opened where it listens (a port in use, an
+    /// endpoint it cannot bind).
+    #[error("cannot listen on {listen}: {source}")]
+    CannotListen {
+        /// Where it listens, comma-separated.
+        listen: String,
+        /// What Zenoh said.
+        source: zenoh::Error,
+    },
 }
 
 /// The Zenoh configuration of `section`.
@@ -62,11 +71,8 @@ pub async fn open_waiting(section: &ZenohConfig) -> Result<zenoh::Session, Sessi
     for (key, value) in [("connect/timeout_ms", "-1"), ("transport/link/tx/lease", lease.as_str())] {
         config.insert_json5(key, value).map_err(|e| ConfigError { key, message: e.to_string() })?;
     }
-    zenoh::open(config).await.map_err(|source| SessionError::Unreachable {
-        endpoints: section.connect.join(", "),
-        tls: section.tls.is_some(),
-        source,
-    })
+    // It waits for what it connects to: what fails at once is what it listens on.
+    zenoh::open(config).await.map_err(|source| SessionError::CannotListen { listen: section.listen.join(", "), source })
 }
 
 /// A TCP endpoint on 127.0.0.1 with a port that is free now, for tests and benchmarks.
