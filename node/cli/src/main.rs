@@ -585,8 +585,7 @@ fn field_named(name: &str) -> Result<Field, Error> {
     Field::from_name_any_case(name).ok_or_else(|| format!("{name}: unknown field (zmotor fields lists them)").into())
 }
 
-/// Print lines until the reader goes away (e.g. `| head`).
-/// Print `lines`; false when stdout is gone (a pipe closed: `monitor ... | head -1`).
+/// Print `lines` until the reader goes away; false when it has (`monitor ... | head -1`).
 fn print_lines(lines: impl IntoIterator<Item = String>) -> bool {
     use std::io::Write;
     let mut out = std::io::stdout().lock();
@@ -801,6 +800,11 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
     let is_err = |name: &String| name.eq_ignore_ascii_case(zmotor_msgs::keys::ERR_KEY);
     let wanted: Vec<Field> = fields.iter().filter(|f| !is_err(f)).map(|f| field_named(f)).collect::<Result<_, _>>()?;
     let messages = fields.iter().any(is_err);
+    // As camonitor says "not connected": a monitor of an axis nobody serves waits silently.
+    let tokens = zmotor.session().liveliness().get(zmotor.layout().axis(axis)).timeout(Duration::from_secs(2)).await?;
+    if tokens.recv_async().await.is_err() {
+        eprintln!("zmotor: no node serves {axis} now; its values will show when one does (Ctrl-C to stop)");
+    }
     if messages && wanted.is_empty() {
         // Only messages: follow nothing else (PREC still comes, for the shape of the values).
         let mut updates = zmotor.monitor_with_messages(axis, &[Field::PREC], true).await?;

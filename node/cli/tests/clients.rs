@@ -116,6 +116,13 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     }
     assert_eq!(stdout(&here, &["get", "m1", "RBV", "--connect", &endpoint]), "0\n", "nothing was sent");
 
+    // A monitor of an axis nobody serves says so, and waits for it.
+    let mut nobody =
+        here.zmotor(&["monitor", "m9", "RBV", "--connect", &endpoint]).stderr(Stdio::piped()).spawn().unwrap();
+    let said = Lines::of_stderr(&mut nobody);
+    let _nobody = Running(Some(nobody));
+    assert!(said.wait_for(PATIENCE, |l| l.contains("no node serves m9 now")).is_some());
+
     // m1 runs at 1 mm/s: stopped on its way to 5 mm, the write did not reach its target.
     let waiting = here
         .zmotor(&["put", "m1", "VAL", "5", "--wait", "--connect", &endpoint])

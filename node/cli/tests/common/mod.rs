@@ -257,11 +257,19 @@ pub(crate) struct Lines(std::sync::mpsc::Receiver<(Instant, String)>);
 impl Lines {
     /// The lines of `child`'s standard output (which must be piped).
     pub(crate) fn of(child: &mut Child) -> Self {
-        let stdout = child.stdout.take().expect("stdout is piped");
+        Self::read(child.stdout.take().expect("stdout is piped"))
+    }
+
+    /// The lines of `child`'s standard error (which must be piped).
+    pub(crate) fn of_stderr(child: &mut Child) -> Self {
+        Self::read(child.stderr.take().expect("stderr is piped"))
+    }
+
+    fn read(output: impl std::io::Read + Send + 'static) -> Self {
         let (sender, receiver) = std::sync::mpsc::channel();
         std::thread::spawn(move || {
             use std::io::BufRead;
-            for line in std::io::BufReader::new(stdout).lines().map_while(Result::ok) {
+            for line in std::io::BufReader::new(output).lines().map_while(Result::ok) {
                 if sender.send((Instant::now(), line)).is_err() {
                     return;
                 }
