@@ -173,5 +173,12 @@ STAGES = {
     "gone": [gone],
     "jog": [jog],
 }
+# No stage may wait for ever (a scan has no timeout of its own): after two minutes, every
+# thread's stack goes to stderr, which says where it waited, and the stage fails. The jog stage
+# waits to be killed.
+if sys.argv[1] != "jog":
+    import faulthandler
+
+    faulthandler.dump_traceback_later(120, exit=True)
 for check in STAGES[sys.argv[1]]:
     check()
