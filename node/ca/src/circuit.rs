@@ -3,7 +3,7 @@
 //! starts by a liveliness token of its own, so a client that dies or is cut off has its jogs
 //! ended.
 
-use crate::values::{AsChanged, Change};
+use crate::values::Change;
 use crate::{Done, Shared, Write};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -44,11 +44,7 @@ pub(crate) async fn serve_circuit(
                 handled.map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
             }
             change = changes.recv() => match change {
-                Ok(Change::Value(axis, target, entry)) => {
-                    let values = shared.values();
-                    let as_changed = AsChanged { values: &values, axis: &axis, target, entry: &entry };
-                    circuit.handle_change(&axis, target, &as_changed);
-                }
+                Ok(Change::Value(axis, target)) => circuit.handle_change(&axis, target, &*shared.values()),
                 Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
                 Err(broadcast::error::RecvError::Lagged(missed)) => {
                     tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");

@@ -83,14 +83,14 @@ impl Shared {
         let entry = Entry { value, stamp };
         match target {
             Target::Field(field) => {
-                values.fields.entry(axis.clone()).or_default().insert(field, entry.clone());
+                values.fields.entry(axis.clone()).or_default().insert(field, entry);
             }
             _ => {
-                values.messages.insert(axis.clone(), entry.clone());
+                values.messages.insert(axis.clone(), entry);
             }
         }
         drop(values);
-        let _ = self.changes.send(Change::Value(axis, target, entry));
+        let _ = self.changes.send(Change::Value(axis, target));
     }
 
     /// Follow an axis's fields and read them all, once while it stays live.

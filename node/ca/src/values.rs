@@ -99,70 +99,7 @@ impl Directory for Values {
 /// What circuits are told of the network.
 #[derive(Clone, Debug)]
 pub(crate) enum Change {
-    /// A field of an axis, or its message, has a new value: this one.
-    Value(String, Target, Entry),
+    /// A field of an axis, or its message, has a new value.
+    Value(String, Target),
     Gone(String),
-}
-
-/// The values as a change left them: the changed field shows the value the change brought, not
-/// a later one (a circuit that handles DMOV 0 after DMOV 1 arrived must still post 0).
-pub(crate) struct AsChanged<'a> {
-    pub(crate) values: &'a Values,
-    pub(crate) axis: &'a str,
-    pub(crate) target: Target,
-    pub(crate) entry: &'a Entry,
-}
-
-impl Directory for AsChanged<'_> {
-    fn is_live(&self, axis: &str) -> bool {
-        self.values.is_live(axis)
-    }
-
-    fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
-        let mut snapshot = self.values.snapshot(pv)?;
-        if pv.axis != self.axis {
-            return Some(snapshot);
-        }
-        let shows = pv.target == self.target || (self.target == Target::Message && pv.target == Target::MessageChars);
-        if shows {
-            (snapshot.value, snapshot.stamp) = (self.entry.value.clone(), self.entry.stamp);
-        }
-        let alarm_word = self.entry.value.as_f64().map(|v| v as u16);
-        match (self.target, alarm_word) {
-            (Target::Field(Field::STAT), Some(status)) => snapshot.status = status,
-            (Target::Field(Field::SEVR), Some(severity)) => snapshot.severity = severity,
-            _ => {}
-        }
-        Some(snapshot)
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn entry(value: Value) -> Entry {
-        Entry { value, stamp: Stamp::from_posix(0, 0) }
-    }
-
-    #[test]
-    fn a_change_is_shown_with_its_own_value_though_a_later_one_arrived() {
-        let mut values = Values::default();
-        let fields = values.fields.entry("m1".into()).or_default();
-        for (field, value) in [(Field::DMOV, 1), (Field::STAT, 0), (Field::SEVR, 0), (Field::MOVN, 1)] {
-            fields.insert(field, entry(Value::Int(value)));
-        }
-        let dmov = Pv::parse("", "m1.DMOV").expect("a PV");
-        let movn = Pv::parse("", "m1.MOVN").expect("a PV");
-        // DMOV 0 came, then DMOV 1, before a circuit handled the first change.
-        let zero = entry(Value::Int(0));
-        let as_changed = AsChanged { values: &values, axis: "m1", target: Target::Field(Field::DMOV), entry: &zero };
-        assert_eq!(as_changed.snapshot(&dmov).map(|s| s.value), Some(Value::Int(0)));
-        assert_eq!(as_changed.snapshot(&movn).map(|s| s.value), Some(Value::Int(1)), "other fields as they are");
-        assert_eq!(values.snapshot(&dmov).map(|s| s.value), Some(Value::Int(1)));
-        // An alarm change shows its own severity on every field of the axis.
-        let major = entry(Value::Int(2));
-        let as_changed = AsChanged { values: &values, axis: "m1", target: Target::Field(Field::SEVR), entry: &major };
-        assert_eq!(as_changed.snapshot(&movn).map(|s| s.severity), Some(2));
-    }
 }
