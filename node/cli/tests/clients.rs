@@ -32,15 +32,23 @@ fn stdout(host: &Host, args: &[&str]) -> String {
     String::from_utf8_lossy(&host.run(args).stdout).into_owned()
 }
 
-#[test]
-fn list_get_of_several_axes_and_monitors_show_what_is_live() {
+/// A node of `TWO_AXES`, both answering: its state directory, its endpoint, the process.
+fn two_axes(here: &Host) -> (tempfile::TempDir, String, Running) {
     let dir = tempfile::tempdir().unwrap();
     let endpoint = free_local_endpoint().unwrap();
     let file = dir.path().join("two.toml");
     std::fs::write(&file, TWO_AXES).unwrap();
-    let here = Host::default();
     let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m2", "DMOV", |v| v == 1.0);
+    for axis in ["m1", "m2"] {
+        here.wait_for(&endpoint, axis, "DMOV", |v| v == 1.0);
+    }
+    (dir, endpoint, node)
+}
+
+#[test]
+fn list_get_of_several_axes_and_monitors_show_what_is_live() {
+    let here = Host::default();
+    let (_dir, endpoint, node) = two_axes(&here);
 
     let listed = stdout(&here, &["list", "--connect", &endpoint]);
     let rows: Vec<Vec<&str>> = listed.lines().map(|l| l.split("  ").filter(|c| !c.is_empty()).collect()).collect();
@@ -101,13 +109,8 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
 
 #[test]
 fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_seconds() {
-    let dir = tempfile::tempdir().unwrap();
-    let endpoint = free_local_endpoint().unwrap();
-    let file = dir.path().join("two.toml");
-    std::fs::write(&file, TWO_AXES).unwrap();
     let here = Host::default();
-    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
-    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let (_dir, endpoint, _node) = two_axes(&here);
 
     for timeout in ["nan", "inf", "-1", "1e30"] {
         let option = format!("--timeout={timeout}");
