@@ -51,6 +51,20 @@ impl Kind {
         }
     }
 
+    /// The range of the kind's values as EPICS record support gives it by default for display
+    /// and control limits (recGbl's getMaxRangeValues): (high, low); none for text.
+    pub fn default_range(self) -> (f64, f64) {
+        match self {
+            Kind::Double => (1e300, -1e300),
+            Kind::Float => (1e30, -1e30),
+            Kind::Long => (f64::from(i32::MAX), f64::from(i32::MIN)),
+            Kind::ULong => (f64::from(u32::MAX), 0.0),
+            Kind::Short => (f64::from(i16::MAX), f64::from(i16::MIN)),
+            Kind::UShort | Kind::Menu(_) => (f64::from(u16::MAX), 0.0),
+            Kind::Str(_) | Kind::Link => (0.0, 0.0),
+        }
+    }
+
     /// Allowed integer range for integer-valued kinds.
     pub fn int_range(self) -> Option<(i64, i64)> {
         match self {
@@ -414,6 +428,28 @@ impl Field {
             _ if !(0..=15).contains(&prec) => 15,
             _ => prec,
         }
+    }
+
+    /// This field's units on an axis whose EGU is `egu`, as the record's `get_units` gives them
+    /// to clients: speeds `EGU/sec`, JAR `EGU/s/s`, ACCL and BACC `sec`, the rev/s speeds
+    /// `rev/sec`, SREV `steps/rev`, UREV `EGU/rev`, every other field EGU; at most 15 characters.
+    pub fn record_units(self, egu: &str) -> String {
+        use Field::*;
+        let units = match self {
+            VELO | VMAX | BVEL | VBAS | JVEL | HVEL => format!("{egu}/sec"),
+            JAR => format!("{egu}/s/s"),
+            ACCL | BACC => "sec".into(),
+            S | SBAS | SBAK => "rev/sec".into(),
+            SREV => "steps/rev".into(),
+            UREV => format!("{egu}/rev"),
+            _ => egu.into(),
+        };
+        units.chars().take(15).collect()
+    }
+
+    /// A write that sets a target the axis moves to (VAL once written says where).
+    pub fn sets_target(self) -> bool {
+        matches!(self, Field::VAL | Field::DVAL | Field::RVAL | Field::RLV | Field::TWF | Field::TWR)
     }
 }
 

@@ -5,7 +5,7 @@
 //! appended to the name (`.ERR$`; `caget -S`).
 
 use crate::dbr::Base;
-use zmotor_msgs::{keys, Access, Field, Kind};
+use zmotor_msgs::{keys, Access, Field};
 
 /// What a channel shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -90,7 +90,7 @@ impl Pv {
             Target::Field(DVAL | DRBV) => Limits::Fields(DHLM, DLLM),
             Target::Field(RVAL | RRBV) => Limits::RawDial,
             Target::Field(VELO) => Limits::Fields(VMAX, VBAS),
-            Target::Field(field) => Limits::Range(type_range(field.def().kind)),
+            Target::Field(field) => Limits::Range(field.def().kind.default_range()),
             Target::RecordType | Target::Message | Target::MessageChars => Limits::Range((0.0, 0.0)),
         }
     }
@@ -116,26 +116,14 @@ impl Pv {
     }
 
     /// Its units, given the axis's engineering units, as the motor record's get_units gives
-    /// them (spec §17): speeds `EGU/sec`, times `sec`, every other field EGU, at most 15
-    /// characters.
+    /// them (spec §17).
     pub fn units(&self, egu: &str) -> String {
-        use Field::*;
-        let units = match self.target {
-            Target::Field(VELO | VMAX | BVEL | VBAS | JVEL | HVEL) => format!("{egu}/sec"),
-            Target::Field(JAR) => format!("{egu}/s/s"),
-            Target::Field(ACCL | BACC) => "sec".into(),
-            Target::Field(S | SBAS | SBAK) => "rev/sec".into(),
-            Target::Field(SREV) => "steps/rev".into(),
-            Target::Field(UREV) => format!("{egu}/rev"),
-            Target::Field(_) => egu.into(),
+        match self.target {
+            Target::Field(field) => field.record_units(egu),
             Target::RecordType | Target::Message | Target::MessageChars => String::new(),
-        };
-        units.chars().take(UNITS_CHARS).collect()
+        }
     }
 }
-
-/// The longest units the record gives (its buffer of `dbr_units_size` less the terminator).
-const UNITS_CHARS: usize = 15;
 
 /// Where a channel's display and control limits come from.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -146,19 +134,6 @@ pub enum Limits {
     RawDial,
     /// EPICS's defaults, the range of the field's type (recGblGetGraphicDouble): (high, low).
     Range((f64, f64)),
-}
-
-/// The range of a field's type, as EPICS's record support gives it by default.
-fn type_range(kind: Kind) -> (f64, f64) {
-    match kind {
-        Kind::Double => (1e300, -1e300),
-        Kind::Float => (1e30, -1e30),
-        Kind::Long => (f64::from(i32::MAX), f64::from(i32::MIN)),
-        Kind::ULong => (f64::from(u32::MAX), 0.0),
-        Kind::Short => (f64::from(i16::MAX), f64::from(i16::MIN)),
-        Kind::UShort | Kind::Menu(_) => (f64::from(u16::MAX), 0.0),
-        Kind::Str(_) | Kind::Link => (0.0, 0.0),
-    }
 }
 
 #[cfg(test)]

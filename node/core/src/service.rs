@@ -608,8 +608,7 @@ impl<R: Clone> AxisService<R> {
 
     /// Where a write of `field` just taken asked the axis to go, if it writes a target.
     fn target_of(&self, field: Field) -> Option<f64> {
-        use Field::*;
-        matches!(field, VAL | DVAL | RVAL | RLV | TWF | TWR).then(|| self.axis.fields().val)
+        field.sets_target().then(|| self.axis.fields().val)
     }
 
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached:

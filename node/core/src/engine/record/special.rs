@@ -13,7 +13,7 @@ impl MotorRecord {
     pub(super) fn special_before(&mut self, field: Field, value: &Value) -> Result<(), WriteError> {
         use Field::*;
         match field {
-            VAL | DVAL | RVAL | RLV | TWF | TWR => {
+            _ if field.sets_target() => {
                 // Departure Z12: the reference accepts a target during the backlash takeout after
                 // a jog and then forgets it, leaving VAL away from the position; refuse it instead.
                 if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
