@@ -115,6 +115,32 @@ def refused():
     ok("the axis's ERR reads in full as ERR$ and cut as ERR")
 
 
+def moves_of_nothing():
+    # A put that moves nothing (a null move, a limit violation) pulses DMOV 0 then 1 at once; a
+    # monitor sees both, in that order, however the gateway's circuit is behind the network.
+    from epics import ca
+
+    pulses = []
+    dmov = epics.PV("m1.DMOV", callback=lambda value=None, **kw: pulses.append(value))
+    dmov.wait_for_connection(timeout=10)
+    deadline = time.monotonic() + 10
+    while not pulses and time.monotonic() < deadline:
+        time.sleep(0.01)
+    here = epics.caget("m1")
+    seen = []
+    for attempt in range(16):
+        pulses.clear()
+        target = here if attempt % 4 < 2 else 500.0
+        assert epics.caput("m1", target, wait=attempt % 2 == 0, timeout=10) == 1
+        deadline = time.monotonic() + 5
+        while len(pulses) < 2 and time.monotonic() < deadline:
+            ca.poll(0.01)
+        seen.append("".join(str(v) for v in pulses))
+    assert seen == ["01"] * 16, seen
+    dmov.clear_callbacks()
+    ok("a put that moves nothing posts DMOV 0 then 1 to a monitor")
+
+
 def caproto_tools():
     def run(tool, *args):
         # caproto's tools beside this Python (a virtual environment's bin is not on PATH).
@@ -140,6 +166,12 @@ def ophyd_scan():
 
     motor = EpicsMotor("m1", name="m1")
     motor.wait_for_connection(timeout=10)
+    # ophyd ends a move in its monitor thread by finishing the move's status, then dropping the
+    # status's subscription; a plan that starts the next move in between (a thread starved of
+    # the CPU) has that move's subscription dropped, and waits for ever (an IOC's motor too: 2
+    # of 20 scans beside two busy loops, either gateway). A settle time runs the plan's
+    # callbacks a little later, after the drop.
+    motor.settle_time = 0.1
     assert motor.limits == (-100.0, 100.0) and motor.precision == 3 and motor.egu == "mm"
     moving = []
     motor.motor_is_moving.subscribe(lambda value=None, **kw: moving.append(value), run=False)
@@ -147,11 +179,16 @@ def ophyd_scan():
     status.wait(30)
     assert status.success and near(motor.position, 3.0) and motor.moving is False
     assert 1 in moving, moving
+    # A move to where the motor is ends at once (its DMOV 0 then 1): the status finishes.
+    for _ in range(3):
+        status = motor.set(motor.position)
+        status.wait(10)
+        assert status.success and near(motor.position, 3.0), motor.position
     documents = []
     RunEngine({})(scan([], motor, 0, 1, 3), lambda name, doc: documents.append((name, doc)))
     positions = [doc["data"]["m1"] for name, doc in documents if name == "event"]
     assert positions == [0.0, 0.5, 1.0], positions
-    ok("ophyd EpicsMotor moves, reads limits and precision, and scans three points under bluesky")
+    ok("ophyd EpicsMotor moves, moves nowhere, reads limits and precision, and scans three points under bluesky")
 
 
 def gone():
@@ -168,7 +205,7 @@ def jog():
 
 # ophyd runs in a process of its own: it patches pyepics's PV class when it is imported.
 STAGES = {
-    "clients": [reads, put_wait_and_monitors, refused, caproto_tools],
+    "clients": [reads, put_wait_and_monitors, refused, moves_of_nothing, caproto_tools],
     "ophyd": [ophyd_scan],
     "gone": [gone],
     "jog": [jog],

@@ -1,5 +1,5 @@
 //! One client's TCP circuit, as a state machine: bytes in (`handle_input`), changes of the
-//! network in (`handle_change`, `axis_gone`, `write_done`), bytes out (`poll_transmit`) and
+//! network in (`handle_change`, `values_arrived`, `axis_gone`, `write_done`), bytes out (`poll_transmit`) and
 //! requests to the network out (`poll_request`). The runner holds the values (`Directory`).
 
 use crate::codec::{self, command, Header, MINOR_VERSION};
@@ -30,7 +30,7 @@ const WRITE: u32 = 2;
 /// A request to the network.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Request {
-    /// Fetch an axis's values (then tell the circuit with `handle_change`).
+    /// Fetch an axis's values (then tell the circuit with `values_arrived`).
     Fetch {
         /// The axis.
         axis: String,
@@ -193,9 +193,19 @@ impl Circuit {
         self.requests.pop_front()
     }
 
-    /// A field of an axis (or its message) changed, or the axis's values arrived: answer the
-    /// reads that waited for it and post to the subscriptions it concerns.
+    /// A field of an axis (or its message) changed: answer the reads that waited for the
+    /// axis's values and post to the subscriptions it concerns.
     pub fn handle_change(&mut self, axis: &str, changed: Target, directory: &dyn Directory) {
+        self.tell(axis, Some(changed), directory);
+    }
+
+    /// An axis's values arrived whole: answer the reads that waited for them and post to the
+    /// subscriptions not posted yet.
+    pub fn values_arrived(&mut self, axis: &str, directory: &dyn Directory) {
+        self.tell(axis, None, directory);
+    }
+
+    fn tell(&mut self, axis: &str, changed: Option<Target>, directory: &dyn Directory) {
         let waiting = std::mem::take(&mut self.pending_reads);
         for pending in waiting {
             let pv = self.channels.get(&pending.sid).map(|c| c.pv.clone());
@@ -204,10 +214,11 @@ impl Circuit {
                 None => self.pending_reads.push(pending),
             }
         }
-        let alarm = matches!(changed, Target::Field(Field::STAT | Field::SEVR));
-        let shows =
-            |target: Target| target == changed || (changed == Target::Message && target == Target::MessageChars);
-        let metadata = |pv: &Pv| matches!(changed, Target::Field(field) if pv.metadata_from().contains(&field));
+        let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR)));
+        let shows = |target: Target| {
+            changed == Some(target) || (changed == Some(Target::Message) && target == Target::MessageChars)
+        };
+        let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         let concerned: Vec<u32> = self
             .subscriptions
             .iter()

@@ -80,13 +80,18 @@ mod tests {
         let sid = reply.p2;
         assert_eq!(circuit.poll_request(), Some(Request::Fetch { axis: "m1".into() }));
 
-        // A read before the values arrive waits for them.
+        // A read and a subscription before the values arrive wait for them.
         assert!(request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, sid, 99), &[]).is_empty());
+        let plain = request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 6, 1, sid, 4), &[0; 16]);
+        assert!(plain.is_empty());
         directory.fetched = true;
-        circuit.handle_change("m1", Target::Field(Field::VAL), &directory);
+        circuit.values_arrived("m1", &directory);
         let read = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((read[0].0.command, read[0].0.p1, read[0].0.p2), (command::READ_NOTIFY, 1, 99));
         assert_eq!(read[0].1, 2.5f64.to_be_bytes());
+        assert_eq!((read[1].0.command, read[1].0.p2), (command::EVENT_ADD, 4));
+        circuit.values_arrived("m1", &directory);
+        assert_eq!(circuit.poll_transmit(), None, "posted once");
 
         // A CTRL subscription gets the value at once and again when the limits change.
         let mut add = vec![0; 16];

@@ -3,7 +3,7 @@
 //! starts by a liveliness token of its own, so a client that dies or is cut off has its jogs
 //! ended.
 
-use crate::values::Change;
+use crate::values::{Change, Seen};
 use crate::{Done, Shared, Write};
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -27,6 +27,7 @@ pub(crate) async fn serve_circuit(
     let mut changes = shared.changes.subscribe();
     let (done, mut finished) = mpsc::unbounded_channel::<Done>();
     let mut circuit = Circuit::new(&shared.prefix);
+    let mut seen = Seen::default();
     // The tokens this circuit holds its jogs by, per axis: they go when the circuit closes (the
     // client quit, died or was cut off), and the node then ends the jogs.
     let mut holds: HashMap<String, HoldToken> = HashMap::new();
@@ -40,19 +41,22 @@ pub(crate) async fn serve_circuit(
                 if length == 0 {
                     return Ok(());
                 }
-                let handled = circuit.handle_input(&buffer[..length], &*shared.values());
+                // A request is answered with all the network has told: the changes before it are
+                // handled (and posted) first.
+                catch_up(&mut changes, &mut circuit, &mut seen, shared);
+                let handled = circuit.handle_input(&buffer[..length], &seen.directory(&shared.values()));
                 handled.map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
             }
-            change = changes.recv() => match change {
-                Ok(Change::Value(axis, target)) => circuit.handle_change(&axis, target, &*shared.values()),
-                Ok(Change::Gone(axis)) => circuit.axis_gone(&axis),
-                Err(broadcast::error::RecvError::Lagged(missed)) => {
-                    tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");
-                    circuit.repost(&*shared.values());
+            change = changes.recv() => {
+                if !take(change, &mut circuit, &mut seen, shared) {
+                    return Ok(());
                 }
-                Err(broadcast::error::RecvError::Closed) => return Ok(()),
-            },
-            Some((answer, outcome)) = finished.recv() => circuit.write_done(answer, outcome),
+            }
+            Some((answer, outcome)) = finished.recv() => {
+                // A put-callback's motion ends after its last posts.
+                catch_up(&mut changes, &mut circuit, &mut seen, shared);
+                circuit.write_done(answer, outcome);
+            }
         }
         while let Some(request) = circuit.poll_request() {
             match request {
@@ -74,6 +78,44 @@ pub(crate) async fn serve_circuit(
         while let Some(bytes) = circuit.poll_transmit() {
             writer.write_all(&bytes).await?;
         }
+    }
+}
+
+/// Handle a change told by the gateway, in the order told; false when the gateway is gone.
+fn take(
+    told: Result<Change, broadcast::error::RecvError>,
+    circuit: &mut Circuit,
+    seen: &mut Seen,
+    shared: &Shared,
+) -> bool {
+    match told {
+        Ok(change) if seen.take(&change) => match change {
+            Change::Value { axis, target, .. } => {
+                circuit.handle_change(&axis, target, &seen.directory(&shared.values()))
+            }
+            Change::Whole { axis, .. } => circuit.values_arrived(&axis, &seen.directory(&shared.values())),
+            Change::Gone { axis, .. } => circuit.axis_gone(&axis),
+        },
+        Ok(_) => {}
+        Err(broadcast::error::RecvError::Lagged(missed)) => {
+            tracing::warn!(missed, "a circuit fell behind the network's changes: posting every monitor again");
+            seen.forget_all();
+            circuit.repost(&seen.directory(&shared.values()));
+        }
+        Err(broadcast::error::RecvError::Closed) => return false,
+    }
+    true
+}
+
+/// Handle every change told so far.
+fn catch_up(changes: &mut broadcast::Receiver<Change>, circuit: &mut Circuit, seen: &mut Seen, shared: &Shared) {
+    loop {
+        let told = match changes.try_recv() {
+            Ok(change) => Ok(change),
+            Err(broadcast::error::TryRecvError::Lagged(missed)) => Err(broadcast::error::RecvError::Lagged(missed)),
+            Err(broadcast::error::TryRecvError::Empty | broadcast::error::TryRecvError::Closed) => return,
+        };
+        take(told, circuit, seen, shared);
     }
 }
 

@@ -80,17 +80,9 @@ impl Shared {
         if !values.followed.contains_key(&axis) {
             return;
         }
-        let entry = Entry { value, stamp };
-        match target {
-            Target::Field(field) => {
-                values.fields.entry(axis.clone()).or_default().insert(field, entry);
-            }
-            _ => {
-                values.messages.insert(axis.clone(), entry);
-            }
-        }
-        drop(values);
-        let _ = self.changes.send(Change::Value(axis, target));
+        // Told under the lock, so that the circuits get the changes in the order of the values.
+        let change = values.store(axis, target, Entry { value, stamp });
+        let _ = self.changes.send(change);
     }
 
     /// Follow an axis's fields and read them all, once while it stays live.
@@ -120,9 +112,11 @@ impl Shared {
                     shared.store(sample);
                 }
             }
-            // Nothing came (a node too slow, or gone): the next client request tries again.
             let mut values = shared.values();
-            if values.entry(&axis, Field::STAT).is_none() {
+            if values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
+                let _ = shared.changes.send(values.show_whole(axis));
+            } else {
+                // Nothing came (a node too slow, or gone): the next client request tries again.
                 let followed = values.followed.remove(&axis);
                 drop(values);
                 drop(followed);
@@ -218,14 +212,10 @@ impl ChannelAccess {
                     if sample.kind() == SampleKind::Put {
                         values.live.insert(axis);
                     } else {
-                        values.live.remove(&axis);
-                        values.fields.remove(&axis);
-                        values.messages.remove(&axis);
                         // Undeclared on a task of ours, not inside Zenoh's callback.
                         let followed = values.followed.remove(&axis);
-                        drop(values);
                         runtime.spawn(async move { drop(followed) });
-                        let _ = shared.changes.send(Change::Gone(axis));
+                        let _ = shared.changes.send(values.forget(axis));
                     }
                 })
                 .await?
