@@ -167,10 +167,10 @@ def ophyd_scan():
     motor = EpicsMotor("m1", name="m1")
     motor.wait_for_connection(timeout=10)
     # ophyd ends a move in its monitor thread by finishing the move's status, then dropping the
-    # status's subscription; a plan that starts the next move in between (a thread starved of
-    # the CPU) has that move's subscription dropped, and waits for ever (an IOC's motor too: 2
-    # of 20 scans beside two busy loops, either gateway). A settle time runs the plan's
-    # callbacks a little later, after the drop.
+    # status's subscription; a plan that starts the next move in between (the monitor thread
+    # starved of the CPU) has that move's subscription dropped, and waits for ever. It is
+    # ophyd's: 2 of 20 scans beside two busy loops hung so with the gateway before and after
+    # its change-ordering fix alike. A settle time runs the plan's callbacks after the drop.
     motor.settle_time = 0.1
     assert motor.limits == (-100.0, 100.0) and motor.precision == 3 and motor.egu == "mm"
     moving = []
