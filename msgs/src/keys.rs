@@ -34,6 +34,25 @@ impl Default for KeyLayout {
     }
 }
 
+/// A key chunk from a name as a user types it, `*` standing for any characters (`m*`, `D*`):
+/// a `*` inside a chunk is spelt `$*` in a key expression; `*` and `**` stay as they are.
+#[must_use]
+pub fn chunk_pattern(pattern: &str) -> String {
+    if pattern == "*" || pattern == "**" {
+        return pattern.to_string();
+    }
+    // Stars in a row are one (`$*$*` is no key expression).
+    let mut chunk = String::with_capacity(pattern.len() + 2);
+    for c in pattern.chars() {
+        match c {
+            '*' if chunk.ends_with("$*") => {}
+            '*' => chunk.push_str("$*"),
+            c => chunk.push(c),
+        }
+    }
+    chunk
+}
+
 impl KeyLayout {
     /// The layout under `prefix` (surrounding slashes are dropped).
     pub fn new(prefix: &str) -> Self {
@@ -92,11 +111,10 @@ impl KeyLayout {
         format!("{}/{axis}/{DRIVER_CMD_KEY}", self.prefix)
     }
 
-    /// `<prefix>/<axis>/<pattern>`: the fields a pattern such as `D*` names (a `*` inside a
-    /// chunk is spelt `$*` in a key expression; `*` and `**` stay as they are).
+    /// `<prefix>/<axis>/<pattern>`: the fields a pattern such as `D*` names (see
+    /// `chunk_pattern`).
     pub fn field_pattern(&self, axis: &str, pattern: &str) -> String {
-        let pattern = if pattern == "*" || pattern == "**" { pattern.to_string() } else { pattern.replace('*', "$*") };
-        format!("{}/{axis}/{pattern}", self.prefix)
+        format!("{}/{axis}/{}", self.prefix, chunk_pattern(pattern))
     }
 
     /// `<prefix>/@controller/<name>/reload`: a put here re-reads a script controller's script
@@ -290,10 +308,21 @@ pub enum AxisNameError {
 
 /// An axis name must be a single, plain key chunk.
 pub fn validate_axis_name(name: &str) -> Result<(), AxisNameError> {
+    check_chunk(name, false)
+}
+
+/// An axis pattern, as a reader or a monitor takes it (`m*`, `*`): an axis name in which `*`
+/// stands for any characters (see `chunk_pattern`).
+pub fn validate_axis_pattern(pattern: &str) -> Result<(), AxisNameError> {
+    check_chunk(pattern, true)
+}
+
+fn check_chunk(name: &str, stars: bool) -> Result<(), AxisNameError> {
     if name.is_empty() {
         return Err(AxisNameError::Empty);
     }
-    if let Some(c) = name.chars().find(|c| matches!(c, '/' | '*' | '$' | '?' | '#' | '@') || c.is_whitespace()) {
+    let forbidden = |c: &char| matches!(c, '/' | '$' | '?' | '#' | '@') || (*c == '*' && !stars) || c.is_whitespace();
+    if let Some(c) = name.chars().find(forbidden) {
         return Err(AxisNameError::Forbidden { name: name.to_string(), character: c });
     }
     Ok(())
@@ -386,5 +415,17 @@ mod tests {
         assert!(validate_axis_name("a/b").is_err());
         assert!(validate_axis_name("").is_err());
         assert!(validate_axis_name("x*").is_err());
+        assert!(validate_axis_pattern("x*").is_ok() && validate_axis_pattern("*").is_ok());
+        assert_eq!(
+            validate_axis_pattern("m?").unwrap_err().to_string(),
+            "axis name 'm?' contains '?', which cannot stand in a key chunk"
+        );
+    }
+
+    #[test]
+    fn a_pattern_as_typed_becomes_a_key_chunk() {
+        for (typed, chunk) in [("*", "*"), ("**", "**"), ("m*", "m$*"), ("*1", "$*1"), ("m**2", "m$*2"), ("m1", "m1")] {
+            assert_eq!(chunk_pattern(typed), chunk, "{typed}");
+        }
     }
 }

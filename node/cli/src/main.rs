@@ -12,7 +12,7 @@ use zmotor_deploy::{
     import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
     WebConfig, ZenohConfig,
 };
-use zmotor_msgs::{Field, KeyLayout, Value, FIELDS};
+use zmotor_msgs::{keys, Field, KeyLayout, Value, FIELDS};
 use zmotor_node::{state_dir, AutosaveConfig, Node, StateStore};
 
 /// Any failure, as the user will read it.
@@ -154,8 +154,10 @@ enum Command {
         client: ClientArgs,
     },
     /// Read a field (or every field when FIELD is omitted) of an axis, or of several axes
-    /// separated by commas (m1,m2: lines `m1.RBV 1.5`).
+    /// separated by commas or named by a pattern (m1,m2 or 'm*': lines `m1.RBV 1.5`); FIELD may
+    /// be a pattern too ('D*').
     Get {
+        #[arg(value_parser = axis_patterns)]
         axis: String,
         field: Option<String>,
         #[command(flatten)]
@@ -163,6 +165,7 @@ enum Command {
     },
     /// Write a field; the node confirms or says why it refused.
     Put {
+        #[arg(value_parser = axis_name)]
         axis: String,
         field: String,
         /// The value (a negative number is a value, not an option).
@@ -183,6 +186,7 @@ enum Command {
     /// Jog an axis while this runs: it stops at Ctrl-C, and also if this process dies or is cut
     /// off (the jog is held by this process's liveliness token: the jog deadman).
     Jog {
+        #[arg(value_parser = axis_name)]
         axis: String,
         /// `+` (JOGF) or `-` (JOGR).
         #[arg(allow_hyphen_values = true, value_parser = ["+", "-"])]
@@ -191,8 +195,10 @@ enum Command {
         client: ClientArgs,
     },
     /// Print field changes as they arrive, as camonitor does (`m1.RBV 2026-12-01
-    /// 12:00:00.123456 10`, the time of arrival in UTC), all fields when none is named.
+    /// 12:00:00.123456 10`, the time of arrival in UTC), all fields when none is named; AXIS
+    /// may be a pattern ('m*', '*').
     Monitor {
+        #[arg(value_parser = axis_pattern)]
         axis: String,
         fields: Vec<String>,
         /// One JSON object a line: {"axis", "field", "time" (RFC 3339), "value"}.
@@ -592,6 +598,22 @@ fn print_lines(lines: impl IntoIterator<Item = String>) -> bool {
     lines.into_iter().all(|line| writeln!(out, "{line}").and_then(|()| out.flush()).is_ok())
 }
 
+/// An axis's name, as a write or a jog takes it.
+fn axis_name(text: &str) -> Result<String, String> {
+    keys::validate_axis_name(text).map(|()| text.to_string()).map_err(|e| e.to_string())
+}
+
+/// An axis's name or a pattern such as `m*`, as a monitor takes it.
+fn axis_pattern(text: &str) -> Result<String, String> {
+    keys::validate_axis_pattern(text).map(|()| text.to_string()).map_err(|e| e.to_string())
+}
+
+/// Axes' names or patterns separated by commas, as a read takes them.
+fn axis_patterns(text: &str) -> Result<String, String> {
+    text.split(',').filter(|a| !a.is_empty()).try_for_each(|a| axis_pattern(a).map(drop))?;
+    Ok(text.to_string())
+}
+
 /// A number of seconds a command waits: finite, not negative, at most a year.
 fn seconds(text: &str) -> Result<f64, String> {
     const YEAR: f64 = 365.0 * 24.0 * 3600.0;
@@ -609,14 +631,17 @@ const UNANSWERED_UNDER_ACCESS_CONTROL: &str = " Under access control, a request 
 async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<ExitCode, Error> {
     let zmotor = connect(client).await?;
     let axes: Vec<&str> = axes.split(',').filter(|a| !a.is_empty()).collect();
-    let several = axes.len() > 1;
+    // Lines name their axis when there may be several.
+    let several = axes.len() > 1 || axes.iter().any(|a| a.contains('*'));
+    // Field names are upper case, as EPICS spells them; a name is found in any case.
+    let pattern = field.filter(|f| f.contains('*')).map(str::to_ascii_uppercase);
     let mut code = ExitCode::SUCCESS;
     for axis in axes {
         // One field by name, or a pattern such as D* or the whole axis.
-        let selection = match field {
-            Some(pattern) if pattern.contains('*') => Selection::Pattern(pattern),
-            Some(name) => Selection::Field(field_named(name)?),
-            None => Selection::All,
+        let selection = match (&pattern, field) {
+            (Some(pattern), _) => Selection::Pattern(pattern),
+            (None, Some(name)) => Selection::Field(field_named(name)?),
+            (None, None) => Selection::All,
         };
         let read = zmotor.read(axis, selection).await?;
         for refusal in &read.refusals {
@@ -626,7 +651,7 @@ async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<Exi
         print_lines(read.readings.iter().map(|reading| {
             let (name, value) = (&reading.name, read.shown(reading));
             match (several, single) {
-                (true, _) => format!("{axis}.{name} {value}"),
+                (true, _) => format!("{}.{name} {value}", reading.axis),
                 (false, true) => value,
                 (false, false) => format!("{name:<6} {value}"),
             }
@@ -718,7 +743,12 @@ async fn put(
             ExitCode::FAILURE
         }
         WriteOutcome::NoAnswer(NoAnswer::TimedOut) => {
-            eprintln!("zmotor: {axis} is served but did not answer within {timeout} s");
+            let motion = if wait { ", and a motion it started may still be under way" } else { "" };
+            eprintln!(
+                "zmotor: {axis} is served but did not answer within {timeout} s: the write of {} may have been \
+                 taken{motion}",
+                field.name()
+            );
             ExitCode::FAILURE
         }
         WriteOutcome::NoAnswer(NoAnswer::Silent) => {
@@ -801,7 +831,8 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
     let wanted: Vec<Field> = fields.iter().filter(|f| !is_err(f)).map(|f| field_named(f)).collect::<Result<_, _>>()?;
     let messages = fields.iter().any(is_err);
     // As camonitor says "not connected": a monitor of an axis nobody serves waits silently.
-    let tokens = zmotor.session().liveliness().get(zmotor.layout().axis(axis)).timeout(Duration::from_secs(2)).await?;
+    let token = zmotor.layout().axis(&keys::chunk_pattern(axis));
+    let tokens = zmotor.session().liveliness().get(token).timeout(Duration::from_secs(2)).await?;
     if tokens.recv_async().await.is_err() {
         eprintln!("zmotor: no node serves {axis} now; its values will show when one does (Ctrl-C to stop)");
     }

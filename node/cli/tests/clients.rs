@@ -61,6 +61,24 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
         stdout(&here, &["get", "m1,m2", "DESC", "--connect", &endpoint]),
         "m1.DESC slit top\nm2.DESC slit bottom\n"
     );
+    // Axes named by a pattern, each line naming its axis; a field pattern in any case.
+    assert_eq!(stdout(&here, &["get", "*", "DESC", "--connect", &endpoint]), "m1.DESC slit top\nm2.DESC slit bottom\n");
+    assert_eq!(stdout(&here, &["get", "m*2", "eg*", "--connect", &endpoint]), "m2.EGU deg\n");
+    let written = here.zmotor(&["put", "m*", "VAL", "1", "--connect", &endpoint]).output().unwrap();
+    assert_eq!(written.status.code(), Some(2), "a write names one axis: {written:?}");
+    assert!(String::from_utf8_lossy(&written.stderr).contains("axis name 'm*' contains '*'"), "{written:?}");
+    let mut every =
+        here.zmotor(&["monitor", "*", "EGU", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
+    let lines = Lines::of(&mut every);
+    let _every = Running(Some(every));
+    let seen = std::cell::RefCell::new(Vec::new());
+    lines.wait_for(PATIENCE, |l| {
+        seen.borrow_mut().extend(common::monitored(l).map(|(pv, value)| format!("{pv} {value}")));
+        seen.borrow().len() == 2
+    });
+    seen.borrow_mut().sort();
+    assert_eq!(*seen.borrow(), ["m1.EGU mm", "m2.EGU deg"]);
+
     // As caget shows them: a menu by its choice, a double at the axis's precision.
     assert_eq!(stdout(&here, &["get", "m1", "SPMG", "--connect", &endpoint]), "Go\n");
     here.put(&endpoint, "m1", "SPMG", "Pause", false).unwrap();
@@ -140,4 +158,14 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     assert!(said.contains("reached=0") && said.contains("DMOV=1"), "{said}");
     assert_eq!(output.status.code(), Some(1), "{said}{complained}");
     assert!(complained.contains("m1 did not reach the target"), "{complained}");
+
+    // A motion that outlasts --timeout (4.7 mm at 1 mm/s, 0.3 s): the command says what it
+    // knows, not Zenoh's bare "Timeout".
+    let args = ["put", "m1", "VAL", "5", "--wait", "--timeout", "0.3", "--connect", &endpoint];
+    let timed_out = here.zmotor(&args).output().unwrap();
+    let complained = String::from_utf8_lossy(&timed_out.stderr);
+    assert_eq!(timed_out.status.code(), Some(1), "{complained}");
+    assert!(complained.contains("m1 is served but did not answer within 0.3 s"), "{complained}");
+    assert!(complained.contains("the write of VAL may have been taken, and a motion"), "{complained}");
+    here.put(&endpoint, "m1", "STOP", "1", false).unwrap();
 }

@@ -21,9 +21,10 @@ pub use write::{NoAnswer, SentWrite, WriteOptions, WriteOutcome};
 
 use zenoh::bytes::Encoding;
 use zenoh::liveliness::LivelinessToken;
+use zenoh::query::ReplyError;
 use zenoh::Session;
 use zmotor_deploy::ZenohConfig;
-use zmotor_msgs::{Field, KeyLayout};
+use zmotor_msgs::{Field, KeyLayout, Refusal};
 
 /// A client of the axes under one key prefix, on a Zenoh session.
 #[derive(Clone)]
@@ -79,4 +80,11 @@ impl Client {
         let token = self.session.liveliness().declare_token(&key).await?;
         Ok(HoldToken { key, _token: token })
     }
+}
+
+/// Whether an error reply is Zenoh's own word that a query's time ran out (`Timeout`, from the
+/// session or from a router on the way), not a node's answer: a node refuses with a refusal's
+/// type.
+fn timed_out(error: &ReplyError) -> bool {
+    !error.encoding().to_string().starts_with(Refusal::MIME) && *error.payload().to_bytes() == *b"Timeout"
 }

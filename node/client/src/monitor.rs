@@ -3,14 +3,16 @@
 //! arrive through one queue in the order the network delivered them, so no change between the
 //! two is lost and none is shown out of order.
 
-use crate::read::{field_of, sample_value};
+use crate::read::{axis_of, field_of, sample_value};
 use crate::show::show;
 use crate::Client;
+use std::collections::HashMap;
 use std::time::{Duration, SystemTime};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
 use zenoh::pubsub::Subscriber;
 use zenoh::sample::Sample;
-use zmotor_msgs::{Field, Value};
+use zmotor_msgs::keys::chunk_pattern;
+use zmotor_msgs::{Field, KeyLayout, Value};
 
 /// How long the current values may take to come.
 const PATIENCE: Duration = Duration::from_secs(5);
@@ -32,15 +34,16 @@ pub struct Update {
     pub shown: String,
 }
 
-/// A monitor of some fields of one axis; it ends when dropped.
+/// A monitor of some fields of one axis (or of the axes a pattern names); it ends when dropped.
 pub struct Monitor {
-    axis: String,
+    layout: KeyLayout,
     /// The fields followed; empty for every field.
     wanted: Vec<Field>,
     /// Whether the axis's messages (ERR: refused writes, its controller's errors) are followed.
     messages: bool,
     arrivals: UnboundedReceiver<Arrival>,
-    prec: Option<i16>,
+    /// Each axis's PREC.
+    precs: HashMap<String, i16>,
     _subscribers: Vec<Subscriber<()>>,
 }
 
@@ -48,12 +51,13 @@ pub struct Monitor {
 enum Arrival {
     /// A value of a followed field, current or changed.
     Value(Sample),
-    /// The axis's PREC, asked for first so the first values are shown at it.
+    /// An axis's PREC, asked for first so the first values are shown at it.
     Precision(Sample),
 }
 
 impl Client {
-    /// Follow `fields` of `axis` (every field when empty), starting with their current values.
+    /// Follow `fields` of `axis` (every field when empty), starting with their current values;
+    /// `axis` may be a pattern such as `m*` or `*`.
     pub async fn monitor(&self, axis: &str, fields: &[Field]) -> Result<Monitor, zenoh::Error> {
         self.monitor_with_messages(axis, fields, false).await
     }
@@ -67,6 +71,7 @@ impl Client {
         messages: bool,
     ) -> Result<Monitor, zenoh::Error> {
         let layout = self.layout();
+        let axis = &chunk_pattern(axis);
         let (queue, arrivals) = unbounded_channel();
         let mut followed: Vec<String> = match fields {
             [] => vec![layout.axis_fields(axis)],
@@ -113,7 +118,8 @@ impl Client {
                 .await?;
         }
         let wanted = fields.to_vec();
-        Ok(Monitor { axis: axis.to_string(), wanted, messages, arrivals, prec: None, _subscribers: subscribers })
+        let layout = layout.clone();
+        Ok(Monitor { layout, wanted, messages, arrivals, precs: HashMap::new(), _subscribers: subscribers })
     }
 }
 
@@ -126,9 +132,10 @@ impl Monitor {
                 Arrival::Precision(sample) => (sample, false),
             };
             let (field, name) = field_of(&sample);
+            let axis = axis_of(&self.layout, &sample);
             let value = sample_value(&sample);
-            if field == Some(Field::PREC) {
-                self.prec = value.as_f64().map(|p| p as i16);
+            if let (Some(Field::PREC), Some(prec)) = (field, value.as_f64()) {
+                self.precs.insert(axis.clone(), prec as i16);
             }
             if !shown {
                 continue;
@@ -136,9 +143,10 @@ impl Monitor {
             let message = self.messages && name == zmotor_msgs::keys::ERR_KEY;
             let wanted = self.wanted.is_empty() || message || field.is_some_and(|f| self.wanted.contains(&f));
             if wanted {
-                let shown = field.map_or_else(|| value.to_string(), |f| show(f, &value, self.prec));
+                let shown =
+                    field.map_or_else(|| value.to_string(), |f| show(f, &value, self.precs.get(&axis).copied()));
                 let at = SystemTime::now();
-                return Some(Update { axis: self.axis.clone(), field, name, value, at, shown });
+                return Some(Update { axis, field, name, value, at, shown });
             }
         }
     }

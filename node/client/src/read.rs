@@ -1,11 +1,14 @@
-//! Reads: one field, a pattern of fields or every field of an axis, each answer with the field
-//! it names, and the axis's PREC so the values can be shown as caget shows them.
+//! Reads: one field, a pattern of fields or every field of an axis (or of the axes a pattern
+//! such as `m*` names), each answer with the axis and the field it names, and each axis's PREC
+//! so the values can be shown as caget shows them.
 
 use crate::show::show;
 use crate::Client;
+use std::collections::BTreeMap;
 use std::time::Duration;
 use zenoh::sample::Sample;
-use zmotor_msgs::decode_cbor_value;
+use zmotor_msgs::keys::chunk_pattern;
+use zmotor_msgs::{decode_cbor_value, KeyLayout};
 use zmotor_msgs::{Field, Refusal, Value};
 
 /// How long a read waits for its answers.
@@ -25,6 +28,8 @@ pub enum Selection<'a> {
 /// One field's value, as read.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Reading {
+    /// The axis the answer's key names.
+    pub axis: String,
     /// The field, when the answer's key names one of the catalogue.
     pub field: Option<Field>,
     /// The last chunk of the answer's key (the field's name).
@@ -33,22 +38,22 @@ pub struct Reading {
     pub value: Value,
 }
 
-/// What a read of one axis brought.
+/// What a read of an axis (or of the axes a pattern names) brought.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct AxisReading {
-    /// The fields' values, in catalogue order.
+    /// The fields' values, by axis, each axis's in catalogue order.
     pub readings: Vec<Reading>,
     /// Error answers.
     pub refusals: Vec<Refusal>,
-    /// The axis's PREC, when it answered.
-    pub prec: Option<i16>,
+    /// Each axis's PREC, when it answered.
+    pub precs: BTreeMap<String, i16>,
 }
 
 impl AxisReading {
-    /// A reading's value as caget shows it (menus by name, doubles at the axis's precision).
+    /// A reading's value as caget shows it (menus by name, doubles at its axis's precision).
     pub fn shown(&self, reading: &Reading) -> String {
         match reading.field {
-            Some(field) => show(field, &reading.value, self.prec),
+            Some(field) => show(field, &reading.value, self.precs.get(&reading.axis).copied()),
             None => reading.value.to_string(),
         }
     }
@@ -65,6 +70,11 @@ pub(crate) fn sample_value(sample: &Sample) -> Value {
     decode_cbor_value(&payload).unwrap_or_else(|_| text())
 }
 
+/// The axis a sample's key names.
+pub(crate) fn axis_of(layout: &KeyLayout, sample: &Sample) -> String {
+    layout.axis_chunk(sample.key_expr().as_str()).unwrap_or_default().to_string()
+}
+
 /// The field a sample's key names, and that name.
 pub(crate) fn field_of(sample: &Sample) -> (Option<Field>, String) {
     let name = sample.key_expr().as_str().rsplit('/').next().unwrap_or_default().to_string();
@@ -72,9 +82,11 @@ pub(crate) fn field_of(sample: &Sample) -> (Option<Field>, String) {
 }
 
 impl Client {
-    /// Read `selection` of `axis`, and its PREC beside.
+    /// Read `selection` of `axis` (an axis name, or a pattern such as `m*` or `*`), and each
+    /// axis's PREC beside.
     pub async fn read(&self, axis: &str, selection: Selection<'_>) -> Result<AxisReading, zenoh::Error> {
         let layout = self.layout();
+        let axis = &chunk_pattern(axis);
         let key = match selection {
             Selection::Field(field) => layout.field(axis, field),
             Selection::Pattern(pattern) => layout.field_pattern(axis, pattern),
@@ -91,21 +103,33 @@ impl Client {
             match reply.into_result() {
                 Ok(sample) => {
                     let (field, name) = field_of(&sample);
-                    read.readings.push(Reading { field, name, value: sample_value(&sample) });
+                    let axis = axis_of(layout, &sample);
+                    read.readings.push(Reading { axis, field, name, value: sample_value(&sample) });
                 }
+                // Some did not answer in time: what came is the read.
+                Err(error) if crate::timed_out(&error) => {}
                 Err(error) => {
                     read.refusals.push(Refusal::from_wire(&error.encoding().to_string(), &error.payload().to_bytes()))
                 }
             }
         }
-        read.readings.sort_by_key(|r| r.field);
-        let prec = read.readings.iter().find(|r| r.field == Some(Field::PREC));
-        read.prec = prec.and_then(|prec| prec.value.as_f64()).map(|p| p as i16);
+        read.readings.sort_by(|a, b| (&a.axis, a.field).cmp(&(&b.axis, b.field)));
+        let mut precs: Vec<(String, Value)> = read
+            .readings
+            .iter()
+            .filter(|r| r.field == Some(Field::PREC))
+            .map(|r| (r.axis.clone(), r.value.clone()))
+            .collect();
         if let Some(answers) = precision {
             while let Ok(reply) = answers.recv_async().await {
                 if let Ok(sample) = reply.into_result() {
-                    read.prec = sample_value(&sample).as_f64().map(|p| p as i16);
+                    precs.push((axis_of(layout, &sample), sample_value(&sample)));
                 }
+            }
+        }
+        for (axis, prec) in precs {
+            if let Some(prec) = prec.as_f64() {
+                read.precs.insert(axis, prec as i16);
             }
         }
         Ok(read)

@@ -134,6 +134,7 @@ impl SentWrite {
         loop {
             tokio::select! {
                 reply = self.replies.recv_async() => match reply {
+                    Ok(reply) if reply.result().is_err_and(crate::timed_out) => break,
                     Ok(reply) => return self.answered(reply),
                     Err(_) => break,
                 },
