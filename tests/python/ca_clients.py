@@ -159,6 +159,36 @@ def caproto_tools():
     ok("caproto's command-line tools read and put-callback")
 
 
+def put_callbacks_in_turn():
+    # As an IOC's dbNotify: a put-callback to a motor that another put-callback moves waits for
+    # that one to complete, then moves; two motions, each to its own target.
+    import threading
+    from caproto.sync.client import write
+
+    pulses = []
+    dmov = epics.PV("m1.DMOV", callback=lambda value=None, **kw: pulses.append(value))
+    dmov.wait_for_connection(timeout=10)
+    deadline = time.monotonic() + 10
+    while not pulses and time.monotonic() < deadline:
+        time.sleep(0.01)
+    pulses.clear()
+    # Two clients: caproto's (on a thread) moves the motor; pyepics puts while it moves.
+    first = threading.Thread(target=write, args=("m1", 1.0), kwargs={"notify": True, "repeater": False, "timeout": 30})
+    first.start()
+    deadline = time.monotonic() + 10
+    while 0 not in pulses and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert epics.caput("m1", 2.0, wait=True, timeout=30) == 1
+    first.join(30)
+    deadline = time.monotonic() + 5
+    while len(pulses) < 4 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert pulses == [0, 1, 0, 1], pulses
+    assert near(epics.caget("m1.RBV", use_monitor=False), 2.0), epics.caget("m1.RBV")
+    dmov.clear_callbacks()
+    ok("a put-callback to a motor another one moves waits for it to complete, as an IOC's does")
+
+
 def ophyd_scan():
     from bluesky import RunEngine
     from bluesky.plans import scan
@@ -205,7 +235,7 @@ def jog():
 
 # ophyd runs in a process of its own: it patches pyepics's PV class when it is imported.
 STAGES = {
-    "clients": [reads, put_wait_and_monitors, refused, moves_of_nothing, caproto_tools],
+    "clients": [reads, put_wait_and_monitors, refused, moves_of_nothing, caproto_tools, put_callbacks_in_turn],
     "ophyd": [ophyd_scan],
     "gone": [gone],
     "jog": [jog],

@@ -11,6 +11,7 @@ mod circuit;
 mod values;
 
 use circuit::serve_circuit;
+use std::collections::{HashMap, VecDeque};
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
@@ -18,7 +19,7 @@ use tokio::sync::{broadcast, mpsc};
 use values::{Change, Entry, Values};
 use zenoh::sample::{Sample, SampleKind};
 use zmotor_ca_proto::{answer_search, Pv, Stamp, Target, WriteAnswer, WriteEnd};
-use zmotor_client::{Client, NoAnswer, WriteOptions, WriteOutcome};
+use zmotor_client::{Client, NoAnswer, SentWrite, WriteOptions, WriteOutcome};
 use zmotor_deploy::CaConfig;
 use zmotor_msgs::{decode_cbor_value, keys, Field, Value};
 
@@ -44,6 +45,9 @@ const MOTION_PATIENCE: Duration = Duration::from_secs(3600);
 /// How long any other request waits for the node.
 const ANSWER_PATIENCE: Duration = Duration::from_secs(10);
 
+/// Put-callbacks waiting for an axis, each with where its end goes.
+type Waiting = VecDeque<(Write, mpsc::UnboundedSender<Done>)>;
+
 /// What every task of the front-end shares.
 #[derive(Clone)]
 pub(crate) struct Shared {
@@ -51,11 +55,17 @@ pub(crate) struct Shared {
     values: Arc<Mutex<Values>>,
     changes: broadcast::Sender<Change>,
     prefix: String,
+    /// The axes a put-callback moves, each with the put-callbacks of motions waiting for it.
+    moved: Arc<Mutex<HashMap<String, Waiting>>>,
 }
 
 impl Shared {
     pub(crate) fn values(&self) -> std::sync::MutexGuard<'_, Values> {
         self.values.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    fn moved(&self) -> std::sync::MutexGuard<'_, HashMap<String, Waiting>> {
+        self.moved.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Store a field's value, or the axis's message, as a sample brings it, and tell the
@@ -127,20 +137,74 @@ impl Shared {
     /// A confirmed write to a write key; how it ended goes back to the circuit. Sent here, in
     /// the circuit's order (a client's VELO then VAL, or VAL then STOP, reach the node in that
     /// order); the answer is awaited on a task of its own.
+    ///
+    /// A put-callback of a motion (a target, a home search) to an axis another one moves waits
+    /// for that one to complete, then is sent: an IOC's dbNotify queues a put-callback to a
+    /// record another put-callback holds (its restart list), so each completes at its own
+    /// target. A STOP or SPMG is never queued (an IOC's would wait for the motion it should stop).
     pub(crate) async fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
-        let Write { pv, text, wait, hold, answer } = write;
-        let Target::Field(field) = pv.target else { return };
-        let options =
-            if wait { WriteOptions::waiting(MOTION_PATIENCE) } else { WriteOptions::confirmed(ANSWER_PATIENCE) };
-        let sent = self.client.write(&pv.axis, field, text, options.held_by(hold)).await;
-        tokio::spawn(async move {
-            let end = match sent {
-                Ok(sent) => write_end(sent.outcome().await),
-                Err(e) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+        let moves = write.wait && matches!(write.pv.target, Target::Field(f) if moves_by_itself(f));
+        if moves {
+            let mut moved = self.moved();
+            match moved.get_mut(&write.pv.axis) {
+                Some(waiting) => return waiting.push_back((write, done)),
+                None => moved.insert(write.pv.axis.clone(), VecDeque::new()),
             };
-            let _ = done.send((answer, end));
+        }
+        let axis = write.pv.axis.clone();
+        let sent = self.send(write).await;
+        let shared = self.clone();
+        tokio::spawn(async move {
+            let (mut sent, mut done) = (sent, done);
+            loop {
+                let (answer, sending) = sent;
+                let end = match sending {
+                    Ok(sending) => write_end(sending.outcome().await),
+                    Err(e) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+                };
+                let _ = done.send((answer, end));
+                if !moves {
+                    return;
+                }
+                let Some((write, next)) = shared.next_motion(&axis) else { return };
+                (sent, done) = (shared.send(write).await, next);
+            }
         });
     }
+
+    async fn send(&self, write: Write) -> (WriteAnswer, Result<SentWrite, zenoh::Error>) {
+        let Write { pv, text, wait, hold, answer } = write;
+        let field = match pv.target {
+            Target::Field(field) => field,
+            // The circuit writes fields only.
+            Target::RecordType | Target::Message | Target::MessageChars => {
+                return (answer, Err(format!("{}: not a field", pv.axis).into()))
+            }
+        };
+        let options =
+            if wait { WriteOptions::waiting(MOTION_PATIENCE) } else { WriteOptions::confirmed(ANSWER_PATIENCE) };
+        (answer, self.client.write(&pv.axis, field, text, options.held_by(hold)).await)
+    }
+
+    /// The next put-callback of a motion waiting for `axis`, if any (the axis is then free): one
+    /// whose circuit has closed is dropped unsent, as an IOC cancels the put-callback of a
+    /// client that went.
+    fn next_motion(&self, axis: &str) -> Option<(Write, mpsc::UnboundedSender<Done>)> {
+        let mut moved = self.moved();
+        while let Some((write, done)) = moved.get_mut(axis).and_then(VecDeque::pop_front) {
+            if !done.is_closed() {
+                return Some((write, done));
+            }
+        }
+        moved.remove(axis);
+        None
+    }
+}
+
+/// A field whose put-callback completes at the end of a motion it starts: a target or a home
+/// search.
+fn moves_by_itself(field: Field) -> bool {
+    field.sets_target() || matches!(field, Field::HOMF | Field::HOMR)
 }
 
 /// How a write's outcome is told to a CA client.
@@ -193,8 +257,13 @@ impl ChannelAccess {
         let tcp_port = listener.local_addr().map_err(bind)?.port();
         let udp = search_socket(SocketAddr::new(config.address, tcp_port)).map_err(bind)?;
         let (changes, _) = broadcast::channel(4096);
-        let shared =
-            Shared { client: client.clone(), values: Arc::default(), changes, prefix: config.pv_prefix.clone() };
+        let shared = Shared {
+            client: client.clone(),
+            values: Arc::default(),
+            changes,
+            prefix: config.pv_prefix.clone(),
+            moved: Arc::default(),
+        };
         let runtime = tokio::runtime::Handle::current();
         let tokens = {
             let shared = shared.clone();

@@ -55,6 +55,8 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "answer as an IOC would",
         "ERR reads in full",
         "caproto",
+        "moves nothing posts DMOV 0 then 1",
+        "waits for it to complete",
         "ophyd",
     ] {
         assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
