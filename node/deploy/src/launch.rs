@@ -81,10 +81,21 @@ impl Launch {
 
     fn read_source(&mut self, name: &str, text: &str) -> Result<LaunchFile, LaunchError> {
         self.sources.push(Source { name: name.to_string(), text: text.to_string() });
-        toml::from_str(text).map_err(|e: toml::de::Error| LaunchError {
-            file: name.to_string(),
-            line: e.span().map(|span| locate::line_at(text, span.start)),
-            message: e.message().trim().to_string(),
+        toml::from_str(text).map_err(|e: toml::de::Error| {
+            let message = e.message().trim();
+            // Named by its key, unless the message names it already.
+            let key = e.span().and_then(|span| locate::key_at(text, span.start)).filter(|key| {
+                let last = key.rsplit(['.', ' ']).next().unwrap_or(key);
+                !message.starts_with(key.as_str()) && !message.starts_with(&format!("{last}:"))
+            });
+            LaunchError {
+                file: name.to_string(),
+                line: e.span().map(|span| locate::line_at(text, span.start)),
+                message: match key {
+                    Some(key) => format!("{key}: {message}"),
+                    None => message.to_string(),
+                },
+            }
         })
     }
 

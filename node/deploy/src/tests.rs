@@ -188,6 +188,9 @@ fn errors_found_after_parsing_point_at_their_line() {
     assert_eq!(error.line, Some(WIRING.lines().position(|l| l.contains("name = \"drive\"")).unwrap()));
     let mode = Launch::parse("[zenoh]\nlisten = []\nmode = \"server\"").unwrap_err();
     assert_eq!(mode.to_string(), "<launch>:3: zenoh.mode: 'server' is not one of peer, client, router");
+    // A value of the wrong type is named by its key, as the errors found after parsing are.
+    let typed = Launch::parse("[[axis]]\nname = \"m1\"\ndriver = \"sim\"\nreadback_rate = \"x\"\n").unwrap_err();
+    assert_eq!(typed.to_string(), "<launch>:4: axis 'm1': readback_rate: invalid type: string \"x\", expected f64");
 }
 
 const CONTROLLED: &str = r#"[[controller]]
