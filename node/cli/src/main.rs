@@ -6,8 +6,8 @@ mod sim_controller;
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
-use zmotor_client::{show, Client, NoAnswer, Selection, WriteOptions, WriteOutcome};
+use std::time::{Duration, SystemTime};
+use zmotor_client::{show, Client, Event, NoAnswer, Selection, WriteOptions, WriteOutcome};
 use zmotor_deploy::{
     import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
     WebConfig, ZenohConfig,
@@ -196,12 +196,14 @@ enum Command {
     },
     /// Print field changes as they arrive, as camonitor does (`m1.RBV 2026-12-01
     /// 12:00:00.123456 10`, the time of arrival in UTC), all fields when none is named; AXIS
-    /// may be a pattern ('m*', '*').
+    /// may be a pattern ('m*', '*'). An axis whose node goes is told (`m1 ... *** disconnected`);
+    /// when a node serves it again, `*** connected` and its current values.
     Monitor {
         #[arg(value_parser = axis_pattern)]
         axis: String,
         fields: Vec<String>,
-        /// One JSON object a line: {"axis", "field", "time" (RFC 3339), "value"}.
+        /// One JSON object a line: {"axis", "field", "time" (RFC 3339), "value"}, or {"axis",
+        /// "time", "connected"} when an axis's node goes (false) or serves it again (true).
         #[arg(long)]
         json: bool,
         #[command(flatten)]
@@ -857,9 +859,14 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
     let mut updates = zmotor.monitor_with_messages(axis, &wanted, messages).await?;
     loop {
         tokio::select! {
-            update = updates.next() => {
-                let Some(update) = update else { break };
-                if !print_lines([monitor_line(&update, json)]) {
+            event = updates.next_event() => {
+                let line = match event {
+                    None => break,
+                    Some(Event::Value(update)) => monitor_line(&update, json),
+                    Some(Event::Gone(axis)) => connection_line(&axis, false, json),
+                    Some(Event::Back(axis)) => connection_line(&axis, true, json),
+                };
+                if !print_lines([line]) {
                     break;
                 }
             }
@@ -880,6 +887,18 @@ fn monitor_line(update: &zmotor_client::Update, json: bool) -> String {
         serde_json::json!({ "axis": axis, "field": field, "time": time, "value": update.value }).to_string()
     } else {
         format!("{axis}.{field} {} {}", time.trim_end_matches('Z').replacen('T', " ", 1), update.shown)
+    }
+}
+
+/// A monitor's line when an axis's node goes (as camonitor's `*** disconnected`) or a node serves
+/// it again (its current values follow).
+fn connection_line(axis: &str, connected: bool, json: bool) -> String {
+    let time = humantime::format_rfc3339_micros(SystemTime::now()).to_string();
+    if json {
+        serde_json::json!({ "axis": axis, "time": time, "connected": connected }).to_string()
+    } else {
+        let said = if connected { "connected" } else { "disconnected" };
+        format!("{axis} {} *** {said}", time.trim_end_matches('Z').replacen('T', " ", 1))
     }
 }
 

@@ -48,7 +48,7 @@ fn two_axes(here: &Host) -> (tempfile::TempDir, String, Running) {
 #[test]
 fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     let here = Host::default();
-    let (_dir, endpoint, node) = two_axes(&here);
+    let (dir, endpoint, node) = two_axes(&here);
 
     let listed = stdout(&here, &["list", "--connect", &endpoint]);
     let rows: Vec<Vec<&str>> = listed.lines().map(|l| l.split("  ").filter(|c| !c.is_empty()).collect()).collect();
@@ -120,9 +120,20 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     });
     assert!(ended.is_some(), "the JSON monitor saw RBV reach 0.2");
 
+    // The node goes: a monitor says so, as camonitor does; when it is back, the current values.
+    let mut watching =
+        here.zmotor(&["monitor", "m1", "EGU", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
+    let watched = Lines::of(&mut watching);
+    let _watching = Running(Some(watching));
+    assert!(watched.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.EGU", "mm"))).is_some());
     drop(node);
+    assert!(watched.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** disconnected")).is_some());
     let gone = here.zmotor(&["list", "--connect", &endpoint]).output().unwrap();
     assert!(!gone.status.success() || String::from_utf8_lossy(&gone.stdout).is_empty());
+    let file = dir.path().join("two.toml");
+    let _again = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    assert!(watched.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** connected")).is_some());
+    assert!(watched.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.EGU", "mm"))).is_some());
 }
 
 #[test]

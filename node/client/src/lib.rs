@@ -12,7 +12,7 @@ mod show;
 mod summary;
 mod write;
 
-pub use monitor::{Monitor, Update};
+pub use monitor::{Event, Monitor, Update};
 pub use read::{AxisReading, Reading, Selection};
 pub use session::{free_local_endpoint, open, open_waiting, zenoh_config, ConfigError, SessionError};
 pub use show::show;

@@ -1,16 +1,18 @@
 //! Monitors, as camonitor makes them: the current value of each field first, then every
 //! change. The subscription is declared before the current values are asked for, and both
 //! arrive through one queue in the order the network delivered them, so no change between the
-//! two is lost and none is shown out of order.
+//! two is lost and none is shown out of order. An axis whose node goes is told (camonitor's
+//! "disconnected"); when a node serves it again, its current values come again.
 
 use crate::read::{axis_of, field_of, sample_value};
 use crate::show::show;
 use crate::Client;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::time::{Duration, SystemTime};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver};
 use zenoh::pubsub::Subscriber;
-use zenoh::sample::Sample;
+use zenoh::sample::{Sample, SampleKind};
+use zenoh::Session;
 use zmotor_msgs::keys::chunk_pattern;
 use zmotor_msgs::{Field, KeyLayout, Value};
 
@@ -34,9 +36,22 @@ pub struct Update {
     pub shown: String,
 }
 
+/// What a monitor tells: a value, or an axis's node gone or back.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Event {
+    /// A field's value, current or changed.
+    Value(Update),
+    /// No node serves the axis any more (its liveliness token went).
+    Gone(String),
+    /// A node serves the axis again; its current values follow.
+    Back(String),
+}
+
 /// A monitor of some fields of one axis (or of the axes a pattern names); it ends when dropped.
 pub struct Monitor {
+    session: Session,
     layout: KeyLayout,
+    queue: tokio::sync::mpsc::UnboundedSender<Arrival>,
     /// The fields followed; empty for every field.
     wanted: Vec<Field>,
     /// Whether the axis's messages (ERR: refused writes, its controller's errors) are followed.
@@ -44,6 +59,8 @@ pub struct Monitor {
     arrivals: UnboundedReceiver<Arrival>,
     /// Each axis's PREC.
     precs: HashMap<String, i16>,
+    /// The axes served now, by their liveliness tokens.
+    served: HashSet<String>,
     _subscribers: Vec<Subscriber<()>>,
 }
 
@@ -53,6 +70,8 @@ enum Arrival {
     Value(Sample),
     /// An axis's PREC, asked for first so the first values are shown at it.
     Precision(Sample),
+    /// An axis's liveliness token, come or gone.
+    Token(Sample),
 }
 
 impl Client {
@@ -73,11 +92,10 @@ impl Client {
         let layout = self.layout();
         let axis = &chunk_pattern(axis);
         let (queue, arrivals) = unbounded_channel();
-        let mut followed: Vec<String> = match fields {
+        let mut subscribed: Vec<String> = match fields {
             [] => vec![layout.axis_fields(axis)],
             named => named.iter().map(|f| layout.field(axis, *f)).collect(),
         };
-        let mut subscribed = followed.clone();
         if messages && !fields.is_empty() {
             subscribed.push(layout.err(axis));
         }
@@ -86,6 +104,21 @@ impl Client {
             subscribed.push(layout.field(axis, Field::PREC));
         }
         let mut subscribers = Vec::new();
+        // The tokens there now, then each change: the history is what lets Zenoh tell a token's
+        // end when its node dies (not only when the node withdraws it).
+        let mut served = HashSet::new();
+        let there = self.session().liveliness().get(layout.axis(axis)).timeout(PATIENCE).await?;
+        while let Ok(reply) = there.recv_async().await {
+            if let Ok(token) = reply.into_result() {
+                served.insert(axis_of(layout, &token));
+            }
+        }
+        let tokens = queue.clone();
+        let token =
+            self.session().liveliness().declare_subscriber(layout.axis(axis)).history(true).callback(move |sample| {
+                let _ = tokens.send(Arrival::Token(sample));
+            });
+        subscribers.push(token.await?);
         for key in &subscribed {
             let queue = queue.clone();
             let subscriber = self.session().declare_subscriber(key).callback(move |sample| {
@@ -93,21 +126,43 @@ impl Client {
             });
             subscribers.push(subscriber.await?);
         }
-        if fields.is_empty() {
-            followed = vec![layout.axis_all(axis)];
-        }
-        let precision = self.session().get(layout.field(axis, Field::PREC)).timeout(PATIENCE);
-        let to_queue = queue.clone();
+        let monitor = Monitor {
+            session: self.session().clone(),
+            layout: layout.clone(),
+            queue,
+            wanted: fields.to_vec(),
+            messages,
+            arrivals,
+            precs: HashMap::new(),
+            served,
+            _subscribers: subscribers,
+        };
+        monitor.read_current(axis).await?;
+        Ok(monitor)
+    }
+}
+
+impl Monitor {
+    /// Ask for the current values of `axis` (a name or a pattern, as the keys spell it): its
+    /// PREC first, then the fields followed, into the queue.
+    async fn read_current(&self, axis: &str) -> Result<(), zenoh::Error> {
+        let layout = &self.layout;
+        let queue = self.queue.clone();
+        let precision = self.session.get(layout.field(axis, Field::PREC)).timeout(PATIENCE);
         precision
             .callback(move |reply| {
                 if let Ok(sample) = reply.into_result() {
-                    let _ = to_queue.send(Arrival::Precision(sample));
+                    let _ = queue.send(Arrival::Precision(sample));
                 }
             })
             .await?;
-        for key in followed {
-            let queue = queue.clone();
-            self.session()
+        let keys: Vec<String> = match &self.wanted[..] {
+            [] => vec![layout.axis_all(axis)],
+            fields => fields.iter().map(|f| layout.field(axis, *f)).collect(),
+        };
+        for key in keys {
+            let queue = self.queue.clone();
+            self.session
                 .get(key)
                 .timeout(PATIENCE)
                 .callback(move |reply| {
@@ -117,19 +172,38 @@ impl Client {
                 })
                 .await?;
         }
-        let wanted = fields.to_vec();
-        let layout = layout.clone();
-        Ok(Monitor { layout, wanted, messages, arrivals, precs: HashMap::new(), _subscribers: subscribers })
+        Ok(())
     }
-}
 
-impl Monitor {
     /// The next value, current or changed; None once the session is closed.
     pub async fn next(&mut self) -> Option<Update> {
+        loop {
+            if let Event::Value(update) = self.next_event().await? {
+                return Some(update);
+            }
+        }
+    }
+
+    /// The next value, or an axis's node gone or back; None once the session is closed.
+    pub async fn next_event(&mut self) -> Option<Event> {
         loop {
             let (sample, shown) = match self.arrivals.recv().await? {
                 Arrival::Value(sample) => (sample, true),
                 Arrival::Precision(sample) => (sample, false),
+                Arrival::Token(token) => {
+                    let axis = axis_of(&self.layout, &token);
+                    if token.kind() == SampleKind::Delete {
+                        self.served.remove(&axis);
+                        return Some(Event::Gone(axis));
+                    }
+                    // A token already known (the history's) is no news.
+                    if !self.served.insert(axis.clone()) {
+                        continue;
+                    }
+                    // Served again: its current values, as at the start.
+                    let _ = self.read_current(&axis).await;
+                    return Some(Event::Back(axis));
+                }
             };
             let (field, name) = field_of(&sample);
             let axis = axis_of(&self.layout, &sample);
@@ -146,7 +220,7 @@ impl Monitor {
                 let shown =
                     field.map_or_else(|| value.to_string(), |f| show(f, &value, self.precs.get(&axis).copied()));
                 let at = SystemTime::now();
-                return Some(Update { axis, field, name, value, at, shown });
+                return Some(Event::Value(Update { axis, field, name, value, at, shown }));
             }
         }
     }
