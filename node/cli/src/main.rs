@@ -903,11 +903,16 @@ fn connection_line(axis: &str, connected: bool, json: bool) -> String {
 }
 
 fn schema(dir: &std::path::Path) -> Result<ExitCode, Error> {
-    std::fs::create_dir_all(dir)?;
-    for (name, schema) in zmotor_msgs::message_schemas() {
-        std::fs::write(dir.join(name), serde_json::to_string_pretty(&schema)? + "\n")?;
+    let at = |path: &std::path::Path| {
+        let path = path.display().to_string();
+        move |e: std::io::Error| format!("{path}: {e}")
+    };
+    std::fs::create_dir_all(dir).map_err(at(dir))?;
+    let schemas = zmotor_msgs::message_schemas().into_iter().map(|(name, schema)| (name.to_string(), schema));
+    for (name, schema) in schemas.chain([("fields.json".to_string(), zmotor_msgs::catalogue_json())]) {
+        let path = dir.join(name);
+        std::fs::write(&path, serde_json::to_string_pretty(&schema)? + "\n").map_err(at(&path))?;
     }
-    std::fs::write(dir.join("fields.json"), serde_json::to_string_pretty(&zmotor_msgs::catalogue_json())? + "\n")?;
     println!("wrote the schemas and fields.json to {}", dir.display());
     Ok(ExitCode::SUCCESS)
 }

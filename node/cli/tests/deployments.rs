@@ -305,3 +305,18 @@ fn a_node_that_cannot_listen_says_where_and_why_and_exits() {
     assert!(said.contains(&format!("zmotor: cannot listen on {endpoint}: ")), "{said}");
     drop(taken);
 }
+
+#[test]
+fn schema_writes_the_schemas_or_names_the_path_it_cannot_write() {
+    let dir = tempfile::tempdir().unwrap();
+    let here = Host::default();
+    let out = dir.path().join("schemas");
+    assert!(here.run(&["schema", out.to_str().unwrap()]).status.success());
+    assert!(out.join("fields.json").is_file() && out.join("completion.schema.json").is_file());
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "").unwrap();
+    let refused = here.run(&["schema", file.to_str().unwrap()]);
+    let said = String::from_utf8_lossy(&refused.stderr);
+    assert_eq!(refused.status.code(), Some(1), "{said}");
+    assert!(said.contains(&format!("{}: ", file.display())), "{said}");
+}
