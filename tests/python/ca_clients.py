@@ -115,17 +115,25 @@ def refused():
     ok("the axis's ERR reads in full as ERR$ and cut as ERR")
 
 
-def moves_of_nothing():
-    # A put that moves nothing (a null move, a limit violation) pulses DMOV 0 then 1 at once; a
-    # monitor sees both, in that order, however the gateway's circuit is behind the network.
-    from epics import ca
-
+def dmov_monitor():
+    """A monitor of m1.DMOV once its first value came, and the list its later values go to."""
     pulses = []
     dmov = epics.PV("m1.DMOV", callback=lambda value=None, **kw: pulses.append(value))
     dmov.wait_for_connection(timeout=10)
     deadline = time.monotonic() + 10
     while not pulses and time.monotonic() < deadline:
         time.sleep(0.01)
+    assert pulses, "no first DMOV"
+    pulses.clear()
+    return dmov, pulses
+
+
+def moves_of_nothing():
+    # A put that moves nothing (a null move, a limit violation) pulses DMOV 0 then 1 at once; a
+    # monitor sees both, in that order, however the gateway's circuit is behind the network.
+    from epics import ca
+
+    dmov, pulses = dmov_monitor()
     here = epics.caget("m1")
     seen = []
     for attempt in range(16):
@@ -165,13 +173,7 @@ def put_callbacks_in_turn():
     import threading
     from caproto.sync.client import write
 
-    pulses = []
-    dmov = epics.PV("m1.DMOV", callback=lambda value=None, **kw: pulses.append(value))
-    dmov.wait_for_connection(timeout=10)
-    deadline = time.monotonic() + 10
-    while not pulses and time.monotonic() < deadline:
-        time.sleep(0.01)
-    pulses.clear()
+    dmov, pulses = dmov_monitor()
     # Two clients: caproto's (on a thread) moves the motor; pyepics puts while it moves.
     first = threading.Thread(target=write, args=("m1", 1.0), kwargs={"notify": True, "repeater": False, "timeout": 30})
     first.start()
