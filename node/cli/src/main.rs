@@ -714,7 +714,8 @@ async fn put(
     let field = field_named(field)?;
     let patience = Duration::from_secs_f64(timeout);
     let options = if wait { WriteOptions::waiting(patience) } else { WriteOptions::confirmed(patience) };
-    let outcome = zmotor.write(axis, field, value, options).await?.outcome().await;
+    let sent = zmotor.write(axis, field, value, options).await?;
+    let outcome = if wait { saying_why_held(&zmotor, axis, sent.outcome()).await } else { sent.outcome().await };
     let code = match outcome {
         WriteOutcome::Accepted(value) => {
             println!("{}", show(field, &value, None));
@@ -767,6 +768,27 @@ async fn put(
     };
     zmotor.session().close().await?;
     Ok(code)
+}
+
+/// A --wait's outcome; if it has not come within a second and the axis is held by SPMG (Stop or
+/// Pause: the motion waits for Go or Move, as on an IOC), say so once, then wait on.
+async fn saying_why_held(
+    zmotor: &Client,
+    axis: &str,
+    outcome: impl std::future::Future<Output = WriteOutcome>,
+) -> WriteOutcome {
+    tokio::pin!(outcome);
+    tokio::select! {
+        done = &mut outcome => return done,
+        () = tokio::time::sleep(Duration::from_secs(1)) => {}
+    }
+    if let Ok(read) = zmotor.read(axis, Selection::Field(Field::SPMG)).await {
+        let held = read.readings.first().filter(|r| matches!(r.value, Value::Int(0 | 1)));
+        if let Some(spmg) = held {
+            eprintln!("zmotor: {axis} is held by SPMG {}: the motion waits until SPMG is Go or Move", read.shown(spmg));
+        }
+    }
+    outcome.await
 }
 
 /// Jog `axis` under a hold until Ctrl-C (or SIGTERM), or until the jog ends by itself (a limit).

@@ -179,4 +179,12 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     assert!(complained.contains("m1 is served but did not answer within 0.3 s"), "{complained}");
     assert!(complained.contains("the write of VAL may have been taken, and a motion"), "{complained}");
     here.put(&endpoint, "m1", "STOP", "1", false).unwrap();
+
+    // A target held by SPMG waits for Go, as on an IOC: the command says why it waits.
+    here.put(&endpoint, "m1", "SPMG", "Pause", false).unwrap();
+    let args = ["put", "m1", "VAL", "0", "--wait", "--timeout", "3", "--connect", &endpoint];
+    let held = here.zmotor(&args).output().unwrap();
+    let complained = String::from_utf8_lossy(&held.stderr);
+    assert_eq!(held.status.code(), Some(1), "{complained}");
+    assert!(complained.contains("m1 is held by SPMG Pause: the motion waits until SPMG is Go or Move"), "{complained}");
 }
