@@ -433,26 +433,27 @@ impl<R: Clone> AxisService<R> {
     /// refusal is answered (and reported on ERR) with the reason.
     pub fn write(&mut self, now: Instant, request: WriteRequest, wait: bool, to: R) {
         let name = request.name;
-        match self.apply(now, request) {
+        let reply = match self.apply(now, request) {
             Err(refusal) => {
                 tracing::warn!(axis = %self.name, field = name, "confirmed write refused: {refusal}");
                 self.refuse(&refusal);
-                self.answer(to, Reply::Refused(refusal));
+                Reply::Refused(refusal)
             }
             Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
                 let target = self.target_of(field);
                 self.waiting.push(Waiter { to, field, target, accepted, controller_messages: Vec::new() });
+                self.collect();
+                return;
             }
             Ok((field, _)) if wait => {
-                let reply = Reply::Completion(field, self.completion(field, self.target_of(field), Vec::new()));
-                self.answer(to, reply);
+                Reply::Completion(field, self.completion(field, self.target_of(field), Vec::new()))
             }
-            Ok((field, _)) => {
-                let reply = Reply::Value(field, self.axis.record().get(field));
-                self.answer(to, reply);
-            }
-        }
+            Ok((field, _)) => Reply::Value(field, self.axis.record().get(field)),
+        };
+        // The write's posts go before its answer: a writer that follows the fields has what the
+        // write did once it has the answer (a Channel Access read after a put-callback).
         self.collect();
+        self.answer(to, reply);
     }
 
     /// A read of the field named `name` (exactly as the catalogue spells it).
@@ -850,6 +851,23 @@ mod tests {
         let dmov_at = rest.iter().position(|o| matches!(o, ServiceOutput::Publish { field: Field::DMOV, .. }));
         let reply_at = rest.iter().position(|o| matches!(o, ServiceOutput::Reply(_)));
         assert!(dmov_at < reply_at, "{rest:?}");
+    }
+
+    #[test]
+    fn a_confirmed_writes_answer_comes_after_its_posts() {
+        let mut s = service();
+        let _ = drain(&mut s);
+        s.write(at(0.0), WriteRequest::new("VELO", b"4", Text), false, 3);
+        let out = drain(&mut s);
+        let posted = out.iter().position(|o| matches!(o, ServiceOutput::Publish { field: Field::VELO, .. }));
+        let answered = out.iter().position(|o| matches!(o, ServiceOutput::Reply(_)));
+        assert!(posted.is_some() && posted < answered, "{out:?}");
+        // A limit violation: the record's LVIO, then the refusal.
+        s.write(at(0.1), WriteRequest::new("VAL", b"1e9", Text), false, 4);
+        let out = drain(&mut s);
+        let posted = out.iter().position(|o| matches!(o, ServiceOutput::Publish { field: Field::LVIO, .. }));
+        let answered = out.iter().position(|o| matches!(o, ServiceOutput::Reply(_)));
+        assert!(posted.is_some() && posted < answered, "{out:?}");
     }
 
     #[test]

@@ -6,7 +6,7 @@
 
 use crate::controllers::ControllerPort;
 use crate::demand::FieldDemand;
-use crate::event_posts::{EventOutbox, EventPost};
+use crate::event_posts::{Destination, EventOutbox, EventPost};
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
@@ -352,7 +352,8 @@ impl AxisCore {
         let this = (key, payload, encoding, marker.clone(), stamp, replaceable);
         for (key, payload, encoding, marker, stamp, replaceable) in resent.collect::<Vec<_>>().into_iter().chain([this])
         {
-            let (attachment, stamp, destination) = (Some(marker.encode()), Some(stamp), Locality::Remote);
+            let (attachment, stamp) = (Some(marker.encode()), Some(stamp));
+            let destination = Destination::Network(Locality::Remote);
             let waiting = self.events_waiting.clone();
             let post = EventPost { key, payload, encoding, attachment, stamp, destination, replaceable, waiting };
             self.node.events.post(post);
@@ -451,11 +452,30 @@ impl AxisCore {
                 Err(_) => return,
             },
             Reply::Refused(refusal) => {
-                refuse(query, refusal.kind(), refusal.to_string());
-                return;
+                let (kind, message) = (refusal.kind(), refusal.to_string());
+                let key = query.key_expr().clone().into_owned();
+                let refused = Destination::Refusal(query.clone());
+                return self.answer(key, message.into_bytes(), refusal::encoding(kind), refused);
             }
         };
-        let _ = query.reply(key, payload).encoding(Encoding::APPLICATION_CBOR).wait();
+        self.answer(key, payload, Encoding::APPLICATION_CBOR, Destination::Answer(query.clone()));
+    }
+
+    /// Answer a query behind the axis's posts that wait to be sent (sent at once when none
+    /// waits): the writer has what its write did before it has the answer.
+    fn answer(&self, key: KeyExpr<'static>, payload: Vec<u8>, encoding: Encoding, destination: Destination) {
+        let waiting = self.events_waiting.clone();
+        let (attachment, stamp, replaceable) = (None, None, false);
+        self.node.events.post(EventPost {
+            key,
+            payload,
+            encoding,
+            attachment,
+            stamp,
+            destination,
+            replaceable,
+            waiting,
+        });
     }
 
     /// Publish a field's new value: to the links of this node that follow it, and to the

@@ -1,6 +1,8 @@
-//! The posts that must arrive (`Delivery::Event`, refusals on ERR, the node's writes): sent from a thread of their
-//! own with congestion control Block, so a slow link makes them wait, never drops them; the tick
-//! workers only hand them over, and never wait for a link. Each is sent (a null move's DMOV 0
+//! The posts that must arrive (`Delivery::Event`, refusals on ERR, the node's writes), and the
+//! answers to writes: sent from a thread of their own with congestion control Block, so a slow
+//! link makes them wait, never drops them; the tick workers only hand them over, and never wait
+//! for a link. A write's answer goes behind its axis's posts, so a writer that follows the fields
+//! finds what the write did once it has the answer (a Channel Access read after a put-callback). Each is sent (a null move's DMOV 0
 //! and 1 are two samples). An axis's stream samples queue behind its events while any wait (an
 //! axis's posts arrive in order); while one waits, its key's next replaces it (a slow link gets
 //! each readback's last value, as a Channel Access server's queue does for a slow client).
@@ -11,6 +13,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard, PoisonError};
 use zenoh::bytes::{Encoding, ZBytes};
 use zenoh::key_expr::KeyExpr;
 use zenoh::qos::CongestionControl;
+use zenoh::query::Query;
 use zenoh::sample::Locality;
 use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
@@ -24,11 +27,21 @@ pub(crate) struct EventPost {
     pub(crate) encoding: Encoding,
     pub(crate) attachment: Option<Vec<u8>>,
     pub(crate) stamp: Option<Timestamp>,
-    pub(crate) destination: Locality,
+    pub(crate) destination: Destination,
     /// A stream sample, which its key's next stream sample replaces while it waits.
     pub(crate) replaceable: bool,
     /// The posts of its axis not sent yet, this one among them.
     pub(crate) waiting: Arc<AtomicUsize>,
+}
+
+/// Where a sample goes.
+pub(crate) enum Destination {
+    /// Put on its key, to these sessions.
+    Network(Locality),
+    /// The answer to a query.
+    Answer(Query),
+    /// A query's refusal (an error reply).
+    Refusal(Query),
 }
 
 #[derive(Default)]
@@ -143,15 +156,20 @@ impl EventOutbox {
     }
 
     fn put(&self, post: EventPost) {
-        let put = self
-            .session
-            .put(post.key, post.payload)
-            .encoding(post.encoding)
-            .congestion_control(CongestionControl::Block)
-            .allowed_destination(post.destination)
-            .attachment(post.attachment.map(ZBytes::from))
-            .timestamp(post.stamp);
-        if let Err(e) = put.wait() {
+        let sent = match post.destination {
+            Destination::Network(locality) => self
+                .session
+                .put(post.key, post.payload)
+                .encoding(post.encoding)
+                .congestion_control(CongestionControl::Block)
+                .allowed_destination(locality)
+                .attachment(post.attachment.map(ZBytes::from))
+                .timestamp(post.stamp)
+                .wait(),
+            Destination::Answer(query) => query.reply(post.key, post.payload).encoding(post.encoding).wait(),
+            Destination::Refusal(query) => query.reply_err(post.payload).encoding(post.encoding).wait(),
+        };
+        if let Err(e) = sent {
             tracing::warn!("an event post failed: {e}");
         }
     }
@@ -194,7 +212,7 @@ mod tests {
             encoding: Encoding::TEXT_PLAIN,
             attachment: None,
             stamp: Some(Timestamp::new(NTP64(0), TimestampId::rand())),
-            destination: Locality::Remote,
+            destination: Destination::Network(Locality::Remote),
             replaceable,
             waiting: waiting.clone(),
         }

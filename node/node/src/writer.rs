@@ -4,7 +4,7 @@
 //! everyone else, as a post that must arrive (`event_posts.rs`): a write is a command, never
 //! dropped for a congested link.
 
-use crate::event_posts::{EventOutbox, EventPost};
+use crate::event_posts::{Destination, EventOutbox, EventPost};
 use crate::input::{AxisInput, Written};
 use crate::routes::{Routes, Space};
 use std::sync::atomic::AtomicUsize;
@@ -59,7 +59,7 @@ impl Writer {
             attachment: None,
             stamp: None,
             // The node's own value holders and links follow keys on its session too.
-            destination: Locality::Any,
+            destination: Destination::Network(Locality::Any),
             replaceable: false,
             waiting: self.waiting.clone(),
         });
