@@ -98,6 +98,15 @@ def refused():
     assert epics.caget("m1.NTMF") == 2
     reply = write("m1.RBV", 1.0, notify=True, repeater=False, timeout=10)
     assert reply.status.name == "ECA_NOWTACCESS", reply
+    # A double to an integer field is cut toward zero, as an IOC's dbPut converts it.
+    from caproto import ChannelType
+
+    retries = epics.caget("m1.RTRY")
+    reply = write("m1.RTRY", 2.7, notify=True, repeater=False, timeout=10, data_type=ChannelType.DOUBLE)
+    assert reply.status.name == "ECA_NORMAL", reply
+    cut = epics.caget("m1.RTRY", use_monitor=False)
+    assert cut == 2, (cut, retries)
+    assert write("m1.RTRY", retries, notify=True, repeater=False, timeout=10).status.name == "ECA_NORMAL"
     time.sleep(0.3)
     assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
     assert epics.caget("m1") == before

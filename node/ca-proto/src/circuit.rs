@@ -433,7 +433,7 @@ impl Circuit {
             let message = format!("{}: read-only", pv.name(&self.prefix));
             return self.write_done(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
-        match dbr::written_text(header.data_type, payload) {
+        match dbr::written_text(header.data_type, payload, pv.native()) {
             Ok(text) => {
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));

@@ -279,9 +279,10 @@ pub(crate) enum WriteError {
     Short(Base, usize, usize),
 }
 
-/// The first element of a client's write, as the text a zmotor node takes (a number, a menu
-/// index or choice, a string).
-pub(crate) fn written_text(data_type: u16, payload: &[u8]) -> Result<String, WriteError> {
+/// The first element of a client's write to a channel of type `native`, as the text a zmotor
+/// node takes (a number, a menu index or choice, a string). A finite floating-point value to an
+/// integer or menu channel is cut toward zero, as an IOC's dbPut converts it (a C cast: 2.7 is 2).
+pub(crate) fn written_text(data_type: u16, payload: &[u8], native: Base) -> Result<String, WriteError> {
     let dbr =
         DbrType::from_code(data_type).filter(|d| d.class == Class::Plain).ok_or(WriteError::BadType(data_type))?;
     let size = match dbr.base {
@@ -304,10 +305,23 @@ pub(crate) fn written_text(data_type: u16, payload: &[u8]) -> Result<String, Wri
         Base::Char => payload[0].to_string(),
         Base::Short => i16::from_be_bytes([payload[0], payload[1]]).to_string(),
         Base::Enum => u16::from_be_bytes([payload[0], payload[1]]).to_string(),
-        Base::Float => f32::from_be_bytes(be(4)[..4].try_into().expect("four bytes")).to_string(),
+        Base::Float => {
+            let value = f32::from_be_bytes(be(4)[..4].try_into().expect("four bytes"));
+            cut(value.into(), native).unwrap_or_else(|| value.to_string())
+        }
         Base::Long => i32::from_be_bytes(be(4)[..4].try_into().expect("four bytes")).to_string(),
-        Base::Double => f64::from_be_bytes(be(8)).to_string(),
+        Base::Double => {
+            let value = f64::from_be_bytes(be(8));
+            cut(value, native).unwrap_or_else(|| value.to_string())
+        }
     })
+}
+
+/// A finite floating-point value written to an integer or menu channel, cut toward zero, as text
+/// (what is out of the field's range the node refuses, saying so).
+fn cut(value: f64, native: Base) -> Option<String> {
+    let integer = matches!(native, Base::Char | Base::Short | Base::Long | Base::Enum);
+    (integer && value.is_finite()).then(|| (value.trunc() as i64).to_string())
 }
 
 #[cfg(test)]
@@ -412,11 +426,16 @@ mod tests {
 
     #[test]
     fn writes_become_the_text_a_node_takes() {
-        assert_eq!(written_text(6, &2.5f64.to_be_bytes()), Ok("2.5".into()));
-        assert_eq!(written_text(3, &[0, 2]), Ok("2".into()));
-        assert_eq!(written_text(0, b"Go\0\0\0\0\0\0"), Ok("Go".into()));
-        assert_eq!(written_text(5, &(-7i32).to_be_bytes()), Ok("-7".into()));
-        assert_eq!(written_text(20, &[0; 24]), Err(WriteError::BadType(20)));
-        assert_eq!(written_text(6, &[0; 4]), Err(WriteError::Short(Base::Double, 8, 4)));
+        assert_eq!(written_text(6, &2.5f64.to_be_bytes(), Base::Double), Ok("2.5".into()));
+        assert_eq!(written_text(3, &[0, 2], Base::Enum), Ok("2".into()));
+        assert_eq!(written_text(0, b"Go\0\0\0\0\0\0", Base::Enum), Ok("Go".into()));
+        assert_eq!(written_text(5, &(-7i32).to_be_bytes(), Base::Long), Ok("-7".into()));
+        assert_eq!(written_text(20, &[0; 24], Base::Double), Err(WriteError::BadType(20)));
+        assert_eq!(written_text(6, &[0; 4], Base::Double), Err(WriteError::Short(Base::Double, 8, 4)));
+        // To an integer or a menu, as dbPut's C cast: toward zero; NaN is left for the node to refuse.
+        assert_eq!(written_text(6, &2.7f64.to_be_bytes(), Base::Short), Ok("2".into()));
+        assert_eq!(written_text(2, &(-2.7f32).to_be_bytes(), Base::Enum), Ok("-2".into()));
+        assert_eq!(written_text(6, &f64::NAN.to_be_bytes(), Base::Long), Ok("NaN".into()));
+        assert_eq!(written_text(2, &0.1f32.to_be_bytes(), Base::Float), Ok("0.1".into()));
     }
 }
