@@ -156,13 +156,7 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     assert!(said.wait_for(PATIENCE, |l| l.contains("no node serves m9 now")).is_some());
 
     // m1 runs at 1 mm/s: stopped on its way to 5 mm, the write did not reach its target.
-    let waiting = here
-        .zmotor(&["put", "m1", "VAL", "5", "--wait", "--connect", &endpoint])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    here.wait_for(&endpoint, "m1", "RBV", |v| v > 0.2);
+    let waiting = here.put_wait_under_way(&endpoint, "m1", "5");
     here.put(&endpoint, "m1", "STOP", "1", false).unwrap();
     let output = waiting.wait_with_output().unwrap();
     let (said, complained) = (String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));

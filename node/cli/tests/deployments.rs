@@ -188,13 +188,7 @@ fn a_put_wait_whose_node_dies_says_the_node_vanished() {
     let here = Host::default();
     let node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
     here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
-    let waiting = here
-        .zmotor(&["put", "m1", "VAL", "50", "--wait", "--connect", &endpoint])
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    here.wait_for(&endpoint, "m1", "RBV", |v| v > 0.2);
+    let waiting = here.put_wait_under_way(&endpoint, "m1", "50");
     node.kill();
     let started = Instant::now();
     let output = waiting.wait_with_output().unwrap();

@@ -63,6 +63,19 @@ impl Host {
         self.wait_for(endpoint, axis, field, |_| true)
     }
 
+    /// `zmotor put AXIS VAL TARGET --wait` in the background, its output piped, once the axis
+    /// is on its way (RBV past 0.2).
+    pub(crate) fn put_wait_under_way(&self, endpoint: &str, axis: &str, target: &str) -> Child {
+        let waiting = self
+            .zmotor(&["put", axis, "VAL", target, "--wait", "--connect", endpoint])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        self.wait_for(endpoint, axis, "RBV", |v| v > 0.2);
+        waiting
+    }
+
     /// Poll a field until `accept` holds; panics after PATIENCE.
     pub(crate) fn wait_for(&self, endpoint: &str, axis: &str, field: &str, accept: impl Fn(f64) -> bool) -> f64 {
         let deadline = Instant::now() + PATIENCE;
