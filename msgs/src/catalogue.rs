@@ -451,6 +451,12 @@ impl Field {
     pub fn sets_target(self) -> bool {
         matches!(self, Field::VAL | Field::DVAL | Field::RVAL | Field::RLV | Field::TWF | Field::TWR)
     }
+
+    /// A write that starts a motion ending by itself: a target, or a home search (a put-callback
+    /// of one completes when it has ended; a jog runs until told to end).
+    pub fn starts_motion(self) -> bool {
+        self.sets_target() || matches!(self, Field::HOMF | Field::HOMR)
+    }
 }
 
 /// What autosave keeps of a field, as EPICS autosave's motor_positions.req and
@@ -543,6 +549,15 @@ impl std::fmt::Display for Field {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn targets_and_home_searches_start_motions_that_end_by_themselves() {
+        use std::collections::BTreeSet;
+        let starting: BTreeSet<Field> = Field::all().filter(|f| f.starts_motion()).collect();
+        let expected =
+            [Field::VAL, Field::DVAL, Field::RVAL, Field::RLV, Field::TWF, Field::TWR, Field::HOMF, Field::HOMR];
+        assert_eq!(starting, expected.into_iter().collect());
+    }
 
     #[test]
     fn table_order_matches_the_enum() {

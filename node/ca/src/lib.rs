@@ -143,7 +143,7 @@ impl Shared {
     /// record another put-callback holds (its restart list), so each completes at its own
     /// target. A STOP or SPMG is never queued (an IOC's would wait for the motion it should stop).
     pub(crate) async fn write(&self, write: Write, done: mpsc::UnboundedSender<Done>) {
-        let moves = write.wait && matches!(write.pv.target, Target::Field(f) if moves_by_itself(f));
+        let moves = write.wait && matches!(write.pv.target, Target::Field(f) if f.starts_motion());
         if moves {
             let mut moved = self.moved();
             match moved.get_mut(&write.pv.axis) {
@@ -199,12 +199,6 @@ impl Shared {
         moved.remove(axis);
         None
     }
-}
-
-/// A field whose put-callback completes at the end of a motion it starts: a target or a home
-/// search.
-fn moves_by_itself(field: Field) -> bool {
-    field.sets_target() || matches!(field, Field::HOMF | Field::HOMR)
 }
 
 /// How a write's outcome is told to a CA client.
