@@ -385,6 +385,7 @@ catalogue! {
     SEVR  sevr:  Menu(MENU_ALARM_SEVR) = 3,  RO, "Alarm Severity", "";
     UDF   udf:   Short = 1,     RO, "Undefined", "";
     FLNK  flnk:  Link = "",     RW, "Forward Process Link", "";
+    DISP  disp:  Short = 0,     RW, "Disable putField", "";
 }
 
 impl Field {
@@ -456,6 +457,12 @@ impl Field {
     /// of one completes when it has ended; a jog runs until told to end).
     pub fn starts_motion(self) -> bool {
         self.sets_target() || matches!(self, Field::HOMF | Field::HOMR)
+    }
+
+    /// A write taken while DISP disables puts: DISP itself (as on an IOC), and STOP (departure
+    /// Z23: an IOC refuses it too, leaving a motion under way that nobody may stop).
+    pub fn taken_while_puts_disabled(self) -> bool {
+        matches!(self, Field::DISP | Field::STOP)
     }
 }
 
@@ -534,10 +541,10 @@ impl Field {
 }
 
 /// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
-/// disabling, tracing, security. A database may set them; importing it ignores them.
+/// disabling processing (DISP, which disables puts, is modelled), tracing, security. A database may set them; importing it ignores them.
 pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
-    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "DISP", "ASG",
-    "ACKT", "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",
+    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "ASG", "ACKT",
+    "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",
 ];
 
 impl std::fmt::Display for Field {
@@ -610,6 +617,8 @@ mod tests {
         assert_eq!(Field::DVAL.autosave(), Some(Autosave::Position));
         assert_eq!(Field::VELO.autosave(), Some(Autosave::Setting));
         assert_eq!(Field::RSTM.autosave(), Some(Autosave::Setting));
+        // motor_settings.req keeps the motor's `_able` record, whose value an IOC writes to DISP.
+        assert_eq!(Field::DISP.autosave(), Some(Autosave::Setting));
         for field in [Field::VAL, Field::HOMF, Field::SPMG, Field::RBV, Field::DMOV, Field::SET] {
             assert_eq!(field.autosave(), None, "{field}");
         }

@@ -27,6 +27,9 @@ pub enum RefusalKind {
     Disabled,
     /// A home toward a limit switch that is active.
     SwitchActive,
+    /// The axis takes no writes but to DISP and STOP while DISP is not 0 (an IOC's "put
+    /// disabled"): nothing changed.
+    PutsDisabled,
     /// A target or position beyond what the driver's 32-bit raw position can hold.
     BeyondRawRange,
     /// The readback link (RDBL) the move depends on cannot be read.
@@ -50,7 +53,7 @@ pub enum RefusalKind {
 
 impl RefusalKind {
     /// Every kind.
-    pub const ALL: [RefusalKind; 17] = [
+    pub const ALL: [RefusalKind; 18] = [
         RefusalKind::UnknownField,
         RefusalKind::ReadOnly,
         RefusalKind::BadValue,
@@ -59,6 +62,7 @@ impl RefusalKind {
         RefusalKind::LimitViolation,
         RefusalKind::Disabled,
         RefusalKind::SwitchActive,
+        RefusalKind::PutsDisabled,
         RefusalKind::BeyondRawRange,
         RefusalKind::ReadbackUnreadable,
         RefusalKind::NotSimulated,
@@ -81,6 +85,7 @@ impl RefusalKind {
             RefusalKind::LimitViolation => "limit_violation",
             RefusalKind::Disabled => "disabled",
             RefusalKind::SwitchActive => "switch_active",
+            RefusalKind::PutsDisabled => "puts_disabled",
             RefusalKind::BeyondRawRange => "beyond_raw_range",
             RefusalKind::ReadbackUnreadable => "readback_unreadable",
             RefusalKind::NotSimulated => "not_simulated",

@@ -124,6 +124,32 @@ def refused():
     ok("the axis's ERR reads in full as ERR$ and cut as ERR")
 
 
+def puts_disabled():
+    """DISP disables puts, as on an IOC (the Enable/Disable of a motor screen): every put but
+    DISP's fails and changes nothing; STOP is taken (README departure Z23)."""
+    from caproto.sync.client import write
+
+    def put(name, value):
+        return write(name, value, notify=True, repeater=False, timeout=10).status.name
+
+    before = epics.caget("m1.RBV", use_monitor=False)
+    velo = epics.caget("m1.VELO", use_monitor=False)
+    assert put("m1.DISP", 1) == "ECA_NORMAL"
+    assert epics.caget("m1.DISP", use_monitor=False) == 1
+    assert put("m1", before + 1.0) == "ECA_PUTFAIL"
+    assert put("m1.VELO", 2.0) == "ECA_PUTFAIL"
+    assert put("m1.STOP", 1) == "ECA_NORMAL"
+    time.sleep(0.3)
+    assert epics.caget("m1.VELO", use_monitor=False) == velo
+    assert epics.caget("m1.RBV", use_monitor=False) == before and epics.caget("m1.DMOV") == 1
+    assert "puts are disabled" in epics.caget("m1.ERR$", as_string=True, use_monitor=False)
+    assert put("m1.DISP", 0) == "ECA_NORMAL"
+    assert epics.caput("m1", before + 1.0, wait=True, timeout=30) == 1
+    assert near(epics.caget("m1.RBV", use_monitor=False), before + 1.0)
+    assert epics.caput("m1", before, wait=True, timeout=30) == 1
+    ok("DISP disables every put but DISP and STOP; DISP 0 enables them")
+
+
 def dmov_monitor():
     """A monitor of m1.DMOV once its first value came, and the list its later values go to."""
     pulses = []
@@ -246,7 +272,15 @@ def jog():
 
 # ophyd runs in a process of its own: it patches pyepics's PV class when it is imported.
 STAGES = {
-    "clients": [reads, put_wait_and_monitors, refused, moves_of_nothing, caproto_tools, put_callbacks_in_turn],
+    "clients": [
+        reads,
+        put_wait_and_monitors,
+        refused,
+        puts_disabled,
+        moves_of_nothing,
+        caproto_tools,
+        put_callbacks_in_turn,
+    ],
     "ophyd": [ophyd_scan],
     "gone": [gone],
     "jog": [jog],

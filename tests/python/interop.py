@@ -70,6 +70,18 @@ with zenoh.open(conf) as session:
     expect(reply.err is not None, "a write to RBV was accepted")
     expect(reply.err.payload.to_string() == "RBV is read-only", reply.err.payload.to_string())
 
+    # DISP 1 disables puts (as on an IOC): a write is refused with its kind in the encoding's
+    # schema and moves nothing; DISP 0 enables them again.
+    reply = list(session.get("motor/m1/DISP", payload="1", timeout=5.0))[0]
+    expect(reply.ok is not None and value(reply.ok) == 1, f"DISP 1: {reply}")
+    reply = list(session.get("motor/m1/VAL", payload="3", timeout=5.0))[0]
+    expect(reply.err is not None, "a write while DISP is 1 was accepted")
+    expect(str(reply.err.encoding) == "text/plain;puts_disabled", f"its encoding: {reply.err.encoding}")
+    expect(reply.err.payload.to_string().startswith("VAL: puts are disabled"), reply.err.payload.to_string())
+    session.put("motor/m1/DISP", "0")
+    reply = list(session.get("motor/m1/VAL?wait", payload="1", timeout=30.0))[0]
+    expect(reply.ok is not None and cbor2.loads(reply.ok.payload.to_bytes())["reached"] == 1, f"after DISP 0: {reply}")
+
     # Menu fields take choice names.
     reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]
     expect(value(reply.ok) == 1, "SPMG Pause")

@@ -34,6 +34,9 @@ pub enum RequestError {
         /// The field it resembles.
         field: Field,
     },
+    /// DISP is not 0: the axis takes no writes but to DISP and STOP.
+    #[error("{0}: puts are disabled (DISP is not 0); write DISP 0 to enable them")]
+    PutsDisabled(Field),
     /// The payload does not hold a valid value for the field.
     #[error(transparent)]
     Payload(#[from] CodecError),
@@ -103,6 +106,7 @@ impl RequestError {
             | RequestError::SimSetting { .. }
             | RequestError::Link { .. } => RefusalKind::BadValue,
             RequestError::Record(e) => e.kind(),
+            RequestError::PutsDisabled(_) => RefusalKind::PutsDisabled,
             RequestError::NotSimulated(_) => RefusalKind::NotSimulated,
             RequestError::HoldRequired(_) => RefusalKind::HoldRequired,
             RequestError::HoldToken { .. } | RequestError::HoldElsewhere { .. } => RefusalKind::BadHold,
@@ -533,6 +537,11 @@ impl<R: Clone> AxisService<R> {
     /// Decode and apply one write.
     fn apply(&mut self, now: Instant, request: WriteRequest) -> Result<(Field, WriteAccepted), RequestError> {
         let field = field_named(request.name)?;
+        // Checked before the value, as an IOC's dbPutField checks DISP first; the record's own
+        // writes (a released hold's end, a shutdown's stop) are not puts and pass.
+        if self.axis.fields().disp != 0 && !field.taken_while_puts_disabled() {
+            return Err(RequestError::PutsDisabled(field));
+        }
         let value = zmotor_msgs::decode_write(field.def(), request.payload, request.encoding)?;
         let starts_jog = field.is_jog() && value != Value::Int(0);
         match &request.hold {
@@ -891,6 +900,45 @@ mod tests {
         assert!(replies(&outputs).iter().all(|(to, _)| *to == 1), "{outputs:?}");
         let answers = replies(&run_until_idle(&mut s));
         assert!(matches!(&answers[..], [(2, Reply::Completion(_, c))] if c.rbv == 2.0), "{answers:?}");
+    }
+
+    #[test]
+    fn z23_while_disp_disables_puts_only_disp_and_stop_are_taken() {
+        let mut s = service();
+        s.write(at(0.0), WriteRequest::new("VAL", b"5", Text), false, 1);
+        s.write(at(0.1), WriteRequest::new("DISP", b"1", Text), false, 2);
+        let before = drain(&mut s);
+        assert_eq!(published(&before, Field::DISP), vec![Value::Int(1)]);
+        // A target, a setting, a read-only field and a bad value: each refused as puts disabled,
+        // before anything else is looked at, as an IOC's dbPutField does.
+        for (n, (name, payload)) in
+            [("VAL", "-3"), ("VELO", "2"), ("RBV", "1"), ("HOMF", "ten")].into_iter().enumerate()
+        {
+            s.write(at(0.2), WriteRequest::new(name, payload.as_bytes(), Text), false, 10 + n as u32);
+        }
+        s.put(at(0.2), WriteRequest::new("JOGF", b"1", Text));
+        let outputs = drain(&mut s);
+        let kinds: Vec<RefusalKind> = replies(&outputs)
+            .into_iter()
+            .map(|(_, reply)| match reply {
+                Reply::Refused(e) => e.kind(),
+                other => panic!("{other:?}"),
+            })
+            .collect();
+        assert_eq!(kinds, vec![RefusalKind::PutsDisabled; 4]);
+        assert_eq!(refusals(&outputs).len(), 5, "each refusal is reported on ERR");
+        assert!(refusals(&outputs)[0].starts_with("VAL: puts are disabled (DISP is not 0)"), "{outputs:?}");
+        assert_eq!((s.fields().val, s.fields().velo, s.fields().jogf), (5.0, 10.0, 0));
+        // STOP is taken (departure Z23): the move to 5 ends where the motor stops.
+        s.put(at(0.2), WriteRequest::new("STOP", b"1", Text));
+        run_until_idle(&mut s);
+        assert!(s.fields().rbv > 0.0 && s.fields().rbv < 5.0, "stopped short: {}", s.fields().rbv);
+        // DISP 0 enables puts again.
+        s.put(at(1.0), WriteRequest::new("DISP", b"0", Text));
+        s.write(at(1.0), WriteRequest::new("VAL", b"-3", Text), false, 20);
+        assert!(matches!(&replies(&drain(&mut s))[..], [(20, Reply::Value(Field::VAL, _))]));
+        run_until_idle(&mut s);
+        assert_eq!(s.fields().rbv, -3.0);
     }
 
     #[test]

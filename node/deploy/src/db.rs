@@ -672,11 +672,14 @@ mod tests {
 
     #[test]
     fn records_of_the_same_name_merge_and_common_fields_are_ignored() {
-        let text =
-            "record(motor, m1) { field(VELO, 2) field(SCAN, \"Passive\") }\nrecord(motor, m1) { field(VELO, 3) }";
+        let text = "record(motor, m1) { field(VELO, 2) field(SCAN, \"Passive\") field(SDIS, \"m1_able\") }\n\
+                    record(motor, m1) { field(VELO, 3) field(DISP, 1) }";
         let (file, _) = import(text).unwrap();
         assert_eq!(file.axes.len(), 1);
         assert_eq!(file.axes[0].fields["VELO"], toml::Value::Integer(3));
+        // DISP (puts disabled) is modelled; SCAN and SDIS (the record's processing) are not.
+        assert_eq!(file.axes[0].fields["DISP"], toml::Value::Integer(1));
+        assert!(!file.axes[0].fields.contains_key("SCAN") && !file.axes[0].fields.contains_key("SDIS"));
         assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
     }
 
