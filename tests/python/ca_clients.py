@@ -125,8 +125,8 @@ def refused():
 
 
 def puts_disabled():
-    """DISP disables puts, as on an IOC (the Enable/Disable of a motor screen): every put but
-    DISP's fails and changes nothing; STOP is taken (README departure Z23)."""
+    """DISP disables puts, as on an IOC (the Enable/Disable of a motor screen, m1_able): every
+    put but DISP's fails and changes nothing; STOP is taken (README departure Z23)."""
     from caproto.sync.client import write
 
     def put(name, value):
@@ -134,8 +134,14 @@ def puts_disabled():
 
     before = epics.caget("m1.RBV", use_monitor=False)
     velo = epics.caget("m1.VELO", use_monitor=False)
-    assert put("m1.DISP", 1) == "ECA_NORMAL"
+    # The motor's Enable/Disable record of motor's databases, m1_able, is DISP by its choices.
+    ables = []
+    able = epics.PV("m1_able", callback=lambda value=None, **kw: ables.append(value))
+    assert able.wait_for_connection(timeout=10) and able.get(as_string=True) == "Enable"
+    assert epics.PV("m1_able").get_ctrlvars()["enum_strs"][:2] == ("Enable", "Disable")
+    assert put("m1_able", "Disable") == "ECA_NORMAL"
     assert epics.caget("m1.DISP", use_monitor=False) == 1
+    assert epics.Motor("m1").disabled == 1
     assert put("m1", before + 1.0) == "ECA_PUTFAIL"
     assert put("m1.VELO", 2.0) == "ECA_PUTFAIL"
     assert put("m1.STOP", 1) == "ECA_NORMAL"
@@ -144,10 +150,14 @@ def puts_disabled():
     assert epics.caget("m1.RBV", use_monitor=False) == before and epics.caget("m1.DMOV") == 1
     assert "puts are disabled" in epics.caget("m1.ERR$", as_string=True, use_monitor=False)
     assert put("m1.DISP", 0) == "ECA_NORMAL"
+    deadline = time.monotonic() + 10
+    while ables[-1:] != [0] and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert ables == [0, 1, 0], ables
     assert epics.caput("m1", before + 1.0, wait=True, timeout=30) == 1
     assert near(epics.caget("m1.RBV", use_monitor=False), before + 1.0)
     assert epics.caput("m1", before, wait=True, timeout=30) == 1
-    ok("DISP disables every put but DISP and STOP; DISP 0 enables them")
+    ok("DISP disables every put but DISP and STOP; DISP 0 enables them; m1_able shows and sets it")
 
 
 def dmov_monitor():

@@ -216,7 +216,11 @@ impl Circuit {
         }
         let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR)));
         let shows = |target: Target| {
-            changed == Some(target) || (changed == Some(Target::Message) && target == Target::MessageChars)
+            changed == Some(target)
+                || matches!(
+                    (changed, target),
+                    (Some(Target::Message), Target::MessageChars) | (Some(Target::Field(Field::DISP)), Target::Able)
+                )
         };
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         let concerned: Vec<u32> = self

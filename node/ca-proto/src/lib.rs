@@ -15,7 +15,7 @@ mod search;
 pub use circuit::{Circuit, Request, WriteAnswer, WriteEnd};
 pub use dbr::{Base, Snapshot, Stamp};
 pub use directory::Directory;
-pub use names::{Limits, Pv, Target, MESSAGE_CHARS};
+pub use names::{Limits, Pv, Target, ABLE, MESSAGE_CHARS};
 pub use search::answer as answer_search;
 
 #[cfg(test)]

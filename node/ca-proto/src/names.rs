@@ -2,10 +2,19 @@
 //! catalogue, `<P><axis>.RTYP` the record type (`motor`), and `<P><axis>.ERR` the axis's last
 //! message (its ERR key: a refused write, a controller's error), as a DBR_STRING of 39
 //! characters or, as EPICS serves long strings, in full as a character array with a `$`
-//! appended to the name (`.ERR$`; `caget -S`).
+//! appended to the name (`.ERR$`; `caget -S`). `<P><axis>_able` is the Enable/Disable record
+//! motor's databases put beside each motor (a bo whose OUT writes the motor's DISP, which
+//! motor screens and pyepics's `Motor.disabled` use): the axis's DISP as a menu of two choices.
 
 use crate::dbr::Base;
+use zmotor_msgs::menus::Menu;
 use zmotor_msgs::{keys, Access, Field};
+
+/// The choices of `<P><axis>_able` (its bo's ZNAM and ONAM in motor's asyn_motor.db).
+pub const ABLE: Menu = Menu { name: "able", choices: &["Enable", "Disable"] };
+
+/// What a motor's Enable/Disable record's name adds to the motor's.
+const ABLE_SUFFIX: &str = "_able";
 
 /// What a channel shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -18,6 +27,8 @@ pub enum Target {
     Message,
     /// `.ERR$`: the last message in full, as a character array.
     MessageChars,
+    /// `<axis>_able` (its VAL): DISP, as the menu `ABLE`.
+    Able,
 }
 
 /// The length of `.ERR$`, in characters, its NUL included: a message beyond is cut.
@@ -37,7 +48,12 @@ impl Pv {
     /// EPICS spells them).
     pub fn parse(prefix: &str, name: &str) -> Option<Pv> {
         let rest = name.strip_prefix(prefix)?;
-        let (axis, field) = rest.split_once('.').unwrap_or((rest, "VAL"));
+        let (record, field) = rest.split_once('.').unwrap_or((rest, "VAL"));
+        if let Some(axis) = record.strip_suffix(ABLE_SUFFIX).filter(|_| field == "VAL") {
+            keys::validate_axis_name(axis).ok()?;
+            return Some(Pv { axis: axis.to_string(), target: Target::Able });
+        }
+        let axis = record;
         keys::validate_axis_name(axis).ok()?;
         let target = match field {
             "RTYP" => Target::RecordType,
@@ -55,6 +71,7 @@ impl Pv {
             Target::RecordType => format!("{prefix}{}.RTYP", self.axis),
             Target::Message => format!("{prefix}{}.{}", self.axis, keys::ERR_KEY),
             Target::MessageChars => format!("{prefix}{}.{}$", self.axis, keys::ERR_KEY),
+            Target::Able => format!("{prefix}{}{ABLE_SUFFIX}", self.axis),
         }
     }
 
@@ -69,7 +86,30 @@ impl Pv {
 
     /// Whether a client may write it.
     pub fn writable(&self) -> bool {
-        matches!(self.target, Target::Field(f) if f.def().access != Access::RO)
+        match self.target {
+            Target::Field(field) => field.def().access != Access::RO,
+            Target::Able => true,
+            Target::RecordType | Target::Message | Target::MessageChars => false,
+        }
+    }
+
+    /// The field a write to it writes, and what it writes there: DISP for `_able`, its choice
+    /// names taken as their indexes (a bo's), as a value the node reads.
+    pub fn written(&self, text: String) -> Option<(Field, String)> {
+        match self.target {
+            Target::Field(field) => Some((field, text)),
+            Target::Able => Some((Field::DISP, ABLE.index_of(&text).map_or(text, |index| index.to_string()))),
+            Target::RecordType | Target::Message | Target::MessageChars => None,
+        }
+    }
+
+    /// The field whose changes it shows.
+    pub fn shows(&self) -> Option<Field> {
+        match self.target {
+            Target::Field(field) => Some(field),
+            Target::Able => Some(Field::DISP),
+            Target::RecordType | Target::Message | Target::MessageChars => None,
+        }
     }
 
     /// Its native DBR type.
@@ -78,6 +118,7 @@ impl Pv {
             Target::Field(field) => Base::native(field.def().kind),
             Target::RecordType | Target::Message => Base::String,
             Target::MessageChars => Base::Char,
+            Target::Able => Base::Enum,
         }
     }
 
@@ -91,6 +132,7 @@ impl Pv {
             Target::Field(RVAL | RRBV) => Limits::RawDial,
             Target::Field(VELO) => Limits::Fields(VMAX, VBAS),
             Target::Field(field) => Limits::Range(field.def().kind.default_range()),
+            Target::Able => Limits::Range((1.0, 0.0)),
             Target::RecordType | Target::Message | Target::MessageChars => Limits::Range((0.0, 0.0)),
         }
     }
@@ -120,7 +162,7 @@ impl Pv {
     pub fn units(&self, egu: &str) -> String {
         match self.target {
             Target::Field(field) => field.record_units(egu),
-            Target::RecordType | Target::Message | Target::MessageChars => String::new(),
+            Target::RecordType | Target::Message | Target::MessageChars | Target::Able => String::new(),
         }
     }
 }
@@ -155,6 +197,24 @@ mod tests {
         assert_eq!((message.target, message.native(), message.count()), (Target::Message, Base::String, 1));
         assert_eq!((whole.target, whole.native(), whole.count()), (Target::MessageChars, Base::Char, MESSAGE_CHARS));
         assert_eq!((whole.name("bl1:"), message.writable(), whole.writable()), ("bl1:m1.ERR$".into(), false, false));
+    }
+
+    #[test]
+    fn a_motors_able_record_is_its_disp_as_enable_or_disable() {
+        let pv = |name| Pv::parse("bl1:", name);
+        let able = pv("bl1:m1_able").unwrap();
+        assert_eq!(pv("bl1:m1_able.VAL"), Some(able.clone()));
+        assert_eq!((able.axis.as_str(), able.target, able.native()), ("m1", Target::Able, Base::Enum));
+        assert_eq!((able.name("bl1:"), able.writable(), able.shows()), ("bl1:m1_able".into(), true, Some(Field::DISP)));
+        assert_eq!(able.written("Disable".into()), Some((Field::DISP, "1".into())));
+        assert_eq!(able.written("enable".into()), Some((Field::DISP, "0".into())));
+        assert_eq!(able.written("1".into()), Some((Field::DISP, "1".into())));
+        // Another field of the name is an axis's whose name ends so.
+        assert_eq!(
+            pv("bl1:m1_able.RBV").map(|p| (p.axis, p.target)),
+            Some(("m1_able".into(), Target::Field(Field::RBV)))
+        );
+        assert_eq!(pv("bl1:_able"), None, "no axis");
     }
 
     #[test]

@@ -174,12 +174,9 @@ impl Shared {
 
     async fn send(&self, write: Write) -> (WriteAnswer, Result<SentWrite, zenoh::Error>) {
         let Write { pv, text, wait, hold, answer } = write;
-        let field = match pv.target {
-            Target::Field(field) => field,
-            // The circuit writes fields only.
-            Target::RecordType | Target::Message | Target::MessageChars => {
-                return (answer, Err(format!("{}: not a field", pv.axis).into()))
-            }
+        // The circuit writes only channels that write a field.
+        let Some((field, text)) = pv.written(text) else {
+            return (answer, Err(format!("{}: not a field", pv.axis).into()));
         };
         let options =
             if wait { WriteOptions::waiting(MOTION_PATIENCE) } else { WriteOptions::confirmed(ANSWER_PATIENCE) };

@@ -4,7 +4,7 @@
 
 use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
-use zmotor_ca_proto::{Directory, Limits, Pv, Snapshot, Stamp, Target};
+use zmotor_ca_proto::{Directory, Limits, Pv, Snapshot, Stamp, Target, ABLE};
 use zmotor_msgs::{Field, Kind, Value};
 
 /// A field's last value, and when it arrived.
@@ -35,6 +35,9 @@ impl AxisValues {
             Target::Field(field) => {
                 self.fields.insert(field, entry);
             }
+            Target::Able => {
+                self.fields.insert(Field::DISP, entry);
+            }
             Target::Message | Target::MessageChars | Target::RecordType => self.message = Some(entry),
         }
     }
@@ -56,6 +59,10 @@ impl AxisValues {
                     _ => &[],
                 };
                 (entry.value.clone(), entry.stamp, choices)
+            }
+            Target::Able => {
+                let entry = self.fields.get(&Field::DISP)?;
+                (entry.value.clone(), entry.stamp, ABLE.choices)
             }
             Target::RecordType => (Value::Text("motor".into()), alarm.stamp, &[][..]),
             Target::Message | Target::MessageChars => match &self.message {
@@ -83,16 +90,22 @@ impl AxisValues {
             Limits::Range(range) => range,
         };
         let prec = self.number(Field::PREC) as i16;
+        // `_able` is a record of its own, a bo with no alarm of the motor's.
+        let (status, severity) = match pv.target {
+            Target::Able => (0, 0),
+            _ => (self.number(Field::STAT) as u16, self.number(Field::SEVR) as u16),
+        };
         Some(Snapshot {
             value,
             native: pv.native(),
-            status: self.number(Field::STAT) as u16,
-            severity: self.number(Field::SEVR) as u16,
+            status,
+            severity,
             stamp,
             units: pv.units(&egu),
             precision: match pv.target {
                 Target::Field(field) => field.precision(prec),
                 Target::RecordType | Target::Message | Target::MessageChars => prec,
+                Target::Able => 0,
             },
             upper,
             lower,
