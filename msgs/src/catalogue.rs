@@ -534,6 +534,16 @@ impl Field {
 }
 
 impl Field {
+    /// A field every motion posts: its readbacks (`is_readback_stream`), and at its start and
+    /// end the target, DMOV, MOVN, MIP, MSTA, TDIR and ATHM. A node declares these keys ahead
+    /// of a first motion, for a key Zenoh first meets costs a walk of its neighbours.
+    pub fn posted_by_every_motion(self) -> bool {
+        use Field::*;
+        self.is_readback_stream() || matches!(self, VAL | DVAL | RVAL | DMOV | MOVN | MIP | MSTA | TDIR | ATHM)
+    }
+}
+
+impl Field {
     /// A link the record writes through (OUT, STOO, RLNK, FLNK); its other links are read.
     pub fn is_output_link(self) -> bool {
         matches!(self, Field::OUT | Field::STOO | Field::RLNK | Field::FLNK)

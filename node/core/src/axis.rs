@@ -675,6 +675,33 @@ mod tests {
         Fields { mres: 0.001, velo: 10.0, accl: 0.2, dhlm: 100.0, dllm: -100.0, ..Fields::default() }
     }
 
+    #[test]
+    fn a_motion_posts_only_fields_a_node_declares_ahead() {
+        // A plain move, there and back, after a first one (which also clears the boot's UDF
+        // alarm and LVIO, once in the axis's life): every field posted from the write to the end.
+        let mut axis = sim_axis(demo_fields());
+        axis.write(Instant::ZERO, Field::VAL, &Value::Float(1.0)).expect("within the limits");
+        run(&mut axis, 10.0);
+        let mut posted = std::collections::BTreeSet::new();
+        for target in [5.0, 0.0] {
+            axis.write(axis.now(), Field::VAL, &Value::Float(target)).expect("within the limits");
+            for _ in 0..100_000 {
+                posted.extend(axis.drain_events().filter_map(|e| match e {
+                    AxisEvent::Post(field, _) => Some(field),
+                    _ => None,
+                }));
+                if !axis.is_busy() {
+                    break;
+                }
+                let t = axis.poll_timeout().expect("a simulated axis is polled");
+                axis.handle_timeout(t);
+            }
+        }
+        let not_ahead: Vec<Field> = posted.iter().copied().filter(|f| !f.posted_by_every_motion()).collect();
+        assert!(not_ahead.is_empty(), "posted by a motion, not declared ahead: {not_ahead:?}");
+        assert!(posted.contains(&Field::RBV) && posted.contains(&Field::DMOV), "{posted:?}");
+    }
+
     /// Run virtual time until the axis is idle or `limit` seconds pass; return the DMOV posts.
     fn run(axis: &mut Axis, limit: f64) -> Vec<Value> {
         let mut dmov = Vec::new();

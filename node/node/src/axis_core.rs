@@ -29,6 +29,15 @@ use zmotor_msgs::{
     encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
+/// Whether a node of `axes` axes has them declare ahead of their first motions the publishers of
+/// the fields every motion posts (`Field::posted_by_every_motion`, `AxisCore::declare_ahead`): when
+/// they all fit the budget, with room for a trace and a bundle each. (Else the axes declare as
+/// they post: a first motion then pays Zenoh's first match of each key.)
+pub(crate) fn declares_ahead(axes: usize) -> bool {
+    let per_axis = Field::all().filter(|f| f.posted_by_every_motion()).count();
+    axes * (per_axis + 2) <= PUBLISHER_BUDGET
+}
+
 /// Publishers one node declares at most (fields and traces). Zenoh numbers a session's
 /// declarations with 16 bits and remaps them beyond (logging "Remapping unsupported"); 10,000
 /// moving axes with 30,000 field publishers went past it, so the budget is kept well inside,
@@ -187,6 +196,14 @@ impl AxisCore {
             clock,
             unsaved: Arc::default(),
             save_due: Arc::default(),
+        }
+    }
+
+    /// Declare the publishers of the fields every motion posts (`declares_ahead`), so that no
+    /// key is new to Zenoh at the axis's first motion.
+    pub(crate) fn declare_ahead(&mut self) {
+        for field in Field::all().filter(|f| f.posted_by_every_motion()) {
+            self.declare_publisher(field);
         }
     }
 
@@ -502,7 +519,8 @@ impl AxisCore {
     /// Declare the field's publisher at its second post (within the budget), whichever way its
     /// posts go; a readback's at its first, for a moving axis posts it at every poll (a first
     /// post without publisher would cost Zenoh a walk of every key for nothing, here and at
-    /// each subscriber). A field's first post, declared or not, has Zenoh match a new key.
+    /// each subscriber). A field's first post, declared or not, has Zenoh match a new key
+    /// (unless the axis declared it ahead: `declare_ahead`).
     fn declare_hot_publisher(&mut self, field: Field) {
         if self.hot.iter().any(|(f, _)| *f == field) {
             return;
@@ -515,6 +533,11 @@ impl AxisCore {
         if first_post && !field.is_readback_stream() {
             return;
         }
+        self.declare_publisher(field);
+    }
+
+    /// Declare the field's publisher, within the budget.
+    fn declare_publisher(&mut self, field: Field) {
         if self.node.budget.fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1)).is_err() {
             return;
         }
@@ -587,5 +610,18 @@ impl Handler<AxisInput> for AxisCore {
             self.save_due.notify_one();
         }
         self.schedule_ticks();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn axes_declare_ahead_while_all_fit_the_budget_with_room_for_a_trace_and_a_bundle_each() {
+        let per_axis = Field::all().filter(|f| f.posted_by_every_motion()).count() + 2;
+        let most = PUBLISHER_BUDGET / per_axis;
+        assert!(declares_ahead(1) && declares_ahead(1000) && declares_ahead(most), "{most}");
+        assert!(!declares_ahead(most + 1) && !declares_ahead(10_000));
     }
 }

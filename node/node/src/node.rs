@@ -143,6 +143,7 @@ impl Node {
         let mut tokens = Tokens::default();
         let mut routes = Routes::new();
         let mut axis_tasks = Vec::new();
+        let ahead = crate::axis_core::declares_ahead(plans.len());
         for mut plan in plans {
             let saver = match &autosave {
                 Some(config) => Some(Saver::restore(config, &mut plan)?),
@@ -175,7 +176,12 @@ impl Node {
             let service =
                 AxisService::new(&layout, &name, plan.build(Instant::ZERO, first_status)).with_jog_hold(jog_hold);
             let axis_clock = ticker.clock();
-            let core = AxisCore::new(service, side.clone(), controller, follows, holds, axis_clock.clone());
+            let mut core = AxisCore::new(service, side.clone(), controller, follows, holds, axis_clock.clone());
+            if ahead {
+                // Before the axes answer, so that no motion comes first (measured: declared while
+                // the first motions ran, they slowed them more than keys first met at them).
+                core.declare_ahead();
+            }
             let (unsaved, save_due) = (core.unsaved.clone(), core.save_due.clone());
             let axis = Arc::new(Inbox::new(core));
             axis_clock.attach(Arc::downgrade(&axis) as std::sync::Weak<dyn Deliver>);
