@@ -107,6 +107,10 @@ def refused():
     cut = epics.caget("m1.RTRY", use_monitor=False)
     assert cut == 2, (cut, retries)
     assert write("m1.RTRY", retries, notify=True, repeater=False, timeout=10).status.name == "ECA_NORMAL"
+    # Text longer than a string field holds is cut to fit, as an IOC's dbPut copies it (EGU: 15).
+    assert write("m1.EGU", "millimetres, roughly", notify=True, repeater=False, timeout=10).status.name == "ECA_NORMAL"
+    assert epics.caget("m1.EGU", use_monitor=False) == "millimetres, ro"
+    assert write("m1.EGU", "mm", notify=True, repeater=False, timeout=10).status.name == "ECA_NORMAL"
     time.sleep(0.3)
     assert epics.caget("m1.RBV") == before and epics.caget("m1.DMOV") == 1
     assert epics.caget("m1") == before

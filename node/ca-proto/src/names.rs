@@ -8,7 +8,7 @@
 
 use crate::dbr::Base;
 use zmotor_msgs::menus::Menu;
-use zmotor_msgs::{keys, Access, Field};
+use zmotor_msgs::{keys, Access, Field, Kind};
 
 /// The choices of `<P><axis>_able` (its bo's ZNAM and ONAM in motor's asyn_motor.db).
 pub const ABLE: Menu = Menu { name: "able", choices: &["Enable", "Disable"] };
@@ -94,10 +94,14 @@ impl Pv {
     }
 
     /// The field a write to it writes, and what it writes there: DISP for `_able`, its choice
-    /// names taken as their indexes (a bo's), as a value the node reads.
+    /// names taken as their indexes (a bo's), as a value the node reads; text longer than a
+    /// string field holds cut to fit, as an IOC's dbPut copies it (the node refuses it whole).
     pub fn written(&self, text: String) -> Option<(Field, String)> {
         match self.target {
-            Target::Field(field) => Some((field, text)),
+            Target::Field(field) => match field.def().kind {
+                Kind::Str(size) => Some((field, cut_to(text, size - 1))),
+                _ => Some((field, text)),
+            },
             Target::Able => Some((Field::DISP, ABLE.index_of(&text).map_or(text, |index| index.to_string()))),
             Target::RecordType | Target::Message | Target::MessageChars => None,
         }
@@ -167,6 +171,13 @@ impl Pv {
     }
 }
 
+/// `text` cut to at most `bytes` bytes, at a character's boundary.
+fn cut_to(mut text: String, bytes: usize) -> String {
+    let end = (0..=bytes.min(text.len())).rev().find(|&i| text.is_char_boundary(i)).unwrap_or(0);
+    text.truncate(end);
+    text
+}
+
 /// Where a channel's display and control limits come from.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Limits {
@@ -197,6 +208,17 @@ mod tests {
         assert_eq!((message.target, message.native(), message.count()), (Target::Message, Base::String, 1));
         assert_eq!((whole.target, whole.native(), whole.count()), (Target::MessageChars, Base::Char, MESSAGE_CHARS));
         assert_eq!((whole.name("bl1:"), message.writable(), whole.writable()), ("bl1:m1.ERR$".into(), false, false));
+    }
+
+    #[test]
+    fn text_longer_than_a_string_field_holds_is_cut_to_fit_as_an_ioc_does() {
+        let egu = Pv::parse("", "m1.EGU").unwrap();
+        // EGU is a DBF_STRING of 16: 15 bytes and the terminator.
+        assert_eq!(egu.written("millimetres, roughly".into()), Some((Field::EGU, "millimetres, ro".into())));
+        assert_eq!(egu.written("mm".into()), Some((Field::EGU, "mm".into())));
+        assert_eq!(egu.written("µµµµµµµµ".into()).map(|(_, t)| t), Some("µµµµµµµ".into()), "at a character");
+        let val = Pv::parse("", "m1").unwrap();
+        assert_eq!(val.written("12345678901234567890".into()), Some((Field::VAL, "12345678901234567890".into())));
     }
 
     #[test]
