@@ -747,6 +747,17 @@ mod tests {
             .collect()
     }
 
+    /// The answers, each a refusal (any other answer fails the test).
+    fn refused_answers(outputs: &[ServiceOutput<u32>]) -> Vec<RequestError> {
+        replies(outputs)
+            .into_iter()
+            .map(|(_, reply)| match reply {
+                Reply::Refused(e) => e,
+                other => panic!("{other:?}"),
+            })
+            .collect()
+    }
+
     fn published(outputs: &[ServiceOutput<u32>], wanted: Field) -> Vec<Value> {
         outputs
             .iter()
@@ -918,13 +929,7 @@ mod tests {
         }
         s.put(at(0.2), WriteRequest::new("JOGF", b"1", Text));
         let outputs = drain(&mut s);
-        let kinds: Vec<RefusalKind> = replies(&outputs)
-            .into_iter()
-            .map(|(_, reply)| match reply {
-                Reply::Refused(e) => e.kind(),
-                other => panic!("{other:?}"),
-            })
-            .collect();
+        let kinds: Vec<RefusalKind> = refused_answers(&outputs).iter().map(RequestError::kind).collect();
         assert_eq!(kinds, vec![RefusalKind::PutsDisabled; 4]);
         assert_eq!(refusals(&outputs).len(), 5, "each refusal is reported on ERR");
         assert!(refusals(&outputs)[0].starts_with("VAL: puts are disabled (DISP is not 0)"), "{outputs:?}");
@@ -949,13 +954,7 @@ mod tests {
         s.write(at(0.0), WriteRequest::new("VAL", b"ten", Text), true, 3);
         s.put(at(0.0), WriteRequest::new("VAL", b"NaN", Text));
         let outputs = drain(&mut s);
-        let messages: Vec<String> = replies(&outputs)
-            .into_iter()
-            .map(|(_, r)| match r {
-                Reply::Refused(e) => e.to_string(),
-                other => panic!("{other:?}"),
-            })
-            .collect();
+        let messages: Vec<String> = refused_answers(&outputs).iter().map(ToString::to_string).collect();
         assert_eq!(messages[0], "RBV is read-only");
         assert_eq!(messages[1], "NOPE: unknown field");
         assert!(messages[2].starts_with("VAL: wrong type"), "{}", messages[2]);
