@@ -630,10 +630,11 @@ async fn time_moves(session: &Session, ready: &Ready, emulated: &Emulated, moves
         let spread = 0.3 + 0.7 * (i as f64 * 0.618_033_988_75).fract();
         let target = if i % 2 == 0 { near + (far - near) * spread } else { near };
         while dmov.try_recv().ok().flatten().is_some() {}
-        session.put(key("VAL"), format!("{target:.3}")).await?;
         let sent = Instant::now();
+        session.put(key("VAL"), format!("{target:.3}")).await?;
         let end = loop {
-            if let Some(end) = emulated.motion_end(ready.emulated(ready.channel)) {
+            // A motion of a few milliseconds (a piezo's) may start and end between two looks.
+            if let Some(end) = emulated.motion_end(ready.emulated(ready.channel), sent.into()) {
                 break end;
             }
             if sent.elapsed() > Duration::from_secs(5) {

@@ -66,13 +66,16 @@ impl Emulated {
         Instant::after(self.origin.elapsed())
     }
 
-    /// When the motion under way on `channel` ends, on the wall clock; None at rest.
-    pub fn motion_end(&self, channel: usize) -> Option<tokio::time::Instant> {
+    /// When the motion under way on `channel` ends, or the last one ended if that was at or
+    /// after `since` (a motion shorter than the gap between two looks), on the wall clock; None
+    /// at rest since then.
+    pub fn motion_end(&self, channel: usize, since: tokio::time::Instant) -> Option<tokio::time::Instant> {
         let now = self.now();
         let mut link = self.link();
         let axis = link.emulator().axis(channel)?;
         axis.advance(now);
-        axis.next_event().map(|end| self.origin + end.since_origin())
+        let ended = axis.last_motion_end().map(|end| self.origin + end.since_origin()).filter(|end| *end >= since);
+        axis.next_event().map(|end| self.origin + end.since_origin()).or(ended)
     }
 
     /// Serve connections on `listener`: as many at once as the controller serves, each with its

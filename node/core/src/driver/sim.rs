@@ -210,6 +210,9 @@ pub struct SimAxis {
     stalled: bool,
     comm_lost: bool,
     problem: bool,
+    /// When the last motion that ran its course ended (seconds): a motion shorter than the gap
+    /// between two looks is still seen to have run.
+    last_motion_end: Option<f64>,
     /// Command primitives received, for inspection.
     raw_commands: Vec<String>,
     /// PID gains last set (proportional, integral, derivative).
@@ -239,6 +242,7 @@ impl SimAxis {
             stalled: false,
             comm_lost: false,
             problem: false,
+            last_motion_end: None,
             raw_commands: Vec::new(),
             gains: [0.0; 3],
         }
@@ -314,6 +318,11 @@ impl SimAxis {
     /// Where the carriage is, steps.
     pub fn physical_position(&self) -> f64 {
         self.physical
+    }
+
+    /// When the last motion that ran its course ended (not one halted by a switch or a stall).
+    pub fn last_motion_end(&self) -> Option<Instant> {
+        self.last_motion_end.map(Instant::from_secs_f64)
     }
 
     /// A motion is in progress.
@@ -448,6 +457,7 @@ impl SimAxis {
     }
 
     fn finish_motion(&mut self) {
+        self.last_motion_end = self.profile.last().map(Segment::end);
         self.profile.clear();
         self.velocity = 0.0;
         self.counter_offset += std::mem::take(&mut self.pending_slip);
@@ -671,6 +681,20 @@ mod tests {
         assert_eq!(s.status().position, 100.0);
         assert_ne!(s.status().msta & msta::DONE, 0);
         assert_eq!(s.next_event(), None);
+    }
+
+    #[test]
+    fn a_motion_looked_at_only_after_its_end_says_when_it_ended() {
+        let mut s = sim();
+        assert_eq!(s.last_motion_end(), None);
+        s.move_to(100.0, false, 0.0, 100.0, 200.0);
+        // Looked at long after: the motion ended at 1.5 s, not when it was looked at.
+        s.advance(at(4.0));
+        assert_eq!((s.next_event(), s.last_motion_end()), (None, Some(at(1.5))));
+        // One halted by a limit switch did not run its course: the last end stays.
+        s.move_velocity(0.0, 500.0, 0.0);
+        s.advance(at(10.0));
+        assert_eq!(s.last_motion_end(), Some(at(1.5)));
     }
 
     #[test]
