@@ -215,13 +215,6 @@ impl Circuit {
             }
         }
         let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR)));
-        let shows = |target: Target| {
-            changed == Some(target)
-                || matches!(
-                    (changed, target),
-                    (Some(Target::Message), Target::MessageChars) | (Some(Target::Field(Field::DISP)), Target::Able)
-                )
-        };
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         let concerned: Vec<u32> = self
             .subscriptions
@@ -231,7 +224,7 @@ impl Circuit {
                 let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
                 pv.axis == axis
                     && (!s.posted
-                        || (shows(pv.target) && s.mask & VALUE_EVENTS != 0)
+                        || (changed.is_some_and(|c| pv.shows(c)) && s.mask & VALUE_EVENTS != 0)
                         || (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
                         || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
             })

@@ -107,13 +107,14 @@ impl Pv {
         }
     }
 
-    /// The field whose changes it shows.
-    pub fn shows(&self) -> Option<Field> {
-        match self.target {
-            Target::Field(field) => Some(field),
-            Target::Able => Some(Field::DISP),
-            Target::RecordType | Target::Message | Target::MessageChars => None,
-        }
+    /// Whether a change of `changed` changes its value: its own, the message for `.ERR$`, DISP
+    /// for `_able`.
+    pub fn shows(&self, changed: Target) -> bool {
+        changed == self.target
+            || matches!(
+                (changed, self.target),
+                (Target::Message, Target::MessageChars) | (Target::Field(Field::DISP), Target::Able)
+            )
     }
 
     /// Its native DBR type.
@@ -227,7 +228,8 @@ mod tests {
         let able = pv("bl1:m1_able").unwrap();
         assert_eq!(pv("bl1:m1_able.VAL"), Some(able.clone()));
         assert_eq!((able.axis.as_str(), able.target, able.native()), ("m1", Target::Able, Base::Enum));
-        assert_eq!((able.name("bl1:"), able.writable(), able.shows()), ("bl1:m1_able".into(), true, Some(Field::DISP)));
+        assert_eq!((able.name("bl1:"), able.writable()), ("bl1:m1_able".into(), true));
+        assert!(able.shows(Target::Field(Field::DISP)) && !able.shows(Target::Field(Field::VAL)));
         assert_eq!(able.written("Disable".into()), Some((Field::DISP, "1".into())));
         assert_eq!(able.written("enable".into()), Some((Field::DISP, "0".into())));
         assert_eq!(able.written("1".into()), Some((Field::DISP, "1".into())));
