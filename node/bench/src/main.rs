@@ -193,7 +193,12 @@ async fn main() -> ExitCode {
         .init();
     let result = match cli.floor {
         Some(FloorCommand::Floor(floor)) => floor::run(floor).await,
-        None => run(cli).await,
+        // Stopped by a signal, the run is dropped, and with it the processes it started (each
+        // killed when dropped): a node left running would go on moving its axes unwatched.
+        None => tokio::select! {
+            result = run(cli) => result,
+            signal = interrupted() => signal.and(Err("interrupted; the processes it started are stopped".into())),
+        },
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -202,6 +207,16 @@ async fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// SIGINT (Ctrl-C) or SIGTERM.
+async fn interrupted() -> Result<(), Error> {
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        result = tokio::signal::ctrl_c() => result?,
+        _ = terminate.recv() => {}
+    }
+    Ok(())
 }
 
 async fn run(cli: Cli) -> Result<(), Error> {

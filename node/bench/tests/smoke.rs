@@ -96,3 +96,61 @@ fn the_benchmark_runs_in_smoke_mode() {
     }
     println!("{stdout}");
 }
+
+/// The processes whose parent is `parent`, from /proc.
+fn children_of(parent: u32) -> Vec<u32> {
+    let Ok(entries) = std::fs::read_dir("/proc") else { return Vec::new() };
+    entries
+        .filter_map(|entry| entry.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|pid| {
+            // /proc/PID/stat: "pid (comm) state ppid ...", comm possibly holding spaces.
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+            let after_comm = stat.rsplit_once(')').map_or("", |(_, rest)| rest);
+            after_comm.split_whitespace().nth(1).and_then(|ppid| ppid.parse::<u32>().ok()) == Some(parent)
+        })
+        .collect()
+}
+
+#[test]
+fn a_benchmark_stopped_by_sigterm_stops_the_nodes_it_started() {
+    use std::time::{Duration, Instant};
+    let zmotor = Path::new(env!("CARGO_BIN_EXE_zmotor-bench")).with_file_name("zmotor");
+    let state = tempfile::tempdir().unwrap();
+    // `zmotor bench` becomes the benchmark: the signal goes to the process the user started.
+    let mut bench = Command::new(&zmotor)
+        .args(["bench", "--parts", "soak", "--minutes", "30"])
+        .env("RUST_LOG", "off")
+        .env("XDG_STATE_HOME", state.path())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(60);
+    let node = loop {
+        if let Some(&node) = children_of(bench.id()).first() {
+            break node;
+        }
+        assert!(Instant::now() < deadline, "the soak started no node within 60 s");
+        assert!(bench.try_wait().unwrap().is_none(), "the benchmark ended before starting a node");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let node_alive = || Path::new(&format!("/proc/{node}")).exists();
+    assert!(node_alive());
+    assert!(Command::new("kill").args(["-TERM", &bench.id().to_string()]).status().unwrap().success());
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let status = loop {
+        if let Some(status) = bench.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            bench.kill().unwrap();
+            panic!("the benchmark did not stop within 30 s of SIGTERM");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert!(!status.success(), "an interrupted benchmark says so by its exit status");
+    if node_alive() {
+        // Left running, re-parented: this test started it, so it stops it, by its id.
+        let _ = Command::new("kill").args(["-KILL", &node.to_string()]).status();
+        panic!("node {node} outlived the benchmark that started it");
+    }
+}

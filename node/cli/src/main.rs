@@ -458,8 +458,10 @@ fn bench(args: &[String]) -> Result<ExitCode, Error> {
         )
         .into());
     }
-    let status = std::process::Command::new(&bench).args(args).arg("--zmotor").arg(&here).status()?;
-    Ok(if status.success() { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    // Replaced by the benchmark (exec), so that a signal sent to this process reaches the
+    // benchmark, which stops the nodes it started.
+    use std::os::unix::process::CommandExt;
+    Err(std::process::Command::new(&bench).args(args).arg("--zmotor").arg(&here).exec().into())
 }
 
 /// A launch file, or an EPICS database converted into one (with what the conversion warns of).
