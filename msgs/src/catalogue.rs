@@ -551,7 +551,8 @@ impl Field {
 }
 
 /// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
-/// disabling processing (DISP, which disables puts, is modelled), tracing, security. A database may set them; importing it ignores them.
+/// disabling processing (DISP, which disables puts, is modelled), tracing, security. A database may
+/// set them; importing it ignores them (saying so where they would disable the record).
 pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
     "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "ASG", "ACKT",
     "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",

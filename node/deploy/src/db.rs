@@ -91,6 +91,9 @@ pub(super) fn import_text(text: &str, macros: &Macros) -> Result<(LaunchFile, Ve
     // Writes into calc inputs from other records' output links: (calc, letter) → mode.
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
     for record in &records {
+        if matches!(record.kind.as_str(), "motor" | "calcout" | "calc" | "ao" | "ai" | "longout" | "longin") {
+            warnings.extend(processing_disabled(record));
+        }
         match record.kind.as_str() {
             "motor" => launch.axes.push(motor(record, &linker, &mut warnings, &mut written_inputs)?),
             "calcout" | "calc" => launch.calcs.push(calc(record, &linker, &mut warnings, &mut written_inputs)?),
@@ -108,6 +111,31 @@ pub(super) fn import_text(text: &str, macros: &Macros) -> Result<(LaunchFile, Ve
         }
     }
     Ok((launch, warnings))
+}
+
+/// What a record's database says of disabling its processing (SDIS, DISA, DISV), which zmotor
+/// does not model: an interlock wired that way would not hold, so the import says so.
+fn processing_disabled(record: &Record) -> Option<String> {
+    let set = |name: &str| record.field(name).map(|(_, text, line)| (text.trim(), *line));
+    let number = |name: &str, default: f64| set(name).and_then(|(text, _)| text.parse::<f64>().ok()).unwrap_or(default);
+    let whose = format!("{} '{}'", record.kind, record.name);
+    match set("SDIS") {
+        Some((link, line)) if !link.is_empty() && link.parse::<f64>().is_err() => Some(format!(
+            "line {line}: {whose}: SDIS '{link}' disables its processing when it reads DISV; zmotor does not model \
+             that: the record processes whatever the link holds (DISP refuses puts)"
+        )),
+        // A constant SDIS is the value DISA starts with.
+        sdis => {
+            let disa = sdis.and_then(|(text, _)| text.parse::<f64>().ok()).unwrap_or(number("DISA", 0.0));
+            let line = set("DISA").or(sdis).or(set("DISV")).map_or(record.line, |(_, line)| line);
+            (disa == number("DISV", 1.0)).then(|| {
+                format!(
+                    "line {line}: {whose}: DISA = DISV disables its processing; zmotor does not model that: the \
+                     record processes (DISP refuses puts)"
+                )
+            })
+        }
+    }
 }
 
 /// Link modifiers of EPICS database links.
@@ -681,6 +709,29 @@ mod tests {
         assert_eq!(file.axes[0].fields["DISP"], toml::Value::Integer(1));
         assert!(!file.axes[0].fields.contains_key("SCAN") && !file.axes[0].fields.contains_key("SDIS"));
         assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
+    }
+
+    #[test]
+    fn a_record_whose_processing_the_database_disables_is_reported() {
+        let warned = |text: &str| {
+            let (_, warnings) = import(text).unwrap();
+            warnings.into_iter().filter(|w| w.contains("disables its processing")).collect::<Vec<_>>()
+        };
+        let interlock = warned("record(motor, m1) {\n field(SDIS, \"interlock.VAL NPP\")\n}");
+        assert_eq!(interlock.len(), 1, "{interlock:?}");
+        assert!(interlock[0].starts_with("line 2: motor 'm1': SDIS 'interlock.VAL NPP'"), "{interlock:?}");
+        assert_eq!(warned("record(calcout, c) { field(CALC, \"A\") field(DISA, 1) }").len(), 1);
+        assert_eq!(warned("record(ao, v) { field(DISV, 0) }").len(), 1, "DISA starts at 0");
+        assert_eq!(warned("record(motor, m1) { field(SDIS, 2) field(DISV, 2) }").len(), 1, "a constant SDIS is DISA");
+        // Enabled as written: nothing to say.
+        for enabled in [
+            "record(motor, m1) { field(DISA, 0) field(DISV, 1) }",
+            "record(motor, m1) { field(SDIS, \"\") field(SCAN, \"Passive\") }",
+            "record(motor, m1) { field(SDIS, 0) }",
+            "record(motor, m1) { field(DISA, 1) field(DISV, 2) }",
+        ] {
+            assert_eq!(warned(enabled), Vec::<String>::new(), "{enabled}");
+        }
     }
 
     #[test]
