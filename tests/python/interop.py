@@ -65,6 +65,21 @@ with zenoh.open(conf) as session:
     outcome = cbor2.loads(reply.ok.payload.to_bytes())
     expect(outcome["DMOV"] == 1 and outcome["reached"] == 1 and abs(outcome["RBV"] - 1.5) < 1e-6, f"{outcome}")
 
+    # An answer carries the axis's state as a post does: the marker of the axis's last post (the
+    # values are as of it) and the time of the values, so a client that reads has what one that
+    # subscribes has.
+    def marker(sample):
+        expect(sample.attachment is not None, f"no state marker on {sample.key_expr}")
+        return cbor2.loads(sample.attachment.to_bytes())
+
+    ended = marker(reply.ok)
+    expect(ended["kind"] == "state" and ended["seq"] > 0 and ended["sevr"] == 0, f"?wait answer's marker {ended}")
+    expect(reply.ok.timestamp is not None, "the ?wait answer has no timestamp")
+    read = list(session.get("motor/m1/RBV", timeout=5.0))[0].ok
+    expect(marker(read)["seq"] >= ended["seq"], f"a read after the motion: {marker(read)}, the motion's end {ended}")
+    expect(read.timestamp is not None, "a read's answer has no timestamp")
+    expect(read.timestamp.get_time() >= reply.ok.timestamp.get_time(), "a read's values older than the motion's end")
+
     # A refused write answers with an error in plain words.
     reply = list(session.get("motor/m1/RBV", payload="3", timeout=5.0))[0]
     expect(reply.err is not None, "a write to RBV was accepted")

@@ -29,6 +29,12 @@ use zmotor_msgs::{
     encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
+/// The state marker and timestamp a reply of an axis's values carries.
+struct AnswerState {
+    attachment: Vec<u8>,
+    stamp: Timestamp,
+}
+
 /// Whether a node of `axes` axes has them declare ahead of their first motions the publishers of
 /// the fields every motion posts (`Field::posted_by_every_motion`, `AxisCore::declare_ahead`): when
 /// they all fit the budget, with room for a trace and a bundle each. (Else the axes declare as
@@ -166,6 +172,8 @@ pub(crate) struct AxisCore {
     stream_log: StreamLog,
     /// Where the axis's deadlines go: its ticks come from there.
     clock: Arc<AxisClock>,
+    /// When the axis last posted (its start before): the time of the values a read answers.
+    last_stamp: Timestamp,
     /// A field autosave keeps changed since the task last looked.
     pub(crate) unsaved: Arc<AtomicBool>,
     /// Wakes the axis's task when `unsaved` is set.
@@ -181,6 +189,7 @@ impl AxisCore {
         holds: Holds,
         clock: Arc<AxisClock>,
     ) -> Self {
+        let last_stamp = node.session.new_timestamp();
         Self {
             service,
             node,
@@ -194,6 +203,7 @@ impl AxisCore {
             events_waiting: Arc::default(),
             stream_log: StreamLog::default(),
             clock,
+            last_stamp,
             unsaved: Arc::default(),
             save_due: Arc::default(),
         }
@@ -268,7 +278,9 @@ impl AxisCore {
             return refuse(query, RefusalKind::ReadOnly, message);
         }
         let bundle = Readback::encode(self.service.fields(), self.service.last_seq());
-        let _ = query.reply(key, bundle).encoding(Encoding::APPLICATION_CBOR).wait();
+        let state = self.state_now(self.last_stamp);
+        let reply = query.reply(key, bundle).encoding(Encoding::APPLICATION_CBOR);
+        let _ = reply.attachment(state.attachment).timestamp(state.stamp).wait();
     }
 
     fn on_sim_query(&mut self, now: Instant, query: Query) {
@@ -303,7 +315,9 @@ impl AxisCore {
                         self.post_event(key, payload, refusal::encoding(kind), &marker, stamp, false);
                     }
                 }
-                ServiceOutput::Reply(answer) => self.reply(&answer.to, answer.reply),
+                ServiceOutput::Reply(answer) => {
+                    self.reply(&answer.to, answer.reply, stamp.unwrap_or(self.last_stamp));
+                }
                 ServiceOutput::DriverCommand { command, at } => {
                     if let Some(controller) = &self.controller {
                         controller.send(command.clone());
@@ -334,6 +348,9 @@ impl AxisCore {
                     }
                 }
             }
+        }
+        if let Some(stamp) = stamp {
+            self.last_stamp = stamp;
         }
     }
 
@@ -453,36 +470,55 @@ impl AxisCore {
         self.trace.as_ref()
     }
 
-    fn reply(&self, query: &Query, reply: Reply) {
+    /// Answer `query`; a field's value or a motion's end carries the axis's state as its posts
+    /// do (`state_now`), `stamp` the time of the values.
+    fn reply(&self, query: &Query, reply: Reply, stamp: Timestamp) {
         // A reply to a write key carries that key: Zenoh drops replies outside the query's.
         let written = self.node.layout.written_field_name(self.name(), query.key_expr().as_str()).is_some();
         let key_of = |field| if written { query.key_expr().clone().into_owned() } else { self.field_key(field) };
-        let (key, payload) = match reply {
-            Reply::Value(field, value) => (key_of(field), encode_cbor(&value)),
-            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion)),
+        let state = Some(self.state_now(stamp));
+        let (key, payload, state) = match reply {
+            Reply::Value(field, value) => (key_of(field), encode_cbor(&value), state),
+            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion), state),
             Reply::SimState(state) => match KeyExpr::try_from(keys::sim_key(self.name(), keys::SIM_STATE_KEY)) {
-                Ok(key) => (key, encode_cbor(&state)),
+                Ok(key) => (key, encode_cbor(&state), None),
                 Err(_) => return,
             },
             Reply::SimSetting(setting, value) => match KeyExpr::try_from(keys::sim_key(self.name(), setting.name())) {
-                Ok(key) => (key, encode_cbor(&value)),
+                Ok(key) => (key, encode_cbor(&value), None),
                 Err(_) => return,
             },
             Reply::Refused(refusal) => {
                 let (kind, message) = (refusal.kind(), refusal.to_string());
                 let key = query.key_expr().clone().into_owned();
                 let refused = Destination::Refusal(query.clone());
-                return self.answer(key, message.into_bytes(), refusal::encoding(kind), refused);
+                return self.answer(key, message.into_bytes(), refusal::encoding(kind), refused, None);
             }
         };
-        self.answer(key, payload, Encoding::APPLICATION_CBOR, Destination::Answer(query.clone()));
+        self.answer(key, payload, Encoding::APPLICATION_CBOR, Destination::Answer(query.clone()), state);
+    }
+
+    /// What a reply of the axis's values carries, as a post does: the marker of its last post
+    /// (the values are as of it) with the alarm now, and `stamp`.
+    fn state_now(&self, stamp: Timestamp) -> AnswerState {
+        let fields = self.service.fields();
+        let marker = StateMarker::new(self.service.last_seq(), fields.stat, fields.sevr);
+        AnswerState { attachment: marker.encode(), stamp }
     }
 
     /// Answer a query behind the axis's posts that wait to be sent (sent at once when none
     /// waits): the writer has what its write did before it has the answer.
-    fn answer(&self, key: KeyExpr<'static>, payload: Vec<u8>, encoding: Encoding, destination: Destination) {
+    fn answer(
+        &self,
+        key: KeyExpr<'static>,
+        payload: Vec<u8>,
+        encoding: Encoding,
+        destination: Destination,
+        state: Option<AnswerState>,
+    ) {
         let waiting = self.events_waiting.clone();
-        let (attachment, stamp, replaceable) = (None, None, false);
+        let (attachment, stamp) = state.map(|s| (s.attachment, s.stamp)).unzip();
+        let replaceable = false;
         self.node.events.post(EventPost {
             key,
             payload,

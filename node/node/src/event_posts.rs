@@ -166,7 +166,12 @@ impl EventOutbox {
                 .attachment(post.attachment.map(ZBytes::from))
                 .timestamp(post.stamp)
                 .wait(),
-            Destination::Answer(query) => query.reply(post.key, post.payload).encoding(post.encoding).wait(),
+            Destination::Answer(query) => query
+                .reply(post.key, post.payload)
+                .encoding(post.encoding)
+                .attachment(post.attachment.map(ZBytes::from))
+                .timestamp(post.stamp)
+                .wait(),
             Destination::Refusal(query) => query.reply_err(post.payload).encoding(post.encoding).wait(),
         };
         if let Err(e) = sent {
