@@ -213,7 +213,11 @@ def caproto_tools():
     run("caproto-put", "--no-repeater", "-c", "m1", "2.5")
     assert near(epics.caget("m1.RBV"), 2.5)
     assert value(run("caproto-get", "--no-repeater", "m1.RTYP")) == "motor"
-    ok("caproto's command-line tools read and put-callback")
+    # DBR_CLASS_NAME (38), the record type of a channel: m1_able is a bo record on an IOC.
+    from caproto.sync.client import read
+
+    assert [read(name, data_type=38).metadata.value for name in ("m1", "m1_able")] == [b"motor", b"bo"]
+    ok("caproto's command-line tools read and put-callback; its client reads the record types")
 
 
 def put_callbacks_in_turn():

@@ -342,9 +342,9 @@ impl Circuit {
     }
 
     fn send_read(&mut self, pending: &Pending, snapshot: &Snapshot) {
-        let count = self.channels.get(&pending.sid).map_or(1, |c| c.pv.count());
-        let elements = snapshot.elements(pending.count, count);
-        match self.encode(pending.data_type, snapshot, elements) {
+        let Some(pv) = self.channels.get(&pending.sid).map(|c| &c.pv) else { return };
+        let elements = snapshot.elements(pending.count, pv.count());
+        match self.encode(pv, pending.data_type, snapshot, elements) {
             Some(bytes) => {
                 let reply =
                     Header::new(command::READ_NOTIFY, pending.data_type, elements, status::NORMAL, pending.ioid);
@@ -379,7 +379,7 @@ impl Circuit {
         let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
         let Some(snapshot) = self.snapshot(pv, directory) else { return };
         let elements = snapshot.elements(requested, pv.count());
-        let Some(bytes) = self.encode(dbr, &snapshot, elements) else { return };
+        let Some(bytes) = self.encode(pv, dbr, &snapshot, elements) else { return };
         self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
         if let Some(subscription) = self.subscriptions.get_mut(&subid) {
             subscription.posted = true;
@@ -397,10 +397,10 @@ impl Circuit {
     }
 
     /// The DBR encoding of `elements` of a snapshot, or `None` for a type not served.
-    fn encode(&self, data_type: u16, snapshot: &Snapshot, elements: u32) -> Option<Vec<u8>> {
+    fn encode(&self, pv: &Pv, data_type: u16, snapshot: &Snapshot, elements: u32) -> Option<Vec<u8>> {
         match data_type {
             dbr::DBR_CLASS_NAME => {
-                let mut bytes = b"motor".to_vec();
+                let mut bytes = pv.record_type().as_bytes().to_vec();
                 bytes.resize(dbr::STRING_SIZE, 0);
                 Some(bytes)
             }

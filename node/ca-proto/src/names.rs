@@ -75,6 +75,16 @@ impl Pv {
         }
     }
 
+    /// The type of the record it belongs to (DBR_CLASS_NAME): `_able` is a bo record of the
+    /// motor's databases; every other channel is of the motor record.
+    pub fn record_type(&self) -> &'static str {
+        if self.target == Target::Able {
+            "bo"
+        } else {
+            "motor"
+        }
+    }
+
     /// Its element count: a message in full has `MESSAGE_CHARS`, everything else one.
     pub fn count(&self) -> u32 {
         if self.target == Target::MessageChars {
@@ -229,6 +239,7 @@ mod tests {
         assert_eq!(pv("bl1:m1_able.VAL"), Some(able.clone()));
         assert_eq!((able.axis.as_str(), able.target, able.native()), ("m1", Target::Able, Base::Enum));
         assert_eq!((able.name("bl1:"), able.writable()), ("bl1:m1_able".into(), true));
+        assert_eq!((able.record_type(), pv("bl1:m1").unwrap().record_type()), ("bo", "motor"), "DBR_CLASS_NAME");
         assert!(able.shows(Target::Field(Field::DISP)) && !able.shows(Target::Field(Field::VAL)));
         assert_eq!(able.written("Disable".into()), Some((Field::DISP, "1".into())));
         assert_eq!(able.written("enable".into()), Some((Field::DISP, "0".into())));
