@@ -197,7 +197,7 @@ async fn main() -> ExitCode {
         // killed when dropped): a node left running would go on moving its axes unwatched.
         None => tokio::select! {
             result = run(cli) => result,
-            signal = interrupted() => signal.and(Err("interrupted; the processes it started are stopped".into())),
+            signal = zmotor_client::interrupted() => signal.map_err(Error::from).and(Err("interrupted; the processes it started are stopped".into())),
         },
     };
     match result {
@@ -207,16 +207,6 @@ async fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
-}
-
-/// SIGINT (Ctrl-C) or SIGTERM.
-async fn interrupted() -> Result<(), Error> {
-    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        result = tokio::signal::ctrl_c() => result?,
-        _ = terminate.recv() => {}
-    }
-    Ok(())
 }
 
 async fn run(cli: Cli) -> Result<(), Error> {

@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, SystemTime};
-use zmotor_client::{show, Client, Event, NoAnswer, Selection, WriteOptions, WriteOutcome};
+use zmotor_client::{interrupted, show, Client, Event, NoAnswer, Selection, WriteOptions, WriteOutcome};
 use zmotor_deploy::{
     import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
     WebConfig, ZenohConfig,
@@ -477,16 +477,6 @@ fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String
         let warnings = launch.warnings().to_vec();
         Ok((launch, warnings))
     }
-}
-
-/// SIGINT (Ctrl-C) or SIGTERM.
-async fn interrupted() -> Result<(), Error> {
-    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        result = tokio::signal::ctrl_c() => result?,
-        _ = terminate.recv() => {}
-    }
-    Ok(())
 }
 
 async fn launch(

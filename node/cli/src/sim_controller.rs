@@ -63,7 +63,7 @@ pub(crate) async fn run(
         })?;
     let name = model.protocol();
     let channels = channels.unwrap_or(model.typical_channels());
-    let interrupted = crate::interrupted();
+    let interrupted = zmotor_client::interrupted();
     tokio::pin!(interrupted);
     match endpoint {
         Endpoint::Tcp(address) => {
@@ -72,7 +72,7 @@ pub(crate) async fn run(
             tracing::info!("{name} emulated on tcp {}; Ctrl-C to stop", listener.local_addr()?);
             tokio::select! {
                 result = emulated.serve_tcp(listener) => Ok(result?),
-                result = &mut interrupted => result,
+                result = &mut interrupted => Ok(result?),
             }
         }
         Endpoint::Pty(path, baud) => {
@@ -84,7 +84,7 @@ pub(crate) async fn run(
             let mut connection: Option<Box<dyn Io>> = Some(Box::new(master));
             let result = tokio::select! {
                 ended = emulated.serve(&mut connection) => Err(format!("pseudo-terminal closed: {ended}").into()),
-                result = &mut interrupted => result,
+                result = &mut interrupted => Ok(result?),
             };
             drop(slave);
             let _ = std::fs::remove_file(&path);

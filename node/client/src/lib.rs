@@ -14,7 +14,7 @@ mod write;
 
 pub use monitor::{Event, Monitor, Update};
 pub use read::{AxisReading, Reading, Selection};
-pub use session::{free_local_endpoint, open, open_waiting, zenoh_config, ConfigError, SessionError};
+pub use session::{free_local_endpoint, interrupted, open, open_waiting, zenoh_config, ConfigError, SessionError};
 pub use show::show;
 pub use summary::AxisSummary;
 pub use write::{NoAnswer, SentWrite, WriteOptions, WriteOutcome};

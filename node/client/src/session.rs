@@ -114,6 +114,16 @@ fn first_ephemeral_port() -> Option<u16> {
     range.split_whitespace().next()?.parse().ok()
 }
 
+/// Until SIGINT (Ctrl-C) or SIGTERM: what stops a process of zmotor's (a node, a gateway, a
+/// client that holds a jog, the benchmark).
+pub async fn interrupted() -> std::io::Result<()> {
+    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
+    tokio::select! {
+        result = tokio::signal::ctrl_c() => result,
+        _ = terminate.recv() => Ok(()),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
