@@ -30,4 +30,6 @@ pub use schema::{catalogue_json, message_schemas};
 pub use toml_value::{field_value, to_toml};
 pub use units::{Dimension, Unit};
 pub use value::Value;
-pub use wire::{Completion, DriverCommand, DriverTrace, Gain, Hold, Readback, SimState, StateMarker};
+pub use wire::{
+    Attached, Completion, DriverCommand, DriverTrace, Gain, Hold, MalformedHold, Readback, SimState, StateMarker,
+};

@@ -41,13 +41,52 @@ impl StateMarker {
     pub fn decode(attachment: &[u8]) -> Option<Self> {
         ciborium::from_reader::<Self, _>(attachment).ok().filter(|m| m.kind == Self::KIND)
     }
+}
 
-    /// Whether an attachment is a state marker, without decoding it: every encoded marker
-    /// starts with the same bytes (a 4-entry map whose first entry is kind = "state"). This
-    /// runs for every sample a node sees, its own publications included.
-    pub fn is_marker(attachment: &[u8]) -> bool {
-        const PREFIX: &[u8] = &[0xa4, 0x64, b'k', b'i', b'n', b'd', 0x65, b's', b't', b'a', b't', b'e'];
-        attachment.starts_with(PREFIX)
+/// What the attachment of a write says, read as a CBOR map or the same map as JSON (its
+/// entries in any order, others beside them): by its `kind`, a state marker or a hold.
+/// Anything else (another system's attachment, such as the one rmw_zenoh puts on every sample)
+/// says nothing to zmotor: the write is a plain one.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Attached {
+    /// Nothing zmotor reads: a plain write.
+    Plain,
+    /// A state marker (kind "state"): a node's publication, never a write, whatever else the
+    /// map holds (a marker a bridge decoded and encoded again, a field added).
+    State,
+    /// A hold (kind "hold"), or one that names no token (`MalformedHold`).
+    Hold(Result<Hold, MalformedHold>),
+}
+
+/// A map of kind "hold" without a token as text: a hold that holds nothing, so its write is
+/// refused rather than start a motion nobody holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("the write's hold (kind \"hold\") names no token as text")]
+pub struct MalformedHold;
+
+impl Attached {
+    /// Read an attachment.
+    pub fn read(attachment: &[u8]) -> Self {
+        #[derive(Deserialize)]
+        struct Tagged {
+            kind: String,
+        }
+        fn decode<T: serde::de::DeserializeOwned>(bytes: &[u8]) -> Option<T> {
+            ciborium::from_reader(bytes).ok().or_else(|| serde_json::from_slice(bytes).ok())
+        }
+        match decode::<Tagged>(attachment).map(|t| t.kind) {
+            Some(kind) if kind == StateMarker::KIND => Attached::State,
+            Some(kind) if kind == Hold::KIND => Attached::Hold(decode::<Hold>(attachment).ok_or(MalformedHold)),
+            _ => Attached::Plain,
+        }
+    }
+
+    /// The hold it says the write is held by, if it is one.
+    pub fn hold(self) -> Option<Result<Hold, MalformedHold>> {
+        match self {
+            Attached::Hold(hold) => Some(hold),
+            Attached::Plain | Attached::State => None,
+        }
     }
 }
 
@@ -76,13 +115,6 @@ impl Hold {
     /// The hold as CBOR, the bytes of the attachment.
     pub fn encode(&self) -> Vec<u8> {
         crate::codec::encode_cbor(self)
-    }
-
-    /// The hold an attachment carries, if it is one (CBOR, or the same map as JSON).
-    pub fn decode(attachment: &[u8]) -> Option<Self> {
-        let hold =
-            ciborium::from_reader::<Self, _>(attachment).ok().or_else(|| serde_json::from_slice(attachment).ok());
-        hold.filter(|h| h.kind == Self::KIND)
     }
 }
 
@@ -333,21 +365,55 @@ mod tests {
     }
 
     use super::*;
+    use std::collections::BTreeMap;
 
     #[test]
     fn a_hold_round_trips_in_cbor_and_reads_from_json() {
         let hold = Hold::new("motor/m1/@hold/abc");
-        assert_eq!(Hold::decode(&hold.encode()), Some(hold.clone()));
-        assert_eq!(Hold::decode(br#"{"kind":"hold","token":"motor/m1/@hold/abc"}"#), Some(hold));
-        assert_eq!(Hold::decode(&StateMarker::new(1, 0, 0).encode()), None, "a marker is no hold");
-        assert_eq!(Hold::decode(b"1"), None);
+        assert_eq!(Attached::read(&hold.encode()), Attached::Hold(Ok(hold.clone())));
+        assert_eq!(Attached::read(br#"{"token":"motor/m1/@hold/abc","kind":"hold","by":1}"#), Attached::Hold(Ok(hold)));
+        assert_eq!(Attached::read(&StateMarker::new(1, 0, 0).encode()), Attached::State, "a marker is no hold");
+        assert_eq!(Attached::read(b"1"), Attached::Plain);
+        // A hold that holds nothing: refused, never a plain write.
+        for malformed in [
+            crate::codec::encode_cbor(&BTreeMap::from([("kind", "hold")])),
+            br#"{"kind":"hold","token":7}"#.to_vec(),
+            br#"{"kind":"hold","tokn":"motor/m1/@hold/x"}"#.to_vec(),
+        ] {
+            assert_eq!(Attached::read(&malformed), Attached::Hold(Err(MalformedHold)), "{malformed:?}");
+        }
+    }
+
+    #[test]
+    fn a_state_marker_is_known_by_its_kind_however_its_map_is_written() {
+        let m = StateMarker::new(7, 4, 2);
+        assert_eq!(Attached::read(&m.encode()), Attached::State);
+        let entries = [("seq", 7u64), ("stat", 4), ("sevr", 2)];
+        let mut with_more = BTreeMap::from([("kind", ciborium::Value::from("state"))]);
+        with_more.extend(entries.map(|(k, v)| (k, ciborium::Value::from(v))));
+        with_more.insert("src", ciborium::Value::from("bridge"));
+        // Entries sorted (kind no longer first), one more, JSON, and an indefinite-length map.
+        let mut indefinite = vec![0xbf];
+        for (k, v) in [("kind", ciborium::Value::from("state")), ("seq", ciborium::Value::from(7))] {
+            indefinite.extend(crate::codec::encode_cbor(&k));
+            indefinite.extend(crate::codec::encode_cbor(&v));
+        }
+        indefinite.push(0xff);
+        for marker in [
+            crate::codec::encode_cbor(&with_more),
+            br#"{"kind":"state","seq":7,"stat":4,"sevr":2}"#.to_vec(),
+            indefinite,
+        ] {
+            assert_eq!(Attached::read(&marker), Attached::State, "{marker:?}");
+        }
+        for plain in [&b"state"[..], b"", &[0xa4, 0x64, b'k'], &crate::codec::encode_cbor(&"state")] {
+            assert_eq!(Attached::read(plain), Attached::Plain, "{plain:?}");
+        }
     }
 
     #[test]
     fn state_marker_round_trips_and_plain_payloads_are_not_markers() {
         let m = StateMarker::new(7, 4, 2);
-        assert!(StateMarker::is_marker(&m.encode()));
-        assert!(!StateMarker::is_marker(b"state"));
         assert_eq!(StateMarker::decode(&m.encode()), Some(m));
         assert_eq!(StateMarker::decode(b"hello"), None);
         assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);

@@ -97,6 +97,36 @@ with zenoh.open(conf) as session:
     reply = list(session.get("motor/m1/VAL?wait", payload="1", timeout=30.0))[0]
     expect(reply.ok is not None and cbor2.loads(reply.ok.payload.to_bytes())["reached"] == 1, f"after DISP 0: {reply}")
 
+    # A state marker is known by its kind however its map is written (a bridge that decoded a
+    # sample and encoded it again, with a key of its own): such a sample is never a write. Each
+    # is followed by a confirmed write of SPMG's present value, answered once the node has
+    # handled what came before it (and sent what that posted).
+    vals = queue.Queue()
+    # The node's posts only: this session's own puts come back to its subscriber too.
+    val_watch = session.declare_subscriber(
+        "motor/m1/VAL", lambda s: vals.put(value(s)) if str(s.encoding) == "application/cbor" else None
+    )
+    here = value(list(session.get("motor/m1/VAL", timeout=5.0))[0].ok)
+    marker_map = {"kind": "state", "seq": 5, "stat": 0, "sevr": 0}
+    for attachment in [
+        cbor2.dumps({**marker_map, "src": "bridge"}),
+        cbor2.dumps(marker_map, canonical=True),
+        json.dumps(marker_map).encode(),
+    ]:
+        session.put("motor/m1/VAL", str(here + 7), attachment=attachment)
+        list(session.get("motor/m1/SPMG", payload="Go", timeout=5.0))
+        now = value(list(session.get("motor/m1/VAL", timeout=5.0))[0].ok)
+        expect(now == here and vals.empty(), f"a marked sample ({attachment!r}) was taken as a write: VAL {here} -> {now}, posted {list(vals.queue)}")
+    val_watch.undeclare()
+
+    # A hold that names no token holds nothing: the write is refused (bad_hold), nothing moves.
+    for attachment in [cbor2.dumps({"kind": "hold"}), json.dumps({"kind": "hold", "tokn": "x"}).encode()]:
+        reply = list(session.get("motor/m1/JOGF", payload="1", attachment=attachment, timeout=5.0))[0]
+        expect(reply.err is not None, f"a jog under a hold without a token was taken ({attachment!r})")
+        expect(str(reply.err.encoding) == "text/plain;bad_hold", f"its encoding: {reply.err.encoding}")
+        jogf = value(list(session.get("motor/m1/JOGF", timeout=5.0))[0].ok)
+        expect(jogf == 0, f"JOGF {jogf} after a refused held jog")
+
     # Menu fields take choice names.
     reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]
     expect(value(reply.ok) == 1, "SPMG Pause")

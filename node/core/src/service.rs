@@ -16,7 +16,8 @@ use zmotor_msgs::keys::PlainKeyError;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
     decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout, Kind,
-    LinkKeyError, MalformedPayload, PayloadEncoding, Readback, RefusalKind, SimState, StateMarker, Value,
+    LinkKeyError, MalformedHold, MalformedPayload, PayloadEncoding, Readback, RefusalKind, SimState, StateMarker,
+    Value,
 };
 
 /// Why a request was refused. The message says it in plain words and names the field.
@@ -76,6 +77,14 @@ pub enum RequestError {
         /// Why the token is no plain key.
         source: PlainKeyError,
     },
+    /// A hold that names no token.
+    #[error("{field}: {source}")]
+    HoldMalformed {
+        /// The field written.
+        field: Field,
+        /// What the hold lacks.
+        source: MalformedHold,
+    },
     /// A hold whose token is not one of this axis's hold tokens.
     #[error("{field}: the hold's token {token} is not under {space} (a hold names a token of this axis's hold space)")]
     HoldElsewhere {
@@ -109,7 +118,9 @@ impl RequestError {
             RequestError::PutsDisabled(_) => RefusalKind::PutsDisabled,
             RequestError::NotSimulated(_) => RefusalKind::NotSimulated,
             RequestError::HoldRequired(_) => RefusalKind::HoldRequired,
-            RequestError::HoldToken { .. } | RequestError::HoldElsewhere { .. } => RefusalKind::BadHold,
+            RequestError::HoldToken { .. }
+            | RequestError::HoldElsewhere { .. }
+            | RequestError::HoldMalformed { .. } => RefusalKind::BadHold,
         }
     }
 }
@@ -237,8 +248,8 @@ pub struct WriteRequest<'a> {
     pub payload: &'a [u8],
     /// How it is encoded.
     pub encoding: PayloadEncoding,
-    /// The write's hold (its attachment), if it has one.
-    pub hold: Option<Hold>,
+    /// The write's hold (its attachment), if it has one: a hold that names no token is refused.
+    pub hold: Option<Result<Hold, MalformedHold>>,
 }
 
 impl<'a> WriteRequest<'a> {
@@ -249,7 +260,7 @@ impl<'a> WriteRequest<'a> {
 
     /// The same write, held by `hold`.
     #[must_use]
-    pub fn held(self, hold: Option<Hold>) -> Self {
+    pub fn held(self, hold: Option<Result<Hold, MalformedHold>>) -> Self {
         Self { hold, ..self }
     }
 }
@@ -545,7 +556,8 @@ impl<R: Clone> AxisService<R> {
         let value = zmotor_msgs::decode_write(field.def(), request.payload, request.encoding)?;
         let starts_jog = field.is_jog() && value != Value::Int(0);
         match &request.hold {
-            Some(hold) => {
+            Some(Err(source)) => return Err(RequestError::HoldMalformed { field, source: *source }),
+            Some(Ok(hold)) => {
                 keys::validate_plain_key(&hold.token).map_err(|source| RequestError::HoldToken { field, source })?;
                 // Only a token in the hold space: another key (the axis's own token, say) would
                 // hold the motion by something that does not go with its client.
@@ -573,7 +585,7 @@ impl<R: Clone> AxisService<R> {
         }
         let accepted = self.axis.write(now, field, &value)?;
         self.unsaved |= field.autosave().is_some();
-        if let Some(hold) = request.hold.filter(|_| self.axis.fields().dmov == 0) {
+        if let Some(Ok(hold)) = request.hold.filter(|_| self.axis.fields().dmov == 0) {
             self.hold(hold.token, if starts_jog { Release::Unjog(field) } else { Release::Stop });
         }
         if let (Some(link), Some(key)) = (InputLink::of(field), key) {
@@ -1098,7 +1110,7 @@ mod tests {
                     Put(name, text) => s.put(at(0.0), WriteRequest::new(name, text.as_bytes(), Text)),
                     Write(name, text) => s.write(at(0.0), WriteRequest::new(name, text.as_bytes(), Text), false, 1),
                     Held(name, text, token) => {
-                        let request = WriteRequest::new(name, text.as_bytes(), Text).held(Some(Hold::new(token)));
+                        let request = WriteRequest::new(name, text.as_bytes(), Text).held(Some(Ok(Hold::new(token))));
                         s.write(at(0.0), request, false, 1);
                     }
                     Sim(name, text) => s.sim_write(at(0.0), name, text.as_bytes(), Text),
@@ -1303,7 +1315,7 @@ mod tests {
     const TOKEN: &str = "motor/m1/@hold/client-1";
 
     fn held(name: &'static str, payload: &'static [u8]) -> WriteRequest<'static> {
-        WriteRequest::new(name, payload, Text).held(Some(Hold::new(TOKEN)))
+        WriteRequest::new(name, payload, Text).held(Some(Ok(Hold::new(TOKEN))))
     }
 
     fn watched(outputs: &[ServiceOutput<u32>]) -> Vec<&str> {
@@ -1372,16 +1384,27 @@ mod tests {
         assert_eq!(s.fields().jogr, 1);
         drain(&mut s);
         // A hold whose token is no key is refused.
-        let bad = WriteRequest::new("VAL", b"1", Text).held(Some(Hold::new("motor/*/x")));
+        let bad = WriteRequest::new("VAL", b"1", Text).held(Some(Ok(Hold::new("motor/*/x"))));
         s.write(at(0.2), bad, false, 3);
         assert!(matches!(&replies(&drain(&mut s))[..], [(3, Reply::Refused(RequestError::HoldToken { .. }))]));
         // A hold by a token outside the axis's hold space (its own liveliness token) is refused.
-        let elsewhere = WriteRequest::new("JOGF", b"1", Text).held(Some(Hold::new("motor/m1")));
+        let elsewhere = WriteRequest::new("JOGF", b"1", Text).held(Some(Ok(Hold::new("motor/m1"))));
         s.write(at(0.3), elsewhere, false, 4);
         let [(4, Reply::Refused(refusal @ RequestError::HoldElsewhere { .. }))] = &replies(&drain(&mut s))[..] else {
             panic!("a hold outside the hold space was taken")
         };
         assert!(refusal.to_string().contains("not under motor/m1/@hold/"), "{refusal}");
+        assert_eq!(s.fields().jogf, 0, "nothing moved");
+        // A hold that names no token holds nothing: refused, as a confirmed write and as a put.
+        let unheld = WriteRequest::new("JOGF", b"1", Text).held(Some(Err(MalformedHold)));
+        s.write(at(0.4), unheld.clone(), false, 5);
+        let [(5, Reply::Refused(refusal @ RequestError::HoldMalformed { .. }))] = &replies(&drain(&mut s))[..] else {
+            panic!("a hold without a token was taken")
+        };
+        assert_eq!(refusal.kind(), RefusalKind::BadHold);
+        s.put(at(0.5), unheld);
+        let refused = drain(&mut s);
+        assert!(refused.iter().any(|o| matches!(o, ServiceOutput::Refusal { kind: RefusalKind::BadHold, .. })));
         assert_eq!(s.fields().jogf, 0, "nothing moved");
     }
 }

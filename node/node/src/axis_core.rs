@@ -26,7 +26,7 @@ use zenoh::{Session, Wait};
 use zmotor_core::{AxisService, Delivery, Instant, Reply, ServiceOutput, WriteRequest};
 use zmotor_inbox::{Handler, Inbox};
 use zmotor_msgs::{
-    encode_cbor, keys, Field, Hold, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
+    encode_cbor, keys, Attached, Field, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
 /// The state marker and timestamp a reply of an axis's values carries.
@@ -257,7 +257,7 @@ impl AxisCore {
             (Some(name), Some(payload)) => {
                 let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
                 let wait = query.parameters().contains_key(keys::WAIT_PARAMETER);
-                let hold = query.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
+                let hold = query.attachment().and_then(|a| Attached::read(&a.to_bytes()).hold());
                 let request = WriteRequest::new(&name, &payload, encoding).held(hold);
                 self.service.write(now, request, wait, query);
             }

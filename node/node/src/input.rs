@@ -3,7 +3,7 @@
 
 use zenoh::query::Query;
 use zmotor_core::{DeviceStatus, InputLink};
-use zmotor_msgs::{Hold, PayloadEncoding};
+use zmotor_msgs::{Hold, MalformedHold, PayloadEncoding};
 
 /// One input of an axis, handled in the order it was delivered (`zmotor_inbox::Inbox`).
 pub(crate) enum AxisInput {
@@ -35,8 +35,8 @@ pub(crate) struct Written {
     pub(crate) name: String,
     pub(crate) payload: Vec<u8>,
     pub(crate) encoding: PayloadEncoding,
-    /// The hold its attachment names, if any.
-    pub(crate) hold: Option<Hold>,
+    /// The hold its attachment names, if any (one that names no token is refused).
+    pub(crate) hold: Option<Result<Hold, MalformedHold>>,
 }
 
 /// How an input reaches an axis: its inbox, whatever the axis holds behind it.

@@ -11,7 +11,7 @@ use zenoh::sample::Sample;
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
-use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
+use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, Value};
 
 /// Where a follower's values go, as (the key's index, its value): a calc link's channel, or an
 /// axis's inbox (so that a link's value and a write reach the axis in the order they came).
@@ -182,11 +182,6 @@ impl Follows {
 fn sample_number(sample: &Sample) -> Option<f64> {
     let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
     decode_scalar(&sample.payload().to_bytes(), encoding).ok()?.as_f64()
-}
-
-/// A publication of some node (it carries the state marker), never a write.
-pub(crate) fn is_state(sample: &Sample) -> bool {
-    sample.attachment().is_some_and(|a| StateMarker::is_marker(&a.to_bytes()))
 }
 
 /// A calc link: recompute on its inputs, write the result to its output key.

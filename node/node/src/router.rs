@@ -5,7 +5,6 @@
 //! on Zenoh's receiving thread, or on the node's inputs thread while axes do slow work.
 
 use crate::input::{AxisInput, Deliver, Written};
-use crate::links::is_state;
 use crate::refusal::refuse;
 use crate::routes::{Routes, Space};
 use crate::streamed::KeyWork;
@@ -16,7 +15,7 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::{Locality, Sample};
 use zenoh::Session;
-use zmotor_msgs::{keys, Hold, KeyLayout, PayloadEncoding, RefusalKind};
+use zmotor_msgs::{keys, Attached, KeyLayout, PayloadEncoding, RefusalKind};
 
 /// Held for as long as the node serves.
 pub(crate) struct Router {
@@ -53,11 +52,7 @@ impl Router {
             _writes: session
                 .declare_subscriber(layout.every_field())
                 .allowed_origin(Locality::Remote)
-                .callback(move |sample| {
-                    if !is_state(&sample) {
-                        route_sample(&r1, &s1, &i1, &sample, AxisInput::Write);
-                    }
-                })
+                .callback(move |sample| route_sample(&r1, &s1, &i1, &sample, AxisInput::Write))
                 .await?,
             _queries: session
                 .declare_queryable(layout.everything())
@@ -75,11 +70,7 @@ impl Router {
             _sim_writes: session
                 .declare_subscriber(keys::sim_key("*", "*"))
                 .allowed_origin(Locality::Remote)
-                .callback(move |sample| {
-                    if !is_state(&sample) {
-                        route_sample(&r3, &Space::Sim, &i3, &sample, AxisInput::SimWrite);
-                    }
-                })
+                .callback(move |sample| route_sample(&r3, &Space::Sim, &i3, &sample, AxisInput::SimWrite))
                 .await?,
             _sim_queries: session
                 .declare_queryable(keys::sim_key("*", "**"))
@@ -89,15 +80,20 @@ impl Router {
     }
 }
 
-/// A sample goes to the axis its key names, if it is one of ours.
+/// A sample goes to the axis its key names, if it is one of ours and a write: a publication of
+/// some node (it carries a state marker) never is.
 fn route_sample(routes: &Routes, space: &Space, inputs: &Inputs, sample: &Sample, wrap: fn(Written) -> AxisInput) {
+    let attached = sample.attachment().map_or(Attached::Plain, |a| Attached::read(&a.to_bytes()));
+    if attached == Attached::State {
+        return;
+    }
     if sample.key_expr().as_str().contains(['*', '$']) {
         tracing::warn!(key = %sample.key_expr(), "a put to a key with wildcards is not a write; ignored");
         return;
     }
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-        let hold = sample.attachment().and_then(|a| Hold::decode(&a.to_bytes()));
+        let hold = attached.hold();
         inputs.hand(handle, wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
     }
 }
