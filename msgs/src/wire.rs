@@ -316,8 +316,8 @@ pub struct Completion {
     #[serde(rename = "SEVR")]
     pub sevr: i64,
     /// 1 when the target was reached: no MAJOR or INVALID alarm and, after a write of a target
-    /// (VAL, DVAL, RVAL, RLV, TWF, TWR), MISS 0, LVIO 0 and RBV within the retry deadband (RDBD)
-    /// of the target it set.
+    /// (VAL, DVAL, RVAL, RLV, TWF, TWR), MISS 0 and RBV within the retry deadband (RDBD) of the
+    /// target it set.
     pub reached: i64,
     /// What the axis's controller reported while the motion ran (its errors with the vendor's
     /// code and meaning, commands it did not send), each once; absent when nothing.

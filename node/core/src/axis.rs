@@ -29,11 +29,15 @@ const MAX_CALLBACK_ROUNDS: usize = 16;
 pub struct Completion(u64);
 
 /// A write the axis took in.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct WriteAccepted {
     /// The last completion before the write was processed: whatever the write started has
     /// finished at the first `AxisEvent::Done` after it (a put-callback's answer).
     pub after: Completion,
+    /// Where a write of a target (`Field::sets_target`) asked the axis to go: VAL as the record
+    /// took it, before the driver said anything (a motion stopped at once by a limit switch
+    /// sets VAL back to where it stopped).
+    pub target: Option<f64>,
 }
 
 impl WriteAccepted {
@@ -316,8 +320,9 @@ impl Axis {
         if self.polled() && self.held.is_none() && status != self.last_status {
             self.callback(status);
         }
-        let accepted = WriteAccepted { after: self.completed };
+        let after = self.completed;
         let result = self.record.write(field, value);
+        let accepted = WriteAccepted { after, target: field.sets_target().then(|| self.record.fields().val) };
         if result.is_ok() && field.def().kind == zmotor_msgs::Kind::Link {
             self.relinked(field);
         }

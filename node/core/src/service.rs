@@ -285,8 +285,6 @@ struct Held {
 struct Waiter<R> {
     to: R,
     field: Field,
-    /// Where a write of a target asked the axis to go (VAL once the write was taken).
-    target: Option<f64>,
     accepted: WriteAccepted,
     /// What the controller reported while the motion ran, each once.
     controller_messages: Vec<String>,
@@ -455,13 +453,12 @@ impl<R: Clone> AxisService<R> {
                 Reply::Refused(refusal)
             }
             Ok((field, accepted)) if wait && self.axis.fields().dmov == 0 => {
-                let target = self.target_of(field);
-                self.waiting.push(Waiter { to, field, target, accepted, controller_messages: Vec::new() });
+                self.waiting.push(Waiter { to, field, accepted, controller_messages: Vec::new() });
                 self.collect();
                 return;
             }
-            Ok((field, _)) if wait => {
-                Reply::Completion(field, self.completion(field, self.target_of(field), Vec::new()))
+            Ok((field, accepted)) if wait => {
+                Reply::Completion(field, self.completion(field, accepted.target, Vec::new()))
             }
             Ok((field, _)) => Reply::Value(field, self.axis.record().get(field)),
         };
@@ -628,20 +625,17 @@ impl<R: Clone> AxisService<R> {
         StateMarker::new(seq, f.stat, f.sevr)
     }
 
-    /// Where a write of `field` just taken asked the axis to go, if it writes a target.
-    fn target_of(&self, field: Field) -> Option<f64> {
-        field.sets_target().then(|| self.axis.fields().val)
-    }
-
     /// The answer to a `?wait` write: the field, the readback and whether the target was reached:
-    /// no major alarm and, after a write of a `target`, no retries run out, no limit violation and
-    /// the readback within the retry deadband of it (a motion stopped, or ended on a limit switch
-    /// or short of it with no retries, did not reach it, whatever MISS says). MISS and LVIO speak
-    /// of the last target: a home or a write of VELO is not answered with an earlier move's.
+    /// no major alarm and, after a write of a `target`, no retries run out and the readback within
+    /// the retry deadband of it (a motion stopped, or ended on a limit switch or short of it with
+    /// no retries, did not reach it, whatever MISS says). MISS speaks of the last target: a home
+    /// or a write of VELO is not answered with an earlier move's. LVIO is not asked: a target
+    /// beyond the soft limits is refused, and one too close to move to leaves an earlier target's
+    /// LVIO standing (as the record does), though the axis is there.
     fn completion(&self, field: Field, target: Option<f64>, controller_messages: Vec<String>) -> Completion {
         let f = self.axis.fields();
         let deadband = f.rdbd.max(f.mres.abs());
-        let on_target = target.is_none_or(|target| f.miss == 0 && f.lvio == 0 && (f.rbv - target).abs() <= deadband);
+        let on_target = target.is_none_or(|target| f.miss == 0 && (f.rbv - target).abs() <= deadband);
         let reached = f.sevr < severity::MAJOR && on_target;
         Completion {
             written: [(field.name().to_string(), self.axis.record().get(field))].into(),
@@ -695,7 +689,8 @@ impl<R: Clone> AxisService<R> {
                         .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
                     self.waiting = waiting;
                     for waiter in ended {
-                        let completion = self.completion(waiter.field, waiter.target, waiter.controller_messages);
+                        let target = waiter.accepted.target;
+                        let completion = self.completion(waiter.field, target, waiter.controller_messages);
                         let reply = Reply::Completion(waiter.field, completion);
                         self.answer(waiter.to, reply);
                     }
@@ -826,6 +821,40 @@ mod tests {
         assert_eq!((completion.miss, completion.lvio, completion.sevr, completion.dmov), (0, 0, 0, 1));
         assert!(completion.rbv > 0.5 && completion.rbv < 4.0, "{completion:?}");
         assert_eq!(completion.reached, 0, "stopped {} short of 5", 5.0 - completion.rbv);
+    }
+
+    #[test]
+    fn a_wait_write_toward_an_active_limit_switch_did_not_reach_its_target() {
+        // The plus switch at 2 mm (2,000 steps): a move to 3 stops on it; a move further plus
+        // then stops at once, and the record sets VAL back to where the carriage stands.
+        let sim = SimConfig { high_limit_switch: Some(2000.0), ..SimConfig::default() };
+        let mut s = service_on(demo_fields(), sim);
+        let mut now = at(0.0);
+        for (id, target) in [(1, "3"), (2, "4")] {
+            s.write(now, WriteRequest::new("VAL", target.as_bytes(), Text), true, id);
+            let outputs = run_until_idle(&mut s);
+            let answers = replies(&outputs);
+            let [(to, Reply::Completion(Field::VAL, completion))] = &answers[..] else { panic!("{outputs:?}") };
+            assert_eq!(*to, id);
+            assert_eq!((s.fields().hls, completion.dmov), (1, 1), "{completion:?}");
+            assert!((completion.rbv - 2.0).abs() < 0.01 && s.fields().val == completion.rbv, "{completion:?}");
+            assert_eq!(completion.reached, 0, "VAL {target}: stopped on the switch, {completion:?}");
+            now = s.poll_timeout().expect("polled");
+        }
+    }
+
+    #[test]
+    fn a_wait_write_to_where_the_axis_stands_reached_it_whatever_an_earlier_target_left_in_lvio() {
+        let mut s = service();
+        s.write(at(0.0), WriteRequest::new("VAL", b"500", Text), false, 1);
+        assert_eq!(s.fields().lvio, 1, "beyond the soft limits");
+        s.write(at(0.1), WriteRequest::new("VAL", b"0", Text), true, 2);
+        let outputs = run_until_idle(&mut s);
+        let [(1, Reply::Refused(_)), (2, Reply::Completion(Field::VAL, completion))] = &replies(&outputs)[..] else {
+            panic!("{outputs:?}")
+        };
+        // Too close to move: the record leaves LVIO as the refused target set it.
+        assert_eq!((completion.rbv, completion.lvio, completion.reached), (0.0, 1, 1), "{completion:?}");
     }
 
     #[test]
