@@ -175,7 +175,7 @@ fn decode_item(bytes: &[u8], encoding: PayloadEncoding) -> Result<Item, Malforme
     match encoding {
         PayloadEncoding::Cbor => {
             let mut rest = bytes;
-            let v: ciborium::Value = ciborium::from_reader(&mut rest).map_err(|e| malformed(e.to_string()))?;
+            let v: ciborium::Value = ciborium::from_reader(&mut rest).map_err(|e| malformed(cbor_error(&e)))?;
             if !rest.is_empty() {
                 return Err(malformed(format!("{} bytes after the item", rest.len())));
             }
@@ -201,6 +201,18 @@ fn from_cbor(v: ciborium::Value) -> Option<Item> {
         ciborium::Value::Text(s) => Some(Item::Scalar(Value::Text(s))),
         ciborium::Value::Bool(b) => Some(Item::Boolean(b)),
         _ => None,
+    }
+}
+
+/// Why bytes are not one CBOR item, in words.
+fn cbor_error(error: &ciborium::de::Error<std::io::Error>) -> String {
+    use ciborium::de::Error;
+    match error {
+        Error::Io(_) => "the bytes end before the item does".into(),
+        Error::Syntax(at) => format!("not CBOR at byte {at}"),
+        Error::Semantic(Some(at), what) => format!("not a valid item at byte {at}: {what}"),
+        Error::Semantic(None, what) => format!("not a valid item: {what}"),
+        Error::RecursionLimitExceeded => "items nested too deeply".into(),
     }
 }
 
@@ -265,7 +277,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
                     return Err(CodecError::WrongType {
                         field,
                         expected: "a number".into(),
-                        got: format!("text '{t}'"),
+                        got: format!("text '{}'", excerpt(t)),
                     })
                 }
             };
@@ -284,7 +296,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
                     None => {
                         return Err(CodecError::NotAChoice {
                             field,
-                            value: t.clone(),
+                            value: excerpt(t),
                             menu: menu.name,
                             choices: menu.choices.join(", "),
                         })
@@ -300,7 +312,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
                     return Err(CodecError::WrongType {
                         field,
                         expected: "an integer".into(),
-                        got: format!("text '{t}'"),
+                        got: format!("text '{}'", excerpt(t)),
                     })
                 }
                 other => integral(field, other)?,
@@ -316,6 +328,16 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
             Ok(Value::Text(s))
         }
         Kind::Link => Ok(Value::Text(raw.to_string())),
+    }
+}
+
+/// Text from a writer as a message repeats it: whole when short, else its start and its length
+/// (a megabyte of garbage is not sent back to the writer and every subscriber of ERR).
+pub fn excerpt(text: &str) -> String {
+    const SHOWN: usize = 40;
+    match text.char_indices().nth(SHOWN) {
+        Some((cut, _)) => format!("{}... ({} bytes)", &text[..cut], text.len()),
+        None => text.to_string(),
     }
 }
 
@@ -414,6 +436,29 @@ mod tests {
             assert!(matches!(e, CodecError::Malformed { encoding: "CBOR", .. }), "{e}");
             assert!(e.to_string().contains("after the item"), "{e}");
         }
+    }
+
+    #[test]
+    fn bytes_that_are_not_cbor_are_refused_in_plain_words() {
+        let nested = [vec![0x81; 1000], cbor(1.0)].concat();
+        for (bytes, words) in [
+            (&b""[..], "VAL: malformed CBOR payload: the bytes end before the item does"),
+            (&[0xff, 0xfe, 0x00][..], "VAL: malformed CBOR payload: not a valid item"),
+            (&nested[..], "VAL: malformed CBOR payload: items nested too deeply"),
+        ] {
+            let e = write(Field::VAL, bytes, PayloadEncoding::Cbor).unwrap_err().to_string();
+            assert!(e.starts_with(words), "{e}");
+            assert!(!e.contains("Error {") && !e.contains("Semantic("), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_long_text_is_repeated_by_its_start_and_length() {
+        let e = write(Field::VAL, "x".repeat(1_000_000).as_bytes(), PayloadEncoding::Text).unwrap_err().to_string();
+        assert_eq!(e, format!("VAL: wrong type: expected a number, got text '{}... (1000000 bytes)'", "x".repeat(40)));
+        let e = write(Field::SPMG, "é".repeat(50).as_bytes(), PayloadEncoding::Text).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("SPMG: '{}... (100 bytes)' is not a choice", "é".repeat(40))), "{e}");
+        assert_eq!(excerpt("Go on"), "Go on");
     }
 
     #[test]

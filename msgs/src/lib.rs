@@ -21,7 +21,7 @@ mod wire;
 
 pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, WriteClass, FIELDS, UNMODELLED_COMMON_FIELDS};
 pub use codec::{
-    decode_cbor_value, decode_scalar, decode_write, encode_cbor, validate, CodecError, MalformedPayload,
+    decode_cbor_value, decode_scalar, decode_write, encode_cbor, excerpt, validate, CodecError, MalformedPayload,
     PayloadEncoding,
 };
 pub use keys::{KeyLayout, LinkKeyError};

@@ -708,7 +708,7 @@ impl<R: Clone> AxisService<R> {
 fn field_named(name: &str) -> Result<Field, RequestError> {
     Field::from_name(name).ok_or_else(|| match Field::from_name_any_case(name) {
         Some(field) => RequestError::WrongCase { given: name.to_string(), field },
-        None => RequestError::UnknownField(name.to_string()),
+        None => RequestError::UnknownField(zmotor_msgs::excerpt(name)),
     })
 }
 
@@ -885,6 +885,15 @@ mod tests {
         let outputs = run_until_idle(&mut s);
         let [(2, Reply::Completion(Field::HOMF, homed))] = &replies(&outputs)[..] else { panic!("{outputs:?}") };
         assert_eq!((homed.miss, homed.sevr, homed.reached), (1, 0, 1), "MISS is the earlier move's: {homed:?}");
+    }
+
+    #[test]
+    fn an_unknown_field_is_named_by_its_start_when_its_name_is_long() {
+        let mut s = service();
+        let name = "N".repeat(5000);
+        s.write(at(0.0), WriteRequest::new(&name, b"1", Text), false, 1);
+        let [(1, Reply::Refused(refusal))] = &replies(&drain(&mut s))[..] else { panic!("an unknown field was taken") };
+        assert_eq!(refusal.to_string(), format!("{}... (5000 bytes): unknown field", "N".repeat(40)));
     }
 
     #[test]
