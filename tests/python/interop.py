@@ -127,6 +127,18 @@ with zenoh.open(conf) as session:
         jogf = value(list(session.get("motor/m1/JOGF", timeout=5.0))[0].ok)
         expect(jogf == 0, f"JOGF {jogf} after a refused held jog")
 
+    # A plain put to a key with wildcards is refused, on the ERR of each axis it covers.
+    errs = queue.Queue()
+    # (The put itself comes back to this session's subscriber: the node's report is text.)
+    err_watch = session.declare_subscriber(
+        "motor/m1/ERR", lambda s: errs.put(s) if str(s.encoding).startswith("text/plain") else None
+    )
+    session.put("motor/m1/*", "1")
+    err = errs.get(timeout=10)
+    expect(str(err.encoding) == "text/plain;wildcard", f"a wildcard put's ERR: {err.encoding}")
+    expect(err.payload.to_string().startswith("motor/m1/*: a write names one field"), err.payload.to_string())
+    err_watch.undeclare()
+
     # Menu fields take choice names.
     reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]
     expect(value(reply.ok) == 1, "SPMG Pause")

@@ -27,6 +27,9 @@ pub enum RequestError {
     /// No field has this name.
     #[error("{0}: unknown field")]
     UnknownField(String),
+    /// A write to a key with wildcards (the key).
+    #[error("{0}: a write names one field of one axis; this key has wildcards")]
+    Wildcard(String),
     /// The name is a field's in another case; keys are exact.
     #[error("{given}: unknown field; field names are upper case: {field}")]
     WrongCase {
@@ -110,6 +113,7 @@ impl RequestError {
     pub fn kind(&self) -> RefusalKind {
         match self {
             RequestError::UnknownField(_) | RequestError::WrongCase { .. } => RefusalKind::UnknownField,
+            RequestError::Wildcard(_) => RefusalKind::Wildcard,
             RequestError::Payload(_)
             | RequestError::SimPayload { .. }
             | RequestError::SimSetting { .. }
@@ -439,6 +443,14 @@ impl<R: Clone> AxisService<R> {
             self.refuse(&refusal);
         }
         self.collect();
+    }
+
+    /// A plain write to `key`, a key with wildcards that covers this axis: refused and reported
+    /// on ERR, for a write names one field of one axis.
+    pub fn wildcard_put(&mut self, key: &str) {
+        let refusal = RequestError::Wildcard(zmotor_msgs::excerpt(key));
+        tracing::warn!(axis = %self.name, "write refused: {refusal}");
+        self.refuse(&refusal);
     }
 
     /// A confirmed write to the field named `name`: answered with the field's new value, or,
@@ -885,6 +897,17 @@ mod tests {
         let outputs = run_until_idle(&mut s);
         let [(2, Reply::Completion(Field::HOMF, homed))] = &replies(&outputs)[..] else { panic!("{outputs:?}") };
         assert_eq!((homed.miss, homed.sevr, homed.reached), (1, 0, 1), "MISS is the earlier move's: {homed:?}");
+    }
+
+    #[test]
+    fn a_plain_write_to_a_key_with_wildcards_is_reported_on_err() {
+        let mut s = service();
+        s.wildcard_put("motor/m1/*");
+        let outputs = drain(&mut s);
+        let [ServiceOutput::Refusal { kind: RefusalKind::Wildcard, message, .. }] = &outputs[..] else {
+            panic!("{outputs:?}")
+        };
+        assert_eq!(message, "motor/m1/*: a write names one field of one axis; this key has wildcards");
     }
 
     #[test]

@@ -634,6 +634,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::Query(query) => self.on_query(now, query),
             AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
             AxisInput::SimQuery(query) => self.on_sim_query(now, query),
+            AxisInput::WildcardWrite(key) => self.service.wildcard_put(&key),
             AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
             AxisInput::ControllerMessage(message) => self.service.controller_message(message),
             AxisInput::Tick => self.service.handle_timeout(now),

@@ -13,6 +13,8 @@ pub(crate) enum AxisInput {
     Query(Query),
     /// A plain write to a simulator key.
     SimWrite(Written),
+    /// A plain write to a key with wildcards that covers the axis: refused.
+    WildcardWrite(String),
     /// A read of simulator keys.
     SimQuery(Query),
     /// What the axis's controller reported for its channel, after how many motion commands.

@@ -15,7 +15,8 @@ use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
 use zenoh::sample::{Locality, Sample};
 use zenoh::Session;
-use zmotor_msgs::{keys, Attached, KeyLayout, PayloadEncoding, RefusalKind};
+use zmotor_core::RequestError;
+use zmotor_msgs::{excerpt, keys, Attached, KeyLayout, PayloadEncoding};
 
 /// Held for as long as the node serves.
 pub(crate) struct Router {
@@ -88,7 +89,10 @@ fn route_sample(routes: &Routes, space: &Space, inputs: &Inputs, sample: &Sample
         return;
     }
     if sample.key_expr().as_str().contains(['*', '$']) {
-        tracing::warn!(key = %sample.key_expr(), "a put to a key with wildcards is not a write; ignored");
+        // Refused on the ERR of each axis of ours the key covers.
+        for handle in space.covered(routes, sample.key_expr()) {
+            inputs.hand(handle, AxisInput::WildcardWrite(sample.key_expr().to_string()));
+        }
         return;
     }
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
@@ -112,8 +116,8 @@ fn route_query(routes: &Routes, space: &Space, inputs: &Inputs, query: Query, wr
     if query.payload().is_some() && query.key_expr().as_str().contains(['*', '$']) {
         // Answering with the fields' values would look like success, and writing every match
         // is not what a write means: refused, naming the key.
-        let message = format!("{}: a write names one field of one axis; this key has wildcards", query.key_expr());
-        refuse(&query, RefusalKind::Wildcard, message);
+        let refusal = RequestError::Wildcard(excerpt(query.key_expr().as_str()));
+        refuse(&query, refusal.kind(), refusal.to_string());
         return;
     }
     let chunk = space.axis_chunk(query.key_expr().as_str()).unwrap_or("");
@@ -123,11 +127,8 @@ fn route_query(routes: &Routes, space: &Space, inputs: &Inputs, query: Query, wr
         }
         return;
     }
-    for (axis, handle) in routes.iter() {
-        let Ok(all) = KeyExpr::try_from(space.everything_of(axis)) else { continue };
-        if query.key_expr().intersects(&all) {
-            inputs.hand(handle, wrap(query.clone()));
-        }
+    for handle in space.covered(routes, query.key_expr()) {
+        inputs.hand(handle, wrap(query.clone()));
     }
 }
 

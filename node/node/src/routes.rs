@@ -4,6 +4,7 @@
 use crate::input::Deliver;
 use std::collections::HashMap;
 use std::sync::Arc;
+use zenoh::key_expr::KeyExpr;
 use zmotor_msgs::{keys, KeyLayout};
 
 /// The node's axes, by name.
@@ -31,6 +32,17 @@ impl Space {
             Space::Fields(layout) => layout.axis_all(axis),
             Space::Sim => keys::sim_key(axis, "**"),
         }
+    }
+
+    /// The axes of ours a key expression covers, any of their keys.
+    pub(crate) fn covered<'r>(
+        &'r self,
+        routes: &'r Routes,
+        key: &'r KeyExpr<'_>,
+    ) -> impl Iterator<Item = &'r Arc<dyn Deliver>> + 'r {
+        routes.iter().filter_map(move |(axis, handle)| {
+            KeyExpr::try_from(self.everything_of(axis)).is_ok_and(|all| key.intersects(&all)).then_some(handle)
+        })
     }
 
     /// The axis of ours a key names, and the name of the field or setting it names.
