@@ -127,6 +127,14 @@ with zenoh.open(conf) as session:
         jogf = value(list(session.get("motor/m1/JOGF", timeout=5.0))[0].ok)
         expect(jogf == 0, f"JOGF {jogf} after a refused held jog")
 
+    # A simulator setting takes a confirmed write as a field does.
+    reply = list(session.get("sim/m1/fraction", payload="0.5", timeout=5.0))[0]
+    expect(reply.ok is not None and value(reply.ok) == 0.5, f"sim/m1/fraction 0.5: {reply}")
+    expect(value(list(session.get("sim/m1/fraction", timeout=5.0))[0].ok) == 0.5, "the setting was not kept")
+    reply = list(session.get("sim/m1/fraction", payload="5", timeout=5.0))[0]
+    expect(reply.err is not None, "a fraction of 5 was taken")
+    list(session.get("sim/m1/fraction", payload="1", timeout=5.0))
+
     # A plain put to a key with wildcards is refused, on the ERR of each axis it covers.
     errs = queue.Queue()
     # (The put itself comes back to this session's subscriber: the node's report is text.)

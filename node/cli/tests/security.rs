@@ -115,6 +115,9 @@ fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_whe
     assert!(refused.contains("motor/m1/@write/VAL"), "{refused}");
     // The write key is the rules' to allow: nothing answers a viewer there.
     assert_eq!(write(&viewer, "motor/m1/@write/VAL", "5"), "none");
+    // Nor may a reader's query write the simulator (its settings take puts, which the rules see).
+    let refused = write(&viewer, "sim/m1/fraction", "0.5");
+    assert!(refused.starts_with("err sim/m1/fraction: this node is under access control"), "{refused}");
     // A stock client the rules allow writes there, over mutual TLS.
     let answer = write(&pki.issue("operator", &[]), "motor/m1/@write/VAL", "0.5");
     assert!(answer.starts_with("ok "), "{answer}");

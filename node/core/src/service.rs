@@ -15,8 +15,8 @@ use std::collections::VecDeque;
 use zmotor_msgs::keys::PlainKeyError;
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{
-    decode_scalar, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout, Kind,
-    LinkKeyError, MalformedHold, MalformedPayload, PayloadEncoding, Readback, RefusalKind, SimState, StateMarker,
+    decode_scalar, excerpt, keys, CodecError, Completion, DriverCommand, DriverTrace, Field, Fields, Hold, KeyLayout,
+    Kind, LinkKeyError, MalformedHold, MalformedPayload, PayloadEncoding, Readback, RefusalKind, SimState, StateMarker,
     Value,
 };
 
@@ -448,7 +448,7 @@ impl<R: Clone> AxisService<R> {
     /// A plain write to `key`, a key with wildcards that covers this axis: refused and reported
     /// on ERR, for a write names one field of one axis.
     pub fn wildcard_put(&mut self, key: &str) {
-        let refusal = RequestError::Wildcard(zmotor_msgs::excerpt(key));
+        let refusal = RequestError::Wildcard(excerpt(key));
         tracing::warn!(axis = %self.name, "write refused: {refusal}");
         self.refuse(&refusal);
     }
@@ -499,25 +499,50 @@ impl<R: Clone> AxisService<R> {
 
     /// A put to the simulator key `sim/<axis>/<name>`; a refusal is reported on ERR.
     pub fn sim_write(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding) {
-        let key = keys::sim_key(&self.name, name);
-        self.axis.handle_timeout(now);
-        let value =
-            decode_scalar(payload, encoding).map_err(|source| RequestError::SimPayload { key: key.clone(), source });
-        let result = value.and_then(|value| {
-            let sim = self.axis.simulation().ok_or_else(|| RequestError::NotSimulated(key.clone()))?;
-            let setting = SimSetting::from_name(name).ok_or_else(|| SimSettingError::Unknown(name.to_string()));
-            setting
-                .and_then(|setting| sim.apply(setting, &value))
-                .map_err(|source| RequestError::SimSetting { key: key.clone(), source })
-        });
-        match result {
-            Ok(()) => self.axis.refresh_status(now),
+        if let Err(refusal) = self.apply_sim(now, name, payload, encoding) {
+            tracing::warn!(axis = %self.name, "{refusal}");
+            self.refuse(&refusal);
+        }
+        self.collect();
+    }
+
+    /// A confirmed write to the simulator key `sim/<axis>/<name>`: answered with the setting's
+    /// new value, or refused (and reported on ERR) with the reason.
+    pub fn sim_write_confirmed(&mut self, now: Instant, name: &str, payload: &[u8], encoding: PayloadEncoding, to: R) {
+        let reply = match self.apply_sim(now, name, payload, encoding) {
+            Ok(setting) => match self.axis.simulation() {
+                Some(sim) => Reply::SimSetting(setting, sim.setting(setting)),
+                None => return,
+            },
             Err(refusal) => {
                 tracing::warn!(axis = %self.name, "{refusal}");
                 self.refuse(&refusal);
+                Reply::Refused(refusal)
             }
-        }
+        };
         self.collect();
+        self.answer(to, reply);
+    }
+
+    /// Apply a write of the simulator setting `name`.
+    fn apply_sim(
+        &mut self,
+        now: Instant,
+        name: &str,
+        payload: &[u8],
+        encoding: PayloadEncoding,
+    ) -> Result<SimSetting, RequestError> {
+        let key = keys::sim_key(&self.name, name);
+        self.axis.handle_timeout(now);
+        let value =
+            decode_scalar(payload, encoding).map_err(|source| RequestError::SimPayload { key: key.clone(), source })?;
+        let sim = self.axis.simulation().ok_or_else(|| RequestError::NotSimulated(key.clone()))?;
+        let setting = SimSetting::from_name(name)
+            .ok_or_else(|| SimSettingError::Unknown(excerpt(name)))
+            .and_then(|setting| sim.apply(setting, &value).map(|()| setting))
+            .map_err(|source| RequestError::SimSetting { key, source })?;
+        self.axis.refresh_status(now);
+        Ok(setting)
     }
 
     /// A read of the simulator's keys whose names `selects` (`state` and every setting).
@@ -720,7 +745,7 @@ impl<R: Clone> AxisService<R> {
 fn field_named(name: &str) -> Result<Field, RequestError> {
     Field::from_name(name).ok_or_else(|| match Field::from_name_any_case(name) {
         Some(field) => RequestError::WrongCase { given: name.to_string(), field },
-        None => RequestError::UnknownField(zmotor_msgs::excerpt(name)),
+        None => RequestError::UnknownField(excerpt(name)),
     })
 }
 
@@ -897,6 +922,25 @@ mod tests {
         let outputs = run_until_idle(&mut s);
         let [(2, Reply::Completion(Field::HOMF, homed))] = &replies(&outputs)[..] else { panic!("{outputs:?}") };
         assert_eq!((homed.miss, homed.sevr, homed.reached), (1, 0, 1), "MISS is the earlier move's: {homed:?}");
+    }
+
+    #[test]
+    fn a_confirmed_write_of_a_simulator_setting_is_answered_with_its_value_or_refused() {
+        let mut s = service();
+        s.sim_write_confirmed(at(0.0), "fraction", b"0.5", Text, 1);
+        s.sim_write_confirmed(at(0.0), "fraction", b"5", Text, 2);
+        s.sim_write_confirmed(at(0.0), "nope", b"1", Text, 3);
+        let answers = replies(&drain(&mut s));
+        let [(1, Reply::SimSetting(SimSetting::Fraction, Value::Float(half))), (2, Reply::Refused(out_of_range)), (3, Reply::Refused(unknown))] =
+            &answers[..]
+        else {
+            panic!("{answers:?}")
+        };
+        assert_eq!(*half, 0.5);
+        assert!(matches!(out_of_range, RequestError::SimSetting { .. }), "{out_of_range}");
+        assert!(unknown.to_string().contains("nope"), "{unknown}");
+        s.sim_read(at(0.1), |name| name == "fraction", 4);
+        assert_eq!(replies(&drain(&mut s)), vec![(4, Reply::SimSetting(SimSetting::Fraction, Value::Float(0.5)))]);
     }
 
     #[test]

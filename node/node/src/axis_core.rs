@@ -284,6 +284,21 @@ impl AxisCore {
     }
 
     fn on_sim_query(&mut self, now: Instant, query: Query) {
+        // With a payload, a confirmed write of one setting (the router refused wildcards); under
+        // access control readers may query, so there a setting is written by a put only.
+        if query.payload().is_some() && self.node.guarded {
+            let message = format!(
+                "{}: this node is under access control; a simulator setting is written by a put",
+                query.key_expr()
+            );
+            return refuse(&query, RefusalKind::WriteKeyRequired, message);
+        }
+        if let Some(payload) = query.payload().map(|p| p.to_bytes().into_owned()) {
+            let prefix = keys::sim_key(self.name(), "");
+            let name = query.key_expr().as_str().strip_prefix(&prefix).unwrap_or_default().to_string();
+            let encoding = PayloadEncoding::from_mime(&query.encoding().map(|e| e.to_string()).unwrap_or_default());
+            return self.service.sim_write_confirmed(now, &name, &payload, encoding, query);
+        }
         let selected = query.key_expr().clone();
         let axis = self.name().to_string();
         let selects =
