@@ -43,6 +43,14 @@ def reads():
     # VAL's alarm limits are HIHI, HIGH, LOW, LOLO (0 here); RBV has none (NaN), as the record gives.
     assert (meta["upper_alarm_limit"], meta["lower_alarm_limit"]) == (0.0, 0.0), meta
     assert math.isnan(epics.PV("m1.RBV").get_ctrlvars()["upper_alarm_limit"])
+    # Time stamps are the node's (when the axis read the status), as an IOC's record time: at
+    # rest, fields read together share the axis's last one, in the past.
+    stamps = set()
+    for name in ("m1.DESC", "m1.EGU", "m1.PREC", "m1.VELO", "m1.HLM"):
+        pv = epics.PV(name, form="time")
+        assert pv.wait_for_connection(timeout=10) and pv.get(timeout=10) is not None, name
+        stamps.add(pv.timestamp)
+    assert len(stamps) == 1 and 0 < time.time() - stamps.pop() < 600, stamps
     dial = epics.PV("m1.DVAL").get_ctrlvars()
     assert (dial["upper_ctrl_limit"], dial["lower_ctrl_limit"]) == (100.0, -100.0), dial
     assert epics.PV("m1.SPMG").get_ctrlvars()["enum_strs"][:4] == ("Stop", "Pause", "Move", "Go")

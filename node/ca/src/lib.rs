@@ -82,7 +82,10 @@ impl Shared {
             let Ok(value) = decode_cbor_value(&payload) else { return };
             (Target::Field(field), value)
         };
-        let since = SystemTime::now().duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
+        // The node's time of the value (when the axis read the status it comes from), as an
+        // IOC's record time stamp; its arrival where the sample has none.
+        let time = sample.timestamp().map_or_else(SystemTime::now, |t| t.get_time().to_system_time());
+        let since = time.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
         let stamp = Stamp::from_posix(since.as_secs(), since.subsec_nanos());
         let axis = axis.to_string();
         let mut values = self.values();

@@ -195,7 +195,7 @@ enum Command {
         client: ClientArgs,
     },
     /// Print field changes as they arrive, as camonitor does (`m1.RBV 2026-12-01
-    /// 12:00:00.123456 10`, the time of arrival in UTC), all fields when none is named; AXIS
+    /// 12:00:00.123456 10`, the node's time of the value in UTC), all fields when none is named; AXIS
     /// may be a pattern ('m*', '*'). An axis whose node goes is told (`m1 ... *** disconnected`);
     /// when a node serves it again, `*** connected` and its current values.
     Monitor {

@@ -121,11 +121,19 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     assert!(ended.is_some(), "the JSON monitor saw RBV reach 0.2");
 
     // The node goes: a monitor says so, as camonitor does; when it is back, the current values.
+    let started = std::time::SystemTime::now();
     let mut watching =
         here.zmotor(&["monitor", "m1", "EGU", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
     let watched = Lines::of(&mut watching);
     let _watching = Running(Some(watching));
-    assert!(watched.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.EGU", "mm"))).is_some());
+    let first = std::cell::RefCell::new(String::new());
+    let egu = |l: &str| common::monitored(l) == Some(("m1.EGU", "mm")) && first.replace(l.to_string()).is_empty();
+    assert!(watched.wait_for(PATIENCE, egu).is_some());
+    // Its time is the node's, as camonitor shows an IOC's: the axis's last post, the move's end.
+    let first = first.into_inner();
+    let time: Vec<&str> = first.split_whitespace().skip(1).take(2).collect();
+    let time = humantime::parse_rfc3339_weak(&time.join(" ")).unwrap();
+    assert!(time < started, "{first}: a time after the monitor began");
     drop(node);
     assert!(watched.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** disconnected")).is_some());
     let gone = here.zmotor(&["list", "--connect", &endpoint]).output().unwrap();

@@ -30,7 +30,8 @@ pub struct Update {
     pub name: String,
     /// Its value.
     pub value: Value,
-    /// When it arrived.
+    /// The node's time of the value, when the axis read the status it comes from (as camonitor
+    /// shows an IOC's record time stamp); its arrival where the sample has none.
     pub at: SystemTime,
     /// The value as camonitor shows it (menus by name, doubles at the axis's precision).
     pub shown: String,
@@ -219,7 +220,7 @@ impl Monitor {
             if wanted {
                 let shown =
                     field.map_or_else(|| value.to_string(), |f| show(f, &value, self.precs.get(&axis).copied()));
-                let at = SystemTime::now();
+                let at = sample.timestamp().map_or_else(SystemTime::now, |t| t.get_time().to_system_time());
                 return Some(Event::Value(Update { axis, field, name, value, at, shown }));
             }
         }
