@@ -146,6 +146,10 @@ with zenoh.open(conf) as session:
     expect(str(err.encoding) == "text/plain;wildcard", f"a wildcard put's ERR: {err.encoding}")
     expect(err.payload.to_string().startswith("motor/m1/*: a write names one field"), err.payload.to_string())
     err_watch.undeclare()
+    # A read of ERR answers the last message posted there, as it was posted.
+    last = list(session.get("motor/m1/ERR", timeout=5.0))[0].ok
+    expect(last.payload.to_string() == err.payload.to_string(), f"a read of ERR: {last.payload.to_string()}")
+    expect(str(last.encoding) == "text/plain;wildcard", f"a read of ERR: {last.encoding}")
 
     # Menu fields take choice names.
     reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]

@@ -139,6 +139,8 @@ pub enum Reply {
     Completion(Field, Completion),
     /// The request was refused; nothing changed.
     Refused(RequestError),
+    /// The axis's last message on ERR (a refusal, a controller's report) and its kind, if any.
+    Message(Option<(RefusalKind, String)>),
     /// The simulator's physical state (`sim/<axis>/state`).
     SimState(SimState),
     /// One simulator setting (`sim/<axis>/<setting>`).
@@ -315,6 +317,8 @@ pub struct AxisService<R> {
     held: Vec<Held>,
     /// A plain jog has been warned about.
     warned_unheld_jog: bool,
+    /// The last message posted on ERR, and its kind: what a read of ERR answers.
+    last_message: Option<(RefusalKind, String)>,
 }
 
 impl<R: Clone> AxisService<R> {
@@ -335,6 +339,7 @@ impl<R: Clone> AxisService<R> {
             jog_hold: JogHold::Optional,
             held: Vec::new(),
             warned_unheld_jog: false,
+            last_message: None,
         }
     }
 
@@ -419,8 +424,7 @@ impl<R: Clone> AxisService<R> {
                 waiter.controller_messages.push(message.clone());
             }
         }
-        let marker = self.marker();
-        self.outputs.push_back(ServiceOutput::Refusal { kind: RefusalKind::Controller, message, marker });
+        self.report(RefusalKind::Controller, message);
     }
 
     /// A new value on one of the record's input links.
@@ -480,10 +484,11 @@ impl<R: Clone> AxisService<R> {
         self.answer(to, reply);
     }
 
-    /// A read of the field named `name` (exactly as the catalogue spells it).
+    /// A read of the field named `name` (exactly as the catalogue spells it), or of ERR.
     pub fn read(&mut self, name: &str, to: R) {
         let reply = match field_named(name) {
             Ok(field) => Reply::Value(field, self.axis.record().get(field)),
+            Err(_) if name == keys::ERR_KEY => Reply::Message(self.last_message.clone()),
             Err(unknown) => Reply::Refused(unknown),
         };
         self.answer(to, reply);
@@ -641,8 +646,14 @@ impl<R: Clone> AxisService<R> {
     }
 
     fn refuse(&mut self, refusal: &RequestError) {
+        self.report(refusal.kind(), refusal.to_string());
+    }
+
+    /// Post `message` on ERR, and keep it for a read of ERR.
+    fn report(&mut self, kind: RefusalKind, message: String) {
         let marker = self.marker();
-        self.outputs.push_back(ServiceOutput::Refusal { kind: refusal.kind(), message: refusal.to_string(), marker });
+        self.last_message = Some((kind, message.clone()));
+        self.outputs.push_back(ServiceOutput::Refusal { kind, message, marker });
     }
 
     /// The sequence number of the last publication or trace (0 before the first).
@@ -941,6 +952,21 @@ mod tests {
         assert!(unknown.to_string().contains("nope"), "{unknown}");
         s.sim_read(at(0.1), |name| name == "fraction", 4);
         assert_eq!(replies(&drain(&mut s)), vec![(4, Reply::SimSetting(SimSetting::Fraction, Value::Float(0.5)))]);
+    }
+
+    #[test]
+    fn a_read_of_err_answers_the_last_message_posted_there() {
+        let mut s = service();
+        s.read("ERR", 1);
+        s.put(at(0.0), WriteRequest::new("VELO", b"fast", Text));
+        s.controller_message("E2: following error".into());
+        s.read("ERR", 2);
+        let answers = replies(&drain(&mut s));
+        let [(1, Reply::Message(None)), (2, Reply::Message(Some((RefusalKind::Controller, words))))] = &answers[..]
+        else {
+            panic!("{answers:?}")
+        };
+        assert_eq!(words, "E2: following error");
     }
 
     #[test]

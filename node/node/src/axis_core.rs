@@ -509,6 +509,15 @@ impl AxisCore {
                 let refused = Destination::Refusal(query.clone());
                 return self.answer(key, message.into_bytes(), refusal::encoding(kind), refused, None);
             }
+            // As ERR carries it: the words, the kind in the encoding's schema; nothing yet, no words.
+            Reply::Message(message) => {
+                let Ok(key) = KeyExpr::try_from(self.node.layout.err(self.name())) else { return };
+                let (encoding, words) = match message {
+                    Some((kind, words)) => (refusal::encoding(kind), words),
+                    None => (Encoding::TEXT_PLAIN, String::new()),
+                };
+                return self.answer(key, words.into_bytes(), encoding, Destination::Answer(query.clone()), state);
+            }
         };
         self.answer(key, payload, Encoding::APPLICATION_CBOR, Destination::Answer(query.clone()), state);
     }
