@@ -516,6 +516,16 @@ impl Field {
 }
 
 impl Field {
+    /// A write that commands the record rather than configures it: it starts, stops, holds or
+    /// ends a motion, or makes the record sync or process. A launch file or a database, which
+    /// configure an axis, may not hold one: it would act at the axis's first write.
+    pub fn is_command(self) -> bool {
+        use Field::*;
+        matches!(self, RLV | TWF | TWR | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP | PROC)
+    }
+}
+
+impl Field {
     /// A jog button (JOGF, JOGR): what a client holds (the jog deadman), since a jog runs until
     /// told to end.
     pub fn is_jog(self) -> bool {

@@ -12,13 +12,22 @@ pub fn to_toml(value: Value) -> toml::Value {
     }
 }
 
-/// A TOML value as the value of `field`, validated like a write (a boolean is 0 or 1).
+/// A TOML value as the value of `field`, validated like a write (a boolean is 0 or 1 to a field
+/// that takes a flag, and the wrong type to a position, a speed or a longer menu).
 pub fn field_value(field: Field, raw: &toml::Value) -> Result<Value, CodecError> {
+    let def = field.def();
     let value = match raw {
         toml::Value::Integer(i) => Value::Int(*i),
         toml::Value::Float(x) => Value::Float(*x),
         toml::Value::String(s) => Value::Text(s.clone()),
-        toml::Value::Boolean(b) => Value::Int(i64::from(*b)),
+        toml::Value::Boolean(b) if def.kind.takes_a_flag() => Value::Int(i64::from(*b)),
+        toml::Value::Boolean(b) => {
+            return Err(CodecError::WrongType {
+                field: field.name(),
+                expected: def.kind.expected().into(),
+                got: format!("a boolean ({b})"),
+            })
+        }
         other => {
             return Err(CodecError::WrongType {
                 field: field.name(),

@@ -232,6 +232,15 @@ fn motor(
         let field = Field::from_name(name)
             .filter(|f| f.name() == name)
             .ok_or_else(|| at("not a field of the motor record".into()))?;
+        // A launch file refuses them: a database's are dropped, with a word.
+        if field.is_command() || matches!(field, Field::VAL | Field::RVAL) {
+            warnings.push(format!(
+                "line {line}: motor '{}': field {name} commands the record (or is where it starts, its \
+                 readback), not a setting; ignored",
+                record.name
+            ));
+            continue;
+        }
         let value = match field.def().kind {
             Kind::Link => match linker.link(text, *line, warnings)? {
                 Link::None | Link::Constant(_) => continue,
@@ -709,6 +718,16 @@ mod tests {
         assert_eq!(file.axes[0].fields["DISP"], toml::Value::Integer(1));
         assert!(!file.axes[0].fields.contains_key("SCAN") && !file.axes[0].fields.contains_key("SDIS"));
         assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
+    }
+
+    #[test]
+    fn a_databases_commands_are_dropped_with_a_word() {
+        let (file, warnings) =
+            import("record(motor, m1) { field(HOMF, 1) field(SPMG, \"Stop\") field(VAL, 3) field(TWV, 2) }").unwrap();
+        let fields: Vec<&str> = file.axes[0].fields.keys().map(String::as_str).collect();
+        assert_eq!(fields, ["TWV"]);
+        let dropped: Vec<&String> = warnings.iter().filter(|w| w.contains("not a setting; ignored")).collect();
+        assert_eq!(dropped.len(), 3, "{warnings:?}");
     }
 
     #[test]

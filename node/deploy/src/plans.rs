@@ -58,7 +58,21 @@ impl AxisSection {
             if field.def().access == Access::RO && !matches!(field, Field::RHLM | Field::RLLM) {
                 return Err(at(&inner, "read-only, cannot be configured".into()));
             }
-            fields.set(field, &field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?);
+            if field.is_command() {
+                let message = "a command, not a setting: a launch file configures an axis and never commands it \
+                               (it would act at the axis's first write)";
+                return Err(at(&inner, message.into()));
+            }
+            if matches!(field, Field::VAL | Field::RVAL) {
+                let message = "an axis starts where its readback is (the record sets VAL and RVAL from it); DVAL sets \
+                               its position";
+                return Err(at(&inner, message.into()));
+            }
+            let value = field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?;
+            if matches!(field, Field::MRES | Field::UREV) && value.as_f64() == Some(0.0) {
+                return Err(at(&inner, zmotor_core::Unusable::ZeroResolution.to_string()));
+            }
+            fields.set(field, &value);
         }
         let rates = PollRates { moving: Duration::from_secs_f64(1.0 / self.readback_rate), ..PollRates::default() };
         let jog_hold = match self.jog_hold {

@@ -180,6 +180,26 @@ fn errors_name_the_axis_and_key() {
 }
 
 #[test]
+fn a_launch_file_configures_an_axis_and_never_commands_it() {
+    let bad = |fields: &str| Launch::parse(&format!("[[axis]]\nname = \"m1\"\n[axis.fields]\n{fields}")).map(|_| ());
+    // Each would act at the axis's first write (a home, a tweak, a stop, a held target).
+    for command in ["HOMF = 1", "TWF = 1", "STOP = 1", "JOGR = 1", "SPMG = \"Stop\"", "RLV = 2", "SYNC = 1"] {
+        let error = bad(command).expect_err(command).to_string();
+        assert!(error.contains("a command, not a setting"), "{command}: {error}");
+    }
+    for start in ["VAL = 5", "RVAL = 50000"] {
+        assert!(bad(start).expect_err(start).to_string().contains("DVAL sets its position"), "{start}");
+    }
+    // Validated as writes are: a resolution of 0, a flag to a speed.
+    for refused in ["MRES = 0", "UREV = 0.0", "VELO = true"] {
+        assert!(bad(refused).is_err(), "{refused}");
+    }
+    for setting in ["DVAL = 5", "TWV = 2", "CNEN = 1", "VELO = 2", "MRES = 0.001"] {
+        assert!(bad(setting).is_ok(), "{setting}: {:?}", bad(setting));
+    }
+}
+
+#[test]
 fn errors_found_after_parsing_point_at_their_line() {
     let text = "[zenoh]\nprefix = \"motor\"\n\n[[axis]]\nname = \"m1\"\n\n[[axis]]\nname = \"m2\"\n[axis.fields]\nVELO = 2\nNOPE = 1\n";
     assert_eq!(Launch::parse(text).unwrap_err().to_string(), "<launch>:11: axis 'm2': fields.NOPE: no such field");
