@@ -487,7 +487,22 @@ impl Axis {
             Device::Controller { status, .. } => *status,
             Device::Soft(soft) => soft.status(),
         };
-        DeviceStatus { readback: self.readback_link, ..status }
+        let status = DeviceStatus { readback: self.readback_link, ..status };
+        // Garbage from a device (a position or speed that is no number, or beyond the record's
+        // 32-bit raw range) is a failed exchange, never a position: the last one stands, under
+        // a communication error, until the device reports one again.
+        let raw = |x: f64| x.is_finite() && (f64::from(i32::MIN)..=f64::from(i32::MAX)).contains(&x.round());
+        if raw(status.position) && raw(status.encoder_position) && raw(status.velocity) {
+            return status;
+        }
+        let last = self.last_status;
+        DeviceStatus {
+            position: last.position,
+            encoder_position: last.encoder_position,
+            velocity: last.velocity,
+            msta: status.msta | msta::COMM_ERR,
+            ..status
+        }
     }
 
     /// Status reaches a record on a driver or a controller from the device; a Soft Channel
@@ -662,9 +677,22 @@ impl Axis {
 mod tests {
     use super::*;
     use crate::driver::sim::{SimAxis, SimConfig, SimSetting};
+    use zmotor_msgs::menus::{severity, status};
 
     fn at(seconds: f64) -> Instant {
         Instant::from_secs_f64(seconds)
+    }
+
+    #[test]
+    fn a_position_that_is_no_number_or_beyond_the_raw_range_is_a_communication_error_not_a_position() {
+        for garbage in [f64::NAN, f64::INFINITY, 1e300, 3e9] {
+            let sim = SimAxis::new(SimConfig { position: garbage, ..SimConfig::default() });
+            let axis = Axis::new(demo_fields(), Box::new(sim), PollRates::default(), Instant::ZERO);
+            let f = axis.fields();
+            assert_eq!((f.rmp, f.rbv), (0, 0.0), "{garbage}: not clamped into a position");
+            assert_eq!((f.stat, f.sevr), (status::COMM, severity::INVALID), "{garbage}");
+            assert_ne!(f.msta & msta::COMM_ERR, 0, "{garbage}");
+        }
     }
 
     fn sim_axis(fields: Fields) -> Axis {
