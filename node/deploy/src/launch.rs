@@ -242,6 +242,7 @@ impl Launch {
             }
         }
         self.check_axes_on_controllers()?;
+        self.check_controller_connections()?;
         self.check_ros2()?;
         let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
         let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
@@ -318,6 +319,32 @@ impl Launch {
                     "channel",
                     format!("channel {channel} of controller '{name}' is already axis '{other}'"),
                 ));
+            }
+        }
+        Ok(())
+    }
+
+    /// No two controllers of one host open the same connection: two sections would be two
+    /// records driving each motor of it. (An XPS takes several connections, and its axes are
+    /// its positioners, by name: it is left out.)
+    fn check_controller_connections(&self) -> Result<(), Problem> {
+        let mut opened: BTreeMap<(Option<&str>, String), &str> = BTreeMap::new();
+        for controller in &self.file.controllers {
+            if controller.protocol == ProtocolKind::NewportXps.name() {
+                continue;
+            }
+            let (key, connection) = match (&controller.tcp, &controller.serial) {
+                (Some(tcp), _) => ("tcp", format!("tcp {}", tcp.trim())),
+                (None, Some(serial)) => ("serial", format!("serial {}", serial.device.trim())),
+                (None, None) => continue,
+            };
+            if let Some(other) = opened.insert((controller.host.as_deref(), connection.clone()), &controller.name) {
+                let message = format!(
+                    "controller '{}': {key}: {connection} is already controller '{other}': one connection, one \
+                     controller (give its axes to '{other}')",
+                    controller.name
+                );
+                return Err(Problem::in_item("controller", controller.origin, &[key], message));
             }
         }
         Ok(())

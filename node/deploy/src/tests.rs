@@ -233,6 +233,16 @@ channel = 0
 "#;
 
 #[test]
+fn two_controllers_on_one_connection_are_refused() {
+    let second = |connection: &str| {
+        format!("{CONTROLLED}\n[[controller]]\nname = \"again\"\nprotocol = \"acs_mcb4b\"\n{connection}\n")
+    };
+    let error = Launch::parse(&second("tcp = \"127.0.0.1:4001\"")).unwrap_err().to_string();
+    assert!(error.contains("controller 'again': tcp: tcp 127.0.0.1:4001 is already controller 'mcb'"), "{error}");
+    assert!(Launch::parse(&second("tcp = \"127.0.0.1:4002\"")).is_ok(), "another connection");
+}
+
+#[test]
 fn a_controller_drives_the_channels_of_its_axes() {
     let deployment = Launch::parse(CONTROLLED).unwrap().deployment(None).unwrap();
     let [mcb] = &deployment.contents.controllers[..] else { panic!("one controller") };
