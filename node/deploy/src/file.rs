@@ -27,9 +27,28 @@ pub struct LaunchError {
     pub message: String,
 }
 
+/// The most a launch, database or script file may hold: a deployment's text is kilobytes, and a
+/// path to a device (`/dev/zero`) or a wrong file must not fill the memory.
+const LARGEST_FILE: u64 = 16 << 20;
+
+/// The text of a regular file of at most `LARGEST_FILE` bytes.
+pub(crate) fn read_bounded(path: &Path) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind, Read};
+    let file = std::fs::File::open(path)?;
+    if !file.metadata()?.is_file() {
+        return Err(Error::new(ErrorKind::InvalidInput, "not a regular file"));
+    }
+    let mut text = String::new();
+    file.take(LARGEST_FILE + 1).read_to_string(&mut text)?;
+    if text.len() as u64 > LARGEST_FILE {
+        return Err(Error::new(ErrorKind::InvalidData, format!("larger than {} MiB", LARGEST_FILE >> 20)));
+    }
+    Ok(text)
+}
+
 /// The text of a launch or database file; an error names the file.
 pub(crate) fn read_text(path: &Path) -> Result<String, LaunchError> {
-    std::fs::read_to_string(path).map_err(|e| LaunchError {
+    read_bounded(path).map_err(|e| LaunchError {
         file: path.display().to_string(),
         line: None,
         message: format!("cannot read: {e}"),
@@ -475,7 +494,7 @@ pub struct ScriptFiles {
 impl ScriptFiles {
     /// The script at `path` and the modules beside it.
     pub fn read(path: &Path) -> Result<Self, String> {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let text = read_bounded(path).map_err(|e| format!("{}: {e}", path.display()))?;
         let directory = match path.parent() {
             Some(parent) if !parent.as_os_str().is_empty() => parent.to_path_buf(),
             _ => Path::new(".").to_path_buf(),
@@ -489,7 +508,7 @@ impl ScriptFiles {
             if file.file_name() == path.file_name() {
                 continue;
             }
-            let module = std::fs::read_to_string(&file).map_err(|e| format!("{}: {e}", file.display()))?;
+            let module = read_bounded(&file).map_err(|e| format!("{}: {e}", file.display()))?;
             modules.insert(stem.to_string(), module);
         }
         Ok(Self { path: path.display().to_string(), text, modules })

@@ -148,7 +148,7 @@ impl Launch {
             if !visited.insert(canonical) {
                 return Err(at(format!("{} is included twice (or includes itself)", path.display())));
             }
-            let text = std::fs::read_to_string(&path).map_err(|e| at(format!("{}: {e}", path.display())))?;
+            let text = crate::file::read_bounded(&path).map_err(|e| at(format!("{}: {e}", path.display())))?;
             let included = self.read_source(&path.display().to_string(), &text)?;
             let included_source = self.sources.len() - 1;
             for (key, present) in [

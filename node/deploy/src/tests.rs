@@ -233,6 +233,17 @@ channel = 0
 "#;
 
 #[test]
+fn a_path_to_a_device_or_a_huge_file_is_refused_without_reading_it_all() {
+    let error = Launch::load(std::path::Path::new("/dev/zero")).unwrap_err().to_string();
+    assert!(error.contains("/dev/zero") && error.contains("not a regular file"), "{error}");
+    let dir = tempfile::tempdir().unwrap();
+    let huge = dir.path().join("huge.toml");
+    std::fs::write(&huge, vec![b'#'; (16 << 20) + 1]).unwrap();
+    let error = Launch::load(&huge).unwrap_err().to_string();
+    assert!(error.contains("larger than 16 MiB"), "{error}");
+}
+
+#[test]
 fn two_controllers_on_one_connection_are_refused() {
     let second = |connection: &str| {
         format!("{CONTROLLED}\n[[controller]]\nname = \"again\"\nprotocol = \"acs_mcb4b\"\n{connection}\n")
