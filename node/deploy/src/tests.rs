@@ -524,7 +524,7 @@ fn script_launch(script: &str, controller_extra: &str) -> (tempfile::TempDir, Re
 
 #[test]
 fn a_script_controller_carries_its_script_modules_macros_and_poll_periods() {
-    let script = "h = require('helper')\nIdlePollPeriod = 2.0\nMovingPollPeriod = 0.25\nForcedFastPolls = 3\n";
+    let script = "h = require('helper')\nIdlePollPeriod = 2.0\nMovingPollPeriod = 0.25\nForcedFastPolls = 3\nfunction poll() end\n";
     let extra = "macros = { PORT = \"VMC\", GAIN = 2 }\naxis_macros = { 0 = { OPEN_LOOP = \"YES\" } }";
     let (_dir, launch) = script_launch(script, extra);
     let deployment = launch.unwrap().deployment(None).unwrap();

@@ -255,6 +255,11 @@ impl AxisLua {
         }
     }
 
+    /// Whether the script defines the function `name`.
+    pub(super) fn defines(&self, name: &str) -> bool {
+        matches!(self.lua.globals().get::<Value>(name), Ok(Value::Function(_)))
+    }
+
     /// The parameters as the script left them.
     pub(super) fn params(&self) -> mlua::AppDataRef<'_, Params> {
         self.lua.app_data_ref::<Params>().expect("set at creation")

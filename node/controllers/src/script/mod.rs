@@ -53,9 +53,15 @@ pub struct ScriptSettings {
 
 impl ScriptSettings {
     /// The script loaded as axis 0 loads it (its top level run, its macros given), and what it
-    /// sets: a script that does not load is refused here, with its file and line.
+    /// sets: a script that does not load is refused here, with its file and line, and so is one
+    /// without `poll` (a function a script lacks succeeds doing nothing, as motorScriptMotor's;
+    /// without poll its axes could never report a position or the end of a motion).
     pub fn of(source: &ScriptSource) -> Result<Self, ScriptError> {
         let axis = AxisLua::new(source, 0)?;
+        if !axis.defines(Call::Poll.function()) {
+            let message = "defines no function poll(): its axes could never report a position or the end of a motion";
+            return Err(ScriptError::Load { script: source.path.clone(), message: message.into() });
+        }
         Ok(Self {
             idle_poll: axis.number("IdlePollPeriod"),
             moving_poll: axis.number("MovingPollPeriod"),

@@ -172,7 +172,7 @@ fn the_sandbox_has_no_os_io_or_files_and_requires_only_the_script_directory() {
 
 #[test]
 fn driver_axis_and_macros_are_globals_and_asyn_is_also_required() {
-    let mut given = source("asyn = require('asyn')\nIdlePollPeriod = 2.5\nForcedFastPolls = 3");
+    let mut given = source("asyn = require('asyn')\nIdlePollPeriod = 2.5\nForcedFastPolls = 3\nfunction poll() end");
     given.axis_macros.insert(1, [("OPEN_LOOP".to_string(), MacroValue::Text("YES".into()))].into());
     let axis = AxisLua::new(&given, 1).expect("loads");
     assert_eq!(axis.global_text("DRIVER .. ' ' .. AXIS .. ' ' .. PORT .. ' ' .. OPEN_LOOP"), "MC1 1.0 IP1 YES");
@@ -183,6 +183,12 @@ fn driver_axis_and_macros_are_globals_and_asyn_is_also_required() {
 
 #[test]
 fn a_script_that_does_not_load_is_refused_with_its_line() {
+    let error = ScriptSettings::of(&source("function move() end")).expect_err("no poll");
+    assert_eq!(
+        error.to_string(),
+        "the script scripts/test.lua does not load: defines no function poll(): its axes could never report a \
+         position or the end of a motion"
+    );
     let error = ScriptSettings::of(&source("x = 1\nfunction move(\n")).expect_err("a syntax error");
     assert!(
         matches!(&error, ScriptError::Load { script, message } if script == "scripts/test.lua" && message.contains("scripts/test.lua:3:")),
