@@ -69,8 +69,8 @@ impl AxisSection {
                 return Err(at(&inner, message.into()));
             }
             let value = field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?;
-            if matches!(field, Field::MRES | Field::UREV) && value.as_f64() == Some(0.0) {
-                return Err(at(&inner, zmotor_core::Unusable::ZeroResolution.to_string()));
+            if let Some(unusable) = zmotor_core::Unusable::of(field, &value) {
+                return Err(at(&inner, unusable.to_string()));
             }
             fields.set(field, &value);
         }

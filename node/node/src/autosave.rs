@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
-use zmotor_core::AxisPlan;
+use zmotor_core::{AxisPlan, Unusable};
 use zmotor_msgs::{field_value, to_toml};
 use zmotor_msgs::{Autosave, CodecError, Field, Fields};
 
@@ -67,6 +67,27 @@ pub enum RestoreError {
     /// The value is not valid for its field.
     #[error(transparent)]
     Value(#[from] CodecError),
+    /// A value the record refuses whatever its state (a resolution of 0).
+    #[error("{field}: {reason}")]
+    Unusable {
+        /// The field.
+        field: Field,
+        /// Why.
+        reason: Unusable,
+    },
+    /// No position: autosave always keeps one, so the file was emptied or cut short.
+    #[error("no position (DVAL): the file was emptied or cut short")]
+    NoPosition,
+    /// A position whose raw steps (DVAL / MRES) do not fit the record's 32 bits.
+    #[error("DVAL {dval} is {steps:e} steps at MRES {mres}, beyond the raw 32-bit range")]
+    BeyondRawRange {
+        /// The saved dial position.
+        dval: f64,
+        /// The resolution it would have.
+        mres: f64,
+        /// The raw position.
+        steps: f64,
+    },
 }
 
 /// Where state is kept: `ZMOTOR_STATE_DIR`, else the launch file's `state_dir`, else the
@@ -117,11 +138,22 @@ impl SavedAxis {
     /// edited by hand or comes from another version) is named, and nothing is changed then.
     pub fn restore_into(&self, fields: &mut Fields) -> Result<(), RestoreError> {
         let mut restored = fields.clone();
+        if !self.position.contains_key(Field::DVAL.name()) {
+            return Err(RestoreError::NoPosition);
+        }
         for (name, raw) in self.position.iter().chain(&self.settings) {
             let field = Field::from_name(name)
                 .filter(|f| f.autosave().is_some())
                 .ok_or_else(|| RestoreError::NotKept(name.clone()))?;
-            restored.set(field, &field_value(field, raw)?);
+            let value = field_value(field, raw)?;
+            if let Some(reason) = Unusable::of(field, &value) {
+                return Err(RestoreError::Unusable { field, reason });
+            }
+            restored.set(field, &value);
+        }
+        let steps = (restored.dval / restored.mres).round();
+        if !(f64::from(i32::MIN)..=f64::from(i32::MAX)).contains(&steps) {
+            return Err(RestoreError::BeyondRawRange { dval: restored.dval, mres: restored.mres, steps });
         }
         // The saved dial limits win over raw limits given in the launch file (the boot
         // reconciliation otherwise prefers non-zero raw limits).
@@ -256,7 +288,17 @@ mod tests {
     use super::*;
 
     fn configured() -> Fields {
-        Fields { dval: 12.5, off: -1.0, velo: 3.0, egu: "mm".into(), rstm: 1, homf: 1, ..Fields::default() }
+        Fields {
+            dval: 12.5,
+            off: -1.0,
+            velo: 3.0,
+            mres: 0.001,
+            urev: 0.2,
+            egu: "mm".into(),
+            rstm: 1,
+            homf: 1,
+            ..Fields::default()
+        }
     }
 
     #[test]
@@ -288,8 +330,32 @@ mod tests {
     }
 
     #[test]
+    fn a_file_emptied_or_holding_values_the_record_refuses_changes_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let store = StateStore::open(dir.path(), "motor").unwrap();
+        std::fs::write(store.path("m1"), "").unwrap();
+        let mut fields = Fields { dval: 3.0, ..Fields::default() };
+        let error = store.restore("m1", &mut fields).unwrap_err().to_string();
+        assert!(error.contains("m1.toml") && error.contains("no position (DVAL)"), "{error}");
+        let refused = |field: &str, value: toml::Value| {
+            let mut saved = SavedAxis::of(&configured());
+            saved.position.insert(field.into(), value.clone());
+            saved.settings.insert(field.into(), value);
+            saved.position.retain(|name, _| Field::from_name(name).unwrap().autosave() == Some(Autosave::Position));
+            saved.settings.retain(|name, _| Field::from_name(name).unwrap().autosave() == Some(Autosave::Setting));
+            let mut fields = Fields::default();
+            let error = saved.restore_into(&mut fields).unwrap_err();
+            assert_eq!(fields, Fields::default(), "{field}: nothing changed");
+            error
+        };
+        assert!(matches!(refused("MRES", toml::Value::Float(0.0)), RestoreError::Unusable { field: Field::MRES, .. }));
+        assert!(matches!(refused("DVAL", toml::Value::Float(1e12)), RestoreError::BeyondRawRange { .. }));
+        assert_eq!(fields.dval, 3.0);
+    }
+
+    #[test]
     fn saved_dial_limits_win_over_raw_limits_of_the_launch_file() {
-        let saved = SavedAxis::of(&Fields { dhlm: 7.0, ..Fields::default() });
+        let saved = SavedAxis::of(&Fields { dhlm: 7.0, mres: 0.001, urev: 0.2, ..Fields::default() });
         let mut fields = Fields { rhlm: 500.0, ..Fields::default() };
         saved.restore_into(&mut fields).unwrap();
         assert_eq!((fields.dhlm, fields.rhlm), (7.0, 0.0));

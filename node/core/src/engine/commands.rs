@@ -168,6 +168,17 @@ pub enum Unusable {
     ZeroResolution,
 }
 
+impl Unusable {
+    /// Why the record refuses `value` for `field` whatever its state, if it does: written, or
+    /// given in a launch file or a saved state.
+    pub fn of(field: Field, value: &Value) -> Option<Self> {
+        match field {
+            Field::MRES | Field::UREV if value.as_f64() == Some(0.0) => Some(Unusable::ZeroResolution),
+            _ => None,
+        }
+    }
+}
+
 /// What the record corrected instead of storing the value written.
 #[non_exhaustive]
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]

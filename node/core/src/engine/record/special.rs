@@ -34,8 +34,10 @@ impl MotorRecord {
             }
             // Departure Z21: the reference takes a resolution of 0 (only its boot corrects it to
             // 1) and is then left with speeds and soft limits of 0 and targets it cannot convert.
-            MRES | UREV if value.as_f64() == Some(0.0) => {
-                return Err(WriteError::Unusable { field, reason: Unusable::ZeroResolution });
+            MRES | UREV => {
+                if let Some(reason) = Unusable::of(field, value) {
+                    return Err(WriteError::Unusable { field, reason });
+                }
             }
             STUP if self.f.stup != choice::STUP_OFF => {
                 return Err(WriteError::Refused { field, reason: Busy::StatusUpdateInProgress });
