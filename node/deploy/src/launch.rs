@@ -65,6 +65,10 @@ impl Launch {
         let mut visited: BTreeSet<PathBuf> = canonical.into_iter().collect();
         launch.merge(main, base, &mut visited)?;
         launch.check().map_err(|p| launch.error(p))?;
+        let f = &launch.file;
+        if f.axes.is_empty() && f.calcs.is_empty() && f.values.is_empty() && f.controllers.is_empty() {
+            launch.warnings.push(format!("{name}: no axis, calc link, value holder or controller: nothing to serve"));
+        }
         Ok(launch)
     }
 
@@ -172,7 +176,8 @@ impl Launch {
         LaunchError { file: source.name.clone(), line: line_of(&source.text, &problem.path), message: problem.message }
     }
 
-    /// What importing the launch's databases warned of (hardware simulated, records skipped).
+    /// What importing the launch's databases warned of (hardware simulated, records skipped),
+    /// and a launch that serves nothing.
     pub fn warnings(&self) -> &[String] {
         &self.warnings
     }

@@ -244,6 +244,13 @@ fn a_path_to_a_device_or_a_huge_file_is_refused_without_reading_it_all() {
 }
 
 #[test]
+fn a_launch_that_serves_nothing_says_so() {
+    let empty = Launch::parse("# nothing yet\n").unwrap();
+    assert_eq!(empty.warnings(), ["<launch>: no axis, calc link, value holder or controller: nothing to serve"]);
+    assert!(Launch::parse("[[axis]]\nname = \"m1\"").unwrap().warnings().is_empty());
+}
+
+#[test]
 fn two_controllers_on_one_connection_are_refused() {
     let second = |connection: &str| {
         format!("{CONTROLLED}\n[[controller]]\nname = \"again\"\nprotocol = \"acs_mcb4b\"\n{connection}\n")
