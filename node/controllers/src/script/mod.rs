@@ -220,7 +220,7 @@ impl Script {
             Ok(None) => Ran::Returned { written: Vec::new() },
             Err(error) => {
                 self.current = None;
-                tracing::error!(channel, "{error}");
+                // Reported, not logged here: the node's log names an error once, with its repeats.
                 let error = VendorError { channel: Some(channel), code: NAME.into(), meaning: error.to_string() };
                 let event = if current.call == Call::Poll {
                     ReplyEvent::ControllerError(error)
