@@ -491,10 +491,10 @@ impl AxisCore {
         // A reply to a write key carries that key: Zenoh drops replies outside the query's.
         let written = self.node.layout.written_field_name(self.name(), query.key_expr().as_str()).is_some();
         let key_of = |field| if written { query.key_expr().clone().into_owned() } else { self.field_key(field) };
-        let state = Some(self.state_now(stamp));
+        let state = || Some(self.state_now(stamp));
         let (key, payload, state) = match reply {
-            Reply::Value(field, value) => (key_of(field), encode_cbor(&value), state),
-            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion), state),
+            Reply::Value(field, value) => (key_of(field), encode_cbor(&value), state()),
+            Reply::Completion(field, completion) => (key_of(field), encode_cbor(&completion), state()),
             Reply::SimState(state) => match KeyExpr::try_from(keys::sim_key(self.name(), keys::SIM_STATE_KEY)) {
                 Ok(key) => (key, encode_cbor(&state), None),
                 Err(_) => return,
@@ -516,7 +516,7 @@ impl AxisCore {
                     Some((kind, words)) => (refusal::encoding(kind), words),
                     None => (Encoding::TEXT_PLAIN, String::new()),
                 };
-                return self.answer(key, words.into_bytes(), encoding, Destination::Answer(query.clone()), state);
+                return self.answer(key, words.into_bytes(), encoding, Destination::Answer(query.clone()), state());
             }
         };
         self.answer(key, payload, Encoding::APPLICATION_CBOR, Destination::Answer(query.clone()), state);
