@@ -44,6 +44,9 @@ pub(crate) enum Destination {
     Refusal(Query),
 }
 
+/// The posts a round keeps room for once sent (a thousand axes' events of a poll).
+const ROUND_ROOM: usize = 1024;
+
 #[derive(Default)]
 struct Pending {
     /// In the order they were posted; `None` where a stream sample was replaced.
@@ -145,6 +148,7 @@ impl EventOutbox {
                     return;
                 }
                 pending.at.clear();
+                pending.at.shrink_to(ROUND_ROOM);
                 std::mem::swap(&mut pending.posts, &mut posts);
             }
             for post in posts.drain(..).flatten() {
@@ -152,6 +156,9 @@ impl EventOutbox {
                 self.congestion.sending(|| self.put(post));
                 waiting.fetch_sub(1, Ordering::AcqRel);
             }
+            // A backlog (a stalled link, a starved node) grew the round far beyond its usual
+            // size: that memory goes back once it is sent.
+            posts.shrink_to(ROUND_ROOM);
         }
     }
 
