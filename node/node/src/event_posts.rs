@@ -139,6 +139,14 @@ impl EventOutbox {
         loop {
             {
                 let mut pending = self.shared.lock();
+                if pending.posts.is_empty() {
+                    // Nothing left to send: the room a backlog (a stalled link, a starved node)
+                    // made goes back. (Not between rounds: while rounds stay large, each would
+                    // allocate it anew.)
+                    posts.shrink_to(ROUND_ROOM);
+                    pending.posts.shrink_to(ROUND_ROOM);
+                    pending.at.shrink_to(ROUND_ROOM);
+                }
                 while pending.posts.is_empty() && !pending.closing {
                     pending.sender_waits = true;
                     pending = self.shared.wake.wait(pending).unwrap_or_else(PoisonError::into_inner);
@@ -148,7 +156,6 @@ impl EventOutbox {
                     return;
                 }
                 pending.at.clear();
-                pending.at.shrink_to(ROUND_ROOM);
                 std::mem::swap(&mut pending.posts, &mut posts);
             }
             for post in posts.drain(..).flatten() {
@@ -156,9 +163,6 @@ impl EventOutbox {
                 self.congestion.sending(|| self.put(post));
                 waiting.fetch_sub(1, Ordering::AcqRel);
             }
-            // A backlog (a stalled link, a starved node) grew the round far beyond its usual
-            // size: that memory goes back once it is sent.
-            posts.shrink_to(ROUND_ROOM);
         }
     }
 
