@@ -115,12 +115,20 @@ fn first_ephemeral_port() -> Option<u16> {
 }
 
 /// Until SIGINT (Ctrl-C) or SIGTERM: what stops a process of zmotor's (a node, a gateway, a
-/// client that holds a jog, the benchmark).
-pub async fn interrupted() -> std::io::Result<()> {
-    let mut terminate = tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate())?;
-    tokio::select! {
-        result = tokio::signal::ctrl_c() => result,
-        _ = terminate.recv() => Ok(()),
+/// client that holds a jog, the benchmark). The signals are caught from this call on, before the
+/// future is first polled: one that comes while the process starts what it will stop is not
+/// lost (nor does it kill the process, leaving what it started behind).
+pub fn interrupted() -> impl std::future::Future<Output = std::io::Result<()>> + Send {
+    use tokio::signal::unix::{signal, SignalKind};
+    let signals =
+        signal(SignalKind::terminate()).and_then(|terminate| Ok((terminate, signal(SignalKind::interrupt())?)));
+    async move {
+        let (mut terminate, mut interrupt) = signals?;
+        tokio::select! {
+            _ = terminate.recv() => {}
+            _ = interrupt.recv() => {}
+        }
+        Ok(())
     }
 }
 
