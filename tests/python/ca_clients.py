@@ -224,7 +224,9 @@ def caproto_tools():
     # DBR_CLASS_NAME (38), the record type of a channel: m1_able is a bo record on an IOC.
     from caproto.sync.client import read
 
-    assert [read(name, data_type=38).metadata.value for name in ("m1", "m1_able")] == [b"motor", b"bo"]
+    assert [
+        read(name, data_type=38, repeater=False, timeout=10).metadata.value for name in ("m1", "m1_able")
+    ] == [b"motor", b"bo"]
     ok("caproto's command-line tools read and put-callback; its client reads the record types")
 
 

@@ -5,8 +5,11 @@
 //! exist here (network namespaces in an unprivileged container) is left untested, and then
 //! only under `tests/run`, which lists it at the end (and fails with `--strict`, as CI runs it).
 
+use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
 
 /// The workspace's root.
 pub fn repo_root() -> PathBuf {
@@ -43,6 +46,77 @@ pub fn python_script(script: &str) -> Command {
     let mut command = Command::new(python());
     command.arg(repo_root().join("tests/python").join(script));
     command
+}
+
+/// How long a script of the stock clients may run; each bounds its own waits well within it.
+pub const SCRIPT_PATIENCE: Duration = Duration::from_secs(300);
+
+/// How long a script's output may stay open after it exited.
+const OUTPUT_CLOSE_PATIENCE: Duration = Duration::from_secs(5);
+
+/// `command` (a script of the stock clients) run to its end, as `Command::output` would, but
+/// bounded: a script still running after [`SCRIPT_PATIENCE`] is killed and the test fails with
+/// what it printed. A process the script left behind holding its output (a daemon a client
+/// library started, such as a CA repeater) fails the test naming that, where `output()` would
+/// wait for ever for an end of file.
+pub fn run_script(command: &mut Command) -> Output {
+    let mut child =
+        command.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap_or_else(|error| {
+            panic!("{:?} could not start: {error}", command.get_args().next().unwrap_or_default())
+        });
+    let (chunks, received) = mpsc::channel();
+    let readers = [
+        (0, Box::new(child.stdout.take().expect("piped")) as Box<dyn Read + Send>),
+        (1, Box::new(child.stderr.take().expect("piped"))),
+    ];
+    for (stream, mut reader) in readers {
+        let chunks = chunks.clone();
+        std::thread::spawn(move || {
+            let mut buffer = [0; 4096];
+            while let Ok(read @ 1..) = reader.read(&mut buffer) {
+                if chunks.send((stream, buffer[..read].to_vec())).is_err() {
+                    break;
+                }
+            }
+        });
+    }
+    drop(chunks);
+    let mut printed = [Vec::new(), Vec::new()];
+    let started = Instant::now();
+    let status = loop {
+        match received.recv_timeout(Duration::from_millis(20)) {
+            Ok((stream, bytes)) => printed[stream].extend(bytes),
+            Err(mpsc::RecvTimeoutError::Disconnected) => std::thread::sleep(Duration::from_millis(20)),
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > SCRIPT_PATIENCE {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("{:?} still ran after {SCRIPT_PATIENCE:?}; it printed:\n{}", command, said(&printed));
+        }
+    };
+    let exited = Instant::now();
+    loop {
+        match received.recv_timeout(Duration::from_millis(50)) {
+            Ok((stream, bytes)) => printed[stream].extend(bytes),
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
+            Err(mpsc::RecvTimeoutError::Timeout) if exited.elapsed() > OUTPUT_CLOSE_PATIENCE => panic!(
+                "{command:?} exited ({status}) but a process it started still holds its output (a daemon left \
+                 behind); it printed:\n{}",
+                said(&printed)
+            ),
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+    }
+    let [stdout, stderr] = printed;
+    Output { status, stdout, stderr }
+}
+
+fn said(printed: &[Vec<u8>; 2]) -> String {
+    format!("{}{}", String::from_utf8_lossy(&printed[0]), String::from_utf8_lossy(&printed[1]))
 }
 
 /// Chromium and ChromeDriver, for the web screen's tests.

@@ -18,7 +18,7 @@ fn script(port: u16, stage: &str) -> Command {
 }
 
 fn clients(port: u16, stage: &str) -> String {
-    let output = script(port, stage).output().unwrap();
+    let output = environment::run_script(&mut script(port, stage));
     let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
     assert!(output.status.success(), "{stage}: {stdout}\n{}", String::from_utf8_lossy(&output.stderr));
     stdout

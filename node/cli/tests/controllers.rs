@@ -49,8 +49,9 @@ fn launch_node(file: &std::path::Path, endpoint: &str, state: &std::path::Path) 
 /// One phase of tests/python/controller_client.py against the node whose state is in `state`;
 /// panics with what the client said and the node logged if it failed.
 fn client_with(phase: &str, endpoint: &str, axis: &str, more: &[&str], state: &std::path::Path) {
-    let output =
-        environment::python_script("controller_client.py").args([phase, endpoint, axis]).args(more).output().unwrap();
+    let output = environment::run_script(
+        environment::python_script("controller_client.py").args([phase, endpoint, axis]).args(more),
+    );
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     if !(output.status.success() && said.contains(&format!("{phase} ok"))) {
         let log = std::fs::read_to_string(state.join("node.log")).unwrap_or_default();
@@ -181,7 +182,7 @@ fn a_script_reloaded_during_a_move_stops_it_and_runs_and_a_broken_one_is_refused
     let _emulator = zmotor(&["sim-controller", "vmc", "--listen", &here]);
     let _node = launch_node(&file, &endpoint, dir.path());
     let args = [endpoint.as_str(), "vmc1", "VMC_MOTOR", script.to_str().unwrap()];
-    let output = environment::python_script("script_reload.py").args(args).output().unwrap();
+    let output = environment::run_script(environment::python_script("script_reload.py").args(args));
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("script reload ok"), "{said}");
 }
@@ -271,7 +272,7 @@ fn third_party_client_on_a_pseudo_terminal(protocol: &str, script: &str, done: &
         assert!(std::time::Instant::now() < deadline, "the emulator made no pseudo-terminal at {}", tty.display());
         std::thread::sleep(std::time::Duration::from_millis(50));
     }
-    let output = environment::python_script(script).arg(&tty).output().unwrap();
+    let output = environment::run_script(environment::python_script(script).arg(&tty));
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains(done), "{said}");
 }
@@ -313,7 +314,7 @@ fn vendor_software_against_the_emulator(protocol: &str, script: &str, done: &str
     let mut said = String::new();
     // The emulator takes a moment to listen.
     for _ in 0..50 {
-        let output = environment::python_script(script).args([host, port]).output().unwrap();
+        let output = environment::run_script(environment::python_script(script).args([host, port]));
         said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
         if output.status.success() && said.contains(done) {
             return;

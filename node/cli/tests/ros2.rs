@@ -16,7 +16,7 @@ fn a_ros_2_peer_sees_the_joint_and_moves_it() {
     let (_node, endpoint) = serve_shipped(&here, "launch/sim-axis.toml", "m1", dir.path());
     let ros2 = ["ros2", "--joint", "lift=m1", "--rest-period", "30", "--connect", &endpoint];
     let _ros2 = here.spawn(&ros2, dir.path());
-    let output = environment::python_script("ros2_peer.py").args([&endpoint, "lift"]).output().unwrap();
+    let output = environment::run_script(environment::python_script("ros2_peer.py").args([&endpoint, "lift"]));
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("ros2 peer ok"), "{said}");
 }
@@ -26,7 +26,7 @@ fn a_launch_files_ros_2_joints_follow_commands_and_trajectories_and_stop_on_canc
     let dir = tempfile::tempdir().unwrap();
     let here = Host::default();
     let (_node, endpoint) = serve_shipped(&here, "launch/ros2-joints.toml", "m2", dir.path());
-    let output = environment::python_script("ros2_trajectory.py").args([&endpoint, "/arm"]).output().unwrap();
+    let output = environment::run_script(environment::python_script("ros2_trajectory.py").args([&endpoint, "/arm"]));
     let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
     assert!(output.status.success() && said.contains("ros2 trajectory peer ok"), "{said}");
     for (axis, speed) in [("m1", 10.0), ("m2", 30.0)] {

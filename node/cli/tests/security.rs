@@ -52,12 +52,12 @@ fn guarded_node(protocol: &str) -> (Pki, Running, String, Host) {
 
 /// A confirmed write by a stock Python client showing `who`'s certificate: what it was answered.
 fn stock_write(pki: &Pki, endpoint: &str, who: &Identity, key: &str, value: &str) -> String {
-    let output = zmotor_tests::environment::python_script("guarded_write.py")
-        .args([endpoint, pki.ca().to_str().unwrap()])
-        .args([&who.certificate, &who.key])
-        .args([key, value])
-        .output()
-        .unwrap();
+    let output = zmotor_tests::environment::run_script(
+        zmotor_tests::environment::python_script("guarded_write.py")
+            .args([endpoint, pki.ca().to_str().unwrap()])
+            .args([&who.certificate, &who.key])
+            .args([key, value]),
+    );
     assert!(output.status.success(), "{}", String::from_utf8_lossy(&output.stderr));
     String::from_utf8_lossy(&output.stdout).trim().to_string()
 }

@@ -36,7 +36,8 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
     let _node = node_with_screens(&here, dir.path(), &address, &endpoint);
 
     let screenshot = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join("web-screen.png");
-    let output = page(&[&format!("http://{address}/"), "m1", screenshot.to_str().unwrap()]).output().unwrap();
+    let output =
+        environment::run_script(&mut page(&[&format!("http://{address}/"), "m1", screenshot.to_str().unwrap()]));
     let seen = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{seen}\n{}", String::from_utf8_lossy(&output.stderr));
     for check in [
@@ -106,7 +107,8 @@ fn a_jog_from_a_page_whose_browser_is_killed_ends_within_a_second() {
     let _node = node_with_screens(&here, dir.path(), &address, &endpoint);
     let (_monitor, lines) = monitor_jogf(&here, &endpoint);
     let screenshot = dir.path().join("unused.png");
-    let output = page(&[&format!("http://{address}/"), "m1", screenshot.to_str().unwrap(), "jog"]).output().unwrap();
+    let output =
+        environment::run_script(&mut page(&[&format!("http://{address}/"), "m1", screenshot.to_str().unwrap(), "jog"]));
     let said = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{said}\n{}", String::from_utf8_lossy(&output.stderr));
     let killed: f64 = said.lines().find_map(|l| l.strip_prefix("killed ")).and_then(|t| t.parse().ok()).unwrap();
