@@ -523,6 +523,12 @@ impl Field {
         use Field::*;
         matches!(self, RLV | TWF | TWR | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP | PROC)
     }
+
+    /// A target the record takes from its readback when it starts (VAL, RVAL): a configuration
+    /// that set it would be a move at the axis's first write, so none may (DVAL sets a position).
+    pub fn starts_at_readback(self) -> bool {
+        matches!(self, Field::VAL | Field::RVAL)
+    }
 }
 
 impl Field {

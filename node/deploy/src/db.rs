@@ -233,7 +233,7 @@ fn motor(
             .filter(|f| f.name() == name)
             .ok_or_else(|| at("not a field of the motor record".into()))?;
         // A launch file refuses them: a database's are dropped, with a word.
-        if field.is_command() || matches!(field, Field::VAL | Field::RVAL) {
+        if field.is_command() || field.starts_at_readback() {
             warnings.push(format!(
                 "line {line}: motor '{}': field {name} commands the record (or is where it starts, its \
                  readback), not a setting; ignored",

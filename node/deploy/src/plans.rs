@@ -63,7 +63,7 @@ impl AxisSection {
                                (it would act at the axis's first write)";
                 return Err(at(&inner, message.into()));
             }
-            if matches!(field, Field::VAL | Field::RVAL) {
+            if field.starts_at_readback() {
                 let message = "an axis starts where its readback is (the record sets VAL and RVAL from it); DVAL sets \
                                its position";
                 return Err(at(&inner, message.into()));
