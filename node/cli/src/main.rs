@@ -612,8 +612,9 @@ fn axis_patterns(text: &str) -> Result<String, String> {
 fn seconds(text: &str) -> Result<f64, String> {
     const YEAR: f64 = 365.0 * 24.0 * 3600.0;
     match text.parse::<f64>() {
-        Ok(s) if (0.0..=YEAR).contains(&s) => Ok(s),
-        Ok(s) => Err(format!("{s} is not a number of seconds from 0 to a year")),
+        // No answer could come within 0 s: the write would go out and be reported unanswered.
+        Ok(s) if s > 0.0 && s <= YEAR => Ok(s),
+        Ok(s) => Err(format!("{s} is not a number of seconds more than 0, up to a year")),
         Err(e) => Err(e.to_string()),
     }
 }
@@ -634,6 +635,8 @@ async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<Exi
         // One field by name, or a pattern such as D* or the whole axis.
         let selection = match (&pattern, field) {
             (Some(pattern), _) => Selection::Pattern(pattern),
+            // ERR is no field but the axis's messages: its last one.
+            (None, Some(name)) if name.eq_ignore_ascii_case(zmotor_msgs::keys::ERR_KEY) => Selection::LastMessage,
             (None, Some(name)) => Selection::Field(field_named(name)?),
             (None, None) => Selection::All,
         };
@@ -641,7 +644,7 @@ async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<Exi
         for refusal in &read.refusals {
             eprintln!("zmotor: {refusal}");
         }
-        let single = matches!(selection, Selection::Field(_));
+        let single = matches!(selection, Selection::Field(_) | Selection::LastMessage);
         print_lines(read.readings.iter().map(|reading| {
             let (name, value) = (&reading.name, read.shown(reading));
             match (several, single) {

@@ -84,6 +84,18 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     here.put(&endpoint, "m1", "SPMG", "Pause", false).unwrap();
     assert_eq!(stdout(&here, &["get", "m1", "SPMG", "--connect", &endpoint]), "Pause\n");
     here.put(&endpoint, "m1", "SPMG", "Go", false).unwrap();
+    // ERR, no field but the axis's messages: its last one, nothing while it has none.
+    assert_eq!(stdout(&here, &["get", "m2", "ERR", "--connect", &endpoint]), "\n");
+    let plain = here.zmotor(&["put", "m2", "VELO", "fast", "--plain", "--connect", &endpoint]).output().unwrap();
+    assert!(plain.status.success(), "{plain:?}");
+    let deadline = std::time::Instant::now() + PATIENCE;
+    let message = loop {
+        let message = stdout(&here, &["get", "m2", "err", "--connect", &endpoint]);
+        if message != "\n" || std::time::Instant::now() > deadline {
+            break message;
+        }
+    };
+    assert!(message.starts_with("VELO: ") && message.contains("'fast'"), "{message}");
     here.put(&endpoint, "m2", "PREC", "3", false).unwrap();
     here.put(&endpoint, "m2", "VAL", "6.991", true).unwrap();
     assert_eq!(stdout(&here, &["get", "m2", "RBV", "--connect", &endpoint]), "6.991\n");
@@ -149,7 +161,7 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     let here = Host::default();
     let (_dir, endpoint, _node) = two_axes(&here);
 
-    for timeout in ["nan", "inf", "-1", "1e30"] {
+    for timeout in ["nan", "inf", "-1", "0", "1e30"] {
         let option = format!("--timeout={timeout}");
         let refused = here.zmotor(&["put", "m1", "VAL", "1", "--connect", &endpoint, &option]).output().unwrap();
         assert_eq!(refused.status.code(), Some(2), "{option}: {refused:?}");

@@ -23,6 +23,9 @@ pub enum Selection<'a> {
     Pattern(&'a str),
     /// Every field.
     All,
+    /// The axis's last message (its ERR key): the words of its last refused write or
+    /// controller error, empty while it has none.
+    LastMessage,
 }
 
 /// One field's value, as read.
@@ -91,11 +94,12 @@ impl Client {
             Selection::Field(field) => layout.field(axis, field),
             Selection::Pattern(pattern) => layout.field_pattern(axis, pattern),
             Selection::All => layout.axis_all(axis),
+            Selection::LastMessage => layout.err(axis),
         };
         let session = self.session();
         let answers = session.get(&key).timeout(PATIENCE).await?;
         let precision = match selection {
-            Selection::All => None,
+            Selection::All | Selection::LastMessage => None,
             _ => Some(session.get(layout.field(axis, Field::PREC)).timeout(PATIENCE).await?),
         };
         let mut read = AxisReading::default();
