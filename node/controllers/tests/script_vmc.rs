@@ -71,6 +71,47 @@ fn a_jog_runs_until_stopped() {
 }
 
 #[test]
+fn a_stop_does_not_wait_behind_a_move_that_asks_until_its_motion_ends() {
+    // vmc.lua with a move() that waits for the end of its motion, asking all along.
+    let mut source = vmc();
+    source.text += r#"
+function move(position, relative, minVel, maxVel, accel)
+	sendAccelAndVelocity(minVel, maxVel, accel)
+	asyn.writeread(string.format("%d MV %d", AXIS + 1, math.floor(position)), PORT)
+	repeat until (tonumber(asyn.writeread(string.format("%d ST?", AXIS + 1), PORT)) & 2) == 2
+end
+"#;
+    // A controller that answers in 2 ms, as one on a network does.
+    let faults = Faults { delay: Duration::from_millis(2), ..Faults::default() };
+    let mut lb = script_loopback(&source, Model::Vmc, &CHANNELS, faults);
+    bring_up(&mut lb);
+    // Hours of motion at 1,000 steps/s.
+    lb.command(
+        0,
+        &DriverCommand::Move {
+            position: 1e7,
+            relative: false,
+            min_velocity: 0.0,
+            max_velocity: 1000.0,
+            acceleration: 1e4,
+        },
+    );
+    lb.run_for(Duration::from_secs(1));
+    let from = lb.written().len();
+    assert!(written_since(&lb, from - 1)[0] == "1 ST?\r\n", "the move asks: {:?}", written_since(&lb, 0));
+    lb.command(0, &DriverCommand::Stop { acceleration: 1e4 });
+    let stopped = run_until_done(&mut lb, 0, TICK, Duration::from_secs(3));
+    let sent = written_since(&lb, from);
+    assert_eq!(sent.iter().filter(|l| *l == "1 AB\r\n").count(), 1, "{sent:?}");
+    assert!(
+        sent.iter().take_while(|l| *l != "1 AB\r\n").count() <= 1,
+        "the stop goes after the reply in flight: {sent:?}"
+    );
+    let position = stopped.last().expect("done").position;
+    assert!(position > 500.0 && position < 1500.0, "stopped where it was: {position}");
+}
+
+#[test]
 fn a_home_the_script_does_not_define_sends_nothing_and_ends_at_the_next_poll() {
     let mut lb = loopback(Faults::default());
     bring_up(&mut lb);

@@ -22,7 +22,10 @@
 //! - `MOTOR_REC_RESOLUTION` is the axis's MRES as the launch file gives it;
 //! - a script error is a driver error naming the script's file and line (the axis shows a
 //!   problem), never a crash; a call running 20 million instructions without an exchange is
-//!   stopped.
+//!   stopped;
+//! - a stop does not wait behind a call of its axis that is still exchanging (a `move()` that
+//!   asks until its motion ends): that call is given up once the reply in flight is in, and
+//!   `stop()` runs next (under motorScriptMotor's lock the stop would wait for it).
 
 mod lua;
 
@@ -167,6 +170,8 @@ struct Current {
     channel: usize,
     number: u64,
     call: Call,
+    /// A stop of its axis waits: the call ends at the reply in flight.
+    given_up: bool,
 }
 
 /// The script driver (see the module documentation).
@@ -324,6 +329,12 @@ impl Protocol for Script {
                 return Err(CommandError::Unsupported { protocol: NAME, what: "send raw text (the script speaks)" })
             }
         };
+        if let (Call::Stop { .. }, Some(current)) = (call, self.current.as_mut()) {
+            // The stop's own axis only: another axis's call is left to end as it would.
+            if current.channel == channel && !matches!(current.call, Call::Poll | Call::Stop { .. }) {
+                current.given_up = true;
+            }
+        }
         Ok(vec![self.placeholder(channel, call)])
     }
 
@@ -331,7 +342,7 @@ impl Protocol for Script {
         let ScriptStep { channel, call: number, part: Part::Start(call) } = request.step else {
             return Prepared { request: Some(request), events: Vec::new() };
         };
-        let current = Current { channel, number, call };
+        let current = Current { channel, number, call, given_up: false };
         self.current = Some(current);
         let ran = match self.axis(channel) {
             Ok(axis) => call.start(axis).map_err(|message| ScriptError::Call { function: call.function(), message }),
@@ -375,6 +386,11 @@ impl Protocol for Script {
         let (Some(current), Part::Exchange(_)) = (current, step.part) else {
             return Err(ReplyError::new(request, frame, "the script call it answers was given up"));
         };
+        if current.given_up {
+            // Its answer is in: the call ends here, and the stop that waits goes next.
+            self.current = None;
+            return Ok(Vec::new());
+        }
         let key_reply = match request.lane {
             Lane::Keys => {
                 let reply = KeyReply::decode(frame);

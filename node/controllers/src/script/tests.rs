@@ -247,3 +247,28 @@ impl AxisLua {
         self.lua_for_tests().load(format!("return tostring({expression})")).eval::<String>().expect("evaluates")
     }
 }
+
+#[test]
+fn a_stop_gives_up_a_call_of_its_axis_that_is_still_exchanging() {
+    let mut script = script(
+        "InTerminator = '\\n'\nOutTerminator = '\\n'\n\
+         function move(p) repeat until asyn.writeread('ST?', PORT) == 'done' end\n\
+         function stop(a) asyn.writeread('AB', PORT) end",
+    );
+    let stop = DriverCommand::Stop { acceleration: 1.0 };
+    let command =
+        DriverCommand::Move { position: 1.0, relative: false, min_velocity: 1.0, max_velocity: 2.0, acceleration: 3.0 };
+    let mut asking = start(&mut script, 0, &command).request.expect("the move asks");
+    for _ in 0..3 {
+        asking = answer(&mut script, &asking, "moving\n").1.expect("the move asks until its motion ends");
+    }
+    // Another axis's stop leaves the call be.
+    let _other = script.command(1, &stop).expect("taken");
+    asking = answer(&mut script, &asking, "moving\n").1.expect("the move goes on");
+    let mut own = script.command(0, &stop).expect("taken");
+    let (events, next) = answer(&mut script, &asking, "moving\n");
+    assert!(events.is_empty() && next.is_none(), "the move ends at the reply in flight: {events:?} {next:?}");
+    let stopping = script.prepare(own.remove(0)).request.expect("the stop sends");
+    assert_eq!(text(&stopping), "AB\n");
+    assert!(answer(&mut script, &stopping, "OK\n").1.is_none(), "the stop is over");
+}
