@@ -304,7 +304,19 @@ pub enum AxisNameError {
         /// The first character at fault.
         character: char,
     },
+    /// The name is longer than [`AXIS_NAME_MAX`] bytes.
+    #[error("axis name '{start}...' is {length} bytes long; at most {AXIS_NAME_MAX} (its state is kept in a file named after it)")]
+    TooLong {
+        /// The name's first 40 characters.
+        start: String,
+        /// Its length in bytes.
+        length: usize,
+    },
 }
+
+/// The longest axis name, in bytes: the node keeps an axis's state in a file named after it,
+/// and a file's name may hold 255.
+pub const AXIS_NAME_MAX: usize = 200;
 
 /// An axis name must be a single, plain key chunk.
 pub fn validate_axis_name(name: &str) -> Result<(), AxisNameError> {
@@ -320,6 +332,9 @@ pub fn validate_axis_pattern(pattern: &str) -> Result<(), AxisNameError> {
 fn check_chunk(name: &str, stars: bool) -> Result<(), AxisNameError> {
     if name.is_empty() {
         return Err(AxisNameError::Empty);
+    }
+    if name.len() > AXIS_NAME_MAX {
+        return Err(AxisNameError::TooLong { start: name.chars().take(40).collect(), length: name.len() });
     }
     let forbidden = |c: &char| matches!(c, '/' | '$' | '?' | '#' | '@') || (*c == '*' && !stars) || c.is_whitespace();
     if let Some(c) = name.chars().find(forbidden) {
@@ -415,6 +430,14 @@ mod tests {
         assert!(validate_axis_name("a/b").is_err());
         assert!(validate_axis_name("").is_err());
         assert!(validate_axis_name("x*").is_err());
+        assert!(validate_axis_name(&"a".repeat(AXIS_NAME_MAX)).is_ok());
+        assert_eq!(
+            validate_axis_name(&"a".repeat(AXIS_NAME_MAX + 1)).unwrap_err().to_string(),
+            format!(
+                "axis name '{}...' is 201 bytes long; at most 200 (its state is kept in a file named after it)",
+                "a".repeat(40)
+            )
+        );
         assert!(validate_axis_pattern("x*").is_ok() && validate_axis_pattern("*").is_ok());
         assert_eq!(
             validate_axis_pattern("m?").unwrap_err().to_string(),
