@@ -327,7 +327,13 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
             }
             Ok(Value::Text(s))
         }
-        Kind::Link => Ok(Value::Text(raw.to_string())),
+        // As an IOC's link fields, which take only strings: a number would name no key.
+        Kind::Link => match raw {
+            Value::Text(text) => Ok(Value::Text(text)),
+            number => {
+                Err(CodecError::WrongType { field, expected: Kind::Link.expected().into(), got: number.to_string() })
+            }
+        },
     }
 }
 
@@ -490,6 +496,10 @@ mod tests {
         assert!(matches!(e, CodecError::OutOfRange { field: "STOP", .. }), "{e}");
         let e = write(Field::STOP, b"1.5", Text).unwrap_err();
         assert!(matches!(e, CodecError::WrongType { .. }), "{e}");
+        // A link takes text only, as an IOC's: a number would be taken for a key.
+        let e = write(Field::OUT, &cbor(5), PayloadEncoding::Cbor).unwrap_err();
+        assert_eq!(e.to_string(), "OUT: wrong type: expected a key expression, got 5");
+        assert_eq!(write(Field::OUT, b"5", Text), Ok(Value::Text("5".into())));
         let e = write(Field::NTMF, b"-1", Text).unwrap_err();
         assert!(matches!(e, CodecError::OutOfRange { .. }), "{e}");
         let e = write(Field::EGU, b"a unit name far too long", Text).unwrap_err();

@@ -190,8 +190,8 @@ fn a_launch_file_configures_an_axis_and_never_commands_it() {
     for start in ["VAL = 5", "RVAL = 50000"] {
         assert!(bad(start).expect_err(start).to_string().contains("DVAL sets its position"), "{start}");
     }
-    // Validated as writes are: a resolution of 0, a flag to a speed.
-    for refused in ["MRES = 0", "UREV = 0.0", "VELO = true"] {
+    // Validated as writes are: a resolution of 0, a flag to a speed, a number to a link.
+    for refused in ["MRES = 0", "UREV = 0.0", "VELO = true", "OUT = 5"] {
         assert!(bad(refused).is_err(), "{refused}");
     }
     for setting in ["DVAL = 5", "TWV = 2", "CNEN = 1", "VELO = 2", "MRES = 0.001"] {
