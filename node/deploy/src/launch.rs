@@ -251,16 +251,26 @@ impl Launch {
         self.check_ros2()?;
         let plans = self.file.axes.iter().map(AxisSection::plan).collect::<Result<Vec<_>, _>>()?;
         let calcs = self.file.calcs.iter().map(CalcSection::spec).collect::<Result<Vec<_>, _>>()?;
+        let layout = KeyLayout::new(&zenoh.prefix);
         for value in &self.file.values {
-            keys::validate_plain_key(&value.key())
+            let key = value.key();
+            keys::validate_plain_key(&key)
                 .map_err(|e| Problem::in_item("value", value.origin, &["key"], e.to_string()))?;
+            if let Some(axis) = layout.axis_chunk(&key) {
+                let message = format!(
+                    "'{key}' is a key of axis '{axis}' (under the prefix '{}'): a value holder there would answer \
+                     for the axis; give it a key outside the prefix",
+                    zenoh.prefix
+                );
+                return Err(Problem::in_item("value", value.origin, &["key"], message));
+            }
             if !value.value.is_finite() {
                 return Err(Problem::in_item("value", value.origin, &["value"], "must be a finite number"));
             }
         }
         let axis_origins: Vec<Origin> = self.file.axes.iter().map(|a| a.origin).collect();
         let calc_origins: Vec<Origin> = self.file.calcs.iter().map(|c| c.origin).collect();
-        check_wiring(&KeyLayout::new(&zenoh.prefix), &plans, &axis_origins, &calcs, &calc_origins)
+        check_wiring(&layout, &plans, &axis_origins, &calcs, &calc_origins)
     }
 
     /// `[ros2]` names ROS accepts and joints on axes of this launch, and no access rules it

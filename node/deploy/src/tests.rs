@@ -200,6 +200,18 @@ fn a_launch_file_configures_an_axis_and_never_commands_it() {
 }
 
 #[test]
+fn a_value_holder_keeps_out_of_the_axes_keys() {
+    let holder = |key: &str| Launch::parse(&format!("[[value]]\nname = \"r\"\n{key}")).map(|_| ());
+    for taken in ["key = \"motor/m1/VAL\"", "key = \"motor/r\""] {
+        let error = holder(taken).expect_err(taken).to_string();
+        assert!(error.contains("a value holder there would answer for the axis"), "{taken}: {error}");
+    }
+    for free in ["", "key = \"lab/r\"", "key = \"motors/m1/VAL\""] {
+        assert!(holder(free).is_ok(), "{free}: {:?}", holder(free));
+    }
+}
+
+#[test]
 fn errors_found_after_parsing_point_at_their_line() {
     let text = "[zenoh]\nprefix = \"motor\"\n\n[[axis]]\nname = \"m1\"\n\n[[axis]]\nname = \"m2\"\n[axis.fields]\nVELO = 2\nNOPE = 1\n";
     assert_eq!(Launch::parse(text).unwrap_err().to_string(), "<launch>:11: axis 'm2': fields.NOPE: no such field");
