@@ -13,8 +13,8 @@ use crate::file::{
 };
 use std::collections::BTreeMap;
 use std::path::Path;
-use zmotor_msgs::to_toml;
 use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
+use zmotor_msgs::{field_value, to_toml};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -257,6 +257,12 @@ fn motor(
             _ if text.trim().is_empty() => continue,
             _ => to_toml(decode_scalar(text.as_bytes(), PayloadEncoding::Text).map_err(|e| at(e.detail))?),
         };
+        // Checked as the launch checks it, here where the error can name the database's line.
+        let checked =
+            field_value(field, &value).map_err(|e| Failure::at(*line, format!("motor '{}': {e}", record.name)))?;
+        if let Some(why) = zmotor_core::Unusable::of(field, &checked) {
+            return Err(at(why.to_string()));
+        }
         fields.insert(name.clone(), value);
     }
     let driver = match (&on_controller, soft) {
@@ -701,10 +707,18 @@ mod tests {
         assert_eq!(import("record(motor \"m1\")").unwrap_err(), Failure::at(1, "record: expected ',', found \"m1\""));
         assert_eq!(import("record(motor, \"m1\") {\n field(VELO, \"2\")\n").unwrap_err().line, 2);
         assert!(import("device(motor, VME_IO, x, \"y\")").unwrap_err().message.contains("found 'device'"));
-        let bad_value = "record(motor, \"m1\") {\n field(VELO, \"fast\")\n}";
-        let (file, _) = import(bad_value).unwrap();
-        let error = Launch::from_file("db", file).unwrap_err();
-        assert!(error.message.contains("VELO: wrong type"), "{error}");
+        // A value the launch would refuse, refused at the database's line.
+        let bad_value = "record(motor, \"m1\") {\n field(DTYP, \"Soft Channel\")\n\n field(VELO, \"fast\")\n}";
+        assert_eq!(
+            import(bad_value).unwrap_err(),
+            Failure::at(4, "motor 'm1': VELO: wrong type: expected a number, got text 'fast'")
+        );
+        let infinite = bad_value.replace("fast", "1e999");
+        assert_eq!(import(&infinite).unwrap_err().line, 4);
+        let unusable = bad_value.replace("VELO, \"fast", "MRES, \"0");
+        let error = import(&unusable).unwrap_err();
+        assert_eq!(error.line, 4, "{error:?}");
+        assert!(error.message.starts_with("motor 'm1': field MRES: a resolution of 0"), "{error:?}");
     }
 
     #[test]
