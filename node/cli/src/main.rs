@@ -7,7 +7,7 @@ use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, SystemTime};
-use zmotor_client::{interrupted, show, Client, Event, NoAnswer, Selection, WriteOptions, WriteOutcome};
+use zmotor_client::{interrupted, show, Client, Event, NoAnswer, Selection, SessionError, WriteOptions, WriteOutcome};
 use zmotor_deploy::{
     import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
     WebConfig, ZenohConfig,
@@ -575,8 +575,11 @@ async fn front_end_client(section: &ZenohConfig) -> Result<Client, Error> {
 
 /// A client connected where `client` says.
 async fn connect(client: &ClientArgs) -> Result<Client, Error> {
-    Client::connect(&client.zenoh()?).await.map_err(|e| {
-        format!("{e}: start a node there (zmotor launch launch/sim-axis.toml) or point --connect at one").into()
+    Client::connect(&client.zenoh()?).await.map_err(|e| match e {
+        SessionError::Unreachable { .. } => {
+            format!("{e}: start a node there (zmotor launch launch/sim-axis.toml) or point --connect at one").into()
+        }
+        other => other.into(),
     })
 }
 

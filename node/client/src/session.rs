@@ -35,7 +35,7 @@ pub enum SessionError {
     },
     /// A node's or router's session could not be opened where it listens (a port in use, an
     /// endpoint it cannot bind).
-    #[error("cannot listen on {listen}: {source}")]
+    #[error("cannot listen on {listen}: {}", zenoh_words(&source.to_string()))]
     CannotListen {
         /// Where it listens, comma-separated.
         listen: String,
@@ -48,9 +48,28 @@ pub enum SessionError {
 pub fn zenoh_config(section: &ZenohConfig) -> Result<zenoh::Config, ConfigError> {
     let mut config = zenoh::Config::default();
     for (key, value) in section.entries() {
-        config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: e.to_string() })?;
+        config.insert_json5(key, &value).map_err(|e| ConfigError { key, message: zenoh_words(&e.to_string()) })?;
     }
     Ok(config)
+}
+
+/// What Zenoh said, in its words only: without the JSON5 parser's wrapping (`Json5Err(Message
+/// { msg: "..", .. })`) or where in Zenoh's sources it was said (` at <file>.rs:<line>.`).
+fn zenoh_words(said: &str) -> String {
+    let inner = match said.split_once("msg: \"") {
+        Some((_, rest)) => rest.split_once("\", location").map_or(rest, |(message, _)| message),
+        None => said,
+    };
+    let mut words = inner.trim_end().trim_end_matches('.');
+    // " at zenoh-protocol-1.10.2/src/core/endpoint.rs:615": a file, a colon, a line number.
+    while let Some((before, place)) = words.rsplit_once(" at ") {
+        let at_a_line = place.rsplit_once(".rs:").is_some_and(|(_, line)| line.chars().all(|c| c.is_ascii_digit()));
+        if !at_a_line {
+            break;
+        }
+        words = before.trim_end_matches('.');
+    }
+    words.to_string()
 }
 
 /// A session joined as `section` says.
@@ -69,7 +88,7 @@ pub async fn open_waiting(section: &ZenohConfig) -> Result<zenoh::Session, Sessi
     let mut config = zenoh_config(section)?;
     let lease = NODE_LEASE.as_millis().to_string();
     for (key, value) in [("connect/timeout_ms", "-1"), ("transport/link/tx/lease", lease.as_str())] {
-        config.insert_json5(key, value).map_err(|e| ConfigError { key, message: e.to_string() })?;
+        config.insert_json5(key, value).map_err(|e| ConfigError { key, message: zenoh_words(&e.to_string()) })?;
     }
     // It waits for what it connects to: what fails at once is what it listens on.
     zenoh::open(config).await.map_err(|source| SessionError::CannotListen { listen: section.listen.join(", "), source })
@@ -157,6 +176,18 @@ mod tests {
         let section = ZenohConfig { listen: vec!["quic/127.0.0.1:7447".into()], ..ZenohConfig::default() };
         let zenoh = zenoh_config(&section).unwrap();
         assert_eq!(zenoh.get_json("listen/endpoints").unwrap(), r#"["quic/127.0.0.1:7447?multistream=0"]"#);
+    }
+
+    #[test]
+    fn a_malformed_endpoint_is_refused_in_zenoh_s_words_only() {
+        let section = ZenohConfig { connect: vec!["nonsense".into()], ..ZenohConfig::default() };
+        let error = zenoh_config(&section).unwrap_err();
+        assert_eq!(error.key, "connect/endpoints");
+        assert_eq!(
+            error.to_string(),
+            "zenoh configuration connect/endpoints: Endpoints must be of the form \
+             <protocol>/<address>[?<metadata>][#<config>]: nonsense"
+        );
     }
 
     #[test]
