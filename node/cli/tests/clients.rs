@@ -187,7 +187,11 @@ fn a_put_wait_that_does_not_reach_its_target_fails_and_a_timeout_is_a_number_of_
     // A motion that outlasts --timeout (4.7 mm at 1 mm/s, 0.3 s): the command says what it
     // knows, not Zenoh's bare "Timeout".
     let args = ["put", "m1", "VAL", "5", "--wait", "--timeout", "0.3", "--connect", &endpoint];
+    let started = std::time::Instant::now();
     let timed_out = here.zmotor(&args).output().unwrap();
+    // Said at its time (the process's start and connection beside), not seconds after.
+    let took = started.elapsed();
+    assert!(took < std::time::Duration::from_secs(3), "the timed-out write answered after {took:?}");
     let complained = String::from_utf8_lossy(&timed_out.stderr);
     assert_eq!(timed_out.status.code(), Some(1), "{complained}");
     assert!(complained.contains("m1 is served but did not answer within 0.3 s"), "{complained}");

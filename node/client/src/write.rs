@@ -155,10 +155,13 @@ impl SentWrite {
         if !served {
             return WriteOutcome::NoAnswer(NoAnswer::NotServed);
         }
-        if self.wait && (went || self.vanishes().await) {
+        // Only a query that ended before its time may be a node that died (and whose token is
+        // yet to be seen to go): one that ran its time says so at once, not after `VANISHING`.
+        let timed_out = self.sent.elapsed() >= self.patience;
+        if self.wait && (went || (!timed_out && self.vanishes().await)) {
             return WriteOutcome::Vanished;
         }
-        if self.sent.elapsed() >= self.patience {
+        if timed_out {
             WriteOutcome::NoAnswer(NoAnswer::TimedOut)
         } else {
             WriteOutcome::NoAnswer(NoAnswer::Silent)
