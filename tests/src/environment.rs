@@ -73,7 +73,13 @@ pub fn run_script(command: &mut Command) -> Output {
         let chunks = chunks.clone();
         std::thread::spawn(move || {
             let mut buffer = [0; 4096];
-            while let Ok(read @ 1..) = reader.read(&mut buffer) {
+            loop {
+                let read = match reader.read(&mut buffer) {
+                    Ok(0) => break,
+                    Ok(read) => read,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(_) => break,
+                };
                 if chunks.send((stream, buffer[..read].to_vec())).is_err() {
                     break;
                 }
@@ -95,24 +101,36 @@ pub fn run_script(command: &mut Command) -> Output {
         if started.elapsed() > SCRIPT_PATIENCE {
             let _ = child.kill();
             let _ = child.wait();
+            printed_so_far(&received, &mut printed);
             panic!("{:?} still ran after {SCRIPT_PATIENCE:?}; it printed:\n{}", command, said(&printed));
         }
     };
     let exited = Instant::now();
     loop {
-        match received.recv_timeout(Duration::from_millis(50)) {
-            Ok((stream, bytes)) => printed[stream].extend(bytes),
-            Err(mpsc::RecvTimeoutError::Disconnected) => break,
-            Err(mpsc::RecvTimeoutError::Timeout) if exited.elapsed() > OUTPUT_CLOSE_PATIENCE => panic!(
+        // Bounded even while something left behind keeps writing.
+        if exited.elapsed() > OUTPUT_CLOSE_PATIENCE {
+            printed_so_far(&received, &mut printed);
+            panic!(
                 "{command:?} exited ({status}) but a process it started still holds its output (a daemon left \
                  behind); it printed:\n{}",
                 said(&printed)
-            ),
+            );
+        }
+        match received.recv_timeout(Duration::from_millis(50)) {
+            Ok((stream, bytes)) => printed[stream].extend(bytes),
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
             Err(mpsc::RecvTimeoutError::Timeout) => {}
         }
     }
     let [stdout, stderr] = printed;
     Output { status, stdout, stderr }
+}
+
+/// What the readers have passed on and not yet taken.
+fn printed_so_far(received: &mpsc::Receiver<(usize, Vec<u8>)>, printed: &mut [Vec<u8>; 2]) {
+    while let Ok((stream, bytes)) = received.try_recv() {
+        printed[stream].extend(bytes);
+    }
 }
 
 fn said(printed: &[Vec<u8>; 2]) -> String {
