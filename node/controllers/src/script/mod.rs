@@ -23,9 +23,11 @@
 //! - a script error is a driver error naming the script's file and line (the axis shows a
 //!   problem), never a crash; a call running 20 million instructions without an exchange is
 //!   stopped;
-//! - a stop does not wait behind a call of its axis that is still exchanging (a `move()` that
-//!   asks until its motion ends): that call is given up once the reply in flight is in, and
-//!   `stop()` runs next (under motorScriptMotor's lock the stop would wait for it).
+//! - a stop does not wait behind a motion call of its axis (`move`, `moveVelocity`, `home`)
+//!   that is still exchanging (a `move()` that asks until its motion ends): that call is given
+//!   up once the reply in flight is in, and `stop()` runs next (under motorScriptMotor's lock
+//!   the stop would wait for it). Another axis's stop, and every poll, still wait behind it, as
+//!   under that lock.
 
 mod lua;
 
@@ -104,6 +106,11 @@ enum Call {
 }
 
 impl Call {
+    /// Whether it starts a motion (what a stop of its axis ends).
+    fn moves(self) -> bool {
+        matches!(self, Call::Move { .. } | Call::MoveVelocity { .. } | Call::Home { .. })
+    }
+
     /// The script function motorScriptMotor calls for it.
     fn function(self) -> &'static str {
         match self {
@@ -330,8 +337,9 @@ impl Protocol for Script {
             }
         };
         if let (Call::Stop { .. }, Some(current)) = (call, self.current.as_mut()) {
-            // The stop's own axis only: another axis's call is left to end as it would.
-            if current.channel == channel && !matches!(current.call, Call::Poll | Call::Stop { .. }) {
+            // A motion of the stop's own axis: a setting (a position set, a limit, a gain) is no
+            // motion a stop ends, and another axis's call is left to end as it would.
+            if current.channel == channel && current.call.moves() {
                 current.given_up = true;
             }
         }

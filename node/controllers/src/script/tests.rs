@@ -253,7 +253,8 @@ fn a_stop_gives_up_a_call_of_its_axis_that_is_still_exchanging() {
     let mut script = script(
         "InTerminator = '\\n'\nOutTerminator = '\\n'\n\
          function move(p) repeat until asyn.writeread('ST?', PORT) == 'done' end\n\
-         function stop(a) asyn.writeread('AB', PORT) end",
+         function stop(a) asyn.writeread('AB', PORT) end\n\
+         function setPosition(p) asyn.writeread('SP', PORT) asyn.writeread('SP?', PORT) end",
     );
     let stop = DriverCommand::Stop { acceleration: 1.0 };
     let command =
@@ -271,4 +272,9 @@ fn a_stop_gives_up_a_call_of_its_axis_that_is_still_exchanging() {
     let stopping = script.prepare(own.remove(0)).request.expect("the stop sends");
     assert_eq!(text(&stopping), "AB\n");
     assert!(answer(&mut script, &stopping, "OK\n").1.is_none(), "the stop is over");
+    // A setting is no motion a stop ends: it is carried out whole.
+    let setting = start(&mut script, 0, &DriverCommand::SetPosition { position: 5.0 }).request.expect("it sets");
+    let _stop = script.command(0, &stop).expect("taken");
+    let asking = answer(&mut script, &setting, "OK\n").1.expect("the setting goes on");
+    assert_eq!(text(&asking), "SP?\n");
 }
