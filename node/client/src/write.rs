@@ -130,11 +130,14 @@ impl SentWrite {
     pub async fn outcome(self) -> WriteOutcome {
         // A token that goes and comes back (its node's link to a router flapped) is no vanished
         // node: the write's answer, if it comes, says how it ended.
-        let (mut served, mut went) = (false, false);
+        let (mut served, mut went, mut timed_out) = (false, false, false);
         loop {
             tokio::select! {
                 reply = self.replies.recv_async() => match reply {
-                    Ok(reply) if reply.result().is_err_and(crate::timed_out) => break,
+                    Ok(reply) if reply.result().is_err_and(crate::timed_out) => {
+                        timed_out = true;
+                        break;
+                    }
                     Ok(reply) => return self.answered(reply),
                     Err(_) => break,
                 },
@@ -156,8 +159,9 @@ impl SentWrite {
             return WriteOutcome::NoAnswer(NoAnswer::NotServed);
         }
         // Only a query that ended before its time may be a node that died (and whose token is
-        // yet to be seen to go): one that ran its time says so at once, not after `VANISHING`.
-        let timed_out = self.sent.elapsed() >= self.patience;
+        // yet to be seen to go): one that ran its time (Zenoh's own timeout answer) says so at
+        // once, not after `VANISHING`.
+        let timed_out = timed_out || self.sent.elapsed() >= self.patience;
         if self.wait && (went || (!timed_out && self.vanishes().await)) {
             return WriteOutcome::Vanished;
         }
