@@ -224,6 +224,8 @@ fn motor(
         ));
     }
     let mut fields = BTreeMap::new();
+    // Each field's last value and its line: what the record starts with (a later field() wins).
+    let mut last = BTreeMap::new();
     for (name, text, line) in &record.fields {
         let at = |message: String| Failure::at(*line, format!("motor '{}': field {name}: {message}", record.name));
         if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
@@ -257,13 +259,18 @@ fn motor(
             _ if text.trim().is_empty() => continue,
             _ => to_toml(decode_scalar(text.as_bytes(), PayloadEncoding::Text).map_err(|e| at(e.detail))?),
         };
-        // Checked as the launch checks it, here where the error can name the database's line.
+        // Checked as the launch checks it, here where the error can name the database's line: a
+        // value the field cannot hold at once (as an IOC's dbLoadRecords), one the record
+        // cannot start with once the last value is known.
         let checked =
             field_value(field, &value).map_err(|e| Failure::at(*line, format!("motor '{}': {e}", record.name)))?;
-        if let Some(why) = zmotor_core::Unusable::of(field, &checked) {
-            return Err(at(why.to_string()));
-        }
+        last.insert(field, (checked, *line));
         fields.insert(name.clone(), value);
+    }
+    for (field, (value, line)) in &last {
+        if let Some(why) = zmotor_core::Unusable::of(*field, value) {
+            return Err(Failure::at(*line, format!("motor '{}': field {}: {why}", record.name, field.name())));
+        }
     }
     let driver = match (&on_controller, soft) {
         (Some(_), _) => DriverKind::Controller,
@@ -719,6 +726,10 @@ mod tests {
         let error = import(&unusable).unwrap_err();
         assert_eq!(error.line, 4, "{error:?}");
         assert!(error.message.starts_with("motor 'm1': field MRES: a resolution of 0"), "{error:?}");
+        // The record starts with a field's last value: an earlier one it would not start with is
+        // no error.
+        let overridden = unusable.replace("\n}", "\n field(MRES, \"0.001\")\n}");
+        assert!(import(&overridden).is_ok(), "{:?}", import(&overridden));
     }
 
     #[test]

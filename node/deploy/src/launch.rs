@@ -256,10 +256,11 @@ impl Launch {
             let key = value.key();
             keys::validate_plain_key(&key)
                 .map_err(|e| Problem::in_item("value", value.origin, &["key"], e.to_string()))?;
-            if let Some(axis) = layout.axis_chunk(&key) {
+            if key == zenoh.prefix || layout.axis_chunk(&key).is_some() {
+                let default = if value.key.is_none() { ", its key by default," } else { "" };
                 let message = format!(
-                    "'{key}' is a key of axis '{axis}' (under the prefix '{}'): a value holder there would answer \
-                     for the axis; give it a key outside the prefix",
+                    "'{key}'{default} is under the axes' prefix '{}': a value holder there would answer for an \
+                     axis (or the axes' queries); give it a key outside the prefix",
                     zenoh.prefix
                 );
                 return Err(Problem::in_item("value", value.origin, &["key"], message));

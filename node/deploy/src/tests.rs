@@ -202,10 +202,12 @@ fn a_launch_file_configures_an_axis_and_never_commands_it() {
 #[test]
 fn a_value_holder_keeps_out_of_the_axes_keys() {
     let holder = |key: &str| Launch::parse(&format!("[[value]]\nname = \"r\"\n{key}")).map(|_| ());
-    for taken in ["key = \"motor/m1/VAL\"", "key = \"motor/r\""] {
+    for taken in ["key = \"motor/m1/VAL\"", "key = \"motor/r\"", "key = \"motor\""] {
         let error = holder(taken).expect_err(taken).to_string();
-        assert!(error.contains("a value holder there would answer for the axis"), "{taken}: {error}");
+        assert!(error.contains("a value holder there would answer for an axis"), "{taken}: {error}");
     }
+    let bridge = Launch::parse("[zenoh]\nprefix = \"bridge\"\n[[value]]\nname = \"r\"").map(|_| ());
+    assert!(bridge.unwrap_err().to_string().contains("'bridge/r/VAL', its key by default, is under"));
     for free in ["", "key = \"lab/r\"", "key = \"motors/m1/VAL\""] {
         assert!(holder(free).is_ok(), "{free}: {:?}", holder(free));
     }
