@@ -11,7 +11,7 @@ use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
 use crate::refusal::{self, refuse};
-use crate::streamed::{Congestion, KeyWork, StreamLog, Streamed};
+use crate::streamed::{Congestion, KeyWork, Micros, StreamLog, Streamed};
 use crate::ticker::AxisClock;
 use crate::writer::Writer;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
@@ -374,10 +374,10 @@ impl AxisCore {
     /// puts would take each batch that frees before a blocking one (which Zenoh, past five
     /// seconds, takes for a dead link and closes); so then every post goes the events' way, a
     /// waiting stream sample giving way to its key's next.
-    fn streams(&self, delivery: Delivery) -> bool {
+    fn streams(&self, delivery: Delivery, now: Micros) -> bool {
         delivery == Delivery::Stream
             && self.events_waiting.load(Ordering::Acquire) == 0
-            && !self.node.congestion.recent()
+            && !self.node.congestion.recent_at(now)
     }
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
@@ -434,7 +434,10 @@ impl AxisCore {
         stamp: Timestamp,
         delivery: Delivery,
     ) {
-        if !self.streams(delivery) {
+        // One reading of the clock for the decision, the log and the put's start.
+        let start = std::time::Instant::now();
+        let now = self.node.congestion.at(start);
+        if !self.streams(delivery, now) {
             if let Some(key) = self.sample_key(&sample) {
                 let replaceable = delivery == Delivery::Stream;
                 self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
@@ -445,7 +448,7 @@ impl AxisCore {
             Streamed::Field(field, _) => (self.hot.iter().find(|(f, _)| f == field).map(|(_, p)| p), Some(*field)),
             Streamed::Bundle(_) => (self.readback.as_ref(), None),
         };
-        self.stream_log.record(self.node.congestion.now(), sample, marker, stamp);
+        self.stream_log.record(now, sample, marker, stamp);
         // Asked for only when there is no publisher: a put to a key Zenoh matches afresh.
         let key = || {
             self.node.key_work.note();
@@ -454,7 +457,7 @@ impl AxisCore {
                 None => KeyExpr::try_from(self.node.layout.readback(self.name())),
             }
         };
-        self.node.congestion.timed(|| put_state(&self.node.session, publisher, key, payload, marker, stamp));
+        self.node.congestion.timed(start, || put_state(&self.node.session, publisher, key, payload, marker, stamp));
     }
 
     /// A sample's key, declared where it has a publisher.

@@ -125,8 +125,9 @@ impl EventOutbox {
     /// nothing waiting (a put then finds room at once: a hand-over would cost every event tens
     /// of microseconds); queue it for the sender thread otherwise.
     pub(crate) fn post(&self, post: EventPost) {
-        if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent() {
-            self.congestion.timed(|| self.put(post));
+        let start = std::time::Instant::now();
+        if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent_at(self.congestion.at(start)) {
+            self.congestion.timed(start, || self.put(post));
         } else {
             self.shared.queue(post);
         }
