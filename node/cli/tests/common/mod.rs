@@ -140,11 +140,26 @@ impl Running {
         self.0.as_ref().unwrap().id()
     }
 
-    /// SIGTERM, then the exit status and what the process logged.
+    /// SIGTERM, then the exit status and what the process logged; a process that has not
+    /// stopped within `STOP_PATIENCE` is killed and the test fails.
     pub(crate) fn terminate(mut self) -> (std::process::ExitStatus, String) {
         Command::new("kill").args(["-TERM", &self.pid().to_string()]).status().unwrap();
-        let output = self.0.take().unwrap().wait_with_output().unwrap();
-        (output.status, String::from_utf8_lossy(&output.stderr).into_owned())
+        let mut child = self.0.take().unwrap();
+        // Read while it stops: a full pipe would hold its last words, and it.
+        let stderr = child.stderr.take();
+        let reader = std::thread::spawn(move || {
+            let mut log = String::new();
+            if let Some(mut stderr) = stderr {
+                let _ = std::io::Read::read_to_string(&mut stderr, &mut log);
+            }
+            log
+        });
+        let Some(status) = exited_within(&mut child, STOP_PATIENCE) else {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("process {} did not stop within {STOP_PATIENCE:?} of SIGTERM", child.id());
+        };
+        (status, reader.join().unwrap_or_default())
     }
 
     /// SIGKILL: no chance to save anything.
@@ -152,6 +167,23 @@ impl Running {
         let mut child = self.0.take().unwrap();
         child.kill().unwrap();
         child.wait().unwrap();
+    }
+}
+
+/// How long a process of ours may take to stop once told to.
+pub(crate) const STOP_PATIENCE: Duration = Duration::from_secs(60);
+
+/// `child`'s exit status once it has exited, if it does within `limit`.
+pub(crate) fn exited_within(child: &mut Child, limit: Duration) -> Option<std::process::ExitStatus> {
+    let deadline = Instant::now() + limit;
+    loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            return Some(status);
+        }
+        if Instant::now() > deadline {
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
     }
 }
 
