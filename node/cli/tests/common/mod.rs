@@ -67,7 +67,7 @@ impl Host {
     /// is on its way (RBV past 0.2).
     pub(crate) fn put_wait_under_way(&self, endpoint: &str, axis: &str, target: &str) -> Child {
         let waiting = self
-            .zmotor(&["put", axis, "VAL", target, "--wait", "--connect", endpoint])
+            .zmotor(&["put", axis, "VAL", target, "--wait", "--timeout", "60", "--connect", endpoint])
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
             .spawn()
