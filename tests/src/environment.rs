@@ -54,12 +54,17 @@ pub const SCRIPT_PATIENCE: Duration = Duration::from_secs(300);
 /// How long a script's output may stay open after it exited.
 const OUTPUT_CLOSE_PATIENCE: Duration = Duration::from_secs(5);
 
-/// `command` (a script of the stock clients) run to its end, as `Command::output` would, but
-/// bounded: a script still running after [`SCRIPT_PATIENCE`] is killed and the test fails with
-/// what it printed. A process the script left behind holding its output (a daemon a client
-/// library started, such as a CA repeater) fails the test naming that, where `output()` would
-/// wait for ever for an end of file.
+/// `command` (a script of the stock clients) run to its end within [`SCRIPT_PATIENCE`]: see
+/// [`run_within`].
 pub fn run_script(command: &mut Command) -> Output {
+    run_within(command, SCRIPT_PATIENCE)
+}
+
+/// `command` run to its end, as `Command::output` would, but bounded: a process still running
+/// after `patience` is killed and the test fails with what it printed. A process it left
+/// behind holding its output (a daemon a client library started, such as a CA repeater) fails
+/// the test naming that, where `output()` would wait for ever for an end of file.
+pub fn run_within(command: &mut Command, patience: Duration) -> Output {
     let mut child =
         command.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap_or_else(|error| {
             panic!("{:?} could not start: {error}", command.get_args().next().unwrap_or_default())
@@ -98,11 +103,11 @@ pub fn run_script(command: &mut Command) -> Output {
         if let Some(status) = child.try_wait().unwrap() {
             break status;
         }
-        if started.elapsed() > SCRIPT_PATIENCE {
+        if started.elapsed() > patience {
             let _ = child.kill();
             let _ = child.wait();
             printed_so_far(&received, &mut printed);
-            panic!("{:?} still ran after {SCRIPT_PATIENCE:?}; it printed:\n{}", command, said(&printed));
+            panic!("{:?} still ran after {patience:?}; it printed:\n{}", command, said(&printed));
         }
     };
     let exited = Instant::now();

@@ -14,7 +14,10 @@ fn the_benchmark_runs_in_smoke_mode() {
         "{} is not built: `cargo build -p zmotor` (cargo test --workspace builds it)",
         zmotor.display()
     );
-    let output = Command::new(&zmotor).args(["bench", "--smoke"]).env("RUST_LOG", "error").output().unwrap();
+    // Minutes on a loaded machine; bounded, so that a benchmark that hangs fails this test.
+    let mut bench = Command::new(&zmotor);
+    bench.args(["bench", "--smoke"]).env("RUST_LOG", "error");
+    let output = zmotor_tests::environment::run_within(&mut bench, std::time::Duration::from_secs(900));
     let stdout = String::from_utf8_lossy(&output.stdout);
     assert!(output.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
     for part in [
