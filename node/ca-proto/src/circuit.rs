@@ -128,10 +128,17 @@ struct Subscription {
     mask: u16,
     /// Whether its first event went (it waits for its axis's values).
     posted: bool,
+    /// The RBV last sent to a subscriber of DBE_LOG without DBE_VALUE (an archiver): the next
+    /// goes once RBV has moved more than ADEL from it, as the record's ALST.
+    archived: Option<f64>,
 }
 
+/// DBE_VALUE: the subscriber wants value changes past the monitor deadband (MDEL).
+const VALUE_EVENT: u16 = 1;
+/// DBE_LOG: the subscriber wants value changes past the archive deadband (ADEL).
+const LOG_EVENT: u16 = 2;
 /// DBE_VALUE and DBE_LOG: the subscriber wants value changes.
-const VALUE_EVENTS: u16 = 1 | 2;
+const VALUE_EVENTS: u16 = VALUE_EVENT | LOG_EVENT;
 /// DBE_ALARM: the subscriber wants alarm changes.
 const ALARM_EVENT: u16 = 4;
 /// DBE_PROPERTY: the subscriber wants metadata changes.
@@ -224,7 +231,9 @@ impl Circuit {
                 let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
                 pv.axis == axis
                     && (!s.posted
-                        || (changed.is_some_and(|c| pv.shows(c)) && s.mask & VALUE_EVENTS != 0)
+                        || (changed.is_some_and(|c| pv.shows(c))
+                            && s.mask & VALUE_EVENTS != 0
+                            && !Self::within_archive_deadband(s, pv, directory))
                         || (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
                         || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
             })
@@ -364,7 +373,8 @@ impl Circuit {
         };
         let mask = payload.get(12..14).map_or(VALUE_EVENTS | ALARM_EVENT, |m| u16::from_be_bytes([m[0], m[1]]));
         let axis = channel.pv.axis.clone();
-        let subscription = Subscription { sid, dbr: header.data_type, count: header.count, mask, posted: false };
+        let subscription =
+            Subscription { sid, dbr: header.data_type, count: header.count, mask, posted: false, archived: None };
         self.subscriptions.insert(subid, subscription);
         self.post(subid, directory);
         if !self.subscriptions.get(&subid).is_some_and(|s| s.posted) {
@@ -380,9 +390,34 @@ impl Circuit {
         let Some(snapshot) = self.snapshot(pv, directory) else { return };
         let elements = snapshot.elements(requested, pv.count());
         let Some(bytes) = self.encode(pv, dbr, &snapshot, elements) else { return };
+        let archives = Self::archives_readback(pv);
         self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
         if let Some(subscription) = self.subscriptions.get_mut(&subid) {
             subscription.posted = true;
+            if archives && subscription.mask & VALUE_EVENT == 0 {
+                subscription.archived = snapshot.value.as_f64();
+            }
+        }
+    }
+
+    /// Whether ADEL governs `pv`'s archive events: the record's archive deadband is RBV's.
+    fn archives_readback(pv: &Pv) -> bool {
+        pv.target == Target::Field(Field::RBV)
+    }
+
+    /// Whether a new RBV is to be held back from `s`, a subscriber of archive events only: it
+    /// has moved no more than ADEL from the last one sent. (The node posts RBV past MDEL; an
+    /// archiver sees those of them past ADEL, as from an IOC when MDEL <= ADEL.)
+    fn within_archive_deadband(s: &Subscription, pv: &Pv, directory: &dyn Directory) -> bool {
+        if s.mask & VALUE_EVENT != 0 || !Self::archives_readback(pv) {
+            return false;
+        }
+        let adel = Pv { axis: pv.axis.clone(), target: Target::Field(Field::ADEL) };
+        let adel = directory.snapshot(&adel).and_then(|a| a.value.as_f64()).unwrap_or(0.0);
+        let rbv = directory.snapshot(pv).and_then(|r| r.value.as_f64());
+        match (s.archived, rbv) {
+            (Some(last), Some(rbv)) if adel != 0.0 => (last - rbv).abs() <= adel,
+            _ => false,
         }
     }
 

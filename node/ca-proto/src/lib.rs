@@ -62,7 +62,12 @@ mod tests {
         out
     }
 
-    fn request(circuit: &mut Circuit, directory: &OneAxis, header: Header, payload: &[u8]) -> Vec<(Header, Vec<u8>)> {
+    fn request(
+        circuit: &mut Circuit,
+        directory: &dyn Directory,
+        header: Header,
+        payload: &[u8],
+    ) -> Vec<(Header, Vec<u8>)> {
         circuit.handle_input(&codec::encode(header, payload), directory).unwrap();
         messages(&circuit.poll_transmit().unwrap_or_default())
     }
@@ -182,6 +187,52 @@ mod tests {
         // An unknown channel id is named as such.
         let unknown = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, 999, 1), &[]);
         assert_eq!((unknown[0].0.command, unknown[0].0.p2), (command::ERROR, 410));
+    }
+
+    /// m1 moving: its RBV as set, ADEL 0.5 mm, every other field 0.
+    struct Moving {
+        rbv: f64,
+    }
+
+    impl Directory for Moving {
+        fn is_live(&self, axis: &str) -> bool {
+            axis == "m1"
+        }
+
+        fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
+            let value = match pv.target {
+                Target::Field(Field::RBV) => self.rbv,
+                Target::Field(Field::ADEL) => 0.5,
+                _ => 0.0,
+            };
+            let mut snapshot = OneAxis { fetched: true }.snapshot(pv)?;
+            snapshot.value = Value::Float(value);
+            Some(snapshot)
+        }
+    }
+
+    #[test]
+    fn an_archive_monitor_of_rbv_gets_the_moves_past_adel_a_value_monitor_every_one() {
+        let mut circuit = Circuit::new("");
+        let mut directory = Moving { rbv: 0.0 };
+        let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 1, 13), b"m1.RBV\0");
+        let sid = created[1].0.p2;
+        // DBR_DOUBLE, subscription 1 with DBE_LOG (an archiver), 2 with DBE_VALUE (a display).
+        for (subid, mask) in [(1, 2u16), (2, 1u16)] {
+            let mut add = vec![0; 16];
+            add[12..14].copy_from_slice(&mask.to_be_bytes());
+            let first = request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 6, 1, sid, subid), &add);
+            assert_eq!(first.len(), 1, "the current value first");
+        }
+        let mut seen = Vec::new();
+        for rbv in [0.2, 0.4, 0.6, 0.8, 1.2, 1.3] {
+            directory.rbv = rbv;
+            circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
+            let events = messages(&circuit.poll_transmit().unwrap_or_default());
+            seen.push(events.iter().map(|(header, _)| header.p2).collect::<Vec<_>>());
+        }
+        // Past 0.5 from the last archived (0, then 0.6, then 1.2); the display every time.
+        assert_eq!(seen, [vec![2], vec![2], vec![1, 2], vec![2], vec![1, 2], vec![2]]);
     }
 
     #[test]
