@@ -254,6 +254,32 @@ def put_callbacks_in_turn():
     ok("a put-callback to a motor another one moves waits for it to complete, as an IOC's does")
 
 
+def archive_deadband():
+    # An archiver's monitor (DBE_LOG) of RBV sees the readbacks past ADEL from the last it got;
+    # a display's (DBE_VALUE) every one. m1 reads back at 10 Hz, 10 mm/s: about 1 mm apart.
+    start = epics.caget("m1.RBV", use_monitor=False)
+    assert epics.caput("m1.ADEL", 2.5, wait=True) == 1
+    archived, displayed = [], []
+    archive = epics.PV("m1.RBV", auto_monitor=epics.dbr.DBE_LOG, callback=lambda value=None, **kw: archived.append(value))
+    display = epics.PV("m1.RBV", auto_monitor=epics.dbr.DBE_VALUE, callback=lambda value=None, **kw: displayed.append(value))
+    for pv in (archive, display):
+        pv.wait_for_connection(timeout=10)
+    deadline = time.monotonic() + 10
+    while not (archived and displayed) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert epics.caput("m1", start + 5.0, wait=True, timeout=30) == 1
+    time.sleep(0.5)
+    archive.clear_callbacks()
+    display.clear_callbacks()
+    assert epics.caput("m1.ADEL", 0, wait=True) == 1
+    assert epics.caput("m1", start, wait=True, timeout=30) == 1
+    assert len(displayed) >= 5 and len(archived) >= 2, (archived, displayed)
+    assert len(archived) < len(displayed), (archived, displayed)
+    steps = [b - a for a, b in zip(archived, archived[1:])]
+    assert all(step > 2.5 for step in steps), archived
+    ok("an archiver's monitor (DBE_LOG) of RBV gets the moves past ADEL; a display's every readback")
+
+
 def ophyd_scan():
     from bluesky import RunEngine
     from bluesky.plans import scan
@@ -308,6 +334,7 @@ STAGES = {
         moves_of_nothing,
         caproto_tools,
         put_callbacks_in_turn,
+        archive_deadband,
     ],
     "ophyd": [ophyd_scan],
     "gone": [gone],

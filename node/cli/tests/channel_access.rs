@@ -58,6 +58,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "caproto",
         "moves nothing posts DMOV 0 then 1",
         "waits for it to complete",
+        "moves past ADEL",
         "ophyd",
     ] {
         assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
