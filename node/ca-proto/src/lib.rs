@@ -196,7 +196,7 @@ mod tests {
 
     impl Directory for Moving {
         fn is_live(&self, axis: &str) -> bool {
-            axis == "m1"
+            OneAxis { fetched: true }.is_live(axis)
         }
 
         fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
