@@ -16,11 +16,6 @@ use zmotor_msgs::{Field, StateMarker, Value};
 /// preempted that long, and the node took every such put for congestion.)
 const SLOW_PUT: Duration = Duration::from_millis(1);
 
-/// A slow put this soon after another takes the links for congested (a full queue makes every
-/// put wait `wait_before_drop`; one put slow alone is a thread preempted on two busy cores,
-/// which switched a thousand moving axes into the congested way in some runs and not others).
-const SLOW_AGAIN_WITHIN: Duration = Duration::from_millis(10);
-
 /// How long after a slow put the node takes its links for congested (while a link stays
 /// congested, Zenoh drops at once and its next wait comes within milliseconds).
 const CONGESTED_FOR: Duration = Duration::from_secs(1);
@@ -88,13 +83,12 @@ impl LastSeen {
 
 /// Whether the node's links are congested, judged by how long its puts take.
 ///
-/// Three kinds of slowness are not the network's and must not switch the node into its
-/// congested mode (every post through the event sender, for `CONGESTED_FOR`), which at a
-/// thousand moving axes on two busy cores renewed itself for as long as they moved: Zenoh
-/// matching a new key (the first moves), a thread preempted inside one put (a full queue makes
-/// put after put slow: `SLOW_AGAIN_WITHIN`), and the event sender preempted inside a put (it
-/// makes most of its puts while the node is congested). Any slow put still makes the axes send
-/// their stream keys' last samples again at their next event; the event sender counts as
+/// Two kinds of slowness are not the network's and must not switch the node into its congested
+/// mode (every post through the event sender, for `CONGESTED_FOR`), which at a thousand moving
+/// axes on two busy cores renewed itself for as long as they moved: Zenoh matching a new key
+/// (the first moves), and the event sender preempted inside a put (it makes most of its puts
+/// while the node is congested). A slow put while a new key is matched still makes the axes
+/// send their stream keys' last samples again at their next event; the event sender counts as
 /// congested while it has waited in one put longer than a slow one.
 pub(crate) struct Congestion {
     clock: NodeClock,
@@ -150,11 +144,9 @@ impl Congestion {
         if elapsed < SLOW_PUT {
             return;
         }
-        // A full link's queue makes put after put slow; a thread preempted in one put, one.
-        let again = self.slow.within(now, SLOW_AGAIN_WITHIN);
         self.slow.mark(now);
         // A new key began matching during this put, or up to NEW_KEY_SLOWS_FOR before it.
-        if again && !self.key_work.new_key_within(now, NEW_KEY_SLOWS_FOR + elapsed) {
+        if !self.key_work.new_key_within(now, NEW_KEY_SLOWS_FOR + elapsed) {
             self.congested.mark(now);
         }
     }
@@ -325,21 +317,15 @@ mod tests {
     }
 
     #[test]
-    fn slow_puts_in_a_row_take_the_links_for_congested_for_a_while() {
+    fn a_slow_put_takes_the_links_for_congested_for_a_while() {
         let congestion = congestion();
         let at = 10 * MS;
         congestion.took(at, SLOW_PUT / 2);
         assert!(!congestion.recent_at(at), "a quick put");
         congestion.took(at, SLOW_PUT);
-        assert!(!congestion.recent_at(at), "one slow put alone: a thread preempted in it");
-        let lone = at + micros(SLOW_AGAIN_WITHIN);
-        congestion.took(lone, SLOW_PUT);
-        assert!(!congestion.recent_at(lone), "another, but not soon after");
-        let again = lone + 2 * MS;
-        congestion.took(again, SLOW_PUT);
-        assert!(congestion.recent_at(again), "put after put slow: a full queue");
-        assert!(congestion.recent_at(again + micros(CONGESTED_FOR) - 1));
-        assert!(!congestion.recent_at(again + micros(CONGESTED_FOR)), "no slow put since");
+        assert!(congestion.recent_at(at));
+        assert!(congestion.recent_at(at + micros(CONGESTED_FOR) - 1));
+        assert!(!congestion.recent_at(at + micros(CONGESTED_FOR)), "no slow put since");
     }
 
     #[test]
@@ -358,8 +344,7 @@ mod tests {
         // A put beginning well after the key began matching is the network's again.
         let later = matched + micros(NEW_KEY_SLOWS_FOR) + 2 * MS;
         congestion.took(later, SLOW_PUT);
-        congestion.took(later + MS, SLOW_PUT);
-        assert!(congestion.recent_at(later + MS));
+        assert!(congestion.recent_at(later));
     }
 
     #[test]
