@@ -56,8 +56,10 @@ impl NodeClock {
 struct LastSeen(AtomicU64);
 
 impl LastSeen {
+    /// It happened at `now`: a thread that read its clock before another's and marks after it
+    /// does not move the mark back.
     fn mark(&self, now: Micros) {
-        self.0.store(now, Ordering::Release);
+        self.0.fetch_max(now, Ordering::AcqRel);
     }
 
     /// As if it had never happened.
@@ -314,6 +316,17 @@ mod tests {
         let expected = [("DRBV", 5), ("@readback", 5), ("RBV", 6)].map(|(k, s)| (k.to_string(), s));
         assert_eq!(keys(&again), expected);
         assert!(log.take_unsure(&congestion).is_empty(), "each is sent again once");
+    }
+
+    #[test]
+    fn a_mark_made_late_by_a_thread_that_read_its_clock_early_does_not_move_it_back() {
+        let seen = LastSeen::default();
+        seen.mark(20 * MS);
+        seen.mark(10 * MS);
+        assert!(seen.since(20 * MS));
+        seen.clear();
+        seen.mark(10 * MS);
+        assert!(seen.since(10 * MS) && !seen.since(10 * MS + 1));
     }
 
     #[test]
