@@ -223,28 +223,29 @@ impl Circuit {
         }
         let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR)));
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
-        let concerned: Vec<u32> = self
+        // Each subscription concerned, and whether its event carries a value change (the first,
+        // or one past the deadbands), as against an alarm's or metadata's alone.
+        let concerned: Vec<(u32, bool)> = self
             .subscriptions
             .iter()
-            .filter(|(_, s)| {
-                let Some(pv) = self.channels.get(&s.sid).map(|c| &c.pv) else { return false };
+            .filter_map(|(subid, s)| {
+                let pv = self.channels.get(&s.sid).map(|c| &c.pv).filter(|pv| pv.axis == axis)?;
                 let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
-                pv.axis == axis
-                    && (!s.posted
-                        || (changed.is_some_and(|c| pv.shows(c))
-                            && s.mask & VALUE_EVENTS != 0
-                            && !Self::within_archive_deadband(s, pv, directory))
-                        || (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
-                        || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic)))
+                let value = !s.posted
+                    || (changed.is_some_and(|c| pv.shows(c))
+                        && s.mask & VALUE_EVENTS != 0
+                        && !Self::within_archive_deadband(s, pv, directory));
+                let other = (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
+                    || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic));
+                (value || other).then_some((*subid, value))
             })
-            .map(|(subid, _)| *subid)
             .collect();
         if !self.events_on {
             self.missed |= !concerned.is_empty();
             return;
         }
-        for subid in concerned {
-            self.post(subid, directory);
+        for (subid, value) in concerned {
+            self.post(subid, directory, value);
         }
     }
 
@@ -253,7 +254,7 @@ impl Circuit {
     pub fn repost(&mut self, directory: &dyn Directory) {
         let all: Vec<u32> = self.subscriptions.keys().copied().collect();
         for subid in all {
-            self.post(subid, directory);
+            self.post(subid, directory, true);
         }
     }
 
@@ -376,14 +377,17 @@ impl Circuit {
         let subscription =
             Subscription { sid, dbr: header.data_type, count: header.count, mask, posted: false, archived: None };
         self.subscriptions.insert(subid, subscription);
-        self.post(subid, directory);
+        self.post(subid, directory, true);
         if !self.subscriptions.get(&subid).is_some_and(|s| s.posted) {
             self.requests.push_back(Request::Fetch { axis });
         }
     }
 
     /// A subscription's current value, if its axis's values are there.
-    fn post(&mut self, subid: u32, directory: &dyn Directory) {
+    /// Send `subid` its channel's value now; `value_change` when the event is for the value (the
+    /// first, a change past the deadbands, a repost), not an alarm's or metadata's alone: only
+    /// such an event moves an archiver's last value, as only they move the record's ALST.
+    fn post(&mut self, subid: u32, directory: &dyn Directory, value_change: bool) {
         let Some(subscription) = self.subscriptions.get(&subid) else { return };
         let (dbr, requested) = (subscription.dbr, subscription.count);
         let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
@@ -394,7 +398,7 @@ impl Circuit {
         self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
         if let Some(subscription) = self.subscriptions.get_mut(&subid) {
             subscription.posted = true;
-            if archives && subscription.mask & VALUE_EVENT == 0 {
+            if value_change && archives && subscription.mask & VALUE_EVENT == 0 {
                 subscription.archived = snapshot.value.as_f64();
             }
         }

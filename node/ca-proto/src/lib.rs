@@ -233,6 +233,21 @@ mod tests {
         }
         // Past 0.5 from the last archived (0, then 0.6, then 1.2); the display every time.
         assert_eq!(seen, [vec![2], vec![2], vec![1, 2], vec![2], vec![1, 2], vec![2]]);
+        // An alarm's event (to a subscriber of DBE_LOG and DBE_ALARM) does not move the
+        // archiver's last value: 1.6 is past 0.5 from 1.0 only if the alarm's 1.5 was not taken.
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&(2u16 | 4).to_be_bytes());
+        directory.rbv = 1.0;
+        // DBR_STS_DOUBLE: an alarm's event reaches a type that carries the alarm.
+        request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 13, 1, sid, 3), &add);
+        directory.rbv = 1.5;
+        circuit.handle_change("m1", Target::Field(Field::SEVR), &directory);
+        let alarmed = messages(&circuit.poll_transmit().unwrap_or_default());
+        assert!(alarmed.iter().any(|(header, _)| header.p2 == 3), "{alarmed:?}");
+        directory.rbv = 1.6;
+        circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
+        let events = messages(&circuit.poll_transmit().unwrap_or_default());
+        assert!(events.iter().any(|(header, _)| header.p2 == 3), "{events:?}");
     }
 
     #[test]
