@@ -61,14 +61,19 @@ pub fn run_script(command: &mut Command) -> Output {
 }
 
 /// `command` run to its end, as `Command::output` would, but bounded: a process still running
-/// after `patience` is killed and the test fails with what it printed. A process it left
+/// after `patience` is killed, with every process it started (its own process group), and the
+/// test fails with what it printed. A process it left
 /// behind holding its output (a daemon a client library started, such as a CA repeater) fails
 /// the test naming that, where `output()` would wait for ever for an end of file.
 pub fn run_within(command: &mut Command, patience: Duration) -> Output {
-    let mut child =
-        command.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap_or_else(|error| {
-            panic!("{:?} could not start: {error}", command.get_args().next().unwrap_or_default())
-        });
+    use std::os::unix::process::CommandExt;
+    let mut child = command
+        .process_group(0)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap_or_else(|error| panic!("{:?} could not start: {error}", command.get_args().next().unwrap_or_default()));
     let (chunks, received) = mpsc::channel();
     let readers = [
         (0, Box::new(child.stdout.take().expect("piped")) as Box<dyn Read + Send>),
@@ -104,7 +109,8 @@ pub fn run_within(command: &mut Command, patience: Duration) -> Output {
             break status;
         }
         if started.elapsed() > patience {
-            let _ = child.kill();
+            // The group is the child's, made at its start: only what this run started.
+            let _ = Command::new("kill").args(["-KILL", "--", &format!("-{}", child.id())]).status();
             let _ = child.wait();
             printed_so_far(&received, &mut printed);
             panic!("{:?} still ran after {patience:?}; it printed:\n{}", command, said(&printed));
@@ -172,4 +178,45 @@ pub fn untestable(test: &str, capability: &str, why: &str) {
         }
         None => panic!("{line}; run the suite with `tests/run`, which lists what could not be tested"),
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A process of the run's group, by its id: still alive (a zombie is not).
+    fn alive(pid: &str) -> bool {
+        std::fs::read_to_string(format!("/proc/{pid}/stat"))
+            .is_ok_and(|stat| stat.rsplit_once(") ").is_some_and(|(_, rest)| !rest.starts_with('Z')))
+    }
+
+    #[test]
+    fn a_run_past_its_time_is_killed_with_what_it_started_and_fails_saying_what_it_printed() {
+        let mut command = Command::new("sh");
+        command.args(["-c", "sleep 60 & echo started $!; wait"]);
+        let failed = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            run_within(&mut command, Duration::from_millis(500))
+        }));
+        let message = *failed.expect_err("it ran past its time").downcast::<String>().expect("a message");
+        assert!(message.contains("still ran after 500ms"), "{message}");
+        // What it printed comes last (the command, also quoted, names no number).
+        let pid = message.rsplit("started ").next().and_then(|rest| rest.split_whitespace().next()).expect("the pid");
+        assert!(pid.parse::<u32>().is_ok(), "{message}");
+        let deadline = Instant::now() + Duration::from_secs(5);
+        while alive(pid) {
+            assert!(Instant::now() < deadline, "the process it started ({pid}) still runs");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    #[test]
+    fn a_run_that_ends_gives_its_status_and_output() {
+        let output = run_within(Command::new("sh").args(["-c", "echo out; echo err >&2; exit 3"]), PATIENCE_OF_A_SHELL);
+        assert_eq!(
+            (output.status.code(), &output.stdout[..], &output.stderr[..]),
+            (Some(3), &b"out\n"[..], &b"err\n"[..])
+        );
+    }
+
+    const PATIENCE_OF_A_SHELL: Duration = Duration::from_secs(30);
 }
