@@ -157,7 +157,8 @@ impl Running {
         let Some(status) = exited_within(&mut child, STOP_PATIENCE) else {
             let _ = child.kill();
             let _ = child.wait();
-            panic!("process {} did not stop within {STOP_PATIENCE:?} of SIGTERM", child.id());
+            let log = reader.join().unwrap_or_default();
+            panic!("process {} did not stop within {STOP_PATIENCE:?} of SIGTERM; it logged:\n{log}", child.id());
         };
         (status, reader.join().unwrap_or_default())
     }
