@@ -531,6 +531,13 @@ impl Field {
     }
 }
 
+/// Whether a monitored value moved past its deadband (RBV's MDEL for monitors, ADEL for
+/// archivers) from the value last posted, as the record's monitor() judges it: a deadband of 0
+/// lets every change through.
+pub fn past_deadband(deadband: f64, last: f64, value: f64) -> bool {
+    deadband == 0.0 || (last - value).abs() > deadband
+}
+
 impl Field {
     /// A jog button (JOGF, JOGR): what a client holds (the jog deadman), since a jog runs until
     /// told to end.

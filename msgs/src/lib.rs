@@ -19,7 +19,9 @@ mod units;
 mod value;
 mod wire;
 
-pub use catalogue::{Access, Autosave, Field, FieldDef, Fields, Kind, WriteClass, FIELDS, UNMODELLED_COMMON_FIELDS};
+pub use catalogue::{
+    past_deadband, Access, Autosave, Field, FieldDef, Fields, Kind, WriteClass, FIELDS, UNMODELLED_COMMON_FIELDS,
+};
 pub use codec::{
     decode_cbor_value, decode_scalar, decode_write, encode_cbor, excerpt, validate, CodecError, MalformedPayload,
     PayloadEncoding,

@@ -7,7 +7,7 @@ use crate::dbr::{self, Base, Class, DbrType, Snapshot};
 use crate::directory::Directory;
 use crate::names::{Pv, Target};
 use std::collections::{BTreeMap, VecDeque};
-use zmotor_msgs::{Field, Refusal, RefusalKind, Value, WriteClass};
+use zmotor_msgs::{past_deadband, Field, Refusal, RefusalKind, Value, WriteClass};
 
 /// ECA status codes (`caerr.h`): message number << 3 | severity.
 pub(crate) mod status {
@@ -420,7 +420,7 @@ impl Circuit {
         let adel = directory.snapshot(&adel).and_then(|a| a.value.as_f64()).unwrap_or(0.0);
         let rbv = directory.snapshot(pv).and_then(|r| r.value.as_f64());
         match (s.archived, rbv) {
-            (Some(last), Some(rbv)) if adel != 0.0 => (last - rbv).abs() <= adel,
+            (Some(last), Some(rbv)) => !past_deadband(adel, last, rbv),
             _ => false,
         }
     }

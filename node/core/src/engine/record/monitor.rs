@@ -3,7 +3,7 @@
 use super::MotorRecord;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::menus::{choice, severity, status};
-use zmotor_msgs::Field;
+use zmotor_msgs::{past_deadband, Field};
 
 impl MotorRecord {
     /// Compute STAT/SEVR; says which changed.
@@ -51,11 +51,11 @@ impl MotorRecord {
             rbv_marked || alarm_changed
         } else if rbv_marked {
             let mut due = alarm_changed;
-            if self.f.mdel == 0.0 || (self.f.mlst - rbv).abs() > self.f.mdel {
+            if past_deadband(self.f.mdel, self.f.mlst, rbv) {
                 due = true;
                 self.f.mlst = rbv;
             }
-            if self.f.adel == 0.0 || (self.f.alst - rbv).abs() > self.f.adel {
+            if past_deadband(self.f.adel, self.f.alst, rbv) {
                 self.f.alst = rbv;
             }
             due
