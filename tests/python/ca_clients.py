@@ -268,7 +268,10 @@ def archive_deadband():
     while not (archived and displayed) and time.monotonic() < deadline:
         time.sleep(0.01)
     assert epics.caput("m1", start + 5.0, wait=True, timeout=30) == 1
-    time.sleep(0.5)
+    # The display's monitor has the end of the move once its last readback came.
+    deadline = time.monotonic() + 10
+    while not near(displayed[-1], start + 5.0, 1e-6) and time.monotonic() < deadline:
+        time.sleep(0.01)
     archive.clear_callbacks()
     display.clear_callbacks()
     assert epics.caput("m1.ADEL", 0, wait=True) == 1
