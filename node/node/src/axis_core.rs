@@ -29,6 +29,21 @@ use zmotor_msgs::{
     encode_cbor, keys, Attached, Field, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
+/// How soon an axis holding samples back looks again whether it may send them.
+/// (A moving axis's next poll comes sooner: it sends them first.)
+const HELD_RETRY: std::time::Duration = std::time::Duration::from_millis(10);
+
+/// Which way a state sample goes (`AxisCore::way`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Way {
+    /// Straight to the network, droppable.
+    Stream,
+    /// Held back in the stream log until the axis's posts waiting in the event sender are sent.
+    HoldBack,
+    /// Through the event sender, which never drops.
+    Event,
+}
+
 /// The state marker and timestamp a reply of an axis's values carries.
 struct AnswerState {
     attachment: Vec<u8>,
@@ -219,7 +234,13 @@ impl AxisCore {
 
     /// Hand the axis's next deadlines to its clock.
     pub(crate) fn schedule_ticks(&self) {
-        self.clock.schedule(self.service.poll_timeout(), self.service.event_timeout());
+        let mut poll = self.service.poll_timeout();
+        if self.stream_log.holds() {
+            // Looks again soon for its held samples' turn (a tick with nothing due changes nothing).
+            let retry = self.now() + HELD_RETRY;
+            poll = Some(poll.map_or(retry, |poll| poll.min(retry)));
+        }
+        self.clock.schedule(poll, self.service.event_timeout());
     }
 
     /// The axis's clock.
@@ -369,15 +390,20 @@ impl AxisCore {
         }
     }
 
-    /// Whether a post goes straight to the network, droppable: a stream post of an axis with no
-    /// event post waiting, while no link was seen congested lately. On a congested link, droppable
-    /// puts would take each batch that frees before a blocking one (which Zenoh, past five
-    /// seconds, takes for a dead link and closes); so then every post goes the events' way, a
-    /// waiting stream sample giving way to its key's next.
-    fn streams(&self, delivery: Delivery, now: Micros) -> bool {
-        delivery == Delivery::Stream
-            && self.events_waiting.load(Ordering::Acquire) == 0
-            && !self.node.congestion.recent_at(now)
+    /// Which way a post goes. A stream post goes straight to the network, droppable, while no
+    /// link was seen congested lately and its axis has no post waiting in the event sender. On a
+    /// congested link, droppable puts would take each batch that frees before a blocking one
+    /// (which Zenoh, past five seconds, takes for a dead link and closes); so then every post
+    /// goes the events' way, a waiting stream sample giving way to its key's next. Once the
+    /// congestion has passed, a stream post of an axis whose earlier posts still wait is held
+    /// back until they are sent: the sender's queue then empties.
+    fn way(&self, delivery: Delivery, now: Micros) -> Way {
+        let congested = self.node.congestion.recent_at(now);
+        match delivery {
+            Delivery::Stream if !congested && self.events_waiting.load(Ordering::Acquire) == 0 => Way::Stream,
+            Delivery::Stream if !congested => Way::HoldBack,
+            _ => Way::Event,
+        }
     }
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
@@ -423,9 +449,9 @@ impl AxisCore {
         self.send_state(Streamed::Bundle(bundle.clone()), bundle, marker, stamp, delivery);
     }
 
-    /// Send one state sample of this axis, `payload` its bytes: the events' way (it must arrive,
-    /// or the network is congested), or straight out, droppable, and logged to be sent again
-    /// should congestion follow.
+    /// Send one state sample of this axis, `payload` its bytes, the way `way` says: the events'
+    /// way (it must arrive, or the network is congested), straight out (after any held back), or
+    /// held back.
     fn send_state(
         &mut self,
         sample: Streamed,
@@ -435,20 +461,69 @@ impl AxisCore {
         delivery: Delivery,
     ) {
         // One reading of the clock for the decision, the log and the put's start.
-        let start = std::time::Instant::now();
+        let mut start = std::time::Instant::now();
         let now = self.node.congestion.at(start);
-        if !self.streams(delivery, now) {
-            if let Some(key) = self.sample_key(&sample) {
-                let replaceable = delivery == Delivery::Stream;
-                self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
+        match self.way(delivery, now) {
+            Way::Stream => {
+                if self.stream_log.holds() {
+                    self.stream_held(now);
+                    start = std::time::Instant::now();
+                }
+                self.stream(start, now, sample, payload, marker, stamp);
             }
+            Way::HoldBack => self.stream_log.hold(sample, marker, stamp),
+            Way::Event => {
+                if let Some(key) = self.sample_key(&sample) {
+                    let replaceable = delivery == Delivery::Stream;
+                    self.post_event(key, payload, Encoding::APPLICATION_CBOR, marker, stamp, replaceable);
+                }
+            }
+        }
+    }
+
+    /// Send the samples held back, oldest first, the droppable way.
+    fn stream_held(&mut self, now: Micros) {
+        for (sample, marker, stamp) in self.stream_log.release() {
+            let payload = sample.payload();
+            self.stream(std::time::Instant::now(), now, sample, payload, &marker, stamp);
+        }
+    }
+
+    /// Send held samples once the axis may stream again (no post of it waits any longer), or
+    /// the events' way should the link be congested again.
+    fn release_held(&mut self) {
+        if !self.stream_log.holds() {
             return;
         }
+        let now = self.node.congestion.at(std::time::Instant::now());
+        match self.way(Delivery::Stream, now) {
+            Way::Stream => self.stream_held(now),
+            Way::HoldBack => {}
+            Way::Event => {
+                for (sample, marker, stamp) in self.stream_log.release() {
+                    if let Some(key) = self.sample_key(&sample) {
+                        self.post_event(key, sample.into_payload(), Encoding::APPLICATION_CBOR, &marker, stamp, true);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Put one stream sample straight to the network, droppable, logged to be sent again should
+    /// congestion follow; `start` (at `now`) read just before.
+    fn stream(
+        &mut self,
+        start: std::time::Instant,
+        now: Micros,
+        sample: Streamed,
+        payload: Vec<u8>,
+        marker: &StateMarker,
+        stamp: Timestamp,
+    ) {
         let (publisher, field) = match &sample {
             Streamed::Field(field, _) => (self.hot.iter().find(|(f, _)| f == field).map(|(_, p)| p), Some(*field)),
             Streamed::Bundle(_) => (self.readback.as_ref(), None),
         };
-        self.stream_log.record(now, sample, marker, stamp);
         // Asked for only when there is no publisher: a put to a key Zenoh matches afresh.
         let key = || {
             self.node.key_work.note();
@@ -458,6 +533,7 @@ impl AxisCore {
             }
         };
         self.node.congestion.timed(start, || put_state(&self.node.session, publisher, key, payload, marker, stamp));
+        self.stream_log.record(now, sample, marker, stamp);
     }
 
     /// A sample's key, declared where it has a publisher.
@@ -670,6 +746,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::StopMotion => self.service.stop_motion(now),
         }
         self.flush(now);
+        self.release_held();
         if self.service.take_unsaved_change() && !self.unsaved.swap(true, Ordering::AcqRel) {
             self.save_due.notify_one();
         }

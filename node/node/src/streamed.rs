@@ -229,6 +229,14 @@ impl Streamed {
         }
     }
 
+    /// The sample's bytes on the wire, the sample kept.
+    pub(crate) fn payload(&self) -> Vec<u8> {
+        match self {
+            Streamed::Field(_, value) => zmotor_msgs::encode_cbor(value),
+            Streamed::Bundle(bundle) => bundle.clone(),
+        }
+    }
+
     fn same_key(&self, other: &Streamed) -> bool {
         match (self, other) {
             (Streamed::Field(a, _), Streamed::Field(b, _)) => a == b,
@@ -238,36 +246,78 @@ impl Streamed {
     }
 }
 
-/// The last stream sample of each key of one axis since its last event post.
+/// One logged stream sample.
+struct Logged {
+    sample: Streamed,
+    marker: StateMarker,
+    stamp: Timestamp,
+    /// Not sent yet (`StreamLog::hold`).
+    held: bool,
+}
+
+/// The last stream sample of each key of one axis since its last event post: sent the droppable
+/// way, or held back while the axis's earlier posts still wait in the event sender after a
+/// congestion has passed. (Queued behind them instead, a thousand axes polled at 100 Hz kept
+/// the sender's queue from ever emptying on two busy cores: every post stayed on the slow way,
+/// for as long as the axes moved, with half the readbacks coalesced away.)
 #[derive(Default)]
 pub(crate) struct StreamLog {
     /// When the first of them was sent.
     since: Option<Micros>,
-    sent: Vec<(Streamed, StateMarker, Timestamp)>,
+    entries: Vec<Logged>,
+    /// How many are held back.
+    held: usize,
 }
 
 impl StreamLog {
+    /// `sample` was sent at `now`, the droppable way.
     pub(crate) fn record(&mut self, now: Micros, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
         self.since.get_or_insert(now);
-        let entry = (sample, marker.clone(), stamp);
-        match self.sent.iter().position(|(s, _, _)| s.same_key(&entry.0)) {
-            Some(index) => {
-                self.sent.remove(index);
-                self.sent.push(entry);
-            }
-            None => self.sent.push(entry),
-        }
+        self.log(Logged { sample, marker: marker.clone(), stamp, held: false });
     }
 
-    /// At an event post: what to send again (all of it, in order, if the node was congested
-    /// since the first was sent), and a fresh log.
+    /// `sample` is held back: sent by `release` once its axis may stream, or first at its next
+    /// event post, whichever comes first.
+    pub(crate) fn hold(&mut self, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
+        self.held += 1;
+        self.log(Logged { sample, marker: marker.clone(), stamp, held: true });
+    }
+
+    /// A key's sample replaces the one logged before it and goes last (the order they were made).
+    fn log(&mut self, entry: Logged) {
+        if let Some(index) = self.entries.iter().position(|e| e.sample.same_key(&entry.sample)) {
+            let replaced = self.entries.remove(index);
+            self.held -= usize::from(replaced.held);
+        }
+        self.entries.push(entry);
+    }
+
+    /// Whether a sample is held back.
+    pub(crate) fn holds(&self) -> bool {
+        self.held > 0
+    }
+
+    /// The held samples, oldest first, out of the log: the caller sends (and records) them.
+    pub(crate) fn release(&mut self) -> Vec<(Streamed, StateMarker, Timestamp)> {
+        if self.held == 0 {
+            return Vec::new();
+        }
+        self.held = 0;
+        let (held, sent) = std::mem::take(&mut self.entries).into_iter().partition(|e| e.held);
+        self.entries = sent;
+        held.into_iter().map(|e: Logged| (e.sample, e.marker, e.stamp)).collect()
+    }
+
+    /// At an event post: what to send first (all of it, in order, if a sample is held back or
+    /// the node was congested since the first was sent), and a fresh log.
     pub(crate) fn take_unsure(&mut self, congestion: &Congestion) -> Vec<(Streamed, StateMarker, Timestamp)> {
-        let unsure = self.since.take().is_some_and(|since| congestion.since(since));
-        let sent = std::mem::take(&mut self.sent);
-        if unsure {
-            sent
-        } else {
-            Vec::new()
+        let since = self.since.take();
+        let unsure = self.held > 0 || since.is_some_and(|since| congestion.since(since));
+        self.held = 0;
+        let entries = std::mem::take(&mut self.entries);
+        match unsure {
+            true => entries.into_iter().map(|e| (e.sample, e.marker, e.stamp)).collect(),
+            false => Vec::new(),
         }
     }
 }
@@ -316,6 +366,30 @@ mod tests {
         let expected = [("DRBV", 5), ("@readback", 5), ("RBV", 6)].map(|(k, s)| (k.to_string(), s));
         assert_eq!(keys(&again), expected);
         assert!(log.take_unsure(&congestion).is_empty(), "each is sent again once");
+    }
+
+    #[test]
+    fn a_held_sample_is_released_once_in_order_or_sent_first_at_the_next_event_with_the_rest() {
+        let congestion = congestion();
+        let stamp = Timestamp::new(NTP64(0), TimestampId::rand());
+        let rbv = |seq: u64| Streamed::Field(Field::RBV, Value::Float(seq as f64));
+        let mut log = StreamLog::default();
+        log.record(MS, rbv(1), &marker(1), stamp);
+        log.hold(Streamed::Field(Field::DRBV, Value::Float(2.0)), &marker(2), stamp);
+        log.hold(rbv(3), &marker(3), stamp);
+        assert!(log.holds());
+        let released = log.release();
+        assert_eq!(keys(&released), [("DRBV".to_string(), 2), ("RBV".to_string(), 3)]);
+        assert!(!log.holds() && log.release().is_empty(), "released once");
+        log.record(4 * MS, rbv(3), &marker(3), stamp);
+        assert!(log.take_unsure(&congestion).is_empty(), "sent, none held, no slow put: nothing again");
+
+        log.record(5 * MS, rbv(5), &marker(5), stamp);
+        log.hold(Streamed::Bundle(vec![1]), &marker(6), stamp);
+        log.hold(rbv(7), &marker(7), stamp);
+        let first = log.take_unsure(&congestion);
+        assert_eq!(keys(&first), [("@readback".to_string(), 6), ("RBV".to_string(), 7)]);
+        assert!(!log.holds() && log.take_unsure(&congestion).is_empty(), "a fresh log");
     }
 
     #[test]
