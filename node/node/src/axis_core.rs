@@ -29,8 +29,9 @@ use zmotor_msgs::{
     encode_cbor, keys, Attached, Field, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
-/// How soon an axis holding samples back looks again whether it may send them.
-/// (A moving axis's next poll comes sooner: it sends them first.)
+/// How soon an axis holding samples back looks again whether it may send them (an axis polled
+/// at 100 Hz or faster sends them first at its next poll; a slower one takes a few ticks that
+/// change nothing).
 const HELD_RETRY: std::time::Duration = std::time::Duration::from_millis(10);
 
 /// Which way a state sample goes (`AxisCore::way`).
@@ -181,9 +182,10 @@ pub(crate) struct AxisCore {
     /// Fields posted at least once (the first post of each has Zenoh match a new key).
     posted_once: Vec<Field>,
     /// This axis's posts handed to `NodeSide::events` and not sent yet: while there are any, its
-    /// stream posts queue behind them (an axis's posts arrive in order).
+    /// stream posts queue behind them, or are held back once the link is no longer congested
+    /// (an axis's posts arrive in order).
     events_waiting: Arc<AtomicUsize>,
-    /// What it sent the droppable way since its last event post.
+    /// What it sent the droppable way since its last event post, and what it holds back.
     stream_log: StreamLog,
     /// Where the axis's deadlines go: its ticks come from there.
     clock: Arc<AxisClock>,
@@ -408,8 +410,8 @@ impl AxisCore {
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
     /// stream sample that queues behind them (`replaceable` by its key's next). First, if the
-    /// network may have dropped some of the axis's stream samples since its last event post,
-    /// their keys' last values again, as they were sent.
+    /// network may have dropped some of the axis's stream samples since its last event post, or
+    /// some are held back, the last value of each of their keys, as it was made.
     fn post_event(
         &mut self,
         key: KeyExpr<'static>,
@@ -466,7 +468,7 @@ impl AxisCore {
         match self.way(delivery, now) {
             Way::Stream => {
                 if self.stream_log.holds() {
-                    self.stream_held(now);
+                    self.stream_held(now, Some(&sample));
                     start = std::time::Instant::now();
                 }
                 self.stream(start, now, sample, payload, marker, stamp);
@@ -481,9 +483,11 @@ impl AxisCore {
         }
     }
 
-    /// Send the samples held back, oldest first, the droppable way.
-    fn stream_held(&mut self, now: Micros) {
-        for (sample, marker, stamp) in self.stream_log.release() {
+    /// Send the samples held back, oldest first, the droppable way; but a held sample of the key
+    /// of `next`, which is sent right after them, is only replaced.
+    fn stream_held(&mut self, now: Micros, next: Option<&Streamed>) {
+        let held = self.stream_log.release();
+        for (sample, marker, stamp) in held.into_iter().filter(|(held, ..)| !next.is_some_and(|n| n.same_key(held))) {
             let payload = sample.payload();
             self.stream(std::time::Instant::now(), now, sample, payload, &marker, stamp);
         }
@@ -497,7 +501,7 @@ impl AxisCore {
         }
         let now = self.node.congestion.at(std::time::Instant::now());
         match self.way(Delivery::Stream, now) {
-            Way::Stream => self.stream_held(now),
+            Way::Stream => self.stream_held(now, None),
             Way::HoldBack => {}
             Way::Event => {
                 for (sample, marker, stamp) in self.stream_log.release() {

@@ -3,8 +3,9 @@
 //! link makes them wait, never drops them; the tick workers only hand them over, and never wait
 //! for a link. A write's answer goes behind its axis's posts, so a writer that follows the fields
 //! finds what the write did once it has the answer (a Channel Access read after a put-callback). Each is sent (a null move's DMOV 0
-//! and 1 are two samples). An axis's stream samples queue behind its events while any wait (an
-//! axis's posts arrive in order); while one waits, its key's next replaces it (a slow link gets
+//! and 1 are two samples). An axis's stream samples queue behind its events while any wait on a
+//! congested link (an axis's posts arrive in order; once the congestion has passed, the axis
+//! holds them back instead); while one waits, its key's next replaces it (a slow link gets
 //! each readback's last value, as a Channel Access server's queue does for a slow client).
 
 use std::collections::HashMap;

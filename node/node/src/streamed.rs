@@ -237,7 +237,8 @@ impl Streamed {
         }
     }
 
-    fn same_key(&self, other: &Streamed) -> bool {
+    /// Whether both are samples of one key.
+    pub(crate) fn same_key(&self, other: &Streamed) -> bool {
         match (self, other) {
             (Streamed::Field(a, _), Streamed::Field(b, _)) => a == b,
             (Streamed::Bundle(_), Streamed::Bundle(_)) => true,
@@ -276,8 +277,9 @@ impl StreamLog {
         self.log(Logged { sample, marker: marker.clone(), stamp, held: false });
     }
 
-    /// `sample` is held back: sent by `release` once its axis may stream, or first at its next
-    /// event post, whichever comes first.
+    /// `sample` is held back: sent once `release`d (the droppable way once its axis may stream,
+    /// the events' way if the link is congested again), or first at its next event post,
+    /// whichever comes first.
     pub(crate) fn hold(&mut self, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
         self.held += 1;
         self.log(Logged { sample, marker: marker.clone(), stamp, held: true });
