@@ -35,7 +35,7 @@ use zmotor_msgs::{
 const HELD_RETRY: std::time::Duration = std::time::Duration::from_millis(10);
 
 /// Which way a state sample goes (`AxisCore::way`).
-#[derive(Clone, Copy, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Way {
     /// Straight to the network, droppable.
     Stream,
@@ -43,6 +43,18 @@ enum Way {
     HoldBack,
     /// Through the event sender, which never drops.
     Event,
+}
+
+impl Way {
+    /// The way of a post of `delivery`, as `AxisCore::way` explains, while a link `congested`
+    /// lately or not, and its axis has posts `waiting` in the event sender or not.
+    fn of(delivery: Delivery, congested: bool, waiting: bool) -> Way {
+        match delivery {
+            Delivery::Stream if !congested && !waiting => Way::Stream,
+            Delivery::Stream if !congested => Way::HoldBack,
+            _ => Way::Event,
+        }
+    }
 }
 
 /// The state marker and timestamp a reply of an axis's values carries.
@@ -401,11 +413,7 @@ impl AxisCore {
     /// back until they are sent: the sender's queue then empties.
     fn way(&self, delivery: Delivery, now: Micros) -> Way {
         let congested = self.node.congestion.recent_at(now);
-        match delivery {
-            Delivery::Stream if !congested && self.events_waiting.load(Ordering::Acquire) == 0 => Way::Stream,
-            Delivery::Stream if !congested => Way::HoldBack,
-            _ => Way::Event,
-        }
+        Way::of(delivery, congested, self.events_waiting.load(Ordering::Acquire) > 0)
     }
 
     /// Hand a post that must arrive to the node's event sender: an event or a message, or a
@@ -761,6 +769,20 @@ impl Handler<AxisInput> for AxisCore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn stream_samples_wait_in_the_queue_only_while_the_link_is_congested_and_are_held_back_after() {
+        use Delivery::{Event, Stream};
+        for (congested, waiting) in [(false, false), (false, true), (true, false), (true, true)] {
+            assert_eq!(Way::of(Event, congested, waiting), Way::Event, "an event must arrive: {congested} {waiting}");
+        }
+        assert_eq!(Way::of(Stream, false, false), Way::Stream);
+        assert_eq!(Way::of(Stream, true, false), Way::Event, "a congested link: the events' way, replaceable");
+        assert_eq!(Way::of(Stream, true, true), Way::Event);
+        // Queued behind its axis's waiting posts once the congestion had passed, a thousand axes
+        // polled together kept the sender's queue from ever emptying.
+        assert_eq!(Way::of(Stream, false, true), Way::HoldBack);
+    }
 
     #[test]
     fn axes_declare_ahead_while_all_fit_the_budget_with_room_for_a_trace_and_a_bundle_each() {
