@@ -6,7 +6,17 @@
 mod common;
 
 use common::{Host, Identity, Pki, Running};
+use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::Duration;
+
+/// These tests run one at a time: each starts a node, TLS clients and Python clients. Five at once
+/// on two cores are the likely cause of a CI failure where a CLI client's link dropped mid-write
+/// (its `put --wait` reported the node gone), as it does for a client starved past its 0.5 s
+/// Zenoh lease; alone, the test passed every time.
+fn one_at_a_time() -> MutexGuard<'static, ()> {
+    static TURN: Mutex<()> = Mutex::new(());
+    TURN.lock().unwrap_or_else(PoisonError::into_inner)
+}
 
 const RULES: &str = r#"
 [[zenoh.access]]
@@ -68,6 +78,7 @@ fn client(pki: &Pki, identity: &Identity) -> Host {
 
 #[test]
 fn only_the_clients_the_rules_allow_read_drive_or_configure() {
+    let _turn = one_at_a_time();
     let (pki, _node, endpoint, operator) = guarded_node("tls");
     let driver = client(&pki, &pki.issue("driver", &[]));
     let viewer = client(&pki, &pki.issue("viewer", &[]));
@@ -106,6 +117,7 @@ fn only_the_clients_the_rules_allow_read_drive_or_configure() {
 
 #[test]
 fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_where_writes_go() {
+    let _turn = one_at_a_time();
     let (pki, _node, endpoint, operator) = guarded_node("tls");
     let write = |who: &Identity, key: &str, value: &str| stock_write(&pki, &endpoint, who, key, value);
     // A reader may query a field key (a read): a payload there is refused by the node.
@@ -126,6 +138,7 @@ fn a_confirmed_write_to_a_field_key_is_refused_under_access_control_and_says_whe
 
 #[test]
 fn over_quic_a_stock_client_with_its_certificate_drives_and_the_rules_hold() {
+    let _turn = one_at_a_time();
     // The stock client keeps Zenoh's default (a QUIC stream per priority); the node listens on
     // one stream: they agree on one.
     let (pki, _node, endpoint, operator) = guarded_node("quic");
@@ -138,6 +151,7 @@ fn over_quic_a_stock_client_with_its_certificate_drives_and_the_rules_hold() {
 
 #[test]
 fn a_client_without_a_certificate_the_authority_signed_cannot_connect() {
+    let _turn = one_at_a_time();
     let (pki, _node, endpoint, operator) = guarded_node("tls");
     let no_certificate = Host { netns: None, client_args: vec!["--ca".into(), pki.ca().display().to_string()] };
     let rogue = Pki::new("another authority");
@@ -156,6 +170,7 @@ fn a_client_without_a_certificate_the_authority_signed_cannot_connect() {
 
 #[test]
 fn users_log_in_with_a_password_and_their_rule_says_what_they_may() {
+    let _turn = one_at_a_time();
     let dir = tempfile::tempdir().unwrap();
     let users = dir.path().join("users.txt");
     std::fs::write(&users, "alice:wonderland\nbob:builder\n").unwrap();
