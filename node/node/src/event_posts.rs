@@ -126,11 +126,17 @@ impl EventOutbox {
     /// nothing waiting (a put then finds room at once: a hand-over would cost every event tens
     /// of microseconds); queue it for the sender thread otherwise.
     pub(crate) fn post(&self, post: EventPost) {
-        let start = std::time::Instant::now();
+        self.post_at(post, std::time::Instant::now());
+    }
+
+    /// `post`, the clock read just before at `start`; returns the clock as read after it (`start`
+    /// when it was only queued, which takes no time to speak of).
+    pub(crate) fn post_at(&self, post: EventPost, start: std::time::Instant) -> std::time::Instant {
         if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent_at(self.congestion.at(start)) {
-            self.congestion.timed(start, || self.put(post));
+            self.congestion.timed(start, || self.put(post))
         } else {
             self.shared.queue(post);
+            start
         }
     }
 

@@ -62,21 +62,22 @@ impl LocalFollowers {
 
     /// A field of `axis` took `value`. Called while `axis` handles an input: a following axis
     /// gets the value before anything `axis` sends after it (a `?wait` reply, say) can lead to a
-    /// write of the follower.
-    pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) {
+    /// write of the follower. Returns whether any follower got it.
+    pub(crate) fn deliver(&self, axis: &str, field: Field, value: &Value) -> bool {
         if self.followers.load(Ordering::Acquire) == 0 {
-            return;
+            return false;
         }
-        let Some(number) = value.as_f64() else { return };
+        let Some(number) = value.as_f64() else { return false };
         // Taken out of the lock: a follower may handle the value at once, and post in turn.
         let sinks: Vec<(LinkSink, usize)> = {
             let by_axis = self.by_axis.read().unwrap_or_else(|e| e.into_inner());
-            let Some(followers) = by_axis.get(axis) else { return };
+            let Some(followers) = by_axis.get(axis) else { return false };
             followers.iter().filter(|(f, _)| *f == field).map(|(_, follower)| follower.clone()).collect()
         };
-        for (sink, index) in sinks {
-            sink(index, number);
+        for (sink, index) in &sinks {
+            sink(*index, number);
         }
+        !sinks.is_empty()
     }
 }
 

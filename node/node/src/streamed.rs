@@ -127,10 +127,12 @@ impl Congestion {
     /// Run a put on the axes' way that begins at `start` (read just before, and used for the
     /// decisions before it: at hundreds of thousands of puts a second, five readings of the
     /// clock per put were a few per cent of the node), noting congestion if it was slow.
-    pub(crate) fn timed(&self, start: std::time::Instant, put: impl FnOnce()) {
+    /// Returns the clock read at its end (the next put's start, when one follows at once).
+    pub(crate) fn timed(&self, start: std::time::Instant, put: impl FnOnce()) -> std::time::Instant {
         put();
         let end = std::time::Instant::now();
         self.took(self.at(end), end.saturating_duration_since(start));
+        end
     }
 
     /// Run a put of the event sender (congestion control Block: it waits for room, drops
@@ -249,6 +251,8 @@ impl Streamed {
 
 /// One logged stream sample.
 struct Logged {
+    /// When it was made, in the log's count: the order it is sent again in.
+    made: u64,
     sample: Streamed,
     marker: StateMarker,
     stamp: Timestamp,
@@ -268,13 +272,15 @@ pub(crate) struct StreamLog {
     entries: Vec<Logged>,
     /// How many are held back.
     held: usize,
+    /// Samples logged so far.
+    made: u64,
 }
 
 impl StreamLog {
     /// `sample` was sent at `now`, the droppable way.
     pub(crate) fn record(&mut self, now: Micros, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
         self.since.get_or_insert(now);
-        self.log(Logged { sample, marker: marker.clone(), stamp, held: false });
+        self.log(sample, marker, stamp, false);
     }
 
     /// `sample` is held back: sent once `release`d (the droppable way once its axis may stream,
@@ -282,16 +288,28 @@ impl StreamLog {
     /// whichever comes first.
     pub(crate) fn hold(&mut self, sample: Streamed, marker: &StateMarker, stamp: Timestamp) {
         self.held += 1;
-        self.log(Logged { sample, marker: marker.clone(), stamp, held: true });
+        self.log(sample, marker, stamp, true);
     }
 
-    /// A key's sample replaces the one logged before it and goes last (the order they were made).
-    fn log(&mut self, entry: Logged) {
-        if let Some(index) = self.entries.iter().position(|e| e.sample.same_key(&entry.sample)) {
-            let replaced = self.entries.remove(index);
-            self.held -= usize::from(replaced.held);
+    /// A key's sample replaces the one logged before it, in its place (moving the others up
+    /// was most of the log's cost at every poll); `made` keeps the order they were made.
+    fn log(&mut self, sample: Streamed, marker: &StateMarker, stamp: Timestamp, held: bool) {
+        self.made += 1;
+        let entry = Logged { made: self.made, sample, marker: marker.clone(), stamp, held };
+        match self.entries.iter_mut().find(|e| e.sample.same_key(&entry.sample)) {
+            Some(logged) => {
+                self.held -= usize::from(logged.held);
+                *logged = entry;
+            }
+            None => self.entries.push(entry),
         }
-        self.entries.push(entry);
+    }
+
+    /// The log's entries, out of it, in the order they were made.
+    fn take_in_order(&mut self) -> Vec<Logged> {
+        let mut entries = std::mem::take(&mut self.entries);
+        entries.sort_unstable_by_key(|e| e.made);
+        entries
     }
 
     /// Whether a sample is held back.
@@ -305,7 +323,7 @@ impl StreamLog {
             return Vec::new();
         }
         self.held = 0;
-        let (held, sent) = std::mem::take(&mut self.entries).into_iter().partition(|e| e.held);
+        let (held, sent) = self.take_in_order().into_iter().partition(|e| e.held);
         self.entries = sent;
         held.into_iter().map(|e: Logged| (e.sample, e.marker, e.stamp)).collect()
     }
@@ -316,10 +334,13 @@ impl StreamLog {
         let since = self.since.take();
         let unsure = self.held > 0 || since.is_some_and(|since| congestion.since(since));
         self.held = 0;
-        let entries = std::mem::take(&mut self.entries);
         match unsure {
-            true => entries.into_iter().map(|e| (e.sample, e.marker, e.stamp)).collect(),
-            false => Vec::new(),
+            true => self.take_in_order().into_iter().map(|e| (e.sample, e.marker, e.stamp)).collect(),
+            false => {
+                // The log's room stays for the next samples.
+                self.entries.clear();
+                Vec::new()
+            }
         }
     }
 }
