@@ -151,6 +151,30 @@ with zenoh.open(conf) as session:
     expect(last.payload.to_string() == err.payload.to_string(), f"a read of ERR: {last.payload.to_string()}")
     expect(str(last.encoding) == "text/plain;wildcard", f"a read of ERR: {last.encoding}")
 
+    # A delete is not a write: refused on ERR, the field keeps its value.
+    list(session.get("motor/m1/DESC", payload="slit", timeout=5.0))
+    errs = queue.Queue()
+    err_watch = session.declare_subscriber(
+        "motor/m1/ERR", lambda s: errs.put(s) if str(s.encoding).startswith("text/plain") else None
+    )
+    session.delete("motor/m1/DESC")
+    err = errs.get(timeout=10)
+    expect(str(err.encoding) == "text/plain;bad_value", f"a delete's ERR: {err.encoding}")
+    expect(err.payload.to_string().startswith("motor/m1/DESC: a delete is not a write"), err.payload.to_string())
+    err_watch.undeclare()
+    desc = value(list(session.get("motor/m1/DESC", timeout=5.0))[0].ok)
+    expect(desc == "slit", f"DESC after a delete: {desc!r}")
+
+    # A confirmed write to a key that names no field is refused, not answered with nothing.
+    before = value(list(session.get("motor/m1/VAL", timeout=5.0))[0].ok)
+    for key in ["motor/m1", "motor/m1/VAL/x"]:
+        replies = list(session.get(key, payload="5", timeout=5.0))
+        expect(len(replies) == 1 and replies[0].err is not None, f"a write to {key}: {replies}")
+        words = replies[0].err.payload.to_string()
+        expect(words == f"{key}: unknown field", f"a write to {key}: {words}")
+    after = value(list(session.get("motor/m1/VAL", timeout=5.0))[0].ok)
+    expect(after == before, f"a write that names no field changed VAL: {before} -> {after}")
+
     # Menu fields take choice names.
     reply = list(session.get("motor/m1/SPMG", payload="Pause", timeout=5.0))[0]
     expect(value(reply.ok) == 1, "SPMG Pause")

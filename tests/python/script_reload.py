@@ -53,6 +53,11 @@ with zenoh.open(conf) as session:
     session.put(f"motor/{axis}/VAL", str(far))
     start = get_if_served("RBV")
     wait_for("RBV", lambda v: v > start + 0.5, 10, "the long move did not start")
+    # A delete of the reload key is no command: nothing reloads, the move goes on.
+    session.delete(f"motor/@controller/{controller}/reload")
+    going = get_if_served("RBV")
+    wait_for("RBV", lambda v: v > going + 0.5, 10, "the move stopped after a delete of the reload key")
+    expect(get_if_served("DMOV") == 0, "the move ended after a delete of the reload key")
     with open(script, "a") as f:
         f.write(
             "\nlocal first_poll = poll\n"

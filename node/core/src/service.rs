@@ -30,6 +30,9 @@ pub enum RequestError {
     /// A write to a key with wildcards (the key).
     #[error("{0}: a write names one field of one axis; this key has wildcards")]
     Wildcard(String),
+    /// A Zenoh delete of a key (the key): it carries no value, and nothing is ever removed.
+    #[error("{0}: a delete is not a write; put a value to write the field")]
+    Delete(String),
     /// The name is a field's in another case; keys are exact.
     #[error("{given}: unknown field; field names are upper case: {field}")]
     WrongCase {
@@ -117,7 +120,8 @@ impl RequestError {
             RequestError::Payload(_)
             | RequestError::SimPayload { .. }
             | RequestError::SimSetting { .. }
-            | RequestError::Link { .. } => RefusalKind::BadValue,
+            | RequestError::Link { .. }
+            | RequestError::Delete(_) => RefusalKind::BadValue,
             RequestError::Record(e) => e.kind(),
             RequestError::PutsDisabled(_) => RefusalKind::PutsDisabled,
             RequestError::NotSimulated(_) => RefusalKind::NotSimulated,
@@ -452,7 +456,16 @@ impl<R: Clone> AxisService<R> {
     /// A plain write to `key`, a key with wildcards that covers this axis: refused and reported
     /// on ERR, for a write names one field of one axis.
     pub fn wildcard_put(&mut self, key: &str) {
-        let refusal = RequestError::Wildcard(excerpt(key));
+        self.refuse_plain(RequestError::Wildcard(excerpt(key)));
+    }
+
+    /// A delete of `key`, one of this axis's (a Zenoh delete, not a put): refused on ERR, as a
+    /// plain write with no value would be; nothing changes.
+    pub fn delete(&mut self, key: &str) {
+        self.refuse_plain(RequestError::Delete(excerpt(key)));
+    }
+
+    fn refuse_plain(&mut self, refusal: RequestError) {
         tracing::warn!(axis = %self.name, "write refused: {refusal}");
         self.refuse(&refusal);
     }
@@ -978,6 +991,22 @@ mod tests {
             panic!("{outputs:?}")
         };
         assert_eq!(message, "motor/m1/*: a write names one field of one axis; this key has wildcards");
+    }
+
+    #[test]
+    fn a_delete_of_a_field_is_reported_on_err_and_changes_nothing() {
+        let mut s = service();
+        s.put(at(0.0), WriteRequest::new("DESC", b"slit", Text));
+        drain(&mut s);
+        s.delete("motor/m1/DESC");
+        let outputs = drain(&mut s);
+        let [ServiceOutput::Refusal { kind: RefusalKind::BadValue, message, .. }] = &outputs[..] else {
+            panic!("{outputs:?}")
+        };
+        assert_eq!(message, "motor/m1/DESC: a delete is not a write; put a value to write the field");
+        s.read("DESC", 1);
+        let answers = replies(&drain(&mut s));
+        assert_eq!(answers, [(1, Reply::Value(Field::DESC, Value::Text("slit".into())))]);
     }
 
     #[test]

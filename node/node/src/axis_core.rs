@@ -23,10 +23,10 @@ use zenoh::query::Query;
 use zenoh::sample::Locality;
 use zenoh::time::Timestamp;
 use zenoh::{Session, Wait};
-use zmotor_core::{AxisService, Delivery, Instant, Reply, ServiceOutput, WriteRequest};
+use zmotor_core::{AxisService, Delivery, Instant, Reply, RequestError, ServiceOutput, WriteRequest};
 use zmotor_inbox::{Handler, Inbox};
 use zmotor_msgs::{
-    encode_cbor, keys, Attached, Field, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
+    encode_cbor, excerpt, keys, Attached, Field, KeyLayout, PayloadEncoding, Readback, RefusalKind, StateMarker, Value,
 };
 
 /// How soon an axis holding samples back looks again whether it may send them (an axis polled
@@ -302,6 +302,12 @@ impl AxisCore {
                 self.service.write(now, request, wait, query);
             }
             (Some(name), None) if !name.contains('*') => self.service.read(&name, query),
+            (None, Some(_)) => {
+                // A write names one field (`<prefix>/<axis>/<FIELD>`); the axis's key, or one
+                // below a field, names none: refused, not read as a selection of no field.
+                let refusal = RequestError::UnknownField(excerpt(key));
+                refuse(&query, refusal.kind(), refusal.to_string());
+            }
             _ => {
                 // A read of a key expression that may cover several fields.
                 let selected = query.key_expr().clone();
@@ -777,6 +783,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::SimWrite(w) => self.service.sim_write(now, &w.name, &w.payload, w.encoding),
             AxisInput::SimQuery(query) => self.on_sim_query(now, query),
             AxisInput::WildcardWrite(key) => self.service.wildcard_put(&key),
+            AxisInput::Deleted(key) => self.service.delete(&key),
             AxisInput::ControllerStatus(status, motions) => self.service.controller_status(now, status, motions),
             AxisInput::ControllerMessage(message) => self.service.controller_message(message),
             AxisInput::Tick => self.service.handle_timeout(now),

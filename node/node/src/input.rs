@@ -15,6 +15,8 @@ pub(crate) enum AxisInput {
     SimWrite(Written),
     /// A plain write to a key with wildcards that covers the axis: refused.
     WildcardWrite(String),
+    /// A delete of one of the axis's keys (the key): refused, a delete is not a write.
+    Deleted(String),
     /// A read of simulator keys.
     SimQuery(Query),
     /// What the axis's controller reported for its channel, after how many motion commands.

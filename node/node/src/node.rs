@@ -21,12 +21,13 @@ use std::sync::atomic::AtomicUsize;
 use std::sync::Arc;
 use std::time::Duration;
 use zenoh::key_expr::KeyExpr;
+use zenoh::sample::SampleKind;
 use zenoh::Session;
 use zmotor_bridge::{CalcLink, LinkError};
 use zmotor_core::{AxisService, DeviceStatus, DriverPlan, Instant};
 use zmotor_deploy::NodeContents;
 use zmotor_inbox::Inbox;
-use zmotor_msgs::KeyLayout;
+use zmotor_msgs::{Attached, KeyLayout};
 
 /// Why a node could not start.
 #[derive(Debug, thiserror::Error)]
@@ -203,8 +204,13 @@ impl Node {
             let key = layout.controller_reload(&controller.name);
             let subscriber = session
                 .declare_subscriber(key)
-                .callback(move |_| {
-                    let _ = sender.send(ToController::Reload);
+                .callback(move |sample| {
+                    // A command is a plain put: a delete, or some node's publication (it carries
+                    // a state marker), reloads nothing.
+                    let attached = sample.attachment().map_or(Attached::Plain, |a| Attached::read(&a.to_bytes()));
+                    if sample.kind() == SampleKind::Put && attached != Attached::State {
+                        let _ = sender.send(ToController::Reload);
+                    }
                 })
                 .await?;
             reloads.push(subscriber);

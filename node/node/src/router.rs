@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use zenoh::key_expr::KeyExpr;
 use zenoh::query::Query;
-use zenoh::sample::{Locality, Sample};
+use zenoh::sample::{Locality, Sample, SampleKind};
 use zenoh::Session;
 use zmotor_core::RequestError;
 use zmotor_msgs::{excerpt, keys, Attached, KeyLayout, PayloadEncoding};
@@ -96,6 +96,12 @@ fn route_sample(routes: &Routes, space: &Space, inputs: &Inputs, sample: &Sample
         return;
     }
     if let Some((handle, name)) = space.target(routes, sample.key_expr().as_str()) {
+        if sample.kind() == SampleKind::Delete {
+            // A delete carries no value: taken as a write, it would empty a text field or
+            // unwire a link.
+            inputs.hand(handle, AxisInput::Deleted(sample.key_expr().to_string()));
+            return;
+        }
         let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
         let hold = attached.hold();
         inputs.hand(handle, wrap(Written { name, payload: sample.payload().to_bytes().into_owned(), encoding, hold }));
