@@ -467,7 +467,7 @@ fn bench(args: &[String]) -> Result<ExitCode, Error> {
 /// A launch file, or an EPICS database converted into one (with what the conversion warns of).
 fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String>), Error> {
     if file.extension().is_some_and(|e| e == "db") {
-        let (converted, warnings) = import_db(file, &Macros::parse(macros)?)?;
+        let (converted, warnings) = import_db(file, &Macros::parse(macros)?, keys::DEFAULT_PREFIX)?;
         let name = format!("{} (as converted by zmotor convert)", file.display());
         Ok((Launch::from_file(&name, converted)?, warnings))
     } else if !macros.is_empty() {

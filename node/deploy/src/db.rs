@@ -38,15 +38,21 @@ impl Macros {
 #[non_exhaustive]
 pub struct MacroError(pub String);
 
-/// Import a database file; the warnings say what was simulated or ignored.
-pub fn import_db(path: &Path, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
+/// Import a database file whose motors are served under `prefix` (their links name their keys
+/// there); the warnings say what was simulated or ignored.
+pub fn import_db(path: &Path, macros: &Macros, prefix: &str) -> Result<(LaunchFile, Vec<String>), LaunchError> {
     let text = read_text(path)?;
-    import_db_text(&path.display().to_string(), &text, macros)
+    import_db_text(&path.display().to_string(), &text, macros, prefix)
 }
 
-/// Import a database's text; errors name `file`.
-pub fn import_db_text(file: &str, text: &str, macros: &Macros) -> Result<(LaunchFile, Vec<String>), LaunchError> {
-    import_text(text, macros).map_err(|failure| LaunchError {
+/// Import a database's text, its motors served under `prefix`; errors name `file`.
+pub fn import_db_text(
+    file: &str,
+    text: &str,
+    macros: &Macros,
+    prefix: &str,
+) -> Result<(LaunchFile, Vec<String>), LaunchError> {
+    import_text(text, macros, prefix).map_err(|failure| LaunchError {
         file: file.to_string(),
         line: Some(failure.line),
         message: failure.message,
@@ -82,11 +88,15 @@ impl Record {
     }
 }
 
-pub(super) fn import_text(text: &str, macros: &Macros) -> Result<(LaunchFile, Vec<String>), Failure> {
+pub(super) fn import_text(
+    text: &str,
+    macros: &Macros,
+    axis_prefix: &str,
+) -> Result<(LaunchFile, Vec<String>), Failure> {
     let mut warnings = Vec::new();
     let records = parse(text, macros, &mut warnings)?;
     let kinds: BTreeMap<&str, &str> = records.iter().map(|r| (r.name.as_str(), r.kind.as_str())).collect();
-    let linker = Linker { kinds: &kinds };
+    let linker = Linker { kinds: &kinds, axis_prefix };
     let mut launch = LaunchFile::default();
     // Writes into calc inputs from other records' output links: (calc, letter) → mode.
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
@@ -159,6 +169,8 @@ enum Link {
 
 struct Linker<'a> {
     kinds: &'a BTreeMap<&'a str, &'a str>,
+    /// Where the motors are served (`[zenoh] prefix`): a link to one names its key there.
+    axis_prefix: &'a str,
 }
 
 impl Linker<'_> {
@@ -184,13 +196,13 @@ impl Linker<'_> {
         }
         let (record, field) = target.split_once('.').unwrap_or((target, "VAL"));
         let prefix = match self.kinds.get(record) {
-            Some(&"motor") => keys::DEFAULT_PREFIX,
+            Some(&"motor") => self.axis_prefix,
             Some(_) => keys::BRIDGE_PREFIX,
             None => {
                 warnings.push(format!(
                     "line {line}: link '{text}': record '{record}' is not in this database; taken as an axis elsewhere"
                 ));
-                keys::DEFAULT_PREFIX
+                self.axis_prefix
             }
         };
         Ok(Link::Key {
@@ -645,7 +657,7 @@ mod tests {
     }
 
     fn import(text: &str) -> Result<(LaunchFile, Vec<String>), Failure> {
-        import_text(text, &macros("user=me"))
+        import_text(text, &macros("user=me"), keys::DEFAULT_PREFIX)
     }
 
     const SEED: &str = include_str!("../../../launch/tangent-arm.db");
@@ -693,11 +705,11 @@ mod tests {
     #[test]
     fn macros_take_defaults_and_undefined_ones_are_errors_with_their_line() {
         let text = "\n\nrecord(motor, \"$(P)m$(N=1)\") {\n field(DESC, \"${P}\")\n}\n";
-        let (file, _) = import_text(text, &macros("P=bl1:")).unwrap();
+        let (file, _) = import_text(text, &macros("P=bl1:"), keys::DEFAULT_PREFIX).unwrap();
         assert_eq!(file.axes[0].name, "bl1:m1");
         assert_eq!(file.axes[0].fields["DESC"], toml::Value::String("bl1:".into()));
         assert_eq!(
-            import_text(text, &Macros::default()).unwrap_err(),
+            import_text(text, &Macros::default(), keys::DEFAULT_PREFIX).unwrap_err(),
             Failure::at(3, "macro $(P) is not defined (give it with -m P=...)")
         );
     }
@@ -809,11 +821,11 @@ mod tests {
     fn asyn_motors_run_on_the_controller_their_port_names() {
         let macros = Macros::parse(&["P=bl1:".to_string()]).unwrap();
         let bad = "\nrecord(motor, \"$(P)bad\") { field(DTYP, \"asynMotor\") field(OUT, \"@asyn(MCB)\") }";
-        let failure = import_text(bad, &macros).unwrap_err();
+        let failure = import_text(bad, &macros, keys::DEFAULT_PREFIX).unwrap_err();
         assert_eq!(failure.line, 2);
         assert!(failure.message.contains("'@asyn(MCB)' is not @asyn(PORT,AXIS)"), "{}", failure.message);
         let good = r#"record(motor, "$(P)x") { field(DTYP, "asynMotor") field(OUT, "@asyn(MCB, 1, 1.0)") }"#;
-        let (file, warnings) = import_text(good, &macros).unwrap();
+        let (file, warnings) = import_text(good, &macros, keys::DEFAULT_PREFIX).unwrap();
         assert!(warnings.is_empty(), "an asyn motor is not simulated: {warnings:?}");
         let x = &file.axes[0];
         assert_eq!(x.name, "bl1:x");

@@ -135,7 +135,9 @@ impl Launch {
             let definitions: Vec<String> = database.macros.iter().map(|(k, v)| format!("{k}={v}")).collect();
             let macros =
                 Macros::parse(&definitions).map_err(|e| self.error(Problem::at(source, vec![], e.to_string())))?;
-            let (imported, warnings) = import_db(&path, &macros)?;
+            // Its motors are served under the launch's prefix, and their links name them there.
+            let prefix = self.file.zenoh.as_ref().map_or(keys::DEFAULT_PREFIX, |z| z.prefix.as_str());
+            let (imported, warnings) = import_db(&path, &macros, prefix)?;
             let name = path.display().to_string();
             self.warnings.extend(warnings.into_iter().map(|w| format!("{name}: {w}")));
             // Errors found later in its records name the database (its lines are its own).

@@ -417,6 +417,22 @@ fn a_database_of_asyn_motors_runs_on_the_launch_files_controllers() {
     assert!(error.message.contains("acs_mcb4b numbers its axes 0 to 3"), "{error}");
 }
 
+#[test]
+fn a_database_loaded_under_a_prefix_links_its_motors_there() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("arm.db"), include_str!("../../../launch/tangent-arm.db")).unwrap();
+    let main = "[zenoh]\nprefix = \"lab\"\n\n[[database]]\nfile = \"arm.db\"\nmacros = { user = \"me\" }\n";
+    std::fs::write(dir.path().join("main.toml"), main).unwrap();
+    let deployment = Launch::load(&dir.path().join("main.toml")).unwrap().deployment(None).unwrap();
+    let rotary = deployment.contents.plans.iter().find(|p| p.name == "me:rotary").unwrap();
+    assert_eq!(
+        (rotary.fields.stoo.as_str(), rotary.fields.dinp.as_str()),
+        ("lab/me:linear/STOP", "lab/me:linear/DMOV")
+    );
+    let outputs: Vec<&str> = deployment.contents.calcs.iter().map(|c| c.output.as_str()).collect();
+    assert!(outputs.contains(&"lab/me:linear/DVAL"), "{outputs:?}");
+}
+
 const HOSTS: &str = r#"
         [zenoh]
         connect = ["tcp/10.0.0.1:7447"]

@@ -67,7 +67,7 @@ pub fn launch_toml(data: &[u8]) {
 pub fn epics_db(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else { return };
     let macros = zmotor_deploy::Macros::parse(&["P=fz:".to_string()]).expect("a macro definition");
-    let _ = zmotor_deploy::import_db_text("fuzz.db", text, &macros);
+    let _ = zmotor_deploy::import_db_text("fuzz.db", text, &macros, zmotor_msgs::keys::DEFAULT_PREFIX);
 }
 
 /// Bytes from a controller: byte 0 picks the protocol, byte 1 how many bytes arrive at a time;
