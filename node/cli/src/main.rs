@@ -199,7 +199,7 @@ enum Command {
     /// may be a pattern ('m*', '*'). An axis whose node goes is told (`m1 ... *** disconnected`);
     /// when a node serves it again, `*** connected` and its current values.
     Monitor {
-        #[arg(value_parser = axis_pattern)]
+        #[arg(value_parser = monitored_axes)]
         axis: String,
         fields: Vec<String>,
         /// One JSON object a line: {"axis", "field", "time" (RFC 3339), "value"}, or {"axis",
@@ -605,6 +605,14 @@ fn axis_pattern(text: &str) -> Result<String, String> {
     keys::validate_axis_pattern(text).map(|()| text.to_string()).map_err(|e| e.to_string())
 }
 
+/// An axis's name or a pattern, as a monitor takes it: one, not a list (a read takes a list).
+fn monitored_axes(text: &str) -> Result<String, String> {
+    match text.contains(',') {
+        true => Err(format!("{text}: a monitor takes one axis or a pattern such as 'm*', not a list")),
+        false => axis_pattern(text),
+    }
+}
+
 /// Axes' names or patterns separated by commas, as a read takes them.
 fn axis_patterns(text: &str) -> Result<String, String> {
     text.split(',').filter(|a| !a.is_empty()).try_for_each(|a| axis_pattern(a).map(drop))?;
@@ -858,30 +866,17 @@ async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool)
     if tokens.recv_async().await.is_err() {
         eprintln!("zmotor: no node serves {axis} now; its values will show when one does (Ctrl-C to stop)");
     }
-    if messages && wanted.is_empty() {
-        // Only messages: follow nothing else (PREC still comes, for the shape of the values).
-        let mut updates = zmotor.monitor_with_messages(axis, &[Field::PREC], true).await?;
-        loop {
-            tokio::select! {
-                update = updates.next() => {
-                    let Some(update) = update else { break };
-                    if update.field.is_none() && !print_lines([monitor_line(&update, json)]) {
-                        break;
-                    }
-                }
-                _ = tokio::signal::ctrl_c() => break,
-            }
-        }
-        drop(updates);
-        zmotor.session().close().await?;
-        return Ok(ExitCode::SUCCESS);
-    }
-    let mut updates = zmotor.monitor_with_messages(axis, &wanted, messages).await?;
+    // Only messages: follow nothing else (PREC still comes, for the shape of the values, and is
+    // not shown).
+    let only_messages = messages && wanted.is_empty();
+    let followed = if only_messages { vec![Field::PREC] } else { wanted };
+    let mut updates = zmotor.monitor_with_messages(axis, &followed, messages).await?;
     loop {
         tokio::select! {
             event = updates.next_event() => {
                 let line = match event {
                     None => break,
+                    Some(Event::Value(update)) if only_messages && update.field.is_some() => continue,
                     Some(Event::Value(update)) => monitor_line(&update, json),
                     Some(Event::Gone(axis)) => connection_line(&axis, false, json),
                     Some(Event::Back(axis)) => connection_line(&axis, true, json),

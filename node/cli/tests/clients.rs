@@ -67,6 +67,10 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     let written = here.zmotor(&["put", "m*", "VAL", "1", "--connect", &endpoint]).output().unwrap();
     assert_eq!(written.status.code(), Some(2), "a write names one axis: {written:?}");
     assert!(String::from_utf8_lossy(&written.stderr).contains("axis name 'm*' contains '*'"), "{written:?}");
+    // A monitor follows one axis or a pattern: a list is refused, not waited on as an axis named so.
+    let listed = here.zmotor(&["monitor", "m1,m2", "RBV", "--connect", &endpoint]).output().unwrap();
+    assert_eq!(listed.status.code(), Some(2), "a monitor of a list: {listed:?}");
+    assert!(String::from_utf8_lossy(&listed.stderr).contains("m1,m2: a monitor takes one axis"), "{listed:?}");
     let mut every =
         here.zmotor(&["monitor", "*", "EGU", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
     let lines = Lines::of(&mut every);
@@ -146,13 +150,28 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     let time: Vec<&str> = first.split_whitespace().skip(1).take(2).collect();
     let time = humantime::parse_rfc3339_weak(&time.join(" ")).unwrap();
     assert!(time < started, "{first}: a time after the monitor began");
+    // A monitor of the messages alone says so too. (A message has no current value: a refused
+    // plain put shows it follows.)
+    let mut messages =
+        here.zmotor(&["monitor", "m1", "ERR", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
+    let said = Lines::of(&mut messages);
+    let _messages = Running(Some(messages));
+    let refused = |l: &str| l.starts_with("m1.ERR ") && l.contains("VELO: ");
+    let (deadline, mut heard) = (std::time::Instant::now() + PATIENCE, false);
+    while !heard && std::time::Instant::now() < deadline {
+        here.zmotor(&["put", "m1", "VELO", "fast", "--plain", "--connect", &endpoint]).output().unwrap();
+        heard = said.wait_for(std::time::Duration::from_millis(500), refused).is_some();
+    }
+    assert!(heard, "the monitor of ERR showed no refusal");
     drop(node);
     assert!(watched.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** disconnected")).is_some());
+    assert!(said.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** disconnected")).is_some());
     let gone = here.zmotor(&["list", "--connect", &endpoint]).output().unwrap();
     assert!(!gone.status.success() || String::from_utf8_lossy(&gone.stdout).is_empty());
     let file = dir.path().join("two.toml");
     let _again = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
     assert!(watched.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** connected")).is_some());
+    assert!(said.wait_for(PATIENCE, |l| l.starts_with("m1 ") && l.ends_with("*** connected")).is_some());
     assert!(watched.wait_for(PATIENCE, |l| common::monitored(l) == Some(("m1.EGU", "mm"))).is_some());
 }
 
