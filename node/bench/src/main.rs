@@ -34,10 +34,10 @@ struct Cli {
     #[arg(long)]
     smoke: bool,
     /// Moves for the latency figures (default 2000).
-    #[arg(long)]
+    #[arg(long, value_parser = at_least_one)]
     moves: Option<usize>,
     /// Axis counts for the scale figures, comma-separated (default 1,100,1000,10000).
-    #[arg(long, value_delimiter = ',')]
+    #[arg(long, value_delimiter = ',', value_parser = at_least_one)]
     scales: Option<Vec<usize>>,
     /// Most axes set moving for the scale figures (default 2000; beyond, start and idle memory
     /// only).
@@ -47,13 +47,31 @@ struct Cli {
     #[arg(long, value_delimiter = ',', value_enum)]
     parts: Option<Vec<Part>>,
     /// Seconds each storm of writes lasts (default 60).
-    #[arg(long)]
+    #[arg(long, value_parser = a_while)]
     storm: Option<f64>,
     /// Minutes the soak lasts (default 60); the soak runs only when named in --parts.
-    #[arg(long)]
+    #[arg(long, value_parser = a_while)]
     minutes: Option<f64>,
     #[command(subcommand)]
     floor: Option<FloorCommand>,
+}
+
+/// A count a figure is made of: at least one.
+fn at_least_one(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(0) => Err("a figure needs at least one".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(e.to_string()),
+    }
+}
+
+/// A length of time in the option's unit: more than 0, up to 10,080 (a week of minutes).
+fn a_while(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(t) if t > 0.0 && t <= 10_080.0 => Ok(t),
+        Ok(t) => Err(format!("{t} is not a length more than 0, up to 10080")),
+        Err(e) => Err(e.to_string()),
+    }
 }
 
 #[derive(Subcommand)]

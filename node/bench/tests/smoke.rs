@@ -157,3 +157,20 @@ fn a_benchmark_stopped_by_sigterm_stops_the_nodes_it_started() {
         panic!("node {node} outlived the benchmark that started it");
     }
 }
+
+#[test]
+fn counts_and_lengths_a_figure_cannot_be_made_of_are_refused_before_anything_runs() {
+    let zmotor = Path::new(env!("CARGO_BIN_EXE_zmotor-bench")).with_file_name("zmotor");
+    for (option, value, said) in [
+        ("--moves", "0", "a figure needs at least one"),
+        ("--scales", "1000,0", "a figure needs at least one"),
+        ("--minutes=-1", "", "-1 is not a length more than 0"),
+        ("--storm", "nan", "NaN is not a length more than 0"),
+    ] {
+        let args = ["bench", option, value].into_iter().filter(|a| !a.is_empty());
+        let output = Command::new(&zmotor).args(args).env("RUST_LOG", "off").output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(2), "{option} {value}: {stderr}");
+        assert!(stderr.contains(said), "{option} {value}: {stderr}");
+    }
+}
