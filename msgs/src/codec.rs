@@ -73,9 +73,17 @@ pub enum CodecError {
         /// What the payload held.
         got: String,
     },
-    /// NaN or an infinity written to a DOUBLE or FLOAT field (or a value beyond f32 for a FLOAT).
+    /// NaN or an infinity written to a DOUBLE or FLOAT field.
     #[error("{field}: not a number ({value}); a finite value is required")]
     NotFinite {
+        /// The field written.
+        field: &'static str,
+        /// The value given, as text.
+        value: String,
+    },
+    /// A finite number beyond what a FLOAT field holds (an f32).
+    #[error("{field}: {value} is beyond what the field holds (a FLOAT: at most 3.4e38 either way)")]
+    BeyondFloat {
         /// The field written.
         field: &'static str,
         /// The value given, as text.
@@ -183,7 +191,12 @@ fn decode_item(bytes: &[u8], encoding: PayloadEncoding) -> Result<Item, Malforme
                 .ok_or_else(|| malformed(format!("a single number or text is required, got {}", cbor_kind(bytes))))
         }
         PayloadEncoding::Json => {
-            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
+            let v: serde_json::Value = match serde_json::from_slice(bytes) {
+                Ok(v) => v,
+                // What Python's json.dumps writes for a float that is no number: not JSON, but
+                // plain in meaning, so the refusal says what is wrong with the value.
+                Err(e) => return non_finite_json(bytes).ok_or_else(|| malformed(e.to_string())),
+            };
             from_json(&v).ok_or_else(|| malformed(format!("a number or a string is required, got {}", json_kind(&v))))
         }
         PayloadEncoding::Text => {
@@ -227,6 +240,17 @@ fn cbor_kind(bytes: &[u8]) -> &'static str {
         Ok(ciborium::Value::Tag(..)) => "a tagged item",
         _ => "an unsupported item",
     }
+}
+
+/// `NaN`, `Infinity` or `-Infinity`, as JSON writers that allow them spell them.
+fn non_finite_json(bytes: &[u8]) -> Option<Item> {
+    let x = match std::str::from_utf8(bytes).ok()?.trim() {
+        "NaN" => f64::NAN,
+        "Infinity" => f64::INFINITY,
+        "-Infinity" => f64::NEG_INFINITY,
+        _ => return None,
+    };
+    Some(Item::Scalar(Value::Float(x)))
 }
 
 /// The scalar a JSON value holds, if it is one.
@@ -285,7 +309,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
                 return Err(CodecError::NotFinite { field, value: x.to_string() });
             }
             if def.kind == Kind::Float && x.abs() > f64::from(f32::MAX) {
-                return Err(CodecError::NotFinite { field, value: x.to_string() });
+                return Err(CodecError::BeyondFloat { field, value: format!("{x:e}") });
             }
             Ok(Value::Float(x))
         }
@@ -478,6 +502,13 @@ mod tests {
         assert!(matches!(e, CodecError::NotFinite { .. }), "{e}");
         let e = write(Field::VAL, &cbor(f64::NAN), Cbor).unwrap_err();
         assert!(matches!(e, CodecError::NotFinite { .. }), "{e}");
+        for python in ["NaN", "Infinity", "-Infinity"] {
+            let e = write(Field::VAL, python.as_bytes(), Json).unwrap_err();
+            assert!(matches!(e, CodecError::NotFinite { field: "VAL", .. }), "{python}: {e}");
+        }
+        let e = write(Field::FRAC, b"1e39", Text).unwrap_err();
+        let beyond = "FRAC: 1e39 is beyond what the field holds (a FLOAT: at most 3.4e38 either way)";
+        assert_eq!(e.to_string(), beyond);
         let e = write(Field::VAL, &[0xff, 0x00, 0x13], Cbor).unwrap_err();
         assert!(matches!(e, CodecError::Malformed { encoding: "CBOR", .. }), "{e}");
         let e = write(Field::VAL, &cbor(vec![1, 2]), Cbor).unwrap_err();

@@ -251,6 +251,10 @@ pub fn validate_plain_key(key: &str) -> Result<(), PlainKeyError> {
     if key.chars().any(char::is_whitespace) {
         return refuse("it holds white space");
     }
+    if key.contains('"') {
+        // A key quoted as JSON text is written bare: quoted, it would name a key nobody uses.
+        return refuse("quotes are no part of a key (write it bare)");
+    }
     Ok(())
 }
 
@@ -415,7 +419,7 @@ mod tests {
     #[test]
     fn plain_keys_are_checked() {
         assert!(validate_plain_key("motor/lin/DVAL").is_ok());
-        for bad in ["", "a//b", "x/*y", "/a", "a/", "a/$*", "a?b", "a#", "a b"] {
+        for bad in ["", "a//b", "x/*y", "/a", "a/", "a/$*", "a?b", "a#", "a b", "\"motor/m2/VAL\""] {
             assert!(validate_plain_key(bad).is_err(), "{bad}");
         }
         assert_eq!(
