@@ -48,7 +48,7 @@ struct ClientArgs {
     #[arg(long, default_value = "tcp/127.0.0.1:7447")]
     connect: String,
     /// Key prefix of the axes.
-    #[arg(long, default_value = zmotor_msgs::keys::DEFAULT_PREFIX)]
+    #[arg(long, default_value = zmotor_msgs::keys::DEFAULT_PREFIX, value_parser = plain_prefix)]
     prefix: String,
     /// PEM file of the certificate authority to trust (tls/... and quic/... endpoints).
     #[arg(long)]
@@ -603,6 +603,11 @@ fn axis_name(text: &str) -> Result<String, String> {
 /// An axis's name or a pattern such as `m*`, as a monitor takes it.
 fn axis_pattern(text: &str) -> Result<String, String> {
     keys::validate_axis_pattern(text).map(|()| text.to_string()).map_err(|e| e.to_string())
+}
+
+/// A key prefix: one plain key, as every key of the axes starts with it.
+fn plain_prefix(text: &str) -> Result<String, String> {
+    keys::validate_plain_key(text).map(|()| text.to_string()).map_err(|e| e.to_string())
 }
 
 /// An axis's name or a pattern, as a monitor takes it: one, not a list (a read takes a list).

@@ -71,6 +71,9 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     let listed = here.zmotor(&["monitor", "m1,m2", "RBV", "--connect", &endpoint]).output().unwrap();
     assert_eq!(listed.status.code(), Some(2), "a monitor of a list: {listed:?}");
     assert!(String::from_utf8_lossy(&listed.stderr).contains("m1,m2: a monitor takes one axis"), "{listed:?}");
+    let prefixed = here.zmotor(&["get", "m1", "RBV", "--prefix", "motor/*", "--connect", &endpoint]).output().unwrap();
+    assert_eq!(prefixed.status.code(), Some(2), "a prefix with a wildcard: {prefixed:?}");
+    assert!(String::from_utf8_lossy(&prefixed.stderr).contains("'motor/*' is not a plain key"), "{prefixed:?}");
     let mut every =
         here.zmotor(&["monitor", "*", "EGU", "--connect", &endpoint]).stdout(Stdio::piped()).spawn().unwrap();
     let lines = Lines::of(&mut every);

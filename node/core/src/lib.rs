@@ -18,7 +18,7 @@ mod time;
 pub use axis::{
     Axis, AxisEvent, AxisPlan, Completion, DriverPlan, JogHold, PollRates, WriteAccepted, SOFT_DONE_SETTLE,
 };
-pub use driver::sim::{SimAxis, SimConfig, SimSetting, SimSettingError};
+pub use driver::sim::{SimAxis, SimConfig, SimConfigError, SimSetting, SimSettingError};
 pub use driver::soft::InputLink;
 pub use driver::Driver;
 pub use engine::{

@@ -480,6 +480,10 @@ fn tokenize(text: &str, macros: &Macros, warnings: &mut Vec<String>) -> Result<V
     let mut tokens = Vec::new();
     for (index, raw) in text.lines().enumerate() {
         let line = index + 1;
+        if raw.trim_start().starts_with('#') {
+            // A comment: its macros are not expanded (one it names need not be defined).
+            continue;
+        }
         let expanded = expand(raw, line, macros)?;
         let mut chars = expanded.chars().peekable();
         while let Some(c) = chars.next() {
@@ -700,6 +704,16 @@ mod tests {
         let (file, warnings) = import(&bordered).unwrap();
         assert_eq!((file.axes.len(), file.calcs.len()), (2, 2));
         assert!(warnings.iter().any(|w| w.ends_with("stray '|' ignored")));
+    }
+
+    #[test]
+    fn a_comment_line_may_name_a_macro_that_is_not_defined() {
+        let text = "# built for $(IOC)\nrecord(motor, \"$(P)m1\") {\n # $(OLD) was here\n field(DESC, \"x\")\n}\n";
+        let (file, _) = import_text(text, &macros("P=bl1:"), keys::DEFAULT_PREFIX).unwrap();
+        assert_eq!(
+            (file.axes[0].name.as_str(), &file.axes[0].fields["DESC"]),
+            ("bl1:m1", &toml::Value::String("x".into()))
+        );
     }
 
     #[test]

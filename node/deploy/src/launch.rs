@@ -161,6 +161,9 @@ impl Launch {
                 ("zenoh", included.zenoh.is_some()),
                 ("state_dir", included.state_dir.is_some()),
                 ("autosave", included.autosave.is_some()),
+                ("channel_access", included.channel_access.is_some()),
+                ("web", included.web.is_some()),
+                ("ros2", included.ros2.is_some()),
             ] {
                 if present {
                     let message = format!("{key} may only be set in the main launch file");
@@ -191,6 +194,10 @@ impl Launch {
 
     fn check(&self) -> Result<(), Problem> {
         let zenoh = self.zenoh();
+        // Every key of the deployment starts with it: one plain key, no wildcard.
+        if let Err(e) = keys::validate_plain_key(&zenoh.prefix) {
+            return Err(Problem::at(0, keys_path(&["zenoh", "prefix"]), format!("zenoh.prefix: {e}")));
+        }
         if let Some(autosave) = &self.file.autosave {
             if !(autosave.delay >= 0.0 && autosave.delay <= 3600.0) {
                 let message = format!("autosave.delay: {} s is outside [0, 3600]", autosave.delay);

@@ -35,9 +35,15 @@ impl AxisSection {
             }
             (_, Some(_), _) => return Err(at(&["controller"], "only with driver = \"controller\"".into())),
             (_, _, Some(_)) => return Err(at(&["channel"], "only with driver = \"controller\"".into())),
-            (DriverKind::Sim, None, None) => DriverPlan::Sim(self.sim.clone()),
+            (DriverKind::Sim, None, None) => {
+                self.sim.check().map_err(|e| at(&["sim"], e.to_string()))?;
+                DriverPlan::Sim(self.sim.clone())
+            }
             (DriverKind::Soft, None, None) => DriverPlan::Soft,
         };
+        if !matches!(driver, DriverPlan::Sim(_)) && self.sim != zmotor_core::SimConfig::default() {
+            return Err(at(&["sim"], "the simulator's model, for driver = \"sim\" only".into()));
+        }
         if !(self.readback_rate > 0.0 && self.readback_rate <= MAX_READBACK_RATE) {
             let message = format!("{} Hz is outside (0, {MAX_READBACK_RATE}]", self.readback_rate);
             return Err(at(&["readback_rate"], message));
@@ -68,9 +74,14 @@ impl AxisSection {
                                its position";
                 return Err(at(&inner, message.into()));
             }
-            let value = field_value(field, raw).map_err(|e| at(&inner, e.to_string()))?;
+            // The key names the field already: its messages lose their own "VELO: ".
+            let unnamed = |message: String| match message.strip_prefix(&format!("{field}: ")) {
+                Some(rest) => rest.to_string(),
+                None => message,
+            };
+            let value = field_value(field, raw).map_err(|e| at(&inner, unnamed(e.to_string())))?;
             if let Some(unusable) = zmotor_core::Unusable::of(field, &value) {
-                return Err(at(&inner, unusable.to_string()));
+                return Err(at(&inner, unnamed(unusable.to_string())));
             }
             fields.set(field, &value);
         }

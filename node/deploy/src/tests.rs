@@ -225,6 +225,36 @@ fn errors_found_after_parsing_point_at_their_line() {
     // A value of the wrong type is named by its key, as the errors found after parsing are.
     let typed = Launch::parse("[[axis]]\nname = \"m1\"\ndriver = \"sim\"\nreadback_rate = \"x\"\n").unwrap_err();
     assert_eq!(typed.to_string(), "<launch>:4: axis 'm1': readback_rate: invalid type: string \"x\", expected f64");
+    // The simulator's model: positions that are numbers, an encoder of counts; a sim's only.
+    let sim = |table: &str| {
+        let text = format!("[[axis]]\nname = \"m1\"\ndriver = \"soft\"\n[axis.sim]\n{table}\n");
+        let text = if table.contains("servo") { text } else { text.replace("driver = \"soft\"\n", "") };
+        Launch::parse(&text).map(drop).map_err(|e| e.to_string())
+    };
+    assert_eq!(
+        sim("position = nan"),
+        Err("<launch>:3: axis 'm1': sim: position: NaN is not a finite number of steps".into())
+    );
+    assert_eq!(
+        sim("high_limit_switch = inf"),
+        Err("<launch>:3: axis 'm1': sim: high_limit_switch: inf is not a finite number of steps".into())
+    );
+    let no_counts = sim("encoder_counts_per_step = 0").unwrap_err();
+    assert!(
+        no_counts.ends_with("0 is not a number of counts more than 0 (leave it out for no encoder)"),
+        "{no_counts}"
+    );
+    assert_eq!(sim("position = 5"), Ok(()));
+    let soft = sim("servo = true").unwrap_err();
+    assert!(soft.ends_with("axis 'm1': sim: the simulator's model, for driver = \"sim\" only"), "{soft}");
+    // The prefix every key starts with is one plain key.
+    for (prefix, reason) in [("", "it is empty"), ("motor/*", "wildcards select many keys"), ("lab/", "an empty chunk")]
+    {
+        let text = format!("[zenoh]\nprefix = \"{prefix}\"\n\n[[axis]]\nname = \"m1\"\n");
+        let error = Launch::parse(&text).unwrap_err().to_string();
+        assert!(error.starts_with(&format!("<launch>:2: zenoh.prefix: '{prefix}' is not a plain key: ")), "{error}");
+        assert!(error.contains(reason), "{error}");
+    }
 }
 
 const CONTROLLED: &str = r#"[[controller]]
@@ -494,7 +524,7 @@ fn included_files_add_items_and_errors_name_the_included_file() {
     let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
     assert!(error.file.ends_with("hutch/more.toml"), "{error}");
     assert_eq!(error.line, Some(4));
-    assert!(error.message.starts_with("axis 'm2': fields.VELO: "), "{error}");
+    assert!(error.message.starts_with("axis 'm2': fields.VELO: wrong type: "), "the field is named once: {error}");
     write("hutch/more.toml", "[[axis]]\nname = \"m2\"\n");
     let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
     let names: Vec<String> = launch.deployment(None).unwrap().contents.plans.into_iter().map(|p| p.name).collect();
@@ -502,6 +532,10 @@ fn included_files_add_items_and_errors_name_the_included_file() {
     write("hutch/more.toml", "[zenoh]\nmode = \"client\"\n");
     let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
     assert_eq!((error.line, error.message.as_str()), (Some(1), "zenoh may only be set in the main launch file"));
+    // A front-end in an included file would be dropped unsaid: refused, as the network is.
+    write("hutch/more.toml", "[[axis]]\nname = \"m2\"\n\n[web]\n");
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert_eq!((error.line, error.message.as_str()), (Some(4), "web may only be set in the main launch file"));
     write("hutch/more.toml", "include = [\"../main.toml\"]\n");
     let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
     assert!(error.file.ends_with("more.toml") && error.message.contains("main.toml is included twice"), "{error}");

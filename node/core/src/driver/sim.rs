@@ -137,6 +137,45 @@ pub struct SimConfig {
     pub instant: bool,
 }
 
+/// Why a simulated axis cannot be built as its launch file describes it.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimConfigError {
+    /// A position that is no finite number of steps.
+    #[error("{key}: {value} is not a finite number of steps")]
+    NotFinite {
+        /// The setting.
+        key: &'static str,
+        /// Its value.
+        value: f64,
+    },
+    /// An encoder of no counts (or of a number that is none): leaving it out means no encoder.
+    #[error("encoder_counts_per_step: {0} is not a number of counts more than 0 (leave it out for no encoder)")]
+    Encoder(f64),
+}
+
+impl SimConfig {
+    /// Whether the model can be built: every position a finite number of steps, an encoder of
+    /// counts more than 0.
+    pub fn check(&self) -> Result<(), SimConfigError> {
+        let positions = [
+            ("position", Some(self.position)),
+            ("high_limit_switch", self.high_limit_switch),
+            ("low_limit_switch", self.low_limit_switch),
+            ("home_switch", Some(self.home_switch)),
+        ];
+        if let Some((key, value)) =
+            positions.into_iter().find_map(|(k, v)| v.filter(|v| !v.is_finite()).map(|v| (k, v)))
+        {
+            return Err(SimConfigError::NotFinite { key, value });
+        }
+        match self.encoder_counts_per_step {
+            Some(counts) if !(counts.is_finite() && counts > 0.0) => Err(SimConfigError::Encoder(counts)),
+            _ => Ok(()),
+        }
+    }
+}
+
 impl Default for SimConfig {
     fn default() -> Self {
         Self {
