@@ -42,7 +42,9 @@ with zenoh.open(conf) as session:
     for attempt in range(12):
         dmov, traces = queue.Queue(), queue.Queue()
         sub = session.declare_subscriber("motor/m1/DMOV", lambda s: dmov.put(value(s)))
-        tracer = session.declare_subscriber("motor/m1/@driver/cmd", lambda s: traces.put(value(s)))
+        tracer = session.declare_subscriber(
+            "motor/m1/@driver/cmd", lambda s: traces.put((value(s), s.attachment, s.timestamp))
+        )
         target = start + 2 if attempt % 2 == 0 else start
         session.put("motor/m1/VAL", str(target))
         seen = []
@@ -54,8 +56,14 @@ with zenoh.open(conf) as session:
         expect(seen == [0, 1], f"try {attempt}: DMOV pulse {seen}")
         rbv = value(list(session.get("motor/m1/RBV", timeout=5.0))[0].ok)
         expect(abs(rbv - target) < 1e-6, f"try {attempt}: RBV {rbv} after the move")
-        commands = [traces.get() for _ in range(traces.qsize())]
+        traced = [traces.get() for _ in range(traces.qsize())]
+        commands = [c for c, _, _ in traced]
         expect(any(c["cmd"] == "move" for c in commands), f"try {attempt}: driver commands {commands}")
+        # Marked as state, as every publication of the node, and stamped.
+        for c, attachment, stamp in traced:
+            marker = cbor2.loads(attachment.to_bytes()) if attachment is not None else None
+            expect(marker is not None and marker.get("kind") == "state", f"a trace's attachment: {c} {marker}")
+            expect(stamp is not None, f"a trace without a timestamp: {c}")
         sub.undeclare()
         tracer.undeclare()
         time.sleep(0.3)

@@ -403,8 +403,12 @@ impl AxisCore {
                     });
                     if listening {
                         let trace = self.service.stamp_trace(command, at);
+                        // Marked and stamped as every post of the node: no follower takes it
+                        // for a write.
+                        let state = self.state_now(*stamp.get_or_insert_with(|| self.node.session.new_timestamp()));
                         if let Some(publisher) = &self.trace {
-                            let _ = publisher.put(encode_cbor(&trace)).wait();
+                            let put = publisher.put(encode_cbor(&trace)).attachment(state.attachment);
+                            let _ = put.timestamp(state.stamp).wait();
                         }
                     }
                 }
