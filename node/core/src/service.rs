@@ -605,6 +605,11 @@ impl<R: Clone> AxisService<R> {
         if self.axis.fields().disp != 0 && !field.taken_while_puts_disabled() {
             return Err(RequestError::PutsDisabled(field));
         }
+        // Before the value too: no value is taken, and a writer told its payload was wrong
+        // would only try another.
+        if field.def().access == zmotor_msgs::Access::RO {
+            return Err(WriteError::ReadOnly(field).into());
+        }
         let value = zmotor_msgs::decode_write(field.def(), request.payload, request.encoding)?;
         let starts_jog = field.is_jog() && value != Value::Int(0);
         match &request.hold {
@@ -1176,6 +1181,7 @@ mod tests {
             (service(), &[Write("NOPE", "3")], UnknownField, "NOPE: unknown field"),
             (service(), &[Write("val", "3")], UnknownField, "val: unknown field; field names are upper case: VAL"),
             (service(), &[Write("RBV", "3")], ReadOnly, "RBV is read-only"),
+            (service(), &[Write("RBV", "abc")], ReadOnly, "RBV is read-only"),
             (service(), &[Write("VAL", "ten")], BadValue, "VAL: wrong type: expected a number, got text 'ten'"),
             (
                 service(),
