@@ -325,7 +325,8 @@ pub struct Completion {
     pub err: Vec<String>,
 }
 
-/// The simulator's physical state, published on `sim/<axis>/state`.
+/// The simulator's physical state, the answer to a get of `sim/<axis>/state` (not published:
+/// it changes at every instant of a motion).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
 pub struct SimState {
     /// True position in steps.
