@@ -204,7 +204,7 @@ pub(crate) struct AxisCore {
     /// The clock as read when this input's last post was handed on, while nothing else ran
     /// since: the next post's start. (A reading per post instead of two or three: at 600,000
     /// posts a second the readings were 6 % of the node.)
-    reading: Option<std::time::Instant>,
+    reading: Option<(std::time::Instant, u64)>,
     /// When the axis last posted (its start before): the time of the values a read answers.
     last_stamp: Timestamp,
     /// A field autosave keeps changed since the task last looked.
@@ -454,7 +454,7 @@ impl AxisCore {
         stamp: Timestamp,
         replaceable: bool,
     ) {
-        let mut start = self.clock_reading();
+        let mut reading = Some(self.clock_reading());
         let unsure = self.stream_log.take_unsure(&self.node.congestion);
         let resent = unsure.into_iter().filter_map(|(sample, marker, stamp)| {
             let key = self.sample_key(&sample)?;
@@ -467,14 +467,25 @@ impl AxisCore {
             let destination = Destination::Network(Locality::Remote);
             let waiting = self.events_waiting.clone();
             let post = EventPost { key, payload, encoding, attachment, stamp, destination, replaceable, waiting };
-            start = self.node.events.post_at(post, start);
+            reading = self.node.events.post_at(post, reading.unwrap_or_else(std::time::Instant::now));
         }
-        self.reading = Some(start);
+        if let Some(at) = reading {
+            self.keep_reading(at);
+        }
     }
 
-    /// The clock as read after this input's last post, or now.
+    /// Keep `at`, the clock as just read, for the next post.
+    fn keep_reading(&mut self, at: std::time::Instant) {
+        self.reading = Some((at, self.node.demand.asks()));
+    }
+
+    /// The clock as read after this input's last post, while nothing since may have taken time
+    /// (Zenoh's tables asked whether a post is wanted); else read now.
     fn clock_reading(&mut self) -> std::time::Instant {
-        self.reading.take().unwrap_or_else(std::time::Instant::now)
+        match self.reading.take() {
+            Some((at, asks)) if asks == self.node.demand.asks() => at,
+            _ => std::time::Instant::now(),
+        }
     }
 
     /// Publish the readback bundle: the state after the posts of this input, in one sample.
@@ -506,7 +517,7 @@ impl AxisCore {
         // One reading of the clock for the decision, the log and the put's start.
         let start = self.clock_reading();
         let now = self.node.congestion.at(start);
-        self.reading = Some(start);
+        self.keep_reading(start);
         match self.way(delivery, now) {
             Way::Stream => {
                 if self.stream_log.holds() {
@@ -542,7 +553,7 @@ impl AxisCore {
         }
         let start = std::time::Instant::now();
         let now = self.node.congestion.at(start);
-        self.reading = Some(start);
+        self.keep_reading(start);
         match self.way(Delivery::Stream, now) {
             Way::Stream => self.stream_held(now, None),
             Way::HoldBack => {}
@@ -575,7 +586,7 @@ impl AxisCore {
         };
         let end =
             self.node.congestion.timed(start, || put_state(&self.node.session, publisher, key, payload, marker, stamp));
-        self.reading = Some(end);
+        self.keep_reading(end);
         self.stream_log.record(now, sample, marker, stamp);
     }
 

@@ -34,6 +34,8 @@ pub(crate) struct FieldDemand {
     /// The fields', by `Field` number, then the readback bundle's (`<prefix>/*/@readback`),
     /// then the driver-command traces' (`<prefix>/*/@driver/cmd`).
     probes: Vec<Probe>,
+    /// How many times Zenoh's tables were asked.
+    asks: AtomicU64,
 }
 
 /// One kind of publication and whether anyone subscribes to it.
@@ -52,29 +54,35 @@ impl FieldDemand {
         for key in keys.chain([layout.readback("*"), layout.driver_cmd("*")]) {
             probes.push(Probe::watch(session, key).await?);
         }
-        Ok(Self { probes })
+        Ok(Self { probes, asks: AtomicU64::new(0) })
+    }
+
+    /// How many times Zenoh's tables were asked so far: an ask may wait while another thread
+    /// declares, so a reading of the clock taken before one times that wait too.
+    pub(crate) fn asks(&self) -> u64 {
+        self.asks.load(Ordering::Acquire)
     }
 
     /// Whether some subscriber wants `field`'s post, sent `delivery`'s way at `now`.
     pub(crate) fn wanted(&self, field: Field, delivery: Delivery, now: Instant) -> bool {
-        self.probes[field as usize].wanted(delivery, now)
+        self.probes[field as usize].wanted(delivery, now, &self.asks)
     }
 
     /// Whether some subscriber wants the readback bundle.
     pub(crate) fn readback_wanted(&self, delivery: Delivery, now: Instant) -> bool {
-        self.probes[Field::COUNT].wanted(delivery, now)
+        self.probes[Field::COUNT].wanted(delivery, now, &self.asks)
     }
 
     /// Whether some subscriber wants the driver-command traces (each a change: asked at once).
     pub(crate) fn traces_wanted(&self, now: Instant) -> bool {
-        self.probes[Field::COUNT + 1].wanted(Delivery::Event, now)
+        self.probes[Field::COUNT + 1].wanted(Delivery::Event, now, &self.asks)
     }
 
     /// Whether every kind of publication whose keys `key_expr` meets is wanted, asking Zenoh
     /// where a flag says no: once it is, their stream samples too are sent at once.
     pub(crate) fn covers(&self, key_expr: &KeyExpr<'_>) -> bool {
         let meets = |probe: &&Probe| probe.publisher.key_expr().intersects(key_expr);
-        self.probes.iter().filter(meets).all(|probe| probe.wanted.load(Ordering::Acquire) || probe.ask())
+        self.probes.iter().filter(meets).all(|probe| probe.wanted.load(Ordering::Acquire) || probe.ask(&self.asks))
     }
 }
 
@@ -107,11 +115,12 @@ impl Probe {
 
     /// For an event, the flag, or Zenoh's answer where the flag says no; for a stream sample,
     /// Zenoh's answer every `STREAM_ASK_EVERY` (kept, whichever way), the flag between.
-    fn wanted(&self, delivery: Delivery, now: Instant) -> bool {
+    /// (`asks` counts the asks.)
+    fn wanted(&self, delivery: Delivery, now: Instant, asks: &AtomicU64) -> bool {
         let known = self.wanted.load(Ordering::Acquire);
         match delivery {
-            Delivery::Event if !known => self.ask(),
-            Delivery::Stream if self.stream_ask_due(now) => self.ask(),
+            Delivery::Event if !known => self.ask(asks),
+            Delivery::Stream if self.stream_ask_due(now) => self.ask(asks),
             _ => known,
         }
     }
@@ -129,7 +138,8 @@ impl Probe {
     /// Zenoh computes the answer at the first poll; its `wait` would go through `block_in_place`
     /// and a runtime's `block_on` for it, half the ask's cost (part 19). Were it ever pending,
     /// the post is sent (the tests' "nobody there" case would fail).
-    fn ask(&self) -> bool {
+    fn ask(&self, asks: &AtomicU64) -> bool {
+        asks.fetch_add(1, Ordering::AcqRel);
         let mut answer = pin!(self.publisher.matching_status().into_future());
         let matching = match answer.as_mut().poll(&mut Context::from_waker(Waker::noop())) {
             Poll::Ready(status) => status.is_ok_and(|status| status.matching()),

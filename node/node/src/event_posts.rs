@@ -129,14 +129,14 @@ impl EventOutbox {
         self.post_at(post, std::time::Instant::now());
     }
 
-    /// `post`, the clock read just before at `start`; returns the clock as read after it (`start`
-    /// when it was only queued, which takes no time to speak of).
-    pub(crate) fn post_at(&self, post: EventPost, start: std::time::Instant) -> std::time::Instant {
+    /// `post`, the clock read just before at `start`; returns the clock as read after a put, none
+    /// after a post queued (the queue's lock may have waited on the sender: not read, not known).
+    pub(crate) fn post_at(&self, post: EventPost, start: std::time::Instant) -> Option<std::time::Instant> {
         if post.waiting.load(Ordering::Acquire) == 0 && !self.congestion.recent_at(self.congestion.at(start)) {
-            self.congestion.timed(start, || self.put(post))
+            Some(self.congestion.timed(start, || self.put(post)))
         } else {
             self.shared.queue(post);
-            start
+            None
         }
     }
 
