@@ -149,7 +149,16 @@ pub fn decode_write(def: &FieldDef, bytes: &[u8], encoding: PayloadEncoding) -> 
         let line = text.strip_suffix('\n').map_or(text, |t| t.strip_suffix('\r').unwrap_or(t));
         return validate(def, Value::Text(line.to_string()));
     }
-    match decode_item(bytes, encoding).map_err(malformed)? {
+    let item = match decode_item(bytes, encoding) {
+        Ok(item) => item,
+        // What Python's json.dumps writes for a float that is no number: not JSON, but plain in
+        // meaning to a DOUBLE or FLOAT field, so the refusal says what is wrong with the value.
+        Err(e) if encoding == PayloadEncoding::Json && matches!(def.kind, Kind::Double | Kind::Float) => {
+            non_finite_json(bytes).ok_or_else(|| malformed(e))?
+        }
+        Err(e) => return Err(malformed(e)),
+    };
+    match item {
         Item::Scalar(value) => validate(def, value),
         // A flag is 1 or 0 to a field that takes only whole numbers (a button: JOGF, STOP) or a
         // menu of two choices (CNEN); to a position, a speed or a longer menu it is a client's
@@ -191,12 +200,7 @@ fn decode_item(bytes: &[u8], encoding: PayloadEncoding) -> Result<Item, Malforme
                 .ok_or_else(|| malformed(format!("a single number or text is required, got {}", cbor_kind(bytes))))
         }
         PayloadEncoding::Json => {
-            let v: serde_json::Value = match serde_json::from_slice(bytes) {
-                Ok(v) => v,
-                // What Python's json.dumps writes for a float that is no number: not JSON, but
-                // plain in meaning, so the refusal says what is wrong with the value.
-                Err(e) => return non_finite_json(bytes).ok_or_else(|| malformed(e.to_string())),
-            };
+            let v: serde_json::Value = serde_json::from_slice(bytes).map_err(|e| malformed(e.to_string()))?;
             from_json(&v).ok_or_else(|| malformed(format!("a number or a string is required, got {}", json_kind(&v))))
         }
         PayloadEncoding::Text => {
@@ -505,6 +509,8 @@ mod tests {
         for python in ["NaN", "Infinity", "-Infinity"] {
             let e = write(Field::VAL, python.as_bytes(), Json).unwrap_err();
             assert!(matches!(e, CodecError::NotFinite { field: "VAL", .. }), "{python}: {e}");
+            let e = write(Field::DESC, python.as_bytes(), Json).unwrap_err();
+            assert!(matches!(e, CodecError::Malformed { encoding: "JSON", .. }), "to a text field, {python}: {e}");
         }
         let e = write(Field::FRAC, b"1e39", Text).unwrap_err();
         let beyond = "FRAC: 1e39 is beyond what the field holds (a FLOAT: at most 3.4e38 either way)";
