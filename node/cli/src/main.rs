@@ -9,8 +9,8 @@ use std::process::ExitCode;
 use std::time::{Duration, SystemTime};
 use zmotor_client::{interrupted, show, Client, Event, NoAnswer, Selection, SessionError, WriteOptions, WriteOutcome};
 use zmotor_deploy::{
-    import_db, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode, Ros2Config, TlsConfig,
-    WebConfig, ZenohConfig,
+    import_db, simulated_without_controllers, CaConfig, Distribution, JointConfig, Launch, LoginConfig, Macros, Mode,
+    Ros2Config, TlsConfig, WebConfig, ZenohConfig,
 };
 use zmotor_msgs::{keys, Field, KeyLayout, Value, FIELDS};
 use zmotor_node::{state_dir, AutosaveConfig, Node, StateStore};
@@ -467,7 +467,8 @@ fn bench(args: &[String]) -> Result<ExitCode, Error> {
 /// A launch file, or an EPICS database converted into one (with what the conversion warns of).
 fn load(file: &std::path::Path, macros: &[String]) -> Result<(Launch, Vec<String>), Error> {
     if file.extension().is_some_and(|e| e == "db") {
-        let (converted, warnings) = import_db(file, &Macros::parse(macros)?, keys::DEFAULT_PREFIX)?;
+        let (mut converted, mut warnings) = import_db(file, &Macros::parse(macros)?, keys::DEFAULT_PREFIX)?;
+        warnings.extend(simulated_without_controllers(&mut converted));
         let name = format!("{} (as converted by zmotor convert)", file.display());
         Ok((Launch::from_file(&name, converted)?, warnings))
     } else if !macros.is_empty() {

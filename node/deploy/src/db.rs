@@ -59,6 +59,24 @@ pub fn import_db_text(
     })
 }
 
+/// A database launched on its own has no controller: its asyn motors, each naming a port no
+/// launch file defines, run as simulated axes, each with a warning (in a launch file's
+/// `[[database]]` they run on its `[[controller]]`s, and a port it lacks is an error).
+pub fn simulated_without_controllers(file: &mut LaunchFile) -> Vec<String> {
+    let mut warnings = Vec::new();
+    for axis in file.axes.iter_mut().filter(|a| a.driver == DriverKind::Controller) {
+        let port = axis.controller.take().unwrap_or_default();
+        axis.channel = None;
+        axis.driver = DriverKind::Sim;
+        warnings.push(format!(
+            "motor '{}': DTYP 'asynMotor' on port '{port}', which no launch file defines here; it runs as a \
+             simulated axis (a launch file's [[database]] runs it on its [[controller]] '{port}')",
+            axis.name
+        ));
+    }
+    warnings
+}
+
 /// What is wrong in a database, and on which line.
 #[derive(Debug, PartialEq)]
 pub(super) struct Failure {
@@ -829,6 +847,16 @@ mod tests {
         assert!(warnings.iter().any(|w| w.contains("type stringin is not supported")), "{warnings:?}");
         assert!(warnings.iter().any(|w| w.contains("DTYP 'OMS VME58'")), "{warnings:?}");
         Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn asyn_motors_of_a_database_launched_alone_are_simulated_with_a_warning() {
+        let text = r#"record(motor, "x") { field(DTYP, "asynMotor") field(OUT, "@asyn(MCB, 1, 1.0)") }"#;
+        let (mut file, _) = import_text(text, &Macros::default(), keys::DEFAULT_PREFIX).unwrap();
+        let warnings = simulated_without_controllers(&mut file);
+        assert_eq!((file.axes[0].driver, file.axes[0].controller.as_deref()), (DriverKind::Sim, None));
+        assert!(warnings[0].starts_with("motor 'x': DTYP 'asynMotor' on port 'MCB'"), "{warnings:?}");
+        Launch::from_file("db", file).unwrap().deployment(None).unwrap();
     }
 
     #[test]

@@ -18,7 +18,7 @@ mod problem;
 #[cfg(test)]
 mod tests;
 
-pub use db::{import_db, import_db_text, MacroError, Macros};
+pub use db::{import_db, import_db_text, simulated_without_controllers, MacroError, Macros};
 pub use deployment::{Deployment, NodeContents, ValueSpec};
 pub use file::{
     AutosaveSection, AxisSection, CalcInput, CalcOption, CalcSection, ChannelAccessSection, ControllerSection,
