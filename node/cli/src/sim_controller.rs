@@ -68,7 +68,9 @@ pub(crate) async fn run(
     match endpoint {
         Endpoint::Tcp(address) => {
             let emulated = Emulated::new(model, channels, faults.faults(), None);
-            let listener = tokio::net::TcpListener::bind(&address).await?;
+            let listener = tokio::net::TcpListener::bind(&address)
+                .await
+                .map_err(|e| format!("cannot listen on {address} (--listen): {e}"))?;
             tracing::info!("{name} emulated on tcp {}; Ctrl-C to stop", listener.local_addr()?);
             tokio::select! {
                 result = emulated.serve_tcp(listener) => Ok(result?),

@@ -386,3 +386,17 @@ fn a_controllers_error_reaches_the_axis_err() {
     assert!(said.contains("reached=0"), "{said}");
     assert!(said_once(&said, "ERR: c884: controller error 7: Position out of limits"), "once: {said}");
 }
+
+#[test]
+fn an_emulator_whose_port_is_taken_says_which_address_it_could_not_listen_on() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let address = taken.local_addr().unwrap().to_string();
+    let output = Command::new(env!("CARGO_BIN_EXE_zmotor"))
+        .args(["sim-controller", "acs_mcb4b", "--listen", &address])
+        .env("RUST_LOG", "off")
+        .output()
+        .unwrap();
+    let said = String::from_utf8_lossy(&output.stderr);
+    assert!(!output.status.success(), "{said}");
+    assert!(said.contains(&format!("cannot listen on {address} (--listen): ")), "{said}");
+}
