@@ -695,7 +695,8 @@ async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
                 Some(false) => "idle",
                 None => "?",
             };
-            let rbv = a.rbv.map_or_else(|| "?".into(), |r| r.to_string());
+            // As caget shows it: at the axis's precision.
+            let rbv = a.rbv.map_or_else(|| "?".into(), |r| show(Field::RBV, &zmotor_msgs::Value::Float(r), a.prec));
             [a.name.clone(), text(&a.desc), text(&a.egu), rbv, state.into()]
         })
         .collect();

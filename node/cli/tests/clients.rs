@@ -106,6 +106,8 @@ fn list_get_of_several_axes_and_monitors_show_what_is_live() {
     here.put(&endpoint, "m2", "PREC", "3", false).unwrap();
     here.put(&endpoint, "m2", "VAL", "6.991", true).unwrap();
     assert_eq!(stdout(&here, &["get", "m2", "RBV", "--connect", &endpoint]), "6.991\n");
+    let listed = stdout(&here, &["list", "--connect", &endpoint]);
+    assert!(listed.lines().any(|l| l.starts_with("m2 ") && l.contains("  6.991  ")), "at PREC 3: {listed}");
     assert_eq!(stdout(&here, &["get", "m2", "VELO", "--connect", &endpoint]), "10.000\n");
 
     // A move seen by a camonitor-style monitor and a JSON one.

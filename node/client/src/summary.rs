@@ -19,6 +19,8 @@ pub struct AxisSummary {
     pub egu: Option<String>,
     /// RBV.
     pub rbv: Option<f64>,
+    /// PREC: the decimals RBV is shown with.
+    pub prec: Option<i16>,
     /// Whether it moves (DMOV 0); `None` when DMOV did not answer.
     pub moving: Option<bool>,
 }
@@ -39,7 +41,7 @@ impl Client {
         }
         let mut rows: BTreeMap<String, AxisSummary> =
             names.into_iter().map(|name| (name.clone(), AxisSummary { name, ..AxisSummary::default() })).collect();
-        for field in [Field::DESC, Field::EGU, Field::RBV, Field::DMOV] {
+        for field in [Field::DESC, Field::EGU, Field::RBV, Field::PREC, Field::DMOV] {
             let replies = session.get(layout.field_of_every_axis(field)).timeout(PATIENCE).await?;
             while let Ok(reply) = replies.recv_async().await {
                 let Ok(sample) = reply.result() else { continue };
@@ -51,6 +53,7 @@ impl Client {
                     (Field::DESC, Value::Text(text)) => row.desc = Some(text),
                     (Field::EGU, Value::Text(text)) => row.egu = Some(text),
                     (Field::RBV, value) => row.rbv = value.as_f64(),
+                    (Field::PREC, Value::Int(prec)) => row.prec = i16::try_from(prec).ok(),
                     (Field::DMOV, value) => row.moving = value.as_f64().map(|d| d == 0.0),
                     _ => {}
                 }
