@@ -56,7 +56,8 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
     let address = free_address();
     let _web = here.spawn(&["web", "--address", &address, "--connect", &endpoint], dir.path());
     let axes = http_get(&address, "/api/axes");
-    assert!(axes.contains(r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"moving":false"#), "{axes}");
+    let m1 = r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"prec":3,"moving":false"#;
+    assert!(axes.contains(m1), "{axes}");
 }
 
 /// A node of `AXIS` on `host`, listening on `endpoint`, whose launch file serves the screens at
