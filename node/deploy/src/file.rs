@@ -271,9 +271,44 @@ pub struct HostSection {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     /// Endpoints the host connects to, instead of `[zenoh]`'s.
     pub connect: Option<Vec<String>>,
-    /// The host's TLS certificate and key, instead of `[zenoh.tls]`.
+    /// The host's TLS settings over `[zenoh.tls]`'s (its own certificate and key, most often).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub tls: Option<TlsConfig>,
+    pub tls: Option<HostTls>,
+}
+
+/// A host's `[hosts.<name>.tls]`: each key given replaces `[zenoh.tls]`'s, the others stay (a
+/// host that names its own certificate keeps the authority and mutual TLS: leaving `mutual`
+/// out never turns it off there).
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct HostTls {
+    /// PEM file of the certificate authority, instead of `[zenoh.tls]`'s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ca: Option<String>,
+    /// PEM file of the host's certificate.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub certificate: Option<String>,
+    /// PEM file of its private key.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub key: Option<String>,
+    /// Mutual TLS on this host, instead of `[zenoh.tls]`'s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mutual: Option<bool>,
+}
+
+impl HostTls {
+    /// `[zenoh.tls]` (`base`) with this host's keys over it; `None` when neither names an
+    /// authority.
+    pub(crate) fn over(&self, base: Option<TlsConfig>) -> Option<TlsConfig> {
+        let base = base.unwrap_or_default();
+        let ca = self.ca.clone().or((!base.ca.is_empty()).then_some(base.ca))?;
+        Some(TlsConfig {
+            ca,
+            certificate: self.certificate.clone().or(base.certificate),
+            key: self.key.clone().or(base.key),
+            mutual: self.mutual.unwrap_or(base.mutual),
+        })
+    }
 }
 
 /// Where an item was written: which file of the launch, and its index in that file's array.

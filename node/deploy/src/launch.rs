@@ -396,7 +396,13 @@ impl Launch {
             zenoh.mode = section.mode.unwrap_or(zenoh.mode);
             zenoh.listen = section.listen.clone().unwrap_or(zenoh.listen);
             zenoh.connect = section.connect.clone().unwrap_or(zenoh.connect);
-            zenoh.tls = section.tls.clone().or(zenoh.tls);
+            if let Some(own) = &section.tls {
+                zenoh.tls = Some(own.over(zenoh.tls.take()).ok_or_else(|| LaunchError {
+                    file: self.sources[0].name.clone(),
+                    line: None,
+                    message: format!("hosts.{host}.tls: ca: no certificate authority here nor in [zenoh.tls]"),
+                })?);
+            }
         }
         self.resolve_files(&mut zenoh);
         let runs_here = |item_host: &Option<String>| host.is_none() || item_host.as_deref() == host;

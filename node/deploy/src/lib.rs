@@ -22,7 +22,7 @@ pub use db::{import_db, import_db_text, simulated_without_controllers, MacroErro
 pub use deployment::{Deployment, NodeContents, ValueSpec};
 pub use file::{
     AutosaveSection, AxisSection, CalcInput, CalcOption, CalcSection, ChannelAccessSection, ControllerSection,
-    DatabaseSection, DriverKind, FlowControlChoice, HostSection, InputLinkMode, JogHoldChoice, JointSection,
+    DatabaseSection, DriverKind, FlowControlChoice, HostSection, HostTls, InputLinkMode, JogHoldChoice, JointSection,
     LaunchError, LaunchFile, Origin, ParityChoice, Ros2Section, ScriptFiles, SerialSection, UnknownChoice,
     ValueSection, WebSection, MAX_READBACK_RATE,
 };

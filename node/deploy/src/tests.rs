@@ -113,6 +113,25 @@ fn access_rules_and_tls_files_are_checked_and_resolved_against_the_launch_file()
 }
 
 #[test]
+fn a_hosts_tls_keys_go_over_the_networks_and_never_turn_mutual_tls_off_unsaid() {
+    let text = "[zenoh]\nlisten = [\"quic/127.0.0.1:7447\"]\n\
+                [zenoh.tls]\nca = \"ca.pem\"\ncertificate = \"node.pem\"\nkey = \"node.key\"\nmutual = true\n\
+                [hosts.optics.tls]\ncertificate = \"optics.pem\"\nkey = \"optics.key\"\n\
+                [hosts.open.tls]\nmutual = false\n\
+                [[axis]]\nname = \"m1\"\nhost = \"optics\"\n[[axis]]\nname = \"m2\"\nhost = \"open\"\n";
+    let launch = Launch::from_text("lab.toml", text, Path::new("/srv/lab")).unwrap();
+    let tls = |host| launch.deployment(Some(host)).unwrap().zenoh.tls.unwrap();
+    let optics = tls("optics");
+    assert_eq!((optics.ca.as_str(), optics.certificate.as_deref()), ("/srv/lab/ca.pem", Some("/srv/lab/optics.pem")));
+    assert!(optics.mutual, "a host naming its own certificate keeps mutual TLS");
+    let open = tls("open");
+    assert_eq!((open.certificate.as_deref(), open.mutual), (Some("/srv/lab/node.pem"), false));
+    let orphan = "[hosts.a.tls]\ncertificate = \"a.pem\"\n[[axis]]\nname = \"m1\"\nhost = \"a\"\n";
+    let error = Launch::parse(orphan).unwrap().deployment(Some("a")).unwrap_err();
+    assert_eq!(error.message, "hosts.a.tls: ca: no certificate authority here nor in [zenoh.tls]");
+}
+
+#[test]
 fn a_channel_access_section_runs_on_its_host() {
     let text = "[hosts.a]\n[hosts.b]\n[channel_access]\npv_prefix = \"bl1:\"\nport = 5070\nhost = \"b\"\n";
     let launch = Launch::parse(text).unwrap();
