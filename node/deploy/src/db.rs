@@ -32,6 +32,14 @@ impl Macros {
     }
 }
 
+impl From<BTreeMap<String, String>> for Macros {
+    /// Definitions given one by one (a launch file's `macros = { DESC = "x, coarse" }`): a
+    /// value is taken whole, commas and all.
+    fn from(definitions: BTreeMap<String, String>) -> Self {
+        Self(definitions)
+    }
+}
+
 /// A macro definition that is not `name=value`.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 #[error("macro definition '{0}' is not name=value")]

@@ -132,9 +132,7 @@ impl Launch {
             .extend(file.values.into_iter().enumerate().map(|(i, v)| ValueSection { origin: origin(i), ..v }));
         for database in &file.databases {
             let path = dir.join(&database.file);
-            let definitions: Vec<String> = database.macros.iter().map(|(k, v)| format!("{k}={v}")).collect();
-            let macros =
-                Macros::parse(&definitions).map_err(|e| self.error(Problem::at(source, vec![], e.to_string())))?;
+            let macros = Macros::from(database.macros.clone());
             // Its motors are served under the launch's prefix, and their links name them there.
             let prefix = self.file.zenoh.as_ref().map_or(keys::DEFAULT_PREFIX, |z| z.prefix.as_str());
             let (imported, warnings) = import_db(&path, &macros, prefix)?;

@@ -480,6 +480,12 @@ fn a_database_loaded_under_a_prefix_links_its_motors_there() {
     );
     let outputs: Vec<&str> = deployment.contents.calcs.iter().map(|c| c.output.as_str()).collect();
     assert!(outputs.contains(&"lab/me:linear/DVAL"), "{outputs:?}");
+    // A macro's value is taken whole, its comma too.
+    std::fs::write(dir.path().join("slit.db"), r#"record(motor, "m1") { field(DESC, "$(D)") }"#).unwrap();
+    let main = "[[database]]\nfile = \"slit.db\"\nmacros = { D = \"slit, coarse\" }\n";
+    std::fs::write(dir.path().join("main.toml"), main).unwrap();
+    let deployment = Launch::load(&dir.path().join("main.toml")).unwrap().deployment(None).unwrap();
+    assert_eq!(deployment.contents.plans[0].fields.desc, "slit, coarse");
 }
 
 const HOSTS: &str = r#"
