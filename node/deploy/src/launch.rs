@@ -243,14 +243,22 @@ impl Launch {
             controller.spec(Vec::new())?;
         }
         let front_ends = [
-            ("channel_access", self.file.channel_access.as_ref().and_then(|ca| ca.host.as_ref())),
-            ("web", self.file.web.as_ref().and_then(|web| web.host.as_ref())),
-            ("ros2", self.file.ros2.as_ref().and_then(|ros2| ros2.host.as_ref())),
+            ("channel_access", self.file.channel_access.as_ref().map(|ca| ca.host.as_ref())),
+            ("web", self.file.web.as_ref().map(|web| web.host.as_ref())),
+            ("ros2", self.file.ros2.as_ref().map(|ros2| ros2.host.as_ref())),
         ];
-        for (section, host) in front_ends {
-            if let Some(host) = host.filter(|h| !self.file.hosts.contains_key(*h)) {
-                let message = format!("{section}.host: '{host}' is not declared under [hosts]");
-                return Err(Problem::at(0, keys_path(&[section, "host"]), message));
+        for (section, host) in front_ends.into_iter().filter_map(|(section, host)| Some((section, host?))) {
+            match host {
+                Some(host) if !self.file.hosts.contains_key(host) => {
+                    let message = format!("{section}.host: '{host}' is not declared under [hosts]");
+                    return Err(Problem::at(0, keys_path(&[section, "host"]), message));
+                }
+                // Under --host it would run on no host at all.
+                None if !self.file.hosts.is_empty() => {
+                    let message = format!("[{section}] names no host, and this launch declares hosts");
+                    return Err(Problem::at(0, keys_path(&[section]), message));
+                }
+                _ => {}
             }
         }
         self.check_axes_on_controllers()?;

@@ -144,6 +144,8 @@ fn a_channel_access_section_runs_on_its_host() {
     assert_eq!(web.map(|w| w.address.to_string()), Some("0.0.0.0:8081".into()));
     let unknown = Launch::parse("[web]\nhost = \"c\"\n").unwrap_err().to_string();
     assert!(unknown.contains("web.host: 'c' is not declared"), "{unknown}");
+    let nowhere = Launch::parse("[hosts.a]\n[hosts.b]\n[web]\n").unwrap_err().to_string();
+    assert_eq!(nowhere, "<launch>:3: [web] names no host, and this launch declares hosts");
 }
 
 #[test]
