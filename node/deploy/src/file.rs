@@ -256,6 +256,9 @@ pub struct DatabaseSection {
     /// Macro definitions, e.g. `{ P = "bl1:" }`.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub macros: BTreeMap<String, String>,
+    /// With `[hosts]`: the host that runs its records.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub host: Option<String>,
 }
 
 /// What differs on one host: how it joins the network.

@@ -21,6 +21,8 @@ use zmotor_msgs::{keys, KeyLayout};
 struct Source {
     name: String,
     text: String,
+    /// A database's: its records' host is its `[[database]]` entry's.
+    database: bool,
 }
 
 /// A whole launch: the main file with its includes merged, checked.
@@ -84,7 +86,7 @@ impl Launch {
     }
 
     fn read_source(&mut self, name: &str, text: &str) -> Result<LaunchFile, LaunchError> {
-        self.sources.push(Source { name: name.to_string(), text: text.to_string() });
+        self.sources.push(Source { name: name.to_string(), text: text.to_string(), database: false });
         toml::from_str(text).map_err(|e: toml::de::Error| {
             let message = e.message().trim();
             // Named by its key, unless the message names it already.
@@ -139,8 +141,11 @@ impl Launch {
             let name = path.display().to_string();
             self.warnings.extend(warnings.into_iter().map(|w| format!("{name}: {w}")));
             // Errors found later in its records name the database (its lines are its own).
-            self.sources.push(Source { name, text: String::new() });
-            let imported = LaunchFile { include: Vec::new(), databases: Vec::new(), ..imported };
+            self.sources.push(Source { name, text: String::new(), database: true });
+            let mut imported = LaunchFile { include: Vec::new(), databases: Vec::new(), ..imported };
+            let hosts = imported.axes.iter_mut().map(|a| &mut a.host);
+            let hosts = hosts.chain(imported.calcs.iter_mut().map(|c| &mut c.host));
+            hosts.chain(imported.values.iter_mut().map(|v| &mut v.host)).for_each(|h| *h = database.host.clone());
             self.merge(imported, dir, visited)?;
         }
         for (index, include) in file.include.iter().enumerate() {
@@ -233,7 +238,10 @@ impl Launch {
                     return Err(Problem::in_item(table, *origin, &["host"], message));
                 }
                 None if !self.file.hosts.is_empty() => {
-                    let message = format!("{table} '{name}': names no host, and this launch declares hosts");
+                    let mut message = format!("{table} '{name}': names no host, and this launch declares hosts");
+                    if self.sources[origin.source].database {
+                        message += " (its [[database]] entry names the host of its records)";
+                    }
                     return Err(Problem::in_item(table, *origin, &["name"], message));
                 }
                 _ => {}

@@ -512,6 +512,43 @@ const HOSTS: &str = r#"
     "#;
 
 #[test]
+fn a_databases_records_run_on_its_host() {
+    let dir = tempfile::tempdir().unwrap();
+    let db = r#"record(motor, "$(P)m1") { field(DTYP, "asynMotor") field(OUT, "@asyn(mcb,3)") }
+record(motor, "$(P)soft") { field(DTYP, "Soft Channel") field(RDBL, "$(P)m1.RBV") }
+record(ao, "$(P)gap") { field(VAL, "2") }"#;
+    std::fs::write(dir.path().join("motors.db"), db).unwrap();
+    let main = "[hosts.optics]\n[hosts.user]\n[[axis]]\nname = \"u1\"\nhost = \"user\"\n\
+                [[database]]\nfile = \"motors.db\"\nmacros = { P = \"bl:\" }\nhost = \"optics\"\n\
+                [[controller]]\nname = \"mcb\"\nprotocol = \"acs_mcb4b\"\ntcp = \"h:4001\"\nhost = \"optics\"\n";
+    std::fs::write(dir.path().join("main.toml"), main).unwrap();
+    let launch = Launch::load(&dir.path().join("main.toml")).unwrap();
+    let optics = launch.deployment(Some("optics")).unwrap();
+    let names: Vec<&str> = optics.contents.plans.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["bl:m1", "bl:soft"]);
+    assert_eq!((optics.contents.values.len(), optics.contents.controllers.len()), (1, 1));
+    let user = launch.deployment(Some("user")).unwrap();
+    assert_eq!(user.contents.plans.iter().map(|p| p.name.as_str()).collect::<Vec<_>>(), ["u1"]);
+    assert!(user.contents.values.is_empty() && user.contents.controllers.is_empty());
+    std::fs::write(dir.path().join("main.toml"), main.replace("host = \"optics\"\n[[controller]]", "[[controller]]"))
+        .unwrap();
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.file.ends_with("motors.db"), "{error}");
+    assert_eq!(
+        error.message,
+        "axis 'bl:m1': names no host, and this launch declares hosts (its [[database]] entry names the host of its \
+         records)"
+    );
+    std::fs::write(
+        dir.path().join("main.toml"),
+        main.replace("host = \"optics\"\n[[controller]]", "host = \"user\"\n[[controller]]"),
+    )
+    .unwrap();
+    let error = Launch::load(&dir.path().join("main.toml")).unwrap_err();
+    assert!(error.message.contains("controller 'mcb' runs on another host"), "{error}");
+}
+
+#[test]
 fn each_host_starts_only_its_part() {
     let launch = Launch::parse(HOSTS).unwrap();
     let optics = launch.deployment(Some("optics")).unwrap();
