@@ -524,19 +524,34 @@ async fn launch(
             front_ends.1 = Some(zmotor_web::Web::start(client.clone(), config).await?);
         }
     }
+    let stopped = interrupted();
+    tokio::pin!(stopped);
+    let mut stopping = false;
     if let Some(config) = &deployment.ros2 {
-        // The ROS face is on the node's own session, the joints' values handed over as the node
-        // posts them: a readback reaches ROS as soon as zmotor's key (BENCHMARKS.md §10). Its
-        // writes are the node's queries to itself, under the node's own identity, as a client
-        // session of the node's credentials would be.
-        let (ros2, feed) =
-            zmotor_ros2::Ros2Node::start_fed(Client::new(session.clone(), layout.clone()), config).await?;
-        front_ends.3 = Some(node.follow_posts(&feed.keys(), move |index, value| feed.post(index, value)));
-        front_ends.2 = Some(ros2);
+        // The ROS face is on the node's own session, the joints' values of this node's axes
+        // handed over as it posts them: a readback reaches ROS as soon as zmotor's key
+        // (BENCHMARKS.md §10); other hosts' axes are followed over the network, and waited for.
+        // Its writes are the node's queries, under the node's own identity, as a client session
+        // of the node's credentials would be.
+        let client = Client::new(session.clone(), layout.clone());
+        tokio::select! {
+            started = zmotor_ros2::Ros2Node::start_fed(client, config, &names) => {
+                let (ros2, feed) = started?;
+                front_ends.3 = Some(node.follow_posts(&feed.keys(), move |index, value| feed.post(index, value)));
+                front_ends.2 = Some(ros2);
+            }
+            signal = &mut stopped => {
+                signal?;
+                stopping = true;
+            }
+        }
     }
-    tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode, listen = ?deployment.zenoh.listen,
-        connect = ?deployment.zenoh.connect, prefix = layout.prefix(), "zmotor serving; Ctrl-C to stop");
-    interrupted().await?;
+    if !stopping {
+        tracing::info!(axes = ?names, calcs = ?calc_names, mode = %deployment.zenoh.mode,
+            listen = ?deployment.zenoh.listen, connect = ?deployment.zenoh.connect, prefix = layout.prefix(),
+            "zmotor serving; Ctrl-C to stop");
+        stopped.await?;
+    }
     drop(front_ends);
     if let Some(client) = front_client {
         client.session().close().await?;

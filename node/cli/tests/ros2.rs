@@ -33,3 +33,33 @@ fn a_launch_files_ros_2_joints_follow_commands_and_trajectories_and_stop_on_canc
         assert_eq!(here.get(&endpoint, axis, "VELO"), Some(speed), "{axis}: the trajectories' speeds were undone");
     }
 }
+
+#[test]
+fn a_launch_files_ros_2_joints_of_another_hosts_axes_follow_them() {
+    // The shipped file split over two hosts on 127.0.0.1: the ROS face and m1 on "arm" (the
+    // router), m2 on "base", started after "arm" serves and its ROS face waits for m2.
+    let dir = tempfile::tempdir().unwrap();
+    let here = Host::default();
+    let (arm, base) = (zmotor_client::free_local_endpoint().unwrap(), zmotor_client::free_local_endpoint().unwrap());
+    let text = std::fs::read_to_string(common::repo_file("launch/ros2-joints.toml")).unwrap();
+    let split = text
+        .replace("[ros2]\n", "[ros2]\nhost = \"arm\"\n")
+        .replace("name = \"m1\"\n", "name = \"m1\"\nhost = \"arm\"\n")
+        .replace("name = \"m2\"\n", "name = \"m2\"\nhost = \"base\"\n")
+        + &format!(
+            "\n[hosts.arm]\nmode = \"router\"\nlisten = [\"{arm}\"]\n\
+             [hosts.base]\nlisten = [\"{base}\"]\nconnect = [\"{arm}\"]\n"
+        );
+    let file = dir.path().join("ros2-two-hosts.toml");
+    std::fs::write(&file, split).unwrap();
+    let file = file.to_str().unwrap();
+    let _arm = here.spawn(&["launch", file, "--host", "arm"], &dir.path().join("arm"));
+    here.wait_for(&arm, "m1", "DMOV", |v| v == 1.0);
+    let _base = here.spawn(&["launch", file, "--host", "base"], &dir.path().join("base"));
+    let output = environment::run_script(environment::python_script("ros2_trajectory.py").args([&arm, "/arm"]));
+    let said = format!("{}{}", String::from_utf8_lossy(&output.stdout), String::from_utf8_lossy(&output.stderr));
+    assert!(output.status.success() && said.contains("ros2 trajectory peer ok"), "{said}");
+    for (axis, speed) in [("m1", 10.0), ("m2", 30.0)] {
+        assert_eq!(here.get(&arm, axis, "VELO"), Some(speed), "{axis}: the trajectories' speeds were undone");
+    }
+}

@@ -7,8 +7,8 @@
 //! trajectory moves are confirmed writes, so refusals and access rules are the node's (which
 //! posts a refusal on the axis's ERR). One task drives the sans-IO state; the rest only moves
 //! bytes. The joints' values come from monitors over the network (`start`), or, in the process
-//! of the node serving the axes, from the node's own posts (`start_fed` and its `Feed`), one
-//! Zenoh hop sooner.
+//! of a node, from its posts for its own axes (`start_fed` and its `Feed`), one Zenoh hop
+//! sooner, and from monitors for the others.
 
 use std::collections::HashSet;
 use std::time::{Duration, SystemTime};
@@ -17,8 +17,8 @@ use zenoh::liveliness::LivelinessToken;
 use zenoh::query::{Query, Queryable};
 use zenoh::Session;
 use zenoh_ext::{AdvancedPublisher, AdvancedPublisherBuilderExt, CacheConfig, MissDetectionConfig};
-use zmotor_client::{Client, Selection, WriteOptions, WriteOutcome};
-use zmotor_deploy::Ros2Config;
+use zmotor_client::{AxisReading, Client, Selection, WriteOptions, WriteOutcome};
+use zmotor_deploy::{JointConfig, Ros2Config};
 use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
     decode, encode, topic_key, Attachment, CancelGoalRequest, Durability, EntityKind, FollowJointTrajectory,
@@ -152,12 +152,60 @@ fn request_attachment(query: &Query) -> Option<Attachment> {
     attachment
 }
 
+/// A joint's axis's fields and its EGU, once a node serves it: at once (or the joint is
+/// refused), or when `waits`, whenever its node comes (its liveliness token, or a second on).
+async fn read_served(client: &Client, joint: &JointConfig, waits: bool) -> Result<(AxisReading, String), Ros2Error> {
+    let (came, mut coming) = unbounded_channel();
+    let token = client.layout().axis(&joint.axis);
+    let _tokens = match waits {
+        true => Some(
+            client
+                .session()
+                .liveliness()
+                .declare_subscriber(token)
+                .callback(move |sample| {
+                    let _ = came.send(sample.kind());
+                })
+                .await?,
+        ),
+        false => None,
+    };
+    let mut told = false;
+    loop {
+        let reading = client.read(&joint.axis, Selection::All).await?;
+        if let Some(Value::Text(egu)) = reading.readings.iter().find(|r| r.field == Some(Field::EGU)).map(|r| &r.value)
+        {
+            let egu = egu.clone();
+            return Ok((reading, egu));
+        }
+        if !waits {
+            return Err(Ros2Error::Joint(format!("joint '{}': axis '{}' is not served", joint.name, joint.axis)));
+        }
+        if !told {
+            tracing::info!(joint = joint.name, axis = joint.axis, "waiting for a node to serve the joint's axis");
+            told = true;
+        }
+        let _ = tokio::time::timeout(Duration::from_secs(1), coming.recv()).await;
+    }
+}
+
 /// Where the joints' values come from.
-enum Source {
+enum Source<'a> {
     /// Monitors of each joint's axis over the network.
     Monitors,
-    /// A `Feed` the caller posts to.
-    Fed,
+    /// A `Feed` the caller posts to, for the joints of these axes (its node's); monitors for
+    /// the others, whose nodes (a launch's other hosts) may start after this one.
+    Fed(&'a [String]),
+}
+
+impl Source<'_> {
+    /// Whether the joint of `axis` is followed over the network.
+    fn monitors(&self, axis: &str) -> bool {
+        match self {
+            Source::Monitors => true,
+            Source::Fed(fed) => !fed.iter().any(|a| a == axis),
+        }
+    }
 }
 
 /// Hands the values of the joints' axes to a running ROS face from the node that posts them,
@@ -198,24 +246,20 @@ impl Ros2Node {
         Ok(Self::serve(client, config, Source::Monitors).await?.0)
     }
 
-    /// The node, its joints' axes reached through `client` but their values posted to the
-    /// `Feed` returned (their current values are read once).
-    pub async fn start_fed(client: Client, config: &Ros2Config) -> Result<(Self, Feed), Ros2Error> {
-        Self::serve(client, config, Source::Fed).await
+    /// The node, its joints' axes reached through `client`; the values of those on the `fed`
+    /// axes posted to the `Feed` returned (their current values are read once), the others
+    /// followed over the network, waited for until a node serves them (in a launch over
+    /// several hosts, another host's, which may start later).
+    pub async fn start_fed(client: Client, config: &Ros2Config, fed: &[String]) -> Result<(Self, Feed), Ros2Error> {
+        Self::serve(client, config, Source::Fed(fed)).await
     }
 
-    async fn serve(client: Client, config: &Ros2Config, source: Source) -> Result<(Self, Feed), Ros2Error> {
+    async fn serve(client: Client, config: &Ros2Config, source: Source<'_>) -> Result<(Self, Feed), Ros2Error> {
         let (events, inbox) = unbounded_channel();
         let mut joints = Vec::new();
         for joint in &config.joints {
-            let reading = client.read(&joint.axis, Selection::All).await?;
-            let egu = match reading.readings.iter().find(|r| r.field == Some(Field::EGU)).map(|r| &r.value) {
-                Some(Value::Text(egu)) => egu.clone(),
-                _ => {
-                    let message = format!("joint '{}': axis '{}' is not served", joint.name, joint.axis);
-                    return Err(Ros2Error::Joint(message));
-                }
-            };
+            let waits = matches!(source, Source::Fed(_)) && source.monitors(&joint.axis);
+            let (reading, egu) = read_served(&client, joint, waits).await?;
             let made = Joint::new(&joint.name, &joint.axis, &egu, joint.factor);
             joints.push(made.map_err(|e| Ros2Error::Joint(e.to_string()))?);
             for read in reading.readings.iter().filter(|r| r.field.is_some_and(|f| FOLLOWED.contains(&f))) {
@@ -261,22 +305,21 @@ impl Ros2Node {
             topic_key(config.domain_id, name, type_info)
         };
         let mut tasks = Vec::new();
-        if let Source::Monitors = source {
-            for joint in &joints {
-                let mut monitor = client.monitor(&joint.axis, &FOLLOWED).await?;
-                let events = events.clone();
-                tasks.push(tokio::spawn(async move {
-                    while let Some(update) = monitor.next().await {
-                        let (Some(field), Some(value)) = (update.field, update.value.as_f64()) else { continue };
-                        let at = update.at.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
-                        if events.send(Event::Posted { axis: update.axis, field, value, at }).is_err() {
-                            return;
-                        }
+        for joint in joints.iter().filter(|j| source.monitors(&j.axis)) {
+            let mut monitor = client.monitor(&joint.axis, &FOLLOWED).await?;
+            let events = events.clone();
+            tasks.push(tokio::spawn(async move {
+                while let Some(update) = monitor.next().await {
+                    let (Some(field), Some(value)) = (update.field, update.value.as_f64()) else { continue };
+                    let at = update.at.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
+                    if events.send(Event::Posted { axis: update.axis, field, value, at }).is_err() {
+                        return;
                     }
-                }));
-            }
+                }
+            }));
         }
-        let keys = joints.iter().flat_map(|j| FOLLOWED.iter().map(|f| (j.axis.clone(), *f))).collect();
+        let fed = joints.iter().filter(|j| !source.monitors(&j.axis));
+        let keys = fed.flat_map(|j| FOLLOWED.iter().map(|f| (j.axis.clone(), *f))).collect();
         let feed = Feed { events: events.clone(), keys, layout: client.layout().clone() };
         let commanding = events.clone();
         let commands = session
