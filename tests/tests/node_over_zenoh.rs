@@ -210,6 +210,9 @@ async fn simulator_faults_are_reachable_under_sim_keys() {
     put_text(&client, "sim/m1/position", "1500").await;
     rec.wait_for("RBV", |v| near(v, 1.5)).await;
     assert!(near(&get_value(&client, "sim/m1/position").await, 1500.0));
+    // A switch taken away reads back as it was written.
+    put_text(&client, "sim/m1/high_limit", "none").await;
+    assert_eq!(get_value(&client, "sim/m1/high_limit").await, Value::Text("none".into()));
     put_text(&client, "sim/m1/fraction", "7").await;
     let err = rec.wait_for("ERR", |_| true).await;
     assert!(matches!(&err, Value::Text(t) if t.contains("fraction 7")), "{err:?}");

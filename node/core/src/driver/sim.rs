@@ -295,7 +295,8 @@ impl SimAxis {
     /// The current value of a run-time setting.
     pub fn setting(&self, setting: SimSetting) -> Value {
         let flag = |on: bool| Value::Int(on.into());
-        let switch = |position: Option<f64>| Value::Float(position.unwrap_or(f64::NAN));
+        // As a write takes it: a switch that is not there is `none`.
+        let switch = |position: Option<f64>| position.map_or_else(|| Value::Text("none".into()), Value::Float);
         match setting {
             SimSetting::Position => Value::Float(self.physical),
             SimSetting::HighLimit => switch(self.config.high_limit_switch),
@@ -823,7 +824,7 @@ mod tests {
         s.apply(SimSetting::LowLimit, &Value::Text("none".into())).unwrap();
         s.apply(SimSetting::Fraction, &Value::Float(0.5)).unwrap();
         assert_eq!(s.setting(SimSetting::HighLimit), Value::Float(500.0));
-        assert!(s.setting(SimSetting::LowLimit).as_f64().unwrap().is_nan());
+        assert_eq!(s.setting(SimSetting::LowLimit), Value::Text("none".into()), "read back as it is written");
         assert_eq!(s.setting(SimSetting::Fraction), Value::Float(0.5));
     }
 
