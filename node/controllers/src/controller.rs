@@ -348,7 +348,10 @@ pub trait AnyController: Send {
 
 impl<P: Protocol> Controller<P> {
     /// A controller not connected yet: the first `handle_timeout` asks for the connection.
-    pub fn new(protocol: P, config: ControllerConfig, now: Instant) -> Self {
+    pub fn new(mut protocol: P, config: ControllerConfig, now: Instant) -> Self {
+        if config.observe {
+            protocol.observe_only();
+        }
         let channels = vec![Channel::default(); config.channels.iter().max().map_or(0, |c| c + 1)];
         let backoff = config.reconnect_first;
         Self {
@@ -513,26 +516,6 @@ impl<P: Protocol> AnyController for Controller<P> {
             requests: init.into(),
             issued: self.seq,
         });
-        for channel in self.config.channels.clone() {
-            let state = &mut self.channels[channel];
-            if !std::mem::take(&mut state.stop_owed) {
-                continue;
-            }
-            let stop = DriverCommand::Stop { acceleration: state.acceleration };
-            match self.protocol.command(channel, &stop) {
-                Ok(requests) => {
-                    tracing::warn!(channel, "moving or being stopped when the link was lost: stopped first");
-                    let kind = Kind::Stop { channel };
-                    self.queue.push(Transaction {
-                        priority: Priority::Stop,
-                        kind,
-                        requests: requests.into(),
-                        issued: self.seq,
-                    });
-                }
-                Err(e) => tracing::error!(channel, "the stop owed since the link was lost cannot be sent: {e}"),
-            }
-        }
         let channels = self.config.channels.clone();
         self.queue_poll_of(&channels, Priority::Stop);
         self.pump();
@@ -687,7 +670,13 @@ impl<P: Protocol> Controller<P> {
             self.received.clear();
         }
         if let Some(retry) = self.retry.take() {
-            self.send(retry.request, retry.attempts);
+            let stop_waits = self.queue.iter().any(|t| t.priority == Priority::Stop);
+            if stop_waits && self.link == Link::Up && self.current.as_ref().is_some_and(|t| t.kind == Kind::Poll) {
+                // The poll gives up this round rather than hold a stop back by a retry.
+                self.preempt_poll();
+            } else {
+                self.send(retry.request, retry.attempts);
+            }
         }
         while self.in_flight.is_none() && matches!(self.link, Link::Initialising { .. } | Link::Up) {
             if self.current.as_ref().is_none_or(|t| t.requests.is_empty()) {
@@ -782,6 +771,30 @@ impl<P: Protocol> Controller<P> {
                 self.events.push_back(ControllerEvent::Status { channel, status, motions });
             }
             self.check_scales();
+            self.queue_owed_stops();
+        }
+    }
+
+    /// The stops owed since the link was lost, before anything else now that it is up. Made
+    /// from what this link read, not from what the lost one last saw: the controller may have
+    /// changed meanwhile (a PMAC motor killed by a fault must not be closed by a `J/`), and the
+    /// initialisation has shown it is the controller it should be.
+    fn queue_owed_stops(&mut self) {
+        for channel in self.config.channels.clone() {
+            let state = &mut self.channels[channel];
+            if !std::mem::take(&mut state.stop_owed) {
+                continue;
+            }
+            let stop = DriverCommand::Stop { acceleration: state.acceleration };
+            match self.protocol.command(channel, &stop) {
+                Ok(requests) => {
+                    tracing::warn!(channel, "moving or being stopped when the link was lost: stopped first");
+                    self.seq += 1;
+                    let (kind, requests, issued) = (Kind::Stop { channel }, requests.into(), self.seq);
+                    self.queue.push(Transaction { priority: Priority::Stop, kind, requests, issued });
+                }
+                Err(e) => tracing::error!(channel, "the stop owed since the link was lost cannot be sent: {e}"),
+            }
         }
     }
 
@@ -942,7 +955,14 @@ impl<P: Protocol> Controller<P> {
                 self.on_event(ReplyEvent::ControllerError(error), issued);
             }
             ReplyEvent::FollowUp(requests) => {
-                if let Some(current) = self.current.as_mut() {
+                let stopping = |channel| self.queue.iter().any(|t| t.kind == Kind::Stop { channel });
+                let cut = match self.current.as_ref().map(|t| t.kind) {
+                    Some(Kind::Command { channel, motion: true }) => stopping(channel),
+                    _ => false,
+                };
+                // A motion its stop cut short is not carried on: what the reply asks for next
+                // (an XPS home's initialisation and search) would start it again.
+                if let Some(current) = self.current.as_mut().filter(|_| !cut) {
                     for request in requests.into_iter().rev() {
                         current.requests.push_front(request);
                     }
@@ -966,7 +986,9 @@ impl<P: Protocol> Controller<P> {
             return;
         }
         let kind = self.current.as_ref().map(|t| t.kind);
-        if kind.is_some_and(Kind::retryable) && in_flight.attempts <= self.config.retries {
+        // A setting of the initialisation changes the controller: not sent twice, as a command.
+        let changes = P::purpose(in_flight.request.step) == Purpose::Setup;
+        if kind.is_some_and(Kind::retryable) && !changes && in_flight.attempts <= self.config.retries {
             let retry = InFlight { attempts: in_flight.attempts + 1, ..in_flight };
             if self.quiet_until.is_some() {
                 self.retry = Some(retry);
@@ -1017,7 +1039,8 @@ impl<P: Protocol> Controller<P> {
         for channel in self.config.channels.clone() {
             self.report_lost(channel);
             let state = &mut self.channels[channel];
-            state.stop_owed |= state.moving || stopping.contains(&channel);
+            // An observed controller owes none: the IOC beside it drives its axes.
+            state.stop_owed |= !self.config.observe && (state.moving || stopping.contains(&channel));
             state.moving = false;
         }
         self.go_down(wait);

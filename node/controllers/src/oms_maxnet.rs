@@ -37,7 +37,9 @@
 //! every axis) at connection: zmotor stops nothing that it did not start. A poll is four
 //! exchanges for every axis at once, as motorOmsAsyn's: `AM;RI;` (the status of each axis, its
 //! done flag cleared by the reading), `AM PP;` (positions), `AM;RV;` (speeds), `AM;QL;` (the
-//! limit inputs; an empty field reads 0, as motorOmsAsyn reads it):
+//! limit inputs; an empty field reads 0, as motorOmsAsyn reads it). Under `observe` the statuses
+//! are read with `AM;QI;`, which leaves the done flags to the IOC beside (its own `RI` clears
+//! them):
 //!
 //! | reading | MSTA |
 //! |---|---|
@@ -120,11 +122,13 @@ pub(crate) struct Maxnet {
     polled: Vec<usize>,
     /// The channel of the last command sent.
     last_commanded: Option<usize>,
+    /// Observed beside an IOC: the done flags are read without clearing them (`QI`).
+    observed: bool,
 }
 
 impl Maxnet {
     pub(crate) fn new() -> Self {
-        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None }
+        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None, observed: false }
     }
 
     /// The speed settings of a motion: `AC`, then `VL` and `VB` in the order that keeps the
@@ -210,6 +214,8 @@ impl Maxnet {
     /// The statuses of the poll, its last reading in.
     fn statuses(&mut self, limits: u32) -> Vec<ReplyEvent<Step>> {
         let mut events = Vec::new();
+        // Read by `QI`, a done flag stays until the IOC's `RI`, through its next motion.
+        let flag_is_news = !self.observed;
         for &channel in &self.polled {
             let axis = &mut self.axes[channel];
             let status = &mut axis.status;
@@ -220,7 +226,7 @@ impl Maxnet {
             set_bit(&mut status.msta, msta::PLUS_LS, level(high) == axis.limits_active_high);
             let moving = status.velocity != 0.0;
             let at_a_limit = status.msta & (msta::MINUS_LS | msta::PLUS_LS) != 0;
-            let done = if axis.done_flag {
+            let done = if axis.done_flag && flag_is_news {
                 true
             } else if moving {
                 axis.at_rest_polls = 0;
@@ -320,10 +326,14 @@ impl Protocol for Maxnet {
         requests
     }
 
+    fn observe_only(&mut self) {
+        self.observed = true;
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         self.polled = channels.to_vec();
         [
-            ("AM;RI;", Reading::Statuses),
+            (if self.observed { "AM;QI;" } else { "AM;RI;" }, Reading::Statuses),
             ("AM PP;", Reading::Positions),
             ("AM;RV;", Reading::Velocities),
             ("AM;QL;", Reading::Limits),

@@ -275,6 +275,11 @@ pub trait Protocol: Send {
         false
     }
 
+    /// The controller is only observed (`observe = true`, beside the IOC that drives it): from
+    /// now on its polls leave out the readings that clear what the controller keeps for its
+    /// other clients (a done flag, an error register or queue), or read it without clearing.
+    fn observe_only(&mut self) {}
+
     /// Whether motion calls go on connections of their own (`Lane::Motion`): the runner then
     /// opens one for each channel beside the main one.
     fn motion_lanes(&self) -> bool {

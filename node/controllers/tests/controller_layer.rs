@@ -257,6 +257,22 @@ fn a_command_the_protocol_cannot_express_is_refused_with_a_problem_and_sends_not
 }
 
 #[test]
+fn a_stop_is_not_held_back_by_the_retry_of_a_poll() {
+    let mut lb = loopback(ACS, &[0], Faults::default());
+    bring_up(&mut lb);
+    // The reply to the next poll is lost; a stop comes while it is awaited.
+    lb.link.set_faults(Faults { drop_every: Some(1), ..Faults::default() });
+    until_idle_poll_in_flight(&mut lb);
+    lb.run_for(MS);
+    lb.link.set_faults(Faults::default());
+    let start = lb.written().len();
+    lb.command(0, &DriverCommand::Stop { acceleration: 1000.0 });
+    lb.run_for(Duration::from_millis(1500));
+    let sent = written_since(&lb, start);
+    assert_eq!(sent.first().map(String::as_str), Some("#00Q\r"), "the stop, not the poll's retry: {sent:?}");
+}
+
+#[test]
 fn a_stop_whose_reply_is_lost_is_sent_again() {
     let mut lb = loopback(ACS, &[0], Faults::default());
     bring_up(&mut lb);
@@ -274,8 +290,13 @@ fn a_stop_whose_reply_is_lost_is_sent_again() {
     assert!(!lb.link.emulator().axis(0).expect("channel 0").is_moving());
 }
 
+/// What the ACS protocol sends to read `channels` afresh (a new link's reading before it is up).
+fn reads_of(channels: &[usize]) -> Vec<String> {
+    channels.iter().flat_map(|c| ["X", "P", "E", "W"].map(|letter| format!("#{c:02}{letter}\r"))).collect()
+}
+
 #[test]
-fn a_jog_running_when_the_link_is_lost_is_stopped_first_when_it_is_back() {
+fn a_jog_running_when_the_link_is_lost_is_stopped_first_once_the_new_link_has_read_the_controller() {
     let mut lb = loopback(ACS, &[0, 1], Faults::default());
     bring_up(&mut lb);
     lb.command(1, &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 100_000.0 });
@@ -287,7 +308,8 @@ fn a_jog_running_when_the_link_is_lost_is_stopped_first_when_it_is_back() {
     lb.run_for(Duration::from_secs(2));
     assert!(lb.controller.is_up());
     let sent = written_since(&lb, start);
-    assert_eq!(sent.first().map(String::as_str), Some("#01Q\r"), "the stop goes first: {sent:?}");
+    let stopped_first = [reads_of(&[0, 1]), vec!["#01Q\r".to_string()]].concat();
+    assert_eq!(sent[..stopped_first.len()], stopped_first, "the stop goes first once the link is up: {sent:?}");
     assert_eq!(sent.iter().filter(|w| w.starts_with("#00Q")).count(), 0, "only the channel that moved");
     let now = lb.now();
     let axis = lb.link.emulator().axis(1).expect("channel 1");
@@ -346,7 +368,9 @@ fn a_stop_is_taken_while_the_link_initialises_and_owed_while_it_is_down() {
     let start = lb.written().len();
     lb.set_reachable(true);
     lb.run_for(Duration::from_secs(2));
-    assert_eq!(written_since(&lb, start).first().map(String::as_str), Some("#00Q\r"), "the owed stop");
+    let sent = written_since(&lb, start);
+    let stopped_first = [reads_of(&[0]), vec!["#00Q\r".to_string()]].concat();
+    assert_eq!(sent[..stopped_first.len()], stopped_first, "the owed stop, first once the link is up: {sent:?}");
 }
 
 /// A protocol whose controller never initialises (its `ID?` answer is never right), though it

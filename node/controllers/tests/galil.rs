@@ -113,3 +113,13 @@ proptest! {
         common::no_malformed_frames(GALIL, &CHANNELS, common::Start::AsPoweredUp, &commands);
     }
 }
+
+#[test]
+fn a_setting_of_the_initialisation_whose_reply_is_lost_is_not_sent_twice_on_one_connection() {
+    // The fifth reply, SHAB's (after the firmware's, QZ's and two MT?'s), is lost: the link is
+    // given up and opened again (after 1.5 s here), never the servos switched on twice in a row.
+    let mut lb = loopback(GALIL, &CHANNELS, Faults { drop_every: Some(5), ..Faults::default() });
+    lb.run_for(Duration::from_millis(1400));
+    let servos_on = lb.written().iter().filter(|w| w.starts_with(b"SHAB")).count();
+    assert_eq!(servos_on, 1, "{:?}", lb.written());
+}

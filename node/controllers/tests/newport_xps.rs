@@ -315,3 +315,28 @@ fn a_poll_that_reached_the_controller_before_the_motion_call_does_not_end_it() {
     let end = *run_until_done(&mut lb, 1, TICK, Duration::from_secs(10)).last().expect("done");
     assert!((end.position - 20_000.0).abs() < 1e-6, "{end:?}");
 }
+
+#[test]
+fn a_stop_while_a_home_reads_its_group_starts_nothing_after_it() {
+    // The stop comes while the home's `GroupStatusGet` is on its way: what its answer would
+    // have asked for next (a kill, an initialisation, the search) is not sent.
+    let mut lb = loopback(XPS, &CHANNELS, Faults { delay: Duration::from_millis(5), ..Faults::default() });
+    bring_up(&mut lb);
+    let start = lb.written().len();
+    let home =
+        DriverCommand::Home { forward: true, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(1, &home);
+    lb.command(1, &DriverCommand::Stop { acceleration: 200_000.0 });
+    lb.run_for(Duration::from_secs(2));
+    let sent = written_since(&lb, start);
+    assert!(sent.first().is_some_and(|l| l.starts_with("GroupStatusGet")), "the home's reading went: {sent:?}");
+    let started = ["GroupKill", "GroupInitialize", "GroupHomeSearch"];
+    assert!(
+        !sent.iter().any(|l| started.iter().any(|s| l.starts_with(s))),
+        "nothing of the home after the stop: {sent:?}"
+    );
+    let now = lb.now();
+    let axis = lb.link.emulator().axis(1).expect("an emulated positioner");
+    zmotor_core::Driver::advance(axis, now);
+    assert!(!axis.is_moving());
+}

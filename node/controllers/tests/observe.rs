@@ -11,6 +11,7 @@ use std::time::Duration;
 use zmotor_controllers::{ControllerConfig, ControllerEvent, Loopback, ProtocolKind, ProtocolOptions, Refusal};
 use zmotor_core::Instant;
 use zmotor_emulators::Faults;
+use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
 
 /// Each protocol with two of its channels.
@@ -68,6 +69,8 @@ fn an_observed_controller_is_initialised_without_a_setting() {
             ProtocolKind::NewportEsp300 => assert!(setup.iter().any(|r| r.contains("MO")), "{setup:?}"),
             ProtocolKind::Galil => assert!(setup.iter().any(|r| r.starts_with("SH")), "{setup:?}"),
             ProtocolKind::NewportXps => assert!(setup.iter().any(|r| r.starts_with("GroupInitialize")), "{setup:?}"),
+            // Its done flags read by `QI`, which leaves them to the IOC beside.
+            ProtocolKind::OmsMaxnet => assert_eq!(setup, ["AM;RI;\n"]),
             _ => assert!(setup.is_empty(), "{}: an observed init leaves out {setup:?}", kind.name()),
         }
     }
@@ -108,5 +111,41 @@ proptest! {
             let axis = lb.link.emulator().axis(channel).expect("an emulated channel");
             prop_assert!(!axis.is_moving() && axis.physical_position() == position, "{} channel {channel} moved", kind.name());
         }
+    }
+}
+
+#[test]
+fn an_observed_controller_owes_no_stop_when_its_link_comes_back() {
+    // The IOC beside zmotor jogs a channel; zmotor's link drops while its polls see it move,
+    // and comes back: the jog is the IOC's to stop, not zmotor's. (The protocols whose emulator
+    // reports a jog started on its simulated stage, not through its own commands: the others
+    // keep a motion state of their own, and the rule is the controller layer's, one for all.)
+    let reporting = [
+        ProtocolKind::AcsMcb4b,
+        ProtocolKind::SmaractMcs2,
+        ProtocolKind::Phytron,
+        ProtocolKind::NewportEsp300,
+        ProtocolKind::McLennanPm304,
+        ProtocolKind::ImsMdrive,
+        ProtocolKind::OmsMaxnet,
+    ];
+    for (kind, channels) in CASES.into_iter().filter(|(kind, _)| reporting.contains(kind)) {
+        let mut lb = observed(kind, &channels);
+        bring_up(&mut lb);
+        let axis = lb.link.emulator().axis(channels[0]).expect("an emulated channel");
+        zmotor_core::Driver::enable(axis, true);
+        zmotor_core::Driver::move_velocity(axis, 0.0, 500.0, 100_000.0);
+        lb.run_for(Duration::from_secs(3));
+        let seen_moving = Loopback::statuses(&lb.take_events(), channels[0]).iter().any(|s| s.msta & msta::DONE == 0);
+        assert!(seen_moving, "{}: the polls saw the jog", kind.name());
+        lb.set_reachable(false);
+        lb.run_for(Duration::from_secs(3));
+        lb.set_reachable(true);
+        lb.run_for(Duration::from_secs(3));
+        assert!(lb.controller.is_up(), "{}: the link is back", kind.name());
+        let now = lb.now();
+        let axis = lb.link.emulator().axis(channels[0]).expect("an emulated channel");
+        zmotor_core::Driver::advance(axis, now);
+        assert!(axis.is_moving(), "{}: an observed controller stopped the IOC's jog", kind.name());
     }
 }

@@ -106,6 +106,39 @@ fn a_killed_motor_stays_killed_through_a_stop_and_enabling_closes_its_loop() {
 }
 
 #[test]
+fn the_stop_owed_after_a_lost_link_leaves_a_motor_killed_meanwhile_killed() {
+    // Both motors jog when the link is lost; while it is down a fatal following error kills
+    // motor 1. Back, the stop owed to each is made from what the new link reads: motor 2 is
+    // stopped (J/), motor 1 is not closed again by one.
+    let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    for channel in CHANNELS {
+        lb.command(
+            channel,
+            &DriverCommand::MoveVelocity { min_velocity: 0.0, max_velocity: 1000.0, acceleration: 1e5 },
+        );
+    }
+    lb.run_for(Duration::from_millis(300));
+    lb.set_reachable(false);
+    lb.run_for(Duration::from_secs(2));
+    assert!(lb.link.emulator().raise_error(1));
+    let from = lb.written().len();
+    lb.set_reachable(true);
+    lb.run_for(Duration::from_secs(2));
+    assert!(lb.controller.is_up());
+    let sent = lines_since(&lb, from);
+    assert!(sent.iter().any(|l| l.contains("#2 J/")), "the jog still running is stopped: {sent:?}");
+    assert!(sent.iter().all(|l| !l.contains("#1 J/")), "the killed motor's loop is not closed: {sent:?}");
+    let now = lb.now();
+    for (channel, moving) in [(1, false), (2, false)] {
+        let axis = lb.link.emulator().axis(channel).expect("an emulated motor");
+        zmotor_core::Driver::advance(axis, now);
+        assert_eq!(axis.is_moving(), moving, "motor {channel}");
+    }
+    assert_eq!(last_status(&lb.take_events(), 1).msta & msta::POSITION, 0, "motor 1 stays killed");
+}
+
+#[test]
 fn a_fatal_following_error_reaches_the_record_once_with_its_meaning() {
     let mut lb = loopback(PMAC, &CHANNELS, Faults::default());
     bring_up(&mut lb);
