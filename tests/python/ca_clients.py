@@ -206,6 +206,22 @@ def moves_of_nothing():
     ok("a put that moves nothing posts DMOV 0 then 1 to a monitor")
 
 
+def read_after_write():
+    # A plain caput, then cagets on the same circuit: they see what the put did (the motion
+    # under way, the new target), as an IOC processes a put before the circuit's next request.
+    here = epics.caget("m1", use_monitor=False)
+    for step in (2.0, -2.0, 2.0, -2.0):
+        target = here + step
+        assert epics.caput("m1", target) == 1
+        assert epics.caget("m1.DMOV", use_monitor=False) == 0, "DMOV read right after the put"
+        assert near(epics.caget("m1.VAL", use_monitor=False), target, 1e-6)
+        deadline = time.monotonic() + 10
+        while epics.caget("m1.DMOV", use_monitor=False) != 1 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        here = target
+    ok("a read right after a plain put sees what the put did")
+
+
 def caproto_tools():
     def run(tool, *args):
         # caproto's tools beside this Python (a virtual environment's bin is not on PATH).
@@ -335,6 +351,7 @@ STAGES = {
         refused,
         puts_disabled,
         moves_of_nothing,
+        read_after_write,
         caproto_tools,
         put_callbacks_in_turn,
         archive_deadband,

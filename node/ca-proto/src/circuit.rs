@@ -160,6 +160,11 @@ pub struct Circuit {
     channels: BTreeMap<u32, Channel>,
     subscriptions: BTreeMap<u32, Subscription>,
     pending_reads: Vec<Pending>,
+    /// Writes sent and not yet answered that answer once taken (not at a motion's end), and
+    /// their axes: a read of the axis waits for them, as an IOC reads after it processed.
+    writing: Vec<(WriteAnswer, String)>,
+    /// Reads that came after such a write of their axis.
+    reads_after_writes: Vec<Pending>,
     next_sid: u32,
     events_on: bool,
     /// Whether a change went unposted while events were off.
@@ -267,11 +272,29 @@ impl Circuit {
             }
             self.subscriptions.retain(|_, s| s.sid != sid);
             self.pending_reads.retain(|p| p.sid != sid);
+            self.reads_after_writes.retain(|p| p.sid != sid);
         }
     }
 
-    /// A write ended.
-    pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd) {
+    /// A write ended: answered, and the reads of its axis that came after it answered now.
+    pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd, directory: &dyn Directory) {
+        let axis = self.writing.iter().position(|(a, _)| *a == answer).map(|i| self.writing.remove(i).1);
+        self.answer_write(answer, end);
+        let Some(axis) = axis.filter(|axis| !self.writing.iter().any(|(_, a)| a == axis)) else { return };
+        let held = std::mem::take(&mut self.reads_after_writes);
+        for pending in held {
+            match self.channels.get(&pending.sid).map(|c| c.pv.clone()) {
+                Some(pv) if pv.axis == axis => match self.snapshot(&pv, directory) {
+                    Some(snapshot) => self.send_read(&pending, &snapshot),
+                    None => self.pending_reads.push(pending),
+                },
+                _ => self.reads_after_writes.push(pending),
+            }
+        }
+    }
+
+    /// Tell the client how a write ended.
+    fn answer_write(&mut self, answer: WriteAnswer, end: WriteEnd) {
         let code = end.eca_code();
         match answer {
             WriteAnswer::Notify { ioid, data_type, count } => {
@@ -305,6 +328,7 @@ impl Circuit {
                 self.channels.remove(&sid);
                 self.subscriptions.retain(|_, s| s.sid != sid);
                 self.pending_reads.retain(|p| p.sid != sid);
+                self.reads_after_writes.retain(|p| p.sid != sid);
                 self.send(Header::new(command::CLEAR_CHANNEL, 0, 0, header.p1, header.p2), &[]);
             }
             command::WRITE | command::WRITE_NOTIFY => self.write(header, payload),
@@ -342,6 +366,10 @@ impl Circuit {
         let Some(channel) = self.channels.get(&pending.sid) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
+        if self.writing.iter().any(|(_, axis)| *axis == channel.pv.axis) {
+            // Read after the write is taken, as an IOC serves a circuit's requests in order.
+            return self.reads_after_writes.push(pending);
+        }
         match self.snapshot(&channel.pv, directory) {
             Some(snapshot) => self.send_read(&pending, &snapshot),
             None => {
@@ -353,7 +381,8 @@ impl Circuit {
 
     fn send_read(&mut self, pending: &Pending, snapshot: &Snapshot) {
         let Some(pv) = self.channels.get(&pending.sid).map(|c| &c.pv) else { return };
-        let elements = snapshot.elements(pending.count, pv.count());
+        let base = DbrType::from_code(pending.data_type).map_or(Base::String, |d| d.base);
+        let elements = snapshot.elements(base, pending.count, pv.count());
         match self.encode(pv, pending.data_type, snapshot, elements) {
             Some(bytes) => {
                 let reply =
@@ -392,7 +421,8 @@ impl Circuit {
         let (dbr, requested) = (subscription.dbr, subscription.count);
         let Some(pv) = self.channels.get(&subscription.sid).map(|c| &c.pv) else { return };
         let Some(snapshot) = self.snapshot(pv, directory) else { return };
-        let elements = snapshot.elements(requested, pv.count());
+        let base = DbrType::from_code(dbr).map_or(Base::String, |d| d.base);
+        let elements = snapshot.elements(base, requested, pv.count());
         let Some(bytes) = self.encode(pv, dbr, &snapshot, elements) else { return };
         let archives = Self::archives_readback(pv);
         self.send(Header::new(command::EVENT_ADD, dbr, elements, status::NORMAL, subid), &bytes);
@@ -467,18 +497,21 @@ impl Circuit {
         };
         if !pv.writable() {
             let message = format!("{}: read-only", pv.name(&self.prefix));
-            return self.write_done(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
+            return self.answer_write(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
         match dbr::written_text(header.data_type, payload, pv.native()) {
             Ok(text) => {
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
+                if !wait {
+                    self.writing.push((answer, pv.axis.clone()));
+                }
                 self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }
             Err(e) => {
                 let refusal = Refusal { kind: RefusalKind::BadValue, message: e.to_string() };
-                self.write_done(answer, WriteEnd::Refused(refusal));
+                self.answer_write(answer, WriteEnd::Refused(refusal));
             }
         }
     }

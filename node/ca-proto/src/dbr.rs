@@ -154,10 +154,11 @@ impl Snapshot {
     }
 
     /// How many elements a reply of this snapshot carries when `requested` were asked for (0:
-    /// as many as there are, CA's dynamic arrays) of a channel of `count` elements: the text of
-    /// a character array and its NUL, or the requested part of it; one of anything else.
-    pub fn elements(&self, requested: u32, count: u32) -> u32 {
-        if count <= 1 || self.native != Base::Char {
+    /// as many as there are, CA's dynamic arrays) as `base` of a channel of `count` elements:
+    /// the text of a character array and its NUL, or the requested part of it, read as
+    /// characters; one of anything else (a character array read as a string is its text).
+    pub fn elements(&self, base: Base, requested: u32, count: u32) -> u32 {
+        if count <= 1 || self.native != Base::Char || base != Base::Char {
             return 1;
         }
         let used = u32::try_from(self.text().len() + 1).unwrap_or(u32::MAX).min(count);
@@ -221,7 +222,7 @@ impl Snapshot {
         }
         match dbr.base {
             Base::String => out.fixed_text(&self.text(), STRING_SIZE),
-            Base::Char if elements > 1 => out.fixed_text(&self.text(), elements as usize),
+            Base::Char if self.native == Base::Char => out.characters(&self.text(), elements as usize),
             Base::Enum => out.u16(self.number().clamp(0.0, f64::from(u16::MAX)) as u16),
             base => out.number(base, self.number()),
         }
@@ -254,15 +255,23 @@ impl Writer {
         self.pad(size - used);
     }
 
-    /// A number in a numeric base type (saturating where it does not fit).
+    /// The first `count` characters of `text`, NUL-padded to `count` (no NUL when it fills them).
+    fn characters(&mut self, text: &str, count: usize) {
+        let bytes = &text.as_bytes()[..text.len().min(count)];
+        self.0.extend_from_slice(bytes);
+        self.pad(count - bytes.len());
+    }
+
+    /// A number in a numeric base type: toward zero into an integer, as an IOC's conversion
+    /// (a C cast: 2.7 reads 2), saturating where it does not fit.
     fn number(&mut self, base: Base, value: f64) {
         match base {
-            Base::Short => self.0.extend_from_slice(&(value.round() as i16).to_be_bytes()),
+            Base::Short => self.0.extend_from_slice(&(value as i16).to_be_bytes()),
             Base::Float => self.0.extend_from_slice(&(value as f32).to_be_bytes()),
-            Base::Char => self.0.push(value.round() as u8),
-            Base::Long => self.0.extend_from_slice(&(value.round() as i32).to_be_bytes()),
+            Base::Char => self.0.push(value as u8),
+            Base::Long => self.0.extend_from_slice(&(value as i32).to_be_bytes()),
             Base::Double => self.0.extend_from_slice(&value.to_be_bytes()),
-            Base::Enum => self.u16(value.round() as u16),
+            Base::Enum => self.u16(value as u16),
             Base::String => self.fixed_text(&value.to_string(), STRING_SIZE),
         }
     }
@@ -412,16 +421,35 @@ mod tests {
     fn a_message_reads_in_full_as_a_character_array_and_cut_as_a_string() {
         let long = "c884: not referenced: home the axis first (HOMF or HOMR)";
         let chars = snapshot(Value::Text(long.into()), Base::Char);
-        let dynamic = chars.elements(0, 512);
+        let dynamic = chars.elements(Base::Char, 0, 512);
         assert_eq!(dynamic as usize, long.len() + 1, "the text and its NUL");
         let bytes = chars.encode(DbrType::from_code(4).unwrap(), dynamic);
         assert_eq!((&bytes[..long.len()], bytes[long.len()]), (long.as_bytes(), 0));
-        assert_eq!(chars.elements(10, 512), 10, "as many as asked for");
-        assert_eq!(chars.elements(4096, 512), 512, "no more than the channel has");
+        assert_eq!(chars.elements(Base::Char, 10, 512), 10, "as many as asked for");
+        assert_eq!(&chars.encode(DbrType::from_code(4).unwrap(), 10), &long.as_bytes()[..10]);
+        assert_eq!(chars.encode(DbrType::from_code(4).unwrap(), 1), b"c", "the first character");
+        assert_eq!(chars.elements(Base::Char, 4096, 512), 512, "no more than the channel has");
+        // Read as anything but characters, one element: its header's count is what it carries.
+        for code in [0, 1, 2, 5, 6, 14, 20] {
+            let dbr = DbrType::from_code(code).unwrap();
+            assert_eq!(chars.elements(dbr.base, 0, 512), 1, "DBR type {code}");
+            let plain = DbrType { class: Class::Plain, ..dbr };
+            assert_eq!(chars.encode(plain, 1).len(), snapshot(Value::Int(0), Base::Long).encode(plain, 1).len());
+        }
         let time = chars.encode(DbrType::from_code(18).unwrap(), 512);
         assert_eq!(time.len(), 12 + 3 + 512, "alarm, stamp, padding, then the characters");
         let string = snapshot(Value::Text(long.into()), Base::String).encode(DbrType::from_code(0).unwrap(), 1);
         assert_eq!((&string[..39], string.len()), (&long.as_bytes()[..39], 40));
+    }
+
+    #[test]
+    fn a_double_read_as_an_integer_is_cut_toward_zero_as_an_ioc_converts_it() {
+        let read =
+            |x: f64, code: u16| snapshot(Value::Float(x), Base::Double).encode(DbrType::from_code(code).unwrap(), 1);
+        assert_eq!(read(2.7, 5), 2i32.to_be_bytes(), "DBR_LONG");
+        assert_eq!(read(-2.7, 1), (-2i16).to_be_bytes(), "DBR_SHORT");
+        assert_eq!(read(2.7, 4), [2], "DBR_CHAR");
+        assert_eq!(read(1e12, 5), i32::MAX.to_be_bytes(), "saturated");
     }
 
     #[test]

@@ -139,13 +139,13 @@ mod tests {
         let Some(Request::Write { pv, text, wait, hold, answer }) = circuit.poll_request() else { panic!("no write") };
         assert_eq!((pv.name("bl:"), text.as_str(), wait, hold), ("bl:m1.VAL".into(), "4", true, false));
         let refused = |kind| WriteEnd::Refused(zmotor_msgs::Refusal { kind, message: "words".into() });
-        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::Busy));
+        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::Busy), &directory);
         let failed = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((failed[0].0.command, failed[0].0.p1, failed[0].0.p2), (command::WRITE_NOTIFY, 160, 42));
         // A limit violation is a put the record took, as an IOC answers it: LVIO tells.
         request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, sid, 43), &500f64.to_be_bytes());
         let Some(Request::Write { answer, .. }) = circuit.poll_request() else { panic!("no write") };
-        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::LimitViolation));
+        circuit.write_done(answer, refused(zmotor_msgs::RefusalKind::LimitViolation), &directory);
         let taken = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((taken[0].0.p1, taken[0].0.p2), (1, 43), "ECA_NORMAL");
         let denied = WriteEnd::Unanswered { denied: true, why: "silence".into() };
@@ -158,6 +158,31 @@ mod tests {
         assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
         assert!(codec::text(&refused[0].1[16..]).contains("read-only"));
         assert_eq!(circuit.poll_request(), None, "nothing is written to a read-only field");
+    }
+
+    #[test]
+    fn a_read_after_a_write_of_its_axis_is_answered_once_the_write_is_taken() {
+        // caput then caget, on one circuit: an IOC processes the put before it reads.
+        let mut circuit = Circuit::new("");
+        let directory = OneAxis { fetched: true };
+        let val = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 1, 13), b"m1\0");
+        let velo = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 2, 13), b"m1.VELO\0");
+        let (val, velo) = (val[1].0.p2, velo[1].0.p2);
+        let written = request(&mut circuit, &directory, Header::new(command::WRITE, 6, 1, val, 1), &4f64.to_be_bytes());
+        assert!(written.is_empty());
+        let Some(Request::Write { wait: false, answer, .. }) = circuit.poll_request() else { panic!("no write") };
+        assert!(request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, velo, 7), &[]).is_empty());
+        circuit.write_done(answer, WriteEnd::Done, &directory);
+        let read = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((read.len(), read[0].0.command, read[0].0.p2), (1, command::READ_NOTIFY, 7));
+        let again = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, velo, 8), &[]);
+        assert_eq!(again[0].0.p2, 8, "no write under way: read at once");
+        // A put-callback that waits for the motion's end holds no read back.
+        let notify = Header::new(command::WRITE_NOTIFY, 6, 1, val, 9);
+        request(&mut circuit, &directory, notify, &5f64.to_be_bytes());
+        assert!(matches!(circuit.poll_request(), Some(Request::Write { wait: true, .. })));
+        let during = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, velo, 10), &[]);
+        assert_eq!(during[0].0.p2, 10);
     }
 
     #[test]

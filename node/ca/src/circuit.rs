@@ -55,7 +55,7 @@ pub(crate) async fn serve_circuit(
             Some((answer, outcome)) = finished.recv() => {
                 // A put-callback's motion ends after its last posts.
                 catch_up(&mut changes, &mut circuit, &mut seen, shared);
-                circuit.write_done(answer, outcome);
+                circuit.write_done(answer, outcome, &seen.directory(&shared.values()));
             }
         }
         while let Some(request) = circuit.poll_request() {

@@ -287,7 +287,16 @@ impl ChannelAccess {
             let shared = shared.clone();
             tokio::spawn(async move {
                 let mut buffer = vec![0; 64 * 1024];
-                while let Ok((length, from)) = udp.recv_from(&mut buffer).await {
+                loop {
+                    let (length, from) = match udp.recv_from(&mut buffer).await {
+                        Ok(received) => received,
+                        Err(e) => {
+                            // As an IOC's server: said, and searches answered again after a pause.
+                            tracing::warn!("Channel Access search socket: {e}");
+                            tokio::time::sleep(SOCKET_PAUSE).await;
+                            continue;
+                        }
+                    };
                     let answer = answer_search(&shared.prefix, &buffer[..length], tcp_port, &*shared.values());
                     if let Some(answer) = answer {
                         let _ = udp.send_to(&answer, from).await;
@@ -299,7 +308,17 @@ impl ChannelAccess {
         let circuits = {
             let shared = shared.clone();
             tokio::spawn(async move {
-                while let Ok((stream, peer)) = listener.accept().await {
+                loop {
+                    let (stream, peer) = match listener.accept().await {
+                        Ok(accepted) => accepted,
+                        Err(e) => {
+                            // Out of descriptors, or a connection reset before it was taken: the
+                            // clients after it are served (rsrv logs it and goes on likewise).
+                            tracing::warn!("Channel Access: a connection not accepted: {e}");
+                            tokio::time::sleep(SOCKET_PAUSE).await;
+                            continue;
+                        }
+                    };
                     let shared = shared.clone();
                     let stopped = stopped.clone();
                     tokio::spawn(async move {
@@ -314,6 +333,9 @@ impl ChannelAccess {
         Ok(Self { tasks: vec![searches, circuits], _running: running, _tokens: tokens, tcp_port })
     }
 }
+
+/// How long the server waits after a socket error before it listens again.
+const SOCKET_PAUSE: std::time::Duration = std::time::Duration::from_millis(100);
 
 /// The UDP socket searches come to, shared as EPICS servers share it (SO_REUSEADDR): an IOC on
 /// the same host and port still gets its broadcast searches.
