@@ -125,14 +125,25 @@ impl Shared {
                     shared.store(sample);
                 }
             }
-            let mut values = shared.values();
-            if values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
-                let _ = shared.changes.send(values.show_whole(axis));
-            } else {
-                // Nothing came (a node too slow, or gone): the next client request tries again.
-                let followed = values.followed.remove(&axis);
-                drop(values);
-                drop(followed);
+            let answered = {
+                let mut values = shared.values();
+                if values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
+                    let _ = shared.changes.send(values.show_whole(axis.clone()));
+                    true
+                } else {
+                    let followed = values.followed.remove(&axis);
+                    drop(values);
+                    drop(followed);
+                    false
+                }
+            };
+            // Nothing came (a node too slow, or gone): asked again in a while while the axis is
+            // live, so that a read or monitor waiting for its values is answered.
+            if !answered {
+                tokio::time::sleep(FETCH_AGAIN).await;
+                if shared.values().live.contains(&axis) {
+                    shared.fetch(axis);
+                }
             }
         });
     }
@@ -333,6 +344,9 @@ impl ChannelAccess {
         Ok(Self { tasks: vec![searches, circuits], _running: running, _tokens: tokens, tcp_port })
     }
 }
+
+/// How long after a read of an axis that nothing answered it is read again.
+const FETCH_AGAIN: std::time::Duration = std::time::Duration::from_secs(1);
 
 /// How long the server waits after a socket error before it listens again.
 const SOCKET_PAUSE: std::time::Duration = std::time::Duration::from_millis(100);
