@@ -37,7 +37,8 @@
 //! At a node run's first connection only (not under `observe`, not after a reconnection) the
 //! motors are switched on, `01MO;02MO`, as PI's servos are: the ESP300 powers up with its
 //! motors off, which takes no motion. A motor switched off since stays off. A poll reads, per axis, `01MD?` (motion done), `01TP?` (position), `01MO?`
-//! (motor power), then once `PH` (the limit and home switches of every axis) and `TB?`:
+//! (motor power), then once `PH` (the limit and home switches of every axis) and `TB?` (not
+//! under `observe`: it empties the error buffer, which is then the IOC's beside):
 //!
 //! | reading | MSTA |
 //! |---|---|
@@ -157,12 +158,14 @@ pub(crate) struct Esp300 {
     units_per_step: Option<f64>,
     axes: Vec<(usize, Axis)>,
     motors_switched_on: bool,
+    /// Observed beside an IOC: its error buffer, which `TB?` empties, is the IOC's.
+    observed: bool,
 }
 
 impl Esp300 {
     /// A protocol scaled by `options.units_per_step`, or by what each axis says at connection.
     pub(crate) fn new(options: &ProtocolOptions) -> Self {
-        Self { units_per_step: options.units_per_step, axes: Vec::new(), motors_switched_on: false }
+        Self { units_per_step: options.units_per_step, axes: Vec::new(), motors_switched_on: false, observed: false }
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
@@ -323,8 +326,14 @@ impl Protocol for Esp300 {
             }
         }
         requests.push(Request::query(line("PH"), Step::Switches));
-        requests.push(Request::query(line("TB?"), Step::PollErrors));
+        if !self.observed {
+            requests.push(Request::query(line("TB?"), Step::PollErrors));
+        }
         requests
+    }
+
+    fn observe_only(&mut self) {
+        self.observed = true;
     }
 
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {

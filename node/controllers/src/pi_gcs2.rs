@@ -35,7 +35,8 @@
 //!
 //! **Poll**, per channel: `SRG? <ax> 1` (the status register), `POS? <ax>`, `FRF? <ax>`
 //! (referenced); then, once per poll, `ERR?`, so that an error no command asked about (a motion
-//! error that switched the servo off) is reported when it happens. The EPICS driver reads the
+//! error that switched the servo off) is reported when it happens; not under `observe`, where
+//! reading the error would clear it before the IOC beside reads it. The EPICS driver reads the
 //! same register with the single byte `#4`, cutting four hex digits per axis out of its reply;
 //! that multi-axis layout is not documented by PI, while `SRG?` (documented as identical to
 //! `#4`) names its axis, so a reply for another axis is caught. It reads `FRF?` only when a
@@ -319,6 +320,8 @@ pub(crate) struct PiGcs2 {
     axes: BTreeMap<usize, Axis>,
     /// Servo was switched on at a first connection: reconnections leave it alone.
     servo_started: bool,
+    /// Observed beside an IOC: polls leave `ERR?`, which clears the error, to the IOC.
+    observed: bool,
 }
 
 impl PiGcs2 {
@@ -684,6 +687,10 @@ impl Protocol for PiGcs2 {
         requests
     }
 
+    fn observe_only(&mut self) {
+        self.observed = true;
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
@@ -695,7 +702,9 @@ impl Protocol for PiGcs2 {
                 requests.push(Request::query(query, Step::Read { channel, reading }));
             }
         }
-        requests.push(Request::query("ERR?\n", Step::PollErrors));
+        if !self.observed {
+            requests.push(Request::query("ERR?\n", Step::PollErrors));
+        }
         requests
     }
 

@@ -39,7 +39,8 @@
 //! device's, it names no channel) are errors of every channel. Init sends `:DEV:SNUM?`, drains
 //! the error queue (entries from before this connection are logged, not reported),
 //! `:CHAN<n>:HOLD -1` for each channel (closed-loop moves hold their target), and reads the
-//! queue again (reported). Nothing in init moves, references or powers anything.
+//! queue again (reported). Nothing in init moves, references or powers anything. Under
+//! `observe` the error queue is never read (a read empties it, and it is the IOC's beside).
 //!
 //! **Status.** From the state word: DONE = !ACTIVELY_MOVING, MOVING = ACTIVELY_MOVING,
 //! PRESENT and GAIN_SUPPORT = SENSOR_PRESENT, HOMED = IS_REFERENCED, HOME = REFERENCE_MARK,
@@ -263,6 +264,8 @@ pub(crate) struct Mcs2 {
     channels: BTreeMap<usize, Channel>,
     /// Error-queue entries read in a row without reaching 0.
     errors_in_a_row: u32,
+    /// Observed beside an IOC: the device's error queue, which a read empties, is the IOC's.
+    observed: bool,
 }
 
 impl Mcs2 {
@@ -277,6 +280,7 @@ impl Mcs2 {
             },
             channels: BTreeMap::new(),
             errors_in_a_row: 0,
+            observed: false,
         }
     }
 
@@ -482,7 +486,11 @@ impl Protocol for Mcs2 {
         // What the last connection knew may be stale: the controller may have been restarted.
         self.channels.clear();
         self.errors_in_a_row = 0;
-        let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber), error_query(Step::StaleErrors)];
+        let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber)];
+        if self.observed {
+            return requests;
+        }
+        requests.push(error_query(Step::StaleErrors));
         for channel in channels {
             let line = format!(":CHAN{channel}:HOLD {HOLD_FOREVER}\r\n");
             requests.push(Request::silent(line, Step::Hold));
@@ -491,13 +499,17 @@ impl Protocol for Mcs2 {
         requests
     }
 
+    fn observe_only(&mut self) {
+        self.observed = true;
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
             requests.push(read(channel, Reading::State));
             requests.push(read(channel, Reading::Amplifier));
         }
-        if let Some(&channel) = channels.last() {
+        if let Some(&channel) = channels.last().filter(|_| !self.observed) {
             requests.push(error_query(Step::PollErrors { channel }));
         }
         requests

@@ -76,6 +76,21 @@ fn an_observed_controller_is_initialised_without_a_setting() {
     }
 }
 
+#[test]
+fn an_observed_controller_reads_nothing_that_clears_what_the_ioc_beside_reads() {
+    // PI's error register, SmarAct's error queue and the ESP300's error buffer are emptied by
+    // their reads, a MAXnet's done flags by `RI`: under `observe` they are the IOC's.
+    let clearing = ["ERR?", ":SYST:ERR?", "TB?", "AM;RI;"];
+    for (kind, channels) in CASES {
+        let cleared: Vec<String> = readings(kind, &channels)
+            .iter()
+            .map(|r| String::from_utf8_lossy(r).into_owned())
+            .filter(|r| clearing.iter().any(|c| r.starts_with(c)))
+            .collect();
+        assert!(cleared.is_empty(), "{}: an observed controller read {cleared:?}", kind.name());
+    }
+}
+
 proptest! {
     #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
 
