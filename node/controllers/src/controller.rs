@@ -203,6 +203,8 @@ struct InFlight<S> {
     request: Request<S>,
     deadline: Instant,
     attempts: u32,
+    /// The protocol's sync query (`Protocol::sync`), not a request of a transaction.
+    sync: bool,
 }
 
 /// A channel's motion connection: its motion calls waiting for their replies, in order.
@@ -284,6 +286,9 @@ pub struct Controller<P: Protocol> {
     quiet_until: Option<Instant>,
     /// A request whose reply did not come in time, sent again once the quiet is over.
     retry: Option<InFlight<P::Step>>,
+    /// After a failed exchange, nothing is sent but the sync query until its reply is found:
+    /// the frames before it are stale.
+    syncing: bool,
     received: Vec<u8>,
     /// Options given again (a script re-read), used once the stops sent for them are out.
     reload: Option<ProtocolOptions>,
@@ -364,6 +369,7 @@ impl<P: Protocol> Controller<P> {
             in_flight: None,
             quiet_until: None,
             retry: None,
+            syncing: false,
             received: Vec::new(),
             reload: None,
             motion_lanes: BTreeMap::new(),
@@ -586,7 +592,12 @@ impl<P: Protocol> AnyController for Controller<P> {
         if self.in_flight.as_ref().is_some_and(|f| self.now >= f.deadline) {
             let in_flight = self.in_flight.take().expect("checked above");
             self.quiet_until = Some(self.now + self.config.timeout / 4);
-            self.on_failure(in_flight, "no reply in time");
+            if in_flight.sync {
+                // Asked again after the quiet, unless the controller is given up.
+                self.count_failure(&in_flight, "no reply in time");
+            } else {
+                self.on_failure(in_flight, "no reply in time");
+            }
         }
         if self.link == Link::Up && self.next_poll.is_some_and(|t| self.now >= t) {
             let already = self.queue.iter().chain(&self.current).any(|t| t.kind == Kind::Poll);
@@ -669,6 +680,12 @@ impl<P: Protocol> Controller<P> {
         if self.quiet_until.take().is_some() {
             self.received.clear();
         }
+        if self.syncing {
+            if self.in_flight.is_none() {
+                self.send_sync();
+            }
+            return;
+        }
         if let Some(retry) = self.retry.take() {
             let stop_waits = self.queue.iter().any(|t| t.priority == Priority::Stop);
             if stop_waits && self.link == Link::Up && self.current.as_ref().is_some_and(|t| t.kind == Kind::Poll) {
@@ -705,6 +722,18 @@ impl<P: Protocol> Controller<P> {
         }
     }
 
+    /// Send the sync query, or, for a protocol without one, stop syncing.
+    fn send_sync(&mut self) {
+        let Some(request) = self.protocol.sync() else {
+            self.syncing = false;
+            return;
+        };
+        self.send(request, 1);
+        if let Some(in_flight) = self.in_flight.as_mut() {
+            in_flight.sync = true;
+        }
+    }
+
     /// Write `request` (its `attempts`-th time); wait for its reply if it has one.
     fn send(&mut self, request: Request<P::Step>, attempts: u32) {
         if let Lane::Motion(channel) = request.lane {
@@ -720,7 +749,8 @@ impl<P: Protocol> Controller<P> {
         self.received.clear();
         self.transmit.push_back((request.lane, request.bytes.clone()));
         if request.answered {
-            self.in_flight = Some(InFlight { request, deadline: self.now + self.config.timeout, attempts });
+            self.in_flight =
+                Some(InFlight { request, deadline: self.now + self.config.timeout, attempts, sync: false });
         }
     }
 
@@ -815,6 +845,16 @@ impl<P: Protocol> Controller<P> {
     }
 
     fn on_frame(&mut self, frame: &[u8]) {
+        if self.in_flight.as_ref().is_some_and(|f| f.sync) {
+            if self.protocol.is_sync_reply(frame) {
+                self.in_flight = None;
+                self.syncing = false;
+            } else {
+                let what = format!("a stale reply dropped: {}", crate::protocol::printable(frame));
+                self.events.push_back(ControllerEvent::Failed { what });
+            }
+            return;
+        }
         let Some(in_flight) = self.in_flight.take() else {
             // Nothing asked for it: noise, or a reply too late for its request.
             self.events.push_back(ControllerEvent::Failed {
@@ -974,23 +1014,17 @@ impl<P: Protocol> Controller<P> {
     /// An exchange failed: retry a query, drop a command's remaining requests, and lose the
     /// controller after too many failures in a row.
     fn on_failure(&mut self, in_flight: InFlight<P::Step>, why: &str) {
-        let what = format!("{} ({why})", crate::protocol::printable(&in_flight.request.bytes));
-        self.events.push_back(ControllerEvent::Failed { what });
-        self.failures += 1;
-        if self.failures >= self.config.failures_to_lose {
-            let backoff = match self.link {
-                Link::Initialising { backoff } => backoff,
-                _ => self.config.reconnect_first,
-            };
-            self.lose(backoff);
+        if !self.count_failure(&in_flight, why) {
             return;
         }
+        // The replies that follow may be late ones of this exchange: found again first.
+        self.syncing = self.protocol.sync().is_some();
         let kind = self.current.as_ref().map(|t| t.kind);
         // A setting of the initialisation changes the controller: not sent twice, as a command.
         let changes = P::purpose(in_flight.request.step) == Purpose::Setup;
         if kind.is_some_and(Kind::retryable) && !changes && in_flight.attempts <= self.config.retries {
             let retry = InFlight { attempts: in_flight.attempts + 1, ..in_flight };
-            if self.quiet_until.is_some() {
+            if self.quiet_until.is_some() || self.syncing {
                 self.retry = Some(retry);
             } else {
                 self.send(retry.request, retry.attempts);
@@ -1015,6 +1049,23 @@ impl<P: Protocol> Controller<P> {
             }
             _ => self.abandon_current(),
         }
+    }
+
+    /// Say an exchange failed and count it; false when the controller is given up (too many in
+    /// a row).
+    fn count_failure(&mut self, in_flight: &InFlight<P::Step>, why: &str) -> bool {
+        let what = format!("{} ({why})", crate::protocol::printable(&in_flight.request.bytes));
+        self.events.push_back(ControllerEvent::Failed { what });
+        self.failures += 1;
+        if self.failures >= self.config.failures_to_lose {
+            let backoff = match self.link {
+                Link::Initialising { backoff } => backoff,
+                _ => self.config.reconnect_first,
+            };
+            self.lose(backoff);
+            return false;
+        }
+        true
     }
 
     /// The rest of the transaction under way is not sent.
@@ -1053,6 +1104,7 @@ impl<P: Protocol> Controller<P> {
         self.current = None;
         self.in_flight = None;
         self.retry = None;
+        self.syncing = false;
         self.quiet_until = None;
         self.received.clear();
         self.motion_lanes.clear();

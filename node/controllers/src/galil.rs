@@ -325,6 +325,15 @@ impl Protocol for Galil {
         requests
     }
 
+    fn sync(&self) -> Option<Request<Step>> {
+        Some(Request::query(b"\x12\x16\r".to_vec(), Step::Firmware))
+    }
+
+    /// The firmware, "DMC4040 Rev 1.2": no other reply names the controller.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        data(frame).is_some_and(|d| d.starts_with("DMC"))
+    }
+
     fn poll(&mut self, _channels: &[usize]) -> Vec<Request<Step>> {
         vec![Request::query(line("QR"), Step::Record)]
     }

@@ -360,6 +360,19 @@ impl Protocol for Mdrive {
         requests
     }
 
+    /// The part number of the first motor, `PR PN`.
+    fn sync(&self) -> Option<Request<Step>> {
+        let &(channel, _) = self.motors.first()?;
+        Some(Request::query(line(channel, "PR PN"), Step::Version { channel }))
+    }
+
+    /// "MDI1FRD17B4": no other reply is a part number.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        let text = line_text(frame, INPUT_TERMINATOR);
+        let text = text.trim();
+        text.starts_with("MD") && text.chars().skip(2).any(|c| c.is_ascii_alphabetic())
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {

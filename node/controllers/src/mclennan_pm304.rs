@@ -87,6 +87,8 @@ struct Axis {
 #[derive(Debug, Default)]
 pub(crate) struct Pm304 {
     axes: Vec<(usize, Axis)>,
+    /// The first axis of the connection: its identity finds the replies again after a failure.
+    first: Option<usize>,
 }
 
 impl Pm304 {
@@ -136,7 +138,18 @@ impl Protocol for Pm304 {
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // A new connection may be a controller that was switched off: no datum is known.
         self.axes.clear();
+        self.first = channels.first().copied();
         channels.iter().map(|&channel| Request::query(line(channel, "ID"), Step::Identity { channel })).collect()
+    }
+
+    fn sync(&self) -> Option<Request<Step>> {
+        let channel = self.first?;
+        Some(Request::query(line(channel, "ID"), Step::Identity { channel }))
+    }
+
+    /// "Mclennan Servo Supplies Ltd. PM304 V6.15": no other reply names the controller.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        line_text(frame, INPUT_TERMINATOR).contains("PM304")
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {

@@ -336,6 +336,15 @@ impl Protocol for Esp300 {
         self.observed = true;
     }
 
+    fn sync(&self) -> Option<Request<Step>> {
+        Some(Request::query(line("VE?"), Step::Version))
+    }
+
+    /// "ESP300 Version 3.08 09/09/02": no other reply has words.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        line_text(frame, INPUT_TERMINATOR).to_ascii_lowercase().contains("version")
+    }
+
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
         let parts = self.commands(channel, command)?;
         if parts.is_empty() {

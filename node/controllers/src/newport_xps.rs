@@ -561,6 +561,15 @@ impl Protocol for Xps {
         requests
     }
 
+    fn sync(&self) -> Option<Request<Step>> {
+        Some(Request::query("FirmwareVersionGet (char *)", Step::Firmware))
+    }
+
+    /// The firmware, "XPS-C8 Firmware V2.6.x": no other reply names the controller.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        split_reply(frame).is_some_and(|(code, outputs)| code == 0 && outputs.iter().any(|o| o.contains("XPS")))
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {

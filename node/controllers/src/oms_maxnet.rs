@@ -330,6 +330,15 @@ impl Protocol for Maxnet {
         self.observed = true;
     }
 
+    fn sync(&self) -> Option<Request<Step>> {
+        Some(Request::query(line("WY"), Step::Identity))
+    }
+
+    /// "MAXnet ver:1.33.4, s/n:000001": no other reply has a version.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        line_text(frame, INPUT_TERMINATOR).contains("ver:")
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         self.polled = channels.to_vec();
         [

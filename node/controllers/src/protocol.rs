@@ -275,6 +275,20 @@ pub trait Protocol: Send {
         false
     }
 
+    /// A query no other reply of the protocol can be taken for (an identity), with which the
+    /// layer finds the controller's replies again after a failed exchange: a reply later than
+    /// its request's timeout would otherwise be taken for the next request's, and a protocol
+    /// whose replies do not name their request (no echo, no address) would read one value as
+    /// another. None where every reply names its request.
+    fn sync(&self) -> Option<Request<Self::Step>> {
+        None
+    }
+
+    /// Whether `frame` is the reply to `sync`'s query; every frame before it is stale.
+    fn is_sync_reply(&self, _frame: &[u8]) -> bool {
+        false
+    }
+
     /// The controller is only observed (`observe = true`, beside the IOC that drives it): from
     /// now on its polls leave out the readings that clear what the controller keeps for its
     /// other clients (a done flag, an error register or queue), or read it without clearing.

@@ -503,6 +503,16 @@ impl Protocol for Mcs2 {
         self.observed = true;
     }
 
+    fn sync(&self) -> Option<Request<Step>> {
+        Some(query(":DEV:SNUM?".to_string(), Step::SerialNumber))
+    }
+
+    /// The serial number, a SCPI string (quoted): no other reply is one.
+    fn is_sync_reply(&self, frame: &[u8]) -> bool {
+        let text = reply_text(frame);
+        text.len() > 2 && text.starts_with('"') && text.ends_with('"')
+    }
+
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         let mut requests = Vec::new();
         for &channel in channels {
