@@ -188,7 +188,7 @@ pub struct TrajectoryFeedback {
     pub desired: JointTrajectoryPoint,
     /// Where they are.
     pub actual: JointTrajectoryPoint,
-    /// actual − desired.
+    /// desired − actual (reference − feedback).
     pub error: JointTrajectoryPoint,
     /// Multi-DOF joints (none).
     pub multi_dof_joint_names: Vec<String>,

@@ -425,7 +425,9 @@ impl FollowJointTrajectory {
             desired.push(wanted * joint.si_per_egu);
             actual.push(rbv * joint.si_per_egu);
         }
-        let error = actual.iter().zip(&desired).map(|(a, d)| a - d).collect();
+        // As joint_trajectory_controller computes it (and control_msgs defines it): reference −
+        // feedback, the way the joint still has to go.
+        let error = desired.iter().zip(&actual).map(|(d, a)| d - a).collect();
         let point = |positions| JointTrajectoryPoint { positions, ..JointTrajectoryPoint::default() };
         Some(FeedbackMessage {
             goal_id: plan.id,
@@ -629,6 +631,9 @@ mod tests {
         let feedback = server.feedback(&states, at(4500)).expect("feedback while executing");
         assert_eq!(feedback.feedback.joint_names, ["lift", "turn"]);
         assert!((feedback.feedback.desired.positions[1] - 1.5 * quarter).abs() < 1e-9, "half way through the segment");
+        let (desired, actual) = (&feedback.feedback.desired.positions, &feedback.feedback.actual.positions);
+        assert_eq!(feedback.feedback.error.positions[1], desired[1] - actual[1], "reference − feedback, as JTC");
+        assert!(feedback.feedback.error.positions[1] > 0.0, "the way still to go, forward");
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
         states.update("m1", Field::RBV, 5.0, at(6000));
         states.update("m2", Field::RBV, 180.0, at(6000));
