@@ -160,11 +160,14 @@ pub struct Circuit {
     channels: BTreeMap<u32, Channel>,
     subscriptions: BTreeMap<u32, Subscription>,
     pending_reads: Vec<Pending>,
-    /// Writes sent and not yet answered that answer once taken (not at a motion's end), and
-    /// their axes: a read of the axis waits for them, as an IOC reads after it processed.
-    writing: Vec<(WriteAnswer, String)>,
-    /// Reads that came after such a write of their axis.
-    reads_after_writes: Vec<Pending>,
+    /// Writes sent and not yet answered that answer once taken (not at a motion's end), each
+    /// numbered, with its axis: a read of the axis waits for those before it, as an IOC reads
+    /// after it processed them.
+    writing: Vec<(u64, WriteAnswer, String)>,
+    /// The number of the last write sent.
+    writes_sent: u64,
+    /// Reads that came after such writes of their axis, each with the number of the last one.
+    reads_after_writes: Vec<(Pending, u64)>,
     next_sid: u32,
     events_on: bool,
     /// Whether a change went unposted while events were off.
@@ -272,23 +275,29 @@ impl Circuit {
             }
             self.subscriptions.retain(|_, s| s.sid != sid);
             self.pending_reads.retain(|p| p.sid != sid);
-            self.reads_after_writes.retain(|p| p.sid != sid);
+            self.reads_after_writes.retain(|(p, _)| p.sid != sid);
         }
     }
 
     /// A write ended: answered, and the reads of its axis that came after it answered now.
     pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd, directory: &dyn Directory) {
-        let axis = self.writing.iter().position(|(a, _)| *a == answer).map(|i| self.writing.remove(i).1);
+        if let Some(i) = self.writing.iter().position(|(_, a, _)| *a == answer) {
+            self.writing.remove(i);
+        }
         self.answer_write(answer, end);
-        let Some(axis) = axis.filter(|axis| !self.writing.iter().any(|(_, a)| a == axis)) else { return };
         let held = std::mem::take(&mut self.reads_after_writes);
-        for pending in held {
-            match self.channels.get(&pending.sid).map(|c| c.pv.clone()) {
-                Some(pv) if pv.axis == axis => match self.snapshot(&pv, directory) {
-                    Some(snapshot) => self.send_read(&pending, &snapshot),
-                    None => self.pending_reads.push(pending),
-                },
-                _ => self.reads_after_writes.push(pending),
+        for (pending, after) in held {
+            let Some(pv) = self.channels.get(&pending.sid).map(|c| c.pv.clone()) else { continue };
+            if self.writing.iter().any(|(n, _, axis)| *n <= after && *axis == pv.axis) {
+                self.reads_after_writes.push((pending, after));
+                continue;
+            }
+            match self.snapshot(&pv, directory) {
+                Some(snapshot) => self.send_read(&pending, &snapshot),
+                None => {
+                    self.requests.push_back(Request::Fetch { axis: pv.axis.clone() });
+                    self.pending_reads.push(pending);
+                }
             }
         }
     }
@@ -328,7 +337,7 @@ impl Circuit {
                 self.channels.remove(&sid);
                 self.subscriptions.retain(|_, s| s.sid != sid);
                 self.pending_reads.retain(|p| p.sid != sid);
-                self.reads_after_writes.retain(|p| p.sid != sid);
+                self.reads_after_writes.retain(|(p, _)| p.sid != sid);
                 self.send(Header::new(command::CLEAR_CHANNEL, 0, 0, header.p1, header.p2), &[]);
             }
             command::WRITE | command::WRITE_NOTIFY => self.write(header, payload),
@@ -366,9 +375,10 @@ impl Circuit {
         let Some(channel) = self.channels.get(&pending.sid) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
-        if self.writing.iter().any(|(_, axis)| *axis == channel.pv.axis) {
-            // Read after the write is taken, as an IOC serves a circuit's requests in order.
-            return self.reads_after_writes.push(pending);
+        let last = self.writing.iter().filter(|(_, _, axis)| *axis == channel.pv.axis).map(|(n, ..)| *n).max();
+        if let Some(last) = last {
+            // Read once the writes before it are taken, as an IOC serves a circuit in order.
+            return self.reads_after_writes.push((pending, last));
         }
         match self.snapshot(&channel.pv, directory) {
             Some(snapshot) => self.send_read(&pending, &snapshot),
@@ -505,7 +515,8 @@ impl Circuit {
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 if !wait {
-                    self.writing.push((answer, pv.axis.clone()));
+                    self.writes_sent += 1;
+                    self.writing.push((self.writes_sent, answer, pv.axis.clone()));
                 }
                 self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }

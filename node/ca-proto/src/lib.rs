@@ -177,6 +177,20 @@ mod tests {
         assert_eq!((read.len(), read[0].0.command, read[0].0.p2), (1, command::READ_NOTIFY, 7));
         let again = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, velo, 8), &[]);
         assert_eq!(again[0].0.p2, 8, "no write under way: read at once");
+        // Writes that keep coming hold a read back only until those before it are taken.
+        let write = |circuit: &mut Circuit, value: f64| {
+            let header = Header::new(command::WRITE, 6, 1, velo, 1);
+            request(circuit, &directory, header, &value.to_be_bytes());
+            let Some(Request::Write { answer, .. }) = circuit.poll_request() else { panic!("no write") };
+            answer
+        };
+        let first = write(&mut circuit, 1.0);
+        assert!(request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, velo, 11), &[]).is_empty());
+        let second = write(&mut circuit, 2.0);
+        circuit.write_done(first, WriteEnd::Done, &directory);
+        let read = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!(read[0].0.p2, 11, "answered once the write before it was taken, the later one under way");
+        circuit.write_done(second, WriteEnd::Done, &directory);
         // A put-callback that waits for the motion's end holds no read back.
         let notify = Header::new(command::WRITE_NOTIFY, 6, 1, val, 9);
         request(&mut circuit, &directory, notify, &5f64.to_be_bytes());

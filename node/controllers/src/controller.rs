@@ -680,10 +680,10 @@ impl<P: Protocol> Controller<P> {
         if self.quiet_until.take().is_some() {
             self.received.clear();
         }
+        if self.syncing && self.in_flight.is_none() {
+            self.send_sync();
+        }
         if self.syncing {
-            if self.in_flight.is_none() {
-                self.send_sync();
-            }
             return;
         }
         if let Some(retry) = self.retry.take() {
@@ -849,6 +849,7 @@ impl<P: Protocol> Controller<P> {
             if self.protocol.is_sync_reply(frame) {
                 self.in_flight = None;
                 self.syncing = false;
+                self.failures = 0;
             } else {
                 let what = format!("a stale reply dropped: {}", crate::protocol::printable(frame));
                 self.events.push_back(ControllerEvent::Failed { what });
@@ -995,14 +996,7 @@ impl<P: Protocol> Controller<P> {
                 self.on_event(ReplyEvent::ControllerError(error), issued);
             }
             ReplyEvent::FollowUp(requests) => {
-                let stopping = |channel| self.queue.iter().any(|t| t.kind == Kind::Stop { channel });
-                let cut = match self.current.as_ref().map(|t| t.kind) {
-                    Some(Kind::Command { channel, motion: true }) => stopping(channel),
-                    _ => false,
-                };
-                // A motion its stop cut short is not carried on: what the reply asks for next
-                // (an XPS home's initialisation and search) would start it again.
-                if let Some(current) = self.current.as_mut().filter(|_| !cut) {
+                if let Some(current) = self.current.as_mut() {
                     for request in requests.into_iter().rev() {
                         current.requests.push_front(request);
                     }
@@ -1017,8 +1011,9 @@ impl<P: Protocol> Controller<P> {
         if !self.count_failure(&in_flight, why) {
             return;
         }
-        // The replies that follow may be late ones of this exchange: found again first.
-        self.syncing = self.protocol.sync().is_some();
+        // The replies that follow may be late ones of this exchange: found again first (by a
+        // protocol whose replies do not name their request).
+        self.syncing = true;
         let kind = self.current.as_ref().map(|t| t.kind);
         // A setting of the initialisation changes the controller: not sent twice, as a command.
         let changes = P::purpose(in_flight.request.step) == Purpose::Setup;

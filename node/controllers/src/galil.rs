@@ -129,6 +129,8 @@ pub(crate) struct Galil {
     layout: Layout,
     axes: [Axis; 8],
     servos_switched_on: bool,
+    /// The firmware as the initialisation read it (`sync`).
+    identity: Option<String>,
 }
 
 impl Galil {
@@ -138,7 +140,14 @@ impl Galil {
             Some(units) => (units, ScaleSource::Installation),
             None => (1.0, ScaleSource::ProtocolDefault),
         };
-        Self { units_per_step, source, layout: DEFAULT_LAYOUT, axes: [Axis::default(); 8], servos_switched_on: false }
+        Self {
+            units_per_step,
+            source,
+            layout: DEFAULT_LAYOUT,
+            axes: [Axis::default(); 8],
+            servos_switched_on: false,
+            identity: None,
+        }
     }
 
     fn counts(&self, what: &'static str, steps: f64) -> Result<i32, CommandError> {
@@ -325,13 +334,14 @@ impl Protocol for Galil {
         requests
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
+    fn sync(&mut self) -> Option<Request<Step>> {
+        self.identity.as_ref()?;
         Some(Request::query(b"\x12\x16\r".to_vec(), Step::Firmware))
     }
 
-    /// The firmware, "DMC4040 Rev 1.2": no other reply names the controller.
+    /// The firmware, "DMC4040 Rev 1.2", as read at connection: no other reply names it.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        data(frame).is_some_and(|d| d.starts_with("DMC"))
+        data(frame).is_some_and(|d| self.identity.as_deref() == Some(d))
     }
 
     fn poll(&mut self, _channels: &[usize]) -> Vec<Request<Step>> {
@@ -369,6 +379,7 @@ impl Protocol for Galil {
             Step::Firmware => {
                 let firmware =
                     data(frame).filter(|d| d.starts_with("DMC")).ok_or_else(|| error("not a Galil's firmware"))?;
+                self.identity = Some(firmware.to_string());
                 Ok(vec![ReplyEvent::Found(Finding::Identity(firmware.to_string()))])
             }
             Step::Layout => {

@@ -146,6 +146,9 @@ struct Motor {
     /// A home search the motor took and nobody stopped: its end, without an error, sets the
     /// homed flag.
     homing: bool,
+    /// A stop was asked since the last home: a home's `PR ER` answered after it does not make
+    /// a search that was stopped count as one that ended (its end would set HOMED).
+    stopped: bool,
     status: DeviceStatus,
 }
 
@@ -153,6 +156,11 @@ struct Motor {
 #[derive(Debug, Default)]
 pub(crate) struct Mdrive {
     motors: Vec<(usize, Motor)>,
+    /// Each motor's firmware (`PR VR`) as the initialisation read it: asked again, in turn, to
+    /// find the replies again after a failure (`sync`).
+    identities: Vec<(usize, String)>,
+    /// The motor the last `sync` asked.
+    synced_with: usize,
 }
 
 impl Mdrive {
@@ -360,17 +368,18 @@ impl Protocol for Mdrive {
         requests
     }
 
-    /// The part number of the first motor, `PR PN`.
-    fn sync(&self) -> Option<Request<Step>> {
-        let &(channel, _) = self.motors.first()?;
-        Some(Request::query(line(channel, "PR PN"), Step::Version { channel }))
+    fn sync(&mut self) -> Option<Request<Step>> {
+        let next = self.identities.iter().position(|(c, _)| *c > self.synced_with).unwrap_or(0);
+        let channel = self.identities.get(next)?.0;
+        self.synced_with = channel;
+        Some(Request::query(line(channel, "PR VR"), Step::Version { channel }))
     }
 
-    /// "MDI1FRD17B4": no other reply is a part number.
+    /// The firmware, "3.010", as the motor asked answered at connection: no other reply has a
+    /// decimal point (positions, speeds and flags are whole numbers).
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
         let text = line_text(frame, INPUT_TERMINATOR);
-        let text = text.trim();
-        text.starts_with("MD") && text.chars().skip(2).any(|c| c.is_ascii_alphabetic())
+        self.identities.iter().any(|(c, id)| *c == self.synced_with && id == text.trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -409,9 +418,11 @@ impl Protocol for Mdrive {
             DriverCommand::Move { .. } | DriverCommand::MoveVelocity { .. } => Started::Motion,
             _ => Started::Nothing,
         };
-        if matches!(command, DriverCommand::Stop { .. }) {
+        match command {
             // A search stopped referenced nothing.
-            self.motor(channel).homing = false;
+            DriverCommand::Stop { .. } => (self.motor(channel).homing, self.motor(channel).stopped) = (false, true),
+            DriverCommand::Home { .. } => self.motor(channel).stopped = false,
+            _ => {}
         }
         let mut requests: Vec<Request<Step>> =
             lines.iter().map(|code| Request::silent(line(channel, code), Step::Command { channel })).collect();
@@ -431,6 +442,9 @@ impl Protocol for Mdrive {
         let number = || text.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| error("not a number"));
         match request.step {
             Step::Version { channel } if !text.is_empty() => {
+                self.identities.retain(|(c, _)| *c != channel);
+                self.identities.push((channel, text.to_string()));
+                self.identities.sort();
                 Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MDrive {channel}: firmware {text}")))])
             }
             Step::Version { .. } => Err(error("no firmware version")),
@@ -462,7 +476,7 @@ impl Protocol for Mdrive {
                 match started {
                     Started::Nothing => {}
                     Started::Motion => motor.moving_since_command = true,
-                    Started::HomeSearch => (motor.moving_since_command, motor.homing) = (true, true),
+                    Started::HomeSearch => (motor.moving_since_command, motor.homing) = (true, !motor.stopped),
                 }
                 Ok(Vec::new())
             }

@@ -87,8 +87,11 @@ struct Axis {
 #[derive(Debug, Default)]
 pub(crate) struct Pm304 {
     axes: Vec<(usize, Axis)>,
-    /// The first axis of the connection: its identity finds the replies again after a failure.
-    first: Option<usize>,
+    /// Each unit's identity as the initialisation read it: asked again, in turn, to find the
+    /// replies again after a failure (`sync`).
+    identities: Vec<(usize, String)>,
+    /// The unit the last `sync` asked.
+    synced_with: usize,
 }
 
 impl Pm304 {
@@ -138,18 +141,21 @@ impl Protocol for Pm304 {
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // A new connection may be a controller that was switched off: no datum is known.
         self.axes.clear();
-        self.first = channels.first().copied();
+        self.identities.clear();
         channels.iter().map(|&channel| Request::query(line(channel, "ID"), Step::Identity { channel })).collect()
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
-        let channel = self.first?;
+    fn sync(&mut self) -> Option<Request<Step>> {
+        let next = self.identities.iter().position(|(c, _)| *c > self.synced_with).unwrap_or(0);
+        let channel = self.identities.get(next)?.0;
+        self.synced_with = channel;
         Some(Request::query(line(channel, "ID"), Step::Identity { channel }))
     }
 
-    /// "Mclennan Servo Supplies Ltd. PM304 V6.15": no other reply names the controller.
+    /// "Mclennan Servo Supplies Ltd. PM304 V6.15", as the unit asked answered at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        line_text(frame, INPUT_TERMINATOR).contains("PM304")
+        let text = line_text(frame, INPUT_TERMINATOR);
+        self.identities.iter().any(|(c, id)| *c == self.synced_with && id == text.trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -225,7 +231,12 @@ impl Protocol for Pm304 {
             })]);
         }
         match request.step {
-            Step::Identity { .. } => Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))]),
+            Step::Identity { channel } => {
+                self.identities.retain(|(c, _)| *c != channel);
+                self.identities.push((channel, text.to_string()));
+                self.identities.sort();
+                Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
+            }
             Step::Status { channel } => {
                 let flags = text.as_bytes();
                 if flags.len() != 8 || !flags.iter().all(|b| matches!(b, b'0' | b'1')) {

@@ -160,12 +160,20 @@ pub(crate) struct Esp300 {
     motors_switched_on: bool,
     /// Observed beside an IOC: its error buffer, which `TB?` empties, is the IOC's.
     observed: bool,
+    /// The firmware version as the initialisation read it (`sync`).
+    identity: Option<String>,
 }
 
 impl Esp300 {
     /// A protocol scaled by `options.units_per_step`, or by what each axis says at connection.
     pub(crate) fn new(options: &ProtocolOptions) -> Self {
-        Self { units_per_step: options.units_per_step, axes: Vec::new(), motors_switched_on: false, observed: false }
+        Self {
+            units_per_step: options.units_per_step,
+            axes: Vec::new(),
+            motors_switched_on: false,
+            observed: false,
+            identity: None,
+        }
     }
 
     fn axis(&mut self, channel: usize) -> &mut Axis {
@@ -336,13 +344,14 @@ impl Protocol for Esp300 {
         self.observed = true;
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
+    fn sync(&mut self) -> Option<Request<Step>> {
+        self.identity.as_ref()?;
         Some(Request::query(line("VE?"), Step::Version))
     }
 
-    /// "ESP300 Version 3.08 09/09/02": no other reply has words.
+    /// "ESP300 Version 3.08 09/09/02", as read at connection: no other reply has words.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        line_text(frame, INPUT_TERMINATOR).to_ascii_lowercase().contains("version")
+        self.identity.as_deref() == Some(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
@@ -380,6 +389,7 @@ impl Protocol for Esp300 {
         match request.step {
             // "ESP300 Version 3.08 09/09/02": anything else is not this controller's answer.
             Step::Version if text.to_ascii_lowercase().contains("version") => {
+                self.identity = Some(text.to_string());
                 Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
             }
             Step::Version => Err(error("not a firmware version")),

@@ -196,6 +196,9 @@ struct Axis {
     /// The last jog was seen moving: standing still in jog mode since means it has ended (not
     /// that it has yet to start).
     jog_seen_moving: bool,
+    /// A stop was asked since the last home: a home whose group state comes after it goes no
+    /// further (its kill, initialisation and search would start it again).
+    stopped: bool,
     status: DeviceStatus,
 }
 
@@ -210,6 +213,8 @@ pub(crate) struct Xps {
     /// The groups not initialised were initialised at a connection of this run (once only: a
     /// group killed since stays as it is).
     initialised_at_start: bool,
+    /// The firmware as the initialisation read it (`sync`).
+    identity: Option<String>,
 }
 
 impl Xps {
@@ -219,7 +224,14 @@ impl Xps {
             Some(units) => (units, ScaleSource::Installation),
             None => (DEFAULT_UNITS_PER_STEP, ScaleSource::ProtocolDefault),
         };
-        Self { units_per_step, source, axes: Vec::new(), names: options.names.clone(), initialised_at_start: false }
+        Self {
+            units_per_step,
+            source,
+            axes: Vec::new(),
+            names: options.names.clone(),
+            initialised_at_start: false,
+            identity: None,
+        }
     }
 
     /// Channel `n`'s positioner, `GROUP.POSITIONER`: the launch file's name, or `GROUPn.POSITIONER`.
@@ -298,9 +310,11 @@ impl Xps {
                 requests
             }
             DriverCommand::Home { .. } => {
+                self.axis(n).stopped = false;
                 vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Home })]
             }
             DriverCommand::Stop { .. } => {
+                self.axis(n).stopped = true;
                 vec![Request::query(self.state_query(n), Step::StateFor { channel: n, then: Then::Stop })]
             }
             DriverCommand::SetPosition { position } => {
@@ -347,6 +361,7 @@ impl Xps {
             Then::Enable if not_initialised(state) => vec![call(format!("GroupInitialize ({group})"))],
             Then::Enable if (20..=36).contains(&state) => vec![call(format!("GroupMotionEnable ({group})"))],
             Then::Enable => Vec::new(),
+            Then::Home if self.axis(channel).stopped => Vec::new(),
             Then::Home => {
                 let mut requests = Vec::new();
                 if state == JOGGING {
@@ -561,13 +576,14 @@ impl Protocol for Xps {
         requests
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
+    fn sync(&mut self) -> Option<Request<Step>> {
+        self.identity.as_ref()?;
         Some(Request::query("FirmwareVersionGet (char *)", Step::Firmware))
     }
 
-    /// The firmware, "XPS-C8 Firmware V2.6.x": no other reply names the controller.
+    /// The firmware, "XPS-C8 Firmware V2.6.x", as read at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        split_reply(frame).is_some_and(|(code, outputs)| code == 0 && outputs.iter().any(|o| o.contains("XPS")))
+        split_reply(frame).is_some_and(|(code, outputs)| code == 0 && self.identity == Some(outputs.join(",")))
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -645,7 +661,10 @@ impl Protocol for Xps {
                 .ok_or_else(|| error("not a number"))
         };
         match request.step {
-            Step::Firmware => Ok(vec![ReplyEvent::Found(Finding::Identity(outputs.join(",")))]),
+            Step::Firmware => {
+                self.identity = Some(outputs.join(","));
+                Ok(vec![ReplyEvent::Found(Finding::Identity(outputs.join(",")))])
+            }
             Step::Jerk { channel } => {
                 let (min, max) = (number(2)?, number(3)?);
                 self.axis(channel).jerk = Some((min, max));

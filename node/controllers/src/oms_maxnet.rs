@@ -124,11 +124,13 @@ pub(crate) struct Maxnet {
     last_commanded: Option<usize>,
     /// Observed beside an IOC: the done flags are read without clearing them (`QI`).
     observed: bool,
+    /// `WY`'s answer as the initialisation read it (`sync`).
+    identity: Option<String>,
 }
 
 impl Maxnet {
     pub(crate) fn new() -> Self {
-        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None, observed: false }
+        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None, observed: false, identity: None }
     }
 
     /// The speed settings of a motion: `AC`, then `VL` and `VB` in the order that keeps the
@@ -330,13 +332,14 @@ impl Protocol for Maxnet {
         self.observed = true;
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
+    fn sync(&mut self) -> Option<Request<Step>> {
+        self.identity.as_ref()?;
         Some(Request::query(line("WY"), Step::Identity))
     }
 
-    /// "MAXnet ver:1.33.4, s/n:000001": no other reply has a version.
+    /// "MAXnet ver:1.33.4, s/n:000001", as read at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        line_text(frame, INPUT_TERMINATOR).contains("ver:")
+        self.identity.as_deref() == Some(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -370,7 +373,10 @@ impl Protocol for Maxnet {
         let text = text.trim();
         let error = |why| ReplyError::new(request, frame, why);
         match request.step {
-            Step::Identity => Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))]),
+            Step::Identity => {
+                self.identity = Some(text.to_string());
+                Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
+            }
             // `=O` open loop, `=E`, `=M`: logged by the identity; encoders are not read.
             Step::AxisType { .. } if text.starts_with('=') => Ok(Vec::new()),
             Step::LimitLevel { channel } => match text {

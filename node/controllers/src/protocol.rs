@@ -275,16 +275,18 @@ pub trait Protocol: Send {
         false
     }
 
-    /// A query no other reply of the protocol can be taken for (an identity), with which the
-    /// layer finds the controller's replies again after a failed exchange: a reply later than
-    /// its request's timeout would otherwise be taken for the next request's, and a protocol
-    /// whose replies do not name their request (no echo, no address) would read one value as
-    /// another. None where every reply names its request.
-    fn sync(&self) -> Option<Request<Self::Step>> {
+    /// A query no other reply of the protocol can be taken for (an identity, answered as the
+    /// initialisation read it), with which the layer finds the controller's replies again
+    /// after a failed exchange: a reply later than its request's timeout would otherwise be
+    /// taken for the next request's, and a protocol whose replies do not name their request (no
+    /// echo, no address) would read one value as another. None where every reply names its
+    /// request, or before the identity is known. On a line of several units, each call may ask
+    /// another (a unit that went silent must not take the line down).
+    fn sync(&mut self) -> Option<Request<Self::Step>> {
         None
     }
 
-    /// Whether `frame` is the reply to `sync`'s query; every frame before it is stale.
+    /// Whether `frame` is the reply to the last `sync` query; every frame before it is stale.
     fn is_sync_reply(&self, _frame: &[u8]) -> bool {
         false
     }

@@ -266,6 +266,8 @@ pub(crate) struct Mcs2 {
     errors_in_a_row: u32,
     /// Observed beside an IOC: the device's error queue, which a read empties, is the IOC's.
     observed: bool,
+    /// The serial number's reply as the initialisation read it (`sync`).
+    identity: Option<String>,
 }
 
 impl Mcs2 {
@@ -281,6 +283,7 @@ impl Mcs2 {
             channels: BTreeMap::new(),
             errors_in_a_row: 0,
             observed: false,
+            identity: None,
         }
     }
 
@@ -503,14 +506,14 @@ impl Protocol for Mcs2 {
         self.observed = true;
     }
 
-    fn sync(&self) -> Option<Request<Step>> {
+    fn sync(&mut self) -> Option<Request<Step>> {
+        self.identity.as_ref()?;
         Some(query(":DEV:SNUM?".to_string(), Step::SerialNumber))
     }
 
-    /// The serial number, a SCPI string (quoted): no other reply is one.
+    /// The serial number, a quoted SCPI string no other reply is.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        let text = reply_text(frame);
-        text.len() > 2 && text.starts_with('"') && text.ends_with('"')
+        self.identity.as_deref() == Some(reply_text(frame).as_str())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -606,6 +609,7 @@ impl Protocol for Mcs2 {
         let text = reply_text(frame);
         match request.step {
             Step::SerialNumber => {
+                self.identity = Some(text.clone());
                 let serial = text.trim_matches('"');
                 Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MCS2, serial number {serial}")))])
             }

@@ -7,7 +7,7 @@ mod common;
 use common::{bring_up, command, go, loopback, run_until_done, written_since};
 use proptest::prelude::*;
 use std::time::Duration;
-use zmotor_controllers::ProtocolKind;
+use zmotor_controllers::{Loopback, ProtocolKind};
 use zmotor_emulators::Faults;
 use zmotor_msgs::bits::msta;
 use zmotor_msgs::DriverCommand;
@@ -78,6 +78,25 @@ fn a_home_search_ends_homed_and_a_stopped_one_does_not() {
     assert_eq!(homed_later.position, 0.0);
     let sent = written_since(&lb, from);
     assert!(sent.contains(&"1HM 1\r\n".to_string()) && sent.contains(&"1R1=1\r\n".to_string()), "{sent:?}");
+}
+
+#[test]
+fn a_home_stopped_before_its_error_check_is_answered_homes_nothing() {
+    // The stop comes while the home's `PR ER` is on its way (replies 5 ms late).
+    let mut lb = loopback(MDRIVE, &CHANNELS, Faults::default());
+    bring_up(&mut lb);
+    lb.command(1, &go(30_000.0, false));
+    run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
+    lb.link.set_faults(Faults { delay: Duration::from_millis(5), ..Faults::default() });
+    let home =
+        DriverCommand::Home { forward: false, min_velocity: 0.0, max_velocity: 20_000.0, acceleration: 200_000.0 };
+    lb.command(1, &home);
+    lb.command(1, &DriverCommand::Stop { acceleration: 200_000.0 });
+    run_until_done(&mut lb, 1, TICK, Duration::from_secs(5));
+    lb.run_for(Duration::from_secs(2));
+    let events = lb.take_events();
+    let homed = Loopback::statuses(&events, 1).iter().any(|s| s.msta & msta::HOMED != 0);
+    assert!(!homed, "a stopped search homed nothing: {events:?}");
 }
 
 #[test]

@@ -37,15 +37,16 @@ fn a_reply_later_than_its_retry_is_never_taken_for_another_requests() {
         bring_up(&mut lb);
         lb.run_for(Duration::from_secs(2));
         let at_rest = Loopback::statuses(&lb.take_events(), channel).last().expect("a status").position;
-        // Every request's reply in flight for 1.28 s at once: past the timeout (1 s) and the
-        // quiet after it (0.25 s), the retry already sent; then 50 ms each, in order.
-        for stall in [0, 3, 7, 13, 29] {
-            lb.run_for(Duration::from_millis(stall));
-            lb.link.set_faults(Faults { delay: Duration::from_millis(1280), ..Faults::default() });
+        // A reply in flight for 1.28 s: past the timeout (1 s) and the quiet after it (0.25 s),
+        // the retry already sent; for 2.6 s: past the first resynchronisation's timeout too.
+        // Then 50 ms each, in order.
+        for (stall, offset) in [(1280, 0), (1280, 3), (1280, 7), (2600, 13), (2600, 29)] {
+            lb.run_for(Duration::from_millis(offset));
+            lb.link.set_faults(Faults { delay: Duration::from_millis(stall), ..Faults::default() });
             lb.command(channel, &DriverCommand::Poll);
             lb.run_for(Duration::from_millis(1));
             lb.link.set_faults(Faults { delay: Duration::from_millis(50), ..Faults::default() });
-            lb.run_for(Duration::from_secs(4));
+            lb.run_for(Duration::from_secs(6));
         }
         let statuses = Loopback::statuses(&lb.take_events(), channel);
         let read: Vec<f64> = statuses.iter().map(|s| s.position).collect();
