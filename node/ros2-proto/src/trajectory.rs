@@ -46,6 +46,7 @@ mod error_code {
 /// `CancelGoal` return codes.
 mod cancel_code {
     pub(super) const NONE: i8 = 0;
+    pub(super) const REJECTED: i8 = 1;
     pub(super) const UNKNOWN_GOAL_ID: i8 = 2;
     pub(super) const GOAL_TERMINATED: i8 = 3;
 }
@@ -110,6 +111,44 @@ pub enum GoalRejection {
     /// A joint whose axis has not yet said where it is and what its limits are.
     #[error("joint '{0}': its axis's position, limits and speed are not known yet")]
     NotReady(String),
+    /// A goal id already used by a goal kept here (rcl_action refuses it too).
+    #[error("the goal id is a known goal's")]
+    KnownId,
+    /// No joint named.
+    #[error("the trajectory names no joint")]
+    NoJoints,
+    /// Velocities or accelerations given, but not one per joint.
+    #[error("point {point}: {got} {what} for {expected} joints")]
+    Derivatives {
+        /// The point's index.
+        point: usize,
+        /// "velocities" or "accelerations".
+        what: &'static str,
+        /// Joints named.
+        expected: usize,
+        /// Values given.
+        got: usize,
+    },
+    /// A start stamp so far back that the last point is already past (joint_trajectory_controller
+    /// refuses it too: its points would be replayed from now, late).
+    #[error("the trajectory, stamped to start in the past, ends in the past")]
+    EndsInThePast,
+}
+
+impl CancelGoalResponse {
+    /// The answer to a cancel request that cannot be read.
+    #[must_use]
+    pub fn rejected() -> Self {
+        Self { return_code: cancel_code::REJECTED, goals_canceling: Vec::new() }
+    }
+}
+
+impl GetResultResponse {
+    /// The answer to a result request that cannot be read (status UNKNOWN).
+    #[must_use]
+    pub fn unknown() -> Self {
+        Self { status: status::UNKNOWN, result: TrajectoryResult::default() }
+    }
 }
 
 /// What the gateway is to do for a goal.
@@ -254,6 +293,9 @@ impl FollowJointTrajectory {
     ) -> Result<(), GoalRejection> {
         if self.plan.is_some() {
             return Err(GoalRejection::Busy);
+        }
+        if self.goals.iter().any(|g| g.info.goal_id == request.goal_id) {
+            return Err(GoalRejection::KnownId);
         }
         let plan = plan(request.goal_id, &request.goal, joints, now)?;
         self.plan = Some(plan);
@@ -482,6 +524,9 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
     if trajectory.points.is_empty() {
         return Err(GoalRejection::NoPoints);
     }
+    if trajectory.joint_names.is_empty() {
+        return Err(GoalRejection::NoJoints);
+    }
     let mut planned = Vec::new();
     let mut travels = Vec::new();
     for (k, name) in trajectory.joint_names.iter().enumerate() {
@@ -515,6 +560,11 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
         if got != expected {
             return Err(GoalRejection::Positions { point: i, expected, got });
         }
+        for (what, values) in [("velocities", &point.velocities), ("accelerations", &point.accelerations)] {
+            if !values.is_empty() && values.len() != expected {
+                return Err(GoalRejection::Derivatives { point: i, what, expected, got: values.len() });
+            }
+        }
         let at = point.time_from_start.to_duration().filter(|at| *at >= previous);
         let at = at.ok_or(GoalRejection::TimeBackwards { point: i })?;
         previous = at;
@@ -534,7 +584,12 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
         }
         points.push((at, targets));
     }
-    let start = since_epoch(trajectory.header.stamp).filter(|at| *at > now).unwrap_or(now);
+    // A zero stamp is "start now".
+    let stamp = since_epoch(trajectory.header.stamp).filter(|at| !at.is_zero());
+    if stamp.is_some_and(|start| start + previous < now) {
+        return Err(GoalRejection::EndsInThePast);
+    }
+    let start = stamp.filter(|at| *at > now).unwrap_or(now);
     Ok(Plan { id, joints: planned, points, start, next: 0, segment: None, ending: None })
 }
 
@@ -695,9 +750,26 @@ mod tests {
         );
         assert_eq!(server.poll_status(), None, "no goal known");
         assert_eq!(server.poll(&states, at(0)), []);
+        assert_eq!(reject(&mut server, goal(&[], &[(1000, &[])])), GoalRejection::NoJoints);
+        let mut speeds = goal(&["lift", "turn"], &[(1000, &[0.0, 0.0])]);
+        speeds.goal.trajectory.points[0].velocities = vec![0.1];
+        assert_eq!(
+            reject(&mut server, speeds),
+            GoalRejection::Derivatives { point: 0, what: "velocities", expected: 2, got: 1 }
+        );
+        // Stamped to start 5 s ago, its last point 2 s in: over (a second later, it runs).
+        let mut stale = goal(&["lift"], &[(2000, &[0.001])]);
+        stale.goal.trajectory.header.stamp = stamp(at(0));
+        assert_eq!(server.send_goal(&stale, &states, at(5000)), Err(GoalRejection::EndsInThePast));
         // No soft limits on turn: any angle goes. A second goal while it runs does not.
         server.send_goal(&goal(&["turn"], &[(1000, &[100.0])]), &states, at(0)).unwrap();
         assert_eq!(reject(&mut server, goal(&["lift"], &[(1000, &[0.001])])), GoalRejection::Busy);
+        // Once a goal ended, another with its id is refused (its result would be the old one's).
+        let mut ended = FollowJointTrajectory::new();
+        ended.send_goal(&goal(&["turn"], &[(1000, &[0.0])]), &states, at(0)).unwrap();
+        let _ = ended.poll(&states, at(1000));
+        assert!(!ended.executing(), "a goal to where the joint is ends at its time");
+        assert_eq!(reject(&mut ended, goal(&["turn"], &[(1000, &[1.0])])), GoalRejection::KnownId);
     }
 
     #[test]

@@ -21,10 +21,10 @@ use zmotor_client::{AxisReading, Client, Selection, WriteOptions, WriteOutcome};
 use zmotor_deploy::{JointConfig, Ros2Config};
 use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
-    decode, encode, topic_key, Attachment, CancelGoalRequest, Durability, EntityKind, FollowJointTrajectory,
-    GetResultRequest, GoalId, GraphEntity, Joint, JointCommand, JointState, JointStates, MoveEnd, Qos, Reliability,
-    SendGoalRequest, SendGoalResponse, Time, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY,
-    JOINT_STATE, SEND_GOAL,
+    decode, encode, topic_key, Attachment, CancelGoalRequest, CancelGoalResponse, Durability, EntityKind,
+    FollowJointTrajectory, GetResultRequest, GetResultResponse, GoalId, GraphEntity, Joint, JointCommand, JointState,
+    JointStates, MoveEnd, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time, TypeInfo, CANCEL_GOAL, FEEDBACK,
+    GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
 };
 
 /// The gateway could not start.
@@ -487,14 +487,21 @@ impl Driver {
                     self.execute(commands);
                     reply(&query, &attachment, encode(&response)).await;
                 }
-                Err(e) => tracing::warn!("follow_joint_trajectory: {e}"),
+                Err(e) => {
+                    // Answered, as a refusal: an unanswered request hangs its caller.
+                    tracing::warn!("follow_joint_trajectory: {e}");
+                    reply(&query, &attachment, encode(&CancelGoalResponse::rejected())).await;
+                }
             },
             Service::GetResult => match decode::<GetResultRequest>(&payload, "GetResult request") {
                 Ok(request) => match self.follow.result(&request.goal_id) {
                     Some(result) => reply(&query, &attachment, encode(&result)).await,
                     None => self.pending_results.push((request.goal_id, query, attachment)),
                 },
-                Err(e) => tracing::warn!("follow_joint_trajectory: {e}"),
+                Err(e) => {
+                    tracing::warn!("follow_joint_trajectory: {e}");
+                    reply(&query, &attachment, encode(&GetResultResponse::unknown())).await;
+                }
             },
         }
     }
