@@ -198,9 +198,9 @@ struct PlannedJoint {
     si_per_egu: f64,
     /// Where it was when the goal was accepted, EGU.
     from: f64,
-    /// VELO then, to restore; whether the goal changed it.
+    /// VELO then, to restore; the last speed the goal gave it, if it changed it.
     speed: f64,
-    speed_changed: bool,
+    speed_changed: Option<f64>,
     /// The goal position tolerance, EGU.
     tolerance: Option<f64>,
     /// A move commanded whose end has not come.
@@ -266,6 +266,9 @@ pub struct FollowJointTrajectory {
     goals: VecDeque<Goal>,
     plan: Option<Plan>,
     status_changed: bool,
+    /// Speeds an ended goal restores, by axis: (VELO before it, the last segment's speed). A
+    /// goal accepted before the restore is seen takes the former as the speed to restore.
+    restoring: Vec<(String, f64, f64)>,
 }
 
 fn stamp(now: Duration) -> Time {
@@ -297,7 +300,17 @@ impl FollowJointTrajectory {
         if self.goals.iter().any(|g| g.info.goal_id == request.goal_id) {
             return Err(GoalRejection::KnownId);
         }
-        let plan = plan(request.goal_id, &request.goal, joints, now)?;
+        let mut plan = plan(request.goal_id, &request.goal, joints, now)?;
+        for joint in &mut plan.joints {
+            // VELO still at the last goal's segment speed: its restore is on its way, and what
+            // this goal restores is the speed from before that one.
+            if let Some(i) = self.restoring.iter().position(|(axis, ..)| *axis == joint.axis) {
+                let (_, before, set) = self.restoring.remove(i);
+                if joint.speed == set {
+                    joint.speed = before;
+                }
+            }
+        }
         self.plan = Some(plan);
         self.goals.push_back(Goal {
             info: GoalInfo { goal_id: request.goal_id, stamp: stamp(now) },
@@ -333,7 +346,7 @@ impl FollowJointTrajectory {
                 }
                 let speed = (!segment_time.is_zero()).then(|| (target - from).abs() / segment_time.as_secs_f64());
                 let joint = &mut plan.joints[k];
-                joint.speed_changed |= speed.is_some();
+                joint.speed_changed = speed.or(joint.speed_changed);
                 joint.in_flight = true;
                 commands.push(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: segment_time });
             }
@@ -349,12 +362,12 @@ impl FollowJointTrajectory {
             None => None,
         };
         if let Some((status, result)) = end {
-            commands.extend(
-                plan.joints
-                    .iter()
-                    .filter(|j| j.speed_changed)
-                    .map(|j| JointCommand::RestoreSpeed { axis: j.axis.clone(), speed: j.speed }),
-            );
+            for joint in &plan.joints {
+                let Some(set) = joint.speed_changed else { continue };
+                commands.push(JointCommand::RestoreSpeed { axis: joint.axis.clone(), speed: joint.speed });
+                self.restoring.retain(|(axis, ..)| *axis != joint.axis);
+                self.restoring.push((joint.axis.clone(), joint.speed, set));
+            }
             let id = plan.id;
             self.plan = None;
             self.finish(id, status, result);
@@ -548,7 +561,7 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             si_per_egu: joint.si_per_egu,
             from: rbv,
             speed,
-            speed_changed: false,
+            speed_changed: None,
             tolerance,
             in_flight: false,
         });
@@ -704,6 +717,29 @@ mod tests {
         assert_eq!((result.status, result.result.error_code), (status::SUCCEEDED, 0));
         assert_eq!(server.poll_status().unwrap().status_list[0].status, status::SUCCEEDED);
         assert_eq!(server.feedback(&states, at(6000)), None);
+    }
+
+    #[test]
+    fn a_goal_accepted_before_the_last_ones_speed_is_restored_restores_the_speed_from_before() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        let mut request = goal(&["lift"], &[(2000, &[0.010])]);
+        server.send_goal(&request, &states, at(0)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(0))), [("m1", 10.0, Some(5.0))]);
+        states.update("m1", Field::VELO, 5.0, at(10));
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        states.update("m1", Field::RBV, 10.0, at(2000));
+        let end = server.poll(&states, at(2000));
+        assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
+        // The next goal comes before VELO 1 is posted back: it restores 1, not 5.
+        request.goal_id = [2; 16];
+        request.goal.trajectory.points[0].positions = vec![0.0];
+        server.send_goal(&request, &states, at(2001)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(2001))), [("m1", 0.0, Some(5.0))]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        states.update("m1", Field::RBV, 0.0, at(4001));
+        let end = server.poll(&states, at(4001));
+        assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
     }
 
     #[test]

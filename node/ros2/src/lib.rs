@@ -10,7 +10,9 @@
 //! of a node, from its posts for its own axes (`start_fed` and its `Feed`), one Zenoh hop
 //! sooner, and from monitors for the others.
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use zenoh::liveliness::LivelinessToken;
@@ -340,6 +342,8 @@ impl Ros2Node {
                 .await?;
             services.push(queryable);
         }
+        let (joint_commands, commanded) = tokio::sync::watch::channel(Vec::new());
+        tasks.push(tokio::spawn(write_joint_commands(client.clone(), commanded)));
         let driver = Driver {
             states: JointStates::new(joints, config.rest_period, Duration::from_secs_f64(1.0 / config.max_rate)),
             follow: FollowJointTrajectory::new(),
@@ -348,6 +352,8 @@ impl Ros2Node {
             status: RosPublisher::declare(&session, key(&graph[7]), STATUS_QOS, graph[7].gid()).await?,
             pending_results: Vec::new(),
             posted: HashSet::new(),
+            lanes: HashMap::new(),
+            joint_commands,
             client,
             events,
         };
@@ -378,8 +384,40 @@ struct Driver {
     pending_results: Vec<(GoalId, Query, Attachment)>,
     /// The fields of which a post came: a value read at start does not undo it.
     posted: HashSet<(String, Field)>,
+    /// Each axis's trajectory writes, kept in the order they are asked.
+    lanes: HashMap<String, Arc<Lane>>,
+    /// The latest joint command's targets, written by a task of their own.
+    joint_commands: tokio::sync::watch::Sender<Vec<(String, f64)>>,
     client: Client,
     events: UnboundedSender<Event>,
+}
+
+/// The order of one axis's trajectory writes, which run on tasks of their own: a stop is sent
+/// after any move asked before it that was sent, and no such move is sent after it.
+#[derive(Default)]
+struct Lane {
+    /// Stops asked so far.
+    stops: AtomicU64,
+    /// Held while a move's VAL or a STOP is sent.
+    sending: tokio::sync::Mutex<()>,
+}
+
+/// Write each joint command's targets as it comes, the newest when several came meanwhile (a
+/// controller streams them): in order, never an older one after a newer.
+async fn write_joint_commands(client: Client, mut commanded: tokio::sync::watch::Receiver<Vec<(String, f64)>>) {
+    while commanded.changed().await.is_ok() {
+        let targets = commanded.borrow_and_update().clone();
+        for (axis, target) in targets {
+            let sent = client.write(&axis, Field::VAL, target.to_string(), WriteOptions::confirmed(PATIENCE));
+            match sent.await {
+                Ok(sent) => match sent.outcome().await {
+                    WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+                    other => tracing::warn!(axis, "joint command: {other}"),
+                },
+                Err(e) => tracing::warn!(axis, "joint command not sent: {e}"),
+            }
+        }
+    }
 }
 
 impl Driver {
@@ -440,23 +478,12 @@ impl Driver {
         if self.follow.executing() {
             return tracing::warn!("joint_commands: ignored while a FollowJointTrajectory goal executes");
         }
-        let targets = match self.states.command(&command) {
-            Ok(targets) => targets,
-            Err(e) => return tracing::warn!("joint_commands: {e}; nothing moved"),
-        };
-        let client = self.client.clone();
-        tokio::spawn(async move {
-            for (axis, target) in targets {
-                let sent = client.write(&axis, Field::VAL, target.to_string(), WriteOptions::confirmed(PATIENCE));
-                match sent.await {
-                    Ok(sent) => match sent.outcome().await {
-                        WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                        other => tracing::warn!(axis, "joint command: {other}"),
-                    },
-                    Err(e) => tracing::warn!(axis, "joint command not sent: {e}"),
-                }
+        match self.states.command(&command) {
+            Ok(targets) => {
+                self.joint_commands.send_replace(targets);
             }
-        });
+            Err(e) => tracing::warn!("joint_commands: {e}; nothing moved"),
+        }
     }
 
     async fn request(&mut self, service: Service, query: Query) {
@@ -519,16 +546,38 @@ impl Driver {
     }
 
     /// Carry out the action server's commands as writes; each move reports its end.
-    fn execute(&self, commands: Vec<JointCommand>) {
+    fn execute(&mut self, commands: Vec<JointCommand>) {
         for command in commands {
             let (client, events) = (self.client.clone(), self.events.clone());
+            let axis = match &command {
+                JointCommand::Move { axis, .. }
+                | JointCommand::Stop { axis }
+                | JointCommand::RestoreSpeed { axis, .. } => axis.clone(),
+            };
+            let lane = self.lanes.entry(axis).or_default().clone();
+            // Counted here, in the order the commands are made, not when their tasks run.
+            let stops = match command {
+                JointCommand::Stop { .. } => lane.stops.fetch_add(1, Ordering::SeqCst) + 1,
+                _ => lane.stops.load(Ordering::SeqCst),
+            };
             tokio::spawn(async move {
                 match command {
                     JointCommand::Move { axis, target, speed, duration } => {
-                        let end = timed_move(&client, &axis, target, speed, duration).await;
+                        let end = timed_move(&client, &axis, target, speed, duration, &lane, stops).await;
                         let _ = events.send(Event::MoveEnded { axis, end });
                     }
-                    JointCommand::Stop { axis } => write(&client, &axis, Field::STOP, "1").await,
+                    JointCommand::Stop { axis } => {
+                        let sending = lane.sending.lock().await;
+                        let sent = client.write(&axis, Field::STOP, "1", WriteOptions::confirmed(PATIENCE)).await;
+                        drop(sending);
+                        match sent {
+                            Ok(sent) => match sent.outcome().await {
+                                WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+                                other => tracing::warn!(axis, "STOP: {other}"),
+                            },
+                            Err(e) => tracing::warn!(axis, "STOP not sent: {e}"),
+                        }
+                    }
                     JointCommand::RestoreSpeed { axis, speed } => {
                         write(&client, &axis, Field::VELO, &speed.to_string()).await
                     }
@@ -549,8 +598,17 @@ async fn write(client: &Client, axis: &str, field: Field, value: &str) {
     }
 }
 
-/// VELO then VAL, waiting for the motion's end: how a trajectory segment moves a joint.
-async fn timed_move(client: &Client, axis: &str, target: f64, speed: Option<f64>, duration: Duration) -> MoveEnd {
+/// VELO then VAL, waiting for the motion's end: how a trajectory segment moves a joint. Not
+/// sent if a stop of the axis was asked since the move was (`stops` counted then).
+async fn timed_move(
+    client: &Client,
+    axis: &str,
+    target: f64,
+    speed: Option<f64>,
+    duration: Duration,
+    lane: &Lane,
+    stops: u64,
+) -> MoveEnd {
     if let Some(speed) = speed {
         let sent = client.write(axis, Field::VELO, speed.to_string(), WriteOptions::confirmed(PATIENCE)).await;
         match sent {
@@ -563,7 +621,13 @@ async fn timed_move(client: &Client, axis: &str, target: f64, speed: Option<f64>
     }
     // The move may take several times its plan (acceleration, a slow axis) before it is late.
     let patience = duration * 10 + Duration::from_secs(60);
-    let sent = match client.write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience)).await {
+    let sending = lane.sending.lock().await;
+    if lane.stops.load(Ordering::SeqCst) != stops {
+        return MoveEnd::Failed("stopped before it was sent".into());
+    }
+    let sent = client.write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience)).await;
+    drop(sending);
+    let sent = match sent {
         Ok(sent) => sent,
         Err(e) => return MoveEnd::Failed(format!("VAL not sent: {e}")),
     };
