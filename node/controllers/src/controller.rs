@@ -849,7 +849,6 @@ impl<P: Protocol> Controller<P> {
             if self.protocol.is_sync_reply(frame) {
                 self.in_flight = None;
                 self.syncing = false;
-                self.failures = 0;
             } else {
                 let what = format!("a stale reply dropped: {}", crate::protocol::printable(frame));
                 self.events.push_back(ControllerEvent::Failed { what });

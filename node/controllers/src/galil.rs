@@ -315,6 +315,8 @@ impl Protocol for Galil {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        // Read afresh: the controller may have been changed or upgraded.
+        self.identity = None;
         for axis in &mut self.axes {
             // A new connection may be a controller that was power-cycled.
             axis.homed = false;

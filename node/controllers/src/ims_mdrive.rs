@@ -355,6 +355,8 @@ impl Protocol for Mdrive {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        // Read afresh: the controller may have been changed or upgraded.
+        self.identities.clear();
         let mut requests = Vec::new();
         for &channel in channels {
             requests.push(Request::query(line(channel, "PR VR"), Step::Version { channel }));
@@ -466,7 +468,12 @@ impl Protocol for Mdrive {
                 }
                 Ok(Vec::new())
             }
-            Step::Read { channel, reading } => Ok(self.read(channel, reading, number()?)),
+            // Counts, flags and inputs are whole numbers: anything else (the firmware's "3.010",
+            // a reply taken for another's) is not a reading.
+            Step::Read { channel, reading } => {
+                let whole = text.parse::<i64>().map_err(|_| error("not a whole number"))?;
+                Ok(self.read(channel, reading, whole as f64))
+            }
             Step::Errors { channel, started } => {
                 let code = text.parse::<u32>().map_err(|_| error("not an error number"))?;
                 if code != 0 {

@@ -312,6 +312,8 @@ impl Protocol for Esp300 {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        // Read afresh: the controller may have been changed or upgraded.
+        self.identity = None;
         let mut requests = vec![Request::query(line("VE?"), Step::Version)];
         for &channel in channels {
             for (query, item) in [("SN?", ConfigItem::Unit), ("ZB?", ConfigItem::Feedback)] {

@@ -556,6 +556,8 @@ impl Protocol for Xps {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        // Read afresh: the controller may have been changed or upgraded.
+        self.identity = None;
         let mut requests = vec![Request::query("FirmwareVersionGet (char *)", Step::Firmware)];
         for &channel in channels {
             let positioner = self.positioner(channel);

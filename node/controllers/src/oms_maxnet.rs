@@ -318,6 +318,8 @@ impl Protocol for Maxnet {
     }
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
+        // Read afresh: the controller may have been changed or upgraded.
+        self.identity = None;
         let mut requests = vec![Request::query(line("WY"), Step::Identity)];
         for &channel in channels {
             let axis = AXES[channel];

@@ -489,6 +489,7 @@ impl Protocol for Mcs2 {
         // What the last connection knew may be stale: the controller may have been restarted.
         self.channels.clear();
         self.errors_in_a_row = 0;
+        self.identity = None;
         let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber)];
         if self.observed {
             return requests;

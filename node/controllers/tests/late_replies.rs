@@ -38,9 +38,10 @@ fn a_reply_later_than_its_retry_is_never_taken_for_another_requests() {
         lb.run_for(Duration::from_secs(2));
         let at_rest = Loopback::statuses(&lb.take_events(), channel).last().expect("a status").position;
         // A reply in flight for 1.28 s: past the timeout (1 s) and the quiet after it (0.25 s),
-        // the retry already sent; for 2.6 s: past the first resynchronisation's timeout too.
+        // the retry already sent; for 2.52 s and 2.6 s: past the first resynchronisation's
+        // timeout too (its late answer then taken for the second's).
         // Then 50 ms each, in order.
-        for (stall, offset) in [(1280, 0), (1280, 3), (1280, 7), (2600, 13), (2600, 29)] {
+        for (stall, offset) in [(1280, 0), (1280, 3), (1280, 7), (2520, 11), (2600, 13), (2600, 29)] {
             lb.run_for(Duration::from_millis(offset));
             lb.link.set_faults(Faults { delay: Duration::from_millis(stall), ..Faults::default() });
             lb.command(channel, &DriverCommand::Poll);
