@@ -105,6 +105,8 @@ pub enum WriteAnswer {
         data_type: u16,
         /// The count written.
         count: u32,
+        /// The write's number on its circuit.
+        number: u64,
     },
     /// A plain write: an error message only if it failed.
     OnFailure {
@@ -112,7 +114,18 @@ pub enum WriteAnswer {
         request: Header,
         /// The channel's client id.
         cid: u32,
+        /// The write's number on its circuit.
+        number: u64,
     },
+}
+
+impl WriteAnswer {
+    /// The write's number on its circuit.
+    fn number(&self) -> u64 {
+        match self {
+            WriteAnswer::Notify { number, .. } | WriteAnswer::OnFailure { number, .. } => *number,
+        }
+    }
 }
 
 struct Channel {
@@ -163,8 +176,8 @@ pub struct Circuit {
     /// Writes sent and not yet answered that answer once taken (not at a motion's end), each
     /// numbered, with its axis: a read of the axis waits for those before it, as an IOC reads
     /// after it processed them.
-    writing: Vec<(u64, WriteAnswer, String)>,
-    /// The number of the last write sent.
+    writing: Vec<(u64, String)>,
+    /// The number of the last write taken from the client (each answer names its own).
     writes_sent: u64,
     /// Reads that came after such writes of their axis, each with the number of the last one.
     reads_after_writes: Vec<(Pending, u64)>,
@@ -281,14 +294,12 @@ impl Circuit {
 
     /// A write ended: answered, and the reads of its axis that came after it answered now.
     pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd, directory: &dyn Directory) {
-        if let Some(i) = self.writing.iter().position(|(_, a, _)| *a == answer) {
-            self.writing.remove(i);
-        }
+        self.writing.retain(|(number, _)| *number != answer.number());
         self.answer_write(answer, end);
         let held = std::mem::take(&mut self.reads_after_writes);
         for (pending, after) in held {
             let Some(pv) = self.channels.get(&pending.sid).map(|c| c.pv.clone()) else { continue };
-            if self.writing.iter().any(|(n, _, axis)| *n <= after && *axis == pv.axis) {
+            if self.writing.iter().any(|(n, axis)| *n <= after && *axis == pv.axis) {
                 self.reads_after_writes.push((pending, after));
                 continue;
             }
@@ -306,11 +317,11 @@ impl Circuit {
     fn answer_write(&mut self, answer: WriteAnswer, end: WriteEnd) {
         let code = end.eca_code();
         match answer {
-            WriteAnswer::Notify { ioid, data_type, count } => {
+            WriteAnswer::Notify { ioid, data_type, count, .. } => {
                 self.send(Header::new(command::WRITE_NOTIFY, data_type, count, code, ioid), &[]);
             }
             WriteAnswer::OnFailure { .. } if code == status::NORMAL => {}
-            WriteAnswer::OnFailure { request, cid } => self.error(request, cid, code, end.words()),
+            WriteAnswer::OnFailure { request, cid, .. } => self.error(request, cid, code, end.words()),
         }
     }
 
@@ -375,7 +386,7 @@ impl Circuit {
         let Some(channel) = self.channels.get(&pending.sid) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
-        let last = self.writing.iter().filter(|(_, _, axis)| *axis == channel.pv.axis).map(|(n, ..)| *n).max();
+        let last = self.writing.iter().filter(|(_, axis)| *axis == channel.pv.axis).map(|(n, _)| *n).max();
         if let Some(last) = last {
             // Read once the writes before it are taken, as an IOC serves a circuit in order.
             return self.reads_after_writes.push((pending, last));
@@ -500,10 +511,12 @@ impl Circuit {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
         let (pv, cid) = (channel.pv.clone(), channel.cid);
+        self.writes_sent += 1;
+        let number = self.writes_sent;
         let answer = if header.command == command::WRITE_NOTIFY {
-            WriteAnswer::Notify { ioid: header.p2, data_type: header.data_type, count: header.count }
+            WriteAnswer::Notify { ioid: header.p2, data_type: header.data_type, count: header.count, number }
         } else {
-            WriteAnswer::OnFailure { request: header, cid }
+            WriteAnswer::OnFailure { request: header, cid, number }
         };
         if !pv.writable() {
             let message = format!("{}: read-only", pv.name(&self.prefix));
@@ -515,8 +528,7 @@ impl Circuit {
                     && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 if !wait {
-                    self.writes_sent += 1;
-                    self.writing.push((self.writes_sent, answer, pv.axis.clone()));
+                    self.writing.push((number, pv.axis.clone()));
                 }
                 self.requests.push_back(Request::Write { pv, text, wait, hold, answer });
             }
