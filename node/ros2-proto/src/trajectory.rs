@@ -198,9 +198,9 @@ struct PlannedJoint {
     si_per_egu: f64,
     /// Where it was when the goal was accepted, EGU.
     from: f64,
-    /// VELO then, to restore; the last speed the goal gave it, if it changed it.
+    /// VELO then, to restore; whether the goal changed it.
     speed: f64,
-    speed_changed: Option<f64>,
+    speed_changed: bool,
     /// The goal position tolerance, EGU.
     tolerance: Option<f64>,
     /// A move commanded whose end has not come.
@@ -266,14 +266,19 @@ pub struct FollowJointTrajectory {
     goals: VecDeque<Goal>,
     plan: Option<Plan>,
     status_changed: bool,
-    /// Speeds an ended goal restores, by axis: (VELO before it, the last segment's speed). A
-    /// goal accepted before the restore is seen takes the former as the speed to restore.
-    restoring: Vec<(String, f64, f64)>,
+    /// Speeds ended goals restore, by axis (VELO before them), until VELO is seen back at it:
+    /// a goal accepted meanwhile restores that speed, not the last segment's (nor the one the
+    /// record made of it, within VBAS and VMAX).
+    restoring: Vec<(String, f64)>,
 }
 
 fn stamp(now: Duration) -> Time {
     Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() }
 }
+
+/// How far a goal's stamp may be from this host's clock and still be taken as of the same
+/// clock: further, it is simulated time (or a clock badly off), and the goal starts now.
+const SAME_CLOCK: Duration = Duration::from_secs(3600);
 
 fn since_epoch(time: Time) -> Option<Duration> {
     let sec = u64::try_from(time.sec).ok()?;
@@ -302,13 +307,9 @@ impl FollowJointTrajectory {
         }
         let mut plan = plan(request.goal_id, &request.goal, joints, now)?;
         for joint in &mut plan.joints {
-            // VELO still at the last goal's segment speed: its restore is on its way, and what
-            // this goal restores is the speed from before that one.
-            if let Some(i) = self.restoring.iter().position(|(axis, ..)| *axis == joint.axis) {
-                let (_, before, set) = self.restoring.remove(i);
-                if joint.speed == set {
-                    joint.speed = before;
-                }
+            // A restore not seen yet: what this goal restores is the speed from before the last.
+            if let Some((_, before)) = self.restoring.iter().find(|(axis, _)| *axis == joint.axis) {
+                joint.speed = *before;
             }
         }
         self.plan = Some(plan);
@@ -322,6 +323,11 @@ impl FollowJointTrajectory {
         }
         self.status_changed = true;
         Ok(())
+    }
+
+    /// `axis`'s VELO was posted: a restore it shows is done.
+    pub fn speed_posted(&mut self, axis: &str, velo: f64) {
+        self.restoring.retain(|(restored, before)| !(restored == axis && *before == velo));
     }
 
     /// Whether a goal is executing (or stopping).
@@ -346,7 +352,7 @@ impl FollowJointTrajectory {
                 }
                 let speed = (!segment_time.is_zero()).then(|| (target - from).abs() / segment_time.as_secs_f64());
                 let joint = &mut plan.joints[k];
-                joint.speed_changed = speed.or(joint.speed_changed);
+                joint.speed_changed |= speed.is_some();
                 joint.in_flight = true;
                 commands.push(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: segment_time });
             }
@@ -362,11 +368,10 @@ impl FollowJointTrajectory {
             None => None,
         };
         if let Some((status, result)) = end {
-            for joint in &plan.joints {
-                let Some(set) = joint.speed_changed else { continue };
+            for joint in plan.joints.iter().filter(|j| j.speed_changed) {
                 commands.push(JointCommand::RestoreSpeed { axis: joint.axis.clone(), speed: joint.speed });
-                self.restoring.retain(|(axis, ..)| *axis != joint.axis);
-                self.restoring.push((joint.axis.clone(), joint.speed, set));
+                self.restoring.retain(|(axis, _)| *axis != joint.axis);
+                self.restoring.push((joint.axis.clone(), joint.speed));
             }
             let id = plan.id;
             self.plan = None;
@@ -561,7 +566,7 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             si_per_egu: joint.si_per_egu,
             from: rbv,
             speed,
-            speed_changed: None,
+            speed_changed: false,
             tolerance,
             in_flight: false,
         });
@@ -597,8 +602,9 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
         }
         points.push((at, targets));
     }
-    // A zero stamp is "start now".
-    let stamp = since_epoch(trajectory.header.stamp).filter(|at| !at.is_zero());
+    // A zero stamp is "start now"; so is one of another clock than this host's (simulated
+    // time, a clock hours off), as before joint_trajectory_controller's check could judge it.
+    let stamp = since_epoch(trajectory.header.stamp).filter(|at| !at.is_zero() && at.abs_diff(now) < SAME_CLOCK);
     if stamp.is_some_and(|start| start + previous < now) {
         return Err(GoalRejection::EndsInThePast);
     }
@@ -731,7 +737,8 @@ mod tests {
         states.update("m1", Field::RBV, 10.0, at(2000));
         let end = server.poll(&states, at(2000));
         assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
-        // The next goal comes before VELO 1 is posted back: it restores 1, not 5.
+        // The next goal comes before VELO 1 is posted back: it restores 1, not 5 (nor VBAS, had
+        // the record made the segment's speed that).
         request.goal_id = [2; 16];
         request.goal.trajectory.points[0].positions = vec![0.0];
         server.send_goal(&request, &states, at(2001)).unwrap();
@@ -740,6 +747,16 @@ mod tests {
         states.update("m1", Field::RBV, 0.0, at(4001));
         let end = server.poll(&states, at(4001));
         assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
+        // Seen restored, the user's own VELO is what the next goal restores.
+        server.speed_posted("m1", 1.0);
+        states.update("m1", Field::VELO, 2.0, at(5000));
+        request.goal_id = [3; 16];
+        request.goal.trajectory.points[0].positions = vec![0.010];
+        server.send_goal(&request, &states, at(5000)).unwrap();
+        let _ = server.poll(&states, at(5000));
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        states.update("m1", Field::RBV, 10.0, at(7000));
+        assert_eq!(server.poll(&states, at(7000)), [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 2.0 }]);
     }
 
     #[test]
@@ -797,6 +814,12 @@ mod tests {
         let mut stale = goal(&["lift"], &[(2000, &[0.001])]);
         stale.goal.trajectory.header.stamp = stamp(at(0));
         assert_eq!(server.send_goal(&stale, &states, at(5000)), Err(GoalRejection::EndsInThePast));
+        // Stamped in simulated time (seconds since the simulation began): another clock, it starts now.
+        let mut simulated = goal(&["turn"], &[(2000, &[0.0])]);
+        simulated.goal_id = [7; 16];
+        simulated.goal.trajectory.header.stamp = Time { sec: 120, nanosec: 0 };
+        let mut fresh = FollowJointTrajectory::new();
+        assert_eq!(fresh.send_goal(&simulated, &states, at(5000)), Ok(()));
         // No soft limits on turn: any angle goes. A second goal while it runs does not.
         server.send_goal(&goal(&["turn"], &[(1000, &[100.0])]), &states, at(0)).unwrap();
         assert_eq!(reject(&mut server, goal(&["lift"], &[(1000, &[0.001])])), GoalRejection::Busy);

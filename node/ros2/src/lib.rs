@@ -342,8 +342,6 @@ impl Ros2Node {
                 .await?;
             services.push(queryable);
         }
-        let (joint_commands, commanded) = tokio::sync::watch::channel(Vec::new());
-        tasks.push(tokio::spawn(write_joint_commands(client.clone(), commanded)));
         let driver = Driver {
             states: JointStates::new(joints, config.rest_period, Duration::from_secs_f64(1.0 / config.max_rate)),
             follow: FollowJointTrajectory::new(),
@@ -353,7 +351,6 @@ impl Ros2Node {
             pending_results: Vec::new(),
             posted: HashSet::new(),
             lanes: HashMap::new(),
-            joint_commands,
             client,
             events,
         };
@@ -384,37 +381,83 @@ struct Driver {
     pending_results: Vec<(GoalId, Query, Attachment)>,
     /// The fields of which a post came: a value read at start does not undo it.
     posted: HashSet<(String, Field)>,
-    /// Each axis's trajectory writes, kept in the order they are asked.
-    lanes: HashMap<String, Arc<Lane>>,
-    /// The latest joint command's targets, written by a task of their own.
-    joint_commands: tokio::sync::watch::Sender<Vec<(String, f64)>>,
+    /// Each axis's writes, sent in the order they are asked.
+    lanes: HashMap<String, Lane>,
     client: Client,
     events: UnboundedSender<Event>,
 }
 
-/// The order of one axis's trajectory writes, which run on tasks of their own: a stop is sent
-/// after any move asked before it that was sent, and no such move is sent after it.
-#[derive(Default)]
+/// One axis's writes, sent by a task of its own in the order they are asked, each answer
+/// awaited apart: a stop is sent after any move asked before it that was sent, and no such
+/// move is sent after it; a restored speed and the next goal's speeds go out in their order.
 struct Lane {
     /// Stops asked so far.
-    stops: AtomicU64,
-    /// Held while a move's VAL or a STOP is sent.
-    sending: tokio::sync::Mutex<()>,
+    stops: Arc<AtomicU64>,
+    jobs: UnboundedSender<Job>,
 }
 
-/// Write each joint command's targets as it comes, the newest when several came meanwhile (a
-/// controller streams them): in order, never an older one after a newer.
-async fn write_joint_commands(client: Client, mut commanded: tokio::sync::watch::Receiver<Vec<(String, f64)>>) {
-    while commanded.changed().await.is_ok() {
-        let targets = commanded.borrow_and_update().clone();
-        for (axis, target) in targets {
-            let sent = client.write(&axis, Field::VAL, target.to_string(), WriteOptions::confirmed(PATIENCE));
-            match sent.await {
-                Ok(sent) => match sent.outcome().await {
-                    WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                    other => tracing::warn!(axis, "joint command: {other}"),
-                },
-                Err(e) => tracing::warn!(axis, "joint command not sent: {e}"),
+/// A write of a lane.
+enum Job {
+    /// A trajectory segment: VELO (taken before VAL goes), then VAL, its end reported. Not
+    /// sent if a stop was asked after it (`stops` counted when it was).
+    Move { target: f64, speed: Option<f64>, duration: Duration, stops: u64 },
+    /// A confirmed write whose refusal is only logged (STOP, a speed restored, a joint command).
+    Write { field: Field, value: String },
+}
+
+impl Lane {
+    fn new(client: Client, axis: String, events: UnboundedSender<Event>) -> Self {
+        let (jobs, queue) = unbounded_channel();
+        let stops = Arc::new(AtomicU64::new(0));
+        tokio::spawn(send_lane(client, axis, stops.clone(), queue, events));
+        Self { stops, jobs }
+    }
+}
+
+/// Send a lane's writes in turn until the driver goes.
+async fn send_lane(
+    client: Client,
+    axis: String,
+    stops: Arc<AtomicU64>,
+    mut jobs: UnboundedReceiver<Job>,
+    events: UnboundedSender<Event>,
+) {
+    while let Some(job) = jobs.recv().await {
+        match job {
+            Job::Write { field, value } => {
+                let sent = client.write(&axis, field, value, WriteOptions::confirmed(PATIENCE)).await;
+                let axis = axis.clone();
+                tokio::spawn(async move {
+                    match sent {
+                        Ok(sent) => match sent.outcome().await {
+                            WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+                            other => tracing::warn!(axis, "{field}: {other}"),
+                        },
+                        Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
+                    }
+                });
+            }
+            Job::Move { target, speed, duration, stops: asked } => {
+                let started =
+                    start_move(&client, &axis, target, speed, duration, || stops.load(Ordering::SeqCst) == asked);
+                let (axis, events) = (axis.clone(), events.clone());
+                match started.await {
+                    Ok(sent) => {
+                        tokio::spawn(async move {
+                            let end = match sent.outcome().await {
+                                WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
+                                WriteOutcome::Completed(done) => {
+                                    MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv))
+                                }
+                                other => MoveEnd::Failed(format!("VAL {target}: {other}")),
+                            };
+                            let _ = events.send(Event::MoveEnded { axis, end });
+                        });
+                    }
+                    Err(end) => {
+                        let _ = events.send(Event::MoveEnded { axis, end });
+                    }
+                }
             }
         }
     }
@@ -451,6 +494,9 @@ impl Driver {
     async fn handle(&mut self, event: Event) {
         match event {
             Event::Posted { axis, field, value, at } => {
+                if field == Field::VELO {
+                    self.follow.speed_posted(&axis, value);
+                }
                 self.states.update(&axis, field, value, at);
                 self.posted.insert((axis, field));
             }
@@ -470,7 +516,7 @@ impl Driver {
 
     /// A joint command: one confirmed write of VAL per joint, all or none, unless a trajectory
     /// is executing.
-    fn joint_command(&self, payload: &[u8]) {
+    fn joint_command(&mut self, payload: &[u8]) {
         let command = match decode::<JointState>(payload, "JointState") {
             Ok(command) => command,
             Err(e) => return tracing::warn!("joint_commands: {e}"),
@@ -480,7 +526,9 @@ impl Driver {
         }
         match self.states.command(&command) {
             Ok(targets) => {
-                self.joint_commands.send_replace(targets);
+                for (axis, target) in targets {
+                    self.send(&axis, Job::Write { field: Field::VAL, value: target.to_string() });
+                }
             }
             Err(e) => tracing::warn!("joint_commands: {e}; nothing moved"),
         }
@@ -548,92 +596,65 @@ impl Driver {
     /// Carry out the action server's commands as writes; each move reports its end.
     fn execute(&mut self, commands: Vec<JointCommand>) {
         for command in commands {
-            let (client, events) = (self.client.clone(), self.events.clone());
-            let axis = match &command {
-                JointCommand::Move { axis, .. }
-                | JointCommand::Stop { axis }
-                | JointCommand::RestoreSpeed { axis, .. } => axis.clone(),
-            };
-            let lane = self.lanes.entry(axis).or_default().clone();
-            // Counted here, in the order the commands are made, not when their tasks run.
-            let stops = match command {
-                JointCommand::Stop { .. } => lane.stops.fetch_add(1, Ordering::SeqCst) + 1,
-                _ => lane.stops.load(Ordering::SeqCst),
-            };
-            tokio::spawn(async move {
-                match command {
-                    JointCommand::Move { axis, target, speed, duration } => {
-                        let end = timed_move(&client, &axis, target, speed, duration, &lane, stops).await;
-                        let _ = events.send(Event::MoveEnded { axis, end });
-                    }
-                    JointCommand::Stop { axis } => {
-                        let sending = lane.sending.lock().await;
-                        let sent = client.write(&axis, Field::STOP, "1", WriteOptions::confirmed(PATIENCE)).await;
-                        drop(sending);
-                        match sent {
-                            Ok(sent) => match sent.outcome().await {
-                                WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                                other => tracing::warn!(axis, "STOP: {other}"),
-                            },
-                            Err(e) => tracing::warn!(axis, "STOP not sent: {e}"),
-                        }
-                    }
-                    JointCommand::RestoreSpeed { axis, speed } => {
-                        write(&client, &axis, Field::VELO, &speed.to_string()).await
-                    }
+            match command {
+                JointCommand::Move { axis, target, speed, duration } => {
+                    let stops = self.lane(&axis).stops.load(Ordering::SeqCst);
+                    self.send(&axis, Job::Move { target, speed, duration, stops });
                 }
-            });
+                JointCommand::Stop { axis } => {
+                    // Counted now, in the order the commands are made: a move asked before it
+                    // and not yet sent is not sent.
+                    self.lane(&axis).stops.fetch_add(1, Ordering::SeqCst);
+                    self.send(&axis, Job::Write { field: Field::STOP, value: "1".into() });
+                }
+                JointCommand::RestoreSpeed { axis, speed } => {
+                    self.send(&axis, Job::Write { field: Field::VELO, value: speed.to_string() });
+                }
+            }
         }
     }
-}
 
-/// A confirmed write whose refusal is only logged (the node posts it on ERR).
-async fn write(client: &Client, axis: &str, field: Field, value: &str) {
-    match client.write(axis, field, value, WriteOptions::confirmed(PATIENCE)).await {
-        Ok(sent) => match sent.outcome().await {
-            WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-            other => tracing::warn!(axis, "{field}: {other}"),
-        },
-        Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
+    /// `axis`'s lane, made at its first write.
+    fn lane(&mut self, axis: &str) -> &Lane {
+        let (client, events) = (&self.client, &self.events);
+        self.lanes
+            .entry(axis.to_string())
+            .or_insert_with(|| Lane::new(client.clone(), axis.to_string(), events.clone()))
+    }
+
+    /// Queue `job` on `axis`'s lane.
+    fn send(&mut self, axis: &str, job: Job) {
+        let _ = self.lane(axis).jobs.send(job);
     }
 }
 
-/// VELO then VAL, waiting for the motion's end: how a trajectory segment moves a joint. Not
-/// sent if a stop of the axis was asked since the move was (`stops` counted then).
-async fn timed_move(
+/// VELO, once taken, then VAL, sent to be answered at the motion's end: how a trajectory
+/// segment moves a joint. Not sent when `still_wanted` says a stop came meanwhile.
+async fn start_move(
     client: &Client,
     axis: &str,
     target: f64,
     speed: Option<f64>,
     duration: Duration,
-    lane: &Lane,
-    stops: u64,
-) -> MoveEnd {
+    still_wanted: impl Fn() -> bool,
+) -> Result<zmotor_client::SentWrite, MoveEnd> {
     if let Some(speed) = speed {
         let sent = client.write(axis, Field::VELO, speed.to_string(), WriteOptions::confirmed(PATIENCE)).await;
         match sent {
             Ok(sent) => match sent.outcome().await {
                 WriteOutcome::Accepted(_) => {}
-                other => return MoveEnd::Failed(format!("VELO {speed}: {other}")),
+                other => return Err(MoveEnd::Failed(format!("VELO {speed}: {other}"))),
             },
-            Err(e) => return MoveEnd::Failed(format!("VELO not sent: {e}")),
+            Err(e) => return Err(MoveEnd::Failed(format!("VELO not sent: {e}"))),
         }
+    }
+    if !still_wanted() {
+        return Err(MoveEnd::Failed("stopped before it was sent".into()));
     }
     // The move may take several times its plan (acceleration, a slow axis) before it is late.
     let patience = duration * 10 + Duration::from_secs(60);
-    let sending = lane.sending.lock().await;
-    if lane.stops.load(Ordering::SeqCst) != stops {
-        return MoveEnd::Failed("stopped before it was sent".into());
-    }
-    let sent = client.write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience)).await;
-    drop(sending);
-    let sent = match sent {
-        Ok(sent) => sent,
-        Err(e) => return MoveEnd::Failed(format!("VAL not sent: {e}")),
-    };
-    match sent.outcome().await {
-        WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
-        WriteOutcome::Completed(done) => MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv)),
-        other => MoveEnd::Failed(format!("VAL {target}: {other}")),
-    }
+    client
+        .write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience))
+        .await
+        .map_err(|e| MoveEnd::Failed(format!("VAL not sent: {e}")))
 }
