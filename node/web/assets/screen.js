@@ -2,7 +2,12 @@
 // bridged to the axis's keys; writes are confirmed by the node, a refusal shows its words.
 "use strict";
 
-const axis = decodeURIComponent(location.pathname.split("/").pop());
+let axis = location.pathname.split("/").pop();
+try {
+  axis = decodeURIComponent(axis);
+} catch {
+  // A malformed escape (`/axis/m%`): the server says the name is no axis's.
+}
 document.getElementById("axis").textContent = axis;
 document.title = "zmotor " + axis;
 
@@ -49,6 +54,8 @@ function receive(message) {
 }
 
 function write(field, value) {
+  // A closed socket drops what it is given without a word: the page says it.
+  if (socket.readyState !== WebSocket.OPEN) return showError(field + ": not sent, the page is not connected (reload it)");
   socket.send(JSON.stringify({ id: nextId++, field, value: String(value) }));
 }
 
@@ -107,11 +114,22 @@ function build() {
   for (const button of document.querySelectorAll("[data-hold]")) {
     const field = button.dataset.hold;
     let held = false;
-    const press = (event) => { event.preventDefault(); held = true; write(field, 1); };
+    const press = (event) => {
+      if (event.button !== 0) return; // the main button only: a context menu must not jog
+      event.preventDefault();
+      button.setPointerCapture(event.pointerId);
+      held = true;
+      write(field, 1);
+    };
     const release = () => { if (held) { held = false; write(field, 0); } };
     button.addEventListener("pointerdown", press);
-    button.addEventListener("pointerup", release);
-    button.addEventListener("pointerleave", release);
+    // Whatever ends the press ends the jog: the button let go, the pointer taken away (a
+    // touch cancelled, capture lost), the window left or the page hidden.
+    for (const ending of ["pointerup", "pointerleave", "pointercancel", "lostpointercapture"]) {
+      button.addEventListener(ending, release);
+    }
+    window.addEventListener("blur", release);
+    document.addEventListener("visibilitychange", () => { if (document.hidden) release(); });
   }
 }
 
@@ -128,6 +146,14 @@ function text(name, value) {
 }
 
 function show(name, value) {
+  if (name === "PREC") {
+    // Every number at PREC: those shown before it came are shown again.
+    for (const [other, shown] of Object.entries(values)) if (other !== "PREC") showCells(other, shown);
+  }
+  showCells(name, value);
+}
+
+function showCells(name, value) {
   for (const element of cells[name] || []) {
     if (element.tagName === "SELECT") element.value = String(value);
     else if (element.tagName === "INPUT") {

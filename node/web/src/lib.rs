@@ -121,7 +121,7 @@ async fn socket(
     if keys::validate_axis_name(&axis).is_err() {
         return (StatusCode::BAD_REQUEST, format!("'{axis}' is not an axis name")).into_response();
     }
-    ws.on_upgrade(move |socket| async move {
+    ws.max_message_size(MAX_PAGE_MESSAGE).on_upgrade(move |socket| async move {
         if let Err(e) = serve_screen(socket, state, axis).await {
             tracing::debug!("a screen's socket closed: {e}");
         }
@@ -160,6 +160,16 @@ fn shown(sample: &Sample) -> Option<String> {
 
 /// Messages waiting for a page; a page that falls this far behind is closed.
 const PAGE_QUEUE: usize = 4096;
+
+/// The longest message a page sends (a write is tens of bytes).
+const MAX_PAGE_MESSAGE: usize = 16 * 1024;
+
+/// How long a message to a page may take to go out: a page that does not take it in that
+/// time is closed (a send that waits holds up the jog deadman's pings and checks).
+const SEND_PATIENCE: Duration = Duration::from_secs(10);
+
+/// How much of a message that is no write is quoted back.
+const QUOTED: usize = 80;
 
 /// While a page holds a jog, it is pinged this often, and dropped (its jog ended) when it has
 /// not been heard from for `HELD_SILENCE`: a browser cut off sends no close.
@@ -237,7 +247,8 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
                 match message {
                     Some(Ok(Message::Text(text))) => {
                         let Ok(write) = serde_json::from_str::<PageWrite>(&text) else {
-                            out.send(serde_json::json!({ "error": format!("not a write: {text}") }).to_string());
+                            let quoted: String = text.chars().take(QUOTED).collect();
+                            out.send(serde_json::json!({ "error": format!("not a write: {quoted}") }).to_string());
                             continue;
                         };
                         let held = match Field::from_name(&write.field).filter(|f| f.is_jog()) {
@@ -251,18 +262,34 @@ async fn serve_screen(mut socket: WebSocket, state: AppState, axis: String) -> R
                         };
                         confirmed_write(&client, &axis, write, held, out.clone()).await;
                     }
+                    Some(Ok(Message::Binary(_))) => {
+                        out.send(serde_json::json!({ "error": "not a write: a binary message" }).to_string());
+                    }
                     Some(Ok(Message::Close(_))) | None | Some(Err(_)) => return Ok(()),
                     Some(Ok(_)) => {}
                 }
             }
-            Some(text) = outgoing.recv() => socket.send(Message::Text(text.into())).await?,
+            Some(text) = outgoing.recv() => {
+                // While a jog is held, no longer than the deadman allows silence.
+                let patience = if hold.is_some() { HELD_SILENCE } else { SEND_PATIENCE };
+                send_within(&mut socket, Message::Text(text.into()), patience).await?;
+            }
             _ = pings.tick(), if hold.is_some() => {
                 if heard.elapsed() > HELD_SILENCE {
                     return Err(axum::Error::new("a page holding a jog went silent"));
                 }
-                socket.send(Message::Ping(Vec::new().into())).await?;
+                send_within(&mut socket, Message::Ping(Vec::new().into()), HELD_SILENCE).await?;
             }
         }
+    }
+}
+
+/// Send `message` to a page, which must take it within `patience`: a page whose link is cut
+/// (its TCP buffer full) is closed, and its jogs end with it.
+async fn send_within(socket: &mut WebSocket, message: Message, patience: Duration) -> Result<(), axum::Error> {
+    match tokio::time::timeout(patience, socket.send(message)).await {
+        Ok(sent) => sent,
+        Err(_) => Err(axum::Error::new("a page did not take its messages in time")),
     }
 }
 
