@@ -21,9 +21,9 @@
 //! - soft limits, gains, encoder ratio, status refresh: nothing is sent (the controller keeps
 //!   its `FL`/`BL`, which a motion stops at).
 //!
-//! A `?` is followed by `TC1`, whose code and text reach the axis's ERR; the rest of the command
-//! goes on (a refused setting leaves the former one; targets are checked before anything is
-//! sent, so no `BG` repeats a former relative move for a refused `PR`).
+//! A `?` is followed by `TC1`, whose code and text reach the axis's ERR; a refused command's
+//! rest is not sent (a `BG` after a refused `SP`, `AC` or `PA` would start a motion at the former
+//! speed or to the former target; motorapp's driver sends it regardless).
 //!
 //! # Polls and status
 //! Initialisation reads the firmware (Ctrl-R Ctrl-V), the record's layout (`QZ`: axes, general,
@@ -108,6 +108,8 @@ pub(crate) enum Step {
     WhyRefused {
         /// The axis commanded, if a command was refused.
         channel: Option<usize>,
+        /// A command was refused: the rest of it is not sent.
+        halts: bool,
     },
 }
 
@@ -285,7 +287,9 @@ impl Protocol for Galil {
             Step::ServosOn => Purpose::Setup,
             Step::Record => Purpose::PollMany,
             Step::Command { channel, .. } => Purpose::Command { channel },
-            Step::WhyRefused { channel } => channel.map_or(Purpose::PollMany, |channel| Purpose::Command { channel }),
+            Step::WhyRefused { channel, .. } => {
+                channel.map_or(Purpose::PollMany, |channel| Purpose::Command { channel })
+            }
         }
     }
 
@@ -371,10 +375,14 @@ impl Protocol for Galil {
                 Step::Command { channel, .. } | Step::MotorType { channel } => Some(channel),
                 _ => None,
             };
+            let halts = matches!(request.step, Step::Command { .. });
             return match request.step {
                 // The reason of a refusal that cannot be told: said as it is.
                 Step::WhyRefused { .. } => Err(error("TC1 refused")),
-                _ => Ok(vec![ReplyEvent::FollowUp(vec![Request::query(line("TC1"), Step::WhyRefused { channel })])]),
+                _ => Ok(vec![ReplyEvent::FollowUp(vec![Request::query(
+                    line("TC1"),
+                    Step::WhyRefused { channel, halts },
+                )])]),
             };
         }
         match request.step {
@@ -418,14 +426,11 @@ impl Protocol for Galil {
                 }
                 Ok(Vec::new())
             }
-            Step::WhyRefused { channel } => {
+            Step::WhyRefused { channel, halts } => {
                 let text = data(frame).ok_or_else(|| error("not an error"))?;
                 let (code, meaning) = text.split_once(' ').unwrap_or((text, ""));
-                Ok(vec![ReplyEvent::ControllerError(VendorError {
-                    channel,
-                    code: code.to_string(),
-                    meaning: meaning.trim().to_string(),
-                })])
+                let error = VendorError { channel, code: code.to_string(), meaning: meaning.trim().to_string() };
+                Ok(vec![if halts { ReplyEvent::Refused(error) } else { ReplyEvent::ControllerError(error) }])
             }
         }
     }
@@ -514,9 +519,19 @@ mod tests {
         let [ReplyEvent::FollowUp(why)] = &events[..] else { panic!("{events:?}") };
         assert_eq!(sent(why), ["TC1\r"]);
         let events = p.reply(&why[0], b"20 Begin not valid with motor off\r\n:").unwrap();
-        let [ReplyEvent::ControllerError(VendorError { channel: Some(2), code, meaning })] = &events[..] else {
+        // A command refused: the rest of it (a BG after a refused speed) is not sent.
+        let [ReplyEvent::Refused(VendorError { channel: Some(2), code, meaning })] = &events[..] else {
             panic!("{events:?}")
         };
         assert_eq!((code.as_str(), meaning.as_str()), ("20", "Begin not valid with motor off"));
+        let speed = p.command(2, &jog).unwrap().remove(2);
+        let [ReplyEvent::FollowUp(why)] = &p.reply(&speed, b"?").unwrap()[..] else { panic!("a TC1 follows") };
+        let events = p.reply(&why[0], b"6 Number out of range\r\n:").unwrap();
+        assert!(matches!(&events[..], [ReplyEvent::Refused(_)]), "JG refused, BG not sent: {events:?}");
+        // A motor type refused at connection is only said.
+        let kind = p.init(&[0]).into_iter().find(|r| r.bytes.starts_with(b"MT")).unwrap();
+        let [ReplyEvent::FollowUp(why)] = &p.reply(&kind, b"?").unwrap()[..] else { panic!("a TC1 follows") };
+        let events = p.reply(&why[0], b"1 Unrecognized command\r\n:").unwrap();
+        assert!(matches!(&events[..], [ReplyEvent::ControllerError(_)]), "{events:?}");
     }
 }
