@@ -17,14 +17,18 @@
 //! BLISS MCS2 controller (which quotes the guide on hold time, velocity 0, the reference
 //! options, the end stop and the state bits above 15), and two Python socket clients (kamzik3,
 //! a PSI-derived one: `:SYST:ERR:NEXT?`, `:DEV:NOBM?`, `:DEV:NOCH?`, the quoted serial number,
-//! `*IDN?`, `:CHAN<n>:PTYP:NAME?`, `:CHAN<n>:POS:TARG?`).
+//! `*IDN?`, `:CHAN<n>:PTYP:NAME?`, `:CHAN<n>:POS:TARG?`, `:CHAN<n>:SENS:MODE?`, `:CHAN<n>:SDIR?`,
+//! `:CHAN<n>:TUN:BASE:UNIT?`, `:CHAN<n>:STEP:FREQ?`), and the CNR Tango SmarActController (which
+//! documents the ranges of the step frequency and amplitude, the hold time's 4294967295 for
+//! "infinite", the sensor modes, and polls `:MOD<m>:TEMP?`).
 //!
 //! # Syntax
 //!
 //! A line ends with `\n`; a `\r` before it is dropped (the EPICS driver sends `\r\n`, BLISS
 //! `\n`). Every answer ends with `\r\n`. Headers are SCPI headers: nodes separated by `:` (the
 //! leading colon optional), any case, each node in its short or its long form exactly (SCPI's
-//! mnemonic rule), a channel or module number appended to its node (`:CHAN0`, `:MOVE2`). One
+//! mnemonic rule), a channel or module number appended to its node (`:CHAN0`, `:MOVE2`); a
+//! number left out is 0 (`:MOD:STAT?`, as BLISS polls it, is `:MOD0:STAT?`). One
 //! parameter follows after white space, as SCPI decimal numeric data (`1500`, `-2.5e3`,
 //! `2000000.000000`): integer settings take it rounded to the nearest integer, SCPI's rule, which
 //! is also why the EPICS driver's `%f` values work on the device.
@@ -40,18 +44,26 @@
 //! | `:DEVice:NOBModules?` | the modules installed, three channels to a module |
 //! | `:DEVice:STATe?` | the device state word: 0 (no hand control module, nothing locked) |
 //! | `:MODule<m>:STATe?` | the module state word: SM_PRESENT (a sensor module) |
+//! | `:MODule<m>:TEMPerature?` | °C, [`TEMPERATURE`] (fixed) |
 //! | `:SYSTem:ERRor[:NEXT]?` | the oldest queue entry, removed: `<code>,"<text>"`; `0,"No error"` |
 //! | `:SYSTem:ERRor:COUNt?` | the entries in the queue |
 //! | `:CHANnel<n>:STATe?` | the channel state word (see [`state`]) |
-//! | `:CHANnel<n>:POSition[:CURRent]?`, `… <pm>` | the sensor's position; set: redefined, no motion |
-//! | `:CHANnel<n>:POSition:TARGet?` | the target of the last move, pm |
+//! | `:CHANnel<n>:POSition[:CURRent]?`, `… <pm>` | the sensor's position; set: redefined, no motion, the target with it |
+//! | `:CHANnel<n>:POSition:TARGet?` | the target the channel holds, pm: the last move's; where a stop or an end stop left it; where a reference search ended |
+//! | `:CHANnel<n>:FERRor?` | the following error, pm: target − position while the loop follows a target (a closed-loop move, holding), else 0 |
 //! | `:CHANnel<n>:MMODe[?]` | move mode: 0 closed-loop absolute, 1 closed-loop relative, 2/3 scan, 4 step |
 //! | `:CHANnel<n>:VELocity[?]` | pm/s; 0: velocity control off, moves at [`FULL_SPEED`] |
 //! | `:CHANnel<n>:ACCeleration[?]` | pm/s²; 0: acceleration control off, no ramps |
-//! | `:CHANnel<n>:HOLDtime[?]` | ms the control loop holds a reached target; 0 none, -1 forever |
+//! | `:CHANnel<n>:HOLDtime[?]` | ms the control loop holds a reached target; 0 none, -1 (or 4294967295, read back as -1) forever |
 //! | `:CHANnel<n>:AMPLifier[?]` | the power amplifier, 1 on (power-up) or 0 off |
 //! | `:CHANnel<n>:MCLFrequency[:CURRent][?]` | the maximum closed-loop frequency, Hz (`SA_CTL_PKEY_MAX_CL_FREQUENCY`); kept, it does not change the simulated speed; the power-up value [`POWER_UP_MCLF`] is this emulator's choice, 50 to 20,000 Hz taken |
 //! | `:CHANnel<n>:REFerence:OPTions[?]` | the reference search options (see [`reference_option`]) |
+//! | `:CHANnel<n>:SENSor:MODE[?]` | the sensor mode: 0 disabled, 1 enabled (power-up), 2 power save; kept, it changes nothing else |
+//! | `:CHANnel<n>:SDIRection[?]` | the safe direction, 0 forward (power-up) or 1 backward; kept |
+//! | `:CHANnel<n>:STEP:FREQuency[?]` | the open-loop step frequency, 1 … 20,000 Hz, power-up 1000; kept |
+//! | `:CHANnel<n>:STEP:AMPLitude[?]` | the open-loop step amplitude, 1 … 65535 (100 V), power-up 65535; kept |
+//! | `:CHANnel<n>:TEMPerature?` | °C, [`TEMPERATURE`] (fixed) |
+//! | `:CHANnel<n>:TUNing:BASE:UNIT?`, `…:RESolution?` | the position's unit: 2 (the SDK's `SA_CTL_UNIT_METER`) and -12 (10⁻¹² of it: pm) |
 //! | `:CHANnel<n>:PTYPe[?]`, `:CHANnel<n>:PTYPe:NAME?` | the positioner type, 300 `"SL...S1SS"` |
 //! | `:CHANnel<n>:ERRor?` | why the last movement failed (0: it did not) |
 //! | `:MOVE<n> <value>` | a move in the channel's move mode |
@@ -79,10 +91,13 @@
 //! - **Value out of range.** SCPI would say -222; taken: the SDK's 19 "Invalid parameter", as
 //!   for the channel index (device errors are the firmware's). The ranges themselves are not
 //!   documented anywhere read: velocity 0 … 100 mm/s, acceleration 0 … 100 m/s², hold time
-//!   -1 … 2³¹-1 ms, reference options 0 … 0x3f (the six documented bits).
+//!   -1 … 2³¹-1 ms and 4294967295 (the CNR client's "infinite", -1 as an unsigned 32-bit
+//!   number; stored as -1), reference options 0 … 0x3f (the six documented bits), sensor mode
+//!   0 … 2. The step frequency and amplitude take the ranges the CNR client checks.
 //! - **`*IDN?`.** The answer's form is IEEE 488.2's four fields; the words in them are this
 //!   emulator's choice ([`IDENTIFICATION`]). Long forms of the nodes no witness spells out
-//!   (`HOLDtime`, `AMPLifier`, `PTYPe`, `NOBModules`, `CALibrate`) follow SCPI's rule from the
+//!   (`HOLDtime`, `AMPLifier`, `PTYPe`, `NOBModules`, `CALibrate`, `FERRor`, `SDIRection`,
+//!   `TUNing`, `SENSor`, `TEMPerature`) follow SCPI's rule from the
 //!   SDK's property names; the short forms are the ones the witnesses send.
 //! - **Power-up.** Position 0 whatever the carriage's place (BLISS: "after power up it reports
 //!   position 0"), not referenced, calibrated, amplifier on, control loop off.
@@ -99,8 +114,18 @@
 //!   carriage's physical coordinate). The other options are taken but change nothing.
 //! - **Scan and step modes.** Valid move modes, but no motion in them is emulated: a `:MOVE`
 //!   in mode 2, 3 or 4 is refused with 32765 "Feature not supported".
-//! - **Not emulated:** range limits (`RLIM`), sensor power modes, trajectory streaming, module
-//!   temperatures, several commands on one line (`;`), which is refused with -113.
+//! - **Number left out.** SCPI reads an omitted numeric suffix as 1; taken: 0, the first
+//!   channel or module (the MCS2 counts from 0), which BLISS relies on when it polls
+//!   `:MOD:STAT?`.
+//! - **Target.** `POS:TARG?` reads the target the channel holds (the EPICS driver reads it back
+//!   after a home): set with the position, where the carriage came to rest after a stop or on
+//!   an end stop, and where a reference search ended (0 with AUTO_ZERO).
+//! - **Following error.** The simulated carriage has no trajectory setpoint apart from the
+//!   target, so while a closed-loop move runs the error is what is left of it; a reference
+//!   search follows no target (0).
+//! - **Not emulated:** range limits (`RLIM`), what the sensor modes do (the mode is only
+//!   kept), trajectory streaming, temperatures that change, several
+//!   commands on one line (`;`), which is refused with -113.
 
 use crate::emulator::axes;
 use crate::{Emulator, Lines};
@@ -136,6 +161,27 @@ const MAX_VELOCITY: i64 = 100_000_000_000;
 
 /// The highest acceleration taken, pm/s² (100 m/s²).
 const MAX_ACCELERATION: i64 = 100_000_000_000_000;
+
+/// The hold time `:CHAN<n>:HOLD` takes for "forever" besides -1: -1 as an unsigned 32-bit
+/// number, as the CNR Tango client sends it.
+const HOLD_FOREVER_UNSIGNED: i64 = u32::MAX as i64;
+
+/// What `:CHAN<n>:TEMP?` and `:MOD<m>:TEMP?` answer, °C: a controller at work in a warm rack
+/// (a choice; nothing here heats).
+pub(crate) const TEMPERATURE: i64 = 35;
+
+/// What `:CHAN<n>:TUN:BASE:UNIT?` answers: the SDK's `SA_CTL_UNIT_METER`.
+const BASE_UNIT_METRE: i64 = 2;
+
+/// What `:CHAN<n>:TUN:BASE:RES?` answers: positions count 10⁻¹² of the base unit, picometres.
+const BASE_RESOLUTION: i64 = -12;
+
+/// The open-loop step frequency at power-up, Hz, and the range taken (the CNR client's).
+const POWER_UP_STEP_FREQUENCY: i64 = 1000;
+const STEP_FREQUENCIES: (i64, i64) = (1, 20_000);
+
+/// The highest open-loop step amplitude (100 V), also the power-up one; the lowest is 1.
+const MAX_STEP_AMPLITUDE: i64 = 65535;
 
 /// Entries the error queue holds.
 pub(crate) const QUEUE_CAPACITY: usize = 16;
@@ -207,6 +253,19 @@ pub(crate) mod reference_option {
     pub(crate) const CONTINUE_ON_REF_FOUND: i64 = 0x10;
     /// Stop at once on the mark.
     pub(crate) const STOP_ON_REF_FOUND: i64 = 0x20;
+}
+
+/// The sensor modes (`:CHAN<n>:SENS:MODE`), as the SDK numbers `SA_CTL_SENSOR_MODE_*`.
+mod sensor_mode {
+    pub(super) const DISABLED: i64 = 0;
+    pub(super) const ENABLED: i64 = 1;
+    pub(super) const POWER_SAVE: i64 = 2;
+}
+
+/// The safe directions (`:CHAN<n>:SDIR`): 0 forward, 1 backward.
+mod safe_direction {
+    pub(super) const FORWARD: i64 = 0;
+    pub(super) const BACKWARD: i64 = 1;
 }
 
 /// The move modes (`:CHAN<n>:MMOD`), as the SDK numbers `SA_CTL_MOVE_MODE_*`.
@@ -314,11 +373,20 @@ struct Channel {
     /// `:CHAN<n>:MCLF`, Hz.
     max_closed_loop_hz: i64,
     reference_options: i64,
+    /// `:CHAN<n>:SENS:MODE` (see [`sensor_mode`]); kept, it changes nothing else.
+    sensor_mode: i64,
+    /// `:CHAN<n>:SDIR` (see [`safe_direction`]); kept.
+    safe_direction: i64,
+    /// `:CHAN<n>:STEP:FREQ`, Hz; kept (no open-loop motion is emulated).
+    step_frequency: i64,
+    /// `:CHAN<n>:STEP:AMPL`; kept.
+    step_amplitude: i64,
     amplifier: bool,
     calibrated: bool,
     referenced: bool,
     motion: Motion,
     control: Loop,
+    /// The target the channel holds (`:CHAN<n>:POS:TARG?`), pm.
     target: i64,
     end_stop: bool,
     /// Why the last movement failed; 0 when it did not.
@@ -337,6 +405,10 @@ impl Channel {
             hold_ms: 0,
             max_closed_loop_hz: POWER_UP_MCLF,
             reference_options: 0,
+            sensor_mode: sensor_mode::ENABLED,
+            safe_direction: safe_direction::FORWARD,
+            step_frequency: POWER_UP_STEP_FREQUENCY,
+            step_amplitude: MAX_STEP_AMPLITUDE,
             amplifier: true,
             calibrated: true,
             referenced: false,
@@ -361,11 +433,14 @@ impl Channel {
             let motion = std::mem::replace(&mut self.motion, Motion::Idle);
             self.control = Loop::Off;
             if motion == Motion::Stopping {
+                // The target is where the carriage came to rest.
+                self.target = self.position();
                 return;
             }
             if on_end_stop && motion == Motion::Move {
                 self.end_stop = true;
                 self.failure = code::END_STOP_REACHED;
+                self.target = self.position();
                 return;
             }
             if motion == Motion::Reference {
@@ -374,6 +449,8 @@ impl Channel {
                     let scale = self.axis.physical_position();
                     self.axis.set_position(scale);
                 }
+                // The loop holds where the search ended, on the scale it left (0 with AUTO_ZERO).
+                self.target = self.position();
             }
             self.control = match self.hold_ms {
                 0 => Loop::Off,
@@ -410,6 +487,21 @@ impl Channel {
             }
         }
         word
+    }
+
+    /// `:CHAN<n>:FERR?`, pm: target − position while the control loop follows the target (a
+    /// closed-loop move under way, or holding), else 0.
+    fn following_error(&self) -> i64 {
+        let follows = match self.motion {
+            Motion::Move => true,
+            Motion::Idle => matches!(self.control, Loop::Holding(_)),
+            Motion::Reference | Motion::Stopping => false,
+        };
+        if self.amplifier && follows {
+            self.target.saturating_sub(self.position())
+        } else {
+            0
+        }
     }
 
     fn speed(&self) -> f64 {
@@ -455,6 +547,8 @@ impl Channel {
     fn stop(&mut self) {
         if self.motion != Motion::Idle {
             self.motion = Motion::Stopping;
+            // Where it is now; where it comes to rest once it has.
+            self.target = self.position();
         }
         self.control = Loop::Off;
         self.axis.stop(self.acceleration as f64);
@@ -486,6 +580,7 @@ enum Target {
     ModuleCount,
     DeviceState,
     ModuleState(usize),
+    ModuleTemperature(usize),
     Channel(usize, Property),
     Move(usize),
     Stop(usize),
@@ -509,6 +604,14 @@ enum Property {
     PositionerType,
     PositionerName,
     Error,
+    SensorMode,
+    SafeDirection,
+    StepFrequency,
+    StepAmplitude,
+    Temperature,
+    FollowingError,
+    BaseUnit,
+    BaseResolution,
 }
 
 /// One node of a header: its mnemonic, upper case, and its number if it has one.
@@ -544,15 +647,18 @@ fn is_mnemonic(word: &str, long: &str) -> bool {
     word == short || word == long.to_ascii_uppercase()
 }
 
-/// The nodes match the pattern: the numbers of its numbered nodes, in order.
+/// The nodes match the pattern: the numbers of its numbered nodes, in order, 0 for a number
+/// left out (the MCS2 counts from 0; BLISS polls `:MOD:STAT?`).
 fn matches(nodes: &[Node], pattern: &[Pattern]) -> Option<Vec<usize>> {
     let mut numbers = Vec::new();
     let mut rest = nodes;
     for p in pattern {
-        let hit = rest.first().filter(|node| is_mnemonic(&node.word, p.long) && node.number.is_some() == p.numbered);
+        let hit = rest.first().filter(|node| is_mnemonic(&node.word, p.long) && (p.numbered || node.number.is_none()));
         match hit {
             Some(node) => {
-                numbers.extend(node.number);
+                if p.numbered {
+                    numbers.push(node.number.unwrap_or(0));
+                }
                 rest = &rest[1..];
             }
             None if p.optional => {}
@@ -594,12 +700,13 @@ const FIXED: [(&[Pattern], Target); 7] = [
 type Numbered = fn(usize) -> Target;
 
 /// Headers whose first node is numbered.
-const NUMBERED: [(&[Pattern], Numbered); 5] = [
+const NUMBERED: [(&[Pattern], Numbered); 6] = [
     (&[numbered("MOVE")], Target::Move),
     (&[numbered("STOP")], Target::Stop),
     (&[numbered("REFerence")], Target::Reference),
     (&[numbered("CALibrate")], Target::Calibrate),
     (&[numbered("MODule"), n("STATe")], Target::ModuleState),
+    (&[numbered("MODule"), n("TEMPerature")], Target::ModuleTemperature),
 ];
 
 /// The maximum closed-loop frequency at power-up, Hz (not documented where this emulator's
@@ -610,7 +717,7 @@ const POWER_UP_MCLF: i64 = 15_000;
 const CHANNEL: Pattern = numbered("CHANnel");
 
 /// A channel's properties.
-const PROPERTIES: [(&[Pattern], Property); 13] = [
+const PROPERTIES: [(&[Pattern], Property); 21] = [
     (&[CHANNEL, n("STATe")], Property::State),
     (&[CHANNEL, n("POSition"), optional("CURRent")], Property::Position),
     (&[CHANNEL, n("POSition"), n("TARGet")], Property::TargetPosition),
@@ -624,6 +731,14 @@ const PROPERTIES: [(&[Pattern], Property); 13] = [
     (&[CHANNEL, n("PTYPe")], Property::PositionerType),
     (&[CHANNEL, n("PTYPe"), n("NAME")], Property::PositionerName),
     (&[CHANNEL, n("ERRor")], Property::Error),
+    (&[CHANNEL, n("SENSor"), n("MODE")], Property::SensorMode),
+    (&[CHANNEL, n("SDIRection")], Property::SafeDirection),
+    (&[CHANNEL, n("STEP"), n("FREQuency")], Property::StepFrequency),
+    (&[CHANNEL, n("STEP"), n("AMPLitude")], Property::StepAmplitude),
+    (&[CHANNEL, n("TEMPerature")], Property::Temperature),
+    (&[CHANNEL, n("FERRor")], Property::FollowingError),
+    (&[CHANNEL, n("TUNing"), n("BASE"), n("UNIT")], Property::BaseUnit),
+    (&[CHANNEL, n("TUNing"), n("BASE"), n("RESolution")], Property::BaseResolution),
 ];
 
 /// What a header names.
@@ -771,6 +886,12 @@ impl Mcs2Emulator {
                 // SM_PRESENT: the module has its sensor module.
                 "1".to_string()
             }
+            Target::ModuleTemperature(module) => {
+                if module >= self.modules() {
+                    return Err(code::INVALID_MODULE_INDEX);
+                }
+                TEMPERATURE.to_string()
+            }
             Target::Channel(index, property) => {
                 let channel = self.channel(index)?;
                 match property {
@@ -787,6 +908,14 @@ impl Mcs2Emulator {
                     Property::PositionerType => POSITIONER_TYPE.to_string(),
                     Property::PositionerName => format!("\"{POSITIONER_NAME}\""),
                     Property::Error => channel.failure.to_string(),
+                    Property::SensorMode => channel.sensor_mode.to_string(),
+                    Property::SafeDirection => channel.safe_direction.to_string(),
+                    Property::StepFrequency => channel.step_frequency.to_string(),
+                    Property::StepAmplitude => channel.step_amplitude.to_string(),
+                    Property::Temperature => TEMPERATURE.to_string(),
+                    Property::FollowingError => channel.following_error().to_string(),
+                    Property::BaseUnit => BASE_UNIT_METRE.to_string(),
+                    Property::BaseResolution => BASE_RESOLUTION.to_string(),
                 }
             }
             Target::ClearStatus | Target::Move(_) | Target::Stop(_) | Target::Reference(_) | Target::Calibrate(_) => {
@@ -841,20 +970,43 @@ impl Mcs2Emulator {
                     Property::Position => {
                         let value = value?;
                         channel.axis.set_position(value as f64);
+                        // The target moves with the scale: the loop holds where it is.
+                        channel.target = value;
                     }
                     Property::MoveMode => channel.move_mode = within(value?, move_mode::CL_ABSOLUTE, move_mode::STEP)?,
                     Property::Velocity => channel.velocity = within(value?, 0, MAX_VELOCITY)?,
                     Property::Acceleration => channel.acceleration = within(value?, 0, MAX_ACCELERATION)?,
-                    Property::HoldTime => channel.hold_ms = within(value?, -1, i64::from(i32::MAX))?,
+                    Property::HoldTime => {
+                        channel.hold_ms = match value? {
+                            HOLD_FOREVER_UNSIGNED => -1,
+                            ms => within(ms, -1, i64::from(i32::MAX))?,
+                        }
+                    }
                     Property::Amplifier => channel.set_amplifier(within(value?, 0, 1)? == 1),
                     Property::MaxClosedLoopFrequency => channel.max_closed_loop_hz = within(value?, 50, 20_000)?,
                     Property::ReferenceOptions => channel.reference_options = within(value?, 0, 0x3f)?,
                     Property::PositionerType => {
                         within(value?, POSITIONER_TYPE, POSITIONER_TYPE)?;
                     }
-                    Property::State | Property::TargetPosition | Property::PositionerName | Property::Error => {
-                        return Err(code::UNDEFINED_HEADER)
+                    Property::SensorMode => {
+                        channel.sensor_mode = within(value?, sensor_mode::DISABLED, sensor_mode::POWER_SAVE)?
                     }
+                    Property::SafeDirection => {
+                        channel.safe_direction = within(value?, safe_direction::FORWARD, safe_direction::BACKWARD)?
+                    }
+                    Property::StepFrequency => {
+                        let (low, high) = STEP_FREQUENCIES;
+                        channel.step_frequency = within(value?, low, high)?
+                    }
+                    Property::StepAmplitude => channel.step_amplitude = within(value?, 1, MAX_STEP_AMPLITUDE)?,
+                    Property::State
+                    | Property::TargetPosition
+                    | Property::PositionerName
+                    | Property::Error
+                    | Property::Temperature
+                    | Property::FollowingError
+                    | Property::BaseUnit
+                    | Property::BaseResolution => return Err(code::UNDEFINED_HEADER),
                 }
             }
             Target::Identify
@@ -866,7 +1018,8 @@ impl Mcs2Emulator {
             | Target::ChannelCount
             | Target::ModuleCount
             | Target::DeviceState
-            | Target::ModuleState(_) => return Err(code::UNDEFINED_HEADER),
+            | Target::ModuleState(_)
+            | Target::ModuleTemperature(_) => return Err(code::UNDEFINED_HEADER),
         }
         Ok(())
     }
@@ -1002,8 +1155,11 @@ mod tests {
         assert_eq!(say(&mut e, 0.0, "CHAN0:POSition:CURRent?\n:CHAN0:POS?\n"), ["0", "0"]);
         assert_eq!(e.malformed(), 0);
         // Neither short nor long: undefined.
-        assert!(say(&mut e, 0.0, ":CHANN0:VEL?\n:CHAN0:VELO?\n:CHAN:VEL?\n").is_empty());
-        assert_eq!(errors(&mut e), ["-113,\"Undefined header\""; 3]);
+        assert!(say(&mut e, 0.0, ":CHANN0:VEL?\n:CHAN0:VELO?\n").is_empty());
+        assert_eq!(errors(&mut e), ["-113,\"Undefined header\""; 2]);
+        // A channel number left out is channel 0 (BLISS relies on it: `:MOD:STAT?`), no longer
+        // an undefined header.
+        assert_eq!(say(&mut e, 0.0, ":CHAN:VEL?\n"), ["2000000"]);
     }
 
     #[test]
@@ -1139,6 +1295,96 @@ mod tests {
         assert!(!e.raise_error(2));
         assert_eq!(errors(&mut e), ["272,\"Movement overridden\""]);
         assert_eq!(e.name(), "smaract_mcs2");
+    }
+
+    #[test]
+    fn the_sensor_mode_is_kept_and_checked() {
+        let mut e = mcs2(2);
+        assert_eq!(say(&mut e, 0.0, ":CHAN1:SENS:MODE?\n"), ["1"], "enabled at power-up");
+        say(&mut e, 0.0, ":CHAN1:SENS:MODE 2\n:CHANnel0:SENSor:MODE 0\n");
+        assert_eq!(say(&mut e, 0.0, ":CHAN0:SENS:MODE?\n:CHAN1:SENS:MODE?\n"), ["0", "2"]);
+        assert_eq!(e.malformed(), 0);
+        say(&mut e, 0.0, ":CHAN1:SENS:MODE 3\n:CHAN1:SENS:MODE -1\n");
+        assert_eq!(errors(&mut e), ["19,\"Invalid parameter\""; 2]);
+        assert_eq!(say(&mut e, 0.0, ":CHAN1:SENS:MODE?\n"), ["2"], "refused, unchanged");
+    }
+
+    #[test]
+    fn a_number_left_out_is_zero() {
+        let mut e = mcs2(4);
+        assert_eq!(say(&mut e, 0.0, ":MOD:STAT?\n:MODule:TEMPerature?\n"), ["1", "35"]);
+        say(&mut e, 0.0, ":CHAN:POS 1234\n:CHAN3:POS 99\n");
+        assert_eq!(say(&mut e, 0.0, ":CHAN:POS?\n:CHAN0:POS?\n:CHAN3:POS?\n"), ["1234", "1234", "99"]);
+        say(&mut e, 0.0, ":CHAN:VEL 1000000\n:MOVE 2000\n");
+        assert_eq!(say(&mut e, 1.0, ":CHAN:POS?\n"), ["2000"]);
+        assert_eq!(e.malformed(), 0);
+        // Only a numbered node may go without: a number on any other is still undefined.
+        assert!(say(&mut e, 1.0, ":CHAN0:POS0?\n:DEV1:NOCH?\n").is_empty());
+        assert_eq!(errors(&mut e), ["-113,\"Undefined header\""; 2]);
+    }
+
+    #[test]
+    fn the_target_follows_a_set_position_a_stop_an_end_stop_and_a_home() {
+        let mut e = mcs2(1);
+        say(&mut e, 0.0, ":CHAN0:VEL 1000000\n:MOVE0 400000\n");
+        say(&mut e, 1.0, ":CHAN0:POS 50\n");
+        assert_eq!(say(&mut e, 1.0, ":CHAN0:POS?\n:CHAN0:POS:TARG?\n"), ["50", "50"]);
+        // Stopped halfway: the target is where it stopped.
+        say(&mut e, 1.0, ":MOVE0 1000050\n");
+        assert_eq!(say(&mut e, 1.25, ":STOP0\n:CHAN0:POS:TARG?\n"), ["250050"]);
+        assert_eq!(say(&mut e, 2.0, ":CHAN0:POS?\n:CHAN0:POS:TARG?\n"), ["250050", "250050"]);
+        // On an end stop (−0.2 mm on the carriage's own scale, shifted by the set position): where
+        // the carriage stands.
+        say(&mut e, 2.0, ":CHAN0:VEL 0\n:MOVE0 -1000000000000\n");
+        assert_eq!(say(&mut e, 100.0, ":CHAN0:POS?\n:CHAN0:POS:TARG?\n"), ["-200399950", "-200399950"]);
+        // A home that zeroes: 0, as the EPICS driver reads it back.
+        say(&mut e, 100.0, ":CHAN0:REF:OPT 4\n:REF0\n");
+        assert_eq!(say(&mut e, 200.0, ":CHAN0:POS?\n:CHAN0:POS:TARG?\n"), ["0", "0"]);
+        assert_eq!(e.malformed(), 0);
+    }
+
+    #[test]
+    fn what_clients_poll_besides() {
+        let mut e = mcs2(4);
+        assert_eq!(
+            say(&mut e, 0.0, ":CHAN3:TEMP?\n:MOD1:TEMP?\n:CHAN3:SDIR?\n:CHAN3:TUN:BASE:UNIT?\n:CHAN3:TUN:BASE:RES?\n"),
+            ["35", "35", "0", "2", "-12"]
+        );
+        assert_eq!(say(&mut e, 0.0, ":CHAN3:STEP:FREQ?\n:CHAN3:STEP:AMPL?\n"), ["1000", "65535"]);
+        say(&mut e, 0.0, ":CHAN3:STEP:FREQ 20000\n:CHAN3:STEP:AMPLitude 1\n:CHAN3:SDIRection 1\n");
+        assert_eq!(say(&mut e, 0.0, ":CHAN3:STEP:FREQuency?\n:CHAN3:STEP:AMPL?\n:CHAN3:SDIR?\n"), ["20000", "1", "1"]);
+        assert_eq!(say(&mut e, 0.0, ":CHAN2:STEP:FREQ?\n:CHAN2:SDIR?\n"), ["1000", "0"], "per channel");
+        assert_eq!(e.malformed(), 0);
+        say(&mut e, 0.0, ":CHAN3:STEP:FREQ 0\n:CHAN3:STEP:AMPL 65536\n:CHAN3:SDIR 2\n");
+        assert_eq!(errors(&mut e), ["19,\"Invalid parameter\""; 3]);
+        // Read-only, and a module that is not there.
+        assert!(say(&mut e, 0.0, ":CHAN0:TEMP 20\n:CHAN0:FERR 0\n:CHAN0:TUN:BASE:UNIT 3\n:MOD2:TEMP?\n").is_empty());
+        assert_eq!(errors(&mut e)[..3], ["-113,\"Undefined header\""; 3]);
+    }
+
+    #[test]
+    fn the_following_error_while_the_loop_follows_a_target() {
+        let mut e = mcs2(1);
+        assert_eq!(say(&mut e, 0.0, ":CHAN0:FERR?\n"), ["0"], "control loop off");
+        say(&mut e, 0.0, ":CHAN0:ACC 0\n:CHAN0:VEL 1000000\n:CHAN0:HOLD -1\n:MOVE0 400000\n");
+        assert_eq!(say(&mut e, 0.1, ":CHAN0:FERR?\n"), ["300000"]);
+        assert_eq!(say(&mut e, 1.0, ":CHAN0:FERR?\n"), ["0"], "holding on target");
+        say(&mut e, 1.0, ":CHAN0:REF:OPT 4\n:REF0\n");
+        assert_eq!(say(&mut e, 1.1, ":CHAN0:FERR?\n"), ["0"], "a reference search follows no target");
+    }
+
+    #[test]
+    fn a_hold_time_of_4294967295_holds_forever() {
+        let mut e = mcs2(1);
+        say(&mut e, 0.0, ":CHAN0:HOLD 4294967295\n");
+        assert_eq!(say(&mut e, 0.0, ":CHAN0:HOLD?\n"), ["-1"]);
+        say(&mut e, 0.0, ":CHAN0:VEL 1000000\n:MOVE0 1000\n");
+        let holding = state::CLOSED_LOOP_ACTIVE | state::IN_POSITION;
+        assert_eq!(word(&mut e, 1000.0, 0) & holding, holding);
+        // Between 2³¹-1 and 2³²-1, still refused.
+        say(&mut e, 1000.0, ":CHAN0:HOLD 4294967294\n");
+        assert_eq!(errors(&mut e), ["19,\"Invalid parameter\""]);
+        assert_eq!(e.malformed(), 1);
     }
 
     #[test]
