@@ -1,6 +1,6 @@
-//! A Galil DMC-4040 (a DMC-40x0 of one to eight axes, A to H), reached over Ethernet (TCP port
-//! 23): Galil's two-letter ASCII commands, `:` for done, `?` for refused, the binary data record
-//! of `QR`; one simulator step a count, every axis a servo (MT 1).
+//! A Galil DMC-4040 (a DMC-40x0 of one to eight axes, A to H, the first four also X, Y, Z, W),
+//! reached over Ethernet (TCP port 23): Galil's two-letter ASCII commands, `:` for done, `?` for
+//! refused, the binary data record of `QR`; one simulator step a count, every axis a servo (MT 1).
 //!
 //! # Witnesses
 //!
@@ -34,6 +34,12 @@
 //!    position, 2/3 forward/reverse limit, 4 ST, 7 AB, 8 off-on-error, 9 FE, 10 HM or FI) and
 //!    TC codes (1, 6, 7, 20, 21, 22); AC and DC resolution 1024 up to 1 073 740 800, SP
 //!    resolution 2; `WH` answering `IHA`; `^R^V` answering `DMC4040 Rev 1.2f`.
+//! 7. What clients send and read: gclibo.h's axis letters "XYZWABCDEFGHST" (X to W naming A to
+//!    D); motorapp/Galil's GalilController.cpp: `TH` read for the MAC after "ETHERNET ADDRESS",
+//!    `HXn` for each thread, `DL` CR then the program then `\` answered `::`, `UL` read up to
+//!    Ctrl-Z then `:` (CR LF line ends), `MG _TM` for the time base.
+//! 8. The DMC-40x0 command reference's `( )` page: expressions are read left to right, with no
+//!    precedence but parentheses (`MG 1 + 2 * 3` answers 9); math `+ - * /`, logic `& |`.
 //!
 //! # Readings taken where the witnesses are silent
 //!
@@ -41,20 +47,33 @@
 //!   command, creates the variable or sets it (510 at most: TC 6 beyond), as the user manual's
 //!   chapter on programming has variables created by assignment; `MG name` reports it. No program
 //!   runs here, so they change nothing else.
+//! - **Expressions**: a value assigned, a setting's argument (`DCA=nrmdcA`, `SPA=_SPB`) and MG's
+//!   items are expressions: numbers, variables, operands (`_XXa`, `_BN`, `_TC`, `_TM`) and TIME
+//!   (the sample counter, in ms), joined left to right by `+ - * /`, `= < > <= >= <>` (1 or 0) and
+//!   `& |` (bit by bit on the 32.16 fixed point), with parentheses and signs. An unknown name or
+//!   anything else unread is TC 1; a division by 0 TC 6.
+//! - **Programs**: `DL` answers `:` and takes the bytes after it (the rest of its line included)
+//!   up to `\` or Ctrl-Z as the program, answering `:` at its end (`?`, TC 6, beyond 4000 lines
+//!   of 80 characters); a connection closed drops a download under way. `UL` answers the program
+//!   with CR LF line ends, then Ctrl-Z and `:`. No program runs: `XQ` and `HX`/`HXn` answer `:`.
+//! - **Identity**: `TH` answers the address 127,0,0,1, the MAC 00-50-4C-00 then the serial
+//!   number's two low bytes, handle A the host's TCP connection, B to H available; `ID` one line,
+//!   the model, its axes and no internal amplifier (motorapp reads no `AMP1,` then).
 //! - **Power-on**: every motor off (MO); `BG` is refused (TC 20) until `SH`. SP 25 000, AC and
 //!   DC 256 000, JG 25 000, KP 6, KI 0, KD 64, ER 16 384, OE 0, FL 2 147 483 647 and BL
 //!   −2 147 483 648 (no software limits), stop code 0, TC 0.
 //! - **Formats**: interrogations (TP, TD, TE, TS, SC, TV, RP, `XX ?`, `XXA=?`) answer integers
 //!   with a space where a sign would go (` 1000`, `-5`), several comma-separated; MT answers one
 //!   decimal (` 1.0`), KP/KI/KD four. `MG` answers VF 10.4 (` 1000.0000`); `MG "text"` the text;
-//!   several operands space-separated. QZ answers `n, 52, 26, 36`. `TC1` with no error answers
-//!   `0`; reading the code does not clear it.
+//!   several operands space-separated; an expression as ` 1.0000`. QZ answers `n, 52, 26, 36`,
+//!   `TM ?` ` 1000`. `TC1` with no error answers `0`; reading the code does not clear it.
 //! - **Refusals**: an unknown command, bad syntax, an axis not installed and too many fields
 //!   are TC 1 and malformed; a number out of range TC 6 and malformed; a refusal for a reason
 //!   of state (BG motor off 20, moving 21, toward an active limit or beyond FL/BL 22; DP, DE,
-//!   MT on a moving axis 7) is not malformed. Known commands not carried out (TH, UL, DL, XQ,
-//!   HX, LZ, PF, VF, `QR` with arguments…) answer TC 1, not malformed. Each command of a line is
-//!   answered, an error not stopping the ones after it. Lines hold 1024 bytes at most.
+//!   MT on a moving axis 7) is not malformed. Known commands not carried out (LZ, PF, VF, IH,
+//!   BN, `TM n`, `DR n` for a rate not 0 as no record is streamed, `QR` or `DL #` with
+//!   arguments…) answer TC 1, not malformed. Each command of a line is answered, an error not
+//!   stopping the ones after it. Lines hold 1024 bytes at most.
 //! - **Motion**: one acceleration for a move's ramps, AC (DC brakes ST); a PA/PR target beyond
 //!   FL or BL is cut there (stop code 2 or 3); a jog toward a software limit ends there, else
 //!   runs until ST, AB or a switch (2 or 3, the simulator halting on the switch). `JG` on a
@@ -67,18 +86,20 @@
 //!   code 9 (bit 12 during it).
 //! - **Encoders**: no following error (TE 0, RP = TP, torque 0); TD the auxiliary encoder, TP
 //!   plus an offset that DE defines. DP defines TP. MT is taken (±1, ±1.5, ±2, ±2.5); ±2 and ±2.5
-//!   set the record's stepper bit and change nothing else. CN, DR, EO, CF, CW are taken and
-//!   change nothing.
+//!   set the record's stepper bit and change nothing else. CN, EO, CF, CW and `DR 0` are taken
+//!   and change nothing.
 //! - **Record**: inputs read all ones (nothing wired), outputs 0, handle bytes, threads,
 //!   amplifier status, contour and planes 0; the sample counter counts milliseconds. `raise_error`
 //!   is an off-on-error: the motor off, stop code 8, TS bit 6, until `SH`.
 
 use crate::emulator::axes;
-use crate::{Emulator, Lines};
+use crate::{Connection, Emulator, Lines};
 use std::collections::VecDeque;
 use zmotor_core::{Driver, Instant, SimAxis, SimConfig};
 
 const LETTERS: &[u8; 8] = b"ABCDEFGH";
+/// The other names of axes A to D (gclibo.h's axis letters, "XYZWABCDEFGHST").
+const ALIASES: &[u8; 4] = b"XYZW";
 const CR: &[u8] = b"\r";
 const INPUT_BUFFER: usize = 1024;
 /// The record's header, general (I) block, coordinated block (contour, S and T planes), axis block.
@@ -91,6 +112,10 @@ const SPEED_MAX: f64 = 22_000_000.0;
 const ACCEL_MAX: f64 = 1_073_740_800.0;
 const POSITION_MAX: f64 = 2_147_483_647.0;
 const POSITION_MIN: f64 = -2_147_483_648.0;
+/// TM: the sample period, microseconds.
+const SAMPLE_PERIOD: f64 = 1000.0;
+/// How deep an expression's parentheses and signs may nest.
+const EXPRESSION_DEPTH: usize = 32;
 
 /// Why a command is answered `?`; its TC code.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -556,7 +581,19 @@ pub struct GalilEmulator {
     malformed: usize,
     /// Variables, created by assignment (a program's; none runs here).
     variables: Vec<(String, f64)>,
+    /// The bytes of a program being downloaded, from `DL` until its `\` or Ctrl-Z.
+    download: Option<Vec<u8>>,
+    /// The program last downloaded, a line an entry; kept and uploaded, never run.
+    program: Vec<String>,
 }
+
+/// The program memory of a DMC-40x0: lines, and characters a line.
+const PROGRAM_LINES: usize = 4000;
+const PROGRAM_COLUMNS: usize = 80;
+/// More bytes than the longest program holds (CR LF line ends): a download is cut there.
+const PROGRAM_BYTES: usize = PROGRAM_LINES * (PROGRAM_COLUMNS + 2) + 1;
+/// What ends a download: `\`, or Ctrl-Z.
+const END_OF_PROGRAM: [u8; 2] = [b'\\', 0x1A];
 
 /// The most variables a DMC-40x0 holds.
 const VARIABLES: usize = 510;
@@ -584,6 +621,8 @@ impl GalilEmulator {
             now: Instant::ZERO,
             malformed: 0,
             variables: Vec::new(),
+            download: None,
+            program: Vec::new(),
         }
     }
 
@@ -595,7 +634,8 @@ impl GalilEmulator {
         }
         let mut list = Vec::new();
         for letter in text.bytes().filter(|b| *b != b' ') {
-            let i = LETTERS.iter().position(|l| *l == letter).filter(|i| *i < self.axes.len());
+            let i = LETTERS.iter().position(|l| *l == letter).or_else(|| ALIASES.iter().position(|l| *l == letter));
+            let i = i.filter(|i| *i < self.axes.len());
             let i = i.ok_or(Refusal::Unrecognized)?;
             if !list.contains(&i) {
                 list.push(i);
@@ -609,7 +649,7 @@ impl GalilEmulator {
             return Ok(Reply::Text(format!("DMC40{}0 Rev 1.2f", self.axes.len())));
         }
         if let Some((name, value)) = text.split_once('=').filter(|(name, _)| variable_name(name.trim())) {
-            let value = number(value.trim()).ok_or(Refusal::Unrecognized)?;
+            let value = self.evaluate(value)?;
             return self.assign(name.trim(), value);
         }
         let name = text.get(..2).filter(|n| n.bytes().all(|b| b.is_ascii_uppercase())).ok_or(Refusal::Unrecognized)?;
@@ -673,9 +713,38 @@ impl GalilEmulator {
             "QR" if rest.trim().is_empty() => Ok(Reply::Binary(self.record())),
             "QR" => Err(Refusal::NotCarriedOut),
             "WH" if rest.is_empty() => Ok(Reply::Text("IHA".into())),
+            "TH" if rest.trim().is_empty() => Ok(Reply::Text(self.handles())),
+            "ID" if rest.trim().is_empty() => {
+                let axes = self.axes.len();
+                let last = char::from(LETTERS[axes - 1]);
+                Ok(Reply::Text(format!("DMC40{axes}0, AXES A-{last}, NO INTERNAL AMPLIFIER")))
+            }
+            "TM" if rest.trim() == "?" => Ok(Reply::Text(integer(SAMPLE_PERIOD))),
             "MG" => self.message(rest.trim()).map(Reply::Text),
-            "CN" | "DR" | "EO" | "CF" | "CW" => done,
-            "TH" | "UL" | "DL" | "XQ" | "HX" | "LZ" | "PF" | "VF" | "IH" | "BN" | "TM" => Err(Refusal::NotCarriedOut),
+            // No record is streamed here: a rate is refused, as a command not carried out.
+            "DR" => match rest.split(',').next().map(str::trim).unwrap_or("") {
+                "" => done,
+                rate => match number(rate) {
+                    Some(0.0) => done,
+                    Some(_) => Err(Refusal::NotCarriedOut),
+                    None => Err(Refusal::Unrecognized),
+                },
+            },
+            "DL" if rest.trim().is_empty() => {
+                self.download = Some(Vec::new());
+                done
+            }
+            "UL" if rest.trim().is_empty() => {
+                let mut text: Vec<u8> =
+                    self.program.iter().flat_map(|line| format!("{line}\r\n").into_bytes()).collect();
+                text.push(0x1A);
+                Ok(Reply::Binary(text))
+            }
+            // No program runs here: XQ starts nothing and HX has no thread to halt.
+            "XQ" => done,
+            "HX" if rest.trim().is_empty() || rest.trim().parse::<u8>().is_ok_and(|thread| thread < 8) => done,
+            "CN" | "EO" | "CF" | "CW" => done,
+            "TH" | "ID" | "UL" | "DL" | "HX" | "LZ" | "PF" | "VF" | "IH" | "BN" | "TM" => Err(Refusal::NotCarriedOut),
             _ => {
                 let setting = Setting::named(name).ok_or(Refusal::Unrecognized)?;
                 self.setting(setting, rest)
@@ -704,7 +773,7 @@ impl GalilEmulator {
         }
         let mut values = Vec::new();
         for (i, field) in fields {
-            values.push((i, setting.accept(number(field).ok_or(Refusal::Unrecognized)?)?));
+            values.push((i, setting.accept(self.evaluate(field)?)?));
         }
         for (i, value) in values {
             self.axes[i].set(setting, value)?;
@@ -723,36 +792,188 @@ impl GalilEmulator {
         Ok(Reply::Done)
     }
 
-    /// MG's operands (`_TPA`, `_BN`, `_TC`, `_TM`), variables and quoted strings.
+    /// MG's items, comma-separated: quoted strings, variables (VF 10.4) and expressions over
+    /// operands (`_TPA`, `_BN`, `_TC`, `_TM`), variables, numbers and TIME (` 1.0000`).
     fn message(&self, text: &str) -> Result<String, Refusal> {
         let mut parts = Vec::new();
         for item in text.split(',').map(str::trim) {
             if let Some(quoted) = item.strip_prefix('"').and_then(|t| t.strip_suffix('"')) {
                 parts.push(quoted.to_string());
-                continue;
-            }
-            if let Some((_, value)) = self.variables.iter().find(|(name, _)| name == item) {
+            } else if let Some(value) = self.variable(item) {
                 parts.push(format!("{value:10.4}"));
-                continue;
+            } else {
+                parts.push(fixed(self.evaluate(item)?, 4));
             }
-            let operand = item.strip_prefix('_').ok_or(Refusal::Unrecognized)?;
-            let value = match operand {
-                "BN" => f64::from(SERIAL_NUMBER),
-                "TC" => f64::from(self.error_code),
-                "TM" => 1000.0,
-                _ => {
-                    let (name, letter) = (operand.get(..2), operand.get(2..));
-                    let (Some(name), Some(letter)) = (name, letter) else { return Err(Refusal::Unrecognized) };
-                    if letter.len() != 1 {
-                        return Err(Refusal::Unrecognized);
-                    }
-                    let i = self.axis_list(letter)?[0];
-                    self.axes[i].operand(name).ok_or(Refusal::Unrecognized)?
-                }
-            };
-            parts.push(fixed(value, 4));
         }
         Ok(parts.join(" "))
+    }
+
+    /// The value of the variable `name`, if there is one.
+    fn variable(&self, name: &str) -> Option<f64> {
+        self.variables.iter().find(|(held, _)| held == name).map(|(_, value)| *value)
+    }
+
+    /// An expression, read left to right as the controller does (no precedence but that of
+    /// parentheses): `MG 1+2*3` is 9. What it cannot read is refused, TC 1.
+    fn evaluate(&self, text: &str) -> Result<f64, Refusal> {
+        let mut reader = Reader { text: text.as_bytes(), at: 0 };
+        let value = self.expression(&mut reader, 0)?;
+        reader.skip_spaces();
+        if reader.at == reader.text.len() {
+            Ok(value)
+        } else {
+            Err(Refusal::Unrecognized)
+        }
+    }
+
+    /// Terms joined by operators, up to the end or a `)`.
+    fn expression(&self, reader: &mut Reader, depth: usize) -> Result<f64, Refusal> {
+        let mut value = self.term(reader, depth)?;
+        while let Some(operator) = reader.operator() {
+            value = apply(operator, value, self.term(reader, depth)?)?;
+        }
+        Ok(value)
+    }
+
+    /// A parenthesised expression, a signed term, or an atom.
+    fn term(&self, reader: &mut Reader, depth: usize) -> Result<f64, Refusal> {
+        // Nesting bounded so that a line of parentheses cannot exhaust the stack.
+        if depth > EXPRESSION_DEPTH {
+            return Err(Refusal::Unrecognized);
+        }
+        reader.skip_spaces();
+        match reader.text.get(reader.at) {
+            Some(b'(') => {
+                reader.at += 1;
+                let value = self.expression(reader, depth + 1)?;
+                reader.skip_spaces();
+                if reader.text.get(reader.at) != Some(&b')') {
+                    return Err(Refusal::Unrecognized);
+                }
+                reader.at += 1;
+                Ok(value)
+            }
+            Some(b'-') => {
+                reader.at += 1;
+                Ok(-self.term(reader, depth + 1)?)
+            }
+            Some(b'+') => {
+                reader.at += 1;
+                self.term(reader, depth + 1)
+            }
+            _ => self.atom(reader.word()),
+        }
+    }
+
+    /// A number, TIME (the sample counter), a variable or an operand.
+    fn atom(&self, word: &str) -> Result<f64, Refusal> {
+        if let Some(value) = number(word) {
+            return Ok(value);
+        }
+        if word == "TIME" {
+            return Ok(self.samples() as f64);
+        }
+        if let Some(value) = self.variable(word) {
+            return Ok(value);
+        }
+        let operand = word.strip_prefix('_').ok_or(Refusal::Unrecognized)?;
+        Ok(match operand {
+            "BN" => f64::from(SERIAL_NUMBER),
+            "TC" => f64::from(self.error_code),
+            "TM" => SAMPLE_PERIOD,
+            _ => {
+                let (Some(name), Some(letter)) = (operand.get(..2), operand.get(2..)) else {
+                    return Err(Refusal::Unrecognized);
+                };
+                if letter.len() != 1 {
+                    return Err(Refusal::Unrecognized);
+                }
+                let i = self.axis_list(letter)?[0];
+                self.axes[i].operand(name).ok_or(Refusal::Unrecognized)?
+            }
+        })
+    }
+
+    /// The sample counter: samples of TM (1000 µs) since power-on.
+    fn samples(&self) -> u64 {
+        (self.now.as_secs_f64() * 1000.0) as u64
+    }
+
+    /// TH: this controller's address, then its eight handles, the first the host's.
+    fn handles(&self) -> String {
+        let [.., high, low] = SERIAL_NUMBER.to_be_bytes();
+        let mut lines = vec![
+            format!("CONTROLLER IP ADDRESS 127,0,0,1 ETHERNET ADDRESS 00-50-4C-00-{high:02X}-{low:02X}"),
+            "IHA TCP PORT 23 TO IP ADDRESS 127,0,0,1 PORT 50000".to_string(),
+        ];
+        lines.extend(LETTERS[1..].iter().map(|handle| format!("IH{} AVAILABLE", char::from(*handle))));
+        lines.join("\r\n")
+    }
+
+    /// Bytes of a download; how many it took (up to and with its end, if there). Its end
+    /// answers `:` once the program is stored, `?` (TC 6) if it does not fit.
+    fn take_program(&mut self, bytes: &[u8]) -> usize {
+        let Some(download) = self.download.as_mut() else { return 0 };
+        let end = bytes.iter().position(|b| END_OF_PROGRAM.contains(b));
+        let body = &bytes[..end.unwrap_or(bytes.len())];
+        download.extend_from_slice(&body[..body.len().min(PROGRAM_BYTES - download.len())]);
+        let Some(end) = end else { return bytes.len() };
+        let text = String::from_utf8_lossy(&self.download.take().unwrap_or_default()).replace("\r\n", "\r");
+        // The LF of a CR LF ending `DL` comes first; a last line's end leaves an empty piece.
+        let text = text.strip_prefix('\n').unwrap_or(&text).replace('\n', "\r");
+        let mut lines: Vec<String> = text.split('\r').map(str::to_string).collect();
+        if lines.last().is_some_and(String::is_empty) {
+            lines.pop();
+        }
+        let fits = lines.len() <= PROGRAM_LINES && lines.iter().all(|line| line.len() <= PROGRAM_COLUMNS);
+        let answer = if fits {
+            self.program = lines;
+            b':'
+        } else {
+            self.refuse(Refusal::OutOfRange)
+        };
+        self.output.push_back(vec![answer]);
+        end + 1
+    }
+
+    /// The refusal recorded (TC, and counted if malformed); the byte that answers it.
+    fn refuse(&mut self, refusal: Refusal) -> u8 {
+        self.error_code = refusal.code();
+        self.malformed += usize::from(refusal.malformed());
+        b'?'
+    }
+
+    /// One line's commands answered, as one piece. After a `DL`, what follows it on the line
+    /// is the start of the program: returned, to be taken as a download.
+    fn answer_line(&mut self, line: &[u8]) -> Option<Vec<u8>> {
+        let mut answer = Vec::new();
+        let mut rest = None;
+        let mut start = 0;
+        for command in line.split(|b| *b == b';') {
+            start += command.len() + 1;
+            let text = std::str::from_utf8(command).ok().map(|t| t.trim_matches(|c: char| c == ' ' || c == '\n'));
+            if text == Some("") {
+                continue;
+            }
+            match text.ok_or(Refusal::Unrecognized).and_then(|t| self.command(t)) {
+                Ok(Reply::Done) => answer.push(b':'),
+                Ok(Reply::Text(text)) => answer.extend(format!("{text}\r\n:").bytes()),
+                Ok(Reply::Binary(bytes)) => {
+                    answer.extend(bytes);
+                    answer.push(b':');
+                }
+                Err(refusal) => answer.push(self.refuse(refusal)),
+            }
+            self.axes.iter_mut().for_each(Axis::settle);
+            if self.download.is_some() {
+                rest = line.get(start..).filter(|rest| !rest.is_empty()).map(|rest| [rest, CR].concat());
+                break;
+            }
+        }
+        if !answer.is_empty() {
+            self.output.push_back(answer);
+        }
+        rest
     }
 
     /// The data record: header, general block, coordinated block, one block an axis.
@@ -762,7 +983,7 @@ impl GalilEmulator {
         record[0] = 0x87;
         record[1] = ((1u16 << self.axes.len()) - 1) as u8;
         record[2..4].copy_from_slice(&(length as u16).to_le_bytes());
-        let sample = (self.now.as_secs_f64() * 1000.0) as u64 as u16;
+        let sample = self.samples() as u16;
         record[4..6].copy_from_slice(&sample.to_le_bytes());
         record[6..16].fill(0xFF);
         record[50] = self.error_code;
@@ -771,6 +992,63 @@ impl GalilEmulator {
         }
         record
     }
+}
+
+/// Where an expression is being read.
+struct Reader<'a> {
+    text: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn skip_spaces(&mut self) {
+        while self.text.get(self.at) == Some(&b' ') {
+            self.at += 1;
+        }
+    }
+
+    /// A number, a name or an operand: letters, digits, `_` and `.`.
+    fn word(&mut self) -> &str {
+        let start = self.at;
+        while self.text.get(self.at).is_some_and(|b| b.is_ascii_alphanumeric() || matches!(b, b'_' | b'.')) {
+            self.at += 1;
+        }
+        std::str::from_utf8(&self.text[start..self.at]).unwrap_or_default()
+    }
+
+    /// The operator next, if one is.
+    fn operator(&mut self) -> Option<&'static str> {
+        self.skip_spaces();
+        let rest = &self.text[self.at..];
+        let operator = ["<=", ">=", "<>", "+", "-", "*", "/", "=", "<", ">", "&", "|"]
+            .into_iter()
+            .find(|operator| rest.starts_with(operator.as_bytes()))?;
+        self.at += operator.len();
+        Some(operator)
+    }
+}
+
+/// `left operator right`; comparisons give 1 or 0, `&` and `|` work bit by bit on the
+/// controller's fixed point (32 bits of integer, 16 of fraction).
+fn apply(operator: &str, left: f64, right: f64) -> Result<f64, Refusal> {
+    let flag = |holds: bool| f64::from(u8::from(holds));
+    let bits = |value: f64| (value * 65_536.0).round() as i64;
+    Ok(match operator {
+        "+" => left + right,
+        "-" => left - right,
+        "*" => left * right,
+        "/" if right == 0.0 => return Err(Refusal::OutOfRange),
+        "/" => left / right,
+        "=" => flag(left == right),
+        "<" => flag(left < right),
+        ">" => flag(left > right),
+        "<=" => flag(left <= right),
+        ">=" => flag(left >= right),
+        "<>" => flag(left != right),
+        "&" => (bits(left) & bits(right)) as f64 / 65_536.0,
+        "|" => (bits(left) | bits(right)) as f64 / 65_536.0,
+        _ => return Err(Refusal::Unrecognized),
+    })
 }
 
 /// A decimal number, its sign and fraction optional.
@@ -791,31 +1069,21 @@ impl Emulator for GalilEmulator {
             axis.sim.advance(now);
             axis.settle();
         }
-        for line in self.lines.push(bytes) {
-            let mut answer = Vec::new();
-            for command in line.split(|b| *b == b';') {
-                let text = std::str::from_utf8(command).ok().map(|t| t.trim_matches(|c: char| c == ' ' || c == '\n'));
-                if text == Some("") {
-                    continue;
-                }
-                match text.ok_or(Refusal::Unrecognized).and_then(|t| self.command(t)) {
-                    Ok(Reply::Done) => answer.push(b':'),
-                    Ok(Reply::Text(text)) => answer.extend(format!("{text}\r\n:").bytes()),
-                    Ok(Reply::Binary(bytes)) => {
-                        answer.extend(bytes);
-                        answer.push(b':');
-                    }
-                    Err(refusal) => {
-                        self.error_code = refusal.code();
-                        self.malformed += usize::from(refusal.malformed());
-                        answer.push(b'?');
-                    }
-                }
-                self.axes.iter_mut().for_each(Axis::settle);
+        // Line by line, since a `DL` turns what follows it into a program's raw bytes.
+        let mut bytes = bytes.to_vec();
+        let mut at = 0;
+        while at < bytes.len() {
+            if self.download.is_some() {
+                at += self.take_program(&bytes[at..]);
+                continue;
             }
-            if !answer.is_empty() {
-                self.output.push_back(answer);
+            let end = bytes[at..].iter().position(|b| *b == CR[0]).map_or(bytes.len(), |i| at + i + 1);
+            for line in self.lines.push(&bytes[at..end]) {
+                if let Some(program) = self.answer_line(&line) {
+                    bytes.splice(end..end, program);
+                }
             }
+            at = end;
         }
     }
 
@@ -829,6 +1097,12 @@ impl Emulator for GalilEmulator {
 
     fn axis(&mut self, channel: usize) -> Option<&mut SimAxis> {
         self.axes.get_mut(channel).map(|axis| &mut axis.sim)
+    }
+
+    /// A download the connection was in the middle of is dropped, the program kept.
+    fn handle_closed(&mut self, connection: Connection) {
+        let _ = connection;
+        self.download = None;
     }
 
     /// An off-on-error: the motor is turned off, stop code 8, TS bit 6 until `SH`.
@@ -864,6 +1138,16 @@ mod tests {
 
     fn say(e: &mut GalilEmulator, ms: u64, line: &str) -> String {
         String::from_utf8(say_bytes(e, ms, line)).expect("ASCII")
+    }
+
+    /// Every piece answered to `bytes`, joined.
+    fn send(e: &mut GalilEmulator, ms: u64, bytes: &[u8]) -> String {
+        e.handle_input(at(ms), bytes);
+        let mut reply = Vec::new();
+        while let Some(piece) = e.poll_transmit() {
+            reply.extend(piece);
+        }
+        String::from_utf8(reply).expect("ASCII")
     }
 
     fn record(e: &mut GalilEmulator, ms: u64) -> Vec<u8> {
@@ -1028,8 +1312,113 @@ mod tests {
         assert_eq!(say(&mut e, 0, "TPE"), "?", "four axes");
         assert_eq!(say(&mut e, 0, "SPA=12x"), "?");
         assert_eq!(e.malformed(), 5);
-        assert_eq!(say(&mut e, 0, "TH;SPA=?"), "? 24\r\n:", "known, not carried out");
+        assert_eq!(say(&mut e, 0, "VF 10.4;SPA=?"), "? 24\r\n:", "known, not carried out");
         assert_eq!(e.malformed(), 5);
         assert_eq!(e.name(), "galil");
+    }
+
+    #[test]
+    fn x_y_z_w_name_axes_a_to_d() {
+        let mut e = dmc();
+        assert_eq!(
+            say(&mut e, 0, "SPX=1000;SPY=2000;SP ?,?;SPZ=?;MG _SPW"),
+            ":: 1000, 2000\r\n: 25000\r\n: 25000.0000\r\n:"
+        );
+        assert_eq!(say(&mut e, 0, "SH XW;PRW=-300;BG W"), ":::");
+        assert_eq!(say(&mut e, 1000, "TPW;TPD;TP XY;SCW"), "-300\r\n:-300\r\n: 0, 0\r\n: 1\r\n:");
+        assert_eq!(e.malformed(), 0);
+        let mut two = GalilEmulator::new(2, &stage());
+        assert_eq!(say(&mut two, 0, "TPZ;MG _TPW;SPZ=100;TPY"), "??? 0\r\n:", "Z and W name C and D, not installed");
+    }
+
+    #[test]
+    fn th_lists_the_handles_and_id_the_hardware() {
+        let mut e = dmc();
+        let th = say(&mut e, 0, "TH");
+        let mut expected = String::from(
+            "CONTROLLER IP ADDRESS 127,0,0,1 ETHERNET ADDRESS 00-50-4C-00-30-39\r\n\
+             IHA TCP PORT 23 TO IP ADDRESS 127,0,0,1 PORT 50000\r\n",
+        );
+        for handle in "BCDEFGH".chars() {
+            expected += &format!("IH{handle} AVAILABLE\r\n");
+        }
+        assert_eq!(th, expected + ":");
+        // motorapp's extractEthAddr: the 17 characters after "ETHERNET ADDRESS ".
+        let start = th.find("ETHERNET ADDRESS").unwrap() + "ETHERNET ADDRESS ".len();
+        assert_eq!(&th[start..start + 17], "00-50-4C-00-30-39");
+        assert_eq!(say(&mut e, 0, "ID"), "DMC4040, AXES A-D, NO INTERNAL AMPLIFIER\r\n:");
+        assert_eq!(say(&mut e, 0, "TH 1;TC1"), "?1 Unrecognized command\r\n:");
+        assert_eq!(e.malformed(), 0);
+    }
+
+    #[test]
+    fn tm_is_read_and_dr_streams_nothing() {
+        let mut e = dmc();
+        assert_eq!(say(&mut e, 0, "TM ?;TM?;MG _TM"), " 1000\r\n: 1000\r\n: 1000.0000\r\n:");
+        assert_eq!(say(&mut e, 0, "DR 0;DR 0,0;DR"), ":::");
+        assert_eq!(say(&mut e, 0, "DR 8,0;TC1"), "?1 Unrecognized command\r\n:", "no record is streamed");
+        assert_eq!(say(&mut e, 0, "TM 500;DR 2"), "??");
+        assert_eq!(e.malformed(), 0, "not carried out, not malformed");
+        assert_eq!(say(&mut e, 0, "DR x"), "?");
+        assert_eq!(e.malformed(), 1);
+        assert_eq!(e.poll_transmit(), None, "nothing streamed");
+    }
+
+    #[test]
+    fn a_setting_takes_a_variable_or_an_operand() {
+        let mut e = dmc();
+        assert_eq!(say(&mut e, 0, "nrmdcA=9216;DCA=nrmdcA;DCA=?"), ":: 9216\r\n:");
+        assert_eq!(say(&mut e, 0, "SPB=3000;SPA=_SPB;SPA=?"), ":: 3000\r\n:");
+        assert_eq!(say(&mut e, 0, "SP _SPA*2,,nrmdcA;SP ?,?,?"), ": 6000, 3000, 9216\r\n:");
+        assert_eq!(say(&mut e, 0, "half=_SPA/2;MG half"), ": 3000.0000\r\n:");
+        assert_eq!(e.malformed(), 0);
+        assert_eq!(say(&mut e, 0, "SPA=nosuch;TC1;SPA=_XXA;SPA=?"), "?1 Unrecognized command\r\n:? 6000\r\n:");
+        assert_eq!(say(&mut e, 0, "SPA=_SPB*100000;TC"), "?6\r\n:", "still within range");
+    }
+
+    #[test]
+    fn mg_reads_expressions_left_to_right() {
+        let mut e = dmc();
+        assert_eq!(say(&mut e, 0, "MG (_BGA=0), _BGA=1"), " 1.0000  0.0000\r\n:");
+        assert_eq!(say(&mut e, 0, "DPA=-42;MG _TPA+10, -_TPA*2"), ":-32.0000  84.0000\r\n:");
+        assert_eq!(say(&mut e, 0, "MG 1 + 2 * 3;MG 1 + (2 * 3)"), " 9.0000\r\n: 7.0000\r\n:");
+        assert_eq!(
+            say(&mut e, 0, "MG 7/2, (5&3)|8, 2<=1, 1<>2, 3>=3, 1<2, 2>1"),
+            " 3.5000  9.0000  0.0000  1.0000  1.0000  1.0000  1.0000\r\n:"
+        );
+        assert_eq!(say(&mut e, 1234, "MG TIME;MG (TIME-34)/100"), " 1234.0000\r\n: 12.0000\r\n:");
+        assert_eq!(say(&mut e, 0, "v1=4;MG (v1+_TM/1000)*-1;MG (v1+(_TM/1000))*-1"), ":-1.0040\r\n:-5.0000\r\n:");
+        assert_eq!(e.malformed(), 0);
+        for unreadable in ["MG (1+2", "MG 1+", "MG 1 2", "MG nosuch+1", "MG _TPQ", "MG 1%2", "MG ()"] {
+            assert_eq!(say(&mut e, 0, &format!("{unreadable};TC")), "?1\r\n:", "{unreadable}");
+        }
+        assert_eq!(say(&mut e, 0, "MG 1/0;TC"), "?6\r\n:");
+        let nested = format!("MG {}1{}", "(".repeat(100), ")".repeat(100));
+        assert_eq!(say(&mut e, 0, &nested), "?", "nesting bounded");
+    }
+
+    #[test]
+    fn dl_stores_a_program_that_ul_gives_back() {
+        let mut e = dmc();
+        assert_eq!(say(&mut e, 0, "UL"), "\x1a:", "no program yet");
+        // As motorapp downloads: `DL` CR, then the program with CR line ends and `\`, read `::`.
+        assert_eq!(send(&mut e, 0, b"DL\r"), ":");
+        assert_eq!(send(&mut e, 0, b"#AUTO\rMG \"HI; THERE\"\r"), "", "taken, not answered");
+        assert_eq!(send(&mut e, 0, b"EN\r\\"), ":");
+        assert_eq!(say(&mut e, 0, "UL"), "#AUTO\r\nMG \"HI; THERE\"\r\nEN\r\n\x1a:");
+        assert_eq!(say(&mut e, 0, "XQ;XQ #AUTO,1;HX;HX0;HX7;TPA"), "::::: 0\r\n:", "no program runs");
+        // In one piece, ended by Ctrl-Z, the commands after it answered; the rest of DL's line.
+        assert_eq!(send(&mut e, 0, b"SPA=?;DL;#B\r\nEN\x1aTPA\r"), " 25000\r\n::: 0\r\n:");
+        assert_eq!(say(&mut e, 0, "UL"), "#B\r\nEN\r\n\x1a:");
+        assert_eq!(e.malformed(), 0);
+        let too_long = format!("DL\r{}\\", "X".repeat(81));
+        assert_eq!(send(&mut e, 0, too_long.as_bytes()), ":?");
+        assert_eq!(say(&mut e, 0, "TC;UL"), "6\r\n:#B\r\nEN\r\n\x1a:", "kept");
+        assert_eq!(send(&mut e, 0, b"DL\r#C\r"), ":");
+        e.handle_closed(0);
+        assert_eq!(say(&mut e, 0, "TPA"), " 0\r\n:", "a closed connection ends the download");
+        let flood = vec![b'Y'; PROGRAM_BYTES + 10];
+        assert_eq!(send(&mut e, 0, b"DL\r") + &send(&mut e, 0, &flood) + &send(&mut e, 0, b"\\"), ":?");
+        assert_eq!(say(&mut e, 0, "UL"), "#B\r\nEN\r\n\x1a:");
     }
 }
