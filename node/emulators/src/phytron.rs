@@ -6,33 +6,56 @@
 //! Phytron's phyMOTION communication / phyLOGIC command reference is the authority; its text
 //! was not in the reference stores searched for this emulator, so what follows is taken from
 //! what that manual is known to define (telegram layout, checksum, ACK/NAK, the `M.A` axis
-//! commands, the parameters P01…P54, the `SE` status bits), checked byte for byte against the
+//! commands, the parameters P01…P58, the `SE` status bits), checked byte for byte against the
 //! second witness, the EPICS driver epics-motor/motorPhytron (`phytronAxisMotor.cpp`:
 //! `sendPhytronCommand` for the framing and checksum, the poll for `SE`, `P20R`, `P22R`,
-//! `==H`, the status masks 0xE800 / 0x1208, `IM0`, `ST`, `STC`, `CR`, `SEC`, `C`). Where the two
-//! are silent the reading taken is said below.
+//! `==H`, the status masks 0xE800 / 0x1208, `IM0`, `ST`, `STC`, `CR`, `SEC`, `C`, the reference
+//! runs of `home`). Other real clients add what they send: the MBI-Div-B pytango PhyMotion
+//! server (`PhyMotionAxis.py`: `1.1SE 1.1P20R` with no `M` and a leading space, `P14S4000`
+//! writes, `R+` / `R-`, `SN`, `SA`, `SEC`, `P01R`…`P58R` in one telegram), TUM's
+//! phytron-phyMotion (`M1.1P14=4000`), and PhytronShell (commands as typed). Where these are
+//! silent the reading taken is said below.
 //!
 //! # Telegrams
 //! A request is `STX <address> <commands> ':' <checksum> ETX`. The address is one hex digit
 //! (`0`…`F`, the EPICS driver's `%X`); this controller is `0`. The checksum is the XOR of every
 //! byte from the address up to and including the `:`, written as two uppercase hex digits; `XX`
 //! in its place means "do not check" and is taken. Several commands go in one telegram,
-//! separated by one space each; the reply is one telegram `STX <answers> ':' <checksum> ETX`
+//! separated by spaces; the reply is one telegram `STX <answers> ':' <checksum> ETX`
 //! without address: for each command an ACK (0x06) or NAK (0x15), followed by its data, the
 //! checksum being the XOR of the bytes from the first ACK/NAK up to and including the `:`.
 //!
 //! # Commands
+//! An axis command is `M<m.a><order>` or, the `M` left out, `<m.a><order>` (the MBI server's
+//! `1.1P20R`); both are taken everywhere below.
 //! - `M<m.a>A<n>`, `M<m.a>+<n>`, `M<m.a>-<n>`: absolute and relative moves at the run frequency
 //!   P14 from the start/stop frequency P04 with the ramp P15;
 //! - `M<m.a>L+` / `L-`: runs until stopped or a limit switch (free run);
 //! - `M<m.a>R+C` / `R-C`: the reference run to the center switch at P08 with the ramp P09 (P10 is
 //!   the frequency off the switch); the counters are 0 there and the axis initialised;
+//! - `M<m.a>R+` / `R-` (motorPhytron's limit homing, the MBI server's `homing_plus` /
+//!   `homing_minus`): the reference run to the limit switch + / − at P08 with the ramp P09 (P10
+//!   as above). It ends on the switch: the counters are 0 there, the axis initialised (bit 3) and,
+//!   as for any run that ends on a limit switch, the limit-switch error (bit 12) set, the power
+//!   stage still ready (bit 9): the 0x1208 that motorPhytron's poll, masking with 0xFA29 (+) or
+//!   0xFA19 (−), waits for before it sends `SEC`, which clears bit 12 (bit 3 stays). Stopped
+//!   before the switch, it initialises nothing. The offsets P11 / P12 are kept, not travelled.
+//! - the other reference runs motorPhytron sends, `R+I` / `R-I` (to the encoder's index), `R+^I` /
+//!   `R-^I` (limit switch, then the index), `R+C^I` / `R-C^I` (center switch, then the index),
+//!   `RC+` / `RC-` and `RC+^I` / `RC-^I` (the center of a rotary axis, then the index): each is
+//!   taken as `R+C` / `R-C`, the simulation having one reference mark (its home switch), which
+//!   stands for the index as well;
 //! - `M<m.a>S`: stops with the ramp P15; `M<m.a>C`: axis reset (stops with the emergency ramp
-//!   P07, errors cleared);
+//!   P07, errors cleared); `M<m.a>SN` (the MBI server's `abort`): stops with P07, errors kept;
+//! - `M<m.a>SA` (the MBI server's `write_to_eeprom`) and a bare `SA`: acknowledged, no effect:
+//!   this controller has no EEPROM, its parameters last until `CR`;
 //! - `M<m.a>MA` / `MD`: power stage on / off (off while running: stop with P07);
-//! - `M<m.a>P<n>R`, `M<m.a>P<n>=<value>`: parameters 1–54 (`P1` ≡ `P01`);
+//! - `M<m.a>P<n>R`, `M<m.a>P<n>=<value>`, `M<m.a>P<n>S<value>`: parameters 1–58 (`P1` ≡ `P01`),
+//!   written with `=` (motorPhytron, TUM) or `S` (the MBI server's `P14S4000`, `P20S12.5`);
+//!   P55…P58 are kept as plain values;
 //! - `M<m.a>==H`: `E` at standstill, `N` running;
-//! - `SE<m.a>`: the extended axis status (decimal); `SEC<m.a>`: clears its error bits;
+//! - `SE<m.a>` or `M<m.a>SE`: the extended axis status (decimal); `SEC<m.a>` or `M<m.a>SEC` (the
+//!   MBI server's `1.1SEC`): clears its error bits;
 //! - `IVR`: the firmware version; `IM0`: the main module's type, `MCM01`;
 //! - `ST`: the controller status (decimal), `STC` clears it, `CR` resets the controller, a bare
 //!   `S` is acknowledged (read as the stop of every axis: see `answer`).
@@ -51,6 +74,10 @@
 //! | 19 | axis in position |
 //!
 //! # Readings taken
+//! - Spaces only separate: several in a row, or before the first command or after the last (the
+//!   MBI server's ` 1.1SE 1.1P20R`, a command typed in PhytronShell), leave empty fields that are
+//!   no commands, ignored, neither answered nor malformed, so that each command gets exactly one
+//!   answer. A telegram of spaces only carries no command: it is broken (one NAK).
 //! - Unknown commands are answered NAK in their place of the reply, the other commands of the
 //!   telegram still carried out; they count as malformed (the driver's fault). So do a telegram
 //!   whose checksum is wrong or missing (answered by one NAK) and noise outside STX … ETX (no
@@ -90,11 +117,15 @@ const INPUT_LIMIT: usize = 1000;
 /// Axes on each emulated module.
 const AXES_PER_MODULE: usize = 2;
 /// The highest parameter number.
-const LAST_PARAMETER: u32 = 54;
+const LAST_PARAMETER: u32 = 58;
 /// Parameters that are measured, never written.
 const MEASURED: [u32; 4] = [21, 22, 49, 54];
 /// The answer to `IVR`.
 const VERSION: &str = "MCM01 emulated";
+/// The reference runs taken as the run to the center switch (`R+C` / `R-C`): the direction is
+/// the sign's.
+const REFERENCES: [&str; 12] =
+    ["R+C", "R-C", "R+I", "R-I", "R+^I", "R-^I", "R+C^I", "R-C^I", "RC+", "RC-", "RC+^I", "RC-^I"];
 
 /// The `SE` bits this emulator sets.
 mod bit {
@@ -155,7 +186,8 @@ fn telegram(content: &[u8]) -> Telegram<'_> {
     }
     let address = checked[0];
     let body = &checked[1..checked.len() - 1];
-    if !address.is_ascii_hexdigit() || !body.iter().all(|b| (0x20..0x7F).contains(b)) {
+    let no_command = body.iter().all(|b| *b == b' ');
+    if !address.is_ascii_hexdigit() || no_command || !body.iter().all(|b| (0x20..0x7F).contains(b)) {
         return Telegram::Broken;
     }
     if address.to_ascii_uppercase() != OWN_ADDRESS {
@@ -254,6 +286,11 @@ struct Axis {
     power_error: bool,
     limit_error: bool,
     was_running: bool,
+    /// A reference run to a limit switch (`R+`: true, `R-`: false) under way.
+    limit_reference: Option<bool>,
+    /// A reference run to a limit switch has ended on it (the simulation's own HOMED stands for
+    /// the other reference runs).
+    initialised: bool,
 }
 
 impl Axis {
@@ -267,6 +304,8 @@ impl Axis {
             power_error: false,
             limit_error: false,
             was_running: false,
+            limit_reference: None,
+            initialised: false,
         }
     }
 
@@ -274,12 +313,22 @@ impl Axis {
         self.parameters.get(&number).copied().unwrap_or(0.0)
     }
 
-    /// A run that ended on a limit switch leaves the limit-switch error.
+    /// A run that ended on a limit switch leaves the limit-switch error; a reference run to a
+    /// limit switch that ended on it initialises the axis, the counters 0 there.
     fn watch(&mut self) {
         let running = self.sim.is_moving();
-        let on_limit = self.sim.status().msta & (msta::PLUS_LS | msta::MINUS_LS) != 0;
-        if self.was_running && !running && on_limit {
-            self.limit_error = true;
+        let limits = self.sim.status().msta;
+        if self.was_running && !running {
+            if limits & (msta::PLUS_LS | msta::MINUS_LS) != 0 {
+                self.limit_error = true;
+            }
+            if let Some(plus) = self.limit_reference.take() {
+                let switch = if plus { msta::PLUS_LS } else { msta::MINUS_LS };
+                if limits & switch != 0 {
+                    self.initialised = true;
+                    self.sim.set_position(0.0);
+                }
+            }
         }
         self.was_running = running;
     }
@@ -290,7 +339,7 @@ impl Axis {
         [
             (running, bit::BUSY | bit::RUNNING),
             (!running, bit::IN_POSITION),
-            (status.msta & msta::HOMED != 0, bit::INITIALISED),
+            (status.msta & msta::HOMED != 0 || self.initialised, bit::INITIALISED),
             (status.msta & msta::PLUS_LS != 0, bit::PLUS_LIMIT),
             (status.msta & msta::MINUS_LS != 0, bit::MINUS_LIMIT),
             (self.sim.on_home_switch(), bit::CENTER),
@@ -322,6 +371,13 @@ impl Axis {
     }
 
     fn carry_out(&mut self, order: &str) -> Answer {
+        let reference = REFERENCES.contains(&order);
+        if matches!(order, "L+" | "L-" | "R+" | "R-") || reference {
+            if !self.may_run() {
+                return Answer::Refused;
+            }
+            self.limit_reference = None;
+        }
         match order {
             "==H" => return Answer::Ack(if self.sim.is_moving() { "N" } else { "E" }.into()),
             "MA" => self.power = true,
@@ -330,14 +386,22 @@ impl Axis {
                 self.sim.stop(self.p(7));
             }
             "S" => self.sim.stop(self.p(15)),
+            "SN" => self.sim.stop(self.p(7)),
+            // No EEPROM: the parameters last until `CR` anyway.
+            "SA" => {}
             "C" => {
                 self.sim.stop(self.p(7));
                 self.clear_errors();
             }
-            "L+" | "L-" | "R+C" | "R-C" if !self.may_run() => return Answer::Refused,
             "L+" => self.sim.move_velocity(self.p(4), self.p(14), self.p(15)),
             "L-" => self.sim.move_velocity(self.p(4), -self.p(14), self.p(15)),
-            "R+C" | "R-C" => self.sim.home(order == "R+C", self.p(10), self.p(8), self.p(9)),
+            "R+" | "R-" => {
+                let plus = order == "R+";
+                let frequency = if plus { self.p(8) } else { -self.p(8) };
+                self.sim.move_velocity(self.p(10), frequency, self.p(9));
+                self.limit_reference = Some(plus);
+            }
+            _ if reference => self.sim.home(order.contains('+'), self.p(10), self.p(8), self.p(9)),
             _ => return self.other(order),
         }
         done()
@@ -358,11 +422,12 @@ impl Axis {
         if !self.may_run() {
             return Answer::Refused;
         }
+        self.limit_reference = None;
         self.sim.move_to(target, relative, self.p(4), self.p(14), self.p(15));
         done()
     }
 
-    /// `P<n>R` or `P<n>=<value>`, after the `P`.
+    /// `P<n>R`, `P<n>=<value>` or `P<n>S<value>`, after the `P`.
     fn parameter(&mut self, text: &str) -> Answer {
         let digits = text.bytes().take_while(u8::is_ascii_digit).count();
         let number = match text[..digits].parse::<u32>() {
@@ -371,7 +436,7 @@ impl Axis {
         };
         match &text[digits..] {
             "R" => Answer::Ack(printed(self.read(number))),
-            rest => match rest.strip_prefix('=').and_then(|v| decimal(v, true)) {
+            rest => match rest.strip_prefix(['=', 'S']).and_then(|v| decimal(v, true)) {
                 Some(value) => self.write(number, value),
                 None => Answer::Unknown,
             },
@@ -447,6 +512,8 @@ impl PhymotionEmulator {
             "IM0" => return Answer::Ack("MCM01".into()),
             "ST" => return Answer::Ack("0".into()),
             "STC" => return done(),
+            // The parameters to EEPROM: there is none here (see `Axis::carry_out`).
+            "SA" => return done(),
             // A bare `S`: the EPICS driver sends it after `CR` until it is acknowledged, so the
             // controller acknowledges it once it is back. Read as the controller-level stop (an
             // axis's own is `M<m.a>S`): every axis stops; after a reset none moves anyway.
@@ -477,7 +544,7 @@ impl PhymotionEmulator {
                 _ => return Answer::Unknown,
             }
         } else {
-            match command.strip_prefix('M').and_then(axis_address) {
+            match axis_address(command.strip_prefix('M').unwrap_or(command)) {
                 Some(found) => found,
                 None => return Answer::Unknown,
             }
@@ -507,7 +574,7 @@ impl PhymotionEmulator {
             }
         };
         let mut answers = Vec::new();
-        for command in commands.split(' ') {
+        for command in commands.split(' ').filter(|c| !c.is_empty()) {
             match self.answer(command) {
                 Answer::Ack(data) => {
                     answers.push(ACK);
@@ -742,6 +809,104 @@ mod tests {
         ask(&mut e, 0.0, "M1.1P14=123 M1.1MD");
         assert_eq!(ask(&mut e, 0.0, "CR M1.1P14R"), ["", "4000"]);
         assert_ne!(word(&mut e, 0.0, "1.1") & bit::POWER_READY, 0);
+    }
+
+    #[test]
+    fn the_module_prefix_may_be_left_out_and_se_may_follow_the_axis() {
+        let mut e = emulator();
+        let replies = ask(&mut e, 0.0, "1.1P20R 1.1SE M1.1SE 1.2SEC M1.2SEC 3.1SE 1.1A100");
+        assert_eq!(replies, ["0", "524864", "524864", "", "", "NAK", ""], "3.1: an axis it lacks");
+        assert_eq!(ask(&mut e, 1.0, "1.1==H 1.1P20R"), ["E", "100"]);
+        assert_eq!(ask(&mut e, 1.0, "1.1 .1P20R M.1P20R"), ["NAK", "NAK", "NAK"]);
+        assert_eq!(e.malformed(), 3);
+    }
+
+    #[test]
+    fn parameters_are_written_with_s_as_with_equals() {
+        let mut e = emulator();
+        let replies = ask(&mut e, 0.0, "M1.1P14S1234 M1.1P14R 1.1P20S12 M1.1P20R M1.1P03S0.5 M1.1P03R");
+        assert_eq!(replies, ["", "1234", "", "12", "", "0.5"]);
+        assert_eq!(ask(&mut e, 0.0, "M1.1P15S-5 M1.1P21S3 M1.1P14R"), ["NAK", "NAK", "1234"], "refused alike");
+        assert_eq!(ask(&mut e, 0.0, "M1.1P14S M1.1P14Sx M1.1P14S=5"), ["NAK", "NAK", "NAK"]);
+        assert_eq!(e.malformed(), 3);
+    }
+
+    #[test]
+    fn parameters_run_to_p58_the_last_four_plain_values() {
+        let mut e = emulator();
+        assert_eq!(ask(&mut e, 0.0, "M1.1P55R M1.1P58R M1.1P59R"), ["0", "0", "NAK"]);
+        assert_eq!(e.malformed(), 1);
+        let replies = ask(&mut e, 0.0, "M1.1P55=7.25 M1.1P58S-3 M1.1P55R M1.1P58R M1.2P55R");
+        assert_eq!(replies, ["", "", "7.25", "-3", "0"]);
+        let all: Vec<String> = (1..=58).map(|n| format!("1.1P{n:02}R")).collect();
+        let replies = ask(&mut e, 0.0, &format!(" {}", all.join(" ")));
+        assert_eq!(replies.len(), 58, "the MBI server's read of every parameter");
+        assert!(replies.iter().all(|r| r != "NAK"));
+        assert_eq!(e.malformed(), 1);
+    }
+
+    #[test]
+    fn a_reference_run_to_a_limit_switch_ends_there_initialised_with_the_error_motorphytron_clears() {
+        let mut e = emulator();
+        ask(&mut e, 0.0, "SEC1.1 M1.1P08=500000 M1.1P09=500000 M1.1P20=7 M1.1R+");
+        assert_eq!(word(&mut e, 0.5, "1.1") & (bit::BUSY | bit::INITIALISED), bit::BUSY);
+        let replies = ask(&mut e, 5.0, "SE1.1 M1.1P20R M1.1P22R");
+        let w: u32 = replies[0].parse().unwrap();
+        assert_eq!(w & 0xFA29, 0x1208, "motorPhytron's mask after a limit homing +");
+        assert_ne!(w & bit::PLUS_LIMIT, 0, "on the switch");
+        assert_eq!(replies[1..], ["0", "0"], "the counters are 0 there");
+        ask(&mut e, 5.0, "SEC1.1");
+        assert_eq!(word(&mut e, 5.0, "1.1") & 0xFA29, 0x0208, "SEC clears the error, the axis stays initialised");
+        ask(&mut e, 5.0, "1.1R-");
+        let w = word(&mut e, 10.0, "1.1");
+        assert_eq!(w & 0xFA19, 0x1208, "motorPhytron's mask after a limit homing −");
+        assert_eq!(ask(&mut e, 10.0, "M1.1P20R"), ["0"]);
+        // Stopped before the switch: nothing initialised.
+        ask(&mut e, 10.0, "M1.2R+");
+        ask(&mut e, 10.1, "M1.2S");
+        let w = word(&mut e, 12.0, "1.2");
+        assert_eq!(w & (bit::BUSY | bit::INITIALISED | bit::PLUS_LIMIT | bit::LIMIT_ERROR), 0);
+        assert_ne!(ask(&mut e, 12.0, "M1.2P20R"), ["0"]);
+        assert_eq!(ask(&mut e, 12.0, "M1.2MD M1.2R+ M1.2R-"), ["", "NAK", "NAK"], "no power stage, no run");
+        assert_eq!(e.malformed(), 0);
+    }
+
+    #[test]
+    fn every_reference_run_motorphytron_sends_is_taken_as_the_run_to_the_center_switch() {
+        let mut e = emulator();
+        ask(&mut e, 0.0, "M2.1P14=100000 M2.1P15=1000000 M2.1P08=100000 M2.1P09=1000000");
+        for (i, order) in REFERENCES.iter().enumerate() {
+            let t = 2.0 * i as f64;
+            ask(&mut e, t, "M2.1A5000");
+            assert_eq!(ask(&mut e, t + 1.0, &format!("M2.1P20=7 M2.1{order}")), ["", ""], "{order}");
+            let replies = ask(&mut e, t + 2.0, "SE2.1 M2.1P20R");
+            let w: u32 = replies[0].parse().unwrap();
+            assert_eq!(w & (bit::BUSY | bit::INITIALISED | bit::CENTER), bit::INITIALISED | bit::CENTER, "{order}");
+            assert_eq!(replies[1], "0", "{order}");
+        }
+        assert_eq!(e.malformed(), 0);
+    }
+
+    #[test]
+    fn sn_stops_with_the_emergency_ramp_and_sa_does_nothing() {
+        let mut e = emulator();
+        ask(&mut e, 0.0, "M1.1P14=1000 M1.1P07=1000 M1.1L+");
+        assert_eq!(ask(&mut e, 1.0, "1.1SN M1.1==H"), ["", "N"]);
+        assert_eq!(ask(&mut e, 1.5, "M1.1==H"), ["N"], "P07: a second to stop from 1000 Hz, P15 a quarter");
+        assert_eq!(ask(&mut e, 2.5, "M1.1==H"), ["E"]);
+        assert_eq!(ask(&mut e, 2.5, "SA M1.1SA 1.2SA M1.1P14R"), ["", "", "", "1000"], "no EEPROM: nothing happens");
+        assert_eq!(ask(&mut e, 2.5, "M3.1SN M3.1SA"), ["NAK", "NAK"], "an axis it lacks");
+        assert_eq!(e.malformed(), 0);
+    }
+
+    #[test]
+    fn empty_fields_between_spaces_are_no_commands() {
+        let mut e = emulator();
+        assert_eq!(ask(&mut e, 0.0, " 1.1SE  M1.1P20R   SE1.2 "), ["524864", "0", "524864"]);
+        assert_eq!(ask(&mut e, 0.0, "M1.1P20R "), ["0"]);
+        assert_eq!(e.malformed(), 0);
+        assert_eq!(ask(&mut e, 0.0, "   "), ["NAK"], "no command at all: broken");
+        assert_eq!(e.malformed(), 1);
     }
 
     #[test]
