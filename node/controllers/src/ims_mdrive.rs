@@ -49,7 +49,7 @@
 
 use crate::protocol::{
     line_frame, line_text, set_bit, state_of, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
-    ReplyEvent, Request, VendorError,
+    ReplyEvent, Request, UnitIdentities, VendorError,
 };
 use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
@@ -156,11 +156,8 @@ struct Motor {
 #[derive(Debug, Default)]
 pub(crate) struct Mdrive {
     motors: Vec<(usize, Motor)>,
-    /// Each motor's firmware (`PR VR`) as the initialisation read it: asked again, in turn, to
-    /// find the replies again after a failure (`sync`).
-    identities: Vec<(usize, String)>,
-    /// The motor the last `sync` asked.
-    synced_with: usize,
+    /// Each motor's firmware (`PR VR`) as the initialisation read it (`sync`).
+    identities: UnitIdentities,
 }
 
 impl Mdrive {
@@ -371,17 +368,14 @@ impl Protocol for Mdrive {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        let next = self.identities.iter().position(|(c, _)| *c > self.synced_with).unwrap_or(0);
-        let channel = self.identities.get(next)?.0;
-        self.synced_with = channel;
+        let channel = self.identities.next()?;
         Some(Request::query(line(channel, "PR VR"), Step::Version { channel }))
     }
 
     /// The firmware, "3.010", as the motor asked answered at connection: no other reply has a
     /// decimal point (positions, speeds and flags are whole numbers).
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        let text = line_text(frame, INPUT_TERMINATOR);
-        self.identities.iter().any(|(c, id)| *c == self.synced_with && id == text.trim())
+        self.identities.is_answer(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -444,9 +438,7 @@ impl Protocol for Mdrive {
         let number = || text.parse::<f64>().ok().filter(|v| v.is_finite()).ok_or_else(|| error("not a number"));
         match request.step {
             Step::Version { channel } if !text.is_empty() => {
-                self.identities.retain(|(c, _)| *c != channel);
-                self.identities.push((channel, text.to_string()));
-                self.identities.sort();
+                self.identities.read(channel, text);
                 Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MDrive {channel}: firmware {text}")))])
             }
             Step::Version { .. } => Err(error("no firmware version")),

@@ -34,7 +34,7 @@
 
 use crate::protocol::{
     line_frame, line_text, state_of, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
-    ReplyEvent, Request, VendorError,
+    ReplyEvent, Request, UnitIdentities, VendorError,
 };
 use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
@@ -87,11 +87,8 @@ struct Axis {
 #[derive(Debug, Default)]
 pub(crate) struct Pm304 {
     axes: Vec<(usize, Axis)>,
-    /// Each unit's identity as the initialisation read it: asked again, in turn, to find the
-    /// replies again after a failure (`sync`).
-    identities: Vec<(usize, String)>,
-    /// The unit the last `sync` asked.
-    synced_with: usize,
+    /// Each unit's identity as the initialisation read it (`sync`).
+    identities: UnitIdentities,
 }
 
 impl Pm304 {
@@ -146,16 +143,13 @@ impl Protocol for Pm304 {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        let next = self.identities.iter().position(|(c, _)| *c > self.synced_with).unwrap_or(0);
-        let channel = self.identities.get(next)?.0;
-        self.synced_with = channel;
+        let channel = self.identities.next()?;
         Some(Request::query(line(channel, "ID"), Step::Identity { channel }))
     }
 
     /// "Mclennan Servo Supplies Ltd. PM304 V6.15", as the unit asked answered at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        let text = line_text(frame, INPUT_TERMINATOR);
-        self.identities.iter().any(|(c, id)| *c == self.synced_with && id == text.trim())
+        self.identities.is_answer(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -232,9 +226,7 @@ impl Protocol for Pm304 {
         }
         match request.step {
             Step::Identity { channel } => {
-                self.identities.retain(|(c, _)| *c != channel);
-                self.identities.push((channel, text.to_string()));
-                self.identities.sort();
+                self.identities.read(channel, text);
                 Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
             }
             Step::Status { channel } => {

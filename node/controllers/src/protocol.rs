@@ -389,6 +389,42 @@ pub(crate) fn whole_steps(what: &'static str, steps: f64) -> Result<i32, Command
     }
 }
 
+/// The identities of the units on one line (each unit's answer to its identity query at
+/// connection), asked again in turn to find the replies again after a failure (`Protocol::sync`):
+/// a unit gone silent must not take the line down.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct UnitIdentities {
+    identities: Vec<(usize, String)>,
+    /// The unit the last sync asked.
+    asked: usize,
+}
+
+impl UnitIdentities {
+    /// Forget them: a new connection reads them afresh.
+    pub(crate) fn clear(&mut self) {
+        self.identities.clear();
+    }
+
+    /// `unit` answered `identity`.
+    pub(crate) fn read(&mut self, unit: usize, identity: &str) {
+        self.identities.retain(|(u, _)| *u != unit);
+        self.identities.push((unit, identity.to_string()));
+        self.identities.sort();
+    }
+
+    /// The unit to ask next, after the one asked last; none before any identity is known.
+    pub(crate) fn next(&mut self) -> Option<usize> {
+        let next = self.identities.iter().position(|(u, _)| *u > self.asked).unwrap_or(0);
+        self.asked = self.identities.get(next)?.0;
+        Some(self.asked)
+    }
+
+    /// Whether `text` is the identity of the unit asked last.
+    pub(crate) fn is_answer(&self, text: &str) -> bool {
+        self.identities.iter().any(|(u, id)| *u == self.asked && id == text)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
