@@ -266,9 +266,8 @@ pub struct FollowJointTrajectory {
     goals: VecDeque<Goal>,
     plan: Option<Plan>,
     status_changed: bool,
-    /// Speeds ended goals restore, by axis (VELO before them), until VELO is seen back at it:
-    /// a goal accepted meanwhile restores that speed, not the last segment's (nor the one the
-    /// record made of it, within VBAS and VMAX).
+    /// Speeds ended goals restore, by axis (VELO before them), until the restore's write has
+    /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last segment's.
     restoring: Vec<(String, f64)>,
 }
 
@@ -276,9 +275,9 @@ fn stamp(now: Duration) -> Time {
     Time { sec: i32::try_from(now.as_secs()).unwrap_or(i32::MAX), nanosec: now.subsec_nanos() }
 }
 
-/// How far a goal's stamp may be from this host's clock and still be taken as of the same
-/// clock: further, it is simulated time (or a clock badly off), and the goal starts now.
-const SAME_CLOCK: Duration = Duration::from_secs(3600);
+/// A goal stamped before this (2001-09-09) is of another clock than this host's: simulated
+/// time, counted from the simulation's start; it starts now.
+const WALL_CLOCK_SINCE: Duration = Duration::from_secs(1_000_000_000);
 
 fn since_epoch(time: Time) -> Option<Duration> {
     let sec = u64::try_from(time.sec).ok()?;
@@ -325,9 +324,10 @@ impl FollowJointTrajectory {
         Ok(())
     }
 
-    /// `axis`'s VELO was posted: a restore it shows is done.
-    pub fn speed_posted(&mut self, axis: &str, velo: f64) {
-        self.restoring.retain(|(restored, before)| !(restored == axis && *before == velo));
+    /// The write restoring `axis`'s speed has ended (taken or not): from now on its VELO, as
+    /// posted, is the speed a goal restores.
+    pub fn restored(&mut self, axis: &str) {
+        self.restoring.retain(|(restoring, _)| restoring != axis);
     }
 
     /// Whether a goal is executing (or stopping).
@@ -602,9 +602,8 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
         }
         points.push((at, targets));
     }
-    // A zero stamp is "start now"; so is one of another clock than this host's (simulated
-    // time, a clock hours off), as before joint_trajectory_controller's check could judge it.
-    let stamp = since_epoch(trajectory.header.stamp).filter(|at| !at.is_zero() && at.abs_diff(now) < SAME_CLOCK);
+    // A zero stamp is "start now"; so is one of simulated time.
+    let stamp = since_epoch(trajectory.header.stamp).filter(|at| *at >= WALL_CLOCK_SINCE);
     if stamp.is_some_and(|start| start + previous < now) {
         return Err(GoalRejection::EndsInThePast);
     }
@@ -747,8 +746,8 @@ mod tests {
         states.update("m1", Field::RBV, 0.0, at(4001));
         let end = server.poll(&states, at(4001));
         assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
-        // Seen restored, the user's own VELO is what the next goal restores.
-        server.speed_posted("m1", 1.0);
+        // Once the restore's write has ended, the axis's own VELO is what the next goal restores.
+        server.restored("m1");
         states.update("m1", Field::VELO, 2.0, at(5000));
         request.goal_id = [3; 16];
         request.goal.trajectory.points[0].positions = vec![0.010];

@@ -102,6 +102,8 @@ enum Event {
     Request(Service, Query),
     /// A trajectory move ended.
     MoveEnded { axis: String, end: MoveEnd },
+    /// The write restoring an axis's speed after a goal ended (taken or not).
+    Restored { axis: String },
 }
 
 /// A publisher as rmw_zenoh makes one: advanced (a cache of `depth` for transient local), each
@@ -393,6 +395,9 @@ struct Driver {
 struct Lane {
     /// Stops asked so far.
     stops: Arc<AtomicU64>,
+    /// The newest joint command's target not yet written: older ones are never written after
+    /// it (a controller streams them faster than an axis may take them).
+    joint_target: Arc<std::sync::Mutex<Option<f64>>>,
     jobs: UnboundedSender<Job>,
 }
 
@@ -401,61 +406,104 @@ enum Job {
     /// A trajectory segment: VELO (taken before VAL goes), then VAL, its end reported. Not
     /// sent if a stop was asked after it (`stops` counted when it was).
     Move { target: f64, speed: Option<f64>, duration: Duration, stops: u64 },
-    /// A confirmed write whose refusal is only logged (STOP, a speed restored, a joint command).
+    /// A confirmed write whose refusal is only logged (STOP).
     Write { field: Field, value: String },
+    /// VELO restored after a goal; its end reported (`Event::Restored`).
+    Restore { speed: f64 },
+    /// VAL to the newest joint command's target (`Lane::joint_target`), if not written yet.
+    JointTarget,
 }
 
 impl Lane {
     fn new(client: Client, axis: String, events: UnboundedSender<Event>) -> Self {
         let (jobs, queue) = unbounded_channel();
-        let stops = Arc::new(AtomicU64::new(0));
-        tokio::spawn(send_lane(client, axis, stops.clone(), queue, events));
-        Self { stops, jobs }
+        let (stops, joint_target) = (Arc::new(AtomicU64::new(0)), Arc::default());
+        let worker = LaneWorker { client, axis, stops: stops.clone(), joint_target: Arc::clone(&joint_target), events };
+        tokio::spawn(worker.run(queue));
+        Self { stops, joint_target, jobs }
+    }
+
+    /// Write `target` as the axis's joint command, unless a newer one comes first.
+    fn joint_target(&self, target: f64) {
+        let mut slot = self.joint_target.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
+        if slot.replace(target).is_none() {
+            let _ = self.jobs.send(Job::JointTarget);
+        }
     }
 }
 
-/// Send a lane's writes in turn until the driver goes.
-async fn send_lane(
+/// What a lane's task holds.
+struct LaneWorker {
     client: Client,
     axis: String,
     stops: Arc<AtomicU64>,
-    mut jobs: UnboundedReceiver<Job>,
+    joint_target: Arc<std::sync::Mutex<Option<f64>>>,
     events: UnboundedSender<Event>,
-) {
-    while let Some(job) = jobs.recv().await {
-        match job {
-            Job::Write { field, value } => {
-                let sent = client.write(&axis, field, value, WriteOptions::confirmed(PATIENCE)).await;
-                let axis = axis.clone();
-                tokio::spawn(async move {
-                    match sent {
-                        Ok(sent) => match sent.outcome().await {
-                            WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                            other => tracing::warn!(axis, "{field}: {other}"),
-                        },
-                        Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
-                    }
-                });
+}
+
+impl LaneWorker {
+    /// Whether the driver that asks for writes is still there (it holds the other count of
+    /// `stops`): once the ROS face is gone, nothing queued is sent.
+    fn driven(&self) -> bool {
+        Arc::strong_count(&self.stops) > 1
+    }
+
+    /// Send a confirmed write; its answer is awaited apart, and `then` told when it came.
+    async fn write(&self, field: Field, value: String, then: Option<Event>) {
+        let sent = self.client.write(&self.axis, field, value, WriteOptions::confirmed(PATIENCE)).await;
+        let (axis, events) = (self.axis.clone(), self.events.clone());
+        tokio::spawn(async move {
+            match sent {
+                Ok(sent) => match sent.outcome().await {
+                    WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
+                    other => tracing::warn!(axis, "{field}: {other}"),
+                },
+                Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
             }
-            Job::Move { target, speed, duration, stops: asked } => {
-                let started =
-                    start_move(&client, &axis, target, speed, duration, || stops.load(Ordering::SeqCst) == asked);
-                let (axis, events) = (axis.clone(), events.clone());
-                match started.await {
-                    Ok(sent) => {
-                        tokio::spawn(async move {
-                            let end = match sent.outcome().await {
-                                WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
-                                WriteOutcome::Completed(done) => {
-                                    MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv))
-                                }
-                                other => MoveEnd::Failed(format!("VAL {target}: {other}")),
-                            };
-                            let _ = events.send(Event::MoveEnded { axis, end });
-                        });
+            if let Some(event) = then {
+                let _ = events.send(event);
+            }
+        });
+    }
+
+    /// Send the lane's writes in turn until the driver goes.
+    async fn run(self, mut jobs: UnboundedReceiver<Job>) {
+        while let Some(job) = jobs.recv().await {
+            if !self.driven() {
+                return;
+            }
+            match job {
+                Job::Write { field, value } => self.write(field, value, None).await,
+                Job::Restore { speed } => {
+                    let restored = Event::Restored { axis: self.axis.clone() };
+                    self.write(Field::VELO, speed.to_string(), Some(restored)).await;
+                }
+                Job::JointTarget => {
+                    let target = self.joint_target.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take();
+                    if let Some(target) = target {
+                        self.write(Field::VAL, target.to_string(), None).await;
                     }
-                    Err(end) => {
-                        let _ = events.send(Event::MoveEnded { axis, end });
+                }
+                Job::Move { target, speed, duration, stops: asked } => {
+                    let still_wanted = || self.driven() && self.stops.load(Ordering::SeqCst) == asked;
+                    let started = start_move(&self.client, &self.axis, target, speed, duration, still_wanted);
+                    let (axis, events) = (self.axis.clone(), self.events.clone());
+                    match started.await {
+                        Ok(sent) => {
+                            tokio::spawn(async move {
+                                let end = match sent.outcome().await {
+                                    WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
+                                    WriteOutcome::Completed(done) => {
+                                        MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv))
+                                    }
+                                    other => MoveEnd::Failed(format!("VAL {target}: {other}")),
+                                };
+                                let _ = events.send(Event::MoveEnded { axis, end });
+                            });
+                        }
+                        Err(end) => {
+                            let _ = events.send(Event::MoveEnded { axis, end });
+                        }
                     }
                 }
             }
@@ -493,10 +541,8 @@ impl Driver {
 
     async fn handle(&mut self, event: Event) {
         match event {
+            Event::Restored { axis } => self.follow.restored(&axis),
             Event::Posted { axis, field, value, at } => {
-                if field == Field::VELO {
-                    self.follow.speed_posted(&axis, value);
-                }
                 self.states.update(&axis, field, value, at);
                 self.posted.insert((axis, field));
             }
@@ -527,7 +573,7 @@ impl Driver {
         match self.states.command(&command) {
             Ok(targets) => {
                 for (axis, target) in targets {
-                    self.send(&axis, Job::Write { field: Field::VAL, value: target.to_string() });
+                    self.lane(&axis).joint_target(target);
                 }
             }
             Err(e) => tracing::warn!("joint_commands: {e}; nothing moved"),
@@ -607,9 +653,7 @@ impl Driver {
                     self.lane(&axis).stops.fetch_add(1, Ordering::SeqCst);
                     self.send(&axis, Job::Write { field: Field::STOP, value: "1".into() });
                 }
-                JointCommand::RestoreSpeed { axis, speed } => {
-                    self.send(&axis, Job::Write { field: Field::VELO, value: speed.to_string() });
-                }
+                JointCommand::RestoreSpeed { axis, speed } => self.send(&axis, Job::Restore { speed }),
             }
         }
     }
@@ -638,6 +682,10 @@ async fn start_move(
     duration: Duration,
     still_wanted: impl Fn() -> bool,
 ) -> Result<zmotor_client::SentWrite, MoveEnd> {
+    let stopped = || MoveEnd::Failed("stopped before it was sent".into());
+    if !still_wanted() {
+        return Err(stopped());
+    }
     if let Some(speed) = speed {
         let sent = client.write(axis, Field::VELO, speed.to_string(), WriteOptions::confirmed(PATIENCE)).await;
         match sent {
@@ -649,7 +697,7 @@ async fn start_move(
         }
     }
     if !still_wanted() {
-        return Err(MoveEnd::Failed("stopped before it was sent".into()));
+        return Err(stopped());
     }
     // The move may take several times its plan (acceleration, a slow axis) before it is late.
     let patience = duration * 10 + Duration::from_secs(60);
