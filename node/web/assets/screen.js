@@ -117,15 +117,14 @@ function build() {
     const press = (event) => {
       if (event.button !== 0) return; // the main button only: a context menu must not jog
       event.preventDefault();
-      button.setPointerCapture(event.pointerId);
       held = true;
       write(field, 1);
     };
     const release = () => { if (held) { held = false; write(field, 0); } };
     button.addEventListener("pointerdown", press);
-    // Whatever ends the press ends the jog: the button let go, the pointer taken away (a
-    // touch cancelled, capture lost), the window left or the page hidden.
-    for (const ending of ["pointerup", "pointerleave", "pointercancel", "lostpointercapture"]) {
+    // Whatever ends the press ends the jog: the button let go or left, the pointer taken away
+    // (a touch cancelled), the window left or the page hidden.
+    for (const ending of ["pointerup", "pointerleave", "pointercancel"]) {
       button.addEventListener(ending, release);
     }
     window.addEventListener("blur", release);
