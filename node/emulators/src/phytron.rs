@@ -503,6 +503,9 @@ impl PhymotionEmulator {
             axis.parameters = factory(encoder);
             axis.power = true;
             axis.clear_errors();
+            // A reset forgets the reference: the axis is no longer initialised.
+            axis.initialised = false;
+            axis.limit_reference = None;
         }
     }
 
