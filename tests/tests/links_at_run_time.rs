@@ -84,3 +84,39 @@ async fn wait_until(client: &zenoh::Session, key: &str, expected: f64) {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_soft_motor_whose_readback_node_goes_is_stopped_and_moves_no_more() {
+    // The driven stage `lin` is played by this test's session: its liveliness token (as a node
+    // serving it declares), its readback and done flag; the soft motor drives it by its links.
+    let mut plan = fast_axis("soft");
+    plan.driver = zmotor_core::DriverPlan::Soft;
+    plan.fields.dtyp = "Soft Channel".into();
+    plan.fields.out = "motor/lin/VAL".into();
+    plan.fields.rdbl = "motor/lin/RBV".into();
+    plan.fields.dinp = "motor/lin/DMOV".into();
+    plan.fields.stoo = "motor/lin/STOP".into();
+    (plan.fields.urip, plan.fields.rres, plan.fields.rtry, plan.fields.ntm) = (1, 1.0, 0, 0);
+    let node = TestNode::start(vec![plan]).await;
+    let stage = node.client().await;
+    let driven = stage.declare_subscriber("motor/lin/VAL").await.unwrap();
+    let stopped = stage.declare_subscriber("motor/lin/STOP").await.unwrap();
+    let client = node.client().await;
+    let mut rec = Recorder::new(&node, &client, "motor/soft/*").await;
+    let token = stage.liveliness().declare_token("motor/lin").await.unwrap();
+    put_text(&stage, "motor/lin/DMOV", "1").await;
+    put_text(&stage, "motor/lin/RBV", "0.5").await;
+    rec.wait_for("RBV", |v| v.as_f64().is_some_and(|x| (x - 0.5).abs() < 1e-9)).await;
+    confirmed_write(&client, &node.key("soft", Field::VAL), "1", PATIENCE).await.unwrap();
+    tokio::time::timeout(PATIENCE, driven.recv_async()).await.expect("the move drives the stage").unwrap();
+    put_text(&stage, "motor/lin/DMOV", "0").await;
+    put_text(&stage, "motor/lin/RBV", "0.7").await;
+    rec.wait_for("RBV", |v| v.as_f64().is_some_and(|x| (x - 0.7).abs() < 1e-9)).await;
+    // The stage's node goes: the soft motor stops it, as a record whose RDBL disconnected.
+    drop(token);
+    tokio::time::timeout(PATIENCE, stopped.recv_async()).await.expect("STOP written to STOO").unwrap();
+    // And drives it no more while its readback cannot be read.
+    let _ = confirmed_write(&client, &node.key("soft", Field::VAL), "2", PATIENCE).await;
+    let moved = tokio::time::timeout(Duration::from_millis(500), driven.recv_async()).await;
+    assert!(moved.is_err(), "a move drove the stage from a readback nobody serves: {moved:?}");
+}

@@ -368,6 +368,24 @@ impl Axis {
         self.apply_link(link, value);
     }
 
+    /// The source of an input link is gone (the node serving it stopped): RDBL cannot be read,
+    /// as a link whose PV disconnected (spec §5.10): a soft motor's motion under way is stopped
+    /// now, a driven one's at its next poll, and no move starts until RDBL is read again. The
+    /// other links keep their last value.
+    pub fn link_lost(&mut self, now: Instant, link: InputLink) {
+        self.advance(now);
+        if link != InputLink::Readback || self.readback_link.is_none() {
+            return;
+        }
+        self.readback_link = None;
+        if matches!(self.device, Device::Soft(_)) {
+            let status = self.device_status();
+            self.callback(status);
+        } else {
+            self.pump();
+        }
+    }
+
     fn apply_link(&mut self, link: InputLink, value: f64) {
         let f = self.record.fields();
         let (dmov, locked, mres) = (f.dmov, f.lock == choice::YES, f.mres);

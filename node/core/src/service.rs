@@ -437,6 +437,12 @@ impl<R: Clone> AxisService<R> {
         self.collect();
     }
 
+    /// The source of one of the record's input links is gone.
+    pub fn link_lost(&mut self, now: Instant, link: InputLink) {
+        self.axis.link_lost(now, link);
+        self.collect();
+    }
+
     /// Whether a field autosave keeps has changed since the last call.
     #[must_use = "the change is forgotten once taken"]
     pub fn take_unsaved_change(&mut self) -> bool {

@@ -214,3 +214,31 @@ fn a_move_commanded_while_the_driven_motor_settles_waits_for_its_own_motion() {
     let f = axis.fields();
     assert_eq!((f.dmov, f.rbv, f.val), (1, 2.0, 2.0));
 }
+
+#[test]
+fn a_readback_link_whose_source_is_gone_stops_the_motion_and_moves_nothing_until_it_is_back() {
+    // Spec §5.10: RDBL unreadable freezes the readback, stops a motion under way (STOP, as
+    // STOO writes it) and refuses new moves; the source's node stopping makes it unreadable.
+    let mut axis = booted_soft();
+    axis.write(at(1.0), Field::VAL, &Value::Float(1.0)).unwrap();
+    axis.link_update(at(1.1), InputLink::Done, 0.0);
+    axis.link_update(at(1.2), InputLink::Readback, 0.7);
+    drain(&mut axis);
+    axis.link_lost(at(1.3), InputLink::Readback);
+    let events = drain(&mut axis);
+    assert!(puts(&events).contains(&("motor/lin/STOP".to_string(), "1".to_string())), "{events:?}");
+    assert!((axis.fields().drbv - 0.7).abs() < 1e-9, "the readback frozen: {}", axis.fields().drbv);
+    axis.link_update(at(1.4), InputLink::Done, 1.0);
+    axis.handle_timeout(at(1.4) + SOFT_DONE_SETTLE);
+    drain(&mut axis);
+    // While it cannot be read, a new target drives nothing.
+    let _ = axis.write(at(2.0), Field::VAL, &Value::Float(2.0));
+    let events = drain(&mut axis);
+    assert!(!puts(&events).iter().any(|(key, _)| key == "calc/drive/A"), "no move on a lost readback: {events:?}");
+    // Read again, moves go.
+    axis.link_update(at(3.0), InputLink::Readback, 0.7);
+    drain(&mut axis);
+    axis.write(at(3.1), Field::VAL, &Value::Float(1.5)).unwrap();
+    let events = drain(&mut axis);
+    assert!(puts(&events).iter().any(|(key, _)| key == "calc/drive/A"), "{events:?}");
+}

@@ -99,7 +99,7 @@ pub(crate) struct LinkInbox {
 }
 
 enum LinkState {
-    Waiting(Vec<(usize, f64)>),
+    Waiting(Vec<AxisInput>),
     Attached(std::sync::Weak<AxisInbox>),
 }
 
@@ -112,12 +112,21 @@ impl Default for LinkState {
 impl LinkInbox {
     /// The value of link number `index` (`InputLink` order).
     pub(crate) fn deliver(&self, index: usize, value: f64) {
+        self.pass(AxisInput::LinkUpdate(zmotor_core::InputLink::ALL[index], value));
+    }
+
+    /// The source of link number `index` is gone.
+    pub(crate) fn lost(&self, index: usize) {
+        self.pass(AxisInput::LinkLost(zmotor_core::InputLink::ALL[index]));
+    }
+
+    fn pass(&self, input: AxisInput) {
         let inbox = match &mut *lock(&self.state) {
-            LinkState::Waiting(waiting) => return waiting.push((index, value)),
+            LinkState::Waiting(waiting) => return waiting.push(input),
             LinkState::Attached(inbox) => inbox.clone(),
         };
         if let Some(inbox) = inbox.upgrade() {
-            inbox.deliver(link_update(index, value));
+            inbox.deliver(input);
         }
     }
 
@@ -134,15 +143,11 @@ impl LinkInbox {
                     }
                 }
             };
-            for (index, value) in waiting {
-                inbox.deliver(link_update(index, value));
+            for input in waiting {
+                inbox.deliver(input);
             }
         }
     }
-}
-
-fn link_update(index: usize, value: f64) -> AxisInput {
-    AxisInput::LinkUpdate(zmotor_core::InputLink::ALL[index], value)
 }
 
 fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -803,6 +808,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::ControllerMessage(message) => self.service.controller_message(message),
             AxisInput::Tick => self.service.handle_timeout(now),
             AxisInput::LinkUpdate(link, value) => self.service.link_update(now, link, value),
+            AxisInput::LinkLost(link) => self.service.link_lost(now, link),
             AxisInput::HoldReleased(token) => self.service.hold_released(now, &token),
             AxisInput::StopMotion => self.service.stop_motion(now),
         }

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
-use zenoh::sample::Sample;
+use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
@@ -117,7 +117,14 @@ pub(crate) struct Follows {
     local: Arc<LocalFollowers>,
     sink: LinkSink,
     subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
+    /// Told when the node serving a followed axis key goes (`on_loss`).
+    loss: Option<(KeyLayout, LossSink)>,
+    /// The liveliness subscribers that tell it, by index.
+    sources: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
 }
+
+/// Told the index of a followed key whose source is gone.
+pub(crate) type LossSink = Arc<dyn Fn(usize) + Send + Sync>;
 
 impl Follows {
     /// Nothing followed yet; the values will go to `sink`.
@@ -128,7 +135,16 @@ impl Follows {
             local,
             sink,
             subscribers: Vec::new(),
+            loss: None,
+            sources: Vec::new(),
         }
+    }
+
+    /// Also say when a followed key of an axis (`<prefix>/<axis>/<field>`) loses its source:
+    /// the axis's liveliness token goes, as a link's PV disconnects. When it comes back, the
+    /// key's value is read again.
+    pub(crate) fn on_loss(self, layout: KeyLayout, lost: LossSink) -> Self {
+        Self { loss: Some((layout, lost)), ..self }
     }
 
     /// Nothing followed yet; the values will arrive on the receiver, as (index, value).
@@ -147,8 +163,10 @@ impl Follows {
     pub(crate) fn follow(&mut self, index: usize, key: &str) -> Result<(), zenoh::Error> {
         if self.subscribers.len() <= index {
             self.subscribers.resize_with(index + 1, || None);
+            self.sources.resize_with(index + 1, || None);
         }
         self.subscribers[index] = None;
+        self.sources[index] = None;
         let follower = (self.sink.clone(), index);
         self.local.unregister(&follower);
         if key.is_empty() {
@@ -166,16 +184,39 @@ impl Follows {
             })
             .wait()?;
         self.subscribers[index] = Some(subscriber);
-        let replies = self.session.get(key.to_string()).timeout(Duration::from_secs(5)).wait()?;
-        let first = self.sink.clone();
-        self.runtime.spawn(async move {
-            while let Ok(reply) = replies.recv_async().await {
-                if let Some(value) = reply.result().ok().and_then(sample_number) {
-                    first(index, value);
-                }
+        if let Some((layout, lost)) = &self.loss {
+            if let Some(axis) = layout.axis_chunk(key) {
+                let (session, runtime, key) = (self.session.clone(), self.runtime.clone(), key.to_string());
+                let (lost, updates) = (lost.clone(), self.sink.clone());
+                let source = self
+                    .session
+                    .liveliness()
+                    .declare_subscriber(layout.axis(axis))
+                    .callback(move |token| match token.kind() {
+                        SampleKind::Delete => lost(index),
+                        // Back: its value now, as when the link connected.
+                        SampleKind::Put => {
+                            let (session, key, updates) = (session.clone(), key.clone(), updates.clone());
+                            runtime.spawn(async move { read_once(&session, &key, index, &updates).await });
+                        }
+                    })
+                    .wait()?;
+                self.sources[index] = Some(source);
             }
-        });
+        }
+        let (session, key, first) = (self.session.clone(), key.to_string(), self.sink.clone());
+        self.runtime.spawn(async move { read_once(&session, &key, index, &first).await });
         Ok(())
+    }
+}
+
+/// Read `key`'s value once, to `sink` at `index`.
+async fn read_once(session: &Session, key: &str, index: usize, sink: &LinkSink) {
+    let Ok(replies) = session.get(key).timeout(Duration::from_secs(5)).await else { return };
+    while let Ok(reply) = replies.recv_async().await {
+        if let Some(value) = reply.result().ok().and_then(sample_number) {
+            sink(index, value);
+        }
     }
 }
 

@@ -151,8 +151,9 @@ impl Node {
                 None => None,
             };
             let links = Arc::new(LinkInbox::default());
-            let sink = links.clone();
-            let mut follows = Follows::new(&session, side.followers.clone(), Arc::new(move |i, v| sink.deliver(i, v)));
+            let (sink, loss) = (links.clone(), links.clone());
+            let mut follows = Follows::new(&session, side.followers.clone(), Arc::new(move |i, v| sink.deliver(i, v)))
+                .on_loss(layout.clone(), Arc::new(move |i| loss.lost(i)));
             for (link, key) in plan.input_links() {
                 follows.follow(link as usize, &key)?;
             }
