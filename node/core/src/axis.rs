@@ -628,8 +628,7 @@ impl Axis {
         primitive.delay()
     }
 
-    /// A motion has finished (DMOV 0 → 1) or met a limit switch: POST if it was commanded, and
-    /// FLNK on completion.
+    /// A motion has finished (DMOV 0 → 1) or met a limit switch: POST if it was commanded.
     fn motion_finished(&mut self, completed: bool) {
         if self.motion_commanded {
             let post = self.record.fields().post.clone();
@@ -637,10 +636,6 @@ impl Axis {
         }
         if completed {
             self.motion_commanded = false;
-        }
-        let flnk = self.record.fields().flnk.clone();
-        if completed && !flnk.is_empty() {
-            self.events.push(AxisEvent::Put { key: flnk, value: "1".into() });
         }
     }
 
@@ -672,6 +667,13 @@ impl Axis {
                     Output::Done => {
                         self.completed = Completion(self.completed.0 + 1);
                         self.events.push(AxisEvent::Done(self.completed));
+                        // The forward link fires at every processing that ends with DMOV 1 (a
+                        // motion's end, a put that moves nothing, a status change at rest), as
+                        // the record's does (spec Q35).
+                        let flnk = self.record.fields().flnk.clone();
+                        if !flnk.is_empty() {
+                            self.events.push(AxisEvent::Put { key: flnk, value: "1".into() });
+                        }
                     }
                     Output::ReadbackLink(rbv) => {
                         let key = self.record.fields().rlnk.clone();

@@ -169,10 +169,21 @@ fn rlnk_and_flnk_write_their_keys() {
             break;
         }
     }
-    let puts = puts(&all);
-    assert!(puts.iter().any(|(k, _)| k == "lab/rbv"), "{puts:?}");
-    assert_eq!(puts.last(), Some(&("lab/next/PROC".to_string(), "1".to_string())));
-    assert_eq!(puts.iter().filter(|(k, _)| k == "lab/next/PROC").count(), 1, "once per completed motion");
+    let written = puts(&all);
+    assert!(written.iter().any(|(k, _)| k == "lab/rbv"), "{written:?}");
+    assert_eq!(written.last(), Some(&("lab/next/PROC".to_string(), "1".to_string())));
+    assert_eq!(written.iter().filter(|(k, _)| k == "lab/next/PROC").count(), 1, "none while it moved");
+    // As the record's forward link (spec Q35): at every processing that ends with DMOV 1, here a
+    // put that moves nothing and a put of a field that processes the record.
+    axis.write(at(10.0), Field::VAL, &Value::Float(1.0)).unwrap();
+    let flnk = |events: &[AxisEvent]| puts(events).iter().filter(|(k, _)| k == "lab/next/PROC").count();
+    assert_eq!(flnk(&drain(&mut axis)), 1, "a put that moves nothing");
+    axis.write(at(11.0), Field::HLM, &Value::Float(50.0)).unwrap();
+    // Processed by the put, then by the status the limit's command asks for: each fires it.
+    assert_eq!(flnk(&drain(&mut axis)), 2, "a put of a field that processes the record, no motion");
+    let t = axis.poll_timeout().expect("polled at rest");
+    axis.handle_timeout(t);
+    assert_eq!(flnk(&drain(&mut axis)), 0, "a poll at rest that changes nothing processes nothing");
 }
 
 #[test]
