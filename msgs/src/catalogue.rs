@@ -420,12 +420,13 @@ impl Field {
     pub const COUNT: usize = FIELDS.len();
 
     /// The display precision of this field on an axis whose PREC is `prec`, as the record's
-    /// `get_precision` gives it to clients: the raw readbacks none, VERS two decimals, every
-    /// other field PREC (within 0 to 15, as `recGblGetPrec` bounds it).
+    /// `get_precision` gives it to clients: VERS two decimals, every other floating-point field
+    /// PREC (within 0 to 15), and a field of any other type (the raw readbacks, DMOV, MSTA...)
+    /// none, as `recGblGetPrec` bounds it.
     pub fn precision(self, prec: i16) -> i16 {
         match self {
-            Field::RRBV | Field::RMP | Field::REP => 0,
             Field::VERS => 2,
+            _ if !matches!(self.def().kind, Kind::Double | Kind::Float) => 0,
             _ if !(0..=15).contains(&prec) => 15,
             _ => prec,
         }
@@ -590,6 +591,15 @@ impl std::fmt::Display for Field {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn floating_point_fields_show_at_prec_and_the_others_without_decimals() {
+        assert_eq!((Field::RBV.precision(4), Field::VELO.precision(4), Field::VERS.precision(4)), (4, 4, 2));
+        for field in [Field::RRBV, Field::RMP, Field::DMOV, Field::MSTA, Field::RCNT, Field::DIR] {
+            assert_eq!(field.precision(4), 0, "{field}: recGblGetPrec gives integers and menus none");
+        }
+        assert_eq!(Field::RBV.precision(-1), 15, "out of 0..=15: 15");
+    }
 
     #[test]
     fn targets_and_home_searches_start_motions_that_end_by_themselves() {

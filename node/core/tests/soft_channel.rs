@@ -190,7 +190,11 @@ fn rlnk_and_flnk_write_their_keys() {
 fn dol_drives_the_target_in_closed_loop() {
     let fields = Fields { mres: 0.01, velo: 100.0, omsl: 1, dol: "lab/setpoint".into(), ..Fields::default() };
     let mut axis = sim_axis(fields);
+    // Undefined until the link is first read (§6.2 step 6: UDF is cleared at boot only for a
+    // constant DOL): the UDF alarm, INVALID.
+    assert_eq!((axis.fields().udf, axis.fields().sevr), (1, 3));
     axis.link_update(at(0.0), InputLink::Desired, 0.5);
+    assert_eq!(axis.fields().udf, 0, "a good read defines it");
     assert_eq!((axis.fields().val, axis.fields().dval, axis.fields().dmov), (0.5, 0.5, 0));
     for _ in 0..100 {
         let t = axis.poll_timeout().expect("a simulated axis is polled");

@@ -37,7 +37,11 @@ impl MotorRecord {
 
     /// §6.2 steps 6–14, with the first status read from the device.
     pub fn init(&mut self, status: DeviceStatus) {
-        self.f.udf = 0; // DOL is a constant link: the normal case
+        // UDF is cleared when DOL is a constant link (none, or a number: the normal case); a
+        // DOL that is a key leaves it until its first good read (§6.2 step 6).
+        if self.f.dol.is_empty() || self.f.dol.trim().parse::<f64>().is_ok() {
+            self.f.udf = 0;
+        }
         self.pending_status = Some(status);
         self.update_values();
         if self.f.eres == 0.0 {
