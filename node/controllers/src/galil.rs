@@ -49,7 +49,7 @@
 
 use crate::protocol::{
     whole_steps, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
-    VendorError,
+    UnitIdentities, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -132,7 +132,7 @@ pub(crate) struct Galil {
     axes: [Axis; 8],
     servos_switched_on: bool,
     /// The firmware as the initialisation read it (`sync`).
-    identity: Option<String>,
+    identity: UnitIdentities,
 }
 
 impl Galil {
@@ -148,7 +148,7 @@ impl Galil {
             layout: DEFAULT_LAYOUT,
             axes: [Axis::default(); 8],
             servos_switched_on: false,
-            identity: None,
+            identity: UnitIdentities::default(),
         }
     }
 
@@ -320,7 +320,7 @@ impl Protocol for Galil {
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Read afresh: the controller may have been changed or upgraded.
-        self.identity = None;
+        self.identity.clear();
         for axis in &mut self.axes {
             // A new connection may be a controller that was power-cycled.
             axis.homed = false;
@@ -341,13 +341,13 @@ impl Protocol for Galil {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        self.identity.as_ref()?;
+        self.identity.next()?;
         Some(Request::query(b"\x12\x16\r".to_vec(), Step::Firmware))
     }
 
     /// The firmware, "DMC4040 Rev 1.2", as read at connection: no other reply names it.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        data(frame).is_some_and(|d| self.identity.as_deref() == Some(d))
+        data(frame).is_some_and(|d| self.identity.is_answer(d))
     }
 
     fn poll(&mut self, _channels: &[usize]) -> Vec<Request<Step>> {
@@ -389,7 +389,7 @@ impl Protocol for Galil {
             Step::Firmware => {
                 let firmware =
                     data(frame).filter(|d| d.starts_with("DMC")).ok_or_else(|| error("not a Galil's firmware"))?;
-                self.identity = Some(firmware.to_string());
+                self.identity.read(0, firmware);
                 Ok(vec![ReplyEvent::Found(Finding::Identity(firmware.to_string()))])
             }
             Step::Layout => {

@@ -54,7 +54,7 @@
 
 use crate::protocol::{
     line_frame, line_text, set_bit, state_of, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose,
-    ReplyError, ReplyEvent, Request, VendorError,
+    ReplyError, ReplyEvent, Request, UnitIdentities, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -161,7 +161,7 @@ pub(crate) struct Esp300 {
     /// Observed beside an IOC: its error buffer, which `TB?` empties, is the IOC's.
     observed: bool,
     /// The firmware version as the initialisation read it (`sync`).
-    identity: Option<String>,
+    identity: UnitIdentities,
 }
 
 impl Esp300 {
@@ -172,7 +172,7 @@ impl Esp300 {
             axes: Vec::new(),
             motors_switched_on: false,
             observed: false,
-            identity: None,
+            identity: UnitIdentities::default(),
         }
     }
 
@@ -313,7 +313,7 @@ impl Protocol for Esp300 {
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Read afresh: the controller may have been changed or upgraded.
-        self.identity = None;
+        self.identity.clear();
         let mut requests = vec![Request::query(line("VE?"), Step::Version)];
         for &channel in channels {
             for (query, item) in [("SN?", ConfigItem::Unit), ("ZB?", ConfigItem::Feedback)] {
@@ -347,13 +347,13 @@ impl Protocol for Esp300 {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        self.identity.as_ref()?;
+        self.identity.next()?;
         Some(Request::query(line("VE?"), Step::Version))
     }
 
     /// "ESP300 Version 3.08 09/09/02", as read at connection: no other reply has words.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        self.identity.as_deref() == Some(line_text(frame, INPUT_TERMINATOR).trim())
+        self.identity.is_answer(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn command(&mut self, channel: usize, command: &DriverCommand) -> Result<Vec<Request<Step>>, CommandError> {
@@ -391,7 +391,7 @@ impl Protocol for Esp300 {
         match request.step {
             // "ESP300 Version 3.08 09/09/02": anything else is not this controller's answer.
             Step::Version if text.to_ascii_lowercase().contains("version") => {
-                self.identity = Some(text.to_string());
+                self.identity.read(0, text);
                 Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
             }
             Step::Version => Err(error("not a firmware version")),

@@ -91,7 +91,7 @@
 
 use crate::protocol::{
     set_bit, state_of, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent,
-    Request, VendorError,
+    Request, UnitIdentities, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use zmotor_core::DeviceStatus;
@@ -214,7 +214,7 @@ pub(crate) struct Xps {
     /// group killed since stays as it is).
     initialised_at_start: bool,
     /// The firmware as the initialisation read it (`sync`).
-    identity: Option<String>,
+    identity: UnitIdentities,
 }
 
 impl Xps {
@@ -230,7 +230,7 @@ impl Xps {
             axes: Vec::new(),
             names: options.names.clone(),
             initialised_at_start: false,
-            identity: None,
+            identity: UnitIdentities::default(),
         }
     }
 
@@ -557,7 +557,7 @@ impl Protocol for Xps {
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Read afresh: the controller may have been changed or upgraded.
-        self.identity = None;
+        self.identity.clear();
         let mut requests = vec![Request::query("FirmwareVersionGet (char *)", Step::Firmware)];
         for &channel in channels {
             let positioner = self.positioner(channel);
@@ -579,13 +579,13 @@ impl Protocol for Xps {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        self.identity.as_ref()?;
+        self.identity.next()?;
         Some(Request::query("FirmwareVersionGet (char *)", Step::Firmware))
     }
 
     /// The firmware, "XPS-C8 Firmware V2.6.x", as read at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        split_reply(frame).is_some_and(|(code, outputs)| code == 0 && self.identity == Some(outputs.join(",")))
+        split_reply(frame).is_some_and(|(code, outputs)| code == 0 && self.identity.is_answer(&outputs.join(",")))
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -664,7 +664,7 @@ impl Protocol for Xps {
         };
         match request.step {
             Step::Firmware => {
-                self.identity = Some(outputs.join(","));
+                self.identity.read(0, &outputs.join(","));
                 Ok(vec![ReplyEvent::Found(Finding::Identity(outputs.join(",")))])
             }
             Step::Jerk { channel } => {

@@ -52,7 +52,7 @@
 
 use crate::protocol::{
     line_frame, line_text, set_bit, whole_steps, CommandError, Finding, Frame, Protocol, Purpose, ReplyError,
-    ReplyEvent, Request, VendorError,
+    ReplyEvent, Request, UnitIdentities, VendorError,
 };
 use crate::scale::Scale;
 use zmotor_core::DeviceStatus;
@@ -125,12 +125,18 @@ pub(crate) struct Maxnet {
     /// Observed beside an IOC: the done flags are read without clearing them (`QI`).
     observed: bool,
     /// `WY`'s answer as the initialisation read it (`sync`).
-    identity: Option<String>,
+    identity: UnitIdentities,
 }
 
 impl Maxnet {
     pub(crate) fn new() -> Self {
-        Self { axes: [Axis::default(); 10], polled: Vec::new(), last_commanded: None, observed: false, identity: None }
+        Self {
+            axes: [Axis::default(); 10],
+            polled: Vec::new(),
+            last_commanded: None,
+            observed: false,
+            identity: UnitIdentities::default(),
+        }
     }
 
     /// The speed settings of a motion: `AC`, then `VL` and `VB` in the order that keeps the
@@ -319,7 +325,7 @@ impl Protocol for Maxnet {
 
     fn init(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
         // Read afresh: the controller may have been changed or upgraded.
-        self.identity = None;
+        self.identity.clear();
         let mut requests = vec![Request::query(line("WY"), Step::Identity)];
         for &channel in channels {
             let axis = AXES[channel];
@@ -335,13 +341,13 @@ impl Protocol for Maxnet {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        self.identity.as_ref()?;
+        self.identity.next()?;
         Some(Request::query(line("WY"), Step::Identity))
     }
 
     /// "MAXnet ver:1.33.4, s/n:000001", as read at connection.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        self.identity.as_deref() == Some(line_text(frame, INPUT_TERMINATOR).trim())
+        self.identity.is_answer(line_text(frame, INPUT_TERMINATOR).trim())
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -376,7 +382,7 @@ impl Protocol for Maxnet {
         let error = |why| ReplyError::new(request, frame, why);
         match request.step {
             Step::Identity => {
-                self.identity = Some(text.to_string());
+                self.identity.read(0, text);
                 Ok(vec![ReplyEvent::Found(Finding::Identity(text.to_string()))])
             }
             // `=O` open loop, `=E`, `=M`: logged by the identity; encoders are not read.

@@ -389,9 +389,9 @@ pub(crate) fn whole_steps(what: &'static str, steps: f64) -> Result<i32, Command
     }
 }
 
-/// The identities of the units on one line (each unit's answer to its identity query at
-/// connection), asked again in turn to find the replies again after a failure (`Protocol::sync`):
-/// a unit gone silent must not take the line down.
+/// The identities a connection's initialisation read (each unit's answer to its identity query;
+/// a controller alone on its connection is unit 0), asked again, in turn, to find the replies
+/// again after a failure (`Protocol::sync`): a unit gone silent must not take the line down.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct UnitIdentities {
     identities: Vec<(usize, String)>,

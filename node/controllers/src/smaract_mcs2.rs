@@ -62,7 +62,7 @@
 
 use crate::protocol::{
     line_frame, CommandError, Finding, Frame, Protocol, ProtocolOptions, Purpose, ReplyError, ReplyEvent, Request,
-    VendorError,
+    UnitIdentities, VendorError,
 };
 use crate::scale::{ControllerUnit, Scale, ScaleSource};
 use std::collections::BTreeMap;
@@ -267,7 +267,7 @@ pub(crate) struct Mcs2 {
     /// Observed beside an IOC: the device's error queue, which a read empties, is the IOC's.
     observed: bool,
     /// The serial number's reply as the initialisation read it (`sync`).
-    identity: Option<String>,
+    identity: UnitIdentities,
 }
 
 impl Mcs2 {
@@ -283,7 +283,7 @@ impl Mcs2 {
             channels: BTreeMap::new(),
             errors_in_a_row: 0,
             observed: false,
-            identity: None,
+            identity: UnitIdentities::default(),
         }
     }
 
@@ -489,7 +489,7 @@ impl Protocol for Mcs2 {
         // What the last connection knew may be stale: the controller may have been restarted.
         self.channels.clear();
         self.errors_in_a_row = 0;
-        self.identity = None;
+        self.identity.clear();
         let mut requests = vec![query(":DEV:SNUM?".to_string(), Step::SerialNumber)];
         if self.observed {
             return requests;
@@ -508,13 +508,13 @@ impl Protocol for Mcs2 {
     }
 
     fn sync(&mut self) -> Option<Request<Step>> {
-        self.identity.as_ref()?;
+        self.identity.next()?;
         Some(query(":DEV:SNUM?".to_string(), Step::SerialNumber))
     }
 
     /// The serial number, a quoted SCPI string no other reply is.
     fn is_sync_reply(&self, frame: &[u8]) -> bool {
-        self.identity.as_deref() == Some(reply_text(frame).as_str())
+        self.identity.is_answer(&reply_text(frame))
     }
 
     fn poll(&mut self, channels: &[usize]) -> Vec<Request<Step>> {
@@ -610,7 +610,7 @@ impl Protocol for Mcs2 {
         let text = reply_text(frame);
         match request.step {
             Step::SerialNumber => {
-                self.identity = Some(text.clone());
+                self.identity.read(0, &text);
                 let serial = text.trim_matches('"');
                 Ok(vec![ReplyEvent::Found(Finding::Identity(format!("MCS2, serial number {serial}")))])
             }
