@@ -12,7 +12,8 @@
 //! - `joints`: axes as joints: their readbacks as `JointState` in SI units, at the readback
 //!   rate while any moves and at a slow rate at rest, and joint commands as axis targets;
 //! - `follow`: the messages of `control_msgs/action/FollowJointTrajectory` and `action_msgs`;
-//! - `trajectory`: that action's server: goals checked, executed as timed moves, cancelled.
+//! - `trajectory`: that action's server: goals checked, executed as timed moves, cancelled;
+//! - `lanes`: the writes of both, ordered per axis (a stop never overtaken by a move asked before it).
 //!
 //! The gateway moves these onto a Zenoh session; nothing here touches one.
 
@@ -20,6 +21,7 @@ mod attachment;
 mod follow;
 mod graph;
 mod joints;
+mod lanes;
 mod messages;
 mod names;
 mod trajectory;
@@ -33,6 +35,7 @@ pub use follow::{
 };
 pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
 pub use joints::{Joint, JointCommandError, JointError, JointStates, Travel};
+pub use lanes::{Answered, LaneEvent, LaneWrite, WriteAnswer, WriteId, WriteLanes};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
 pub use names::{
     topic_key, Distribution, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,

@@ -10,9 +10,7 @@
 //! of a node, from its posts for its own axes (`start_fed` and its `Feed`), one Zenoh hop
 //! sooner, and from monitors for the others.
 
-use std::collections::{HashMap, HashSet};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::collections::HashSet;
 use std::time::{Duration, SystemTime};
 use tokio::sync::mpsc::{unbounded_channel, UnboundedReceiver, UnboundedSender};
 use zenoh::liveliness::LivelinessToken;
@@ -23,10 +21,10 @@ use zmotor_client::{AxisReading, Client, Selection, WriteOptions, WriteOutcome};
 use zmotor_deploy::{JointConfig, Ros2Config};
 use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
-    decode, encode, topic_key, Attachment, CancelGoalRequest, CancelGoalResponse, Durability, EntityKind,
+    decode, encode, topic_key, Answered, Attachment, CancelGoalRequest, CancelGoalResponse, Durability, EntityKind,
     FollowJointTrajectory, GetResultRequest, GetResultResponse, GoalId, GraphEntity, Joint, JointCommand, JointState,
-    JointStates, MoveEnd, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time, TypeInfo, CANCEL_GOAL, FEEDBACK,
-    GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
+    JointStates, LaneEvent, LaneWrite, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time, TypeInfo,
+    WriteAnswer, WriteId, WriteLanes, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
 };
 
 /// The gateway could not start.
@@ -40,9 +38,6 @@ pub enum Ros2Error {
     #[error("zenoh: {0}")]
     Zenoh(#[from] zenoh::Error),
 }
-
-/// How long a joint's axis may take to answer a write that is not a move.
-const PATIENCE: Duration = Duration::from_secs(5);
 
 /// rclcpp's `QoS(10)`: the commands topic, the feedback topic and the services.
 const DEFAULT_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::Volatile, depth: 10 };
@@ -100,10 +95,10 @@ enum Event {
     JointCommand(Vec<u8>),
     /// A request to one of the action's services.
     Request(Service, Query),
-    /// A trajectory move ended.
-    MoveEnded { axis: String, end: MoveEnd },
-    /// The write restoring an axis's speed after a goal ended (taken or not).
-    Restored { axis: String },
+    /// A lane's write has left.
+    HandedOver(WriteId),
+    /// A lane's write was answered (or failed to leave).
+    Answered(WriteId, WriteAnswer),
 }
 
 /// A publisher as rmw_zenoh makes one: advanced (a cache of `depth` for transient local), each
@@ -352,7 +347,7 @@ impl Ros2Node {
             status: RosPublisher::declare(&session, key(&graph[7]), STATUS_QOS, graph[7].gid()).await?,
             pending_results: Vec::new(),
             posted: HashSet::new(),
-            lanes: HashMap::new(),
+            lanes: WriteLanes::new(),
             client,
             events,
         };
@@ -384,131 +379,34 @@ struct Driver {
     /// The fields of which a post came: a value read at start does not undo it.
     posted: HashSet<(String, Field)>,
     /// Each axis's writes, sent in the order they are asked.
-    lanes: HashMap<String, Lane>,
+    lanes: WriteLanes,
     client: Client,
     events: UnboundedSender<Event>,
 }
 
-/// One axis's writes, sent by a task of its own in the order they are asked, each answer
-/// awaited apart: a stop is sent after any move asked before it that was sent, and no such
-/// move is sent after it; a restored speed and the next goal's speeds go out in their order.
-struct Lane {
-    /// Stops asked so far.
-    stops: Arc<AtomicU64>,
-    /// The newest joint command's target not yet written: older ones are never written after
-    /// it (a controller streams them faster than an axis may take them).
-    joint_target: Arc<std::sync::Mutex<Option<f64>>>,
-    jobs: UnboundedSender<Job>,
-}
-
-/// A write of a lane.
-enum Job {
-    /// A trajectory segment: VELO (taken before VAL goes), then VAL, its end reported. Not
-    /// sent if a stop was asked after it (`stops` counted when it was).
-    Move { target: f64, speed: Option<f64>, duration: Duration, stops: u64 },
-    /// A confirmed write whose refusal is only logged (STOP).
-    Write { field: Field, value: String },
-    /// VELO restored after a goal; its end reported (`Event::Restored`).
-    Restore { speed: f64 },
-    /// VAL to the newest joint command's target (`Lane::joint_target`), if not written yet.
-    JointTarget,
-}
-
-impl Lane {
-    fn new(client: Client, axis: String, events: UnboundedSender<Event>) -> Self {
-        let (jobs, queue) = unbounded_channel();
-        let (stops, joint_target) = (Arc::new(AtomicU64::new(0)), Arc::default());
-        let worker = LaneWorker { client, axis, stops: stops.clone(), joint_target: Arc::clone(&joint_target), events };
-        tokio::spawn(worker.run(queue));
-        Self { stops, joint_target, jobs }
-    }
-
-    /// Write `target` as the axis's joint command, unless a newer one comes first.
-    fn joint_target(&self, target: f64) {
-        let mut slot = self.joint_target.lock().unwrap_or_else(std::sync::PoisonError::into_inner);
-        if slot.replace(target).is_none() {
-            let _ = self.jobs.send(Job::JointTarget);
-        }
-    }
-}
-
-/// What a lane's task holds.
-struct LaneWorker {
-    client: Client,
-    axis: String,
-    stops: Arc<AtomicU64>,
-    joint_target: Arc<std::sync::Mutex<Option<f64>>>,
-    events: UnboundedSender<Event>,
-}
-
-impl LaneWorker {
-    /// Whether the driver that asks for writes is still there (it holds the other count of
-    /// `stops`): once the ROS face is gone, nothing queued is sent.
-    fn driven(&self) -> bool {
-        Arc::strong_count(&self.stops) > 1
-    }
-
-    /// Send a confirmed write; its answer is awaited apart, and `then` told when it came.
-    async fn write(&self, field: Field, value: String, then: Option<Event>) {
-        let sent = self.client.write(&self.axis, field, value, WriteOptions::confirmed(PATIENCE)).await;
-        let (axis, events) = (self.axis.clone(), self.events.clone());
-        tokio::spawn(async move {
-            match sent {
-                Ok(sent) => match sent.outcome().await {
-                    WriteOutcome::Accepted(_) | WriteOutcome::Completed(_) => {}
-                    other => tracing::warn!(axis, "{field}: {other}"),
-                },
-                Err(e) => tracing::warn!(axis, "{field} not sent: {e}"),
-            }
-            if let Some(event) = then {
-                let _ = events.send(event);
-            }
-        });
-    }
-
-    /// Send the lane's writes in turn until the driver goes.
-    async fn run(self, mut jobs: UnboundedReceiver<Job>) {
-        while let Some(job) = jobs.recv().await {
-            if !self.driven() {
-                return;
-            }
-            match job {
-                Job::Write { field, value } => self.write(field, value, None).await,
-                Job::Restore { speed } => {
-                    let restored = Event::Restored { axis: self.axis.clone() };
-                    self.write(Field::VELO, speed.to_string(), Some(restored)).await;
-                }
-                Job::JointTarget => {
-                    let target = self.joint_target.lock().unwrap_or_else(std::sync::PoisonError::into_inner).take();
-                    if let Some(target) = target {
-                        self.write(Field::VAL, target.to_string(), None).await;
+/// Send a lane's write and report when it has left and how it was answered.
+fn send(client: &Client, write: LaneWrite, events: &UnboundedSender<Event>) {
+    let (client, events) = (client.clone(), events.clone());
+    tokio::spawn(async move {
+        let options = match write.answered {
+            Answered::WhenTaken(patience) => WriteOptions::confirmed(patience),
+            Answered::AtMotionEnd(patience) => WriteOptions::waiting(patience),
+        };
+        let answer = match client.write(&write.axis, write.field, write.value.to_string(), options).await {
+            Ok(sent) => {
+                let _ = events.send(Event::HandedOver(write.id));
+                match sent.outcome().await {
+                    WriteOutcome::Accepted(_) => WriteAnswer::Taken,
+                    WriteOutcome::Completed(done) => {
+                        WriteAnswer::MotionEnded { reached: done.reached == 1, readback: done.rbv }
                     }
-                }
-                Job::Move { target, speed, duration, stops: asked } => {
-                    let still_wanted = || self.driven() && self.stops.load(Ordering::SeqCst) == asked;
-                    let started = start_move(&self.client, &self.axis, target, speed, duration, still_wanted);
-                    let (axis, events) = (self.axis.clone(), self.events.clone());
-                    match started.await {
-                        Ok(sent) => {
-                            tokio::spawn(async move {
-                                let end = match sent.outcome().await {
-                                    WriteOutcome::Completed(done) if done.reached == 1 => MoveEnd::Reached,
-                                    WriteOutcome::Completed(done) => {
-                                        MoveEnd::Failed(format!("stopped at {} short of {target}", done.rbv))
-                                    }
-                                    other => MoveEnd::Failed(format!("VAL {target}: {other}")),
-                                };
-                                let _ = events.send(Event::MoveEnded { axis, end });
-                            });
-                        }
-                        Err(end) => {
-                            let _ = events.send(Event::MoveEnded { axis, end });
-                        }
-                    }
+                    other => WriteAnswer::Failed(other.to_string()),
                 }
             }
-        }
-    }
+            Err(e) => WriteAnswer::Failed(format!("not sent: {e}")),
+        };
+        let _ = events.send(Event::Answered(write.id, answer));
+    });
 }
 
 impl Driver {
@@ -541,7 +439,14 @@ impl Driver {
 
     async fn handle(&mut self, event: Event) {
         match event {
-            Event::Restored { axis } => self.follow.restored(&axis),
+            Event::HandedOver(id) => {
+                self.lanes.handed_over(id);
+                self.flush();
+            }
+            Event::Answered(id, answer) => {
+                self.lanes.answered(id, answer);
+                self.flush();
+            }
             Event::Posted { axis, field, value, at } => {
                 self.states.update(&axis, field, value, at);
                 self.posted.insert((axis, field));
@@ -550,10 +455,6 @@ impl Driver {
                 if !self.posted.contains(&(axis.clone(), field)) {
                     self.states.update(&axis, field, value, at);
                 }
-            }
-            Event::MoveEnded { axis, end } => {
-                let commands = self.follow.move_ended(&axis, end);
-                self.execute(commands);
             }
             Event::JointCommand(payload) => self.joint_command(&payload),
             Event::Request(service, query) => self.request(service, query).await,
@@ -573,8 +474,9 @@ impl Driver {
         match self.states.command(&command) {
             Ok(targets) => {
                 for (axis, target) in targets {
-                    self.lane(&axis).joint_target(target);
+                    self.lanes.joint_target(&axis, target);
                 }
+                self.flush();
             }
             Err(e) => tracing::warn!("joint_commands: {e}; nothing moved"),
         }
@@ -639,70 +541,30 @@ impl Driver {
         self.pending_results = waiting;
     }
 
-    /// Carry out the action server's commands as writes; each move reports its end.
+    /// Carry out the action server's commands as writes.
     fn execute(&mut self, commands: Vec<JointCommand>) {
         for command in commands {
-            match command {
-                JointCommand::Move { axis, target, speed, duration } => {
-                    let stops = self.lane(&axis).stops.load(Ordering::SeqCst);
-                    self.send(&axis, Job::Move { target, speed, duration, stops });
+            self.lanes.command(command);
+        }
+        self.flush();
+    }
+
+    /// Tell the action server what the lanes report (which may ask for more writes), and send
+    /// the writes the lanes give.
+    fn flush(&mut self) {
+        while let Some(event) = self.lanes.poll_event() {
+            match event {
+                LaneEvent::MoveEnded { axis, end } => {
+                    for command in self.follow.move_ended(&axis, end) {
+                        self.lanes.command(command);
+                    }
                 }
-                JointCommand::Stop { axis } => {
-                    // Counted now, in the order the commands are made: a move asked before it
-                    // and not yet sent is not sent.
-                    self.lane(&axis).stops.fetch_add(1, Ordering::SeqCst);
-                    self.send(&axis, Job::Write { field: Field::STOP, value: "1".into() });
-                }
-                JointCommand::RestoreSpeed { axis, speed } => self.send(&axis, Job::Restore { speed }),
+                LaneEvent::Restored { axis } => self.follow.restored(&axis),
+                LaneEvent::Failed { axis, field, why } => tracing::warn!(axis, "{field}: {why}"),
             }
         }
-    }
-
-    /// `axis`'s lane, made at its first write.
-    fn lane(&mut self, axis: &str) -> &Lane {
-        let (client, events) = (&self.client, &self.events);
-        self.lanes
-            .entry(axis.to_string())
-            .or_insert_with(|| Lane::new(client.clone(), axis.to_string(), events.clone()))
-    }
-
-    /// Queue `job` on `axis`'s lane.
-    fn send(&mut self, axis: &str, job: Job) {
-        let _ = self.lane(axis).jobs.send(job);
-    }
-}
-
-/// VELO, once taken, then VAL, sent to be answered at the motion's end: how a trajectory
-/// segment moves a joint. Not sent when `still_wanted` says a stop came meanwhile.
-async fn start_move(
-    client: &Client,
-    axis: &str,
-    target: f64,
-    speed: Option<f64>,
-    duration: Duration,
-    still_wanted: impl Fn() -> bool,
-) -> Result<zmotor_client::SentWrite, MoveEnd> {
-    let stopped = || MoveEnd::Failed("stopped before it was sent".into());
-    if !still_wanted() {
-        return Err(stopped());
-    }
-    if let Some(speed) = speed {
-        let sent = client.write(axis, Field::VELO, speed.to_string(), WriteOptions::confirmed(PATIENCE)).await;
-        match sent {
-            Ok(sent) => match sent.outcome().await {
-                WriteOutcome::Accepted(_) => {}
-                other => return Err(MoveEnd::Failed(format!("VELO {speed}: {other}"))),
-            },
-            Err(e) => return Err(MoveEnd::Failed(format!("VELO not sent: {e}"))),
+        while let Some(write) = self.lanes.poll_write() {
+            send(&self.client, write, &self.events);
         }
     }
-    if !still_wanted() {
-        return Err(stopped());
-    }
-    // The move may take several times its plan (acceleration, a slow axis) before it is late.
-    let patience = duration * 10 + Duration::from_secs(60);
-    client
-        .write(axis, Field::VAL, target.to_string(), WriteOptions::waiting(patience))
-        .await
-        .map_err(|e| MoveEnd::Failed(format!("VAL not sent: {e}")))
 }
