@@ -229,6 +229,10 @@ enum Command {
         /// HTTP address to serve on.
         #[arg(long, default_value = "127.0.0.1:8080")]
         address: std::net::SocketAddr,
+        /// A host name browsers reach the screens by (besides IP addresses, localhost and this
+        /// machine's name, which always work); pages under other names are refused. Repeat.
+        #[arg(long = "name", value_name = "HOSTNAME")]
+        names: Vec<String>,
         #[command(flatten)]
         client: ClientArgs,
     },
@@ -378,9 +382,9 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Monitor { axis, fields, json, client } => monitor(&client, &axis, &fields, json).await,
         Command::List { client } => list(&client).await,
-        Command::Web { address, client } => {
+        Command::Web { address, names, client } => {
             let zmotor = connect(&client).await?;
-            let served = zmotor_web::Web::start(zmotor.clone(), &WebConfig { address }).await?;
+            let served = zmotor_web::Web::start(zmotor.clone(), &WebConfig { address, names }).await?;
             eprintln!("motor screens at http://{}/ ; Ctrl-C to stop", served.address);
             interrupted().await?;
             drop(served);

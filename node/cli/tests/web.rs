@@ -54,10 +54,16 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
 
     // `zmotor web`, a process of its own, lists the same axis.
     let address = free_address();
-    let _web = here.spawn(&["web", "--address", &address, "--connect", &endpoint], dir.path());
-    let axes = http_get(&address, "/api/axes");
+    let _web = here.spawn(&["web", "--address", &address, "--name", "Lab-Screen", "--connect", &endpoint], dir.path());
+    let (status, axes) = http_get(&address, &address, "/api/axes");
     let m1 = r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"prec":3,"moving":false"#;
-    assert!(axes.contains(m1), "{axes}");
+    assert!(status.contains(" 200 ") && axes.contains(m1), "{status}: {axes}");
+    // A page served under another name (DNS rebinding) reaches nothing; the name given does.
+    let port = address.rsplit_once(':').unwrap().1;
+    let (status, words) = http_get(&address, &format!("evil.example:{port}"), "/api/axes");
+    assert!(status.contains(" 421 ") && words.contains("not served as 'evil.example"), "{status}: {words}");
+    let (status, axes) = http_get(&address, &format!("lab-screen:{port}"), "/api/axes");
+    assert!(status.contains(" 200 ") && axes.contains(m1), "{status}: {axes}");
 }
 
 /// A node of `AXIS` on `host`, listening on `endpoint`, whose launch file serves the screens at
@@ -83,17 +89,18 @@ fn free_address() -> String {
     format!("127.0.0.1:{port}")
 }
 
-/// The body of a GET, once the server answers.
-fn http_get(address: &str, path: &str) -> String {
+/// The status line and body of a GET with `host` as its Host header, once the server answers.
+fn http_get(address: &str, host: &str, path: &str) -> (String, String) {
     use std::io::{Read, Write};
     let deadline = std::time::Instant::now() + common::PATIENCE;
     loop {
         if let Ok(mut stream) = std::net::TcpStream::connect(address) {
-            write!(stream, "GET {path} HTTP/1.1\r\nHost: {address}\r\nConnection: close\r\n\r\n").unwrap();
+            write!(stream, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
             let mut response = String::new();
             stream.read_to_string(&mut response).unwrap();
-            if let Some((_, body)) = response.split_once("\r\n\r\n") {
-                return body.to_string();
+            if let Some((head, body)) = response.split_once("\r\n\r\n") {
+                let status = head.lines().next().unwrap_or_default().to_string();
+                return (status, body.to_string());
             }
         }
         assert!(std::time::Instant::now() < deadline, "nothing answers at {address}");

@@ -236,6 +236,9 @@ impl Ros2Section {
 pub struct WebSection {
     /// The HTTP address.
     pub address: std::net::SocketAddr,
+    /// Host names browsers reach it by, beside IP addresses, `localhost` and the machine's name.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub names: Vec<String>,
     /// The host that runs it (with `[hosts]`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub host: Option<String>,
@@ -243,7 +246,7 @@ pub struct WebSection {
 
 impl Default for WebSection {
     fn default() -> Self {
-        Self { address: WebConfig::default().address, host: None }
+        Self { address: WebConfig::default().address, names: Vec::new(), host: None }
     }
 }
 

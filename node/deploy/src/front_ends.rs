@@ -28,11 +28,14 @@ impl Default for CaConfig {
 pub struct WebConfig {
     /// The HTTP address (127.0.0.1:8080 by default: only this host's browsers).
     pub address: SocketAddr,
+    /// Host names browsers may reach the screens by, beside IP addresses, `localhost` and this
+    /// machine's name: a page served under any other name (DNS rebinding) is refused.
+    pub names: Vec<String>,
 }
 
 impl Default for WebConfig {
     fn default() -> Self {
-        Self { address: SocketAddr::from(([127, 0, 0, 1], 8080)) }
+        Self { address: SocketAddr::from(([127, 0, 0, 1], 8080)), names: Vec::new() }
     }
 }
 

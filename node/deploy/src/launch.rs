@@ -461,7 +461,12 @@ impl Launch {
                 address: ca.address,
                 port: ca.port,
             }),
-            web: self.file.web.as_ref().filter(|w| runs_here(&w.host)).map(|w| WebConfig { address: w.address }),
+            web: self
+                .file
+                .web
+                .as_ref()
+                .filter(|w| runs_here(&w.host))
+                .map(|w| WebConfig { address: w.address, names: w.names.clone() }),
             ros2: match self.file.ros2.as_ref().filter(|r| runs_here(&r.host)) {
                 Some(ros2) => Some(
                     ros2.config()

@@ -140,8 +140,9 @@ fn a_channel_access_section_runs_on_its_host() {
     assert_eq!((ca.pv_prefix.as_str(), ca.port, ca.address.to_string()), ("bl1:", 5070, "127.0.0.1".into()));
     let unknown = Launch::parse("[channel_access]\nhost = \"c\"\n").unwrap_err().to_string();
     assert!(unknown.contains("channel_access.host: 'c' is not declared"), "{unknown}");
-    let web = Launch::parse("[web]\naddress = \"0.0.0.0:8081\"\n").unwrap().deployment(None).unwrap().web;
-    assert_eq!(web.map(|w| w.address.to_string()), Some("0.0.0.0:8081".into()));
+    let web = Launch::parse("[web]\naddress = \"0.0.0.0:8081\"\nnames = [\"bl1-screen\"]\n").unwrap();
+    let web = web.deployment(None).unwrap().web.unwrap();
+    assert_eq!((web.address.to_string(), web.names), ("0.0.0.0:8081".into(), vec!["bl1-screen".to_string()]));
     let unknown = Launch::parse("[web]\nhost = \"c\"\n").unwrap_err().to_string();
     assert!(unknown.contains("web.host: 'c' is not declared"), "{unknown}");
     let nowhere = Launch::parse("[hosts.a]\n[hosts.b]\n[web]\n").unwrap_err().to_string();

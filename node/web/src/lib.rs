@@ -51,6 +51,61 @@ struct AppState {
     client: Client,
 }
 
+/// The host names the screens answer to, beside IP addresses and `localhost`.
+#[derive(Clone, Debug)]
+struct KnownNames(Arc<Vec<String>>);
+
+impl KnownNames {
+    /// The configured names and this machine's own.
+    fn new(config: &WebConfig) -> Self {
+        let own = std::fs::read_to_string("/proc/sys/kernel/hostname").ok();
+        let names = config.names.iter().map(String::as_str).chain(own.as_deref().map(str::trim));
+        Self(Arc::new(names.filter(|n| !n.is_empty()).map(normal_name).collect()))
+    }
+
+    /// Whether a request's Host header names this server. A page a DNS-rebinding site serves
+    /// runs under that site's name (its Origin and Host agree, so the Origin check alone lets it
+    /// through): only an IP address, `localhost` or a name the server is known by is taken. A
+    /// request with no Host (no browser sends none) is taken.
+    fn allow(&self, headers: &HeaderMap) -> bool {
+        let Some(host) = headers.get(header::HOST) else { return true };
+        let Ok(host) = host.to_str() else { return false };
+        let name = match host.strip_prefix('[') {
+            // An IPv6 literal, with or without a port.
+            Some(rest) => return rest.split_once(']').is_some_and(|(ip, _)| ip.parse::<std::net::Ipv6Addr>().is_ok()),
+            None => host.rsplit_once(':').map_or(host, |(name, _)| name),
+        };
+        let name = normal_name(name);
+        name.parse::<std::net::Ipv4Addr>().is_ok()
+            || name == "localhost"
+            || name.ends_with(".localhost")
+            || self.0.contains(&name)
+    }
+}
+
+/// A host name as compared: lower case, without the root's trailing dot.
+fn normal_name(name: &str) -> String {
+    name.trim_end_matches('.').to_ascii_lowercase()
+}
+
+/// Refuse requests whose Host names another server (`KnownNames::allow`).
+async fn known_host(
+    State(names): State<KnownNames>,
+    request: axum::extract::Request,
+    next: axum::middleware::Next,
+) -> Response {
+    if names.allow(request.headers()) {
+        return next.run(request).await;
+    }
+    let host = request.headers().get(header::HOST).and_then(|h| h.to_str().ok()).unwrap_or("?");
+    tracing::warn!(host, "a request for a host name this screen is not known by: refused");
+    let words = format!(
+        "this motor screen is not served as '{host}': open it by its IP address, localhost, or a name given with \
+         `zmotor web --name` ([web] names in a launch file)"
+    );
+    (StatusCode::MISDIRECTED_REQUEST, words).into_response()
+}
+
 /// A running web server; dropping it stops it.
 pub struct Web {
     task: tokio::task::JoinHandle<()>,
@@ -77,7 +132,8 @@ impl Web {
             .route("/api/axes", get(axes))
             .route("/api/fields", get(|| async { Json(zmotor_msgs::catalogue_json()) }))
             .route("/ws/{axis}", get(socket))
-            .with_state(AppState { client });
+            .with_state(AppState { client })
+            .layer(axum::middleware::from_fn_with_state(KnownNames::new(config), known_host));
         let task = tokio::spawn(async move {
             if let Err(e) = axum::serve(listener, router).await {
                 tracing::error!("the web server stopped: {e}");
@@ -339,5 +395,26 @@ mod tests {
         assert!(same_origin(&headers(None)), "a tool sends no Origin");
         assert!(!same_origin(&headers(Some("https://evil.example"))));
         assert!(!same_origin(&headers(Some("http://127.0.0.1:9999"))));
+    }
+
+    #[test]
+    fn requests_are_taken_for_ip_addresses_localhost_and_known_names_only() {
+        let config = WebConfig { names: vec!["Beamline-PC.lab".into()], ..WebConfig::default() };
+        let names = KnownNames::new(&config);
+        let host = |host: &str| {
+            let mut map = HeaderMap::new();
+            map.insert(header::HOST, host.parse().unwrap());
+            names.allow(&map)
+        };
+        for taken in ["127.0.0.1:8080", "10.2.3.4", "[::1]:8080", "[fe80::1]", "localhost:8080", "app.localhost"] {
+            assert!(host(taken), "{taken}");
+        }
+        assert!(host("beamline-pc.lab:8080") && host("BEAMLINE-PC.LAB.:8080"), "a configured name, any case");
+        for refused in
+            ["evil.example:8080", "evil.example", "127.0.0.1.evil.example", "localhost.evil.example", "[zz]:80"]
+        {
+            assert!(!host(refused), "{refused}");
+        }
+        assert!(names.allow(&HeaderMap::new()), "a tool may send no Host");
     }
 }
