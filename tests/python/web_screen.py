@@ -1,7 +1,7 @@
 """Drive zmotor's motor screen in headless Chromium (Debian's chromium and chromedriver, through
 Selenium): open the index, open the axis, click tweak-forward and see the motor move on the page
 and in the plot, type a target beyond the soft limit and see the node's refusal; keep a
-screenshot. A line `ok <check>` is printed for each check that passed.
+screenshot; close the page's socket and see it reconnect and drive the axis again. A line `ok <check>` is printed for each check that passed.
 
 Usage: python3 web_screen.py URL AXIS SCREENSHOT [jog | hold]
 The axis's tweak step (TWV) is 1. With `jog`: hold JOGF down until the page shows the motion,
@@ -101,6 +101,14 @@ try:
     ok("a target beyond the soft limit is refused with the node's words, and nothing moves")
     driver.save_screenshot(screenshot)
     ok("screenshot")
+
+    # A socket that closes is opened again: the page is live and drives the axis once more.
+    driver.execute_script("window.zmotorLost = window.zmotorSocket(); window.zmotorLost.close()")
+    wait.until(lambda d: d_text(d, "live").startswith("disconnected"))
+    wait.until(lambda d: d.execute_script("return window.zmotorSocket() !== window.zmotorLost") and d_text(d, "live") == "live")
+    driver.find_element(By.ID, "twf").click()
+    wait.until(lambda d: abs(float(rbv()) - (before + 2.0)) < 1e-9)
+    ok("a closed socket reconnects and the page drives the axis again")
 
     # The screen of an axis nobody serves says so, and leads back to the index.
     driver.get(url + "axis/nosuch")

@@ -1,6 +1,6 @@
 //! `zmotor web` in headless Chromium (tests/python/web_screen.py, Selenium): the index lists the
 //! axis, tweak-forward moves it on the page and in the plot, a target beyond the soft limit
-//! shows the node's refusal; the screenshot is kept (`target/tmp/web-screen.png`).
+//! shows the node's refusal, a socket closed is opened again; the screenshot is kept (`target/tmp/web-screen.png`).
 
 mod common;
 
@@ -46,6 +46,7 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
         "plot follows",
         "refused with the node's words",
         "screenshot",
+        "reconnects",
         "said to be not served",
     ] {
         assert!(seen.lines().any(|l| l.starts_with("ok") && l.contains(check)), "'{check}' not passed:\n{seen}");
@@ -56,7 +57,7 @@ fn the_motor_screen_moves_an_axis_plots_it_and_shows_a_refusal() {
     let address = free_address();
     let _web = here.spawn(&["web", "--address", &address, "--name", "Lab-Screen", "--connect", &endpoint], dir.path());
     let (status, axes) = http_get(&address, &address, "/api/axes");
-    let m1 = r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":1.0,"prec":3,"moving":false"#;
+    let m1 = r#""name":"m1","desc":"slit top blade","egu":"mm","rbv":2.0,"prec":3,"moving":false"#;
     assert!(status.contains(" 200 ") && axes.contains(m1), "{status}: {axes}");
     // A page served under another name (DNS rebinding) reaches nothing; the name given does.
     let port = address.rsplit_once(':').unwrap().1;

@@ -22,9 +22,23 @@ const series = { RBV: [], VAL: [], velocity: [] };
 // For tests and curious users: what the plot holds.
 window.zmotorPlot = series;
 
-const socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/" + encodeURIComponent(axis));
-socket.onmessage = (event) => receive(JSON.parse(event.data));
-socket.onclose = () => badge("live", "disconnected", "gone");
+// The socket, opened again after it closes (the server or the node restarted, the network cut):
+// the new one's first messages are the axis's values; nothing the page sent before is sent again.
+let socket;
+let reconnectDelay = 500;
+function connect() {
+  socket = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host + "/ws/" + encodeURIComponent(axis));
+  socket.onopen = () => { reconnectDelay = 500; };
+  socket.onmessage = (event) => receive(JSON.parse(event.data));
+  socket.onclose = () => {
+    badge("live", "disconnected, reconnecting", "gone");
+    setTimeout(connect, reconnectDelay);
+    reconnectDelay = Math.min(reconnectDelay * 2, 5000);
+  };
+}
+connect();
+// For tests: the socket now.
+window.zmotorSocket = () => socket;
 
 fetch("/api/fields").then((r) => r.json()).then((c) => {
   for (const f of c.fields) catalogue[f.name] = f;
@@ -55,7 +69,7 @@ function receive(message) {
 
 function write(field, value) {
   // A closed socket drops what it is given without a word: the page says it.
-  if (socket.readyState !== WebSocket.OPEN) return showError(field + ": not sent, the page is not connected (reload it)");
+  if (socket.readyState !== WebSocket.OPEN) return showError(field + ": not sent, the page is not connected (it reconnects by itself)");
   socket.send(JSON.stringify({ id: nextId++, field, value: String(value) }));
 }
 
