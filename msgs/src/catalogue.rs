@@ -22,6 +22,8 @@ pub enum Kind {
     Short,
     /// DBF_USHORT (u16).
     UShort,
+    /// DBF_UCHAR (u8): dbCommon's flags (UDF, DISP, PROC).
+    UChar,
     /// DBF_MENU: an index into the menu's choices.
     Menu(&'static Menu),
     /// DBF_STRING with its maximum length in bytes.
@@ -35,7 +37,7 @@ impl Kind {
     pub(crate) fn expected(self) -> &'static str {
         match self {
             Kind::Double | Kind::Float => "a number",
-            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort => "an integer",
+            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort | Kind::UChar => "an integer",
             Kind::Menu(_) => "a menu choice (its name or index)",
             Kind::Str(_) => "text",
             Kind::Link => "a key expression",
@@ -45,7 +47,7 @@ impl Kind {
     /// Whether a write may hold a boolean (as 1 or 0): whole-number fields and two-choice menus.
     pub(crate) fn takes_a_flag(self) -> bool {
         match self {
-            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort => true,
+            Kind::Long | Kind::ULong | Kind::Short | Kind::UShort | Kind::UChar => true,
             Kind::Menu(menu) => menu.choices.len() == 2,
             Kind::Double | Kind::Float | Kind::Str(_) | Kind::Link => false,
         }
@@ -61,6 +63,7 @@ impl Kind {
             Kind::ULong => (f64::from(u32::MAX), 0.0),
             Kind::Short => (f64::from(i16::MAX), f64::from(i16::MIN)),
             Kind::UShort | Kind::Menu(_) => (f64::from(u16::MAX), 0.0),
+            Kind::UChar => (f64::from(u8::MAX), 0.0),
             Kind::Str(_) | Kind::Link => (0.0, 0.0),
         }
     }
@@ -72,6 +75,7 @@ impl Kind {
             Kind::ULong => Some((0, u32::MAX.into())),
             Kind::Short => Some((i16::MIN.into(), i16::MAX.into())),
             Kind::UShort => Some((0, u16::MAX.into())),
+            Kind::UChar => Some((0, u8::MAX.into())),
             Kind::Menu(menu) => Some((0, menu.choices.len() as i64 - 1)),
             _ => None,
         }
@@ -86,6 +90,7 @@ impl Kind {
             Kind::ULong => "ULONG",
             Kind::Short => "SHORT",
             Kind::UShort => "USHORT",
+            Kind::UChar => "UCHAR",
             Kind::Menu(_) => "MENU",
             Kind::Str(_) => "STRING",
             Kind::Link => "LINK",
@@ -158,6 +163,9 @@ macro_rules! storage {
     };
     (UShort) => {
         u16
+    };
+    (UChar) => {
+        u8
     };
     (Menu($m:ident)) => {
         u16
@@ -341,7 +349,7 @@ catalogue! {
     PCOF  pcof:  Double = 0.0,  RW, "Proportional Gain", "";
     ICOF  icof:  Double = 0.0,  RW, "Integral Gain", "";
     DCOF  dcof:  Double = 0.0,  RW, "Derivative Gain", "";
-    PROC  proc:  Short = 0,     PP, "Force Processing", "";
+    PROC  proc:  UChar = 0,     PP, "Force Processing", "";
     // ---- limits and alarms ----
     HLM   hlm:   Double = 0.0,  PP, "User High Limit", "EGU";
     LLM   llm:   Double = 0.0,  PP, "User Low Limit", "EGU";
@@ -383,9 +391,9 @@ catalogue! {
     DTYP  dtyp:  Str(40) = "",  RO, "Device Type", "";
     STAT  stat:  Menu(MENU_ALARM_STAT) = 17, RO, "Alarm Status", "";
     SEVR  sevr:  Menu(MENU_ALARM_SEVR) = 3,  RO, "Alarm Severity", "";
-    UDF   udf:   Short = 1,     RO, "Undefined", "";
+    UDF   udf:   UChar = 1,     RO, "Undefined", "";
     FLNK  flnk:  Link = "",     RW, "Forward Process Link", "";
-    DISP  disp:  Short = 0,     RW, "Disable putField", "";
+    DISP  disp:  UChar = 0,     RW, "Disable putField", "";
 }
 
 impl Field {

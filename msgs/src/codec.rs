@@ -334,7 +334,7 @@ pub fn validate(def: &FieldDef, raw: Value) -> Result<Value, CodecError> {
             };
             check_range(def, index)
         }
-        Kind::Long | Kind::ULong | Kind::Short | Kind::UShort => {
+        Kind::Long | Kind::ULong | Kind::Short | Kind::UShort | Kind::UChar => {
             let i = match &raw {
                 Value::Text(t) => {
                     return Err(CodecError::WrongType {

@@ -62,7 +62,7 @@ macro_rules! int_storage {
         }
     )*};
 }
-int_storage!(i16, u16, i32, u32);
+int_storage!(u8, i16, u16, i32, u32);
 
 impl FieldStorage for f64 {
     fn to_value(&self) -> Value {

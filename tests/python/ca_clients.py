@@ -153,6 +153,8 @@ def puts_disabled():
     assert epics.PV("m1_able").get_ctrlvars()["enum_strs"][:2] == ("Enable", "Disable")
     assert put("m1_able", "Disable") == "ECA_NORMAL"
     assert epics.caget("m1.DISP", use_monitor=False) == 1
+    disp = epics.PV("m1.DISP")
+    assert disp.wait_for_connection(timeout=10) and disp.type == "time_char", disp.type  # DBF_UCHAR, as dbCommon's
     assert epics.Motor("m1").disabled == 1
     assert put("m1", before + 1.0) == "ECA_PUTFAIL"
     assert put("m1.VELO", 2.0) == "ECA_PUTFAIL"
@@ -161,7 +163,7 @@ def puts_disabled():
     assert epics.caget("m1.VELO", use_monitor=False) == velo
     assert epics.caget("m1.RBV", use_monitor=False) == before and epics.caget("m1.DMOV") == 1
     assert "puts are disabled" in epics.caget("m1.ERR$", as_string=True, use_monitor=False)
-    assert put("m1.DISP", 0) == "ECA_NORMAL"
+    assert put("m1.DISP", [0]) == "ECA_NORMAL"  # a char channel: caproto writes a sequence
     deadline = time.monotonic() + 10
     while ables[-1:] != [0] and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -169,7 +171,7 @@ def puts_disabled():
     assert epics.caput("m1", before + 1.0, wait=True, timeout=30) == 1
     assert near(epics.caget("m1.RBV", use_monitor=False), before + 1.0)
     assert epics.caput("m1", before, wait=True, timeout=30) == 1
-    ok("DISP disables every put but DISP and STOP; DISP 0 enables them; m1_able shows and sets it")
+    ok("DISP (a char channel) disables every put but DISP and STOP; DISP 0 enables them; m1_able shows and sets it")
 
 
 def dmov_monitor():

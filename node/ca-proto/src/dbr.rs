@@ -45,6 +45,7 @@ impl Base {
             Kind::Float => Base::Float,
             Kind::Long | Kind::UShort => Base::Long,
             Kind::Short => Base::Short,
+            Kind::UChar => Base::Char,
             Kind::Menu(_) => Base::Enum,
             Kind::Str(_) | Kind::Link => Base::String,
         }
@@ -148,9 +149,15 @@ impl Snapshot {
                 .ok()
                 .and_then(|i| self.choices.get(i))
                 .map_or_else(|| i.to_string(), |c| c.to_string()),
-            (Value::Float(x), _) => format!("{x:.*}", usize::try_from(self.precision).unwrap_or(0).min(17)),
+            // A negative precision is a large one to the IOC's unsigned conversion.
+            (Value::Float(x), _) => double_text(*x, self.precision as u16),
             (value, _) => value.to_string(),
         }
+    }
+
+    /// Whether this is text in a character array (a long string), not a number of a DBF_UCHAR.
+    fn is_characters(&self) -> bool {
+        self.native == Base::Char && matches!(self.value, Value::Text(_))
     }
 
     /// How many elements a reply of this snapshot carries when `requested` were asked for (0:
@@ -158,7 +165,7 @@ impl Snapshot {
     /// the text of a character array and its NUL, or the requested part of it, read as
     /// characters; one of anything else (a character array read as a string is its text).
     pub fn elements(&self, base: Base, requested: u32, count: u32) -> u32 {
-        if count <= 1 || self.native != Base::Char || base != Base::Char {
+        if count <= 1 || !self.is_characters() || base != Base::Char {
             return 1;
         }
         let used = u32::try_from(self.text().len() + 1).unwrap_or(u32::MAX).min(count);
@@ -222,7 +229,7 @@ impl Snapshot {
         }
         match dbr.base {
             Base::String => out.fixed_text(&self.text(), STRING_SIZE),
-            Base::Char if self.native == Base::Char => out.characters(&self.text(), elements as usize),
+            Base::Char if self.is_characters() => out.characters(&self.text(), elements as usize),
             Base::Enum => out.u16(self.number().clamp(0.0, f64::from(u16::MAX)) as u16),
             base => out.number(base, self.number()),
         }
@@ -326,6 +333,49 @@ pub(crate) fn written_text(data_type: u16, payload: &[u8], native: Base) -> Resu
     })
 }
 
+/// A double as an IOC's DBR_STRING gives it (EPICS base's `cvtDoubleToString`, which
+/// dbConvert calls with the record's precision): up to ±1e7 with at most 8 decimals, digits
+/// rounded half up from the first digit beyond; beyond, at most 3 decimals; beyond ±1e16 or
+/// with more than 8 decimals, C's `%e` (at most 17 digits, right-aligned to the precision + 7).
+fn double_text(value: f64, precision: u16) -> String {
+    if value.is_nan() || precision > 8 || value.abs() > 1e7 {
+        if precision > 8 || value.abs() > 1e16 {
+            let precision = usize::from(precision.min(17));
+            return format!("{:>width$}", c_exponent(value, precision), width = precision + 7);
+        }
+        if value.is_nan() {
+            return "nan".into();
+        }
+        return format!("{value:.*}", usize::from(precision.min(3)));
+    }
+    let sign = if value < 0.0 { "-" } else { "" };
+    let magnitude = value.abs();
+    // Whole part and the decimals as the C code cuts them: truncated one digit further, then
+    // rounded half up (2.5 at precision 0 is 3, not 2).
+    let mut whole = magnitude.trunc() as i64;
+    let scale = 10_i64.pow(u32::from(precision));
+    let mut fraction = (((magnitude - whole as f64) * scale as f64 * 10.0) as i64 + 5) / 10;
+    if fraction >= scale {
+        whole += 1;
+        fraction -= scale;
+    }
+    match precision {
+        0 => format!("{sign}{whole}"),
+        digits => format!("{sign}{whole}.{fraction:0digits$}", digits = usize::from(digits)),
+    }
+}
+
+/// C's `%.*e`: the exponent signed, of at least two digits (`1.500e+20`, `inf`).
+fn c_exponent(value: f64, precision: usize) -> String {
+    if !value.is_finite() {
+        return if value < 0.0 { "-inf" } else { "inf" }.into();
+    }
+    let text = format!("{value:.precision$e}");
+    let (mantissa, exponent) = text.split_once('e').unwrap_or((&text, "0"));
+    let (sign, digits) = exponent.strip_prefix('-').map_or(('+', exponent), |d| ('-', d));
+    format!("{mantissa}e{sign}{digits:0>2}")
+}
+
 /// A finite floating-point value written to an integer or menu channel, cut toward zero, as text
 /// (what is out of the field's range the node refuses, saying so).
 fn cut(value: f64, native: Base) -> Option<String> {
@@ -415,6 +465,46 @@ mod tests {
         assert_eq!(&ctrl[6 + 26..6 + 26 + 5], b"Pause");
         assert_eq!(u16::from_be_bytes([ctrl[422], ctrl[423]]), 3);
         assert_eq!(snapshot(Value::Float(2.5), Base::Double).text(), "2.500");
+    }
+
+    #[test]
+    fn channels_have_the_native_types_of_an_ioc() {
+        use zmotor_msgs::Field;
+        let native = |field: Field| Base::native(field.def().kind);
+        // dbCommon's flags are DBF_UCHAR: DBR_CHAR to cainfo and to clients that ask natively.
+        assert_eq!([native(Field::DISP), native(Field::PROC), native(Field::UDF)], [Base::Char; 3]);
+        assert_eq!([native(Field::DMOV), native(Field::JOGF)], [Base::Short; 2]);
+        assert_eq!([native(Field::VAL), native(Field::MSTA)], [Base::Double; 2]);
+        assert_eq!([native(Field::SPMG), native(Field::RMP)], [Base::Enum, Base::Long]);
+        let disabled = snapshot(Value::Int(1), Base::Char);
+        assert_eq!(disabled.elements(Base::Char, 0, 1), 1);
+        assert_eq!(disabled.encode(DbrType::from_code(4).unwrap(), 1), [1], "the number, not the character '1'");
+        assert_eq!(&disabled.encode(DbrType::from_code(0).unwrap(), 1)[..2], b"1\0");
+    }
+
+    #[test]
+    fn doubles_read_as_strings_as_cvt_double_to_string_writes_them() {
+        let cases: [(f64, u16, &str); 16] = [
+            (2.5, 3, "2.500"),
+            (-1.23456, 4, "-1.2346"),
+            (2.5, 0, "3"),
+            (0.0005, 3, "0.001"),
+            (-0.0001, 3, "-0.000"),
+            (9_999_999.99, 1, "10000000.0"),
+            (12_345_678.9, 5, "12345678.900"),
+            (-12_345_678.9, 1, "-12345678.9"),
+            (1.5, 9, " 1.500000000e+00"),
+            (1.5e20, 3, " 1.500e+20"),
+            (-1.5e-5, 10, "-1.5000000000e-05"),
+            (1.0, 20, " 1.00000000000000000e+00"),
+            (f64::INFINITY, 2, "      inf"),
+            (f64::NEG_INFINITY, 2, "     -inf"),
+            (f64::NAN, 2, "nan"),
+            (1e7, 8, "10000000.00000000"),
+        ];
+        for (value, precision, text) in cases {
+            assert_eq!(double_text(value, precision), text, "{value} at precision {precision}");
+        }
     }
 
     #[test]

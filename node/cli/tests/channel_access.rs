@@ -54,7 +54,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "control limits are re-posted",
         "answer as an IOC would",
         "ERR reads in full",
-        "DISP disables every put",
+        "DISP (a char channel) disables every put",
         "caproto",
         "moves nothing posts DMOV 0 then 1",
         "waits for it to complete",
