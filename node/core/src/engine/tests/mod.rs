@@ -4,6 +4,7 @@
 
 mod departures;
 mod lecture;
+mod quirks;
 mod scenarios;
 
 use super::*;
