@@ -394,6 +394,10 @@ catalogue! {
     UDF   udf:   UChar = 1,     RO, "Undefined", "";
     FLNK  flnk:  Link = "",     RW, "Forward Process Link", "";
     DISP  disp:  UChar = 0,     RW, "Disable putField", "";
+    DISA  disa:  Short = 0,     RW, "Disable", "";
+    DISV  disv:  Short = 1,     RW, "Disable Value", "";
+    DISS  diss:  Menu(MENU_ALARM_SEVR) = 0, RW, "Disable Alarm Sevrty", "";
+    SDIS  sdis:  Link = "",     RW, "Scanning Disable", "";
 }
 
 impl Field {
@@ -583,11 +587,11 @@ impl Field {
 }
 
 /// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
-/// disabling processing (DISP, which disables puts, is modelled), tracing, security. A database may
-/// set them; importing it ignores them (saying so where they would disable the record).
+/// tracing, security (disabling, DISP, DISA, DISV, DISS and SDIS, is modelled). A database may
+/// set them; importing it ignores them.
 pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
-    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "DISV", "DISS", "SDIS", "DISA", "ASG", "ACKT",
-    "UDFS", "BKPT", "LCNT", "PUTF", "RPRO", "NSEV", "NSTA",
+    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "ASG", "ACKT", "UDFS", "BKPT", "LCNT", "PUTF",
+    "RPRO", "NSEV", "NSTA",
 ];
 
 impl std::fmt::Display for Field {

@@ -172,4 +172,6 @@ pub mod status {
     pub const COMM: u16 = 9;
     /// The record is undefined (INVALID).
     pub const UDF: u16 = 17;
+    /// The record is disabled (DISA = DISV; severity DISS).
+    pub const DISABLE: u16 = 18;
 }

@@ -25,6 +25,9 @@ pub enum RefusalKind {
     LimitViolation,
     /// The motor's closed-loop control is off (CNEN Disable): nothing was sent to it.
     Disabled,
+    /// The record is disabled (DISA = DISV): the value was stored and is acted upon once the
+    /// record is enabled; nothing was processed.
+    RecordDisabled,
     /// A home toward a limit switch that is active.
     SwitchActive,
     /// The axis takes no writes but to DISP and STOP while DISP is not 0 (an IOC's "put
@@ -53,7 +56,7 @@ pub enum RefusalKind {
 
 impl RefusalKind {
     /// Every kind.
-    pub const ALL: [RefusalKind; 18] = [
+    pub const ALL: [RefusalKind; 19] = [
         RefusalKind::UnknownField,
         RefusalKind::ReadOnly,
         RefusalKind::BadValue,
@@ -61,6 +64,7 @@ impl RefusalKind {
         RefusalKind::Adjusted,
         RefusalKind::LimitViolation,
         RefusalKind::Disabled,
+        RefusalKind::RecordDisabled,
         RefusalKind::SwitchActive,
         RefusalKind::PutsDisabled,
         RefusalKind::BeyondRawRange,
@@ -84,6 +88,7 @@ impl RefusalKind {
             RefusalKind::Adjusted => "adjusted",
             RefusalKind::LimitViolation => "limit_violation",
             RefusalKind::Disabled => "disabled",
+            RefusalKind::RecordDisabled => "record_disabled",
             RefusalKind::SwitchActive => "switch_active",
             RefusalKind::PutsDisabled => "puts_disabled",
             RefusalKind::BeyondRawRange => "beyond_raw_range",
@@ -103,14 +108,15 @@ impl RefusalKind {
         Self::ALL.into_iter().find(|kind| kind.name() == name)
     }
 
-    /// Whether the record took the write and processed, but would not act on it (as an IOC's
-    /// record does on a limit violation: the put succeeds, LVIO tells). Other refusals
-    /// changed nothing, or only stored a corrected value.
+    /// Whether the record took the write but would not act on it (as an IOC's record does on a
+    /// limit violation: the put succeeds, LVIO tells; a disabled record's put succeeds, STAT
+    /// tells). Other refusals changed nothing, or only stored a corrected value.
     pub fn was_processed(self) -> bool {
         matches!(
             self,
             RefusalKind::LimitViolation
                 | RefusalKind::Disabled
+                | RefusalKind::RecordDisabled
                 | RefusalKind::SwitchActive
                 | RefusalKind::BeyondRawRange
                 | RefusalKind::ReadbackUnreadable

@@ -120,3 +120,35 @@ async fn a_soft_motor_whose_readback_node_goes_is_stopped_and_moves_no_more() {
     let moved = tokio::time::timeout(Duration::from_millis(500), driven.recv_async()).await;
     assert!(moved.is_err(), "a move drove the stage from a readback nobody serves: {moved:?}");
 }
+
+/// SDIS, as an interlock wires it: while the linked key reads DISV the record is disabled (a
+/// target is kept, not moved to; STAT DISABLE at DISS); once it reads otherwise, the next
+/// processing moves to the kept target.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_sdis_link_disables_the_record_while_its_key_reads_disv() {
+    let mut plan = fast_axis("m1");
+    plan.fields.sdis = "lab/interlock".into();
+    plan.fields.diss = zmotor_msgs::menus::severity::MAJOR;
+    let node = TestNode::start(vec![plan]).await;
+    let client = node.client().await;
+    put_text(&client, "lab/interlock", "1").await;
+    wait_until(&client, &node.key("m1", Field::DISA), 1.0).await;
+    let refused = confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.unwrap_err();
+    assert!(refused.starts_with("VAL: the record is disabled (DISA = DISV)"), "{refused}");
+    let (stat, sevr) = (
+        get_value(&client, &node.key("m1", Field::STAT)).await,
+        get_value(&client, &node.key("m1", Field::SEVR)).await,
+    );
+    assert_eq!((stat, sevr), (int(18), int(2)), "DISABLE, MAJOR");
+    assert_eq!(
+        (get_f64(&client, &node.key("m1", Field::VAL)).await, get_f64(&client, &node.key("m1", Field::RBV)).await),
+        (2.0, 0.0)
+    );
+    // The interlock released: the next processing (here a put of the same target) moves.
+    put_text(&client, "lab/interlock", "0").await;
+    wait_until(&client, &node.key("m1", Field::DISA), 0.0).await;
+    let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;
+    confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.unwrap();
+    rec.wait_for("RBV", |v| *v == Value::Float(2.0)).await;
+    rec.wait_for("DMOV", |v| *v == int(1)).await;
+}

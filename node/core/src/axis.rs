@@ -346,12 +346,17 @@ impl Axis {
         }
     }
 
-    /// A new value on one of the record's input links (RDBL, RINP, DINP, DOL) at time `now`.
+    /// A new value on one of the record's input links (RDBL, RINP, DINP, DOL, SDIS) at time `now`.
     pub fn link_update(&mut self, now: Instant, link: InputLink, value: f64) {
         self.advance(now);
         match link {
             InputLink::Desired => {
                 self.record.desired_value(value);
+                self.pump();
+                return;
+            }
+            InputLink::Disable => {
+                self.record.disable_value(value);
                 self.pump();
                 return;
             }

@@ -14,7 +14,7 @@ use crate::file::{
 use std::collections::BTreeMap;
 use std::path::Path;
 use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
-use zmotor_msgs::{field_value, to_toml};
+use zmotor_msgs::{field_value, to_toml, Value};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -127,7 +127,8 @@ pub(super) fn import_text(
     // Writes into calc inputs from other records' output links: (calc, letter) → mode.
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
     for record in &records {
-        if matches!(record.kind.as_str(), "motor" | "calcout" | "calc" | "ao" | "ai" | "longout" | "longin") {
+        // A motor's disabling is modelled; the records that become calc links and values are not.
+        if matches!(record.kind.as_str(), "calcout" | "calc" | "ao" | "ai" | "longout" | "longin") {
             warnings.extend(processing_disabled(record));
         }
         match record.kind.as_str() {
@@ -149,8 +150,13 @@ pub(super) fn import_text(
     Ok((launch, warnings))
 }
 
-/// What a record's database says of disabling its processing (SDIS, DISA, DISV), which zmotor
-/// does not model: an interlock wired that way would not hold, so the import says so.
+/// The fields that disable a record's processing: a motor's are modelled, other records'
+/// (calc links and values) are not, and `processing_disabled` says so where they would act.
+const DISABLING_FIELDS: &[&str] = &["SDIS", "DISA", "DISV", "DISS"];
+
+/// What a database says of disabling the processing of a record that is not a motor (SDIS,
+/// DISA, DISV), which zmotor does not model for it: an interlock wired that way would not hold,
+/// so the import says so.
 fn processing_disabled(record: &Record) -> Option<String> {
     let set = |name: &str| record.field(name).map(|(_, text, line)| (text.trim(), *line));
     let number = |name: &str, default: f64| set(name).and_then(|(text, _)| text.parse::<f64>().ok()).unwrap_or(default);
@@ -158,7 +164,7 @@ fn processing_disabled(record: &Record) -> Option<String> {
     match set("SDIS") {
         Some((link, line)) if !link.is_empty() && link.parse::<f64>().is_err() => Some(format!(
             "line {line}: {whose}: SDIS '{link}' disables its processing when it reads DISV; zmotor does not model \
-             that: the record processes whatever the link holds (DISP refuses puts)"
+             that but for motors: the record processes whatever the link holds"
         )),
         // A constant SDIS is the value DISA starts with.
         sdis => {
@@ -166,8 +172,8 @@ fn processing_disabled(record: &Record) -> Option<String> {
             let line = set("DISA").or(sdis).or(set("DISV")).map_or(record.line, |(_, line)| line);
             (disa == number("DISV", 1.0)).then(|| {
                 format!(
-                    "line {line}: {whose}: DISA = DISV disables its processing; zmotor does not model that: the \
-                     record processes (DISP refuses puts)"
+                    "line {line}: {whose}: DISA = DISV disables its processing; zmotor does not model that but \
+                     for motors: the record processes"
                 )
             })
         }
@@ -264,6 +270,7 @@ fn motor(
     let mut fields = BTreeMap::new();
     // Each field's last value and its line: what the record starts with (a later field() wins).
     let mut last = BTreeMap::new();
+    let mut constant_sdis = None;
     for (name, text, line) in &record.fields {
         let at = |message: String| Failure::at(*line, format!("motor '{}': field {name}: {message}", record.name));
         if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
@@ -283,6 +290,11 @@ fn motor(
         }
         let value = match field.def().kind {
             Kind::Link => match linker.link(text, *line, warnings)? {
+                // A constant SDIS is the value DISA starts with.
+                Link::Constant(disa) if field == Field::SDIS => {
+                    constant_sdis = Some((disa, *line));
+                    continue;
+                }
                 Link::None | Link::Constant(_) => continue,
                 Link::Hardware if !soft => continue,
                 Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
@@ -304,6 +316,13 @@ fn motor(
             field_value(field, &value).map_err(|e| Failure::at(*line, format!("motor '{}': {e}", record.name)))?;
         last.insert(field, (checked, *line));
         fields.insert(name.clone(), value);
+    }
+    if let Some((disa, line)) = constant_sdis {
+        let value = to_toml(Value::Int(disa.trunc() as i64));
+        let checked = field_value(Field::DISA, &value)
+            .map_err(|e| Failure::at(line, format!("motor '{}': SDIS: {e}", record.name)))?;
+        last.insert(Field::DISA, (checked, line));
+        fields.insert("DISA".into(), value);
     }
     for (field, (value, line)) in &last {
         if let Some(why) = zmotor_core::Unusable::of(*field, value) {
@@ -423,7 +442,7 @@ fn calc(
                 section.constants.insert(name.clone(), x);
             }
             "DESC" | "PREC" | "EGU" | "HOPR" | "LOPR" | "DOPT" => {}
-            _ if UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) => {}
+            _ if UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) || DISABLING_FIELDS.contains(&name.as_str()) => {}
             _ => warnings.push(format!(
                 "line {line}: {} '{}': field {name} is not used by zmotor and was ignored",
                 record.kind, record.name
@@ -791,9 +810,10 @@ mod tests {
         let (file, _) = import(text).unwrap();
         assert_eq!(file.axes.len(), 1);
         assert_eq!(file.axes[0].fields["VELO"], toml::Value::Integer(3));
-        // DISP (puts disabled) is modelled; SCAN and SDIS (the record's processing) are not.
+        // DISP (puts disabled) and SDIS (processing disabled) are modelled; SCAN is not.
         assert_eq!(file.axes[0].fields["DISP"], toml::Value::Integer(1));
-        assert!(!file.axes[0].fields.contains_key("SCAN") && !file.axes[0].fields.contains_key("SDIS"));
+        assert!(!file.axes[0].fields.contains_key("SCAN"));
+        assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("motor/m1_able/VAL".into()));
         assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
     }
 
@@ -813,21 +833,34 @@ mod tests {
             let (_, warnings) = import(text).unwrap();
             warnings.into_iter().filter(|w| w.contains("disables its processing")).collect::<Vec<_>>()
         };
-        let interlock = warned("record(motor, m1) {\n field(SDIS, \"interlock.VAL NPP\")\n}");
+        let interlock = warned("record(calcout, c) {\n field(CALC, \"A\")\n field(SDIS, \"interlock.VAL NPP\")\n}");
         assert_eq!(interlock.len(), 1, "{interlock:?}");
-        assert!(interlock[0].starts_with("line 2: motor 'm1': SDIS 'interlock.VAL NPP'"), "{interlock:?}");
+        assert!(interlock[0].starts_with("line 3: calcout 'c': SDIS 'interlock.VAL NPP'"), "{interlock:?}");
         assert_eq!(warned("record(calcout, c) { field(CALC, \"A\") field(DISA, 1) }").len(), 1);
         assert_eq!(warned("record(ao, v) { field(DISV, 0) }").len(), 1, "DISA starts at 0");
-        assert_eq!(warned("record(motor, m1) { field(SDIS, 2) field(DISV, 2) }").len(), 1, "a constant SDIS is DISA");
-        // Enabled as written: nothing to say.
+        assert_eq!(warned("record(ao, v) { field(SDIS, 2) field(DISV, 2) }").len(), 1, "a constant SDIS is DISA");
+        // Enabled as written, or a motor (whose disabling is modelled): nothing to say.
         for enabled in [
-            "record(motor, m1) { field(DISA, 0) field(DISV, 1) }",
-            "record(motor, m1) { field(SDIS, \"\") field(SCAN, \"Passive\") }",
-            "record(motor, m1) { field(SDIS, 0) }",
-            "record(motor, m1) { field(DISA, 1) field(DISV, 2) }",
+            "record(ao, v) { field(DISA, 0) field(DISV, 1) }",
+            "record(ao, v) { field(SDIS, \"\") field(SCAN, \"Passive\") }",
+            "record(ao, v) { field(SDIS, 0) }",
+            "record(ao, v) { field(DISA, 1) field(DISV, 2) }",
+            "record(motor, m1) { field(SDIS, \"interlock.VAL NPP\") field(DISA, 1) }",
         ] {
             assert_eq!(warned(enabled), Vec::<String>::new(), "{enabled}");
         }
+        // A motor's: its fields, an SDIS link as its key, a constant SDIS as DISA.
+        let (file, _) =
+            import("record(motor, m1) { field(SDIS, \"lab:interlock CP\") field(DISV, 0) field(DISS, \"MAJOR\") }")
+                .unwrap();
+        let fields = &file.axes[0].fields;
+        assert_eq!(fields["SDIS"], toml::Value::String("motor/lab:interlock/VAL".into()));
+        assert_eq!(
+            (&fields["DISV"], &fields["DISS"]),
+            (&toml::Value::Integer(0), &toml::Value::String("MAJOR".into()))
+        );
+        let (file, _) = import("record(motor, m1) { field(DISA, 0) field(SDIS, 2.7) }").unwrap();
+        assert_eq!(file.axes[0].fields["DISA"], toml::Value::Integer(2), "as dbGetLink cuts to a short");
     }
 
     #[test]

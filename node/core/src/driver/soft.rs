@@ -29,11 +29,14 @@ pub enum InputLink {
     Done,
     /// DOL: the desired value in closed-loop mode.
     Desired,
+    /// SDIS: the value DISA takes (the record is disabled while it equals DISV).
+    Disable,
 }
 
 impl InputLink {
     /// Every input link.
-    pub const ALL: [InputLink; 4] = [InputLink::Readback, InputLink::RawPosition, InputLink::Done, InputLink::Desired];
+    pub const ALL: [InputLink; 5] =
+        [InputLink::Readback, InputLink::RawPosition, InputLink::Done, InputLink::Desired, InputLink::Disable];
 
     /// The link field that names its key.
     pub fn field(self) -> Field {
@@ -42,6 +45,7 @@ impl InputLink {
             InputLink::RawPosition => Field::RINP,
             InputLink::Done => Field::DINP,
             InputLink::Desired => Field::DOL,
+            InputLink::Disable => Field::SDIS,
         }
     }
 
@@ -152,7 +156,7 @@ impl SoftChannel {
                 self.state = DriveState::Done;
                 Reaction::Callback
             }
-            InputLink::Desired => Reaction::Nothing,
+            InputLink::Desired | InputLink::Disable => Reaction::Nothing,
         }
     }
 }

@@ -208,6 +208,9 @@ pub enum Inaction {
     /// A jog would reach a soft limit within one second of travel.
     #[error("limit violation: jog refused within one second of travel of a soft limit")]
     JogNearSoftLimit,
+    /// The record is disabled (DISA = DISV): the value is stored, nothing is processed.
+    #[error("the record is disabled (DISA = DISV): the value is kept, and acted upon once it is enabled")]
+    RecordDisabled,
     /// Departure Z11: a servo whose closed-loop control is off (CNEN = Disable).
     #[error("motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first")]
     Disabled,
@@ -256,6 +259,7 @@ impl Inaction {
         match self {
             Inaction::SoftLimits { .. } | Inaction::JogNearSoftLimit => RefusalKind::LimitViolation,
             Inaction::Disabled => RefusalKind::Disabled,
+            Inaction::RecordDisabled => RefusalKind::RecordDisabled,
             Inaction::SwitchActive { .. } => RefusalKind::SwitchActive,
             Inaction::TargetBeyondRawRange { .. } | Inaction::PositionBeyondRawRange { .. } => {
                 RefusalKind::BeyondRawRange

@@ -100,6 +100,17 @@ impl MotorRecord {
         }
     }
 
+    /// SDIS read `value`: DISA takes it (as dbProcess reads SDIS into DISA, a short), to be
+    /// compared with DISV at the next processing.
+    pub fn disable_value(&mut self, value: f64) {
+        let disa = value.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
+        if disa != self.f.disa {
+            self.f.disa = disa;
+            self.post(Field::DISA);
+            self.flush_posts();
+        }
+    }
+
     /// DOL now names another key (or none): its last value is no longer the desired one.
     pub fn forget_desired_value(&mut self) {
         self.desired = None;
@@ -150,6 +161,11 @@ impl MotorRecord {
         if access == Access::RO {
             return Err(WriteError::ReadOnly(field));
         }
+        // Departure Z24: a disabled record is not processed, so the reference leaves a motion
+        // under way that nobody may stop; here a write that stops one (STOP, SPMG Stop or Pause,
+        // a jog let go) stops the motor (a node's own stops, of a released hold or a shutdown,
+        // are writes of STOP).
+        let stops_while_disabled = self.disabled() && self.ends_motion(field, value);
         self.special_before(field, value)?;
         self.f.set(field, value);
         if field == Field::VAL {
@@ -164,7 +180,9 @@ impl MotorRecord {
             self.post(field);
         }
         self.refusal = None;
-        if access == Access::PP {
+        if stops_while_disabled {
+            self.stop_while_disabled();
+        } else if access == Access::PP {
             self.process();
         } else {
             self.flush_posts();
@@ -197,6 +215,44 @@ impl MotorRecord {
         } else {
             -1.0
         }
+    }
+
+    /// Whether the record is disabled (DISA = DISV): it is not processed.
+    fn disabled(&self) -> bool {
+        self.f.disa == self.f.disv
+    }
+
+    /// A write that ends a motion: STOP, SPMG Stop or Pause, or a jog's button let go while it
+    /// jogs.
+    fn ends_motion(&self, field: Field, value: &Value) -> bool {
+        let jogging = self.f.mip & (mip::JOGF | mip::JOGR) != 0;
+        let spmg = value.as_f64().map(|v| v as u16);
+        match field {
+            Field::STOP => value.as_f64() != Some(0.0),
+            Field::SPMG => matches!(spmg, Some(choice::SPMG_STOP | choice::SPMG_PAUSE)),
+            Field::JOGF | Field::JOGR => jogging && value.as_f64() == Some(0.0),
+            _ => false,
+        }
+    }
+
+    /// Departure Z24: stop the motor of a disabled record, as a STOP during a motion does
+    /// (§9.1), without processing the record: MIP STOP and PP, so that the first processing
+    /// once enabled ends the motion where it stopped (no retry toward the target); the
+    /// buttons cleared, STOP taken.
+    fn stop_while_disabled(&mut self) {
+        if self.f.mip != mip::DONE {
+            self.f.pp = 1;
+            self.clear_buttons();
+            if self.f.mip & mip::DELAY_REQ == 0 {
+                self.set_mip(mip::STOP);
+            }
+        }
+        if self.f.stop != 0 {
+            self.f.stop = 0;
+            self.mark(Field::STOP);
+        }
+        self.send(vec![MotorCommand::StopAxis]);
+        self.flush_posts();
     }
 
     /// Departure Z11: a servo whose control is disabled (CNEN = Disable) is not asked to move;

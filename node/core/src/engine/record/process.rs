@@ -1,14 +1,22 @@
 //! §8 process(): the top-level processing, its callback part and the entry into do_work.
 
 use super::{Flow, MotorRecord, Reason};
-use crate::engine::commands::{MotorCommand, Output};
+use crate::engine::commands::{Inaction, MotorCommand, Output};
 use crate::time::seconds;
 use zmotor_msgs::bits::mip;
-use zmotor_msgs::menus::choice;
+use zmotor_msgs::menus::{choice, status};
 use zmotor_msgs::{Field, Value};
 
 impl MotorRecord {
     pub(super) fn process(&mut self) {
+        match self.disabled() {
+            true => self.process_disabled(),
+            false => self.process_enabled(),
+        }
+    }
+
+    /// The record's own processing, §8.
+    pub(super) fn process_enabled(&mut self) {
         let lvio_at_entry = self.f.lvio;
         let msta_at_entry = self.f.msta;
         let mut reason = self.update_values();
@@ -34,6 +42,20 @@ impl MotorRecord {
         if self.f.dmov != 0 {
             self.outputs.push(Output::Done);
         }
+    }
+
+    /// A processing of a disabled record (DISA = DISV), as dbProcess does it: nothing is
+    /// processed (the device's status waits for the next processing, a written target for the
+    /// first once enabled), the DISABLE alarm at severity DISS is raised once, with VAL posted.
+    fn process_disabled(&mut self) {
+        if self.f.stat != status::DISABLE {
+            (self.f.stat, self.f.sevr) = (status::DISABLE, self.f.diss);
+            self.post(Field::STAT);
+            self.post(Field::SEVR);
+            self.post(Field::VAL);
+        }
+        self.flush_posts();
+        self.refusal = Some(Inaction::RecordDisabled);
     }
 
     /// §15.3 update_values: copy the device's pending status into the record.

@@ -19,7 +19,8 @@ impl MotorRecord {
                 if self.f.mip & (mip::JOG_STOP | mip::JOG_BL1 | mip::JOG_BL2) != 0 {
                     return Err(WriteError::Refused { field, reason: Busy::JogBacklashTakeout });
                 }
-                if self.f.dmov == 1 {
+                // A disabled record is not processed: no motion starts, so no DMOV pulse (§7.1).
+                if self.f.dmov == 1 && !self.disabled() {
                     self.f.dmov = 0;
                     self.post(DMOV);
                 }

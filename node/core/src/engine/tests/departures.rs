@@ -400,3 +400,49 @@ fn z22_a_stop_during_a_retry_leg_under_way_keeps_dmov_0_until_the_motor_has_stop
     assert!(approx(f.rbv, 0.47) && approx(f.val, 0.47), "done where it stopped: {} {}", f.rbv, f.val);
     assert!(rig.take().iter().all(|c| !matches!(c, MoveAbs(_) | MoveRel(_))));
 }
+
+/// Z24: a disabled record is not processed, so the reference cannot stop a motion under way
+/// (STOP is stored and waits); here STOP is processed all the same: the motor is stopped and,
+/// once it has, the motion ends where it is (no retry toward the target after enabling).
+#[test]
+fn z24_stop_stops_a_motion_of_a_disabled_record() {
+    let mut rig = Rig::boot(baseline_b(), 0.0);
+    rig.put(Field::VAL, 5.0).unwrap();
+    rig.cb_moving(100.0);
+    rig.take();
+    rig.put(Field::DISA, 1.0).unwrap();
+    rig.put(Field::STOP, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+    assert_eq!((rig.f().stop, rig.f().mip), (0, mip::STOP));
+    rig.cb(150.0);
+    assert!(rig.take().is_empty());
+    assert_eq!(rig.f().dmov, 0, "disabled: the end is not processed");
+    rig.put(Field::DISA, 0.0).unwrap();
+    rig.cb(150.0);
+    assert!(rig.take().is_empty(), "no retry toward 5");
+    let f = rig.f();
+    assert_eq!((f.dmov, f.mip, f.val, f.rbv), (1, mip::DONE, 1.5, 1.5));
+}
+
+/// Z24: a jog let go, or SPMG Pause, while the record is disabled stops the motion; other
+/// writes are stored, not processed.
+#[test]
+fn z24_a_jog_let_go_or_a_pause_while_disabled_stops() {
+    let jogging = || {
+        let mut rig = Rig::boot(jog_fields(), 0.0);
+        rig.put(Field::JOGF, 1.0).unwrap();
+        rig.cb_moving(100.0);
+        rig.take();
+        rig.put(Field::DISA, 1.0).unwrap();
+        assert!(matches!(rig.put(Field::HLSV, 1.0), Err(WriteError::NotActedUpon { .. })));
+        assert!(matches!(rig.put(Field::SPMG, 2.0), Err(WriteError::NotActedUpon { .. })), "Go is no stop");
+        assert!(rig.take().is_empty());
+        rig
+    };
+    let mut rig = jogging();
+    rig.put(Field::JOGF, 0.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+    let mut rig = jogging();
+    rig.put(Field::SPMG, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+}

@@ -555,3 +555,56 @@ fn udf_alarm_comes_before_the_limit_alarm() {
     assert_eq!((rig.f().udf, rig.f().stat, rig.f().sevr), (0, status::HIGH, severity::MAJOR));
     assert_eq!(rig.posted(Field::SEVR), vec![Value::Int(i64::from(severity::MAJOR))]);
 }
+
+// ---------------------------------------------------------------- Q33 a disabled record
+
+/// Q33: while DISA = DISV the record is not processed: a target written is stored (no DMOV
+/// pulse, nothing sent, the write answered as not acted upon), device status is not taken
+/// (RBV stays), and the first processing raises STAT DISABLE at severity DISS with VAL posted.
+/// Enabled again (DISA, not process-passive, processes nothing), the next processing takes the
+/// status and moves to the stored target.
+#[test]
+fn q33_a_disabled_record_stores_writes_and_moves_once_enabled() {
+    let mut rig = Rig::boot(Fields { diss: severity::MAJOR, ..baseline_b() }, 0.0);
+    rig.put(Field::DISA, 1.0).unwrap();
+    assert!(rig.take().is_empty());
+    assert_eq!(rig.posted(Field::DISA), vec![Value::Int(1)]);
+    let err = rig.put(Field::VAL, 5.0).unwrap_err();
+    assert!(matches!(err, WriteError::NotActedUpon { field: Field::VAL, reason: Inaction::RecordDisabled }), "{err}");
+    assert!(rig.take().is_empty(), "nothing is sent");
+    let f = rig.f();
+    assert_eq!((f.val, f.dval, f.dmov, f.mip), (5.0, 0.0, 1, mip::DONE));
+    assert_eq!((f.stat, f.sevr), (status::DISABLE, severity::MAJOR));
+    assert!(rig.posted(Field::DMOV).is_empty(), "no DMOV pulse");
+    assert_eq!(rig.posted(Field::STAT), vec![Value::Int(status::DISABLE.into())]);
+    assert_eq!(rig.posted(Field::VAL), vec![Value::Float(5.0)]);
+    // Status while disabled: not taken, and the alarm is not raised again.
+    rig.cb(40.0);
+    assert_eq!((rig.f().rbv, rig.f().rmp), (0.0, 0));
+    assert!(rig.posted(Field::STAT).is_empty() && rig.posted(Field::RBV).is_empty());
+    // Enabled: nothing until the next processing, which takes the status and moves.
+    rig.put(Field::DISA, 0.0).unwrap();
+    assert!(rig.take().is_empty());
+    assert_eq!(rig.f().stat, status::DISABLE);
+    rig.cb(40.0);
+    assert_eq!(rig.f().rbv, 0.4);
+    assert_eq!((rig.f().stat, rig.f().sevr), (status::NO_ALARM, severity::NO_ALARM));
+    assert_eq!(rig.posted(Field::STAT), vec![Value::Int(0)]);
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0), "the stored target, at the first processing");
+    assert_eq!((rig.f().dval, rig.f().dmov, rig.f().mip), (5.0, 0, mip::MOVE));
+}
+
+/// Q33 and SDIS: the link's value is DISA (cut to a short), compared with DISV at processing.
+#[test]
+fn q33_sdis_sets_disa() {
+    let mut rig = Rig::boot(Fields { disv: 2, ..baseline_b() }, 0.0);
+    rig.rec.disable_value(2.9);
+    rig.collect();
+    assert_eq!((rig.f().disa, rig.posted(Field::DISA)), (2, vec![Value::Int(2)]));
+    assert!(matches!(rig.put(Field::VAL, 1.0), Err(WriteError::NotActedUpon { .. })));
+    assert!(rig.take().is_empty());
+    rig.rec.disable_value(0.0);
+    rig.collect();
+    rig.put(Field::VAL, 1.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 100.0));
+}
