@@ -398,6 +398,8 @@ catalogue! {
     DISV  disv:  Short = 1,     RW, "Disable Value", "";
     DISS  diss:  Menu(MENU_ALARM_SEVR) = 0, RW, "Disable Alarm Sevrty", "";
     SDIS  sdis:  Link = "",     RW, "Scanning Disable", "";
+    ACKT  ackt:  Menu(MENU_YES_NO) = 1, RW, "Alarm Ack Transient", "";
+    ACKS  acks:  Menu(MENU_ALARM_SEVR) = 0, RW, "Alarm Ack Severity", "";
 }
 
 impl Field {
@@ -498,7 +500,10 @@ impl Field {
         match self {
             DVAL | OFF => Some(Autosave::Position),
             VAL | RVAL | RLV | TWF | TWR | SYNC | SPMG | STOP | HOMF | HOMR | JOGF | JOGR | STUP | CNEN | PROC
-            | SET | SSET | SUSE | FOF | VOF | HLM | LLM => None,
+            | SET | SSET | SUSE | FOF | VOF | HLM | LLM | ACKS => None,
+            // As motor_settings.req: whether the record is disabled is the launch's (its SDIS
+            // interlock) or the moment's, not a setting that outlives a restart.
+            DISA | DISV | DISS | SDIS => None,
             _ if self.def().access == Access::RO => None,
             _ => Some(Autosave::Setting),
         }
@@ -509,7 +514,8 @@ impl Field {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum WriteClass {
     /// A command that moves or stops the axis, or the tweak step an operator sets beside it:
-    /// targets (VAL, DVAL, RVAL, RLV), tweak, jog, home, STOP, SPMG, SYNC, STUP, CNEN, PROC.
+    /// targets (VAL, DVAL, RVAL, RLV), tweak, jog, home, STOP, SPMG, SYNC, STUP, CNEN, PROC;
+    /// and an alarm's acknowledgement (ACKS).
     Drive,
     /// Everything else one may write: limits, resolution, speeds, offsets, SET, links, ...
     Configure,
@@ -522,7 +528,7 @@ impl Field {
         match self {
             _ if self.def().access == Access::RO => None,
             VAL | DVAL | RVAL | RLV | TWF | TWR | TWV | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP
-            | CNEN | PROC => Some(WriteClass::Drive),
+            | CNEN | PROC | ACKS => Some(WriteClass::Drive),
             _ => Some(WriteClass::Configure),
         }
     }
@@ -534,7 +540,7 @@ impl Field {
     /// configure an axis, may not hold one: it would act at the axis's first write.
     pub fn is_command(self) -> bool {
         use Field::*;
-        matches!(self, RLV | TWF | TWR | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP | PROC)
+        matches!(self, RLV | TWF | TWR | JOGF | JOGR | HOMF | HOMR | STOP | SPMG | SYNC | STUP | PROC | ACKS)
     }
 
     /// A target the record takes from its readback when it starts (VAL, RVAL): a configuration
@@ -587,11 +593,12 @@ impl Field {
 }
 
 /// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
-/// tracing, security (disabling, DISP, DISA, DISV, DISS and SDIS, is modelled). A database may
-/// set them; importing it ignores them.
+/// tracing, security (disabling, DISP, DISA, DISV, DISS and SDIS, and the alarm
+/// acknowledgement, ACKT and ACKS, are modelled). A database may set them; importing it
+/// ignores them.
 pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
-    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "ASG", "ACKT", "UDFS", "BKPT", "LCNT", "PUTF",
-    "RPRO", "NSEV", "NSTA",
+    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "ASG", "UDFS", "BKPT", "LCNT", "PUTF", "RPRO",
+    "NSEV", "NSTA",
 ];
 
 impl std::fmt::Display for Field {

@@ -25,8 +25,8 @@ pub enum RefusalKind {
     LimitViolation,
     /// The motor's closed-loop control is off (CNEN Disable): nothing was sent to it.
     Disabled,
-    /// The record is disabled (DISA = DISV): the value was stored and is acted upon once the
-    /// record is enabled; nothing was processed.
+    /// The record is disabled (DISA = DISV) and the write would start a motion once it is
+    /// enabled (a target, a jog or home button, SPMG Move or Go): nothing changed.
     RecordDisabled,
     /// A home toward a limit switch that is active.
     SwitchActive,
@@ -108,15 +108,14 @@ impl RefusalKind {
         Self::ALL.into_iter().find(|kind| kind.name() == name)
     }
 
-    /// Whether the record took the write but would not act on it (as an IOC's record does on a
-    /// limit violation: the put succeeds, LVIO tells; a disabled record's put succeeds, STAT
-    /// tells). Other refusals changed nothing, or only stored a corrected value.
+    /// Whether the record took the write and processed, but would not act on it (as an IOC's
+    /// record does on a limit violation: the put succeeds, LVIO tells). Other refusals
+    /// changed nothing, or only stored a corrected value.
     pub fn was_processed(self) -> bool {
         matches!(
             self,
             RefusalKind::LimitViolation
                 | RefusalKind::Disabled
-                | RefusalKind::RecordDisabled
                 | RefusalKind::SwitchActive
                 | RefusalKind::BeyondRawRange
                 | RefusalKind::ReadbackUnreadable

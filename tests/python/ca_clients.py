@@ -174,6 +174,28 @@ def puts_disabled():
     ok("DISP (a char channel) disables every put but DISP and STOP; DISP 0 enables them; m1_able shows and sets it")
 
 
+def alarm_acknowledgement():
+    """What ALH does: the record's alarm and acknowledgement read as DBR_STSACK_STRING, and
+    DBR_PUT_ACKT / DBR_PUT_ACKS written to it (here to a read-only channel of the record)."""
+    from caproto import ChannelType
+    from caproto.sync.client import read, write
+
+    def stsack():
+        meta = read("m1", data_type=ChannelType.STSACK_STRING, repeater=False, timeout=10).metadata
+        return (meta.status, meta.severity, meta.ackt, meta.acks, float(meta.value))
+
+    rbv = epics.caget("m1.RBV", use_monitor=False)
+    assert stsack() == (0, 0, 1, 0, rbv), stsack()
+    write("m1.RBV", [0], data_type=ChannelType.PUT_ACKT, notify=True, repeater=False, timeout=10)
+    assert epics.caget("m1.ACKT", use_monitor=False) == 0
+    assert stsack()[2] == 0
+    write("m1.RBV", [3], data_type=ChannelType.PUT_ACKS, notify=True, repeater=False, timeout=10)
+    assert epics.caget("m1.ACKS", use_monitor=False) == 0
+    write("m1", [1], data_type=ChannelType.PUT_ACKT, notify=True, repeater=False, timeout=10)
+    assert stsack()[2:4] == (1, 0)
+    ok("ALH's alarm acknowledgement: DBR_STSACK_STRING reads ACKT and ACKS, DBR_PUT_ACKT and DBR_PUT_ACKS write them")
+
+
 def dmov_monitor():
     """A monitor of m1.DMOV once its first value came, and the list its later values go to."""
     pulses = []
@@ -352,6 +374,7 @@ STAGES = {
         put_wait_and_monitors,
         refused,
         puts_disabled,
+        alarm_acknowledgement,
         moves_of_nothing,
         read_after_write,
         caproto_tools,

@@ -122,8 +122,8 @@ async fn a_soft_motor_whose_readback_node_goes_is_stopped_and_moves_no_more() {
 }
 
 /// SDIS, as an interlock wires it: while the linked key reads DISV the record is disabled (a
-/// target is kept, not moved to; STAT DISABLE at DISS); once it reads otherwise, the next
-/// processing moves to the kept target.
+/// target is refused, nothing moves; STAT DISABLE at DISS); once it reads otherwise, a target
+/// moves.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_sdis_link_disables_the_record_while_its_key_reads_disv() {
     let mut plan = fast_axis("m1");
@@ -133,18 +133,20 @@ async fn an_sdis_link_disables_the_record_while_its_key_reads_disv() {
     let client = node.client().await;
     put_text(&client, "lab/interlock", "1").await;
     wait_until(&client, &node.key("m1", Field::DISA), 1.0).await;
-    let refused = confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.unwrap_err();
-    assert!(refused.starts_with("VAL: the record is disabled (DISA = DISV)"), "{refused}");
+    // A setting processes the record: the alarm says it is disabled.
+    confirmed_write(&client, &node.key("m1", Field::HLSV), "MINOR", PATIENCE).await.unwrap();
     let (stat, sevr) = (
         get_value(&client, &node.key("m1", Field::STAT)).await,
         get_value(&client, &node.key("m1", Field::SEVR)).await,
     );
     assert_eq!((stat, sevr), (int(18), int(2)), "DISABLE, MAJOR");
-    assert_eq!(
-        (get_f64(&client, &node.key("m1", Field::VAL)).await, get_f64(&client, &node.key("m1", Field::RBV)).await),
-        (2.0, 0.0)
-    );
-    // The interlock released: the next processing (here a put of the same target) moves.
+    let refused = confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.unwrap_err();
+    assert!(refused.contains("the record is disabled (DISA = DISV); nothing changed"), "{refused}");
+    assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, 0.0);
+    // A client's DISA 0 does not outlast the interlock's value.
+    confirmed_write(&client, &node.key("m1", Field::DISA), "0", PATIENCE).await.unwrap();
+    assert!(confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.is_err());
+    // The interlock released: a target moves.
     put_text(&client, "lab/interlock", "0").await;
     wait_until(&client, &node.key("m1", Field::DISA), 0.0).await;
     let mut rec = Recorder::new(&node, &client, "motor/m1/*").await;

@@ -242,7 +242,8 @@ impl Circuit {
                 None => self.pending_reads.push(pending),
             }
         }
-        let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR)));
+        // An acknowledgement's change is an alarm event, as dbAccess posts it (DBE_ALARM).
+        let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR | Field::ACKT | Field::ACKS)));
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         // Each subscription concerned, and whether its event carries a value change (the first,
         // or one past the deadbands), as against an alarm's or metadata's alone.
@@ -251,7 +252,11 @@ impl Circuit {
             .iter()
             .filter_map(|(subid, s)| {
                 let pv = self.channels.get(&s.sid).map(|c| &c.pv).filter(|pv| pv.axis == axis)?;
-                let class = DbrType::from_code(s.dbr).map_or(Class::Plain, |d| d.class);
+                let class = match s.dbr {
+                    // Alarm and acknowledgement, with the value as text.
+                    dbr::DBR_STSACK_STRING => Class::Status,
+                    code => DbrType::from_code(code).map_or(Class::Plain, |d| d.class),
+                };
                 let value = !s.posted
                     || (changed.is_some_and(|c| pv.shows(c))
                         && s.mask & VALUE_EVENTS != 0
@@ -496,7 +501,8 @@ impl Circuit {
             }
             dbr::DBR_STSACK_STRING => {
                 let mut bytes = Vec::new();
-                for word in [snapshot.status, snapshot.severity, 0, 0] {
+                let (ackt, acks) = snapshot.acknowledgement;
+                for word in [snapshot.status, snapshot.severity, ackt, acks] {
                     bytes.extend_from_slice(&word.to_be_bytes());
                 }
                 bytes.extend(snapshot.encode(DbrType { base: Base::String, class: Class::Plain }, 1));
@@ -510,7 +516,16 @@ impl Circuit {
         let Some(channel) = self.channels.get(&header.p1) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
-        let (pv, cid) = (channel.pv.clone(), channel.cid);
+        let (mut pv, cid) = (channel.pv.clone(), channel.cid);
+        // An alarm's acknowledgement, on any channel of the record: a write of ACKT or ACKS.
+        let acknowledges = match header.data_type {
+            dbr::DBR_PUT_ACKT => Some(Field::ACKT),
+            dbr::DBR_PUT_ACKS => Some(Field::ACKS),
+            _ => None,
+        };
+        if let Some(field) = acknowledges {
+            pv = Pv { axis: pv.axis, target: Target::Field(field) };
+        }
         self.writes_sent += 1;
         let number = self.writes_sent;
         let answer = if header.command == command::WRITE_NOTIFY {
@@ -522,10 +537,15 @@ impl Circuit {
             let message = format!("{}: read-only", pv.name(&self.prefix));
             return self.answer_write(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
-        match dbr::written_text(header.data_type, payload, pv.native()) {
+        let written = match acknowledges {
+            Some(_) => dbr::written_text(Base::Enum.code(), payload, pv.native()),
+            None => dbr::written_text(header.data_type, payload, pv.native()),
+        };
+        match written {
             Ok(text) => {
+                // A put-callback of a command is answered when the motion it starts has ended.
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
-                    && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive));
+                    && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive) && f != Field::ACKS);
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 if !wait {
                     self.writing.push((number, pv.axis.clone()));

@@ -76,6 +76,10 @@ pub struct DbrType {
     pub class: Class,
 }
 
+/// DBR_PUT_ACKT: a write of whether transient alarms are held for acknowledgement.
+pub(crate) const DBR_PUT_ACKT: u16 = 35;
+/// DBR_PUT_ACKS: a write acknowledging alarms up to a severity.
+pub(crate) const DBR_PUT_ACKS: u16 = 36;
 /// DBR_STSACK_STRING: alarm, acknowledgement and the value as text.
 pub(crate) const DBR_STSACK_STRING: u16 = 37;
 /// DBR_CLASS_NAME: the record type's name.
@@ -117,6 +121,9 @@ pub struct Snapshot {
     pub status: u16,
     /// Alarm severity (menuAlarmSevr index).
     pub severity: u16,
+    /// Whether transient alarms are held for acknowledgement (ACKT) and the severity to
+    /// acknowledge (ACKS), as DBR_STSACK_STRING carries them.
+    pub acknowledgement: (u16, u16),
     /// When the value arrived.
     pub stamp: Stamp,
     /// Engineering units.
@@ -393,6 +400,7 @@ mod tests {
             native,
             status: 0,
             severity: 0,
+            acknowledgement: (1, 0),
             stamp: Stamp::from_posix(EPICS_EPOCH_OFFSET + 10, 5),
             units: "mm".into(),
             precision: 3,

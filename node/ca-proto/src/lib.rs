@@ -40,6 +40,7 @@ mod tests {
                 native: pv.native(),
                 status: 0,
                 severity: 0,
+                acknowledgement: (1, 0),
                 stamp: Stamp::default(),
                 units: "mm".into(),
                 precision: 2,
@@ -158,6 +159,36 @@ mod tests {
         assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
         assert!(codec::text(&refused[0].1[16..]).contains("read-only"));
         assert_eq!(circuit.poll_request(), None, "nothing is written to a read-only field");
+    }
+
+    #[test]
+    fn alarm_acknowledgements_are_writes_of_ackt_and_acks_on_any_channel_and_read_with_stsack() {
+        let mut circuit = Circuit::new("");
+        let directory = OneAxis { fetched: true };
+        let rbv = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 2, 13), b"m1.RBV\0");
+        let sid = rbv[1].0.p2;
+        // DBR_PUT_ACKS (36) on a read-only channel: ALH acknowledges on whatever it watches.
+        request(&mut circuit, &directory, Header::new(command::WRITE, 36, 1, sid, 1), &2u16.to_be_bytes());
+        let Some(Request::Write { pv, text, wait, answer, .. }) = circuit.poll_request() else { panic!("no write") };
+        assert_eq!((pv.name(""), text.as_str(), wait), ("m1.ACKS".into(), "2", false));
+        circuit.write_done(answer, WriteEnd::Done, &directory);
+        request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 35, 1, sid, 2), &0u16.to_be_bytes());
+        let Some(Request::Write { pv, text, wait, answer, .. }) = circuit.poll_request() else { panic!("no write") };
+        assert_eq!((pv.name(""), text.as_str(), wait), ("m1.ACKT".into(), "0", false));
+        circuit.write_done(answer, WriteEnd::Done, &directory);
+        let notified = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((notified[0].0.command, notified[0].0.p1, notified[0].0.p2), (command::WRITE_NOTIFY, 1, 2));
+        // DBR_STSACK_STRING (37): status, severity, ACKT, ACKS, then the value as text.
+        let read = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 37, 1, sid, 3), &[]);
+        let words: Vec<u16> = read[0].1[..8].chunks(2).map(|w| u16::from_be_bytes([w[0], w[1]])).collect();
+        assert_eq!(words, [0, 0, 1, 0]);
+        assert_eq!(&read[0].1[8..12], b"2.50");
+        // A change of ACKS is an alarm event to an STSACK subscriber (DBE_ALARM).
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&4u16.to_be_bytes());
+        assert_eq!(request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 37, 1, sid, 9), &add).len(), 1);
+        circuit.handle_change("m1", Target::Field(Field::ACKS), &directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
     }
 
     #[test]

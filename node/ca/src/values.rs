@@ -91,15 +91,20 @@ impl AxisValues {
         };
         let prec = self.number(Field::PREC) as i16;
         // `_able` is a record of its own, a bo with no alarm of the motor's.
-        let (status, severity) = match pv.target {
-            Target::Able => (0, 0),
-            _ => (self.number(Field::STAT) as u16, self.number(Field::SEVR) as u16),
+        let (status, severity, acknowledgement) = match pv.target {
+            Target::Able => (0, 0, (1, 0)),
+            _ => (
+                self.number(Field::STAT) as u16,
+                self.number(Field::SEVR) as u16,
+                (self.number(Field::ACKT) as u16, self.number(Field::ACKS) as u16),
+            ),
         };
         Some(Snapshot {
             value,
             native: pv.native(),
             status,
             severity,
+            acknowledgement,
             stamp,
             units: pv.units(&egu),
             precision: match pv.target {

@@ -55,6 +55,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "answer as an IOC would",
         "ERR reads in full",
         "DISP (a char channel) disables every put",
+        "ALH's alarm acknowledgement",
         "caproto",
         "moves nothing posts DMOV 0 then 1",
         "waits for it to complete",

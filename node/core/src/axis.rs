@@ -338,6 +338,7 @@ impl Axis {
         match field {
             Field::RDBL => self.readback_link = f.rdbl.is_empty().then_some(0.0),
             Field::DOL => self.record.forget_desired_value(),
+            Field::SDIS => self.record.forget_disable_value(),
             _ => {}
         }
         let f = self.record.fields();

@@ -14,7 +14,7 @@ use crate::file::{
 use std::collections::BTreeMap;
 use std::path::Path;
 use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
-use zmotor_msgs::{field_value, to_toml, Value};
+use zmotor_msgs::{field_value, to_toml};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -128,7 +128,7 @@ pub(super) fn import_text(
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
     for record in &records {
         // A motor's disabling is modelled; the records that become calc links and values are not.
-        if matches!(record.kind.as_str(), "calcout" | "calc" | "ao" | "ai" | "longout" | "longin") {
+        if RUN_KINDS.contains(&record.kind.as_str()) && record.kind != "motor" {
             warnings.extend(processing_disabled(record));
         }
         match record.kind.as_str() {
@@ -166,10 +166,10 @@ fn processing_disabled(record: &Record) -> Option<String> {
             "line {line}: {whose}: SDIS '{link}' disables its processing when it reads DISV; zmotor does not model \
              that but for motors: the record processes whatever the link holds"
         )),
-        // A constant SDIS is the value DISA starts with.
-        sdis => {
-            let disa = sdis.and_then(|(text, _)| text.parse::<f64>().ok()).unwrap_or(number("DISA", 0.0));
-            let line = set("DISA").or(sdis).or(set("DISV")).map_or(record.line, |(_, line)| line);
+        // A constant SDIS sets nothing (dbConstLink reads no value).
+        _ => {
+            let disa = number("DISA", 0.0);
+            let line = set("DISA").or(set("DISV")).map_or(record.line, |(_, line)| line);
             (disa == number("DISV", 1.0)).then(|| {
                 format!(
                     "line {line}: {whose}: DISA = DISV disables its processing; zmotor does not model that but \
@@ -179,6 +179,9 @@ fn processing_disabled(record: &Record) -> Option<String> {
         }
     }
 }
+
+/// The record types an import runs: motors as axes, calcs as calc links, the rest as values.
+const RUN_KINDS: &[&str] = &["motor", "calcout", "calc", "ao", "ai", "longout", "longin"];
 
 /// Link modifiers of EPICS database links.
 const MODIFIERS: &[&str] = &["PP", "NPP", "CP", "CPP", "MS", "NMS", "MSS", "MSI", "CA"];
@@ -229,6 +232,14 @@ impl Linker<'_> {
         let (record, field) = target.split_once('.').unwrap_or((target, "VAL"));
         let prefix = match self.kinds.get(record) {
             Some(&"motor") => self.axis_prefix,
+            Some(kind) if !RUN_KINDS.contains(kind) => {
+                warnings.push(format!(
+                    "line {line}: link '{text}': record '{record}' is a {kind}, which zmotor does not run: nothing \
+                     publishes {}/{record}/{field}, the link reads nothing",
+                    keys::BRIDGE_PREFIX
+                ));
+                keys::BRIDGE_PREFIX
+            }
             Some(_) => keys::BRIDGE_PREFIX,
             None => {
                 warnings.push(format!(
@@ -270,7 +281,6 @@ fn motor(
     let mut fields = BTreeMap::new();
     // Each field's last value and its line: what the record starts with (a later field() wins).
     let mut last = BTreeMap::new();
-    let mut constant_sdis = None;
     for (name, text, line) in &record.fields {
         let at = |message: String| Failure::at(*line, format!("motor '{}': field {name}: {message}", record.name));
         if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
@@ -290,11 +300,7 @@ fn motor(
         }
         let value = match field.def().kind {
             Kind::Link => match linker.link(text, *line, warnings)? {
-                // A constant SDIS is the value DISA starts with.
-                Link::Constant(disa) if field == Field::SDIS => {
-                    constant_sdis = Some((disa, *line));
-                    continue;
-                }
+                // A constant is no value to read (a constant SDIS sets nothing, as dbConstLink).
                 Link::None | Link::Constant(_) => continue,
                 Link::Hardware if !soft => continue,
                 Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
@@ -316,13 +322,6 @@ fn motor(
             field_value(field, &value).map_err(|e| Failure::at(*line, format!("motor '{}': {e}", record.name)))?;
         last.insert(field, (checked, *line));
         fields.insert(name.clone(), value);
-    }
-    if let Some((disa, line)) = constant_sdis {
-        let value = to_toml(Value::Int(disa.trunc() as i64));
-        let checked = field_value(Field::DISA, &value)
-            .map_err(|e| Failure::at(line, format!("motor '{}': SDIS: {e}", record.name)))?;
-        last.insert(Field::DISA, (checked, line));
-        fields.insert("DISA".into(), value);
     }
     for (field, (value, line)) in &last {
         if let Some(why) = zmotor_core::Unusable::of(*field, value) {
@@ -838,12 +837,13 @@ mod tests {
         assert!(interlock[0].starts_with("line 3: calcout 'c': SDIS 'interlock.VAL NPP'"), "{interlock:?}");
         assert_eq!(warned("record(calcout, c) { field(CALC, \"A\") field(DISA, 1) }").len(), 1);
         assert_eq!(warned("record(ao, v) { field(DISV, 0) }").len(), 1, "DISA starts at 0");
-        assert_eq!(warned("record(ao, v) { field(SDIS, 2) field(DISV, 2) }").len(), 1, "a constant SDIS is DISA");
-        // Enabled as written, or a motor (whose disabling is modelled): nothing to say.
+        // Enabled as written (a constant SDIS reads nothing), or a motor (whose disabling is
+        // modelled): nothing to say.
         for enabled in [
             "record(ao, v) { field(DISA, 0) field(DISV, 1) }",
             "record(ao, v) { field(SDIS, \"\") field(SCAN, \"Passive\") }",
-            "record(ao, v) { field(SDIS, 0) }",
+            "record(ao, v) { field(SDIS, 1) }",
+            "record(ao, v) { field(SDIS, 2) field(DISV, 2) }",
             "record(ao, v) { field(DISA, 1) field(DISV, 2) }",
             "record(motor, m1) { field(SDIS, \"interlock.VAL NPP\") field(DISA, 1) }",
         ] {
@@ -859,8 +859,16 @@ mod tests {
             (&fields["DISV"], &fields["DISS"]),
             (&toml::Value::Integer(0), &toml::Value::String("MAJOR".into()))
         );
-        let (file, _) = import("record(motor, m1) { field(DISA, 0) field(SDIS, 2.7) }").unwrap();
-        assert_eq!(file.axes[0].fields["DISA"], toml::Value::Integer(2), "as dbGetLink cuts to a short");
+        let (file, _) = import("record(motor, m1) { field(DISA, 0) field(SDIS, 1) }").unwrap();
+        assert_eq!(file.axes[0].fields["DISA"], toml::Value::Integer(0), "a constant SDIS sets nothing");
+        assert!(!file.axes[0].fields.contains_key("SDIS"));
+        // An interlock of a record type zmotor does not run reads nothing: said.
+        let (file, warnings) = import("record(bi, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
+        assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("bridge/lock/VAL".into()));
+        assert!(
+            warnings.iter().any(|w| w.contains("record 'lock' is a bi, which zmotor does not run")),
+            "{warnings:?}"
+        );
     }
 
     #[test]

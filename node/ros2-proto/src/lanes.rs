@@ -110,7 +110,7 @@ enum Job {
 
 impl Job {
     fn is_move(self) -> bool {
-        matches!(self, Job::Move { .. } | Job::MoveTarget { .. })
+        matches!(self, Job::Move { .. } | Job::MoveTarget { .. } | Job::JointTarget)
     }
 }
 
@@ -262,7 +262,10 @@ impl WriteLanes {
     /// in its turn.
     fn stop(&mut self, axis: &str) {
         let lane = self.lane(axis);
-        let dropped = lane.queue.iter().filter(|job| job.is_move()).count();
+        // A joint command not written yet is dropped too: one that comes after the stop is
+        // written after it.
+        lane.joint_target = None;
+        let dropped = lane.queue.iter().filter(|job| job.is_move() && **job != Job::JointTarget).count();
         lane.queue.retain(|job| !job.is_move());
         let waiting_speed = lane.speed_pending.take();
         lane.queue.push_back(Job::Stop);
@@ -468,6 +471,22 @@ mod tests {
             events(&mut lanes),
             [LaneEvent::Failed { axis: "a".into(), field: Field::VAL, why: "refused: DISP".into() }]
         );
+    }
+
+    #[test]
+    fn a_stop_drops_a_joint_command_not_written_and_the_next_one_goes_after_it() {
+        let mut lanes = WriteLanes::new();
+        lanes.command(segment("a", 2.0, None));
+        let val = one(&mut lanes);
+        lanes.joint_target("a", 7.0);
+        lanes.command(stop("a"));
+        lanes.joint_target("a", 8.0);
+        lanes.handed_over(val.id);
+        let stop = one(&mut lanes);
+        assert_eq!((stop.field, stop.value), (Field::STOP, 1.0));
+        lanes.handed_over(stop.id);
+        assert_eq!(shape(&writes(&mut lanes)), [("a", Field::VAL, 8.0)], "7 never, 8 after the stop");
+        assert!(events(&mut lanes).is_empty(), "a joint command is no trajectory move");
     }
 
     #[test]

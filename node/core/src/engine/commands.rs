@@ -116,6 +116,13 @@ pub enum WriteError {
         /// What was corrected.
         reason: Adjustment,
     },
+    /// Departure Z25: the record is disabled (DISA = DISV) and the write would start a motion
+    /// once it is enabled (a target, a jog or home button, SPMG Move or Go): nothing changed.
+    #[error("{field} refused: the record is disabled (DISA = DISV); nothing changed")]
+    RecordDisabled {
+        /// The field written.
+        field: Field,
+    },
     /// Accepted and processed, but the record would not act on it (a soft-limit violation,
     /// a home against an active switch, ...); the drive fields went back.
     #[error("{field}: {reason}")]
@@ -136,6 +143,7 @@ impl WriteError {
             WriteError::Unusable { .. } => RefusalKind::BadValue,
             WriteError::Adjusted { .. } => RefusalKind::Adjusted,
             WriteError::NotActedUpon { reason, .. } => reason.kind(),
+            WriteError::RecordDisabled { .. } => RefusalKind::RecordDisabled,
         }
     }
 }
@@ -208,9 +216,6 @@ pub enum Inaction {
     /// A jog would reach a soft limit within one second of travel.
     #[error("limit violation: jog refused within one second of travel of a soft limit")]
     JogNearSoftLimit,
-    /// The record is disabled (DISA = DISV): the value is stored, nothing is processed.
-    #[error("the record is disabled (DISA = DISV): the value is kept, and acted upon once it is enabled")]
-    RecordDisabled,
     /// Departure Z11: a servo whose closed-loop control is off (CNEN = Disable).
     #[error("motor disabled: closed-loop control is off (CNEN = Disable); write CNEN Enable first")]
     Disabled,
@@ -259,7 +264,6 @@ impl Inaction {
         match self {
             Inaction::SoftLimits { .. } | Inaction::JogNearSoftLimit => RefusalKind::LimitViolation,
             Inaction::Disabled => RefusalKind::Disabled,
-            Inaction::RecordDisabled => RefusalKind::RecordDisabled,
             Inaction::SwitchActive { .. } => RefusalKind::SwitchActive,
             Inaction::TargetBeyondRawRange { .. } | Inaction::PositionBeyondRawRange { .. } => {
                 RefusalKind::BeyondRawRange

@@ -11,7 +11,7 @@ use super::commands::{DeviceStatus, Inaction, MotorCommand, Output, WriteError};
 use super::marks::Marks;
 use super::maths::nint;
 use zmotor_msgs::bits::{mip, msta};
-use zmotor_msgs::menus::choice;
+use zmotor_msgs::menus::{choice, severity};
 use zmotor_msgs::{Access, Field, Fields, Value};
 
 mod do_work;
@@ -58,6 +58,8 @@ pub struct MotorRecord {
     readback_link: Option<f64>,
     /// The latest value of the DOL desired-output link (None: not readable yet).
     desired: Option<f64>,
+    /// The latest value of the SDIS link as DISA (None: no link, or not read yet).
+    disable_link: Option<i16>,
     /// Whether the device answers GET_INFO (Soft Channel does not).
     status_refresh: bool,
 }
@@ -77,6 +79,7 @@ impl MotorRecord {
             retargeted: false,
             readback_link: None,
             desired: None,
+            disable_link: None,
             status_refresh: true,
         };
         record.check_speed_and_resolution();
@@ -100,15 +103,16 @@ impl MotorRecord {
         }
     }
 
-    /// SDIS read `value`: DISA takes it (as dbProcess reads SDIS into DISA, a short), to be
-    /// compared with DISV at the next processing.
+    /// SDIS read `value`: DISA takes it now and at every processing (as dbProcess reads SDIS
+    /// into DISA, a short), so a DISA written meanwhile does not outlast the link's value.
     pub fn disable_value(&mut self, value: f64) {
-        let disa = value.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16;
-        if disa != self.f.disa {
-            self.f.disa = disa;
-            self.post(Field::DISA);
-            self.flush_posts();
-        }
+        self.disable_link = Some(value.clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16);
+        self.follow_disable_link();
+    }
+
+    /// SDIS now names another key (or none): its last value no longer sets DISA.
+    pub fn forget_disable_value(&mut self) {
+        self.disable_link = None;
     }
 
     /// DOL now names another key (or none): its last value is no longer the desired one.
@@ -161,11 +165,20 @@ impl MotorRecord {
         if access == Access::RO {
             return Err(WriteError::ReadOnly(field));
         }
+        if field == Field::ACKS {
+            self.acknowledge(value);
+            return Ok(());
+        }
+        self.follow_disable_link();
         // Departure Z24: a disabled record is not processed, so the reference leaves a motion
         // under way that nobody may stop; here a write that stops one (STOP, SPMG Stop or Pause,
         // a jog let go) stops the motor (a node's own stops, of a released hold or a shutdown,
-        // are writes of STOP).
+        // are writes of STOP). Departure Z25: one that would start a motion once the record is
+        // enabled is refused (the reference keeps it and moves when no one is asking).
         let stops_while_disabled = self.disabled() && self.ends_motion(field, value);
+        if self.disabled() && !stops_while_disabled && Self::starts_motion_later(field, value) {
+            return Err(WriteError::RecordDisabled { field });
+        }
         self.special_before(field, value)?;
         self.f.set(field, value);
         if field == Field::VAL {
@@ -185,7 +198,7 @@ impl MotorRecord {
         } else if access == Access::PP {
             self.process();
         } else {
-            self.flush_posts();
+            self.flush_posts_between_processings();
         }
         match self.refusal.take() {
             Some(reason) => Err(WriteError::NotActedUpon { field, reason }),
@@ -217,6 +230,37 @@ impl MotorRecord {
         }
     }
 
+    /// An acknowledgement of alarms up to severity `value` (dbAccess's putAcks, what a
+    /// DBR_PUT_ACKS does): ACKS clears when it is at least ACKS; the value is not stored.
+    fn acknowledge(&mut self, value: &Value) {
+        let severity = value.as_f64().unwrap_or(0.0);
+        if severity >= f64::from(self.f.acks) {
+            self.f.acks = severity::NO_ALARM;
+            self.post(Field::ACKS);
+            self.flush_posts();
+        }
+    }
+
+    /// DISA as SDIS last read it, if it has.
+    fn follow_disable_link(&mut self) {
+        if let Some(disa) = self.disable_link.filter(|disa| *disa != self.f.disa) {
+            self.f.disa = disa;
+            self.post(Field::DISA);
+        }
+    }
+
+    /// A write that would start a motion at the record's next processing: a target, a jog or
+    /// home button pressed, SPMG Move or Go.
+    fn starts_motion_later(field: Field, value: &Value) -> bool {
+        let pressed = value.as_f64() != Some(0.0);
+        match field {
+            _ if field.sets_target() => true,
+            Field::HOMF | Field::HOMR | Field::JOGF | Field::JOGR => pressed,
+            Field::SPMG => matches!(value.as_f64().map(|v| v as u16), Some(choice::SPMG_MOVE | choice::SPMG_GO)),
+            _ => false,
+        }
+    }
+
     /// Whether the record is disabled (DISA = DISV): it is not processed.
     fn disabled(&self) -> bool {
         self.f.disa == self.f.disv
@@ -235,24 +279,35 @@ impl MotorRecord {
         }
     }
 
-    /// Departure Z24: stop the motor of a disabled record, as a STOP during a motion does
-    /// (§9.1), without processing the record: MIP STOP and PP, so that the first processing
-    /// once enabled ends the motion where it stopped (no retry toward the target); the
+    /// Departure Z24: stop the motor of a disabled record as STOP does (§9.1), without processing
+    /// the record: at rest, what was held is dropped; during a motion, MIP STOP, so that the
+    /// first processing once enabled ends it where it stopped (no retry toward the target); the
     /// buttons cleared, STOP taken.
     fn stop_while_disabled(&mut self) {
-        if self.f.mip != mip::DONE {
-            self.f.pp = 1;
+        if !self.stop_request() {
             self.clear_buttons();
             if self.f.mip & mip::DELAY_REQ == 0 {
                 self.set_mip(mip::STOP);
             }
+            self.send(vec![MotorCommand::StopAxis]);
         }
         if self.f.stop != 0 {
             self.f.stop = 0;
             self.mark(Field::STOP);
         }
-        self.send(vec![MotorCommand::StopAxis]);
-        self.flush_posts();
+        self.flush_posts_between_processings();
+    }
+
+    /// Departures Z9/Z14: a stop at rest drops a target held by SPMG (a paused move's, or one
+    /// written while stopped): the axis stays where it is.
+    fn drop_held_target(&mut self) {
+        let held = self.f.mip == mip::DONE && self.f.dval != self.f.ldvl;
+        if std::mem::take(&mut self.resume_on_go) || held {
+            self.sync_target_position();
+            self.set_mip(mip::DONE);
+            self.f.dmov = 1;
+            self.mark(Field::DMOV);
+        }
     }
 
     /// Departure Z11: a servo whose control is disabled (CNEN = Disable) is not asked to move;

@@ -28,34 +28,8 @@ impl MotorRecord {
                 self.mark(STOP);
             }
             if stop_or_pause || stop_req {
-                if self.f.spmg == choice::SPMG_STOP || stop_req {
-                    let m = self.f.mip;
-                    // Departure Z22: a retry leg under way stops as any motion does (DMOV 1 once the
-                    // motor has stopped); the reference ends it at once, DMOV 1 while it decelerates.
-                    let retry_at_rest = m & mip::RETRY != 0 && self.f.movn == 0;
-                    if m == mip::DONE || m & mip::STOP != 0 || retry_at_rest {
-                        // Departure Z9/Z14: a STOP drops a target held by SPMG (a paused move's,
-                        // or one written while stopped): the axis stays where it is.
-                        let held = m == mip::DONE && self.f.dval != self.f.ldvl;
-                        if std::mem::take(&mut self.resume_on_go) || held {
-                            self.sync_target_position();
-                            self.set_mip(mip::DONE);
-                            self.f.dmov = 1;
-                            self.mark(DMOV);
-                        }
-                        if m & mip::RETRY != 0 {
-                            self.set_mip(mip::DONE);
-                            self.f.dmov = 1;
-                            self.mark(DMOV);
-                        }
-                        self.send(vec![MotorCommand::StopAxis]);
-                        return;
-                    } else if self.f.movn != 0 {
-                        self.f.pp = 1;
-                        self.clear_buttons();
-                    } else {
-                        self.sync_target_position();
-                    }
+                if (self.f.spmg == choice::SPMG_STOP || stop_req) && self.stop_request() {
+                    return;
                 }
                 if self.f.mip & mip::HOME_GROUP != 0 {
                     self.clear_buttons();
@@ -195,6 +169,32 @@ impl MotorRecord {
     }
 
     /// §9.3 home, jog, tweak, relative and raw requests; true when do_work is over.
+    /// §9.1 STOP (or SPMG Stop): at rest, STOP_AXIS and the end of what was held (true: nothing
+    /// more to do); during a motion, its end prepared (false: MIP STOP and STOP_AXIS follow).
+    pub(super) fn stop_request(&mut self) -> bool {
+        let m = self.f.mip;
+        // Departure Z22: a retry leg under way stops as any motion does (DMOV 1 once the motor
+        // has stopped); the reference ends it at once, DMOV 1 while it decelerates.
+        let retry_at_rest = m & mip::RETRY != 0 && self.f.movn == 0;
+        if m == mip::DONE || m & mip::STOP != 0 || retry_at_rest {
+            self.drop_held_target();
+            if m & mip::RETRY != 0 {
+                self.set_mip(mip::DONE);
+                self.f.dmov = 1;
+                self.mark(Field::DMOV);
+            }
+            self.send(vec![MotorCommand::StopAxis]);
+            return true;
+        }
+        if self.f.movn != 0 {
+            self.f.pp = 1;
+            self.clear_buttons();
+        } else {
+            self.sync_target_position();
+        }
+        false
+    }
+
     pub(super) fn handle_buttons(&mut self, stop_or_pause: bool) -> bool {
         use Field::*;
         let dir_pos = self.f.dir == choice::DIR_POS;

@@ -43,6 +43,12 @@ impl MotorRecord {
         let alarm_changed = alarm.status || alarm.severity;
         if alarm_changed {
             self.post(STAT);
+            // recGblResetAlarms: the severity to acknowledge rises with the alarm, and follows
+            // it down when transient alarms need no acknowledgement (ACKT NO).
+            if self.f.ackt == choice::NO || self.f.sevr >= self.f.acks {
+                self.f.acks = self.f.sevr;
+                self.post(ACKS);
+            }
         }
         let rbv_marked = self.marks.contains(RBV);
         self.marks.clear(RBV);
@@ -82,6 +88,20 @@ impl MotorRecord {
     }
 
     /// Post every field still marked, in the record's order, then clear the marks.
+    /// The posts of a write the record does not process (a field not process-passive, a stop
+    /// of a disabled record): the marks §9.2 acts on, of a resolution written while the record
+    /// was disabled, wait for its next processing.
+    pub(super) fn flush_posts_between_processings(&mut self) {
+        const ACTED_ON: [Field; 3] = [Field::MRES, Field::ERES, Field::UEIP];
+        let pending = ACTED_ON.map(|field| self.marks.contains(field));
+        self.flush_posts();
+        for (field, pending) in ACTED_ON.into_iter().zip(pending) {
+            if pending {
+                self.mark(field);
+            }
+        }
+    }
+
     pub(super) fn flush_posts(&mut self) {
         let raw_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
         for field in POSTED_IF_MARKED {

@@ -1,7 +1,7 @@
 //! §8 process(): the top-level processing, its callback part and the entry into do_work.
 
 use super::{Flow, MotorRecord, Reason};
-use crate::engine::commands::{Inaction, MotorCommand, Output};
+use crate::engine::commands::{MotorCommand, Output};
 use crate::time::seconds;
 use zmotor_msgs::bits::mip;
 use zmotor_msgs::menus::{choice, status};
@@ -9,6 +9,7 @@ use zmotor_msgs::{Field, Value};
 
 impl MotorRecord {
     pub(super) fn process(&mut self) {
+        self.follow_disable_link();
         match self.disabled() {
             true => self.process_disabled(),
             false => self.process_enabled(),
@@ -45,8 +46,8 @@ impl MotorRecord {
     }
 
     /// A processing of a disabled record (DISA = DISV), as dbProcess does it: nothing is
-    /// processed (the device's status waits for the next processing, a written target for the
-    /// first once enabled), the DISABLE alarm at severity DISS is raised once, with VAL posted.
+    /// processed (the device's status, and what writes marked, wait for the next processing),
+    /// the DISABLE alarm at severity DISS is raised once, with VAL posted.
     fn process_disabled(&mut self) {
         if self.f.stat != status::DISABLE {
             (self.f.stat, self.f.sevr) = (status::DISABLE, self.f.diss);
@@ -54,8 +55,6 @@ impl MotorRecord {
             self.post(Field::SEVR);
             self.post(Field::VAL);
         }
-        self.flush_posts();
-        self.refusal = Some(Inaction::RecordDisabled);
     }
 
     /// §15.3 update_values: copy the device's pending status into the record.

@@ -52,6 +52,11 @@ impl MotorRecord {
     pub(super) fn special_after(&mut self, field: Field) -> Result<(), WriteError> {
         use Field::*;
         match field {
+            // dbAccess's putAckt: transient alarms no longer held for acknowledgement.
+            ACKT if self.f.ackt == choice::NO && self.f.acks > self.f.sevr => {
+                self.f.acks = self.f.sevr;
+                self.post(ACKS);
+            }
             VBAS | SBAS => {
                 self.clamp_negative(field);
                 self.follow_speed_pair(field, VBAS, SBAS);

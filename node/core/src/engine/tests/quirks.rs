@@ -558,53 +558,108 @@ fn udf_alarm_comes_before_the_limit_alarm() {
 
 // ---------------------------------------------------------------- Q33 a disabled record
 
-/// Q33: while DISA = DISV the record is not processed: a target written is stored (no DMOV
-/// pulse, nothing sent, the write answered as not acted upon), device status is not taken
-/// (RBV stays), and the first processing raises STAT DISABLE at severity DISS with VAL posted.
-/// Enabled again (DISA, not process-passive, processes nothing), the next processing takes the
-/// status and moves to the stored target.
+/// Q33: while DISA = DISV the record is not processed: a setting written is stored, device
+/// status is not taken (RBV stays), and the first processing raises STAT DISABLE at severity
+/// DISS with VAL posted. Enabled again (DISA, not process-passive, processes nothing), the next
+/// processing takes the status and clears the alarm. (A target written meanwhile: Z25.)
 #[test]
-fn q33_a_disabled_record_stores_writes_and_moves_once_enabled() {
+fn q33_a_disabled_record_is_not_processed_until_enabled() {
     let mut rig = Rig::boot(Fields { diss: severity::MAJOR, ..baseline_b() }, 0.0);
     rig.put(Field::DISA, 1.0).unwrap();
     assert!(rig.take().is_empty());
     assert_eq!(rig.posted(Field::DISA), vec![Value::Int(1)]);
-    let err = rig.put(Field::VAL, 5.0).unwrap_err();
-    assert!(matches!(err, WriteError::NotActedUpon { field: Field::VAL, reason: Inaction::RecordDisabled }), "{err}");
+    rig.put(Field::HLSV, 1.0).unwrap();
     assert!(rig.take().is_empty(), "nothing is sent");
     let f = rig.f();
-    assert_eq!((f.val, f.dval, f.dmov, f.mip), (5.0, 0.0, 1, mip::DONE));
-    assert_eq!((f.stat, f.sevr), (status::DISABLE, severity::MAJOR));
-    assert!(rig.posted(Field::DMOV).is_empty(), "no DMOV pulse");
+    assert_eq!((f.hlsv, f.dmov, f.mip, f.stat, f.sevr), (1, 1, mip::DONE, status::DISABLE, severity::MAJOR));
     assert_eq!(rig.posted(Field::STAT), vec![Value::Int(status::DISABLE.into())]);
-    assert_eq!(rig.posted(Field::VAL), vec![Value::Float(5.0)]);
+    assert_eq!(rig.posted(Field::VAL), vec![Value::Float(0.0)]);
     // Status while disabled: not taken, and the alarm is not raised again.
     rig.cb(40.0);
     assert_eq!((rig.f().rbv, rig.f().rmp), (0.0, 0));
     assert!(rig.posted(Field::STAT).is_empty() && rig.posted(Field::RBV).is_empty());
-    // Enabled: nothing until the next processing, which takes the status and moves.
+    // Enabled: nothing until the next processing, which takes the status.
     rig.put(Field::DISA, 0.0).unwrap();
-    assert!(rig.take().is_empty());
     assert_eq!(rig.f().stat, status::DISABLE);
     rig.cb(40.0);
     assert_eq!(rig.f().rbv, 0.4);
     assert_eq!((rig.f().stat, rig.f().sevr), (status::NO_ALARM, severity::NO_ALARM));
     assert_eq!(rig.posted(Field::STAT), vec![Value::Int(0)]);
-    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0), "the stored target, at the first processing");
-    assert_eq!((rig.f().dval, rig.f().dmov, rig.f().mip), (5.0, 0, mip::MOVE));
+    rig.put(Field::VAL, 5.0).unwrap();
+    assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 500.0));
 }
 
-/// Q33 and SDIS: the link's value is DISA (cut to a short), compared with DISV at processing.
+/// Q33 and SDIS: the link's value is DISA (cut to a short), and is read again at every
+/// processing and write: a DISA written while the link reads DISV does not enable the record.
 #[test]
-fn q33_sdis_sets_disa() {
+fn q33_sdis_sets_disa_at_every_processing() {
     let mut rig = Rig::boot(Fields { disv: 2, ..baseline_b() }, 0.0);
     rig.rec.disable_value(2.9);
     rig.collect();
     assert_eq!((rig.f().disa, rig.posted(Field::DISA)), (2, vec![Value::Int(2)]));
-    assert!(matches!(rig.put(Field::VAL, 1.0), Err(WriteError::NotActedUpon { .. })));
+    rig.put(Field::DISA, 0.0).unwrap();
+    assert_eq!(rig.put(Field::VAL, 1.0), Err(WriteError::RecordDisabled { field: Field::VAL }));
+    assert_eq!(rig.f().disa, 2, "SDIS read again");
     assert!(rig.take().is_empty());
     rig.rec.disable_value(0.0);
     rig.collect();
     rig.put(Field::VAL, 1.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 100.0));
+    // SDIS relinked: its last value no longer holds DISA.
+    rig.rec.forget_disable_value();
+    rig.put(Field::DISA, 2.0).unwrap();
+    assert_eq!(rig.f().disa, 2);
+}
+
+/// Q33: a resolution written while disabled is stored, and the first put once enabled does
+/// what §9.2 does for it (the position reloaded at the new resolution): the marks of the write
+/// wait for the record's next processing (a stop meanwhile keeps them).
+#[test]
+fn q33_a_resolution_written_while_disabled_is_acted_upon_once_enabled() {
+    let mut rig = Rig::boot(Fields { dhlm: 10.0, dllm: -10.0, ..baseline_b() }, 100.0);
+    rig.put(Field::DISA, 1.0).unwrap();
+    rig.put(Field::MRES, 0.02).unwrap();
+    assert!(rig.take().is_empty());
+    rig.put(Field::STOP, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis], "a stop at rest meanwhile");
+    rig.put(Field::DISA, 0.0).unwrap();
+    rig.put(Field::HLSV, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![LoadPos(50.0), GetInfo]);
+}
+
+// ---------------------------------------------------------------- dbCommon ACKT / ACKS
+
+/// recGblResetAlarms and dbAccess's putAcks/putAckt: with ACKT YES (the default) ACKS holds
+/// the highest severity since the last acknowledgement, the alarm gone or not; a write of
+/// ACKS at least as high clears it (a lower one does nothing; the value is never stored);
+/// ACKT NO makes ACKS follow the alarm, and writing it brings ACKS down to the severity now.
+#[test]
+fn acks_holds_the_alarm_until_acknowledged_unless_transients_need_none() {
+    let mut rig = Rig::boot(Fields { hlsv: severity::MAJOR, ..baseline_b() }, 0.0);
+    assert_eq!((rig.f().ackt, rig.f().acks), (1, 0));
+    rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) });
+    assert_eq!((rig.f().sevr, rig.f().acks), (severity::MAJOR, severity::MAJOR));
+    assert_eq!(rig.posted(Field::ACKS), vec![Value::Int(2)]);
+    rig.status(idle(0.0));
+    assert_eq!((rig.f().sevr, rig.f().acks), (severity::NO_ALARM, severity::MAJOR), "held");
+    rig.put(Field::ACKS, 1.0).unwrap();
+    assert_eq!(rig.f().acks, severity::MAJOR, "MINOR acknowledges no MAJOR");
+    assert!(rig.posted(Field::ACKS).is_empty());
+    rig.put(Field::ACKS, 2.0).unwrap();
+    assert_eq!(rig.f().acks, severity::NO_ALARM);
+    assert_eq!(rig.posted(Field::ACKS), vec![Value::Int(0)]);
+    // Transients need no acknowledgement: ACKS follows the alarm.
+    rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) });
+    rig.put(Field::ACKT, 0.0).unwrap();
+    assert_eq!(rig.f().acks, severity::MAJOR, "the alarm is still on");
+    rig.status(idle(0.0));
+    assert_eq!(rig.f().acks, severity::NO_ALARM);
+    // Written back to YES with a held acknowledgement, then NO: brought down to the alarm now.
+    rig.put(Field::ACKT, 1.0).unwrap();
+    rig.status(DeviceStatus { msta: msta::DONE | msta::PLUS_LS, ..idle(0.0) });
+    rig.status(idle(0.0));
+    assert_eq!(rig.f().acks, severity::MAJOR);
+    rig.put(Field::ACKT, 0.0).unwrap();
+    assert_eq!(rig.f().acks, severity::NO_ALARM);
+    assert_eq!(rig.posted(Field::ACKS).last(), Some(&Value::Int(0)));
 }
