@@ -592,14 +592,68 @@ impl Field {
     }
 }
 
-/// Fields every EPICS record has (dbCommon) that zmotor does not model: scanning, priorities,
-/// tracing, security (disabling, DISP, DISA, DISV, DISS and SDIS, and the alarm
-/// acknowledgement, ACKT and ACKS, are modelled). A database may set them; importing it
-/// ignores them.
-pub const UNMODELLED_COMMON_FIELDS: &[&str] = &[
-    "SCAN", "PINI", "PHAS", "EVNT", "PRIO", "TPRO", "TSE", "TSEL", "ASG", "UDFS", "BKPT", "LCNT", "PUTF", "RPRO",
-    "NSEV", "NSTA",
-];
+/// A field every EPICS record has (dbCommon) that zmotor does not model (scanning, priorities,
+/// tracing, access security): what an IOC's motor record holds in it by default. A database may
+/// set it (an import ignores it); Channel Access serves it, read-only, with this value, so that
+/// a screen or a tool that reads it finds it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CommonField {
+    /// Its name.
+    pub name: &'static str,
+    /// Its type.
+    pub kind: Kind,
+    /// Its value: a menu's index or a number (`text` none), or text.
+    pub number: f64,
+    /// Its value as text, for a string or link.
+    pub text: Option<&'static str>,
+}
+
+impl CommonField {
+    /// Its value.
+    pub fn value(&self) -> Value {
+        match (self.text, self.kind) {
+            (Some(text), _) => Value::Text(text.to_string()),
+            (None, Kind::Double | Kind::Float) => Value::Float(self.number),
+            (None, _) => Value::Int(self.number as i64),
+        }
+    }
+}
+
+/// The unmodelled dbCommon fields (`CommonField`); disabling (DISP, DISA, DISV, DISS, SDIS) and
+/// the alarm acknowledgement (ACKT, ACKS) are modelled, as fields of the catalogue.
+pub const UNMODELLED_COMMON_FIELDS: &[CommonField] = {
+    const fn menu(name: &'static str, menu: &'static Menu, index: u16) -> CommonField {
+        CommonField { name, kind: Kind::Menu(menu), number: index as f64, text: None }
+    }
+    const fn number(name: &'static str, kind: Kind) -> CommonField {
+        CommonField { name, kind, number: 0.0, text: None }
+    }
+    const fn text(name: &'static str, kind: Kind) -> CommonField {
+        CommonField { name, kind, number: 0.0, text: Some("") }
+    }
+    &[
+        menu("SCAN", &menus::MENU_SCAN, 0),
+        menu("PINI", &menus::MENU_PINI, 0),
+        number("PHAS", Kind::Short),
+        text("EVNT", Kind::Str(40)),
+        menu("PRIO", &menus::MENU_PRIORITY, 0),
+        number("TPRO", Kind::UChar),
+        number("TSE", Kind::Short),
+        text("TSEL", Kind::Link),
+        text("ASG", Kind::Str(29)),
+        menu("UDFS", &menus::MENU_ALARM_SEVR, 3),
+        number("LCNT", Kind::UChar),
+        number("PUTF", Kind::UChar),
+        number("RPRO", Kind::UChar),
+        menu("NSEV", &menus::MENU_ALARM_SEVR, 0),
+        menu("NSTA", &menus::MENU_ALARM_STAT, 0),
+    ]
+};
+
+/// The unmodelled dbCommon field named `name`, if it is one.
+pub fn unmodelled_common_field(name: &str) -> Option<&'static CommonField> {
+    UNMODELLED_COMMON_FIELDS.iter().find(|field| field.name == name)
+}
 
 impl std::fmt::Display for Field {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {

@@ -20,7 +20,8 @@ mod value;
 mod wire;
 
 pub use catalogue::{
-    past_deadband, Access, Autosave, Field, FieldDef, Fields, Kind, WriteClass, FIELDS, UNMODELLED_COMMON_FIELDS,
+    past_deadband, unmodelled_common_field, Access, Autosave, CommonField, Field, FieldDef, Fields, Kind, WriteClass,
+    FIELDS, UNMODELLED_COMMON_FIELDS,
 };
 pub use codec::{
     decode_cbor_value, decode_scalar, decode_write, encode_cbor, excerpt, validate, CodecError, MalformedPayload,

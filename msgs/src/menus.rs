@@ -86,6 +86,27 @@ pub const MENU_ALARM_STAT: Menu = Menu {
     ],
 };
 
+/// `menuScan` (SCAN): how a record is scanned; a motor record is Passive.
+pub const MENU_SCAN: Menu = Menu {
+    name: "menuScan",
+    choices: &[
+        "Passive",
+        "Event",
+        "I/O Intr",
+        "10 second",
+        "5 second",
+        "2 second",
+        "1 second",
+        ".5 second",
+        ".2 second",
+        ".1 second",
+    ],
+};
+/// `menuPini` (PINI): whether a record is processed at initialisation.
+pub const MENU_PINI: Menu = Menu { name: "menuPini", choices: &["NO", "YES", "RUN", "RUNNING", "PAUSE", "PAUSED"] };
+/// `menuPriority` (PRIO): the scan thread's priority.
+pub const MENU_PRIORITY: Menu = Menu { name: "menuPriority", choices: &["LOW", "MEDIUM", "HIGH"] };
+
 /// Every menu, for documentation and schema generation.
 pub const ALL_MENUS: &[&Menu] = &[
     &MOTOR_DIR,
@@ -102,6 +123,9 @@ pub const ALL_MENUS: &[&Menu] = &[
     &MENU_YES_NO,
     &MENU_ALARM_SEVR,
     &MENU_ALARM_STAT,
+    &MENU_SCAN,
+    &MENU_PINI,
+    &MENU_PRIORITY,
 ];
 
 /// Menu indices the engine reasons about, named so the record logic reads like the manual.

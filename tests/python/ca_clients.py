@@ -174,6 +174,17 @@ def puts_disabled():
     ok("DISP (a char channel) disables every put but DISP and STOP; DISP 0 enables them; m1_able shows and sets it")
 
 
+def common_fields():
+    """The dbCommon fields zmotor does not model read as an IOC's motor record holds them."""
+    assert epics.caget("m1.SCAN", as_string=True, use_monitor=False) == "Passive"
+    assert epics.caget("m1.UDFS", as_string=True, use_monitor=False) == "INVALID"
+    assert epics.caget("m1.TPRO", use_monitor=False) == 0
+    assert epics.caget("m1.ASG", use_monitor=False) == ""
+    scan = epics.PV("m1.SCAN")
+    assert scan.wait_for_connection(timeout=10) and not scan.write_access
+    ok("dbCommon's SCAN, UDFS, TPRO and ASG read as an IOC's defaults, read-only")
+
+
 def alarm_acknowledgement():
     """What ALH does: the record's alarm and acknowledgement read as DBR_STSACK_STRING, and
     DBR_PUT_ACKT / DBR_PUT_ACKS written to it (here to a read-only channel of the record)."""
@@ -375,6 +386,7 @@ STAGES = {
         refused,
         puts_disabled,
         alarm_acknowledgement,
+        common_fields,
         moves_of_nothing,
         read_after_write,
         caproto_tools,

@@ -7,6 +7,7 @@ use crate::dbr::{self, Base, Class, DbrType, Snapshot};
 use crate::directory::Directory;
 use crate::names::{Pv, Target};
 use std::collections::{BTreeMap, VecDeque};
+use zmotor_msgs::menus::severity;
 use zmotor_msgs::{past_deadband, Field, Refusal, RefusalKind, Value, WriteClass};
 
 /// ECA status codes (`caerr.h`): message number << 3 | severity.
@@ -523,6 +524,7 @@ impl Circuit {
             dbr::DBR_PUT_ACKS => Some(Field::ACKS),
             _ => None,
         };
+        let able = pv.target == Target::Able;
         if let Some(field) = acknowledges {
             pv = Pv { axis: pv.axis, target: Target::Field(field) };
         }
@@ -533,11 +535,18 @@ impl Circuit {
         } else {
             WriteAnswer::OnFailure { request: header, cid, number }
         };
+        if able && acknowledges.is_some() {
+            // `_able` is a record of its own, a bo with no alarm to acknowledge.
+            return self.answer_write(answer, WriteEnd::Done);
+        }
         if !pv.writable() {
             let message = format!("{}: read-only", pv.name(&self.prefix));
             return self.answer_write(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
         let written = match acknowledges {
+            // putAcks acknowledges whatever severity is at least ACKS: above INVALID too.
+            Some(Field::ACKS) => dbr::written_text(Base::Enum.code(), payload, pv.native())
+                .map(|text| text.parse::<u16>().map_or(text, |severity| severity.min(severity::INVALID).to_string())),
             Some(_) => dbr::written_text(Base::Enum.code(), payload, pv.native()),
             None => dbr::written_text(header.data_type, payload, pv.native()),
         };

@@ -167,10 +167,11 @@ mod tests {
         let directory = OneAxis { fetched: true };
         let rbv = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 2, 13), b"m1.RBV\0");
         let sid = rbv[1].0.p2;
-        // DBR_PUT_ACKS (36) on a read-only channel: ALH acknowledges on whatever it watches.
-        request(&mut circuit, &directory, Header::new(command::WRITE, 36, 1, sid, 1), &2u16.to_be_bytes());
+        // DBR_PUT_ACKS (36) on a read-only channel: ALH acknowledges on whatever it watches (a
+        // severity beyond INVALID acknowledges INVALID).
+        request(&mut circuit, &directory, Header::new(command::WRITE, 36, 1, sid, 1), &7u16.to_be_bytes());
         let Some(Request::Write { pv, text, wait, answer, .. }) = circuit.poll_request() else { panic!("no write") };
-        assert_eq!((pv.name(""), text.as_str(), wait), ("m1.ACKS".into(), "2", false));
+        assert_eq!((pv.name(""), text.as_str(), wait), ("m1.ACKS".into(), "3", false));
         circuit.write_done(answer, WriteEnd::Done, &directory);
         request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 35, 1, sid, 2), &0u16.to_be_bytes());
         let Some(Request::Write { pv, text, wait, answer, .. }) = circuit.poll_request() else { panic!("no write") };
@@ -178,6 +179,17 @@ mod tests {
         circuit.write_done(answer, WriteEnd::Done, &directory);
         let notified = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((notified[0].0.command, notified[0].0.p1, notified[0].0.p2), (command::WRITE_NOTIFY, 1, 2));
+        // `_able` is a bo of its own: nothing of the motor's is acknowledged through it.
+        let able = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 3, 13), b"m1_able\0");
+        let able_sid = able[1].0.p2;
+        let done = request(
+            &mut circuit,
+            &directory,
+            Header::new(command::WRITE_NOTIFY, 36, 1, able_sid, 4),
+            &3u16.to_be_bytes(),
+        );
+        assert_eq!((done[0].0.command, done[0].0.p1, done[0].0.p2), (command::WRITE_NOTIFY, 1, 4));
+        assert_eq!(circuit.poll_request(), None);
         // DBR_STSACK_STRING (37): status, severity, ACKT, ACKS, then the value as text.
         let read = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 37, 1, sid, 3), &[]);
         let words: Vec<u16> = read[0].1[..8].chunks(2).map(|w| u16::from_be_bytes([w[0], w[1]])).collect();

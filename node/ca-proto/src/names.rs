@@ -5,10 +5,12 @@
 //! appended to the name (`.ERR$`; `caget -S`). `<P><axis>_able` is the Enable/Disable record
 //! motor's databases put beside each motor (a bo whose OUT writes the motor's DISP, which
 //! motor screens and pyepics's `Motor.disabled` use): the axis's DISP as a menu of two choices.
+//! The dbCommon fields zmotor does not model (SCAN, PINI, PRIO, ...) read as an IOC's motor
+//! record holds them by default, and take no write.
 
 use crate::dbr::Base;
 use zmotor_msgs::menus::Menu;
-use zmotor_msgs::{keys, Access, Field, Kind};
+use zmotor_msgs::{keys, unmodelled_common_field, Access, CommonField, Field, Kind};
 
 /// The choices of `<P><axis>_able` (its bo's ZNAM and ONAM in motor's asyn_motor.db).
 pub const ABLE: Menu = Menu { name: "able", choices: &["Enable", "Disable"] };
@@ -29,6 +31,18 @@ pub enum Target {
     MessageChars,
     /// `<axis>_able` (its VAL): DISP, as the menu `ABLE`.
     Able,
+    /// A dbCommon field zmotor does not model, by name: its default, read-only.
+    Common(&'static str),
+}
+
+impl Target {
+    /// The unmodelled dbCommon field it is, if it is one.
+    pub fn common(self) -> Option<&'static CommonField> {
+        match self {
+            Target::Common(name) => unmodelled_common_field(name),
+            _ => None,
+        }
+    }
 }
 
 /// The length of `.ERR$`, in characters, its NUL included: a message beyond is cut.
@@ -59,7 +73,10 @@ impl Pv {
             "RTYP" => Target::RecordType,
             keys::ERR_KEY => Target::Message,
             "ERR$" => Target::MessageChars,
-            name => Target::Field(Field::from_name(name)?),
+            name => match Field::from_name(name) {
+                Some(field) => Target::Field(field),
+                None => Target::Common(unmodelled_common_field(name)?.name),
+            },
         };
         Some(Pv { axis: axis.to_string(), target })
     }
@@ -72,6 +89,7 @@ impl Pv {
             Target::Message => format!("{prefix}{}.{}", self.axis, keys::ERR_KEY),
             Target::MessageChars => format!("{prefix}{}.{}$", self.axis, keys::ERR_KEY),
             Target::Able => format!("{prefix}{}{ABLE_SUFFIX}", self.axis),
+            Target::Common(name) => format!("{prefix}{}.{name}", self.axis),
         }
     }
 
@@ -99,7 +117,7 @@ impl Pv {
         match self.target {
             Target::Field(field) => field.def().access != Access::RO,
             Target::Able => true,
-            Target::RecordType | Target::Message | Target::MessageChars => false,
+            Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => false,
         }
     }
 
@@ -113,7 +131,7 @@ impl Pv {
                 _ => Some((field, text)),
             },
             Target::Able => Some((Field::DISP, ABLE.index_of(&text).map_or(text, |index| index.to_string()))),
-            Target::RecordType | Target::Message | Target::MessageChars => None,
+            Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => None,
         }
     }
 
@@ -134,6 +152,7 @@ impl Pv {
             Target::RecordType | Target::Message => Base::String,
             Target::MessageChars => Base::Char,
             Target::Able => Base::Enum,
+            Target::Common(_) => self.target.common().map_or(Base::String, |common| Base::native(common.kind)),
         }
     }
 
@@ -148,6 +167,7 @@ impl Pv {
             Target::Field(VELO) => Limits::Fields(VMAX, VBAS),
             Target::Field(field) => Limits::Range(field.def().kind.default_range()),
             Target::Able => Limits::Range((1.0, 0.0)),
+            Target::Common(_) => Limits::Range(self.target.common().map_or((0.0, 0.0), |c| c.kind.default_range())),
             Target::RecordType | Target::Message | Target::MessageChars => Limits::Range((0.0, 0.0)),
         }
     }
@@ -177,7 +197,9 @@ impl Pv {
     pub fn units(&self, egu: &str) -> String {
         match self.target {
             Target::Field(field) => field.record_units(egu),
-            Target::RecordType | Target::Message | Target::MessageChars | Target::Able => String::new(),
+            Target::RecordType | Target::Message | Target::MessageChars | Target::Able | Target::Common(_) => {
+                String::new()
+            }
         }
     }
 }
@@ -219,6 +241,12 @@ mod tests {
         assert_eq!((message.target, message.native(), message.count()), (Target::Message, Base::String, 1));
         assert_eq!((whole.target, whole.native(), whole.count()), (Target::MessageChars, Base::Char, MESSAGE_CHARS));
         assert_eq!((whole.name("bl1:"), message.writable(), whole.writable()), ("bl1:m1.ERR$".into(), false, false));
+        // dbCommon's unmodelled fields: their defaults, read-only.
+        let scan = pv("bl1:m1.SCAN").unwrap();
+        assert_eq!((scan.target, scan.native(), scan.writable()), (Target::Common("SCAN"), Base::Enum, false));
+        assert_eq!((scan.name("bl1:"), scan.written("1".into())), ("bl1:m1.SCAN".into(), None));
+        assert_eq!(pv("bl1:m1.TPRO").map(|p| p.native()), Some(Base::Char));
+        assert_eq!(pv("bl1:m1.BKPT"), None, "DBF_NOACCESS");
     }
 
     #[test]

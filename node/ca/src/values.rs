@@ -39,6 +39,8 @@ impl AxisValues {
                 self.fields.insert(Field::DISP, entry);
             }
             Target::Message | Target::MessageChars | Target::RecordType => self.message = Some(entry),
+            // Constant: nothing on the network changes it.
+            Target::Common(_) => {}
         }
     }
 
@@ -65,6 +67,14 @@ impl AxisValues {
                 (entry.value.clone(), entry.stamp, ABLE.choices)
             }
             Target::RecordType => (Value::Text("motor".into()), alarm.stamp, &[][..]),
+            Target::Common(_) => {
+                let common = pv.target.common()?;
+                let choices = match common.kind {
+                    Kind::Menu(menu) => menu.choices,
+                    _ => &[],
+                };
+                (common.value(), alarm.stamp, choices)
+            }
             Target::Message | Target::MessageChars => match &self.message {
                 Some(message) => (message.value.clone(), message.stamp, &[][..]),
                 None => (Value::Text(String::new()), alarm.stamp, &[][..]),
@@ -110,7 +120,7 @@ impl AxisValues {
             precision: match pv.target {
                 Target::Field(field) => field.precision(prec),
                 Target::RecordType | Target::Message | Target::MessageChars => prec,
-                Target::Able => 0,
+                Target::Able | Target::Common(_) => 0,
             },
             upper,
             lower,

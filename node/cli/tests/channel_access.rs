@@ -56,6 +56,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "ERR reads in full",
         "DISP (a char channel) disables every put",
         "ALH's alarm acknowledgement",
+        "dbCommon's SCAN",
         "caproto",
         "moves nothing posts DMOV 0 then 1",
         "waits for it to complete",

@@ -62,6 +62,9 @@ pub enum AxisEvent {
     },
     /// A processing ended with DMOV = 1 (forward link, put-with-completion).
     Done(Completion),
+    /// A processing of a disabled record: the writes waiting before it are answered, as an
+    /// IOC completes a put-callback; nothing ended (holds still hold a motion under way).
+    WritesCompleted(Completion),
     /// A plain write of `value` to another key: an output link (OUT, STOO, RLNK, FLNK) or a
     /// device directive's put (`@PUT(key, value)@` in PREM or POST).
     Put {
@@ -670,6 +673,10 @@ impl Axis {
                     }
                     Output::Transaction(transaction) => wants_callback |= self.deliver(&transaction),
                     Output::StartDelay(delay) => self.delay_deadline = Some(self.now + delay),
+                    Output::WritesCompleted => {
+                        self.completed = Completion(self.completed.0 + 1);
+                        self.events.push(AxisEvent::WritesCompleted(self.completed));
+                    }
                     Output::Done => {
                         self.completed = Completion(self.completed.0 + 1);
                         self.events.push(AxisEvent::Done(self.completed));

@@ -722,6 +722,19 @@ impl<R: Clone> AxisService<R> {
         }
     }
 
+    /// Answer the waiting writes `done` ends, with their completion.
+    fn answer_waiters(&mut self, done: crate::axis::Completion) {
+        let (ended, waiting) =
+            std::mem::take(&mut self.waiting).into_iter().partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
+        self.waiting = waiting;
+        for waiter in ended {
+            let target = waiter.accepted.target;
+            let completion = self.completion(waiter.field, target, waiter.controller_messages);
+            let reply = Reply::Completion(waiter.field, completion);
+            self.answer(waiter.to, reply);
+        }
+    }
+
     /// Turn what the axis produced into outputs; a completion answers the writes it ends.
     fn collect(&mut self) {
         let mut events = std::mem::take(&mut self.events);
@@ -756,17 +769,9 @@ impl<R: Clone> AxisService<R> {
                     for token in tokens {
                         self.outputs.push_back(ServiceOutput::ForgetHold { token });
                     }
-                    let (ended, waiting) = std::mem::take(&mut self.waiting)
-                        .into_iter()
-                        .partition(|w: &Waiter<R>| w.accepted.is_ended_by(done));
-                    self.waiting = waiting;
-                    for waiter in ended {
-                        let target = waiter.accepted.target;
-                        let completion = self.completion(waiter.field, target, waiter.controller_messages);
-                        let reply = Reply::Completion(waiter.field, completion);
-                        self.answer(waiter.to, reply);
-                    }
+                    self.answer_waiters(done);
                 }
+                AxisEvent::WritesCompleted(done) => self.answer_waiters(done),
             }
         }
         self.events = events;
@@ -927,6 +932,21 @@ mod tests {
         };
         // Too close to move: the record leaves LVIO as the refused target set it.
         assert_eq!((completion.rbv, completion.lvio, completion.reached), (0.0, 1, 1), "{completion:?}");
+    }
+
+    #[test]
+    fn a_wait_write_is_answered_when_the_record_is_disabled_and_processed_as_an_ioc_completes_it() {
+        let mut s = service();
+        s.write(at(0.0), WriteRequest::new("VAL", b"50", Text), true, 1);
+        s.write(at(0.1), WriteRequest::new("DISA", b"1", Text), false, 2);
+        assert_eq!(replies(&drain(&mut s)).iter().map(|(to, _)| *to).collect::<Vec<_>>(), [2], "still moving");
+        // A processing of the disabled record (a setting of a process-passive field).
+        s.write(at(0.2), WriteRequest::new("HLSV", b"MINOR", Text), false, 3);
+        let answers = replies(&drain(&mut s));
+        let [(1, Reply::Completion(Field::VAL, completion)), (3, Reply::Value(..))] = &answers[..] else {
+            panic!("{answers:?}")
+        };
+        assert_eq!((completion.dmov, completion.reached, completion.stat), (0, 0, 18), "{completion:?}");
     }
 
     #[test]

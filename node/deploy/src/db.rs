@@ -13,7 +13,7 @@ use crate::file::{
 };
 use std::collections::BTreeMap;
 use std::path::Path;
-use zmotor_msgs::{decode_scalar, keys, Field, Kind, PayloadEncoding, UNMODELLED_COMMON_FIELDS};
+use zmotor_msgs::{decode_scalar, keys, unmodelled_common_field, Field, Kind, PayloadEncoding};
 use zmotor_msgs::{field_value, to_toml};
 
 /// Macro definitions, `-m user=me,P=xxx:` as for dbLoadRecords.
@@ -235,7 +235,7 @@ impl Linker<'_> {
             Some(kind) if !RUN_KINDS.contains(kind) => {
                 warnings.push(format!(
                     "line {line}: link '{text}': record '{record}' is a {kind}, which zmotor does not run: nothing \
-                     publishes {}/{record}/{field}, the link reads nothing",
+                     serves {}/{record}/{field}",
                     keys::BRIDGE_PREFIX
                 ));
                 keys::BRIDGE_PREFIX
@@ -283,7 +283,7 @@ fn motor(
     let mut last = BTreeMap::new();
     for (name, text, line) in &record.fields {
         let at = |message: String| Failure::at(*line, format!("motor '{}': field {name}: {message}", record.name));
-        if name == "DTYP" || UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) {
+        if name == "DTYP" || unmodelled_common_field(name).is_some() {
             continue;
         }
         let field = Field::from_name(name)
@@ -296,6 +296,15 @@ fn motor(
                  readback), not a setting; ignored",
                 record.name
             ));
+            continue;
+        }
+        // motor.db's SDIS reads the motor's own Enable/Disable record, whose OUT writes DISP:
+        // zmotor serves that record as DISP (`_able`), which refuses puts while the motor is
+        // disabled; its processing is not disabled as well.
+        let own_able = format!("{}_able", record.name);
+        if field == Field::SDIS
+            && text.split_whitespace().next().is_some_and(|t| t.split('.').next() == Some(&own_able))
+        {
             continue;
         }
         let value = match field.def().kind {
@@ -441,7 +450,7 @@ fn calc(
                 section.constants.insert(name.clone(), x);
             }
             "DESC" | "PREC" | "EGU" | "HOPR" | "LOPR" | "DOPT" => {}
-            _ if UNMODELLED_COMMON_FIELDS.contains(&name.as_str()) || DISABLING_FIELDS.contains(&name.as_str()) => {}
+            _ if unmodelled_common_field(name).is_some() || DISABLING_FIELDS.contains(&name.as_str()) => {}
             _ => warnings.push(format!(
                 "line {line}: {} '{}': field {name} is not used by zmotor and was ignored",
                 record.kind, record.name
@@ -809,10 +818,10 @@ mod tests {
         let (file, _) = import(text).unwrap();
         assert_eq!(file.axes.len(), 1);
         assert_eq!(file.axes[0].fields["VELO"], toml::Value::Integer(3));
-        // DISP (puts disabled) and SDIS (processing disabled) are modelled; SCAN is not.
+        // DISP (puts disabled) is modelled; SCAN is not; SDIS reads its own Enable/Disable
+        // record, which is DISP.
         assert_eq!(file.axes[0].fields["DISP"], toml::Value::Integer(1));
-        assert!(!file.axes[0].fields.contains_key("SCAN"));
-        assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("motor/m1_able/VAL".into()));
+        assert!(!file.axes[0].fields.contains_key("SCAN") && !file.axes[0].fields.contains_key("SDIS"));
         assert!(import("record(motor, m1) {}\nrecord(ai, m1) {}").unwrap_err().message.contains("already a motor"));
     }
 
@@ -863,6 +872,15 @@ mod tests {
         assert_eq!(file.axes[0].fields["DISA"], toml::Value::Integer(0), "a constant SDIS sets nothing");
         assert!(!file.axes[0].fields.contains_key("SDIS"));
         // An interlock of a record type zmotor does not run reads nothing: said.
+        // motor.db's own Enable/Disable record: served as DISP, no link and nothing to say.
+        let stock =
+            "record(motor, m1) { field(SDIS, \"m1_able.VAL\") }\nrecord(bo, m1_able) { field(OUT, \"m1.DISP\") }";
+        let (file, warnings) = import(stock).unwrap();
+        assert!(
+            !file.axes[0].fields.contains_key("SDIS")
+                && !warnings.iter().any(|w| w.contains("SDIS") || w.contains("m1_able.VAL")),
+            "{warnings:?}"
+        );
         let (file, warnings) = import("record(bi, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
         assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("bridge/lock/VAL".into()));
         assert!(

@@ -80,6 +80,9 @@ pub enum Output {
     StartDelay(Duration),
     /// The processing ended with DMOV = 1: fire the forward link and complete waiting writes.
     Done,
+    /// A processing of a disabled record: waiting writes complete (as dbProcess notifies a
+    /// put-callback's completion); no forward link, and a motion under way goes on.
+    WritesCompleted,
     /// RBV to be written to the RLNK link.
     ReadbackLink(f64),
 }

@@ -186,7 +186,7 @@ impl MotorRecord {
         }
         if let Err(e) = self.special_after(field) {
             // Stored, but no post and no processing (§0.1 step 5).
-            self.flush_posts();
+            self.flush_posts_between_processings();
             return Err(e);
         }
         if field != Field::VAL {
@@ -194,7 +194,12 @@ impl MotorRecord {
         }
         self.refusal = None;
         if stops_while_disabled {
-            self.stop_while_disabled();
+            let drops_held = match field {
+                Field::STOP => true,
+                Field::SPMG => value.as_f64() == Some(f64::from(choice::SPMG_STOP)),
+                _ => false,
+            };
+            self.stop_while_disabled(drops_held);
         } else if access == Access::PP {
             self.process();
         } else {
@@ -237,7 +242,6 @@ impl MotorRecord {
         if severity >= f64::from(self.f.acks) {
             self.f.acks = severity::NO_ALARM;
             self.post(Field::ACKS);
-            self.flush_posts();
         }
     }
 
@@ -279,18 +283,28 @@ impl MotorRecord {
         }
     }
 
-    /// Departure Z24: stop the motor of a disabled record as STOP does (§9.1), without processing
-    /// the record: at rest, what was held is dropped; during a motion, MIP STOP, so that the
-    /// first processing once enabled ends it where it stopped (no retry toward the target); the
-    /// buttons cleared, STOP taken.
-    fn stop_while_disabled(&mut self) {
-        if !self.stop_request() {
-            self.clear_buttons();
-            if self.f.mip & mip::DELAY_REQ == 0 {
-                self.set_mip(mip::STOP);
+    /// Departure Z24: stop the motor of a disabled record, without processing it (its MOVN and
+    /// readback are as the last processing left them): during a motion, MIP STOP and PP, so that
+    /// the first processing once enabled ends it where it stopped (no retry toward the target),
+    /// the buttons cleared; at rest, a STOP (not a pause) drops a held target, as it does
+    /// enabled.
+    fn stop_while_disabled(&mut self, drops_held: bool) {
+        let at_rest = self.f.mip == mip::DONE || (self.f.mip & mip::STOP != 0 && self.f.movn == 0);
+        match self.f.mip {
+            // At rest, or paused and stopped: a STOP ends what was held where the motor stands.
+            _ if at_rest && drops_held => self.drop_held_target(),
+            // Stopping already: a STOP drops what a pause held; the end comes once enabled.
+            m if m & mip::STOP != 0 => self.resume_on_go &= !drops_held,
+            mip::DONE => {}
+            _ => {
+                self.f.pp = 1;
+                self.clear_buttons();
+                if self.f.mip & mip::DELAY_REQ == 0 {
+                    self.set_mip(mip::STOP);
+                }
             }
-            self.send(vec![MotorCommand::StopAxis]);
         }
+        self.send(vec![MotorCommand::StopAxis]);
         if self.f.stop != 0 {
             self.f.stop = 0;
             self.mark(Field::STOP);

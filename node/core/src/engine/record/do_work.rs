@@ -168,10 +168,9 @@ impl MotorRecord {
         }
     }
 
-    /// §9.3 home, jog, tweak, relative and raw requests; true when do_work is over.
     /// §9.1 STOP (or SPMG Stop): at rest, STOP_AXIS and the end of what was held (true: nothing
     /// more to do); during a motion, its end prepared (false: MIP STOP and STOP_AXIS follow).
-    pub(super) fn stop_request(&mut self) -> bool {
+    fn stop_request(&mut self) -> bool {
         let m = self.f.mip;
         // Departure Z22: a retry leg under way stops as any motion does (DMOV 1 once the motor
         // has stopped); the reference ends it at once, DMOV 1 while it decelerates.
@@ -195,6 +194,7 @@ impl MotorRecord {
         false
     }
 
+    /// §9.3 home, jog, tweak, relative and raw requests; true when do_work is over.
     pub(super) fn handle_buttons(&mut self, stop_or_pause: bool) -> bool {
         use Field::*;
         let dir_pos = self.f.dir == choice::DIR_POS;

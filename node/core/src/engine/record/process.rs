@@ -47,7 +47,8 @@ impl MotorRecord {
 
     /// A processing of a disabled record (DISA = DISV), as dbProcess does it: nothing is
     /// processed (the device's status, and what writes marked, wait for the next processing),
-    /// the DISABLE alarm at severity DISS is raised once, with VAL posted.
+    /// the DISABLE alarm at severity DISS is raised once, with VAL posted, and waiting writes
+    /// complete.
     fn process_disabled(&mut self) {
         if self.f.stat != status::DISABLE {
             (self.f.stat, self.f.sevr) = (status::DISABLE, self.f.diss);
@@ -55,6 +56,7 @@ impl MotorRecord {
             self.post(Field::SEVR);
             self.post(Field::VAL);
         }
+        self.outputs.push(Output::WritesCompleted);
     }
 
     /// §15.3 update_values: copy the device's pending status into the record.

@@ -487,3 +487,24 @@ fn z25_a_motion_asked_while_disabled_is_refused_and_never_starts() {
     rig.cb(0.0);
     assert!(rig.take().iter().all(|c| matches!(c, GetInfo)), "nothing moves once enabled");
 }
+
+/// Z24: a stop while disabled just after a retry leg was sent (the record has not seen it
+/// move: MOVN 0) keeps DMOV 0 until the motor is seen stopped, once enabled, and retries no
+/// more.
+#[test]
+fn z24_a_stop_while_disabled_during_a_retry_leg_waits_for_the_motor() {
+    let mut rig = Rig::boot(Fields { rtry: 3, ..baseline_b() }, 0.0);
+    rig.put(Field::VAL, 1.0).unwrap();
+    rig.take();
+    rig.cb(90.0);
+    assert_eq!((rig.take(), rig.f().mip & mip::RETRY != 0), (move_abs(100.0, 0.0, 200.0, 100.0), true));
+    rig.put(Field::DISA, 1.0).unwrap();
+    rig.put(Field::STOP, 1.0).unwrap();
+    assert_eq!(rig.take(), vec![StopAxis]);
+    assert_eq!((rig.f().dmov, rig.f().mip), (0, mip::STOP), "the leg may be under way");
+    rig.put(Field::DISA, 0.0).unwrap();
+    rig.cb(95.0);
+    assert!(rig.take().is_empty(), "no retry");
+    assert_eq!((rig.f().dmov, rig.f().mip), (1, mip::DONE));
+    assert!(approx(rig.f().val, 0.95), "ended where it stopped: {}", rig.f().val);
+}

@@ -19,6 +19,8 @@ struct Rig {
     posts: Vec<(Field, Value)>,
     delays: Vec<f64>,
     done_count: usize,
+    /// Processings of the disabled record (each completes the writes waiting).
+    writes_completed: usize,
     encoder: bool,
 }
 
@@ -41,7 +43,15 @@ impl Rig {
         let mut rec = MotorRecord::new(fields);
         let _ = rec.restore_commands(status.position);
         rec.init(status);
-        let mut rig = Rig { rec, sent: vec![], posts: vec![], delays: vec![], done_count: 0, encoder: false };
+        let mut rig = Rig {
+            rec,
+            sent: vec![],
+            posts: vec![],
+            delays: vec![],
+            done_count: 0,
+            writes_completed: 0,
+            encoder: false,
+        };
         rig.collect();
         rig.clear();
         rig
@@ -54,6 +64,7 @@ impl Rig {
                 Output::Transaction(t) => self.sent.extend(t),
                 Output::StartDelay(d) => self.delays.push(d.as_secs_f64()),
                 Output::Done => self.done_count += 1,
+                Output::WritesCompleted => self.writes_completed += 1,
                 Output::ReadbackLink(_) => {}
             }
         }

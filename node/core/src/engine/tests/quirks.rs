@@ -574,6 +574,7 @@ fn q33_a_disabled_record_is_not_processed_until_enabled() {
     assert_eq!((f.hlsv, f.dmov, f.mip, f.stat, f.sevr), (1, 1, mip::DONE, status::DISABLE, severity::MAJOR));
     assert_eq!(rig.posted(Field::STAT), vec![Value::Int(status::DISABLE.into())]);
     assert_eq!(rig.posted(Field::VAL), vec![Value::Float(0.0)]);
+    assert_eq!((rig.writes_completed, rig.done_count), (1, 0), "put-callbacks complete; no FLNK");
     // Status while disabled: not taken, and the alarm is not raised again.
     rig.cb(40.0);
     assert_eq!((rig.f().rbv, rig.f().rmp), (0.0, 0));
