@@ -647,6 +647,12 @@ pub const UNMODELLED_COMMON_FIELDS: &[CommonField] = {
         number("RPRO", Kind::UChar),
         menu("NSEV", &menus::MENU_ALARM_SEVR, 0),
         menu("NSTA", &menus::MENU_ALARM_STAT, 0),
+        // The motor record sets no alarm message (it raises alarms by recGblSetSevr).
+        text("AMSG", Kind::Str(40)),
+        text("NAMSG", Kind::Str(40)),
+        number("PACT", Kind::UChar),
+        // DBF_UINT64, served as a DBR_DOUBLE as an IOC serves it.
+        number("UTAG", Kind::ULong),
     ]
 };
 

@@ -185,9 +185,21 @@ def common_fields():
     ok("dbCommon's SCAN, UDFS, TPRO and ASG read as an IOC's defaults, read-only")
 
 
+def long_strings():
+    """A string field's `$` channel is its text as characters, read and written (caget -S)."""
+    desc = epics.caget("m1.DESC", use_monitor=False)
+    chars = epics.PV("m1.DESC$")
+    assert chars.wait_for_connection(timeout=10) and chars.type.endswith("char") and chars.count == 41, chars.info
+    assert epics.caget("m1.DESC$", as_string=True, use_monitor=False) == desc
+    assert epics.caput("m1.DESC$", "the slit's top blade, by its long name", wait=True, timeout=10) == 1
+    assert epics.caget("m1.DESC", use_monitor=False) == "the slit's top blade, by its long name"
+    assert epics.caput("m1.DESC", desc, wait=True, timeout=10) == 1
+    ok("a string field's long-string channel (DESC$) reads and writes its text as characters")
+
+
 def alarm_acknowledgement():
     """What ALH does: the record's alarm and acknowledgement read as DBR_STSACK_STRING, and
-    DBR_PUT_ACKT / DBR_PUT_ACKS written to it (here to a read-only channel of the record)."""
+    DBR_PUT_ACKT / DBR_PUT_ACKS written to it; a plain put of ACKS is refused (SPC_NOMOD)."""
     from caproto import ChannelType
     from caproto.sync.client import read, write
 
@@ -197,11 +209,13 @@ def alarm_acknowledgement():
 
     rbv = epics.caget("m1.RBV", use_monitor=False)
     assert stsack() == (0, 0, 1, 0, rbv), stsack()
-    write("m1.RBV", [0], data_type=ChannelType.PUT_ACKT, notify=True, repeater=False, timeout=10)
+    write("m1", [0], data_type=ChannelType.PUT_ACKT, notify=True, repeater=False, timeout=10)
     assert epics.caget("m1.ACKT", use_monitor=False) == 0
     assert stsack()[2] == 0
-    write("m1.RBV", [3], data_type=ChannelType.PUT_ACKS, notify=True, repeater=False, timeout=10)
+    write("m1.VELO", [3], data_type=ChannelType.PUT_ACKS, notify=True, repeater=False, timeout=10)
     assert epics.caget("m1.ACKS", use_monitor=False) == 0
+    acks = epics.PV("m1.ACKS")
+    assert acks.wait_for_connection(timeout=10) and not acks.write_access
     write("m1", [1], data_type=ChannelType.PUT_ACKT, notify=True, repeater=False, timeout=10)
     assert stsack()[2:4] == (1, 0)
     ok("ALH's alarm acknowledgement: DBR_STSACK_STRING reads ACKT and ACKS, DBR_PUT_ACKT and DBR_PUT_ACKS write them")
@@ -387,6 +401,7 @@ STAGES = {
         puts_disabled,
         alarm_acknowledgement,
         common_fields,
+        long_strings,
         moves_of_nothing,
         read_after_write,
         caproto_tools,

@@ -517,14 +517,15 @@ impl Circuit {
         let Some(channel) = self.channels.get(&header.p1) else {
             return self.error(header, 0, status::BAD_CHANNEL_ID, "no such channel");
         };
-        let (mut pv, cid) = (channel.pv.clone(), channel.cid);
-        // An alarm's acknowledgement, on any channel of the record: a write of ACKT or ACKS.
+        let (channel_pv, cid) = (channel.pv.clone(), channel.cid);
+        let mut pv = channel_pv.clone();
+        // An alarm's acknowledgement, on any channel of the record one may write (as rsrv checks
+        // the channel's access): a write of ACKT or ACKS.
         let acknowledges = match header.data_type {
             dbr::DBR_PUT_ACKT => Some(Field::ACKT),
             dbr::DBR_PUT_ACKS => Some(Field::ACKS),
             _ => None,
         };
-        let able = pv.target == Target::Able;
         if let Some(field) = acknowledges {
             pv = Pv { axis: pv.axis, target: Target::Field(field) };
         }
@@ -535,12 +536,12 @@ impl Circuit {
         } else {
             WriteAnswer::OnFailure { request: header, cid, number }
         };
-        if able && acknowledges.is_some() {
+        if channel_pv.target == Target::Able && acknowledges.is_some() {
             // `_able` is a record of its own, a bo with no alarm to acknowledge.
             return self.answer_write(answer, WriteEnd::Done);
         }
-        if !pv.writable() {
-            let message = format!("{}: read-only", pv.name(&self.prefix));
+        if !channel_pv.writable() {
+            let message = format!("{}: read-only", channel_pv.name(&self.prefix));
             return self.answer_write(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
         }
         let written = match acknowledges {
@@ -548,6 +549,11 @@ impl Circuit {
             Some(Field::ACKS) => dbr::written_text(Base::Enum.code(), payload, pv.native())
                 .map(|text| text.parse::<u16>().map_or(text, |severity| severity.min(severity::INVALID).to_string())),
             Some(_) => dbr::written_text(Base::Enum.code(), payload, pv.native()),
+            // A long string written as characters: the text up to its NUL.
+            None if matches!(pv.target, Target::FieldChars(_)) && header.data_type == Base::Char.code() => {
+                let count = usize::try_from(header.count).unwrap_or(usize::MAX).min(payload.len());
+                Ok(codec::text(&payload[..count]))
+            }
             None => dbr::written_text(header.data_type, payload, pv.native()),
         };
         match written {

@@ -162,13 +162,24 @@ mod tests {
     }
 
     #[test]
-    fn alarm_acknowledgements_are_writes_of_ackt_and_acks_on_any_channel_and_read_with_stsack() {
+    fn alarm_acknowledgements_are_writes_of_ackt_and_acks_on_writable_channels_and_read_with_stsack() {
         let mut circuit = Circuit::new("");
         let directory = OneAxis { fetched: true };
         let rbv = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 2, 13), b"m1.RBV\0");
-        let sid = rbv[1].0.p2;
-        // DBR_PUT_ACKS (36) on a read-only channel: ALH acknowledges on whatever it watches (a
-        // severity beyond INVALID acknowledges INVALID).
+        let rbv_sid = rbv[1].0.p2;
+        let val = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, 4, 13), b"m1\0");
+        let sid = val[1].0.p2;
+        // Not on a channel one may not write, as rsrv checks its access.
+        let refused = request(
+            &mut circuit,
+            &directory,
+            Header::new(command::WRITE_NOTIFY, 36, 1, rbv_sid, 8),
+            &2u16.to_be_bytes(),
+        );
+        assert_eq!((refused[0].0.command, refused[0].0.p1), (command::WRITE_NOTIFY, 376), "ECA_NOWTACCESS");
+        assert_eq!(circuit.poll_request(), None);
+        // DBR_PUT_ACKS (36) on the record's channel, as ALH writes it (a severity beyond INVALID
+        // acknowledges INVALID).
         request(&mut circuit, &directory, Header::new(command::WRITE, 36, 1, sid, 1), &7u16.to_be_bytes());
         let Some(Request::Write { pv, text, wait, answer, .. }) = circuit.poll_request() else { panic!("no write") };
         assert_eq!((pv.name(""), text.as_str(), wait), ("m1.ACKS".into(), "3", false));

@@ -33,6 +33,9 @@ pub enum Target {
     Able,
     /// A dbCommon field zmotor does not model, by name: its default, read-only.
     Common(&'static str),
+    /// `.<FIELD>$` of a string or link field: its text in full, as a character array (an IOC's
+    /// long-string channel; a link's key may be longer than a DBR_STRING's 39 characters).
+    FieldChars(Field),
 }
 
 impl Target {
@@ -47,6 +50,9 @@ impl Target {
 
 /// The length of `.ERR$`, in characters, its NUL included: a message beyond is cut.
 pub const MESSAGE_CHARS: u32 = 512;
+
+/// The length of a link's `$` channel, as an IOC's (PVLINK_STRINGSZ).
+const LINK_CHARS: u32 = 1024;
 
 /// A channel of an axis.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
@@ -73,9 +79,12 @@ impl Pv {
             "RTYP" => Target::RecordType,
             keys::ERR_KEY => Target::Message,
             "ERR$" => Target::MessageChars,
-            name => match Field::from_name(name) {
-                Some(field) => Target::Field(field),
-                None => Target::Common(unmodelled_common_field(name)?.name),
+            name => match (Field::from_name(name), name.strip_suffix('$').and_then(Field::from_name)) {
+                (Some(field), _) => Target::Field(field),
+                (None, Some(field)) if matches!(field.def().kind, Kind::Str(_) | Kind::Link) => {
+                    Target::FieldChars(field)
+                }
+                _ => Target::Common(unmodelled_common_field(name)?.name),
             },
         };
         Some(Pv { axis: axis.to_string(), target })
@@ -90,6 +99,7 @@ impl Pv {
             Target::MessageChars => format!("{prefix}{}.{}$", self.axis, keys::ERR_KEY),
             Target::Able => format!("{prefix}{}{ABLE_SUFFIX}", self.axis),
             Target::Common(name) => format!("{prefix}{}.{name}", self.axis),
+            Target::FieldChars(field) => format!("{prefix}{}.{}$", self.axis, field.name()),
         }
     }
 
@@ -103,19 +113,25 @@ impl Pv {
         }
     }
 
-    /// Its element count: a message in full has `MESSAGE_CHARS`, everything else one.
+    /// Its element count: a message in full has `MESSAGE_CHARS`, a string field's `$` channel
+    /// the field's size, a link's `LINK_CHARS`; everything else one.
     pub fn count(&self) -> u32 {
-        if self.target == Target::MessageChars {
-            MESSAGE_CHARS
-        } else {
-            1
+        match self.target {
+            Target::MessageChars => MESSAGE_CHARS,
+            Target::FieldChars(field) => match field.def().kind {
+                Kind::Str(size) => u32::try_from(size).unwrap_or(LINK_CHARS),
+                _ => LINK_CHARS,
+            },
+            _ => 1,
         }
     }
 
     /// Whether a client may write it.
     pub fn writable(&self) -> bool {
         match self.target {
-            Target::Field(field) => field.def().access != Access::RO,
+            // SPC_NOMOD on an IOC: written by DBR_PUT_ACKT / DBR_PUT_ACKS only.
+            Target::Field(Field::ACKT | Field::ACKS) => false,
+            Target::Field(field) | Target::FieldChars(field) => field.def().access != Access::RO,
             Target::Able => true,
             Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => false,
         }
@@ -126,7 +142,7 @@ impl Pv {
     /// string field holds cut to fit, as an IOC's dbPut copies it (the node refuses it whole).
     pub fn written(&self, text: String) -> Option<(Field, String)> {
         match self.target {
-            Target::Field(field) => match field.def().kind {
+            Target::Field(field) | Target::FieldChars(field) => match field.def().kind {
                 Kind::Str(size) => Some((field, cut_to(text, size - 1))),
                 _ => Some((field, text)),
             },
@@ -143,6 +159,7 @@ impl Pv {
                 (changed, self.target),
                 (Target::Message, Target::MessageChars) | (Target::Field(Field::DISP), Target::Able)
             )
+            || matches!((changed, self.target), (Target::Field(a), Target::FieldChars(b)) if a == b)
     }
 
     /// Its native DBR type.
@@ -150,7 +167,7 @@ impl Pv {
         match self.target {
             Target::Field(field) => Base::native(field.def().kind),
             Target::RecordType | Target::Message => Base::String,
-            Target::MessageChars => Base::Char,
+            Target::MessageChars | Target::FieldChars(_) => Base::Char,
             Target::Able => Base::Enum,
             Target::Common(_) => self.target.common().map_or(Base::String, |common| Base::native(common.kind)),
         }
@@ -168,7 +185,9 @@ impl Pv {
             Target::Field(field) => Limits::Range(field.def().kind.default_range()),
             Target::Able => Limits::Range((1.0, 0.0)),
             Target::Common(_) => Limits::Range(self.target.common().map_or((0.0, 0.0), |c| c.kind.default_range())),
-            Target::RecordType | Target::Message | Target::MessageChars => Limits::Range((0.0, 0.0)),
+            Target::RecordType | Target::Message | Target::MessageChars | Target::FieldChars(_) => {
+                Limits::Range((0.0, 0.0))
+            }
         }
     }
 
@@ -197,9 +216,12 @@ impl Pv {
     pub fn units(&self, egu: &str) -> String {
         match self.target {
             Target::Field(field) => field.record_units(egu),
-            Target::RecordType | Target::Message | Target::MessageChars | Target::Able | Target::Common(_) => {
-                String::new()
-            }
+            Target::RecordType
+            | Target::Message
+            | Target::MessageChars
+            | Target::Able
+            | Target::Common(_)
+            | Target::FieldChars(_) => String::new(),
         }
     }
 }
@@ -247,6 +269,17 @@ mod tests {
         assert_eq!((scan.name("bl1:"), scan.written("1".into())), ("bl1:m1.SCAN".into(), None));
         assert_eq!(pv("bl1:m1.TPRO").map(|p| p.native()), Some(Base::Char));
         assert_eq!(pv("bl1:m1.BKPT"), None, "DBF_NOACCESS");
+        // Long strings: a string field's or a link's `$` channel, its text as characters.
+        let (desc, out) = (pv("bl1:m1.DESC$").unwrap(), pv("bl1:m1.OUT$").unwrap());
+        assert_eq!(
+            (desc.target, desc.native(), desc.count(), desc.writable()),
+            (Target::FieldChars(Field::DESC), Base::Char, 41, true)
+        );
+        assert_eq!((out.name("bl1:"), out.count()), ("bl1:m1.OUT$".into(), LINK_CHARS));
+        assert!(out.shows(Target::Field(Field::OUT)) && !out.shows(Target::Field(Field::DESC)));
+        assert_eq!(pv("bl1:m1.VAL$"), None, "a number has no long string");
+        // ACKT and ACKS are written by DBR_PUT_ACKT / ACKS only.
+        assert!(!pv("bl1:m1.ACKS").unwrap().writable());
     }
 
     #[test]

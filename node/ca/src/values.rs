@@ -41,6 +41,9 @@ impl AxisValues {
             Target::Message | Target::MessageChars | Target::RecordType => self.message = Some(entry),
             // Constant: nothing on the network changes it.
             Target::Common(_) => {}
+            Target::FieldChars(field) => {
+                self.fields.insert(field, entry);
+            }
         }
     }
 
@@ -54,6 +57,10 @@ impl AxisValues {
         }
         let alarm = self.fields.get(&Field::STAT)?;
         let (value, stamp, choices) = match pv.target {
+            Target::FieldChars(field) => {
+                let entry = self.fields.get(&field)?;
+                (entry.value.clone(), entry.stamp, &[][..])
+            }
             Target::Field(field) => {
                 let entry = self.fields.get(&field)?;
                 let choices = match field.def().kind {
@@ -120,7 +127,7 @@ impl AxisValues {
             precision: match pv.target {
                 Target::Field(field) => field.precision(prec),
                 Target::RecordType | Target::Message | Target::MessageChars => prec,
-                Target::Able | Target::Common(_) => 0,
+                Target::Able | Target::Common(_) | Target::FieldChars(_) => 0,
             },
             upper,
             lower,

@@ -57,6 +57,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "DISP (a char channel) disables every put",
         "ALH's alarm acknowledgement",
         "dbCommon's SCAN",
+        "long-string channel (DESC$)",
         "caproto",
         "moves nothing posts DMOV 0 then 1",
         "waits for it to complete",
