@@ -6,7 +6,7 @@ use crate::codec::{self, command, Header, MINOR_VERSION};
 use crate::dbr::{self, Base, Class, DbrType, Snapshot};
 use crate::directory::Directory;
 use crate::names::{Pv, Target};
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use zmotor_msgs::menus::severity;
 use zmotor_msgs::{past_deadband, Field, Refusal, RefusalKind, Value, WriteClass};
 
@@ -182,6 +182,9 @@ pub struct Circuit {
     writes_sent: u64,
     /// Reads that came after such writes of their axis, each with the number of the last one.
     reads_after_writes: Vec<(Pending, u64)>,
+    /// Subscriptions owed an alarm's event: one processing's SEVR, STAT and ACKS arrive apart,
+    /// and make one event (`flush_alarms`), as an IOC posts one.
+    alarms_due: BTreeSet<u32>,
     next_sid: u32,
     events_on: bool,
     /// Whether a change went unposted while events were off.
@@ -199,6 +202,7 @@ impl Circuit {
 
     /// Bytes from the client. An error means the circuit must be closed.
     pub fn handle_input(&mut self, bytes: &[u8], directory: &dyn Directory) -> Result<(), codec::FrameError> {
+        self.flush_alarms(directory);
         self.inbox.extend_from_slice(bytes);
         let mut used = 0;
         while let Some((header, payload, length)) = codec::parse(&self.inbox[used..])? {
@@ -248,31 +252,45 @@ impl Circuit {
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         // Each subscription concerned, and whether its event carries a value change (the first,
         // or one past the deadbands), as against an alarm's or metadata's alone.
-        let concerned: Vec<(u32, bool)> = self
-            .subscriptions
-            .iter()
-            .filter_map(|(subid, s)| {
-                let pv = self.channels.get(&s.sid).map(|c| &c.pv).filter(|pv| pv.axis == axis)?;
-                let class = match s.dbr {
-                    // Alarm and acknowledgement, with the value as text.
-                    dbr::DBR_STSACK_STRING => Class::Status,
-                    code => DbrType::from_code(code).map_or(Class::Plain, |d| d.class),
-                };
-                let value = !s.posted
-                    || (changed.is_some_and(|c| pv.shows(c))
-                        && s.mask & VALUE_EVENTS != 0
-                        && !Self::within_archive_deadband(s, pv, directory));
-                let other = (alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status)
-                    || (metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic));
-                (value || other).then_some((*subid, value))
-            })
-            .collect();
+        let mut concerned = Vec::new();
+        let mut alarms_due = Vec::new();
+        for (subid, s) in &self.subscriptions {
+            let Some(pv) = self.channels.get(&s.sid).map(|c| &c.pv).filter(|pv| pv.axis == axis) else { continue };
+            let class = match s.dbr {
+                // Alarm and acknowledgement, with the value as text.
+                dbr::DBR_STSACK_STRING => Class::Status,
+                code => DbrType::from_code(code).map_or(Class::Plain, |d| d.class),
+            };
+            let value = !s.posted
+                || (changed.is_some_and(|c| pv.shows(c))
+                    && s.mask & VALUE_EVENTS != 0
+                    && !Self::within_archive_deadband(s, pv, directory));
+            let property = metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic);
+            if value || property {
+                concerned.push((*subid, value));
+            } else if alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status {
+                alarms_due.push(*subid);
+            }
+        }
         if !self.events_on {
-            self.missed |= !concerned.is_empty();
+            self.missed |= !concerned.is_empty() || !alarms_due.is_empty();
             return;
         }
+        self.alarms_due.extend(alarms_due);
         for (subid, value) in concerned {
+            // An event now carries the alarm as it stands: none is owed after it.
+            self.alarms_due.remove(&subid);
             self.post(subid, directory, value);
+        }
+    }
+
+    /// Post the alarm events owed (`alarms_due`), each with the alarm as it stands now: call it
+    /// once the changes told so far are handled, before sending.
+    pub fn flush_alarms(&mut self, directory: &dyn Directory) {
+        for subid in std::mem::take(&mut self.alarms_due) {
+            if self.subscriptions.contains_key(&subid) {
+                self.post(subid, directory, false);
+            }
         }
     }
 
@@ -300,6 +318,7 @@ impl Circuit {
 
     /// A write ended: answered, and the reads of its axis that came after it answered now.
     pub fn write_done(&mut self, answer: WriteAnswer, end: WriteEnd, directory: &dyn Directory) {
+        self.flush_alarms(directory);
         self.writing.retain(|(number, _)| *number != answer.number());
         self.answer_write(answer, end);
         let held = std::mem::take(&mut self.reads_after_writes);

@@ -211,6 +211,7 @@ mod tests {
         add[12..14].copy_from_slice(&4u16.to_be_bytes());
         assert_eq!(request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 37, 1, sid, 9), &add).len(), 1);
         circuit.handle_change("m1", Target::Field(Field::ACKS), &directory);
+        circuit.flush_alarms(&directory);
         assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
     }
 
@@ -269,8 +270,20 @@ mod tests {
         assert_eq!(messages(&circuit.poll_transmit().unwrap())[0].0.p2, 9);
         circuit.handle_change("m1", Target::Field(Field::DESC), &directory);
         assert_eq!(circuit.poll_transmit(), None, "DESC is not RBV's");
-        circuit.handle_change("m1", Target::Field(Field::SEVR), &directory);
+        // One processing's alarm posts (SEVR, STAT, ACKS) make one event, as an IOC's.
+        for field in [Field::SEVR, Field::STAT, Field::ACKS] {
+            circuit.handle_change("m1", Target::Field(field), &directory);
+        }
+        assert_eq!(circuit.poll_transmit(), None, "owed until the changes told so far are handled");
+        circuit.flush_alarms(&directory);
         assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "an alarm change reaches DBE_ALARM");
+        circuit.flush_alarms(&directory);
+        assert_eq!(circuit.poll_transmit(), None, "once");
+        // An alarm owed is carried by a value's event that comes before it is posted.
+        circuit.handle_change("m1", Target::Field(Field::STAT), &directory);
+        circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
+        circuit.flush_alarms(&directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "one event, the value's");
         // Events held back by EVENTS_OFF are posted at EVENTS_ON.
         request(&mut circuit, &directory, Header::new(command::EVENTS_OFF, 0, 0, 0, 0), &[]);
         circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
@@ -335,6 +348,7 @@ mod tests {
         request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 13, 1, sid, 3), &add);
         directory.rbv = 1.5;
         circuit.handle_change("m1", Target::Field(Field::SEVR), &directory);
+        circuit.flush_alarms(&directory);
         let alarmed = messages(&circuit.poll_transmit().unwrap_or_default());
         assert!(alarmed.iter().any(|(header, _)| header.p2 == 3), "{alarmed:?}");
         directory.rbv = 1.6;

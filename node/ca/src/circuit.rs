@@ -51,6 +51,8 @@ pub(crate) async fn serve_circuit(
                 if !take(change, &mut circuit, &mut seen, shared) {
                     return Ok(());
                 }
+                // The changes that came with it (one processing's posts) make one alarm event.
+                catch_up(&mut changes, &mut circuit, &mut seen, shared);
             }
             Some((answer, outcome)) = finished.recv() => {
                 // A put-callback's motion ends after its last posts.
@@ -75,6 +77,7 @@ pub(crate) async fn serve_circuit(
                 }
             }
         }
+        circuit.flush_alarms(&seen.directory(&shared.values()));
         while let Some(bytes) = circuit.poll_transmit() {
             writer.write_all(&bytes).await?;
         }

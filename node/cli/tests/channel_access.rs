@@ -56,6 +56,7 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
         "ERR reads in full",
         "DISP (a char channel) disables every put",
         "ALH's alarm acknowledgement",
+        "reaches a DBE_ALARM monitor as one event",
         "dbCommon's SCAN",
         "long-string channel (DESC$)",
         "caproto",
