@@ -221,26 +221,31 @@ def alarm_acknowledgement():
     ok("ALH's alarm acknowledgement: DBR_STSACK_STRING reads ACKT and ACKS, DBR_PUT_ACKT and DBR_PUT_ACKS write them")
 
     # An alarm raised by one processing reaches a DBE_ALARM monitor as one event, whole.
-    events = []
+    events, ctrl_events = [], []
     alarm = epics.PV("m1", form="time", auto_monitor=epics.dbr.DBE_ALARM,
                      callback=lambda severity=None, status=None, **kw: events.append((status, severity)))
-    assert alarm.wait_for_connection(timeout=10)
+    # A DBR_CTRL monitor, whose metadata holds the alarm too (a display's).
+    alarm_ctrl = epics.PV("m1", form="ctrl", auto_monitor=epics.dbr.DBE_ALARM,
+                          callback=lambda severity=None, status=None, **kw: ctrl_events.append((status, severity)))
+    assert alarm.wait_for_connection(timeout=10) and alarm_ctrl.wait_for_connection(timeout=10)
     deadline = time.monotonic() + 10
-    while not events and time.monotonic() < deadline:
+    while not (events and ctrl_events) and time.monotonic() < deadline:
         time.sleep(0.01)
     dhlm = epics.caget("m1.DHLM", use_monitor=False)
     assert epics.caput("m1.HLSV", "MAJOR", wait=True, timeout=10) == 1
     assert epics.caput("m1.DHLM", epics.caget("m1.DRBV", use_monitor=False) - 1.0, wait=True, timeout=10) == 1
     deadline = time.monotonic() + 10
-    while len(events) < 2 and time.monotonic() < deadline:
+    while (len(events) < 2 or len(ctrl_events) < 2) and time.monotonic() < deadline:
         time.sleep(0.01)
     time.sleep(0.3)  # bounded: a second, split event would come within it
     assert events[1:] == [(4, 2)], events  # HIGH, MAJOR
+    assert ctrl_events[1:] == [(4, 2)], ctrl_events
     assert stsack()[1] == 2 and stsack()[3] == 2, stsack()
     write("m1", [2], data_type=ChannelType.PUT_ACKS, notify=True, repeater=False, timeout=10)
     assert epics.caput("m1.DHLM", dhlm, wait=True, timeout=10) == 1
     assert epics.caput("m1.HLSV", "NO_ALARM", wait=True, timeout=10) == 1
     alarm.clear_callbacks()
+    alarm_ctrl.clear_callbacks()
     assert stsack()[:4] == (0, 0, 1, 0), stsack()
     ok("an alarm raised by one processing reaches a DBE_ALARM monitor as one event, and is acknowledged")
 

@@ -266,9 +266,11 @@ impl Circuit {
                     && s.mask & VALUE_EVENTS != 0
                     && !Self::within_archive_deadband(s, pv, directory));
             let property = metadata(pv) && (s.mask & PROPERTY_EVENT != 0 || class >= Class::Graphic);
-            if value || property {
+            let alarmed = alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status;
+            if value || (property && !alarm) {
                 concerned.push((*subid, value));
-            } else if alarm && s.mask & ALARM_EVENT != 0 && class >= Class::Status {
+            } else if alarmed || property {
+                // STAT and SEVR are metadata of every channel too: an alarm's change is owed.
                 alarms_due.push(*subid);
             }
         }
@@ -284,8 +286,15 @@ impl Circuit {
         }
     }
 
+    /// Whether alarm events are owed: `flush_alarms` soon (one processing's alarm changes come
+    /// within a few milliseconds of each other).
+    #[must_use]
+    pub fn alarms_due(&self) -> bool {
+        !self.alarms_due.is_empty()
+    }
+
     /// Post the alarm events owed (`alarms_due`), each with the alarm as it stands now: call it
-    /// once the changes told so far are handled, before sending.
+    /// once one processing's changes are handled, and before answering a request.
     pub fn flush_alarms(&mut self, directory: &dyn Directory) {
         for subid in std::mem::take(&mut self.alarms_due) {
             if self.subscriptions.contains_key(&subid) {
@@ -297,6 +306,11 @@ impl Circuit {
     /// Post every subscription's current value again (after events were held back, or when
     /// the runner lost changes).
     pub fn repost(&mut self, directory: &dyn Directory) {
+        self.alarms_due.clear();
+        if !self.events_on {
+            self.missed = true;
+            return;
+        }
         let all: Vec<u32> = self.subscriptions.keys().copied().collect();
         for subid in all {
             self.post(subid, directory, true);
@@ -505,7 +519,7 @@ impl Circuit {
     /// circuit's clients know it (the prefix and the axis, as an IOC's record name).
     fn snapshot(&self, pv: &Pv, directory: &dyn Directory) -> Option<Snapshot> {
         let mut snapshot = directory.snapshot(pv)?;
-        if pv.target == Target::Field(Field::NAME) {
+        if matches!(pv.target, Target::Field(Field::NAME) | Target::FieldChars(Field::NAME)) {
             snapshot.value = Value::Text(format!("{}{}", self.prefix, pv.axis));
         }
         Some(snapshot)

@@ -279,17 +279,35 @@ mod tests {
         assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "an alarm change reaches DBE_ALARM");
         circuit.flush_alarms(&directory);
         assert_eq!(circuit.poll_transmit(), None, "once");
+        // So do they to a DBR_CTRL subscriber, whose metadata holds the alarm too.
+        let mut add = vec![0; 16];
+        add[12..14].copy_from_slice(&5u16.to_be_bytes());
+        let first = request(&mut circuit, &directory, Header::new(command::EVENT_ADD, 34, 1, sid, 10), &add);
+        assert_eq!(first.len(), 1);
+        for field in [Field::SEVR, Field::STAT, Field::ACKS] {
+            circuit.handle_change("m1", Target::Field(field), &directory);
+        }
+        assert_eq!(circuit.poll_transmit(), None);
+        assert!(circuit.alarms_due());
+        circuit.flush_alarms(&directory);
+        let events: Vec<u32> = messages(&circuit.poll_transmit().unwrap()).iter().map(|(h, _)| h.p2).collect();
+        assert_eq!(events, [9, 10], "one each");
+        // A lost stream's repost clears what was owed (it posts everything).
+        circuit.handle_change("m1", Target::Field(Field::STAT), &directory);
+        circuit.repost(&directory);
+        circuit.flush_alarms(&directory);
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 2, "the repost's two, nothing more");
         // An alarm owed is carried by a value's event that comes before it is posted.
         circuit.handle_change("m1", Target::Field(Field::STAT), &directory);
         circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
         circuit.flush_alarms(&directory);
-        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 1, "one event, the value's");
+        assert_eq!(messages(&circuit.poll_transmit().unwrap()).len(), 2, "one event each, the value's");
         // Events held back by EVENTS_OFF are posted at EVENTS_ON.
         request(&mut circuit, &directory, Header::new(command::EVENTS_OFF, 0, 0, 0, 0), &[]);
         circuit.handle_change("m1", Target::Field(Field::RBV), &directory);
         assert_eq!(circuit.poll_transmit(), None);
         let resumed = request(&mut circuit, &directory, Header::new(command::EVENTS_ON, 0, 0, 0, 0), &[]);
-        assert_eq!((resumed.len(), resumed[0].0.command), (1, command::EVENT_ADD));
+        assert_eq!((resumed.len(), resumed[0].0.command), (2, command::EVENT_ADD), "each subscription once");
         // An unknown channel id is named as such.
         let unknown = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 6, 1, 999, 1), &[]);
         assert_eq!((unknown[0].0.command, unknown[0].0.p2), (command::ERROR, 410));

@@ -16,6 +16,10 @@ use zmotor_client::HoldToken;
 /// Circuits served so far by this process: each holds its jogs by a token of its own.
 static CIRCUITS: AtomicU64 = AtomicU64::new(0);
 
+/// How long the alarm changes of one processing are gathered into one event: the node
+/// publishes them back to back, microseconds apart.
+const ALARM_GATHERING: Duration = Duration::from_millis(3);
+
 /// One client's circuit until it closes.
 pub(crate) async fn serve_circuit(
     stream: tokio::net::TcpStream,
@@ -33,9 +37,21 @@ pub(crate) async fn serve_circuit(
     let mut holds: HashMap<String, HoldToken> = HashMap::new();
     let client = format!("ca-{}-{}", shared.client.session().zid(), CIRCUITS.fetch_add(1, Ordering::Relaxed));
     let mut buffer = vec![0; 16 * 1024];
+    // When the alarm events owed go: one processing's alarm changes (SEVR, STAT, ACKS, separate
+    // samples) are given this long to arrive and make one event.
+    let mut alarms_at: Option<tokio::time::Instant> = None;
     loop {
+        let flush_alarms = async {
+            match alarms_at {
+                Some(at) => tokio::time::sleep_until(at).await,
+                None => std::future::pending().await,
+            }
+        };
         tokio::select! {
             _ = stopped.changed() => return Ok(()),
+            () = flush_alarms => {
+                circuit.flush_alarms(&seen.directory(&shared.values()));
+            }
             read = reader.read(&mut buffer) => {
                 let length = read?;
                 if length == 0 {
@@ -77,7 +93,11 @@ pub(crate) async fn serve_circuit(
                 }
             }
         }
-        circuit.flush_alarms(&seen.directory(&shared.values()));
+        alarms_at = match (circuit.alarms_due(), alarms_at) {
+            (false, _) => None,
+            (true, Some(at)) => Some(at),
+            (true, None) => Some(tokio::time::Instant::now() + ALARM_GATHERING),
+        };
         while let Some(bytes) = circuit.poll_transmit() {
             writer.write_all(&bytes).await?;
         }
@@ -110,9 +130,10 @@ fn take(
     true
 }
 
-/// Handle every change told so far.
+/// Handle every change told so far (not those told meanwhile: a stream of changes does not hold
+/// the client's requests back).
 fn catch_up(changes: &mut broadcast::Receiver<Change>, circuit: &mut Circuit, seen: &mut Seen, shared: &Shared) {
-    loop {
+    for _ in 0..changes.len() {
         let told = match changes.try_recv() {
             Ok(change) => Ok(change),
             Err(broadcast::error::TryRecvError::Lagged(missed)) => Err(broadcast::error::RecvError::Lagged(missed)),
