@@ -472,7 +472,6 @@ impl Circuit {
         }
     }
 
-    /// A subscription's current value, if its axis's values are there.
     /// Send `subid` its channel's value now; `value_change` when the event is for the value (the
     /// first, a change past the deadbands, a repost), not an alarm's or metadata's alone: only
     /// such an event moves an archiver's last value, as only they move the record's ALST.

@@ -374,7 +374,10 @@ fn double_text(value: f64, precision: u16) -> String {
 
 /// C's `%.*e`: the exponent signed, of at least two digits (`1.500e+20`, `inf`).
 fn c_exponent(value: f64, precision: usize) -> String {
-    if !value.is_finite() {
+    if value.is_nan() {
+        return "nan".into();
+    }
+    if value.is_infinite() {
         return if value < 0.0 { "-inf" } else { "inf" }.into();
     }
     let text = format!("{value:.precision$e}");
@@ -492,7 +495,7 @@ mod tests {
 
     #[test]
     fn doubles_read_as_strings_as_cvt_double_to_string_writes_them() {
-        let cases: [(f64, u16, &str); 16] = [
+        let cases: [(f64, u16, &str); 17] = [
             (2.5, 3, "2.500"),
             (-1.23456, 4, "-1.2346"),
             (2.5, 0, "3"),
@@ -508,6 +511,7 @@ mod tests {
             (f64::INFINITY, 2, "      inf"),
             (f64::NEG_INFINITY, 2, "     -inf"),
             (f64::NAN, 2, "nan"),
+            (f64::NAN, 9, "             nan"),
             (1e7, 8, "10000000.00000000"),
         ];
         for (value, precision, text) in cases {

@@ -858,7 +858,7 @@ mod tests {
         ] {
             assert_eq!(warned(enabled), Vec::<String>::new(), "{enabled}");
         }
-        // A motor's: its fields, an SDIS link as its key, a constant SDIS as DISA.
+        // A motor's: its fields, an SDIS link as its key; a constant SDIS sets nothing.
         let (file, _) =
             import("record(motor, m1) { field(SDIS, \"lab:interlock CP\") field(DISV, 0) field(DISS, \"MAJOR\") }")
                 .unwrap();
@@ -871,7 +871,6 @@ mod tests {
         let (file, _) = import("record(motor, m1) { field(DISA, 0) field(SDIS, 1) }").unwrap();
         assert_eq!(file.axes[0].fields["DISA"], toml::Value::Integer(0), "a constant SDIS sets nothing");
         assert!(!file.axes[0].fields.contains_key("SDIS"));
-        // An interlock of a record type zmotor does not run reads nothing: said.
         // motor.db's own Enable/Disable record: served as DISP, no link and nothing to say.
         let stock =
             "record(motor, m1) { field(SDIS, \"m1_able.VAL\") }\nrecord(bo, m1_able) { field(OUT, \"m1.DISP\") }";
@@ -881,6 +880,7 @@ mod tests {
                 && !warnings.iter().any(|w| w.contains("SDIS") || w.contains("m1_able.VAL")),
             "{warnings:?}"
         );
+        // An interlock of a record type zmotor does not run: nothing serves it, said.
         let (file, warnings) = import("record(bi, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
         assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("bridge/lock/VAL".into()));
         assert!(

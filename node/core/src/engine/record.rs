@@ -175,8 +175,8 @@ impl MotorRecord {
         // a jog let go) stops the motor (a node's own stops, of a released hold or a shutdown,
         // are writes of STOP). Departure Z25: one that would start a motion once the record is
         // enabled is refused (the reference keeps it and moves when no one is asking).
-        let stops_while_disabled = self.disabled() && self.ends_motion(field, value);
-        if self.disabled() && !stops_while_disabled && Self::starts_motion_later(field, value) {
+        let stops_while_disabled = self.processing_disabled() && self.ends_motion(field, value);
+        if self.processing_disabled() && !stops_while_disabled && Self::starts_motion_later(field, value) {
             return Err(WriteError::RecordDisabled { field });
         }
         self.special_before(field, value)?;
@@ -266,7 +266,7 @@ impl MotorRecord {
     }
 
     /// Whether the record is disabled (DISA = DISV): it is not processed.
-    fn disabled(&self) -> bool {
+    fn processing_disabled(&self) -> bool {
         self.f.disa == self.f.disv
     }
 

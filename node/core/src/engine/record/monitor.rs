@@ -87,7 +87,6 @@ impl MotorRecord {
         self.flush_posts();
     }
 
-    /// Post every field still marked, in the record's order, then clear the marks.
     /// The posts of a write the record does not process (a field not process-passive, a stop
     /// of a disabled record): the marks §9.2 acts on, of a resolution written while the record
     /// was disabled, wait for its next processing.
@@ -102,6 +101,7 @@ impl MotorRecord {
         }
     }
 
+    /// Post every field still marked, in the record's order, then clear the marks.
     pub(super) fn flush_posts(&mut self) {
         let raw_sense = (self.f.dir == choice::DIR_POS) == (self.f.mres >= 0.0);
         for field in POSTED_IF_MARKED {

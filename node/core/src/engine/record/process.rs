@@ -10,7 +10,7 @@ use zmotor_msgs::{Field, Value};
 impl MotorRecord {
     pub(super) fn process(&mut self) {
         self.follow_disable_link();
-        match self.disabled() {
+        match self.processing_disabled() {
             true => self.process_disabled(),
             false => self.process_enabled(),
         }

@@ -20,7 +20,7 @@ impl MotorRecord {
                     return Err(WriteError::Refused { field, reason: Busy::JogBacklashTakeout });
                 }
                 // A disabled record is not processed: no motion starts, so no DMOV pulse (§7.1).
-                if self.f.dmov == 1 && !self.disabled() {
+                if self.f.dmov == 1 && !self.processing_disabled() {
                     self.f.dmov = 0;
                     self.post(DMOV);
                 }

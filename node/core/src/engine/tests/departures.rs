@@ -436,6 +436,7 @@ fn z24_a_jog_let_go_or_a_pause_while_disabled_stops() {
         rig.put(Field::DISA, 1.0).unwrap();
         rig.put(Field::HLSV, 1.0).unwrap();
         assert!(rig.take().is_empty());
+        assert_eq!(rig.f().hlsv, 1, "stored");
         rig
     };
     let mut rig = jogging();

@@ -606,9 +606,10 @@ fn q33_sdis_sets_disa_at_every_processing() {
     rig.collect();
     rig.put(Field::VAL, 1.0).unwrap();
     assert_eq!(rig.take(), move_abs(100.0, 0.0, 200.0, 100.0));
-    // SDIS relinked: its last value no longer holds DISA.
+    // SDIS relinked: its last value (0) no longer holds DISA.
     rig.rec.forget_disable_value();
     rig.put(Field::DISA, 2.0).unwrap();
+    assert_eq!(rig.put(Field::VAL, 2.0), Err(WriteError::RecordDisabled { field: Field::VAL }));
     assert_eq!(rig.f().disa, 2);
 }
 
