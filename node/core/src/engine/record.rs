@@ -177,6 +177,8 @@ impl MotorRecord {
         // enabled is refused (the reference keeps it and moves when no one is asking).
         let stops_while_disabled = self.processing_disabled() && self.ends_motion(field, value);
         if self.processing_disabled() && !stops_while_disabled && Self::starts_motion_later(field, value) {
+            // Refused, but the record was asked to process: it says it is disabled.
+            self.process_disabled();
             return Err(WriteError::RecordDisabled { field });
         }
         self.special_before(field, value)?;

@@ -49,7 +49,7 @@ impl MotorRecord {
     /// processed (the device's status, and what writes marked, wait for the next processing),
     /// the DISABLE alarm at severity DISS is raised once, with VAL posted, and waiting writes
     /// complete.
-    fn process_disabled(&mut self) {
+    pub(super) fn process_disabled(&mut self) {
         if self.f.stat != status::DISABLE {
             (self.f.stat, self.f.sevr) = (status::DISABLE, self.f.diss);
             self.post(Field::STAT);
