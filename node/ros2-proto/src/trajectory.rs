@@ -607,6 +607,16 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
     if stamp.is_some_and(|start| start + previous < now) {
         return Err(GoalRejection::EndsInThePast);
     }
+    // Started in the past (joint_trajectory_controller joins it where it is now): the points
+    // already due are passed over, and the joints go from where they stand to the first point
+    // to come, in the time left to it.
+    let late = stamp.map_or(Duration::ZERO, |start| now.saturating_sub(start));
+    if !late.is_zero() {
+        let last = points.len() - 1;
+        points =
+            points.into_iter().enumerate().filter(|(i, (at, _))| *at > late || *i == last).map(|(_, p)| p).collect();
+        points.iter_mut().for_each(|(at, _)| *at = at.saturating_sub(late));
+    }
     let start = stamp.filter(|at| *at > now).unwrap_or(now);
     Ok(Plan { id, joints: planned, points, start, next: 0, segment: None, ending: None })
 }
@@ -885,6 +895,21 @@ mod tests {
         let _ = server.poll(&states, at(2000));
         let result = server.result(&[2; 16]).unwrap();
         assert_eq!((result.status, result.result.error_code), (status::ABORTED, error_code::GOAL_TOLERANCE_VIOLATED));
+    }
+
+    #[test]
+    fn a_goal_stamped_in_the_past_joins_its_trajectory_where_it_is_now() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        // Stamped 1.5 s ago: the point at 1 s is past; 20 mm is due in 0.5 s, 30 mm in 1.5 s.
+        let mut request = goal(&["lift"], &[(1000, &[0.010]), (2000, &[0.020]), (3000, &[0.030])]);
+        request.goal.trajectory.header.stamp = stamp(at(0));
+        server.send_goal(&request, &states, at(1500)).unwrap();
+        let first = server.poll(&states, at(1500));
+        assert_eq!(moves(&first), [("m1", 20.0, Some(40.0))], "from where it stands, in the 0.5 s left");
+        let _ = server.move_ended("m1", MoveEnd::Reached);
+        assert_eq!(server.poll(&states, at(1999)), []);
+        assert_eq!(moves(&server.poll(&states, at(2000))), [("m1", 30.0, Some(10.0))], "the next, at its time");
     }
 
     #[test]
