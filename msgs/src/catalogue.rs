@@ -474,6 +474,17 @@ impl Field {
         self.sets_target() || matches!(self, Field::HOMF | Field::HOMR)
     }
 
+    /// The record's alarm and its acknowledgement: what an alarm's event (DBE_ALARM) carries.
+    pub fn is_alarm_state(self) -> bool {
+        matches!(self, Field::STAT | Field::SEVR | Field::ACKT | Field::ACKS)
+    }
+
+    /// dbCommon's ACKT and ACKS (SPC_NOMOD on an IOC): written only as an alarm's
+    /// acknowledgement (Channel Access's DBR_PUT_ACKT / DBR_PUT_ACKS), and ending no motion.
+    pub fn acknowledges_alarms(self) -> bool {
+        matches!(self, Field::ACKT | Field::ACKS)
+    }
+
     /// A write taken while DISP disables puts: DISP itself (as on an IOC), and STOP (departure
     /// Z23: an IOC refuses it too, leaving a motion under way that nobody may stop).
     pub fn taken_while_puts_disabled(self) -> bool {

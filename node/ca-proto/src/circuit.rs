@@ -248,7 +248,7 @@ impl Circuit {
             }
         }
         // An acknowledgement's change is an alarm event, as dbAccess posts it (DBE_ALARM).
-        let alarm = matches!(changed, Some(Target::Field(Field::STAT | Field::SEVR | Field::ACKT | Field::ACKS)));
+        let alarm = matches!(changed, Some(Target::Field(field)) if field.is_alarm_state());
         let metadata = |pv: &Pv| matches!(changed, Some(Target::Field(field)) if pv.metadata_from().contains(&field));
         // Each subscription concerned, and whether its event carries a value change (the first,
         // or one past the deadbands), as against an alarm's or metadata's alone.
@@ -592,7 +592,7 @@ impl Circuit {
             Ok(text) => {
                 // A put-callback of a command is answered when the motion it starts has ended.
                 let wait = matches!(answer, WriteAnswer::Notify { .. })
-                    && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive) && f != Field::ACKS);
+                    && matches!(pv.target, Target::Field(f) if f.write_class() == Some(WriteClass::Drive) && !f.acknowledges_alarms());
                 let hold = matches!(pv.target, Target::Field(f) if f.is_jog());
                 if !wait {
                     self.writing.push((number, pv.axis.clone()));

@@ -129,8 +129,7 @@ impl Pv {
     /// Whether a client may write it.
     pub fn writable(&self) -> bool {
         match self.target {
-            // SPC_NOMOD on an IOC: written by DBR_PUT_ACKT / DBR_PUT_ACKS only.
-            Target::Field(Field::ACKT | Field::ACKS) => false,
+            Target::Field(field) if field.acknowledges_alarms() => false,
             Target::Field(field) | Target::FieldChars(field) => field.def().access != Access::RO,
             Target::Able => true,
             Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => false,
