@@ -2,10 +2,14 @@
 rmw_zenoh_cpp 0.2.10's rules and the .msg/.action definitions with no zmotor code: it finds the
 node's endpoints in the graph, moves two joints with one joint command, then calls the
 control_msgs/action/FollowJointTrajectory action: a three-point trajectory to its result, goals
-it must reject, and a long one cancelled half way. CDR is written and read by hand.
+it must reject, a MoveIt-shaped one of many close waypoints (each joint moved once, not stopped at
+every point: counted on the axes' DMOV keys of zmotor's wire contract, the joints being axes m1
+and m2 of launch/ros2-joints.toml), and a long one cancelled half way. CDR is written and read by
+hand.
 
 Usage: python3 ros2_trajectory.py ENDPOINT NAMESPACE
 """
+import math
 import os
 import struct
 import sys
@@ -119,9 +123,10 @@ def goal_request(goal_id, names, points):
     w.header()                          # trajectory.header
     w.strings(names)
     w.put("I", len(points))
-    for seconds, positions in points:
+    for point in points:
+        seconds, positions = point[0], point[1]
         w.doubles(positions)
-        w.doubles([])                   # velocities
+        w.doubles(point[2] if len(point) > 2 else [])  # velocities
         w.doubles([])                   # accelerations
         w.doubles([])                   # effort
         w.put("iI", int(seconds), int(round((seconds % 1) * 1e9)))
@@ -222,7 +227,15 @@ def main():
         with lock:
             states.append(joint_state(bytes(sample.payload.to_bytes())))
 
+    dmov_posts = {"m1": 0, "m2": 0}
+
+    def on_dmov(sample):
+        with lock:
+            dmov_posts[str(sample.key_expr).split("/")[1]] += 1
+
     subscribers = [
+        session.declare_subscriber("motor/%s/DMOV" % axis, on_dmov) for axis in dmov_posts
+    ] + [
         session.declare_subscriber(prefix + "/joint_states/" + JAZZY["JointState"], on_state),
         session.declare_subscriber(prefix + "/follow_joint_trajectory/_action/feedback/" + JAZZY["Feedback"],
                                    lambda s: feedback.append(bytes(s.payload.to_bytes())[4:20])),
@@ -285,6 +298,32 @@ def main():
         time.sleep(0.05)
     assert statuses and goal_statuses(statuses[-1]).get(goal) == SUCCEEDED, statuses[-1:]
     ok("a three-point trajectory ran in %.1f s to SUCCEEDED, with feedback and status" % took)
+
+    # As MoveIt plans it: 30 waypoints 0.1 s apart, each joint easing one way (a cosine ramp,
+    # velocities given, 0 at both ends). The motor record stops at the end of each move: each
+    # joint is to make one move, not thirty.
+    # (The DMOV subscribers, declared at the start, have heard the moves before: they reach the node.)
+    with lock:
+        assert dmov_posts["m1"] > 0 and dmov_posts["m2"] > 0, dmov_posts
+        dmov_posts.update({"m1": 0, "m2": 0})
+    ease = [(1 - math.cos(math.pi * i / 30)) / 2 for i in range(31)]
+    slope = [math.pi / 2 * math.sin(math.pi * i / 30) / 3.0 for i in range(31)]
+    # The first point is where the joints are, as MoveIt starts its plans from the joint states.
+    start = last()
+    lift, turn = start["lift"], start["turn"]
+    planned = [(0.1 * i, [lift + (0.015 - lift) * e, turn + (0.3 - turn) * e], [(0.015 - lift) * v, (0.3 - turn) * v])
+               for i, (e, v) in enumerate(zip(ease, slope))]
+    goal = os.urandom(16)
+    started = time.time()
+    assert client.send_goal(goal, ["lift", "turn"], planned)
+    status, code, text = client.get_result(goal, timeout=60)
+    took = time.time() - started
+    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
+    settle({"lift": 0.015, "turn": 0.3}, 5)
+    with lock:
+        posts = dict(dmov_posts)
+    assert posts == {"m1": 2, "m2": 2}, "one move a joint (DMOV 0, then 1), not one a waypoint: %s" % posts
+    ok("a 31-waypoint trajectory ran as one move a joint in %.1f s (planned 3.0 s)" % took)
 
     # A long goal, cancelled on the way: the joints stop short.
     goal = os.urandom(16)

@@ -1,10 +1,14 @@
 //! The `FollowJointTrajectory` action server, sans-IO: goals checked against the joints
-//! (unknown joints, positions beyond the soft limits, time going backwards), then executed point
-//! by point as timed moves: each segment starts when its time has come and every joint has
-//! ended the previous one, and each joint is sent its target at the speed that covers the
-//! segment in its time (VELO, restored when the goal ends). The result comes when every joint
-//! has arrived (the motion's end, as a waiting write reports it); a cancel stops the joints.
-//! Time is given (since the Unix epoch: it stamps goals and feedback).
+//! (unknown joints, positions beyond the soft limits, time going backwards), then executed as
+//! timed moves, one per leg of each joint. A leg runs through the points a joint passes on its
+//! way in one direction and ends where it turns, rests (the same position at the next point, or
+//! a velocity of 0 given there) or at the last point: the motor record stops at the end of every
+//! move, and a planner's many close waypoints (MoveIt's) must not each become a stop. A leg
+//! starts when its first point's time has come and no joint is still short of a point at or
+//! before it (the joints meet at every point where any of them has a leg end), and moves at the
+//! speed that covers it in its time (VELO, restored when the goal ends). The result comes when
+//! every joint has arrived (the motion's end, as a waiting write reports it); a cancel stops the
+//! joints. Time is given (since the Unix epoch: it stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
 //! a time: a goal sent while another executes is rejected), then end SUCCEEDED, ABORTED or,
@@ -17,6 +21,7 @@ use crate::follow::{
 };
 use crate::joints::JointStates;
 use crate::messages::{Header, Time};
+use std::cmp::Ordering;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -155,7 +160,7 @@ impl GetResultResponse {
 #[derive(Clone, Debug, PartialEq)]
 pub enum JointCommand {
     /// Write VELO (when a speed is given) then VAL, and report the motion's end with
-    /// `move_ended`; `duration` is the segment's planned time.
+    /// `move_ended`; `duration` is the leg's planned time.
     Move {
         /// The axis.
         axis: String,
@@ -163,7 +168,7 @@ pub enum JointCommand {
         target: f64,
         /// VELO, EGU/s; none for a point due at once (the axis's own speed).
         speed: Option<f64>,
-        /// The segment's planned time.
+        /// The leg's planned time.
         duration: Duration,
     },
     /// Write STOP.
@@ -203,8 +208,35 @@ struct PlannedJoint {
     speed_changed: bool,
     /// The goal position tolerance, EGU.
     tolerance: Option<f64>,
+    /// The points where its legs end, in order (the last point last).
+    leg_ends: Vec<usize>,
+    /// How many of its legs have ended.
+    legs_done: usize,
     /// A move commanded whose end has not come.
     in_flight: bool,
+}
+
+impl PlannedJoint {
+    /// The point its next leg ends at; none once every leg has ended.
+    fn next_leg_end(&self) -> Option<usize> {
+        self.leg_ends.get(self.legs_done).copied()
+    }
+
+    /// The point its next leg starts from; none for the first (from where it stood).
+    fn next_leg_start(&self) -> Option<usize> {
+        self.legs_done.checked_sub(1).map(|leg| self.leg_ends[leg])
+    }
+}
+
+/// A point of a goal's trajectory.
+#[derive(Clone, Debug)]
+struct Waypoint {
+    /// Its time from the start.
+    at: Duration,
+    /// Each joint's target, EGU, in `Plan::joints`' order.
+    targets: Vec<f64>,
+    /// Each joint is to be at rest there (a velocity of 0 given).
+    resting: Vec<bool>,
 }
 
 /// An executing goal.
@@ -212,13 +244,8 @@ struct PlannedJoint {
 struct Plan {
     id: GoalId,
     joints: Vec<PlannedJoint>,
-    /// Each point's time from the start and its targets, EGU, in `joints`' order.
-    points: Vec<(Duration, Vec<f64>)>,
+    points: Vec<Waypoint>,
     start: Duration,
-    /// The next point to command.
-    next: usize,
-    /// The segment moving now and when it was commanded.
-    segment: Option<(usize, Duration)>,
     /// The end decided (a failure, a cancel) while moves are still in flight.
     ending: Option<(i8, TrajectoryResult)>,
 }
@@ -228,14 +255,59 @@ impl Plan {
         self.joints.iter().any(|j| j.in_flight)
     }
 
-    /// When point `i`'s segment may start.
-    fn due(&self, i: usize) -> Duration {
-        self.start + i.checked_sub(1).map_or(Duration::ZERO, |before| self.points[before].0)
+    /// Every joint has ended every leg.
+    fn done(&self) -> bool {
+        self.joints.iter().all(|j| j.next_leg_end().is_none())
     }
 
-    /// Each joint's position at the start of point `i`'s segment.
-    fn segment_from(&self, i: usize, joint: usize) -> f64 {
-        i.checked_sub(1).map_or(self.joints[joint].from, |before| self.points[before].1[joint])
+    /// The time from the start of point `i`, or of the goal's start for none.
+    fn time_of(&self, point: Option<usize>) -> Duration {
+        point.map_or(Duration::ZERO, |i| self.points[i].at)
+    }
+
+    /// When joint `k`'s next leg is due, if nothing but time holds it back: the joint is not
+    /// moving, and no joint is still short of a point at or before the leg's start.
+    fn next_leg_due(&self, k: usize) -> Option<Duration> {
+        let joint = &self.joints[k];
+        joint.next_leg_end().filter(|_| !joint.in_flight && self.ending.is_none())?;
+        let start = joint.next_leg_start();
+        let behind = |other: &PlannedJoint| other.next_leg_end().is_some_and(|end| start.is_some_and(|s| end <= s));
+        (!self.joints.iter().any(behind)).then(|| self.start + self.time_of(start))
+    }
+
+    /// Start joint `k`'s next leg: its move, or none for a leg that stays where it is (it ends
+    /// at once).
+    fn start_leg(&mut self, k: usize) -> Option<JointCommand> {
+        let joint = &self.joints[k];
+        let (start, end) = (joint.next_leg_start(), joint.next_leg_end().expect("a leg is due"));
+        let from = start.map_or(joint.from, |s| self.points[s].targets[k]);
+        let target = self.points[end].targets[k];
+        let leg_time = self.points[end].at.saturating_sub(self.time_of(start));
+        let joint = &mut self.joints[k];
+        if same_position(target, from) {
+            joint.legs_done += 1;
+            return None;
+        }
+        let speed = (!leg_time.is_zero()).then(|| (target - from).abs() / leg_time.as_secs_f64());
+        joint.speed_changed |= speed.is_some();
+        joint.in_flight = true;
+        Some(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: leg_time })
+    }
+
+    /// Where joint `k` should be at `now` on the trajectory as planned, between the points
+    /// about it (as joint_trajectory_controller interpolates positions alone).
+    fn desired(&self, k: usize, now: Duration) -> f64 {
+        let t = now.saturating_sub(self.start);
+        let mut before = (Duration::ZERO, self.joints[k].from);
+        for point in &self.points {
+            let to = point.targets[k];
+            if t < point.at {
+                let share = (t - before.0).as_secs_f64() / (point.at - before.0).as_secs_f64();
+                return before.1 + (to - before.1) * share;
+            }
+            before = (point.at, to);
+        }
+        before.1
     }
 
     /// Stop every joint still moving, ending the goal with `status` and `result` once stopped
@@ -267,7 +339,7 @@ pub struct FollowJointTrajectory {
     plan: Option<Plan>,
     status_changed: bool,
     /// Speeds ended goals restore, by axis (VELO before them), until the restore's write has
-    /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last segment's.
+    /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last leg's.
     restoring: Vec<(String, f64)>,
 }
 
@@ -336,35 +408,21 @@ impl FollowJointTrajectory {
         self.plan.is_some()
     }
 
-    /// What to do at `now`: the next segment's moves when due, or the goal's end.
+    /// What to do at `now`: the moves of the legs due, or the goal's end.
     #[must_use]
     pub fn poll(&mut self, joints: &JointStates, now: Duration) -> Vec<JointCommand> {
         let Some(plan) = &mut self.plan else { return Vec::new() };
         let mut commands = Vec::new();
-        while !plan.busy() && plan.ending.is_none() && plan.next < plan.points.len() && now >= plan.due(plan.next) {
-            let i = plan.next;
-            let segment_time =
-                plan.points[i].0.saturating_sub(i.checked_sub(1).map_or(Duration::ZERO, |b| plan.points[b].0));
-            for k in 0..plan.joints.len() {
-                let (from, target) = (plan.segment_from(i, k), plan.points[i].1[k]);
-                if target == from {
-                    continue;
-                }
-                let speed = (!segment_time.is_zero()).then(|| (target - from).abs() / segment_time.as_secs_f64());
-                let joint = &mut plan.joints[k];
-                joint.speed_changed |= speed.is_some();
-                joint.in_flight = true;
-                commands.push(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: segment_time });
-            }
-            plan.segment = Some((i, now));
-            plan.next += 1;
+        // A leg that ends at once (no way to go) may let another start: until none is due.
+        while let Some(k) = (0..plan.joints.len()).find(|&k| plan.next_leg_due(k).is_some_and(|due| now >= due)) {
+            commands.extend(plan.start_leg(k));
         }
         if plan.busy() {
             return commands;
         }
         let end = match plan.ending.take() {
             Some(end) => Some(end),
-            None if plan.next == plan.points.len() => Some(arrival(plan, joints)),
+            None if plan.done() => Some(arrival(plan, joints)),
             None => None,
         };
         if let Some((status, result)) = end {
@@ -384,7 +442,7 @@ impl FollowJointTrajectory {
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Duration> {
         let plan = self.plan.as_ref()?;
-        (!plan.busy() && plan.ending.is_none() && plan.next < plan.points.len()).then(|| plan.due(plan.next))
+        (0..plan.joints.len()).filter_map(|k| plan.next_leg_due(k)).min()
     }
 
     /// The end of the move `axis` was sent; a failure aborts the goal, stopping the others.
@@ -394,7 +452,10 @@ impl FollowJointTrajectory {
         let Some(joint) = plan.joints.iter_mut().find(|j| j.axis == axis && j.in_flight) else { return Vec::new() };
         joint.in_flight = false;
         match end {
-            MoveEnd::Reached => Vec::new(),
+            MoveEnd::Reached => {
+                joint.legs_done += 1;
+                Vec::new()
+            }
             MoveEnd::Failed(why) => {
                 let error_string = format!("axis '{axis}': {why}");
                 let result = TrajectoryResult { error_code: error_code::PATH_TOLERANCE_VIOLATED, error_string };
@@ -459,30 +520,16 @@ impl FollowJointTrajectory {
         Some(GoalStatusArray { status_list })
     }
 
-    /// The executing goal's feedback at `now`: where its joints should be (along the segment
-    /// moving now), where they are, and the difference, in SI units.
+    /// The executing goal's feedback at `now`: where its joints should be (on the trajectory as
+    /// planned), where they are, and the difference, in SI units.
     #[must_use]
     pub fn feedback(&self, joints: &JointStates, now: Duration) -> Option<FeedbackMessage> {
         let plan = self.plan.as_ref()?;
         let names: Vec<String> = plan.joints.iter().map(|j| joints.joints()[j.index].name.clone()).collect();
         let (mut desired, mut actual) = (Vec::new(), Vec::new());
         for (k, joint) in plan.joints.iter().enumerate() {
-            let wanted = match plan.segment {
-                None => joint.from,
-                Some((i, commanded)) => {
-                    let (from, to) = (plan.segment_from(i, k), plan.points[i].1[k]);
-                    let length =
-                        plan.points[i].0.saturating_sub(i.checked_sub(1).map_or(Duration::ZERO, |b| plan.points[b].0));
-                    let done = if length.is_zero() {
-                        1.0
-                    } else {
-                        (now.saturating_sub(commanded).as_secs_f64() / length.as_secs_f64()).min(1.0)
-                    };
-                    from + (to - from) * done
-                }
-            };
             let (rbv, ..) = joints.joint_state(joint.index)?;
-            desired.push(wanted * joint.si_per_egu);
+            desired.push(plan.desired(k, now) * joint.si_per_egu);
             actual.push(rbv * joint.si_per_egu);
         }
         // As joint_trajectory_controller computes it (and control_msgs defines it): reference −
@@ -511,10 +558,10 @@ impl FollowJointTrajectory {
     }
 }
 
-/// The end of a goal whose every segment is done: success when each joint is within its goal
+/// The end of a goal whose every leg is done: success when each joint is within its goal
 /// tolerance.
 fn arrival(plan: &Plan, joints: &JointStates) -> (i8, TrajectoryResult) {
-    let last = &plan.points[plan.points.len() - 1].1;
+    let last = &plan.points[plan.points.len() - 1].targets;
     for (k, joint) in plan.joints.iter().enumerate() {
         let (Some(tolerance), Some((rbv, ..))) = (joint.tolerance, joints.joint_state(joint.index)) else { continue };
         if (rbv - last[k]).abs() > tolerance {
@@ -568,6 +615,8 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             speed,
             speed_changed: false,
             tolerance,
+            leg_ends: Vec::new(),
+            legs_done: 0,
             in_flight: false,
         });
     }
@@ -600,7 +649,8 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             }
             targets.push(target);
         }
-        points.push((at, targets));
+        let resting = (0..expected).map(|k| point.velocities.get(k) == Some(&0.0)).collect();
+        points.push(Waypoint { at, targets, resting });
     }
     // A zero stamp is "start now"; so is one of simulated time.
     let stamp = since_epoch(trajectory.header.stamp).filter(|at| *at >= WALL_CLOCK_SINCE);
@@ -613,12 +663,35 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
     let late = stamp.map_or(Duration::ZERO, |start| now.saturating_sub(start));
     if !late.is_zero() {
         let last = points.len() - 1;
-        points =
-            points.into_iter().enumerate().filter(|(i, (at, _))| *at > late || *i == last).map(|(_, p)| p).collect();
-        points.iter_mut().for_each(|(at, _)| *at = at.saturating_sub(late));
+        points = points.into_iter().enumerate().filter(|(i, p)| p.at > late || *i == last).map(|(_, p)| p).collect();
+        points.iter_mut().for_each(|p| p.at = p.at.saturating_sub(late));
+    }
+    for (k, joint) in planned.iter_mut().enumerate() {
+        joint.leg_ends = leg_ends(joint.from, &points, k);
     }
     let start = stamp.filter(|at| *at > now).unwrap_or(now);
-    Ok(Plan { id, joints: planned, points, start, next: 0, segment: None, ending: None })
+    Ok(Plan { id, joints: planned, points, start, ending: None })
+}
+
+/// Whether two positions are one: a planner's start point is the joint state it was given, in SI
+/// units, which converted back may differ from the readback in the last bits.
+fn same_position(a: f64, b: f64) -> bool {
+    (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0)
+}
+
+/// The points where joint `k`'s legs end, starting `from`: where its way turns, starts or
+/// ends a rest, where it is to be at rest, and the last point.
+fn leg_ends(from: f64, points: &[Waypoint], k: usize) -> Vec<usize> {
+    let way = |i: usize| {
+        let before = i.checked_sub(1).map_or(from, |b| points[b].targets[k]);
+        let to = points[i].targets[k];
+        if same_position(to, before) {
+            Ordering::Equal
+        } else {
+            to.total_cmp(&before)
+        }
+    };
+    (0..points.len()).filter(|&i| i + 1 == points.len() || points[i].resting[k] || way(i) != way(i + 1)).collect()
 }
 
 #[cfg(test)]
@@ -681,7 +754,7 @@ mod tests {
     }
 
     #[test]
-    fn three_points_run_as_timed_moves_one_segment_after_the_other_then_succeed() {
+    fn three_points_with_turns_run_as_timed_moves_one_leg_after_the_other_then_succeed() {
         let mut states = joints();
         let mut server = FollowJointTrajectory::new();
         // 10 mm and 90° in 2 s, then back to 5 mm in 1 s, then 180° in 3 s.
@@ -697,12 +770,12 @@ mod tests {
 
         let first = server.poll(&states, at(0));
         assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 90.0, Some(45.0))]);
-        assert_eq!(server.poll(&states, at(2500)), [], "not before both joints ended the segment");
+        assert_eq!(server.poll(&states, at(2500)), [], "not before both joints ended their legs to the first point");
         assert_eq!(server.poll_timeout(), None, "waiting on the moves, not on time");
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
         assert_eq!(server.poll(&states, at(2500)), [], "m2 still moving");
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
-        // Second segment: only lift moves, 5 mm in 1 s; it is late (2.5 s), so it starts now.
+        // Second leg: only lift moves, 5 mm in 1 s; it is late (2.5 s), so it starts now.
         let second = server.poll(&states, at(2500));
         assert_eq!(moves(&second), [("m1", 5.0, Some(5.0))]);
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
@@ -713,7 +786,7 @@ mod tests {
         assert_eq!(moves(&third), [("m2", 180.0, Some(30.0))]);
         let feedback = server.feedback(&states, at(4500)).expect("feedback while executing");
         assert_eq!(feedback.feedback.joint_names, ["lift", "turn"]);
-        assert!((feedback.feedback.desired.positions[1] - 1.5 * quarter).abs() < 1e-9, "half way through the segment");
+        assert!((feedback.feedback.desired.positions[1] - 1.5 * quarter).abs() < 1e-9, "half way between the points");
         let (desired, actual) = (&feedback.feedback.desired.positions, &feedback.feedback.actual.positions);
         assert_eq!(feedback.feedback.error.positions[1], desired[1] - actual[1], "reference − feedback, as JTC");
         assert!(feedback.feedback.error.positions[1] > 0.0, "the way still to go, forward");
@@ -747,7 +820,7 @@ mod tests {
         let end = server.poll(&states, at(2000));
         assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
         // The next goal comes before VELO 1 is posted back: it restores 1, not 5 (nor VBAS, had
-        // the record made the segment's speed that).
+        // the record made the leg's speed that).
         request.goal_id = [2; 16];
         request.goal.trajectory.points[0].positions = vec![0.0];
         server.send_goal(&request, &states, at(2001)).unwrap();
@@ -856,7 +929,7 @@ mod tests {
         assert_eq!(commands, [JointCommand::Stop { axis: "m1".into() }, JointCommand::Stop { axis: "m2".into() }]);
         assert_eq!(server.poll_status().unwrap().status_list[0].status, status::CANCELING);
         assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), [], "already ending");
-        assert_eq!(server.poll(&states, at(3000)), [], "m2 not yet stopped; no second segment");
+        assert_eq!(server.poll(&states, at(3000)), [], "m2 not yet stopped; no second leg");
         assert_eq!(server.result(&[1; 16]), None);
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
         let end = server.poll(&states, at(3000));
@@ -901,15 +974,15 @@ mod tests {
     fn a_goal_stamped_in_the_past_joins_its_trajectory_where_it_is_now() {
         let states = joints();
         let mut server = FollowJointTrajectory::new();
-        // Stamped 1.5 s ago: the point at 1 s is past; 20 mm is due in 0.5 s, 30 mm in 1.5 s.
-        let mut request = goal(&["lift"], &[(1000, &[0.010]), (2000, &[0.020]), (3000, &[0.030])]);
+        // Stamped 1.5 s ago: the point at 1 s is past; 20 mm is due in 0.5 s, 15 mm in 1.5 s.
+        let mut request = goal(&["lift"], &[(1000, &[0.010]), (2000, &[0.020]), (3000, &[0.015])]);
         request.goal.trajectory.header.stamp = stamp(at(0));
         server.send_goal(&request, &states, at(1500)).unwrap();
         let first = server.poll(&states, at(1500));
         assert_eq!(moves(&first), [("m1", 20.0, Some(40.0))], "from where it stands, in the 0.5 s left");
         let _ = server.move_ended("m1", MoveEnd::Reached);
         assert_eq!(server.poll(&states, at(1999)), []);
-        assert_eq!(moves(&server.poll(&states, at(2000))), [("m1", 30.0, Some(10.0))], "the next, at its time");
+        assert_eq!(moves(&server.poll(&states, at(2000))), [("m1", 15.0, Some(5.0))], "the next, at its time");
     }
 
     #[test]
@@ -923,5 +996,78 @@ mod tests {
         assert_eq!(server.poll_timeout(), Some(at(500)));
         assert_eq!(moves(&server.poll(&states, at(500))), [("m1", 2.0, Some(2.0))]);
         assert_eq!(server.result(&[3; 16]).unwrap().status, status::UNKNOWN, "an unknown goal answers at once");
+    }
+
+    /// `points` waypoints of `names`, one every `step` ms, each joint's positions from `way`.
+    fn waypoints(names: &[&str], points: u64, step: u64, way: impl Fn(u64) -> Vec<f64>) -> SendGoalRequest {
+        let positions: Vec<(u64, Vec<f64>)> = (1..=points).map(|i| (i * step, way(i))).collect();
+        let borrowed: Vec<(u64, &[f64])> = positions.iter().map(|(t, p)| (*t, p.as_slice())).collect();
+        goal(names, &borrowed)
+    }
+
+    #[test]
+    fn close_waypoints_one_way_are_one_move_per_joint_ending_where_it_turns() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        // 40 waypoints 0.1 s apart: lift out to 10 mm in 2 s and back to 0 in 2 s; turn to 90°
+        // all the way. The motor record stops at the end of each move: one per leg, not per point.
+        let quarter = std::f64::consts::FRAC_PI_2;
+        let request = waypoints(&["lift", "turn"], 40, 100, |i| {
+            let lift = if i <= 20 { 0.0005 * i as f64 } else { 0.0005 * (40 - i) as f64 };
+            vec![lift, quarter * i as f64 / 40.0]
+        });
+        server.send_goal(&request, &states, at(0)).unwrap();
+        let first = server.poll(&states, at(0));
+        assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 90.0, Some(22.5))]);
+        let feedback = server.feedback(&states, at(1050)).expect("feedback");
+        let desired = &feedback.feedback.desired.positions;
+        assert!((desired[0] - 0.00525).abs() < 1e-12, "between its points at 1.0 and 1.1 s: {desired:?}");
+        assert!((desired[1] - quarter * 10.5 / 40.0).abs() < 1e-12, "{desired:?}");
+        assert_eq!(server.poll_timeout(), None, "both moving: their ends come as events");
+        assert_eq!(server.poll(&states, at(2050)), [], "the lift has not ended its leg");
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        // Late by 0.1 s, it starts back at once; the turn goes on.
+        assert_eq!(moves(&server.poll(&states, at(2100))), [("m1", 0.0, Some(5.0))]);
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        assert_eq!(server.poll(&states, at(4000)), [], "the lift still moving");
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        states.update("m2", Field::RBV, 90.0, at(4100));
+        let end = server.poll(&states, at(4100));
+        assert_eq!(end.len(), 2, "the goal ends, both speeds restored: {end:?}");
+        assert_eq!(server.result(&[1; 16]).unwrap().status, status::SUCCEEDED);
+    }
+
+    #[test]
+    fn a_leg_waits_for_the_joints_still_short_of_its_first_point_and_a_rest_ends_a_leg() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        // The lift goes out and back by 2 s, then on again in the same direction after a rest
+        // the trajectory gives as a velocity of 0; the turn stays put until 2 s, then turns.
+        let mut request = goal(
+            &["lift", "turn"],
+            &[(1000, &[0.010, 0.0]), (2000, &[0.0, 0.0]), (3000, &[0.005, 1.0]), (4000, &[0.010, 1.0])],
+        );
+        request.goal.trajectory.points[2].velocities = vec![0.0, 0.5];
+        server.send_goal(&request, &states, at(0)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(0))), [("m1", 10.0, Some(10.0))]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        assert_eq!(moves(&server.poll(&states, at(1000))), [("m1", 0.0, Some(10.0))]);
+        // At 2 s the turn's leg is due, but the lift is still short of the point at 2 s.
+        assert_eq!(server.poll(&states, at(2500)), []);
+        assert_eq!(server.poll_timeout(), None, "held by a move, not by time");
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        let turn = 180.0 / std::f64::consts::PI;
+        let commands = server.poll(&states, at(2600));
+        let third = moves(&commands);
+        assert_eq!(third.len(), 2, "{third:?}");
+        assert_eq!(third[0], ("m1", 5.0, Some(5.0)), "to the rest, not through it");
+        assert_eq!(third[1].0, "m2");
+        assert!((third[1].1 - turn).abs() < 1e-9 && (third[1].2.unwrap() - turn).abs() < 1e-6, "{third:?}");
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        assert_eq!(server.poll_timeout(), None, "the turn is still short of the point at 3 s");
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        assert_eq!(server.poll_timeout(), Some(at(3000)), "the lift's last leg, after its rest");
+        assert_eq!(server.poll(&states, at(2900)), []);
+        assert_eq!(moves(&server.poll(&states, at(3000))), [("m1", 10.0, Some(5.0))]);
     }
 }
