@@ -201,6 +201,12 @@ impl Launch {
         if let Err(e) = keys::validate_plain_key(&zenoh.prefix) {
             return Err(Problem::at(0, keys_path(&["zenoh", "prefix"]), format!("zenoh.prefix: {e}")));
         }
+        if self.file.state_dir.as_deref().is_some_and(|dir| dir.trim().is_empty()) {
+            // Joined to the file's folder it would be that folder: state beside the launch files.
+            let message = "state_dir: empty: name a directory (relative to this file), or leave it out for the \
+                           default ($XDG_STATE_HOME/zmotor)";
+            return Err(Problem::at(0, keys_path(&["state_dir"]), message.to_string()));
+        }
         if let Some(autosave) = &self.file.autosave {
             if !(autosave.delay >= 0.0 && autosave.delay <= 3600.0) {
                 let message = format!("autosave.delay: {} s is outside [0, 3600]", autosave.delay);

@@ -640,6 +640,10 @@ fn state_dir_is_relative_to_the_launch_file() {
     assert_eq!(deployment.state_dir, Some(dir.path().join("state")));
     assert_eq!(deployment.autosave, AutosaveSection { enabled: true, delay: 0.2 });
     assert!(Launch::parse("[autosave]\ndelay = -1").unwrap_err().message.contains("autosave.delay"));
+    for empty in ["\"\"", "\" \""] {
+        let error = Launch::parse(&format!("state_dir = {empty}")).unwrap_err().to_string();
+        assert!(error.contains("state_dir: empty"), "{error}");
+    }
 }
 
 /// A script controller's launch file beside its script (and a module the script requires).
