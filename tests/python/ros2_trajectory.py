@@ -2,9 +2,10 @@
 rmw_zenoh_cpp 0.2.10's rules and the .msg/.action definitions with no zmotor code: it finds the
 node's endpoints in the graph, moves two joints with one joint command, then calls the
 control_msgs/action/FollowJointTrajectory action: a three-point trajectory to its result, goals
-it must reject, a MoveIt-shaped one of many close waypoints (each joint moved once, not stopped at
-every point: counted on the axes' DMOV keys of zmotor's wire contract, the joints being axes m1
-and m2 of launch/ros2-joints.toml), and a long one cancelled half way. CDR is written and read by
+it must reject, a MoveIt-shaped one of many close waypoints on a line (each joint moved once, not
+stopped at every point: counted on the axes' DMOV keys of zmotor's wire contract, the joints being
+axes m1 and m2 of launch/ros2-joints.toml) and two such lines with a corner (each joint moved
+twice), and a long one cancelled half way. CDR is written and read by
 hand.
 
 Usage: python3 ros2_trajectory.py ENDPOINT NAMESPACE
@@ -324,6 +325,22 @@ def main():
         posts = dict(dmov_posts)
     assert posts == {"m1": 2, "m2": 2}, "one move a joint (DMOV 0, then 1), not one a waypoint: %s" % posts
     ok("a 31-waypoint trajectory ran as one move a joint in %.1f s (planned 3.0 s)" % took)
+
+    # Two lines of ten waypoints with a corner between them where neither joint turns back: the
+    # corner is kept (a joint moves twice), not cut by one move a joint.
+    with lock:
+        dmov_posts.update({"m1": 0, "m2": 0})
+    corner = [(0.1 * i, [0.015 + 0.001 * i, 0.3 + 0.005 * i]) for i in range(1, 11)]
+    corner += [(1.0 + 0.1 * i, [0.025 + 0.0005 * i, 0.35 + 0.025 * i]) for i in range(1, 11)]
+    goal = os.urandom(16)
+    assert client.send_goal(goal, ["lift", "turn"], corner)
+    status, code, text = client.get_result(goal, timeout=60)
+    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
+    settle({"lift": 0.030, "turn": 0.6}, 5)
+    with lock:
+        posts = dict(dmov_posts)
+    assert posts == {"m1": 4, "m2": 4}, "two moves a joint, one a line: %s" % posts
+    ok("a path with a corner ran as two moves a joint, the corner kept")
 
     # A long goal, cancelled on the way: the joints stop short.
     goal = os.urandom(16)

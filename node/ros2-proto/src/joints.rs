@@ -94,6 +94,23 @@ struct Seen {
     limits: [Option<f64>; 4],
     /// VELO, EGU/s.
     speed: Option<f64>,
+    /// RDBD, EGU.
+    deadband: Option<f64>,
+}
+
+/// What a trajectory needs of a joint's axis (`JointStates::joint_state`), in its EGU.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct JointReading {
+    /// The last readback.
+    pub position: f64,
+    /// Whether it moves.
+    pub moving: bool,
+    /// Where it may be sent.
+    pub travel: Travel,
+    /// VELO.
+    pub speed: f64,
+    /// RDBD: positions closer than this are one to the record (0 until it is posted).
+    pub deadband: f64,
 }
 
 /// The positions a joint's axis may be sent to, in its EGU.
@@ -152,7 +169,7 @@ impl JointStates {
     }
 
     /// A posted value of `axis`'s `field` at `at`: RBV and DMOV make the state; HLM, LLM,
-    /// DHLM, DLLM and VELO are kept for trajectories. Other fields are ignored.
+    /// DHLM, DLLM, VELO and RDBD are kept for trajectories. Other fields are ignored.
     pub fn update(&mut self, axis: &str, field: Field, value: f64, at: Duration) {
         let Some(i) = self.index(axis).filter(|_| value.is_finite()) else { return };
         let seen = &mut self.seen[i];
@@ -164,14 +181,14 @@ impl JointStates {
             Field::DHLM => seen.limits[2] = Some(value),
             Field::DLLM => seen.limits[3] = Some(value),
             Field::VELO => seen.speed = Some(value),
+            Field::RDBD => seen.deadband = Some(value.abs()),
             _ => {}
         }
     }
 
-    /// The joint at `index`: its last readback (EGU), whether it moves, its travel and speed
-    /// (VELO), once known.
+    /// The joint at `index`, once its readback, limits and speed are known.
     #[must_use]
-    pub fn joint_state(&self, index: usize) -> Option<(f64, bool, Travel, f64)> {
+    pub fn joint_state(&self, index: usize) -> Option<JointReading> {
         let seen = self.seen.get(index)?;
         let (rbv, _) = seen.last?;
         let travel = match seen.limits {
@@ -179,7 +196,13 @@ impl JointStates {
             [Some(high), Some(low), Some(_), Some(_)] => Travel::Within { low, high },
             _ => return None,
         };
-        Some((rbv, seen.moving, travel, seen.speed?))
+        Some(JointReading {
+            position: rbv,
+            moving: seen.moving,
+            travel,
+            speed: seen.speed?,
+            deadband: seen.deadband.unwrap_or(0.0),
+        })
     }
 
     /// The index of the joint named `name`.

@@ -1,6 +1,6 @@
 //! The action server's and the joint commands' writes, ordered per axis. Each axis has a lane:
 //! its writes leave in the order they are asked, one at a time (the next once the gateway has
-//! handed the previous to the network), their answers awaited apart. A trajectory leg's VAL
+//! handed the previous to the network), their answers awaited apart. A trajectory stretch's VAL
 //! waits for its VELO to be taken; a stop drops every move of its axis not yet sent (and a VAL
 //! waiting for its VELO), so no move asked before a stop goes after it; a joint command's target
 //! is the newest one when its turn comes (a controller streams targets faster than an axis
@@ -88,13 +88,13 @@ pub enum LaneEvent {
 /// A write a lane has yet to send.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Job {
-    /// A trajectory leg: VELO, if a speed is given, taken before VAL goes.
+    /// A trajectory stretch: VELO, if a speed is given, taken before VAL goes.
     Move {
         target: f64,
         speed: Option<f64>,
         duration: Duration,
     },
-    /// A leg's VAL, its VELO taken.
+    /// A stretch's VAL, its VELO taken.
     MoveTarget {
         target: f64,
         duration: Duration,
@@ -120,7 +120,7 @@ struct Lane {
     queue: VecDeque<Job>,
     /// A write given to the gateway and not handed over yet: the next waits for it.
     leaving: Option<WriteId>,
-    /// A leg's VELO written, its VAL waiting for the answer.
+    /// A stretch's VELO written, its VAL waiting for the answer.
     speed_pending: Option<WriteId>,
     /// The newest joint command's target not written yet.
     joint_target: Option<f64>,
@@ -129,13 +129,13 @@ struct Lane {
 /// What an answered write means.
 #[derive(Clone, Copy, Debug)]
 enum Awaited {
-    /// A leg's VELO: its VAL goes when it is taken.
+    /// A stretch's VELO: its VAL goes when it is taken.
     Speed {
         speed: f64,
         target: f64,
         duration: Duration,
     },
-    /// A leg's VAL: the move's end.
+    /// A stretch's VAL: the move's end.
     Motion {
         target: f64,
     },
@@ -323,7 +323,7 @@ impl WriteLanes {
 mod tests {
     use super::*;
 
-    fn leg(axis: &str, target: f64, speed: Option<f64>) -> JointCommand {
+    fn stretch(axis: &str, target: f64, speed: Option<f64>) -> JointCommand {
         JointCommand::Move { axis: axis.into(), target, speed, duration: Duration::from_secs(4) }
     }
 
@@ -360,9 +360,9 @@ mod tests {
     }
 
     #[test]
-    fn a_leg_writes_velo_then_val_once_velo_is_taken_and_reports_the_end() {
+    fn a_stretch_writes_velo_then_val_once_velo_is_taken_and_reports_the_end() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, Some(0.5)));
+        lanes.command(stretch("a", 2.0, Some(0.5)));
         let velo = one(&mut lanes);
         assert_eq!((velo.field, velo.value, velo.answered), (Field::VELO, 0.5, Answered::WhenTaken(PATIENCE)));
         lanes.handed_over(velo.id);
@@ -380,10 +380,10 @@ mod tests {
     #[test]
     fn a_motion_ended_short_or_refused_fails_the_move() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, None));
+        lanes.command(stretch("a", 2.0, None));
         let val = one(&mut lanes);
         lanes.answered(val.id, WriteAnswer::MotionEnded { reached: false, readback: 1.25 });
-        lanes.command(leg("a", 3.0, None));
+        lanes.command(stretch("a", 3.0, None));
         let val = one(&mut lanes);
         lanes.answered(val.id, WriteAnswer::Failed("refused: HLM".into()));
         assert_eq!(
@@ -398,7 +398,7 @@ mod tests {
     #[test]
     fn a_stop_while_velo_awaits_its_answer_goes_at_once_and_the_val_never_goes() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, Some(0.5)));
+        lanes.command(stretch("a", 2.0, Some(0.5)));
         let velo = one(&mut lanes);
         lanes.handed_over(velo.id);
         lanes.command(stop("a"));
@@ -412,7 +412,7 @@ mod tests {
     #[test]
     fn a_stop_leaves_after_the_write_before_it() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, None));
+        lanes.command(stretch("a", 2.0, None));
         let val = one(&mut lanes);
         lanes.command(stop("a"));
         assert!(writes(&mut lanes).is_empty(), "the VAL given is not handed over yet");
@@ -424,11 +424,11 @@ mod tests {
     #[test]
     fn a_stop_drops_the_moves_queued_before_it_but_keeps_a_restore_in_its_place() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, Some(0.5)));
+        lanes.command(stretch("a", 2.0, Some(0.5)));
         let velo = one(&mut lanes);
-        lanes.command(leg("a", 3.0, Some(0.5)));
+        lanes.command(stretch("a", 3.0, Some(0.5)));
         lanes.command(JointCommand::RestoreSpeed { axis: "a".into(), speed: 1.0 });
-        lanes.command(leg("a", 4.0, None));
+        lanes.command(stretch("a", 4.0, None));
         lanes.command(stop("a"));
         assert_eq!(events(&mut lanes), [stopped_unsent("a"), stopped_unsent("a"), stopped_unsent("a")]);
         assert!(writes(&mut lanes).is_empty(), "VELO not handed over yet");
@@ -444,8 +444,8 @@ mod tests {
     #[test]
     fn a_refused_speed_fails_its_move_and_the_next_goes() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, Some(50.0)));
-        lanes.command(leg("a", 3.0, None));
+        lanes.command(stretch("a", 2.0, Some(50.0)));
+        lanes.command(stretch("a", 3.0, None));
         let velo = one(&mut lanes);
         lanes.answered(velo.id, WriteAnswer::Failed("refused: VMAX".into()));
         assert_eq!(events(&mut lanes), [ended("a", MoveEnd::Failed("VELO 50: refused: VMAX".into()))]);
@@ -476,7 +476,7 @@ mod tests {
     #[test]
     fn a_stop_drops_a_joint_command_not_written_and_the_next_one_goes_after_it() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, None));
+        lanes.command(stretch("a", 2.0, None));
         let val = one(&mut lanes);
         lanes.joint_target("a", 7.0);
         lanes.command(stop("a"));
@@ -492,9 +492,9 @@ mod tests {
     #[test]
     fn one_axis_waiting_holds_no_other_axis() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, Some(0.5)));
+        lanes.command(stretch("a", 2.0, Some(0.5)));
         lanes.joint_target("a", 9.0);
-        lanes.command(leg("b", 1.0, Some(0.25)));
+        lanes.command(stretch("b", 1.0, Some(0.25)));
         lanes.command(stop("c"));
         assert_eq!(
             shape(&writes(&mut lanes)),
@@ -505,7 +505,7 @@ mod tests {
     #[test]
     fn a_write_not_handed_over_because_it_failed_to_leave_frees_its_lane() {
         let mut lanes = WriteLanes::new();
-        lanes.command(leg("a", 2.0, None));
+        lanes.command(stretch("a", 2.0, None));
         lanes.command(stop("a"));
         let val = one(&mut lanes);
         lanes.answered(val.id, WriteAnswer::Failed("not sent: session closed".into()));

@@ -1,27 +1,30 @@
 //! The `FollowJointTrajectory` action server, sans-IO: goals checked against the joints
 //! (unknown joints, positions beyond the soft limits, time going backwards), then executed as
-//! timed moves, one per leg of each joint. A leg runs through the points a joint passes on its
-//! way in one direction and ends where it turns, rests (the same position at the next point, or
-//! a velocity of 0 given there) or at the last point: the motor record stops at the end of every
-//! move, and a planner's many close waypoints (MoveIt's) must not each become a stop. A leg
-//! starts when its first point's time has come and no joint is still short of a point at or
-//! before it (the joints meet at every point where any of them has a leg end), and moves at the
-//! speed that covers it in its time (VELO, restored when the goal ends). The result comes when
-//! every joint has arrived (the motion's end, as a waiting write reports it); a cancel stops the
-//! joints. Time is given (since the Unix epoch: it stamps goals and feedback).
+//! timed moves, one per stretch of the path. A stretch runs through the points that lie on one
+//! straight line in joint space (every joint's position the same share of its way at each,
+//! within the joint's path tolerance, or else its retry deadband RDBD) and ends where the path
+//! turns, rests (stays at a point, or every joint is given a velocity of 0 there) or ends: the
+//! motor record stops at the end of every move, and a planner's many close waypoints (MoveIt's,
+//! on lines between its via-states) must not each become a stop, nor may a merge cut the
+//! corners the planner checked. A stretch starts when its time has come and every joint has
+//! ended the one before, each joint moving at the speed that covers it in its time (VELO,
+//! restored when the goal ends). The result comes when every joint has arrived (the motion's
+//! end, as a waiting write reports it); a cancel stops the joints. Time is given (since the Unix
+//! epoch: it stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
 //! a time: a goal sent while another executes is rejected), then end SUCCEEDED, ABORTED or,
-//! after CANCELING, CANCELED. Path tolerances and `goal_time_tolerance` are not checked (the
-//! record's own deadband and retries decide arrival); goal position tolerances are.
+//! after CANCELING, CANCELED. Path tolerances bound the merging of points into stretches but
+//! are not checked while moving, nor is `goal_time_tolerance` (the record's own deadband and
+//! retries decide arrival); goal position tolerances are.
 
 use crate::follow::{
     CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultResponse, GoalId, GoalInfo, GoalStatusArray,
-    GoalStatusEntry, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback, TrajectoryGoal, TrajectoryResult,
+    GoalStatusEntry, JointTolerance, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback, TrajectoryGoal,
+    TrajectoryResult,
 };
 use crate::joints::JointStates;
 use crate::messages::{Header, Time};
-use std::cmp::Ordering;
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -160,7 +163,7 @@ impl GetResultResponse {
 #[derive(Clone, Debug, PartialEq)]
 pub enum JointCommand {
     /// Write VELO (when a speed is given) then VAL, and report the motion's end with
-    /// `move_ended`; `duration` is the leg's planned time.
+    /// `move_ended`; `duration` is the stretch's planned time.
     Move {
         /// The axis.
         axis: String,
@@ -168,7 +171,7 @@ pub enum JointCommand {
         target: f64,
         /// VELO, EGU/s; none for a point due at once (the axis's own speed).
         speed: Option<f64>,
-        /// The leg's planned time.
+        /// The stretch's planned time.
         duration: Duration,
     },
     /// Write STOP.
@@ -208,24 +211,15 @@ struct PlannedJoint {
     speed_changed: bool,
     /// The goal position tolerance, EGU.
     tolerance: Option<f64>,
-    /// The points where its legs end, in order (the last point last).
-    leg_ends: Vec<usize>,
-    /// How many of its legs have ended.
-    legs_done: usize,
+    /// How far off the planned path it may pass, EGU: the goal's path tolerance, or else its
+    /// axis's RDBD.
+    off_path: f64,
+    /// Its axis's RDBD, EGU: a move shorter is none to the record.
+    deadband: f64,
+    /// Where it was last sent (or stood), EGU.
+    sent_to: f64,
     /// A move commanded whose end has not come.
     in_flight: bool,
-}
-
-impl PlannedJoint {
-    /// The point its next leg ends at; none once every leg has ended.
-    fn next_leg_end(&self) -> Option<usize> {
-        self.leg_ends.get(self.legs_done).copied()
-    }
-
-    /// The point its next leg starts from; none for the first (from where it stood).
-    fn next_leg_start(&self) -> Option<usize> {
-        self.legs_done.checked_sub(1).map(|leg| self.leg_ends[leg])
-    }
 }
 
 /// A point of a goal's trajectory.
@@ -235,8 +229,8 @@ struct Waypoint {
     at: Duration,
     /// Each joint's target, EGU, in `Plan::joints`' order.
     targets: Vec<f64>,
-    /// Each joint is to be at rest there (a velocity of 0 given).
-    resting: Vec<bool>,
+    /// Every joint is to be at rest there (velocities of 0 given).
+    resting: bool,
 }
 
 /// An executing goal.
@@ -245,6 +239,10 @@ struct Plan {
     id: GoalId,
     joints: Vec<PlannedJoint>,
     points: Vec<Waypoint>,
+    /// The points where the stretches end, in order (the last point last).
+    stretch_ends: Vec<usize>,
+    /// The next stretch to command.
+    next: usize,
     start: Duration,
     /// The end decided (a failure, a cancel) while moves are still in flight.
     ending: Option<(i8, TrajectoryResult)>,
@@ -255,9 +253,9 @@ impl Plan {
         self.joints.iter().any(|j| j.in_flight)
     }
 
-    /// Every joint has ended every leg.
-    fn done(&self) -> bool {
-        self.joints.iter().all(|j| j.next_leg_end().is_none())
+    /// The point the stretch `i` starts from; none for the first (from where the joints stood).
+    fn stretch_start(&self, i: usize) -> Option<usize> {
+        i.checked_sub(1).map(|before| self.stretch_ends[before])
     }
 
     /// The time from the start of point `i`, or of the goal's start for none.
@@ -265,33 +263,35 @@ impl Plan {
         point.map_or(Duration::ZERO, |i| self.points[i].at)
     }
 
-    /// When joint `k`'s next leg is due, if nothing but time holds it back: the joint is not
-    /// moving, and no joint is still short of a point at or before the leg's start.
-    fn next_leg_due(&self, k: usize) -> Option<Duration> {
-        let joint = &self.joints[k];
-        joint.next_leg_end().filter(|_| !joint.in_flight && self.ending.is_none())?;
-        let start = joint.next_leg_start();
-        let behind = |other: &PlannedJoint| other.next_leg_end().is_some_and(|end| start.is_some_and(|s| end <= s));
-        (!self.joints.iter().any(behind)).then(|| self.start + self.time_of(start))
+    /// When the next stretch may start, if only time holds it back.
+    fn next_due(&self) -> Option<Duration> {
+        let ready = !self.busy() && self.ending.is_none() && self.next < self.stretch_ends.len();
+        ready.then(|| self.start + self.time_of(self.stretch_start(self.next)))
     }
 
-    /// Start joint `k`'s next leg: its move, or none for a leg that stays where it is (it ends
-    /// at once).
-    fn start_leg(&mut self, k: usize) -> Option<JointCommand> {
-        let joint = &self.joints[k];
-        let (start, end) = (joint.next_leg_start(), joint.next_leg_end().expect("a leg is due"));
-        let from = start.map_or(joint.from, |s| self.points[s].targets[k]);
-        let target = self.points[end].targets[k];
-        let leg_time = self.points[end].at.saturating_sub(self.time_of(start));
-        let joint = &mut self.joints[k];
-        if same_position(target, from) {
-            joint.legs_done += 1;
-            return None;
+    /// Start the next stretch: a move for each joint that has a way to go in it.
+    fn start_stretch(&mut self) -> Vec<JointCommand> {
+        let (start, end) = (self.stretch_start(self.next), self.stretch_ends[self.next]);
+        self.next += 1;
+        let time = self.points[end].at.saturating_sub(self.time_of(start));
+        let mut commands = Vec::new();
+        for (k, joint) in self.joints.iter_mut().enumerate() {
+            let (from, target) = (joint.sent_to, self.points[end].targets[k]);
+            if within(target, from, joint.deadband) {
+                continue;
+            }
+            joint.sent_to = target;
+            // A point due at once goes at the speed from before the goal, not the last stretch's.
+            let speed = if time.is_zero() {
+                joint.speed_changed.then_some(joint.speed)
+            } else {
+                Some((target - from).abs() / time.as_secs_f64())
+            };
+            joint.speed_changed |= speed.is_some();
+            joint.in_flight = true;
+            commands.push(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: time });
         }
-        let speed = (!leg_time.is_zero()).then(|| (target - from).abs() / leg_time.as_secs_f64());
-        joint.speed_changed |= speed.is_some();
-        joint.in_flight = true;
-        Some(JointCommand::Move { axis: joint.axis.clone(), target, speed, duration: leg_time })
+        commands
     }
 
     /// Where joint `k` should be at `now` on the trajectory as planned, between the points
@@ -339,7 +339,7 @@ pub struct FollowJointTrajectory {
     plan: Option<Plan>,
     status_changed: bool,
     /// Speeds ended goals restore, by axis (VELO before them), until the restore's write has
-    /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last leg's.
+    /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last stretch's.
     restoring: Vec<(String, f64)>,
 }
 
@@ -408,21 +408,21 @@ impl FollowJointTrajectory {
         self.plan.is_some()
     }
 
-    /// What to do at `now`: the moves of the legs due, or the goal's end.
+    /// What to do at `now`: the moves of the stretch due, or the goal's end.
     #[must_use]
     pub fn poll(&mut self, joints: &JointStates, now: Duration) -> Vec<JointCommand> {
         let Some(plan) = &mut self.plan else { return Vec::new() };
         let mut commands = Vec::new();
-        // A leg that ends at once (no way to go) may let another start: until none is due.
-        while let Some(k) = (0..plan.joints.len()).find(|&k| plan.next_leg_due(k).is_some_and(|due| now >= due)) {
-            commands.extend(plan.start_leg(k));
+        // A stretch no joint has a way to go in ends at once: until one moves or none is due.
+        while plan.next_due().is_some_and(|due| now >= due) {
+            commands.extend(plan.start_stretch());
         }
         if plan.busy() {
             return commands;
         }
         let end = match plan.ending.take() {
             Some(end) => Some(end),
-            None if plan.done() => Some(arrival(plan, joints)),
+            None if plan.next == plan.stretch_ends.len() => Some(arrival(plan, joints)),
             None => None,
         };
         if let Some((status, result)) = end {
@@ -442,7 +442,7 @@ impl FollowJointTrajectory {
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Duration> {
         let plan = self.plan.as_ref()?;
-        (0..plan.joints.len()).filter_map(|k| plan.next_leg_due(k)).min()
+        plan.next_due()
     }
 
     /// The end of the move `axis` was sent; a failure aborts the goal, stopping the others.
@@ -452,10 +452,7 @@ impl FollowJointTrajectory {
         let Some(joint) = plan.joints.iter_mut().find(|j| j.axis == axis && j.in_flight) else { return Vec::new() };
         joint.in_flight = false;
         match end {
-            MoveEnd::Reached => {
-                joint.legs_done += 1;
-                Vec::new()
-            }
+            MoveEnd::Reached => Vec::new(),
             MoveEnd::Failed(why) => {
                 let error_string = format!("axis '{axis}': {why}");
                 let result = TrajectoryResult { error_code: error_code::PATH_TOLERANCE_VIOLATED, error_string };
@@ -528,9 +525,9 @@ impl FollowJointTrajectory {
         let names: Vec<String> = plan.joints.iter().map(|j| joints.joints()[j.index].name.clone()).collect();
         let (mut desired, mut actual) = (Vec::new(), Vec::new());
         for (k, joint) in plan.joints.iter().enumerate() {
-            let (rbv, ..) = joints.joint_state(joint.index)?;
+            let position = joints.joint_state(joint.index)?.position;
             desired.push(plan.desired(k, now) * joint.si_per_egu);
-            actual.push(rbv * joint.si_per_egu);
+            actual.push(position * joint.si_per_egu);
         }
         // As joint_trajectory_controller computes it (and control_msgs defines it): reference −
         // feedback, the way the joint still has to go.
@@ -558,12 +555,13 @@ impl FollowJointTrajectory {
     }
 }
 
-/// The end of a goal whose every leg is done: success when each joint is within its goal
+/// The end of a goal whose every stretch is done: success when each joint is within its goal
 /// tolerance.
 fn arrival(plan: &Plan, joints: &JointStates) -> (i8, TrajectoryResult) {
     let last = &plan.points[plan.points.len() - 1].targets;
     for (k, joint) in plan.joints.iter().enumerate() {
-        let (Some(tolerance), Some((rbv, ..))) = (joint.tolerance, joints.joint_state(joint.index)) else { continue };
+        let (Some(tolerance), Some(reading)) = (joint.tolerance, joints.joint_state(joint.index)) else { continue };
+        let rbv = reading.position;
         if (rbv - last[k]).abs() > tolerance {
             let error_string = format!(
                 "axis '{}' ended at {rbv}, {} from its goal {} (tolerance {tolerance}, its axis's units)",
@@ -599,24 +597,23 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             return Err(GoalRejection::DuplicateJoint(name.clone()));
         }
         let index = joints.joint_index(name).ok_or_else(|| GoalRejection::UnknownJoint(name.clone()))?;
-        let (rbv, _, travel, speed) = joints.joint_state(index).ok_or_else(|| GoalRejection::NotReady(name.clone()))?;
+        let reading = joints.joint_state(index).ok_or_else(|| GoalRejection::NotReady(name.clone()))?;
         let joint = &joints.joints()[index];
-        let tolerance = goal
-            .goal_tolerance
-            .iter()
-            .find(|t| &t.name == name && t.position > 0.0)
-            .map(|t| t.position / joint.si_per_egu);
-        travels.push(travel);
+        let tolerance = |tolerances: &[JointTolerance]| {
+            tolerances.iter().find(|t| &t.name == name && t.position > 0.0).map(|t| t.position / joint.si_per_egu)
+        };
+        travels.push(reading.travel);
         planned.push(PlannedJoint {
             index,
             axis: joint.axis.clone(),
             si_per_egu: joint.si_per_egu,
-            from: rbv,
-            speed,
+            from: reading.position,
+            speed: reading.speed,
             speed_changed: false,
-            tolerance,
-            leg_ends: Vec::new(),
-            legs_done: 0,
+            tolerance: tolerance(&goal.goal_tolerance),
+            off_path: tolerance(&goal.path_tolerance).unwrap_or(reading.deadband),
+            deadband: reading.deadband,
+            sent_to: reading.position,
             in_flight: false,
         });
     }
@@ -649,7 +646,7 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             }
             targets.push(target);
         }
-        let resting = (0..expected).map(|k| point.velocities.get(k) == Some(&0.0)).collect();
+        let resting = !point.velocities.is_empty() && point.velocities.iter().all(|v| *v == 0.0);
         points.push(Waypoint { at, targets, resting });
     }
     // A zero stamp is "start now"; so is one of simulated time.
@@ -666,38 +663,59 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
         points = points.into_iter().enumerate().filter(|(i, p)| p.at > late || *i == last).map(|(_, p)| p).collect();
         points.iter_mut().for_each(|p| p.at = p.at.saturating_sub(late));
     }
-    for (k, joint) in planned.iter_mut().enumerate() {
-        joint.leg_ends = leg_ends(joint.from, &points, k);
-    }
+    let stretch_ends = stretch_ends(&planned, &points);
     let start = stamp.filter(|at| *at > now).unwrap_or(now);
-    Ok(Plan { id, joints: planned, points, start, ending: None })
+    Ok(Plan { id, joints: planned, points, stretch_ends, next: 0, start, ending: None })
 }
 
-/// Whether two positions are one: a planner's start point is the joint state it was given, in SI
-/// units, which converted back may differ from the readback in the last bits.
-fn same_position(a: f64, b: f64) -> bool {
-    (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0)
+/// Whether two positions are one, `tolerance` apart at most, or in the last bits: a planner's
+/// start point is the joint state it was given, in SI units, which converted back may differ from
+/// the readback there.
+fn within(a: f64, b: f64, tolerance: f64) -> bool {
+    (a - b).abs() <= tolerance.max(1e-12 * a.abs().max(b.abs()).max(1.0))
 }
 
-/// The points where joint `k`'s legs end, starting `from`: where its way turns, starts or
-/// ends a rest, where it is to be at rest, and the last point.
-fn leg_ends(from: f64, points: &[Waypoint], k: usize) -> Vec<usize> {
-    let way = |i: usize| {
-        let before = i.checked_sub(1).map_or(from, |b| points[b].targets[k]);
-        let to = points[i].targets[k];
-        if same_position(to, before) {
-            Ordering::Equal
-        } else {
-            to.total_cmp(&before)
-        }
+/// The points where the stretches of the path from where the `joints` stand through `points`
+/// end (see the module documentation): a stretch goes on while the next point keeps its
+/// positions on one straight line in joint space, each joint within its `off_path`.
+fn stretch_ends(joints: &[PlannedJoint], points: &[Waypoint]) -> Vec<usize> {
+    // Position 0 is where the joints stand, position i the point i − 1.
+    let at = |i: usize, k: usize| if i == 0 { joints[k].from } else { points[i - 1].targets[k] };
+    let straight = |first: usize, last: usize| {
+        let way: Vec<f64> = (0..joints.len()).map(|k| at(last, k) - at(first, k)).collect();
+        // The joint going furthest, counted in its tolerance, tells each point's share of the way.
+        let scale = |k: usize| joints[k].off_path.max(f64::MIN_POSITIVE);
+        let lead = (0..joints.len()).max_by(|&a, &b| (way[a].abs() / scale(a)).total_cmp(&(way[b].abs() / scale(b))));
+        let Some(lead) = lead.filter(|&k| !within(at(last, k), at(first, k), joints[k].off_path)) else {
+            return false;
+        };
+        let mut share_before = 0.0;
+        (first + 1..last).all(|i| {
+            let share = (at(i, lead) - at(first, lead)) / way[lead];
+            let on_line =
+                (0..joints.len()).all(|k| within(at(i, k), at(first, k) + way[k] * share, joints[k].off_path));
+            let onward = share > share_before && share < 1.0;
+            share_before = share;
+            onward && on_line
+        })
     };
-    (0..points.len()).filter(|&i| i + 1 == points.len() || points[i].resting[k] || way(i) != way(i + 1)).collect()
+    let mut ends = Vec::new();
+    let mut first = 0;
+    while first < points.len() {
+        let mut last = first + 1;
+        while last < points.len() && !points[last - 1].resting && straight(first, last + 1) {
+            last += 1;
+        }
+        ends.push(last - 1);
+        first = last;
+    }
+    ends
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::follow::{JointTolerance, JointTrajectory, RosDuration};
+    use crate::follow::{JointTrajectory, RosDuration};
     use crate::joints::Joint;
     use zmotor_msgs::Field;
 
@@ -754,7 +772,7 @@ mod tests {
     }
 
     #[test]
-    fn three_points_with_turns_run_as_timed_moves_one_leg_after_the_other_then_succeed() {
+    fn three_points_with_turns_run_as_timed_moves_one_stretch_after_the_other_then_succeed() {
         let mut states = joints();
         let mut server = FollowJointTrajectory::new();
         // 10 mm and 90° in 2 s, then back to 5 mm in 1 s, then 180° in 3 s.
@@ -770,12 +788,12 @@ mod tests {
 
         let first = server.poll(&states, at(0));
         assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 90.0, Some(45.0))]);
-        assert_eq!(server.poll(&states, at(2500)), [], "not before both joints ended their legs to the first point");
+        assert_eq!(server.poll(&states, at(2500)), [], "not before both joints ended the stretch to the first point");
         assert_eq!(server.poll_timeout(), None, "waiting on the moves, not on time");
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
         assert_eq!(server.poll(&states, at(2500)), [], "m2 still moving");
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
-        // Second leg: only lift moves, 5 mm in 1 s; it is late (2.5 s), so it starts now.
+        // Second stretch: only lift moves, 5 mm in 1 s; it is late (2.5 s), so it starts now.
         let second = server.poll(&states, at(2500));
         assert_eq!(moves(&second), [("m1", 5.0, Some(5.0))]);
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
@@ -820,7 +838,7 @@ mod tests {
         let end = server.poll(&states, at(2000));
         assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }]);
         // The next goal comes before VELO 1 is posted back: it restores 1, not 5 (nor VBAS, had
-        // the record made the leg's speed that).
+        // the record made the stretch's speed that).
         request.goal_id = [2; 16];
         request.goal.trajectory.points[0].positions = vec![0.0];
         server.send_goal(&request, &states, at(2001)).unwrap();
@@ -929,7 +947,7 @@ mod tests {
         assert_eq!(commands, [JointCommand::Stop { axis: "m1".into() }, JointCommand::Stop { axis: "m2".into() }]);
         assert_eq!(server.poll_status().unwrap().status_list[0].status, status::CANCELING);
         assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), [], "already ending");
-        assert_eq!(server.poll(&states, at(3000)), [], "m2 not yet stopped; no second leg");
+        assert_eq!(server.poll(&states, at(3000)), [], "m2 not yet stopped; no second stretch");
         assert_eq!(server.result(&[1; 16]), None);
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
         let end = server.poll(&states, at(3000));
@@ -1006,11 +1024,12 @@ mod tests {
     }
 
     #[test]
-    fn close_waypoints_one_way_are_one_move_per_joint_ending_where_it_turns() {
+    fn close_waypoints_on_one_line_are_one_move_a_joint_and_the_path_turns_where_the_plan_does() {
         let mut states = joints();
         let mut server = FollowJointTrajectory::new();
-        // 40 waypoints 0.1 s apart: lift out to 10 mm in 2 s and back to 0 in 2 s; turn to 90°
-        // all the way. The motor record stops at the end of each move: one per leg, not per point.
+        // 40 waypoints 0.1 s apart: lift out to 10 mm in 2 s and back in 2 s while turn goes
+        // on to 90°: two straight lines in joint space, a corner at 2 s. The motor record stops
+        // at the end of each move: one a line, not one a point, and the corner kept.
         let quarter = std::f64::consts::FRAC_PI_2;
         let request = waypoints(&["lift", "turn"], 40, 100, |i| {
             let lift = if i <= 20 { 0.0005 * i as f64 } else { 0.0005 * (40 - i) as f64 };
@@ -1018,16 +1037,19 @@ mod tests {
         });
         server.send_goal(&request, &states, at(0)).unwrap();
         let first = server.poll(&states, at(0));
-        assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 90.0, Some(22.5))]);
+        assert_eq!(moves(&first), [("m1", 10.0, Some(5.0)), ("m2", 45.0, Some(22.5))]);
         let feedback = server.feedback(&states, at(1050)).expect("feedback");
         let desired = &feedback.feedback.desired.positions;
         assert!((desired[0] - 0.00525).abs() < 1e-12, "between its points at 1.0 and 1.1 s: {desired:?}");
         assert!((desired[1] - quarter * 10.5 / 40.0).abs() < 1e-12, "{desired:?}");
         assert_eq!(server.poll_timeout(), None, "both moving: their ends come as events");
-        assert_eq!(server.poll(&states, at(2050)), [], "the lift has not ended its leg");
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
-        // Late by 0.1 s, it starts back at once; the turn goes on.
-        assert_eq!(moves(&server.poll(&states, at(2100))), [("m1", 0.0, Some(5.0))]);
+        assert_eq!(server.poll(&states, at(2050)), [], "the turn has not ended its move");
+        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        // Late by 0.1 s, the second line starts at once; the plan's clock runs on.
+        assert_eq!(moves(&server.poll(&states, at(2100))), [("m1", 0.0, Some(5.0)), ("m2", 90.0, Some(22.5))]);
+        let desired = server.feedback(&states, at(2100)).unwrap().feedback.desired.positions;
+        assert!((desired[0] - 0.0095).abs() < 1e-12, "the plan at 2.1 s, not the move's start: {desired:?}");
         assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
         assert_eq!(server.poll(&states, at(4000)), [], "the lift still moving");
         assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
@@ -1035,39 +1057,90 @@ mod tests {
         let end = server.poll(&states, at(4100));
         assert_eq!(end.len(), 2, "the goal ends, both speeds restored: {end:?}");
         assert_eq!(server.result(&[1; 16]).unwrap().status, status::SUCCEEDED);
+        let desired = server.feedback(&states, at(4100));
+        assert_eq!(desired, None, "no feedback once ended");
     }
 
     #[test]
-    fn a_leg_waits_for_the_joints_still_short_of_its_first_point_and_a_rest_ends_a_leg() {
+    fn a_stretch_ends_where_the_path_turns_rests_or_stays_and_a_point_due_at_once_goes_at_the_speed_before() {
         let states = joints();
         let mut server = FollowJointTrajectory::new();
-        // The lift goes out and back by 2 s, then on again in the same direction after a rest
-        // the trajectory gives as a velocity of 0; the turn stays put until 2 s, then turns.
+        let degrees = |rad: f64| rad.to_degrees();
+        // Both joints go one way throughout, but the path turns at 1 s and 2 s; the line after
+        // it is broken at 3 s by a rest (velocities of 0); it stays put from 4 to 5 s; then the
+        // lift is sent on at once.
         let mut request = goal(
             &["lift", "turn"],
-            &[(1000, &[0.010, 0.0]), (2000, &[0.0, 0.0]), (3000, &[0.005, 1.0]), (4000, &[0.010, 1.0])],
+            &[
+                (1000, &[0.010, 0.001]),
+                (2000, &[0.011, 0.5]),
+                (3000, &[0.012, 0.6]),
+                (4000, &[0.013, 0.7]),
+                (5000, &[0.013, 0.7]),
+                (5000, &[0.020, 0.7]),
+            ],
         );
-        request.goal.trajectory.points[2].velocities = vec![0.0, 0.5];
+        request.goal.trajectory.points[2].velocities = vec![0.0, 0.0];
         server.send_goal(&request, &states, at(0)).unwrap();
-        assert_eq!(moves(&server.poll(&states, at(0))), [("m1", 10.0, Some(10.0))]);
-        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
-        assert_eq!(moves(&server.poll(&states, at(1000))), [("m1", 0.0, Some(10.0))]);
-        // At 2 s the turn's leg is due, but the lift is still short of the point at 2 s.
-        assert_eq!(server.poll(&states, at(2500)), []);
-        assert_eq!(server.poll_timeout(), None, "held by a move, not by time");
-        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
-        let turn = 180.0 / std::f64::consts::PI;
-        let commands = server.poll(&states, at(2600));
-        let third = moves(&commands);
-        assert_eq!(third.len(), 2, "{third:?}");
-        assert_eq!(third[0], ("m1", 5.0, Some(5.0)), "to the rest, not through it");
-        assert_eq!(third[1].0, "m2");
-        assert!((third[1].1 - turn).abs() < 1e-9 && (third[1].2.unwrap() - turn).abs() < 1e-6, "{third:?}");
-        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
-        assert_eq!(server.poll_timeout(), None, "the turn is still short of the point at 3 s");
-        assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
-        assert_eq!(server.poll_timeout(), Some(at(3000)), "the lift's last leg, after its rest");
-        assert_eq!(server.poll(&states, at(2900)), []);
-        assert_eq!(moves(&server.poll(&states, at(3000))), [("m1", 10.0, Some(5.0))]);
+        let expect = |commands: Vec<JointCommand>, lift: (f64, f64), turn: (f64, f64)| {
+            let got = moves(&commands);
+            assert_eq!(got.len(), 2, "{got:?}");
+            assert_eq!((got[0].0, got[1].0), ("m1", "m2"));
+            let close = |a: f64, b: f64| (a - b).abs() < 1e-6;
+            assert!(close(got[0].1, lift.0) && close(got[0].2.unwrap(), lift.1), "{got:?}");
+            assert!(close(got[1].1, degrees(turn.0)) && close(got[1].2.unwrap(), degrees(turn.1)), "{got:?}");
+        };
+        let both_end = |server: &mut FollowJointTrajectory| {
+            assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+            assert_eq!(server.move_ended("m2", MoveEnd::Reached), []);
+        };
+        expect(server.poll(&states, at(0)), (10.0, 10.0), (0.001, 0.001));
+        both_end(&mut server);
+        expect(server.poll(&states, at(1000)), (11.0, 1.0), (0.5, 0.499));
+        both_end(&mut server);
+        expect(server.poll(&states, at(2000)), (12.0, 1.0), (0.6, 0.1));
+        both_end(&mut server);
+        assert_eq!(server.poll(&states, at(2900)), [], "at rest until 3 s");
+        expect(server.poll(&states, at(3000)), (13.0, 1.0), (0.7, 0.1));
+        both_end(&mut server);
+        assert_eq!(server.poll(&states, at(4000)), [], "staying put moves nothing");
+        assert_eq!(server.poll_timeout(), Some(at(5000)));
+        let last = server.poll(&states, at(5000));
+        assert_eq!(moves(&last), [("m1", 20.0, Some(1.0))], "VELO from before the goal, not the last move's");
+    }
+
+    #[test]
+    fn a_start_within_the_deadband_moves_nothing_and_a_path_tolerance_lets_a_curve_be_one_move() {
+        let mut states = joints();
+        states.update("m1", Field::RDBD, 0.002, T0);
+        let mut server = FollowJointTrajectory::new();
+        // MoveIt's start point, 1 µm from the lift's readback (its deadband 2 µm), then ten points
+        // of a line bent by up to 5 mrad on the turn.
+        let bent = |i: u64| {
+            let share = i as f64 / 10.0;
+            vec![0.010 * share, 0.5 * share + 0.005 * (std::f64::consts::PI * share).sin()]
+        };
+        let mut request = waypoints(&["lift", "turn"], 10, 100, bent);
+        let start = JointTrajectoryPoint { positions: vec![0.000_001, 0.0], ..JointTrajectoryPoint::default() };
+        request.goal.trajectory.points.insert(0, start);
+        let mut tolerant = request.clone();
+        tolerant.goal.path_tolerance =
+            vec![JointTolerance { name: "turn".into(), position: 0.01, ..JointTolerance::default() }];
+        server.send_goal(&tolerant, &states, at(0)).unwrap();
+        let commands = server.poll(&states, at(0));
+        let first = moves(&commands);
+        assert_eq!(first.len(), 2, "within its tolerance the bend is one line, to the last point: {first:?}");
+        assert_eq!((first[0].0, first[0].1, first[0].2), ("m1", 10.0, Some(10.0)));
+        assert!((first[1].1 - 0.5_f64.to_degrees()).abs() < 1e-9, "{first:?}");
+
+        // Without the tolerance, the bend is followed point by point.
+        let mut strict = FollowJointTrajectory::new();
+        strict.send_goal(&request, &states, at(0)).unwrap();
+        let commands = strict.poll(&states, at(0));
+        let first = moves(&commands);
+        assert_eq!(first.len(), 2, "{first:?}");
+        // (The lift's 2 µm deadband lets the first two points be one line; the turn's 0 does not
+        // let the third be.)
+        assert_eq!((first[0].0, first[0].1), ("m1", 2.0), "the bend followed, the start not moved to");
     }
 }

@@ -47,7 +47,8 @@ const STATE_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Dur
 const STATUS_QOS: Qos = STATE_QOS;
 
 /// The fields each joint's axis is followed by.
-const FOLLOWED: [Field; 7] = [Field::RBV, Field::DMOV, Field::HLM, Field::LLM, Field::DHLM, Field::DLLM, Field::VELO];
+const FOLLOWED: [Field; 8] =
+    [Field::RBV, Field::DMOV, Field::HLM, Field::LLM, Field::DHLM, Field::DLLM, Field::VELO, Field::RDBD];
 
 /// A running ROS 2 face; dropping it takes the node out of the ROS graph.
 pub struct Ros2Node {
