@@ -244,6 +244,18 @@ def main():
                                    lambda s: statuses.append(bytes(s.payload.to_bytes()))),
     ]
 
+    def dmov_posts_reaching(expected):
+        """The DMOV posts counted, once they are `expected` (the last DMOV 1 may come after the
+        result) or 2 s have passed."""
+        deadline = time.time() + 2
+        while time.time() < deadline:
+            with lock:
+                if dmov_posts == expected:
+                    break
+            time.sleep(0.05)
+        with lock:
+            return dict(dmov_posts)
+
     def last():
         deadline = time.time() + 10
         while time.time() < deadline:
@@ -321,8 +333,7 @@ def main():
     took = time.time() - started
     assert (status, code) == (SUCCEEDED, 0), (status, code, text)
     settle({"lift": 0.015, "turn": 0.3}, 5)
-    with lock:
-        posts = dict(dmov_posts)
+    posts = dmov_posts_reaching({"m1": 2, "m2": 2})
     assert posts == {"m1": 2, "m2": 2}, "one move a joint (DMOV 0, then 1), not one a waypoint: %s" % posts
     ok("a 31-waypoint trajectory ran as one move a joint in %.1f s (planned 3.0 s)" % took)
 
@@ -337,8 +348,7 @@ def main():
     status, code, text = client.get_result(goal, timeout=60)
     assert (status, code) == (SUCCEEDED, 0), (status, code, text)
     settle({"lift": 0.030, "turn": 0.6}, 5)
-    with lock:
-        posts = dict(dmov_posts)
+    posts = dmov_posts_reaching({"m1": 4, "m2": 4})
     assert posts == {"m1": 4, "m2": 4}, "two moves a joint, one a line: %s" % posts
     ok("a path with a corner ran as two moves a joint, the corner kept")
 

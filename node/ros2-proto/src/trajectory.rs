@@ -2,15 +2,16 @@
 //! (unknown joints, positions beyond the soft limits, time going backwards), then executed as
 //! timed moves, one per stretch of the path. A stretch runs through the points that lie on one
 //! straight line in joint space (every joint's position the same share of its way at each,
-//! within the joint's path tolerance, or else its retry deadband RDBD) and ends where the path
-//! turns, rests (stays at a point, or every joint is given a velocity of 0 there) or ends: the
-//! motor record stops at the end of every move, and a planner's many close waypoints (MoveIt's,
-//! on lines between its via-states) must not each become a stop, nor may a merge cut the
-//! corners the planner checked. A stretch starts when its time has come and every joint has
-//! ended the one before, each joint moving at the speed that covers it in its time (VELO,
-//! restored when the goal ends). The result comes when every joint has arrived (the motion's
-//! end, as a waiting write reports it); a cancel stops the joints. Time is given (since the Unix
-//! epoch: it stamps goals and feedback).
+//! within the joint's path tolerance, or else its RDBD, where the record takes a move as done)
+//! and ends where the path turns, rests (stays at a point, or every joint is given a velocity of
+//! 0 there), ends, or after 500 points: the motor record stops at the end of every move, and a
+//! planner's many close waypoints (MoveIt's, on lines between its via-states) must not each
+//! become a stop, nor may a merge cut the corners the planner checked. A stretch starts when its
+//! time has come and every joint has ended the one before, each joint moving at the speed that
+//! covers it in its time (VELO, restored when the goal ends; a point due at once goes at the
+//! speed from before the goal). A joint with no way to go in a stretch is not sent one. The
+//! result comes when every joint has arrived (the motion's end, as a waiting write reports it);
+//! a cancel stops the joints. Time is given (since the Unix epoch: it stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
 //! a time: a goal sent while another executes is rejected), then end SUCCEEDED, ABORTED or,
@@ -212,10 +213,8 @@ struct PlannedJoint {
     /// The goal position tolerance, EGU.
     tolerance: Option<f64>,
     /// How far off the planned path it may pass, EGU: the goal's path tolerance, or else its
-    /// axis's RDBD.
+    /// axis's RDBD (where the record takes a move as done).
     off_path: f64,
-    /// Its axis's RDBD, EGU: a move shorter is none to the record.
-    deadband: f64,
     /// Where it was last sent (or stood), EGU.
     sent_to: f64,
     /// A move commanded whose end has not come.
@@ -277,7 +276,7 @@ impl Plan {
         let mut commands = Vec::new();
         for (k, joint) in self.joints.iter_mut().enumerate() {
             let (from, target) = (joint.sent_to, self.points[end].targets[k]);
-            if within(target, from, joint.deadband) {
+            if within(target, from, 0.0) {
                 continue;
             }
             joint.sent_to = target;
@@ -612,7 +611,6 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
             speed_changed: false,
             tolerance: tolerance(&goal.goal_tolerance),
             off_path: tolerance(&goal.path_tolerance).unwrap_or(reading.deadband),
-            deadband: reading.deadband,
             sent_to: reading.position,
             in_flight: false,
         });
@@ -668,12 +666,21 @@ fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) 
     Ok(Plan { id, joints: planned, points, stretch_ends, next: 0, start, ending: None })
 }
 
-/// Whether two positions are one, `tolerance` apart at most, or in the last bits: a planner's
-/// start point is the joint state it was given, in SI units, which converted back may differ from
-/// the readback there.
-fn within(a: f64, b: f64, tolerance: f64) -> bool {
-    (a - b).abs() <= tolerance.max(1e-12 * a.abs().max(b.abs()).max(1.0))
+/// How far apart `a` and `b` may be and count as one within `tolerance`: at least their last
+/// bits (a planner's start point is the joint state it was given, in SI units, which converted
+/// back may differ from the readback there).
+fn allowance(a: f64, b: f64, tolerance: f64) -> f64 {
+    tolerance.max(1e-12 * a.abs().max(b.abs()).max(1.0))
 }
+
+/// Whether two positions are one within `tolerance` (see `allowance`).
+fn within(a: f64, b: f64, tolerance: f64) -> bool {
+    (a - b).abs() <= allowance(a, b, tolerance)
+}
+
+/// The most points a stretch runs through: each point added checks those before it again, and a
+/// goal is planned on the task that serves the joints.
+const STRETCH_POINTS: usize = 500;
 
 /// The points where the stretches of the path from where the `joints` stand through `points`
 /// end (see the module documentation): a stretch goes on while the next point keeps its
@@ -683,12 +690,11 @@ fn stretch_ends(joints: &[PlannedJoint], points: &[Waypoint]) -> Vec<usize> {
     let at = |i: usize, k: usize| if i == 0 { joints[k].from } else { points[i - 1].targets[k] };
     let straight = |first: usize, last: usize| {
         let way: Vec<f64> = (0..joints.len()).map(|k| at(last, k) - at(first, k)).collect();
-        // The joint going furthest, counted in its tolerance, tells each point's share of the way.
-        let scale = |k: usize| joints[k].off_path.max(f64::MIN_POSITIVE);
+        // The joint going furthest, counted in its tolerance, tells each point's share of the way;
+        // a way of none (in the last bits) is a stay, no line.
+        let scale = |k: usize| allowance(at(last, k), at(first, k), joints[k].off_path);
         let lead = (0..joints.len()).max_by(|&a, &b| (way[a].abs() / scale(a)).total_cmp(&(way[b].abs() / scale(b))));
-        let Some(lead) = lead.filter(|&k| !within(at(last, k), at(first, k), joints[k].off_path)) else {
-            return false;
-        };
+        let Some(lead) = lead.filter(|&k| !within(at(last, k), at(first, k), 0.0)) else { return false };
         let mut share_before = 0.0;
         (first + 1..last).all(|i| {
             let share = (at(i, lead) - at(first, lead)) / way[lead];
@@ -703,7 +709,11 @@ fn stretch_ends(joints: &[PlannedJoint], points: &[Waypoint]) -> Vec<usize> {
     let mut first = 0;
     while first < points.len() {
         let mut last = first + 1;
-        while last < points.len() && !points[last - 1].resting && straight(first, last + 1) {
+        while last < points.len()
+            && last - first < STRETCH_POINTS
+            && !points[last - 1].resting
+            && straight(first, last + 1)
+        {
             last += 1;
         }
         ends.push(last - 1);
@@ -1110,37 +1120,75 @@ mod tests {
     }
 
     #[test]
-    fn a_start_within_the_deadband_moves_nothing_and_a_path_tolerance_lets_a_curve_be_one_move() {
+    fn a_path_tolerance_lets_a_bend_be_one_move_and_a_start_point_at_the_readback_moves_nothing() {
         let mut states = joints();
-        states.update("m1", Field::RDBD, 0.002, T0);
+        let start_deg = 51.566;
+        states.update("m2", Field::RBV, start_deg, T0);
         let mut server = FollowJointTrajectory::new();
-        // MoveIt's start point, 1 µm from the lift's readback (its deadband 2 µm), then ten points
-        // of a line bent by up to 5 mrad on the turn.
+        // MoveIt's start point (the joint states it read, in SI), then ten points of a line bent
+        // by up to 5 mrad on the turn.
+        let start = start_deg.to_radians();
         let bent = |i: u64| {
             let share = i as f64 / 10.0;
-            vec![0.010 * share, 0.5 * share + 0.005 * (std::f64::consts::PI * share).sin()]
+            vec![0.010 * share, start + 0.5 * share + 0.005 * (std::f64::consts::PI * share).sin()]
         };
         let mut request = waypoints(&["lift", "turn"], 10, 100, bent);
-        let start = JointTrajectoryPoint { positions: vec![0.000_001, 0.0], ..JointTrajectoryPoint::default() };
-        request.goal.trajectory.points.insert(0, start);
+        let first_point = JointTrajectoryPoint { positions: vec![0.0, start], ..JointTrajectoryPoint::default() };
+        request.goal.trajectory.points.insert(0, first_point);
         let mut tolerant = request.clone();
-        tolerant.goal.path_tolerance =
-            vec![JointTolerance { name: "turn".into(), position: 0.01, ..JointTolerance::default() }];
+        // Tolerances wider than the points' spacing (5 mm against 1 mm, 0.2 rad against 0.05).
+        tolerant.goal.path_tolerance = vec![
+            JointTolerance { name: "lift".into(), position: 0.005, ..JointTolerance::default() },
+            JointTolerance { name: "turn".into(), position: 0.2, ..JointTolerance::default() },
+        ];
         server.send_goal(&tolerant, &states, at(0)).unwrap();
         let commands = server.poll(&states, at(0));
         let first = moves(&commands);
         assert_eq!(first.len(), 2, "within its tolerance the bend is one line, to the last point: {first:?}");
         assert_eq!((first[0].0, first[0].1, first[0].2), ("m1", 10.0, Some(10.0)));
-        assert!((first[1].1 - 0.5_f64.to_degrees()).abs() < 1e-9, "{first:?}");
+        assert!((first[1].1 - (start + 0.5).to_degrees()).abs() < 1e-9, "{first:?}");
 
-        // Without the tolerance, the bend is followed point by point.
+        // Without it, the bend is followed point by point.
         let mut strict = FollowJointTrajectory::new();
         strict.send_goal(&request, &states, at(0)).unwrap();
         let commands = strict.poll(&states, at(0));
         let first = moves(&commands);
         assert_eq!(first.len(), 2, "{first:?}");
-        // (The lift's 2 µm deadband lets the first two points be one line; the turn's 0 does not
-        // let the third be.)
-        assert_eq!((first[0].0, first[0].1), ("m1", 2.0), "the bend followed, the start not moved to");
+        assert_eq!((first[0].0, first[0].1, first[0].2), ("m1", 1.0, Some(10.0)), "to the first point, not the start");
+    }
+
+    #[test]
+    fn a_way_shorter_than_the_retry_deadband_is_still_sent_and_a_long_line_stops_every_500_points() {
+        let mut states = joints();
+        states.update("m1", Field::RDBD, 0.002, T0);
+        let mut server = FollowJointTrajectory::new();
+        // 1.5 µm, less than RDBD: the record moves it (RDBD only bounds its retries).
+        let mut request = goal(&["lift"], &[(1000, &[0.0000015])]);
+        request.goal.goal_tolerance =
+            vec![JointTolerance { name: "lift".into(), position: 1e-6, ..JointTolerance::default() }];
+        server.send_goal(&request, &states, at(0)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(0))), [("m1", 0.0015, Some(0.0015))]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Reached), []);
+        states.update("m1", Field::RBV, 0.0015, at(1000));
+        let _ = server.poll(&states, at(1000));
+        assert_eq!(server.result(&[1; 16]).unwrap().status, status::SUCCEEDED);
+
+        // 1,200 points on one line, 10 ms apart: a stop every 500 (the planning's bound).
+        let mut line = waypoints(&["lift"], 1200, 10, |i| vec![0.00001 * i as f64]);
+        line.goal_id = [2; 16];
+        states.update("m1", Field::RBV, 0.0, at(2000));
+        server.send_goal(&line, &states, at(2000)).unwrap();
+        let mut targets = Vec::new();
+        let mut now = at(2000);
+        for _ in 0..10 {
+            for (axis, target, speed) in moves(&server.poll(&states, now)) {
+                targets.push((target * 1e9).round() / 1e9);
+                assert_eq!((axis, speed), ("m1", Some(1.0)));
+                assert_eq!(server.move_ended(axis, MoveEnd::Reached), []);
+            }
+            now = server.poll_timeout().unwrap_or(now);
+        }
+        assert!(!server.executing());
+        assert_eq!(targets, [5.0, 10.0, 12.0]);
     }
 }
