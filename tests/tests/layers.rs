@@ -65,6 +65,11 @@ const LAYERS: &[(&str, &str, &[&str])] = &[
             "zmotor-sim-controller",
         ],
     ),
+    (
+        "zmotor-fuzz",
+        "tests/fuzz",
+        &["zmotor-msgs", "zmotor-bridge", "zmotor-core", "zmotor-controllers", "zmotor-deploy", "zmotor-ros2-proto"],
+    ),
 ];
 
 /// Crates that move bytes on networks, sockets or an async runtime: below the gateways, only

@@ -9,7 +9,12 @@ use zmotor_bridge::Expression;
 use zmotor_bridge::INPUTS;
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
-use zmotor_msgs::{decode_write, Attached, Hold, PayloadEncoding, StateMarker, FIELDS};
+use zmotor_msgs::{decode_write, Attached, Field, Hold, PayloadEncoding, StateMarker, FIELDS};
+use zmotor_ros2_proto::{
+    decode, CancelGoalRequest, FollowJointTrajectory, GetResultRequest, GoalInfo, Joint, JointCommand, JointState,
+    JointStates, JointTolerance, JointTrajectory, JointTrajectoryPoint, MoveEnd, RosDuration, SendGoalRequest, Time,
+    TrajectoryGoal,
+};
 
 /// A fuzz target: takes any bytes, returns or panics.
 pub type Target = fn(&[u8]);
@@ -21,6 +26,7 @@ pub const TARGETS: &[(&str, Target)] = &[
     ("launch_toml", launch_toml),
     ("epics_db", epics_db),
     ("controller_replies", controller_replies),
+    ("ros2_requests", ros2_requests),
 ];
 
 /// A write as a client sends it: byte 0 picks the field, byte 1 the encoding, the rest is the
@@ -90,5 +96,153 @@ pub fn controller_replies(data: &[u8]) {
         controller.handle_timeout(now);
         while controller.poll_transmit().is_some() {}
         while controller.poll_event().is_some() {}
+    }
+}
+
+/// Bytes read in turn, zeros once they run out (moves then reach their targets, uncancelled).
+struct Bytes<'a>(&'a [u8]);
+
+impl Bytes<'_> {
+    fn byte(&mut self) -> u8 {
+        let (first, rest) = self.0.split_first().map_or((0, &[][..]), |(b, rest)| (*b, rest));
+        self.0 = rest;
+        first
+    }
+
+    /// A number as a planner sends them (a byte's worth of hundredths), now and then one no
+    /// planner should (NaN, infinite, huge).
+    fn number(&mut self) -> f64 {
+        match self.byte() {
+            0xFF => [f64::NAN, f64::INFINITY, -1e300, 1e-300][usize::from(self.byte() % 4)],
+            b => f64::from(b as i8) / 100.0,
+        }
+    }
+}
+
+/// Two joints as the action server sees them: `lift` (mm, soft limits ±1,000) and `turn` (deg,
+/// none), at rest at 0, VELO 1, RDBD 0.001.
+fn fuzz_joints() -> JointStates {
+    let lift = Joint::new("lift", "m1", "mm", None).expect("a joint");
+    let turn = Joint::new("turn", "m2", "deg", None).expect("a joint");
+    let mut states = JointStates::new(vec![lift, turn], Duration::from_secs(1), Duration::ZERO);
+    for (axis, limits) in [("m1", [1000.0, -1000.0, 1000.0, -1000.0]), ("m2", [0.0; 4])] {
+        for (field, value) in [(Field::RBV, 0.0), (Field::DMOV, 1.0), (Field::VELO, 1.0), (Field::RDBD, 0.001)] {
+            states.update(axis, field, value, Duration::ZERO);
+        }
+        for (field, value) in [Field::HLM, Field::LLM, Field::DHLM, Field::DLLM].into_iter().zip(limits) {
+            states.update(axis, field, value, Duration::ZERO);
+        }
+    }
+    states
+}
+
+/// A trajectory goal made of the bytes: up to three joints named from the two known and one
+/// not, up to 40 points a byte's worth of milliseconds apart (0: due at once), velocities and
+/// path tolerances now and then, a stamp behind or ahead.
+fn fuzz_goal(bytes: &mut Bytes<'_>, now: Duration) -> SendGoalRequest {
+    let names: Vec<String> = (0..1 + bytes.byte() % 3)
+        .map(|_| ["lift", "turn", "wrist"][usize::from(bytes.byte() % 3)].to_string())
+        .collect();
+    let mut at = Duration::ZERO;
+    let points = (0..bytes.byte() % 40)
+        .map(|_| {
+            at += Duration::from_millis(u64::from(bytes.byte()));
+            let positions = names.iter().map(|_| bytes.number()).collect();
+            let velocities =
+                if bytes.byte().is_multiple_of(4) { names.iter().map(|_| bytes.number()).collect() } else { vec![] };
+            let time_from_start =
+                RosDuration { sec: i32::try_from(at.as_secs()).unwrap_or(i32::MAX), nanosec: at.subsec_nanos() };
+            JointTrajectoryPoint { positions, velocities, time_from_start, ..JointTrajectoryPoint::default() }
+        })
+        .collect();
+    let mut path_tolerance = Vec::new();
+    for name in &names {
+        if bytes.byte() % 2 == 1 {
+            continue;
+        }
+        path_tolerance.push(JointTolerance {
+            name: name.clone(),
+            position: bytes.number(),
+            ..JointTolerance::default()
+        });
+    }
+    let mut trajectory = JointTrajectory { joint_names: names, points, ..JointTrajectory::default() };
+    let shift = Duration::from_millis(u64::from(bytes.byte()) * 10);
+    let stamp = match bytes.byte() % 3 {
+        0 => Duration::ZERO,
+        1 => now.saturating_sub(shift),
+        _ => now + shift,
+    };
+    trajectory.header.stamp =
+        Time { sec: i32::try_from(stamp.as_secs()).unwrap_or(i32::MAX), nanosec: stamp.subsec_nanos() };
+    let goal = TrajectoryGoal { trajectory, path_tolerance, ..TrajectoryGoal::default() };
+    SendGoalRequest { goal_id: [bytes.byte(); 16], goal }
+}
+
+/// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel or a result
+/// request (its CDR body the rest of the bytes), or a trajectory goal made of the bytes, which
+/// runs in virtual time with its moves ending as the bytes say (reached, failed) and a cancel
+/// when they say. Whatever comes, every move is to a finite target at a finite speed, the
+/// server never asks to be woken at a time already past, and a goal ends.
+pub fn ros2_requests(data: &[u8]) {
+    let [kind, body @ ..] = data else { return };
+    let payload = [&[0, 1, 0, 0][..], body].concat();
+    let mut states = fuzz_joints();
+    let mut server = FollowJointTrajectory::new();
+    let mut now = Duration::from_secs(1_700_000_000);
+    match kind % 4 {
+        0 => {
+            if let Ok(command) = decode::<JointState>(&payload, "JointState") {
+                for (axis, target) in states.command(&command).unwrap_or_default() {
+                    assert!(target.is_finite(), "{axis}: {target}");
+                }
+            }
+        }
+        1 => {
+            if let Ok(request) = decode::<CancelGoalRequest>(&payload, "CancelGoal") {
+                let (_, commands) = server.cancel(&request);
+                assert!(commands.is_empty(), "nothing to stop");
+            }
+        }
+        2 => {
+            if let Ok(request) = decode::<GetResultRequest>(&payload, "GetResult") {
+                assert!(server.result(&request.goal_id).is_some(), "an unknown goal is answered at once");
+            }
+        }
+        _ => {
+            let mut bytes = Bytes(body);
+            let request = fuzz_goal(&mut bytes, now);
+            if server.send_goal(&request, &states, now).is_err() {
+                return;
+            }
+            let mut moving: Vec<(String, f64)> = Vec::new();
+            for _ in 0..200 {
+                for command in server.poll(&states, now) {
+                    if let JointCommand::Move { axis, target, speed, .. } = command {
+                        assert!(
+                            target.is_finite() && speed.is_none_or(|s| s.is_finite() && s > 0.0),
+                            "{target} {speed:?}"
+                        );
+                        moving.push((axis, target));
+                    }
+                }
+                assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
+                let _ = server.feedback(&states, now);
+                if bytes.byte() % 16 == 15 {
+                    let info = GoalInfo { goal_id: request.goal_id, stamp: Time::default() };
+                    let _ = server.cancel(&CancelGoalRequest { goal_info: info });
+                }
+                for (axis, target) in std::mem::take(&mut moving) {
+                    let end = if bytes.byte() % 8 == 7 { MoveEnd::Failed("fuzzed".into()) } else { MoveEnd::Reached };
+                    states.update(&axis, Field::RBV, target, now);
+                    let _ = server.move_ended(&axis, end);
+                }
+                if !server.executing() {
+                    return;
+                }
+                now = server.poll_timeout().unwrap_or(now + Duration::from_millis(10));
+            }
+            panic!("a goal of at most 40 points, its moves ending at once, did not end in 200 rounds");
+        }
     }
 }
