@@ -5,7 +5,7 @@ control_msgs/action/FollowJointTrajectory action: a three-point trajectory to it
 it must reject, a MoveIt-shaped one of many close waypoints on a line (each joint moved once, not
 stopped at every point: counted on the axes' DMOV keys of zmotor's wire contract, the joints being
 axes m1 and m2 of launch/ros2-joints.toml) and two such lines with a corner (each joint moved
-twice), and a long one cancelled half way. CDR is written and read by
+twice), one replaced by the next, and a long one cancelled half way. CDR is written and read by
 hand.
 
 Usage: python3 ros2_trajectory.py ENDPOINT NAMESPACE
@@ -28,7 +28,7 @@ JAZZY = {
     "Feedback": "control_msgs::action::dds_::FollowJointTrajectory_FeedbackMessage_/RIHS01_80398fcb9674a79081a9906e2ccf0c804dd7cb15e22e362e606ee87186beab71",
     "Status": "action_msgs::msg::dds_::GoalStatusArray_/RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e",
 }
-SUCCEEDED, CANCELED = 4, 5
+SUCCEEDED, CANCELED, ABORTED = 4, 5, 6
 # Within a step and a half of each axis (MRES 0.001 mm and 0.001°), in SI.
 RESOLUTION = {"lift": 1.5e-6, "turn": 2.7e-5}
 
@@ -351,6 +351,19 @@ def main():
     posts = dmov_posts_reaching({"m1": 4, "m2": 4})
     assert posts == {"m1": 4, "m2": 4}, "two moves a joint, one a line: %s" % posts
     ok("a path with a corner ran as two moves a joint, the corner kept")
+
+    # A goal sent while another runs replaces it, as joint_trajectory_controller does: the first
+    # ends ABORTED (INVALID_GOAL), the second runs from where the lift stopped.
+    first, second = os.urandom(16), os.urandom(16)
+    assert client.send_goal(first, ["lift"], [(20.0, [0.050])])
+    time.sleep(1.0)
+    assert client.send_goal(second, ["lift"], [(1.0, [0.020])])
+    status, code, text = client.get_result(first, timeout=30)
+    assert (status, code, text) == (ABORTED, -1, "Current goal preempted by new incoming action."), (status, code, text)
+    status, code, text = client.get_result(second, timeout=30)
+    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
+    settle({"lift": 0.020}, 5)
+    ok("a goal sent while another ran replaced it (ABORTED, INVALID_GOAL) and ran to SUCCEEDED")
 
     # A long goal, cancelled on the way: the joints stop short.
     goal = os.urandom(16)

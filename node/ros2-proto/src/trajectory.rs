@@ -14,8 +14,9 @@
 //! a cancel stops the joints. Time is given (since the Unix epoch: it stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
-//! a time: a goal sent while another executes is rejected), then end SUCCEEDED, ABORTED or,
-//! after CANCELING, CANCELED. Path tolerances bound the merging of points into stretches but
+//! a time: a goal accepted while another executes replaces it, as joint_trajectory_controller
+//! does, once that one's joints have stopped), then end SUCCEEDED, ABORTED or, after
+//! CANCELING, CANCELED. Path tolerances bound the merging of points into stretches but
 //! are not checked while moving, nor is `goal_time_tolerance` (the record's own deadband and
 //! retries decide arrival); goal position tolerances are.
 
@@ -48,6 +49,7 @@ pub mod status {
 /// `FollowJointTrajectory` result codes.
 mod error_code {
     pub(super) const SUCCESSFUL: i32 = 0;
+    pub(super) const INVALID_GOAL: i32 = -1;
     pub(super) const PATH_TOLERANCE_VIOLATED: i32 = -4;
     pub(super) const GOAL_TOLERANCE_VIOLATED: i32 = -5;
 }
@@ -64,9 +66,6 @@ mod cancel_code {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
 pub enum GoalRejection {
-    /// Another goal is executing.
-    #[error("a goal is executing: cancel it first")]
-    Busy,
     /// A joint this node does not have.
     #[error("no joint named '{0}'")]
     UnknownJoint(String),
@@ -328,6 +327,20 @@ struct Goal {
     result: Option<TrajectoryResult>,
 }
 
+/// A goal accepted while another ran: it starts once that one's joints have stopped.
+#[derive(Clone, Debug)]
+struct Waiting {
+    id: GoalId,
+    goal: TrajectoryGoal,
+    accepted: Duration,
+}
+
+/// The end of a goal a new one replaced, as joint_trajectory_controller (Jazzy) ends it.
+fn preempted() -> TrajectoryResult {
+    let error_string = "Current goal preempted by new incoming action.".to_string();
+    TrajectoryResult { error_code: error_code::INVALID_GOAL, error_string }
+}
+
 /// How many ended goals keep their results.
 const KEPT_GOALS: usize = 16;
 
@@ -336,6 +349,7 @@ const KEPT_GOALS: usize = 16;
 pub struct FollowJointTrajectory {
     goals: VecDeque<Goal>,
     plan: Option<Plan>,
+    waiting: Option<Waiting>,
     status_changed: bool,
     /// Speeds ended goals restore, by axis (VELO before them), until the restore's write has
     /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last stretch's.
@@ -362,27 +376,31 @@ impl FollowJointTrajectory {
         Self::default()
     }
 
-    /// A goal sent at `now`: accepted (it executes at once) or rejected, saying why.
+    /// A goal sent at `now`: accepted (it executes at once) or rejected, saying why. As
+    /// joint_trajectory_controller does, a goal accepted while another executes replaces it: that
+    /// one ends ABORTED (its joints stopped: the commands returned), and this one starts from
+    /// where they stopped, its times counted from now.
     pub fn send_goal(
         &mut self,
         request: &SendGoalRequest,
         joints: &JointStates,
         now: Duration,
-    ) -> Result<(), GoalRejection> {
-        if self.plan.is_some() {
-            return Err(GoalRejection::Busy);
-        }
+    ) -> Result<Vec<JointCommand>, GoalRejection> {
         if self.goals.iter().any(|g| g.info.goal_id == request.goal_id) {
             return Err(GoalRejection::KnownId);
         }
-        let mut plan = plan(request.goal_id, &request.goal, joints, now)?;
-        for joint in &mut plan.joints {
-            // A restore not seen yet: what this goal restores is the speed from before the last.
-            if let Some((_, before)) = self.restoring.iter().find(|(axis, _)| *axis == joint.axis) {
-                joint.speed = *before;
+        let plan = plan(request.goal_id, &request.goal, joints, now)?;
+        let mut commands = Vec::new();
+        if let Some(running) = &mut self.plan {
+            commands = running.end_with(status::ABORTED, preempted());
+            if let Some(earlier) = self.waiting.take() {
+                self.finish(earlier.id, status::ABORTED, preempted());
             }
+            // Planned again when it starts, from where the joints stopped.
+            self.waiting = Some(Waiting { id: request.goal_id, goal: request.goal.clone(), accepted: now });
+        } else {
+            self.start(plan);
         }
-        self.plan = Some(plan);
         self.goals.push_back(Goal {
             info: GoalInfo { goal_id: request.goal_id, stamp: stamp(now) },
             status: status::EXECUTING,
@@ -392,7 +410,18 @@ impl FollowJointTrajectory {
             self.goals.pop_front();
         }
         self.status_changed = true;
-        Ok(())
+        Ok(commands)
+    }
+
+    /// Execute `plan`.
+    fn start(&mut self, mut plan: Plan) {
+        for joint in &mut plan.joints {
+            // A restore not seen yet: what this goal restores is the speed from before the last.
+            if let Some((_, before)) = self.restoring.iter().find(|(axis, _)| *axis == joint.axis) {
+                joint.speed = *before;
+            }
+        }
+        self.plan = Some(plan);
     }
 
     /// The write restoring `axis`'s speed has ended (taken or not): from now on its VELO, as
@@ -401,38 +430,47 @@ impl FollowJointTrajectory {
         self.restoring.retain(|(restoring, _)| restoring != axis);
     }
 
-    /// Whether a goal is executing (or stopping).
+    /// Whether a goal is executing (or stopping, or waiting for the one it replaced to stop).
     #[must_use]
     pub fn executing(&self) -> bool {
-        self.plan.is_some()
+        self.plan.is_some() || self.waiting.is_some()
     }
 
     /// What to do at `now`: the moves of the stretch due, or the goal's end.
     #[must_use]
     pub fn poll(&mut self, joints: &JointStates, now: Duration) -> Vec<JointCommand> {
-        let Some(plan) = &mut self.plan else { return Vec::new() };
         let mut commands = Vec::new();
-        // A stretch no joint has a way to go in ends at once: until one moves or none is due.
-        while plan.next_due().is_some_and(|due| now >= due) {
-            commands.extend(plan.start_stretch());
-        }
-        if plan.busy() {
-            return commands;
-        }
-        let end = match plan.ending.take() {
-            Some(end) => Some(end),
-            None if plan.next == plan.stretch_ends.len() => Some(arrival(plan, joints)),
-            None => None,
-        };
-        if let Some((status, result)) = end {
-            for joint in plan.joints.iter().filter(|j| j.speed_changed) {
+        while let Some(running) = &mut self.plan {
+            // A stretch no joint has a way to go in ends at once: until one moves or none is due.
+            while running.next_due().is_some_and(|due| now >= due) {
+                commands.extend(running.start_stretch());
+            }
+            if running.busy() {
+                break;
+            }
+            let end = match running.ending.take() {
+                Some(end) => end,
+                None if running.next == running.stretch_ends.len() => arrival(running, joints),
+                None => break,
+            };
+            for joint in running.joints.iter().filter(|j| j.speed_changed) {
                 commands.push(JointCommand::RestoreSpeed { axis: joint.axis.clone(), speed: joint.speed });
                 self.restoring.retain(|(axis, _)| *axis != joint.axis);
                 self.restoring.push((joint.axis.clone(), joint.speed));
             }
-            let id = plan.id;
+            let id = running.id;
             self.plan = None;
-            self.finish(id, status, result);
+            self.finish(id, end.0, end.1);
+            // The goal that replaced it starts, from where the joints stopped.
+            let Some(next) = self.waiting.take() else { break };
+            match plan(next.id, &next.goal, joints, next.accepted) {
+                Ok(plan) => self.start(plan),
+                Err(why) => {
+                    let result =
+                        TrajectoryResult { error_code: error_code::INVALID_GOAL, error_string: why.to_string() };
+                    self.finish(next.id, status::ABORTED, result);
+                }
+            }
         }
         commands
     }
@@ -480,6 +518,15 @@ impl FollowJointTrajectory {
         };
         let mut canceling = Vec::new();
         let mut commands = Vec::new();
+        let waiting = self.waiting.as_ref().and_then(|w| self.goals.iter().find(|g| g.info.goal_id == w.id));
+        if let Some(goal) = waiting.filter(|goal| matches(goal)) {
+            // Not started: it ends at once.
+            let (info, id) = (goal.info, goal.info.goal_id);
+            canceling.push(info);
+            self.waiting = None;
+            let result = TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
+            self.finish(id, status::CANCELED, result);
+        }
         if let Some(plan) = &mut self.plan {
             let goal = self.goals.iter_mut().find(|g| g.info.goal_id == plan.id).expect("an executing goal is known");
             if matches(goal) && goal.status == status::EXECUTING {
@@ -520,7 +567,8 @@ impl FollowJointTrajectory {
     /// planned), where they are, and the difference, in SI units.
     #[must_use]
     pub fn feedback(&self, joints: &JointStates, now: Duration) -> Option<FeedbackMessage> {
-        let plan = self.plan.as_ref()?;
+        // A goal replaced is stopping: it has no feedback, nor has the new one before it starts.
+        let plan = self.plan.as_ref().filter(|_| self.waiting.is_none())?;
         let names: Vec<String> = plan.joints.iter().map(|j| joints.joints()[j.index].name.clone()).collect();
         let (mut desired, mut actual) = (Vec::new(), Vec::new());
         for (k, joint) in plan.joints.iter().enumerate() {
@@ -929,10 +977,15 @@ mod tests {
         simulated.goal_id = [7; 16];
         simulated.goal.trajectory.header.stamp = Time { sec: 120, nanosec: 0 };
         let mut fresh = FollowJointTrajectory::new();
-        assert_eq!(fresh.send_goal(&simulated, &states, at(5000)), Ok(()));
-        // No soft limits on turn: any angle goes. A second goal while it runs does not.
+        assert_eq!(fresh.send_goal(&simulated, &states, at(5000)), Ok(vec![]));
+        // No soft limits on turn: any angle goes. A goal that cannot run, sent while it runs,
+        // is rejected and the running one goes on.
         server.send_goal(&goal(&["turn"], &[(1000, &[100.0])]), &states, at(0)).unwrap();
-        assert_eq!(reject(&mut server, goal(&["lift"], &[(1000, &[0.001])])), GoalRejection::Busy);
+        let _ = server.poll(&states, at(0));
+        let mut beyond = goal(&["lift"], &[(1000, &[0.060])]);
+        beyond.goal_id = [8; 16];
+        assert!(matches!(reject(&mut server, beyond), GoalRejection::BeyondLimits { .. }));
+        assert!(server.executing() && server.poll_status().unwrap().status_list[0].status == status::EXECUTING);
         // Once a goal ended, another with its id is refused (its result would be the old one's).
         let mut ended = FollowJointTrajectory::new();
         ended.send_goal(&goal(&["turn"], &[(1000, &[0.0])]), &states, at(0)).unwrap();
@@ -1190,5 +1243,66 @@ mod tests {
         }
         assert!(!server.executing());
         assert_eq!(targets, [5.0, 10.0, 12.0]);
+    }
+
+    #[test]
+    fn a_goal_sent_while_another_runs_replaces_it_once_its_joints_have_stopped() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        server.send_goal(&goal(&["lift", "turn"], &[(2000, &[0.010, 1.0])]), &states, at(0)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(0))).len(), 2);
+        // 0.5 s in, a new goal for the lift: the running goal's joints stop (both: it ends).
+        let mut second = goal(&["lift"], &[(1000, &[-0.005])]);
+        second.goal_id = [2; 16];
+        let stops = server.send_goal(&second, &states, at(500)).unwrap();
+        assert_eq!(stops, [JointCommand::Stop { axis: "m1".into() }, JointCommand::Stop { axis: "m2".into() }]);
+        assert!(server.feedback(&states, at(500)).is_none(), "no feedback for a goal replaced");
+        // And another before they stopped: the second never runs.
+        let mut third = goal(&["lift"], &[(1000, &[-0.010])]);
+        third.goal_id = [3; 16];
+        assert_eq!(server.send_goal(&third, &states, at(600)).unwrap(), [], "already stopping");
+        assert_eq!(server.result(&[2; 16]).map(|r| (r.status, r.result.error_code)), Some((status::ABORTED, -1)));
+        assert_eq!(server.poll(&states, at(700)), [], "the first goal's joints are still stopping");
+        assert_eq!(server.result(&[1; 16]), None);
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), []);
+        assert_eq!(server.move_ended("m2", MoveEnd::Failed("stopped".into())), []);
+        // Stopped at 2.5 mm: the first goal ends ABORTED as joint_trajectory_controller ends a
+        // goal replaced, its speeds are restored, and the third starts from where the lift is.
+        states.update("m1", Field::RBV, 2.5, at(800));
+        let commands = server.poll(&states, at(800));
+        let first = server.result(&[1; 16]).expect("ended");
+        assert_eq!((first.status, first.result.error_code), (status::ABORTED, -1));
+        assert_eq!(first.result.error_string, "Current goal preempted by new incoming action.");
+        assert_eq!(
+            commands[..2],
+            [
+                JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 },
+                JointCommand::RestoreSpeed { axis: "m2".into(), speed: 1.0 }
+            ]
+        );
+        assert_eq!(moves(&commands[2..]), [("m1", -10.0, Some(12.5))], "12.5 mm in its 1 s, late");
+        assert!(server.executing());
+        assert!(server.feedback(&states, at(900)).is_some());
+        let _ = server.move_ended("m1", MoveEnd::Reached);
+        states.update("m1", Field::RBV, -10.0, at(1900));
+        let end = server.poll(&states, at(1900));
+        assert_eq!(end, [JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 }], "the speed from before");
+        assert_eq!(server.result(&[3; 16]).unwrap().status, status::SUCCEEDED);
+
+        // A goal waiting for the one it replaced to stop is cancelled at once.
+        let mut fourth = goal(&["lift"], &[(1000, &[0.0])]);
+        fourth.goal_id = [4; 16];
+        server.send_goal(&fourth, &states, at(2000)).unwrap();
+        let _ = server.poll(&states, at(2000));
+        let mut fifth = goal(&["lift"], &[(1000, &[0.005])]);
+        fifth.goal_id = [5; 16];
+        assert_eq!(server.send_goal(&fifth, &states, at(2100)).unwrap(), [JointCommand::Stop { axis: "m1".into() }]);
+        let info = GoalInfo { goal_id: [5; 16], stamp: Time::default() };
+        let (answer, commands) = server.cancel(&CancelGoalRequest { goal_info: info });
+        assert_eq!((answer.goals_canceling.len(), commands), (1, vec![]));
+        assert_eq!(server.result(&[5; 16]).unwrap().status, status::CANCELED);
+        let _ = server.move_ended("m1", MoveEnd::Failed("stopped".into()));
+        let _ = server.poll(&states, at(2200));
+        assert!(!server.executing(), "nothing waits");
     }
 }

@@ -491,7 +491,10 @@ impl Driver {
             Service::SendGoal => {
                 let accepted = match decode::<SendGoalRequest>(&payload, "FollowJointTrajectory goal") {
                     Ok(request) => match self.follow.send_goal(&request, &self.states, now) {
-                        Ok(()) => true,
+                        Ok(commands) => {
+                            self.execute(commands);
+                            true
+                        }
                         Err(why) => {
                             tracing::warn!("follow_joint_trajectory: goal rejected: {why}");
                             false

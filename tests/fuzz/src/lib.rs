@@ -181,8 +181,8 @@ fn fuzz_goal(bytes: &mut Bytes<'_>, now: Duration) -> SendGoalRequest {
 
 /// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel or a result
 /// request (its CDR body the rest of the bytes), or a trajectory goal made of the bytes, which
-/// runs in virtual time with its moves ending as the bytes say (reached, failed) and a cancel
-/// when they say. Whatever comes, every move is to a finite target at a finite speed, the
+/// runs in virtual time with its moves ending as the bytes say (reached, failed), a cancel or
+/// another goal replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
 /// server never asks to be woken at a time already past, and a goal ends.
 pub fn ros2_requests(data: &[u8]) {
     let [kind, body @ ..] = data else { return };
@@ -228,9 +228,17 @@ pub fn ros2_requests(data: &[u8]) {
                 }
                 assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
                 let _ = server.feedback(&states, now);
-                if bytes.byte() % 16 == 15 {
-                    let info = GoalInfo { goal_id: request.goal_id, stamp: Time::default() };
-                    let _ = server.cancel(&CancelGoalRequest { goal_info: info });
+                match bytes.byte() % 16 {
+                    15 => {
+                        let info = GoalInfo { goal_id: request.goal_id, stamp: Time::default() };
+                        let _ = server.cancel(&CancelGoalRequest { goal_info: info });
+                    }
+                    // Another goal, replacing this one (its joints' stops need no answer here:
+                    // every move in flight ends below).
+                    14 => {
+                        let _ = server.send_goal(&fuzz_goal(&mut bytes, now), &states, now);
+                    }
+                    _ => {}
                 }
                 for (axis, target) in std::mem::take(&mut moving) {
                     let end = if bytes.byte() % 8 == 7 { MoveEnd::Failed("fuzzed".into()) } else { MoveEnd::Reached };
