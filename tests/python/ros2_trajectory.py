@@ -355,14 +355,22 @@ def main():
     # A goal sent while another runs replaces it, as joint_trajectory_controller does: the first
     # ends ABORTED (INVALID_GOAL), the second runs from where the lift stopped.
     first, second = os.urandom(16), os.urandom(16)
+    with lock:
+        states.clear()
     assert client.send_goal(first, ["lift"], [(20.0, [0.050])])
     time.sleep(1.0)
+    replaced = time.time()
     assert client.send_goal(second, ["lift"], [(1.0, [0.020])])
     status, code, text = client.get_result(first, timeout=30)
+    # It stopped at once: ended within seconds (left alone it would run on for 19 s).
+    assert time.time() - replaced < 5, time.time() - replaced
     assert (status, code, text) == (ABORTED, -1, "Current goal preempted by new incoming action."), (status, code, text)
     status, code, text = client.get_result(second, timeout=30)
     assert (status, code) == (SUCCEEDED, 0), (status, code, text)
     settle({"lift": 0.020}, 5)
+    with lock:
+        highest = max(s["position"][s["name"].index("lift")] for s in states)
+    assert highest < 0.035, "the first goal was stopped on its way to 50 mm: %s" % highest
     ok("a goal sent while another ran replaced it (ABORTED, INVALID_GOAL) and ran to SUCCEEDED")
 
     # A long goal, cancelled on the way: the joints stop short.

@@ -406,9 +406,13 @@ impl FollowJointTrajectory {
             status: status::EXECUTING,
             result: None,
         });
-        while self.goals.len() > KEPT_GOALS + 1 {
-            self.goals.pop_front();
-        }
+        // Ended goals beyond the newest KEPT_GOALS are forgotten; one running or stopping is not.
+        let mut ended = self.goals.iter().filter(|g| g.result.is_some()).count();
+        self.goals.retain(|g| {
+            let forget = ended > KEPT_GOALS && g.result.is_some();
+            ended -= usize::from(forget);
+            !forget
+        });
         self.status_changed = true;
         Ok(commands)
     }
@@ -518,23 +522,30 @@ impl FollowJointTrajectory {
         };
         let mut canceling = Vec::new();
         let mut commands = Vec::new();
+        let canceled = || TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
         let waiting = self.waiting.as_ref().and_then(|w| self.goals.iter().find(|g| g.info.goal_id == w.id));
+        let mut replacement_canceled = false;
         if let Some(goal) = waiting.filter(|goal| matches(goal)) {
             // Not started: it ends at once.
             let (info, id) = (goal.info, goal.info.goal_id);
             canceling.push(info);
             self.waiting = None;
-            let result = TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
-            self.finish(id, status::CANCELED, result);
+            replacement_canceled = true;
+            self.finish(id, status::CANCELED, canceled());
         }
         if let Some(plan) = &mut self.plan {
-            let goal = self.goals.iter_mut().find(|g| g.info.goal_id == plan.id).expect("an executing goal is known");
+            let Some(goal) = self.goals.iter_mut().find(|g| g.info.goal_id == plan.id) else {
+                return (CancelGoalResponse { return_code: cancel_code::NONE, goals_canceling: canceling }, commands);
+            };
             if matches(goal) && goal.status == status::EXECUTING {
                 goal.status = status::CANCELING;
                 self.status_changed = true;
                 canceling.push(goal.info);
-                let result = TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
-                commands = plan.end_with(status::CANCELED, result);
+                commands = plan.end_with(status::CANCELED, canceled());
+                if replacement_canceled && plan.ending.as_ref().is_some_and(|(_, why)| *why == preempted()) {
+                    // Stopping for a goal no longer coming: it ends as cancelled, not replaced.
+                    plan.ending = Some((status::CANCELED, canceled()));
+                }
             } else if matches(goal) && goal.status == status::CANCELING {
                 canceling.push(goal.info);
             }
@@ -1251,6 +1262,9 @@ mod tests {
         let mut server = FollowJointTrajectory::new();
         server.send_goal(&goal(&["lift", "turn"], &[(2000, &[0.010, 1.0])]), &states, at(0)).unwrap();
         assert_eq!(moves(&server.poll(&states, at(0))).len(), 2);
+        // The first goal's speeds, posted: the goals after it restore those from before it.
+        states.update("m1", Field::VELO, 5.0, at(100));
+        states.update("m2", Field::VELO, 28.6, at(100));
         // 0.5 s in, a new goal for the lift: the running goal's joints stop (both: it ends).
         let mut second = goal(&["lift"], &[(1000, &[-0.005])]);
         second.goal_id = [2; 16];
@@ -1304,5 +1318,34 @@ mod tests {
         let _ = server.move_ended("m1", MoveEnd::Failed("stopped".into()));
         let _ = server.poll(&states, at(2200));
         assert!(!server.executing(), "nothing waits");
+    }
+
+    #[test]
+    fn a_stream_of_goals_while_one_stops_keeps_the_stopping_one_and_a_cancel_of_all_ends_both() {
+        let states = joints();
+        let mut server = FollowJointTrajectory::new();
+        server.send_goal(&goal(&["lift"], &[(2000, &[0.010])]), &states, at(0)).unwrap();
+        let _ = server.poll(&states, at(0));
+        // Twenty goals while its joint stops (more than the ended goals kept): each replaces the
+        // one waiting.
+        for i in 2..=21u8 {
+            let mut next = goal(&["lift"], &[(1000, &[0.001 * f64::from(i)])]);
+            next.goal_id = [i; 16];
+            let stops = server.send_goal(&next, &states, at(500 + u64::from(i))).unwrap();
+            assert_eq!(stops.len(), usize::from(i == 2), "one stop, for the running goal");
+        }
+        assert_eq!(server.result(&[20; 16]).map(|r| r.status), Some(status::ABORTED));
+        assert_eq!(server.result(&[1; 16]), None, "the stopping goal is kept, not forgotten");
+        let (answer, commands) = server.cancel(&CancelGoalRequest::default());
+        let canceling: Vec<u8> = answer.goals_canceling.iter().map(|g| g.goal_id[0]).collect();
+        assert_eq!((canceling, commands), (vec![21, 1], vec![]), "the waiting goal and the stopping one");
+        assert_eq!(server.result(&[21; 16]).unwrap().status, status::CANCELED);
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), []);
+        let _ = server.poll(&states, at(700));
+        let first = server.result(&[1; 16]).expect("ended");
+        assert_eq!(first.status, status::CANCELED, "nothing replaced it: cancelled, not preempted");
+        assert!(!server.executing());
+        // Sixteen ended goals kept at the last acceptance, beside the two still going then.
+        assert_eq!(server.poll_status().unwrap().status_list.len(), KEPT_GOALS + 2);
     }
 }

@@ -181,8 +181,8 @@ fn fuzz_goal(bytes: &mut Bytes<'_>, now: Duration) -> SendGoalRequest {
 
 /// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel or a result
 /// request (its CDR body the rest of the bytes), or a trajectory goal made of the bytes, which
-/// runs in virtual time with its moves ending as the bytes say (reached, failed), a cancel or
-/// another goal replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
+/// runs in virtual time with its moves ending as the bytes say (reached, failed, later), a cancel
+/// (of a goal sent or of all) or another goal replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
 /// server never asks to be woken at a time already past, and a goal ends.
 pub fn ros2_requests(data: &[u8]) {
     let [kind, body @ ..] = data else { return };
@@ -216,7 +216,9 @@ pub fn ros2_requests(data: &[u8]) {
                 return;
             }
             let mut moving: Vec<(String, f64)> = Vec::new();
-            for _ in 0..200 {
+            let mut sent = vec![request.goal_id];
+            // Each round takes a byte at least; once they run out, every goal ends in a round a stretch.
+            for _ in 0..data.len() + 200 {
                 for command in server.poll(&states, now) {
                     if let JointCommand::Move { axis, target, speed, .. } = command {
                         assert!(
@@ -229,28 +231,43 @@ pub fn ros2_requests(data: &[u8]) {
                 assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
                 let _ = server.feedback(&states, now);
                 match bytes.byte() % 16 {
+                    // A cancel of one goal sent, or of every goal.
                     15 => {
-                        let info = GoalInfo { goal_id: request.goal_id, stamp: Time::default() };
+                        let which = usize::from(bytes.byte());
+                        let goal_id = sent.get(which % (sent.len() + 1)).copied().unwrap_or_default();
+                        let info = GoalInfo { goal_id, stamp: Time::default() };
                         let _ = server.cancel(&CancelGoalRequest { goal_info: info });
                     }
                     // Another goal, replacing this one (its joints' stops need no answer here:
-                    // every move in flight ends below).
+                    // every move in flight ends below, sooner or later).
                     14 => {
-                        let _ = server.send_goal(&fuzz_goal(&mut bytes, now), &states, now);
+                        let next = fuzz_goal(&mut bytes, now);
+                        sent.push(next.goal_id);
+                        let _ = server.send_goal(&next, &states, now);
                     }
                     _ => {}
                 }
+                // Each move ends now (reached or failed) or is held for a later round.
+                let mut held = Vec::new();
                 for (axis, target) in std::mem::take(&mut moving) {
-                    let end = if bytes.byte() % 8 == 7 { MoveEnd::Failed("fuzzed".into()) } else { MoveEnd::Reached };
+                    let end = match bytes.byte() % 8 {
+                        7 => MoveEnd::Failed("fuzzed".into()),
+                        6 => {
+                            held.push((axis, target));
+                            continue;
+                        }
+                        _ => MoveEnd::Reached,
+                    };
                     states.update(&axis, Field::RBV, target, now);
                     let _ = server.move_ended(&axis, end);
                 }
+                moving = held;
                 if !server.executing() {
                     return;
                 }
                 now = server.poll_timeout().unwrap_or(now + Duration::from_millis(10));
             }
-            panic!("a goal of at most 40 points, its moves ending at once, did not end in 200 rounds");
+            panic!("goals of at most 40 points did not end in {} rounds", data.len() + 200);
         }
     }
 }
