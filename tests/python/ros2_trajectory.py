@@ -27,6 +27,7 @@ JAZZY = {
     "CancelGoal": "action_msgs::srv::dds_::CancelGoal_/RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a",
     "Feedback": "control_msgs::action::dds_::FollowJointTrajectory_FeedbackMessage_/RIHS01_80398fcb9674a79081a9906e2ccf0c804dd7cb15e22e362e606ee87186beab71",
     "Status": "action_msgs::msg::dds_::GoalStatusArray_/RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e",
+    "JointTrajectory": "trajectory_msgs::msg::dds_::JointTrajectory_/RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e",
 }
 SUCCEEDED, CANCELED, ABORTED = 4, 5, 6
 # Within a step and a half of each axis (MRES 0.001 mm and 0.001°), in SI.
@@ -117,11 +118,9 @@ def goal_statuses(payload):
     return statuses
 
 
-def goal_request(goal_id, names, points):
-    """FollowJointTrajectory_SendGoal request: the goal id, then the Goal, field for field."""
-    w = Writer()
-    w.body += goal_id
-    w.header()                          # trajectory.header
+def write_trajectory(w, names, points):
+    """trajectory_msgs/JointTrajectory, field for field."""
+    w.header()
     w.strings(names)
     w.put("I", len(points))
     for point in points:
@@ -131,6 +130,13 @@ def goal_request(goal_id, names, points):
         w.doubles([])                   # accelerations
         w.doubles([])                   # effort
         w.put("iI", int(seconds), int(round((seconds % 1) * 1e9)))
+
+
+def goal_request(goal_id, names, points):
+    """FollowJointTrajectory_SendGoal request: the goal id, then the Goal, field for field."""
+    w = Writer()
+    w.body += goal_id
+    write_trajectory(w, names, points)
     w.header()                          # multi_dof_trajectory.header
     w.strings([])
     w.put("I", 0)                       # its points
@@ -210,6 +216,7 @@ def main():
         "/MP/%%/%s/zmotor/%s%%follow_joint_trajectory%%_action%%feedback/%s/::,10:,:,:,," % (ns, ns, JAZZY["Feedback"]),
         "/MP/%%/%s/zmotor/%s%%follow_joint_trajectory%%_action%%status/%s/:1:,1:,:,:,," % (ns, ns, JAZZY["Status"]),
         "/MP/%%/%s/zmotor/%s%%joint_states/%s/:1:,1:,:,:,," % (ns, ns, JAZZY["JointState"]),
+        "/MS/%%/%s/zmotor/%s%%joint_trajectory/%s/::,10:,:,:,," % (ns, ns, JAZZY["JointTrajectory"]),
     ]
     deadline, tokens = time.time() + 20, []
     while time.time() < deadline:
@@ -219,7 +226,7 @@ def main():
         time.sleep(0.2)
     missing = [w for w in wanted if not any(t.endswith(w) for t in tokens)]
     assert not missing, (missing, tokens)
-    ok("the graph shows the node, its joint_states (transient local) and the action's services and topics")
+    ok("the graph shows the node, its joint_states (transient local), joint_trajectory and the action's services and topics")
 
     states, feedback, statuses = [], [], []
     lock = threading.Lock()
@@ -311,6 +318,14 @@ def main():
         time.sleep(0.05)
     assert statuses and goal_statuses(statuses[-1]).get(goal) == SUCCEEDED, statuses[-1:]
     ok("a three-point trajectory ran in %.1f s to SUCCEEDED, with feedback and status" % took)
+
+    # A trajectory on the topic, as joint_trajectory_controller takes one: the joints follow it.
+    w = Writer()
+    write_trajectory(w, ["lift", "turn"], [(0.5, [0.007, 0.8]), (1.0, [0.008, 0.7])])
+    attachment = struct.pack("<qq", 1, time.time_ns()) + bytes([16]) + os.urandom(16)
+    session.put(prefix + "/joint_trajectory/" + JAZZY["JointTrajectory"], w.bytes(), attachment=attachment)
+    settle({"lift": 0.008, "turn": 0.7}, 15)
+    ok("a trajectory on joint_trajectory moved both joints")
 
     # As MoveIt plans it: 30 waypoints 0.1 s apart, each joint easing one way (a cosine ramp,
     # velocities given, 0 at both ends). The motor record stops at the end of each move: each

@@ -1,7 +1,8 @@
 //! A ROS 2 implementation no one here wrote meets zmotor's ROS 2 face: hiroz (ZettaScale's native
 //! Rust ROS 2 on Zenoh, rmw_zenoh-compatible) as a ROS node of its own. It finds zmotor's node,
 //! topics and action in the ROS graph, follows joint_states during a move, moves two axes with a
-//! joint command, and calls FollowJointTrajectory to its result and to a cancel. The messages are
+//! joint command and with a trajectory on joint_trajectory, and calls FollowJointTrajectory to
+//! its result and to a cancel. The messages are
 //! declared here from their .msg and .action definitions, and hiroz derives the type hashes of
 //! the `msg` ones itself (REP-2016), so a topic whose hash differed from zmotor's would reach
 //! nothing. The action's hashes (hiroz derives none for `action` types) are written out as
@@ -203,7 +204,7 @@ struct Feedback {
     multi_dof_error: MultiDofPoint,
 }
 
-cdr_by_serde!(JointState Goal TrajectoryResult Feedback);
+cdr_by_serde!(JointState JointTrajectory Goal TrajectoryResult Feedback);
 
 /// `control_msgs/action/FollowJointTrajectory`, its services and topics typed as in Jazzy.
 struct FollowJointTrajectory;
@@ -319,7 +320,7 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
         nodes = node.graph().get_node_names();
         topics = node.graph().get_topic_names_and_types();
         actions = node.graph().get_action_names_and_types();
-        if nodes.iter().any(|(n, _)| n == "zmotor") && topics.len() >= 3 && !actions.is_empty() {
+        if nodes.iter().any(|(n, _)| n == "zmotor") && topics.len() >= 4 && !actions.is_empty() {
             break;
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
@@ -328,6 +329,7 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     for (topic, type_name) in [
         ("/arm/joint_states", "sensor_msgs::msg::dds_::JointState_"),
         ("/arm/joint_commands", "sensor_msgs::msg::dds_::JointState_"),
+        ("/arm/joint_trajectory", "trajectory_msgs::msg::dds_::JointTrajectory_"),
     ] {
         assert!(topics.iter().any(|(t, ty)| t == topic && ty == type_name), "{topic} in {topics:?}");
     }
@@ -358,6 +360,21 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     assert_eq!(last.name, ["lift", "turn"]);
     assert!((last.position[0] - 0.003).abs() < 1.5e-6 && (last.position[1] - 0.2).abs() < 2.7e-5, "{last:?}");
     assert!(moving_seen, "joint_states carried velocities while the joints moved");
+
+    // A trajectory on joint_trajectory, as joint_trajectory_controller takes one.
+    let trajectories = node.create_pub::<JointTrajectory>("/arm/joint_trajectory").build()?;
+    assert!(trajectories.wait_for_subscription(1, Duration::from_secs(10)).await, "zmotor subscribes joint_trajectory");
+    trajectories.async_publish(&trajectory(&["lift", "turn"], &[(0.5, &[0.002, 0.25])]).trajectory).await?;
+    let deadline = Instant::now() + Duration::from_secs(15);
+    while Instant::now() < deadline {
+        let Ok(state) = states.recv_timeout(Duration::from_secs(2)) else { continue };
+        last = state;
+        let at = positions(&last);
+        if (at[0].1 - 0.002).abs() < 1.5e-6 && (at[1].1 - 0.25).abs() < 2.7e-5 {
+            break;
+        }
+    }
+    assert!((last.position[0] - 0.002).abs() < 1.5e-6 && (last.position[1] - 0.25).abs() < 2.7e-5, "{last:?}");
 
     // A three-point trajectory to its result.
     let client = node.create_action_client::<FollowJointTrajectory>("/arm/follow_joint_trajectory").build()?;

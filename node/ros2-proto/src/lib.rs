@@ -38,6 +38,7 @@ pub use joints::{Joint, JointCommandError, JointError, JointReading, JointStates
 pub use lanes::{Answered, LaneEvent, LaneWrite, WriteAnswer, WriteId, WriteLanes};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
 pub use names::{
-    topic_key, Distribution, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
+    topic_key, Distribution, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE,
+    JOINT_TRAJECTORY, SEND_GOAL,
 };
 pub use trajectory::{status, FollowJointTrajectory, GoalRejection, JointCommand, MoveEnd};

@@ -49,6 +49,12 @@ pub const JOINT_STATE: TypeInfo = TypeInfo {
     hash: "RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e",
 };
 
+/// `trajectory_msgs/msg/JointTrajectory` in Jazzy (joint_trajectory_controller's topic).
+pub const JOINT_TRAJECTORY: TypeInfo = TypeInfo {
+    dds_name: "trajectory_msgs::msg::dds_::JointTrajectory_",
+    hash: "RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e",
+};
+
 /// `control_msgs/action/FollowJointTrajectory`'s `send_goal` service.
 pub const SEND_GOAL: TypeInfo = TypeInfo {
     dds_name: "control_msgs::action::dds_::FollowJointTrajectory_SendGoal_",

@@ -10,8 +10,10 @@
 //! time has come and every joint has ended the one before, each joint moving at the speed that
 //! covers it in its time (VELO, restored when the goal ends; a point due at once goes at the
 //! speed from before the goal). A joint with no way to go in a stretch is not sent one. The
-//! result comes when every joint has arrived (the motion's end, as a waiting write reports it);
-//! a cancel stops the joints. Time is given (since the Unix epoch: it stamps goals and feedback).
+//! result comes when every joint has arrived (the motion's end, as a waiting write reports it),
+//! not before the last point's time; a cancel stops the joints. A trajectory from the topic
+//! (`follow_trajectory`) runs as a goal no one follows. Time is given (since the Unix epoch: it
+//! stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
 //! a time: a goal accepted while another executes replaces it, as joint_trajectory_controller
@@ -22,8 +24,8 @@
 
 use crate::follow::{
     CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultResponse, GoalId, GoalInfo, GoalStatusArray,
-    GoalStatusEntry, JointTolerance, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback, TrajectoryGoal,
-    TrajectoryResult,
+    GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback,
+    TrajectoryGoal, TrajectoryResult,
 };
 use crate::joints::JointStates;
 use crate::messages::{Header, Time};
@@ -234,7 +236,8 @@ struct Waypoint {
 /// An executing goal.
 #[derive(Clone, Debug)]
 struct Plan {
-    id: GoalId,
+    /// Its goal's id; none for a trajectory from the topic, which no one follows.
+    id: Option<GoalId>,
     joints: Vec<PlannedJoint>,
     points: Vec<Waypoint>,
     /// The points where the stretches end, in order (the last point last).
@@ -265,6 +268,13 @@ impl Plan {
     fn next_due(&self) -> Option<Duration> {
         let ready = !self.busy() && self.ending.is_none() && self.next < self.stretch_ends.len();
         ready.then(|| self.start + self.time_of(self.stretch_start(self.next)))
+    }
+
+    /// When the goal may end, once its joints have ended every stretch: at its last point's time
+    /// (a goal to where the joints are lasts its time).
+    fn end_due(&self) -> Option<Duration> {
+        let ready = !self.busy() && self.ending.is_none() && self.next == self.stretch_ends.len();
+        ready.then(|| self.start + self.points[self.points.len() - 1].at)
     }
 
     /// Start the next stretch: a move for each joint that has a way to go in it.
@@ -330,7 +340,7 @@ struct Goal {
 /// A goal accepted while another ran: it starts once that one's joints have stopped.
 #[derive(Clone, Debug)]
 struct Waiting {
-    id: GoalId,
+    id: Option<GoalId>,
     goal: TrajectoryGoal,
     accepted: Duration,
 }
@@ -389,18 +399,7 @@ impl FollowJointTrajectory {
         if self.goals.iter().any(|g| g.info.goal_id == request.goal_id) {
             return Err(GoalRejection::KnownId);
         }
-        let plan = plan(request.goal_id, &request.goal, joints, now)?;
-        let mut commands = Vec::new();
-        if let Some(running) = &mut self.plan {
-            commands = running.end_with(status::ABORTED, preempted());
-            if let Some(earlier) = self.waiting.take() {
-                self.finish(earlier.id, status::ABORTED, preempted());
-            }
-            // Planned again when it starts, from where the joints stopped.
-            self.waiting = Some(Waiting { id: request.goal_id, goal: request.goal.clone(), accepted: now });
-        } else {
-            self.start(plan);
-        }
+        let commands = self.accept(Some(request.goal_id), &request.goal, joints, now)?;
         self.goals.push_back(Goal {
             info: GoalInfo { goal_id: request.goal_id, stamp: stamp(now) },
             status: status::EXECUTING,
@@ -414,6 +413,43 @@ impl FollowJointTrajectory {
             !forget
         });
         self.status_changed = true;
+        Ok(commands)
+    }
+
+    /// A trajectory published on `<namespace>/joint_trajectory` at `now` (as on
+    /// joint_trajectory_controller's `~/joint_trajectory`): run as a goal no one follows (no
+    /// status, feedback or result; a cancel does not reach it), replacing the goal running as a
+    /// goal does, and replaced by the next trajectory or goal; or rejected, saying why.
+    pub fn follow_trajectory(
+        &mut self,
+        trajectory: &JointTrajectory,
+        joints: &JointStates,
+        now: Duration,
+    ) -> Result<Vec<JointCommand>, GoalRejection> {
+        let goal = TrajectoryGoal { trajectory: trajectory.clone(), ..TrajectoryGoal::default() };
+        self.accept(None, &goal, joints, now)
+    }
+
+    /// Plan `goal` (the goal `id`, or a trajectory from the topic) and run it, or keep it until
+    /// the one running, which it replaces, has stopped (the commands returned stop it).
+    fn accept(
+        &mut self,
+        id: Option<GoalId>,
+        goal: &TrajectoryGoal,
+        joints: &JointStates,
+        now: Duration,
+    ) -> Result<Vec<JointCommand>, GoalRejection> {
+        let plan = plan(id, goal, joints, now)?;
+        let Some(running) = &mut self.plan else {
+            self.start(plan);
+            return Ok(Vec::new());
+        };
+        let commands = running.end_with(status::ABORTED, preempted());
+        if let Some(earlier) = self.waiting.take() {
+            self.finish(earlier.id, status::ABORTED, preempted());
+        }
+        // Planned again when it starts, from where the joints stopped.
+        self.waiting = Some(Waiting { id, goal: goal.clone(), accepted: now });
         Ok(commands)
     }
 
@@ -454,7 +490,7 @@ impl FollowJointTrajectory {
             }
             let end = match running.ending.take() {
                 Some(end) => end,
-                None if running.next == running.stretch_ends.len() => arrival(running, joints),
+                None if running.end_due().is_some_and(|due| now >= due) => arrival(running, joints),
                 None => break,
             };
             for joint in running.joints.iter().filter(|j| j.speed_changed) {
@@ -483,7 +519,7 @@ impl FollowJointTrajectory {
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Duration> {
         let plan = self.plan.as_ref()?;
-        plan.next_due()
+        plan.next_due().or_else(|| plan.end_due())
     }
 
     /// The end of the move `axis` was sent; a failure aborts the goal, stopping the others.
@@ -523,7 +559,7 @@ impl FollowJointTrajectory {
         let mut canceling = Vec::new();
         let mut commands = Vec::new();
         let canceled = || TrajectoryResult { error_code: error_code::SUCCESSFUL, error_string: "canceled".into() };
-        let waiting = self.waiting.as_ref().and_then(|w| self.goals.iter().find(|g| g.info.goal_id == w.id));
+        let waiting = self.waiting.as_ref().and_then(|w| self.goals.iter().find(|g| Some(g.info.goal_id) == w.id));
         let mut replacement_canceled = false;
         if let Some(goal) = waiting.filter(|goal| matches(goal)) {
             // Not started: it ends at once.
@@ -531,12 +567,14 @@ impl FollowJointTrajectory {
             canceling.push(info);
             self.waiting = None;
             replacement_canceled = true;
-            self.finish(id, status::CANCELED, canceled());
+            self.finish(Some(id), status::CANCELED, canceled());
         }
-        if let Some(plan) = &mut self.plan {
-            let Some(goal) = self.goals.iter_mut().find(|g| g.info.goal_id == plan.id) else {
-                return (CancelGoalResponse { return_code: cancel_code::NONE, goals_canceling: canceling }, commands);
-            };
+        // A trajectory from the topic is no goal: no cancel reaches it.
+        let running = self.plan.as_mut().and_then(|plan| {
+            let goal = self.goals.iter_mut().find(|g| Some(g.info.goal_id) == plan.id)?;
+            Some((plan, goal))
+        });
+        if let Some((plan, goal)) = running {
             if matches(goal) && goal.status == status::EXECUTING {
                 goal.status = status::CANCELING;
                 self.status_changed = true;
@@ -580,6 +618,7 @@ impl FollowJointTrajectory {
     pub fn feedback(&self, joints: &JointStates, now: Duration) -> Option<FeedbackMessage> {
         // A goal replaced is stopping: it has no feedback, nor has the new one before it starts.
         let plan = self.plan.as_ref().filter(|_| self.waiting.is_none())?;
+        let goal_id = plan.id?;
         let names: Vec<String> = plan.joints.iter().map(|j| joints.joints()[j.index].name.clone()).collect();
         let (mut desired, mut actual) = (Vec::new(), Vec::new());
         for (k, joint) in plan.joints.iter().enumerate() {
@@ -592,7 +631,7 @@ impl FollowJointTrajectory {
         let error = desired.iter().zip(&actual).map(|(d, a)| d - a).collect();
         let point = |positions| JointTrajectoryPoint { positions, ..JointTrajectoryPoint::default() };
         Some(FeedbackMessage {
-            goal_id: plan.id,
+            goal_id,
             feedback: TrajectoryFeedback {
                 header: Header { stamp: stamp(now), frame_id: String::new() },
                 joint_names: names,
@@ -604,8 +643,9 @@ impl FollowJointTrajectory {
         })
     }
 
-    fn finish(&mut self, id: GoalId, status: i8, result: TrajectoryResult) {
-        if let Some(goal) = self.goals.iter_mut().find(|g| g.info.goal_id == id) {
+    /// Goal `id` has ended so (nothing for a trajectory from the topic).
+    fn finish(&mut self, id: Option<GoalId>, status: i8, result: TrajectoryResult) {
+        if let Some(goal) = self.goals.iter_mut().find(|g| Some(g.info.goal_id) == id) {
             goal.status = status;
             goal.result = Some(result);
             self.status_changed = true;
@@ -637,7 +677,7 @@ fn arrival(plan: &Plan, joints: &JointStates) -> (i8, TrajectoryResult) {
 }
 
 /// The goal checked and planned, or why not.
-fn plan(id: GoalId, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) -> Result<Plan, GoalRejection> {
+fn plan(id: Option<GoalId>, goal: &TrajectoryGoal, joints: &JointStates, now: Duration) -> Result<Plan, GoalRejection> {
     if !goal.multi_dof_trajectory.joint_names.is_empty() || !goal.multi_dof_trajectory.points.is_empty() {
         return Err(GoalRejection::MultiDof);
     }
@@ -784,7 +824,7 @@ fn stretch_ends(joints: &[PlannedJoint], points: &[Waypoint]) -> Vec<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::follow::{JointTrajectory, RosDuration};
+    use crate::follow::RosDuration;
     use crate::joints::Joint;
     use zmotor_msgs::Field;
 
@@ -1347,5 +1387,43 @@ mod tests {
         assert!(!server.executing());
         // Sixteen ended goals kept at the last acceptance, beside the two still going then.
         assert_eq!(server.poll_status().unwrap().status_list.len(), KEPT_GOALS + 2);
+    }
+
+    #[test]
+    fn a_trajectory_from_the_topic_runs_as_a_goal_no_one_follows_replacing_and_replaced() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        let topic = |ms: u64, lift: f64| goal(&["lift"], &[(ms, &[lift])]).goal.trajectory;
+        assert_eq!(server.follow_trajectory(&topic(1000, 0.010), &states, at(0)).unwrap(), []);
+        assert_eq!(moves(&server.poll(&states, at(0))), [("m1", 10.0, Some(10.0))]);
+        assert!(server.executing());
+        assert_eq!(server.poll_status(), None, "no goal: no status");
+        assert_eq!(server.feedback(&states, at(500)), None, "nor feedback");
+        let (answer, commands) = server.cancel(&CancelGoalRequest::default());
+        assert!(answer.goals_canceling.is_empty() && commands.is_empty(), "no cancel reaches it");
+        // A goal replaces it once its joint has stopped.
+        let stops = server.send_goal(&goal(&["lift"], &[(1000, &[0.0])]), &states, at(600)).unwrap();
+        assert_eq!(stops, [JointCommand::Stop { axis: "m1".into() }]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), []);
+        states.update("m1", Field::RBV, 6.0, at(650));
+        let commands = server.poll(&states, at(700));
+        assert_eq!(commands[0], JointCommand::RestoreSpeed { axis: "m1".into(), speed: 1.0 });
+        assert_eq!(moves(&commands[1..]), [("m1", 0.0, Some(6.0))]);
+        // One that cannot run is rejected, and the goal goes on; one that can replaces it.
+        assert!(matches!(
+            server.follow_trajectory(&topic(1000, 0.5), &states, at(800)),
+            Err(GoalRejection::BeyondLimits { .. })
+        ));
+        assert!(server.feedback(&states, at(800)).is_some(), "the goal runs on");
+        let stops = server.follow_trajectory(&topic(1000, 0.005), &states, at(900)).unwrap();
+        assert_eq!(stops, [JointCommand::Stop { axis: "m1".into() }]);
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), []);
+        states.update("m1", Field::RBV, 5.0, at(950));
+        let _ = server.poll(&states, at(1000));
+        let replaced = server.result(&[1; 16]).expect("ended");
+        assert_eq!((replaced.status, replaced.result.error_code), (status::ABORTED, -1));
+        assert!(server.executing(), "the topic's trajectory runs (its joint already there: it ends at its time)");
+        let _ = server.poll(&states, at(2000));
+        assert!(!server.executing());
     }
 }

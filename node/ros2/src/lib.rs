@@ -2,8 +2,8 @@
 //! one ROS 2 node on the same Zenoh network, following rmw_zenoh's conventions
 //! (zmotor-ros2-proto), as a client of that network (zmotor-client). It declares the node's
 //! liveliness tokens and those of its endpoints: the `joint_states` publisher (transient local:
-//! a late subscriber gets the last state), the `joint_commands` subscription, and the
-//! `follow_joint_trajectory` action (three services, two topics). Joint commands and
+//! a late subscriber gets the last state), the `joint_commands` and `joint_trajectory`
+//! subscriptions, and the `follow_joint_trajectory` action (three services, two topics). Joint commands and
 //! trajectory moves are confirmed writes, so refusals and access rules are the node's (which
 //! posts a refusal on the axis's ERR). One task drives the sans-IO state; the rest only moves
 //! bytes. The joints' values come from monitors over the network (`start`), or, in the process
@@ -23,8 +23,9 @@ use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
     decode, encode, topic_key, Answered, Attachment, CancelGoalRequest, CancelGoalResponse, Durability, EntityKind,
     FollowJointTrajectory, GetResultRequest, GetResultResponse, GoalId, GraphEntity, Joint, JointCommand, JointState,
-    JointStates, LaneEvent, LaneWrite, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time, TypeInfo,
-    WriteAnswer, WriteId, WriteLanes, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, SEND_GOAL,
+    JointStates, JointTrajectory, LaneEvent, LaneWrite, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time,
+    TypeInfo, WriteAnswer, WriteId, WriteLanes, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE,
+    JOINT_TRAJECTORY, SEND_GOAL,
 };
 
 /// The gateway could not start.
@@ -55,6 +56,7 @@ pub struct Ros2Node {
     tasks: Vec<tokio::task::JoinHandle<()>>,
     _tokens: Vec<LivelinessToken>,
     _commands: zenoh::pubsub::Subscriber<()>,
+    _trajectories: zenoh::pubsub::Subscriber<()>,
     _services: Vec<Queryable<()>>,
 }
 
@@ -94,6 +96,8 @@ enum Event {
     Read { axis: String, field: Field, value: f64, at: Duration },
     /// A joint_commands sample.
     JointCommand(Vec<u8>),
+    /// A joint_trajectory sample.
+    Trajectory(Vec<u8>),
     /// A request to one of the action's services.
     Request(Service, Query),
     /// A lane's write has left.
@@ -299,6 +303,7 @@ impl Ros2Node {
             entity(EntityKind::ServiceServer, Some((&get_result, GET_RESULT, DEFAULT_QOS))),
             entity(EntityKind::Publisher, Some((&feedback_topic, FEEDBACK, DEFAULT_QOS))),
             entity(EntityKind::Publisher, Some((&status_topic, GOAL_STATUS_ARRAY, STATUS_QOS))),
+            entity(EntityKind::Subscription, Some(("joint_trajectory", JOINT_TRAJECTORY, DEFAULT_QOS))),
         ];
         let key = |entity: &GraphEntity| {
             let (name, type_info, _) = entity.endpoint.as_ref().expect("an endpoint");
@@ -326,6 +331,13 @@ impl Ros2Node {
             .declare_subscriber(key(&graph[2]))
             .callback(move |sample| {
                 let _ = commanding.send(Event::JointCommand(sample.payload().to_bytes().into_owned()));
+            })
+            .await?;
+        let following = events.clone();
+        let trajectories = session
+            .declare_subscriber(key(&graph[8]))
+            .callback(move |sample| {
+                let _ = following.send(Event::Trajectory(sample.payload().to_bytes().into_owned()));
             })
             .await?;
         let mut services = Vec::new();
@@ -364,7 +376,10 @@ impl Ros2Node {
             domain = config.domain_id,
             "ROS 2 node serving its joints"
         );
-        Ok((Self { tasks, _tokens: tokens, _commands: commands, _services: services }, feed))
+        Ok((
+            Self { tasks, _tokens: tokens, _commands: commands, _trajectories: trajectories, _services: services },
+            feed,
+        ))
     }
 }
 
@@ -458,6 +473,7 @@ impl Driver {
                 }
             }
             Event::JointCommand(payload) => self.joint_command(&payload),
+            Event::Trajectory(payload) => self.trajectory(&payload),
             Event::Request(service, query) => self.request(service, query).await,
         }
     }
@@ -470,7 +486,7 @@ impl Driver {
             Err(e) => return tracing::warn!("joint_commands: {e}"),
         };
         if self.follow.executing() {
-            return tracing::warn!("joint_commands: ignored while a FollowJointTrajectory goal executes");
+            return tracing::warn!("joint_commands: ignored while a trajectory executes");
         }
         match self.states.command(&command) {
             Ok(targets) => {
@@ -480,6 +496,18 @@ impl Driver {
                 self.flush();
             }
             Err(e) => tracing::warn!("joint_commands: {e}; nothing moved"),
+        }
+    }
+
+    /// A trajectory on the topic: run as a goal no one follows, replacing the one running.
+    fn trajectory(&mut self, payload: &[u8]) {
+        let trajectory = match decode::<JointTrajectory>(payload, "JointTrajectory") {
+            Ok(trajectory) => trajectory,
+            Err(e) => return tracing::warn!("joint_trajectory: {e}"),
+        };
+        match self.follow.follow_trajectory(&trajectory, &self.states, wall()) {
+            Ok(commands) => self.execute(commands),
+            Err(why) => tracing::warn!("joint_trajectory: rejected: {why}; nothing moved"),
         }
     }
 

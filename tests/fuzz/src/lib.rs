@@ -179,10 +179,11 @@ fn fuzz_goal(bytes: &mut Bytes<'_>, now: Duration) -> SendGoalRequest {
     SendGoalRequest { goal_id: [bytes.byte(); 16], goal }
 }
 
-/// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel or a result
-/// request (its CDR body the rest of the bytes), or a trajectory goal made of the bytes, which
-/// runs in virtual time with its moves ending as the bytes say (reached, failed, later), a cancel
-/// (of a goal sent or of all) or another goal replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
+/// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel, a result
+/// request or a trajectory on the topic (its CDR body the rest of the bytes), or a trajectory
+/// goal made of the bytes, which runs in virtual time with its moves ending as the bytes say
+/// (reached, failed, later), a cancel (of a goal sent or of all) or another goal or topic
+/// trajectory replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
 /// server never asks to be woken at a time already past, and a goal ends.
 pub fn ros2_requests(data: &[u8]) {
     let [kind, body @ ..] = data else { return };
@@ -190,7 +191,7 @@ pub fn ros2_requests(data: &[u8]) {
     let mut states = fuzz_joints();
     let mut server = FollowJointTrajectory::new();
     let mut now = Duration::from_secs(1_700_000_000);
-    match kind % 4 {
+    match kind % 5 {
         0 => {
             if let Ok(command) = decode::<JointState>(&payload, "JointState") {
                 for (axis, target) in states.command(&command).unwrap_or_default() {
@@ -207,6 +208,14 @@ pub fn ros2_requests(data: &[u8]) {
         2 => {
             if let Ok(request) = decode::<GetResultRequest>(&payload, "GetResult") {
                 assert!(server.result(&request.goal_id).is_some(), "an unknown goal is answered at once");
+            }
+        }
+        4 => {
+            if let Ok(trajectory) = decode::<JointTrajectory>(&payload, "JointTrajectory") {
+                if let Ok(commands) = server.follow_trajectory(&trajectory, &states, now) {
+                    assert!(commands.is_empty(), "nothing ran before it");
+                    assert!(server.poll_status().is_none(), "a trajectory from the topic is no goal");
+                }
             }
         }
         _ => {
@@ -244,6 +253,11 @@ pub fn ros2_requests(data: &[u8]) {
                         let next = fuzz_goal(&mut bytes, now);
                         sent.push(next.goal_id);
                         let _ = server.send_goal(&next, &states, now);
+                    }
+                    // A trajectory on the topic, replacing it too.
+                    13 => {
+                        let next = fuzz_goal(&mut bytes, now);
+                        let _ = server.follow_trajectory(&next.goal.trajectory, &states, now);
                     }
                     _ => {}
                 }
