@@ -8,6 +8,7 @@
 
 use crate::messages::{Header, JointState, Time};
 use std::time::Duration;
+use zmotor_msgs::menus::choice::ACCU_USE_ACCS;
 use zmotor_msgs::{Field, Unit};
 
 /// One axis seen as a joint.
@@ -96,6 +97,8 @@ struct Seen {
     speed: Option<f64>,
     /// RDBD, EGU.
     deadband: Option<f64>,
+    /// ACCL, VBAS, ACCU and ACCS.
+    ramp: [Option<f64>; 4],
 }
 
 /// What a trajectory needs of a joint's axis (`JointStates::joint_state`), in its EGU.
@@ -111,6 +114,53 @@ pub struct JointReading {
     pub speed: f64,
     /// RDBD: positions closer than this are one to the record (0 until it is posted).
     pub deadband: f64,
+    /// How its moves speed up and slow down (none until posted).
+    pub ramp: Option<Ramp>,
+}
+
+/// How a joint's axis speeds up and slows down, as its record drives it (behaviour spec §4): from
+/// VBAS to VELO in ACCL seconds, or at ACCS when ACCU says so.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ramp {
+    /// ACCL, seconds.
+    pub seconds: f64,
+    /// VBAS, EGU/s.
+    pub base_speed: f64,
+    /// ACCS, EGU/s², when ACCU is "Use ACCS".
+    pub acceleration: Option<f64>,
+}
+
+impl Ramp {
+    /// The VELO that makes a move of `way` (EGU) last `time` (s), its ramps included: a move
+    /// at the plain quotient way / time arrives late by its ramps. The quotient where no speed
+    /// meets the time (the way too short for the base speed's ramps, or too long for ACCS).
+    #[must_use]
+    pub fn speed_for(&self, way: f64, time: f64) -> f64 {
+        let (d, t, b) = (way.abs(), time, self.base_speed.max(0.0));
+        let plain = d / t;
+        let speed = match self.acceleration {
+            // Trapezoid at acceleration A: (V − b)² − A·t·V + A·d = 0, the slower root.
+            Some(a) if a > 0.0 => {
+                let (sum, product) = (2.0 * b + a * t, b * b + a * d);
+                let discriminant = sum * sum - 4.0 * product;
+                (discriminant >= 0.0).then(|| (sum - discriminant.sqrt()) / 2.0)
+            }
+            Some(_) => None,
+            // ACCL seconds from b to V: t = ACCL + (d − b·ACCL) / V on a trapezoid (t ≥ 2 ACCL),
+            // else a triangle whose acceleration (V − b) / ACCL peaks at its middle.
+            None => {
+                let r = self.seconds;
+                if r <= 0.0 {
+                    None
+                } else if t >= 2.0 * r {
+                    (d > b * r).then(|| (d - b * r) / (t - r))
+                } else {
+                    (d > b * t).then(|| b + 4.0 * r * (d - b * t) / (t * t))
+                }
+            }
+        };
+        speed.filter(|v| v.is_finite() && *v >= plain).unwrap_or(plain)
+    }
 }
 
 /// The positions a joint's axis may be sent to, in its EGU.
@@ -169,7 +219,8 @@ impl JointStates {
     }
 
     /// A posted value of `axis`'s `field` at `at`: RBV and DMOV make the state; HLM, LLM,
-    /// DHLM, DLLM, VELO and RDBD are kept for trajectories. Other fields are ignored.
+    /// DHLM, DLLM, VELO, RDBD and the ramps' ACCL, VBAS, ACCU, ACCS are kept for trajectories.
+    /// Other fields are ignored.
     pub fn update(&mut self, axis: &str, field: Field, value: f64, at: Duration) {
         let Some(i) = self.index(axis).filter(|_| value.is_finite()) else { return };
         let seen = &mut self.seen[i];
@@ -182,6 +233,10 @@ impl JointStates {
             Field::DLLM => seen.limits[3] = Some(value),
             Field::VELO => seen.speed = Some(value),
             Field::RDBD => seen.deadband = Some(value.abs()),
+            Field::ACCL => seen.ramp[0] = Some(value),
+            Field::VBAS => seen.ramp[1] = Some(value),
+            Field::ACCU => seen.ramp[2] = Some(value),
+            Field::ACCS => seen.ramp[3] = Some(value),
             _ => {}
         }
     }
@@ -202,6 +257,14 @@ impl JointStates {
             travel,
             speed: seen.speed?,
             deadband: seen.deadband.unwrap_or(0.0),
+            ramp: match seen.ramp {
+                [Some(seconds), Some(base_speed), Some(accu), accs] => Some(Ramp {
+                    seconds,
+                    base_speed,
+                    acceleration: (accu == f64::from(ACCU_USE_ACCS)).then(|| accs.unwrap_or(0.0)),
+                }),
+                _ => None,
+            },
         })
     }
 
@@ -376,5 +439,53 @@ mod tests {
             Err(JointCommandError::Positions { names: 2, positions: 1 })
         );
         assert_eq!(states.command(&command(&["lift"], &[f64::NAN])), Err(JointCommandError::NotFinite("lift".into())));
+    }
+
+    /// How long the record's move of `way` at VELO `speed` lasts with `ramp` (its acceleration
+    /// from VBAS to VELO and back, behaviour spec §4), worked out as the motion goes.
+    fn move_time(ramp: &Ramp, way: f64, speed: f64) -> f64 {
+        let base = ramp.base_speed;
+        let acceleration = ramp.acceleration.unwrap_or((speed - base) / ramp.seconds);
+        let ramp_time = (speed - base) / acceleration;
+        let ramp_way = (speed + base) / 2.0 * ramp_time;
+        if 2.0 * ramp_way <= way {
+            2.0 * ramp_time + (way - 2.0 * ramp_way) / speed
+        } else {
+            let peak = (base * base + acceleration * way).sqrt();
+            2.0 * (peak - base) / acceleration
+        }
+    }
+
+    #[test]
+    fn a_ramps_speed_makes_the_move_last_the_time_asked_ramps_included() {
+        let ramps = [
+            Ramp { seconds: 0.5, base_speed: 0.0, acceleration: None },
+            Ramp { seconds: 0.2, base_speed: 1.0, acceleration: None },
+            Ramp { seconds: 0.2, base_speed: 0.0, acceleration: Some(10.0) },
+            Ramp { seconds: 0.2, base_speed: 0.5, acceleration: Some(40.0) },
+        ];
+        for ramp in &ramps {
+            for (way, time) in [(10.0, 2.0), (10.0, 3.0), (1.0, 0.8), (0.3, 0.25), (-4.0, 1.5)] {
+                let speed = ramp.speed_for(way, time);
+                let (plain, base) = (f64::abs(way) / time, ramp.base_speed);
+                // At ACCS, a move can only go so far in the time: a triangle at that acceleration.
+                let reachable = ramp.acceleration.is_none_or(|a| f64::abs(way) <= base * time + a * time * time / 4.0);
+                if reachable {
+                    let lasts = move_time(ramp, f64::abs(way), speed);
+                    assert!((lasts - time).abs() < 1e-9, "{ramp:?}: {way} in {time} s at {speed}: lasts {lasts} s");
+                } else {
+                    assert_eq!(speed, plain, "{ramp:?}: {way} in {time} s cannot be met");
+                }
+                assert!(speed >= plain, "never slower than the plain quotient");
+            }
+        }
+        // Where no speed meets the time, the plain quotient: ACCS too low for 10 in 2 s, and a
+        // way shorter than the base speed's ramps.
+        let slow = Ramp { seconds: 0.2, base_speed: 0.0, acceleration: Some(1.0) };
+        assert_eq!(slow.speed_for(10.0, 2.0), 5.0);
+        let based = Ramp { seconds: 1.0, base_speed: 5.0, acceleration: None };
+        assert_eq!(based.speed_for(1.0, 4.0), 0.25);
+        // Known values: 10 mm in 2 s with 0.5 s ramps is VELO 10 / 1.5.
+        assert!((ramps[0].speed_for(10.0, 2.0) - 10.0 / 1.5).abs() < 1e-12);
     }
 }

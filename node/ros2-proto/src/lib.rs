@@ -34,7 +34,7 @@ pub use follow::{
     TrajectoryFeedback, TrajectoryGoal, TrajectoryResult, Transform, Twist, Vector3,
 };
 pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
-pub use joints::{Joint, JointCommandError, JointError, JointReading, JointStates, Travel};
+pub use joints::{Joint, JointCommandError, JointError, JointReading, JointStates, Ramp, Travel};
 pub use lanes::{Answered, LaneEvent, LaneWrite, WriteAnswer, WriteId, WriteLanes};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
 pub use names::{

@@ -8,8 +8,8 @@
 //! planner's many close waypoints (MoveIt's, on lines between its via-states) must not each
 //! become a stop, nor may a merge cut the corners the planner checked. A stretch starts when its
 //! time has come and every joint has ended the one before, each joint moving at the speed that
-//! covers it in its time (VELO, restored when the goal ends; a point due at once goes at the
-//! speed from before the goal). A joint with no way to go in a stretch is not sent one. The
+//! ends it in its time, its record's ramps included (`Ramp`; VELO, restored when the goal ends;
+//! a point due at once goes at the speed from before the goal). A joint with no way to go in a stretch is not sent one. The
 //! result comes when every joint has arrived (the motion's end, as a waiting write reports it),
 //! not before the last point's time; a cancel stops the joints. A trajectory from the topic
 //! (`follow_trajectory`) runs as a goal no one follows. Time is given (since the Unix epoch: it
@@ -27,7 +27,7 @@ use crate::follow::{
     GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback,
     TrajectoryGoal, TrajectoryResult,
 };
-use crate::joints::JointStates;
+use crate::joints::{JointStates, Ramp};
 use crate::messages::{Header, Time};
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -218,6 +218,8 @@ struct PlannedJoint {
     off_path: f64,
     /// Where it was last sent (or stood), EGU.
     sent_to: f64,
+    /// How its axis speeds up and slows down, when known.
+    ramp: Option<Ramp>,
     /// A move commanded whose end has not come.
     in_flight: bool,
 }
@@ -293,7 +295,8 @@ impl Plan {
             let speed = if time.is_zero() {
                 joint.speed_changed.then_some(joint.speed)
             } else {
-                Some((target - from).abs() / time.as_secs_f64())
+                let way = target - from;
+                Some(joint.ramp.map_or(way.abs() / time.as_secs_f64(), |ramp| ramp.speed_for(way, time.as_secs_f64())))
             };
             joint.speed_changed |= speed.is_some();
             joint.in_flight = true;
@@ -711,6 +714,7 @@ fn plan(id: Option<GoalId>, goal: &TrajectoryGoal, joints: &JointStates, now: Du
             tolerance: tolerance(&goal.goal_tolerance),
             off_path: tolerance(&goal.path_tolerance).unwrap_or(reading.deadband),
             sent_to: reading.position,
+            ramp: reading.ramp,
             in_flight: false,
         });
     }
@@ -1425,5 +1429,21 @@ mod tests {
         assert!(server.executing(), "the topic's trajectory runs (its joint already there: it ends at its time)");
         let _ = server.poll(&states, at(2000));
         assert!(!server.executing());
+    }
+
+    #[test]
+    fn a_stretch_is_sent_at_the_speed_that_ends_it_on_time_ramps_included() {
+        let mut states = joints();
+        // The lift's record takes 0.5 s from VBAS 0 to VELO; the turn's ramps are not known.
+        for (field, value) in [(Field::ACCL, 0.5), (Field::VBAS, 0.0), (Field::ACCU, 0.0)] {
+            states.update("m1", field, value, T0);
+        }
+        let mut server = FollowJointTrajectory::new();
+        server.send_goal(&goal(&["lift", "turn"], &[(2000, &[0.010, 0.1])]), &states, at(0)).unwrap();
+        let commands = server.poll(&states, at(0));
+        let sent = moves(&commands);
+        // 10 mm in 2 s lasting 10 / VELO + 0.5 s: VELO 10 / 1.5, not 5.
+        assert_eq!((sent[0].0, sent[0].2), ("m1", Some((10.0_f64 / 1.5 * 1e9).round() / 1e9)));
+        assert!((sent[1].2.unwrap() - 0.1_f64.to_degrees() / 2.0).abs() < 1e-6, "the plain quotient: {sent:?}");
     }
 }

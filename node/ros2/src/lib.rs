@@ -48,8 +48,20 @@ const STATE_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Dur
 const STATUS_QOS: Qos = STATE_QOS;
 
 /// The fields each joint's axis is followed by.
-const FOLLOWED: [Field; 8] =
-    [Field::RBV, Field::DMOV, Field::HLM, Field::LLM, Field::DHLM, Field::DLLM, Field::VELO, Field::RDBD];
+const FOLLOWED: [Field; 12] = [
+    Field::RBV,
+    Field::DMOV,
+    Field::HLM,
+    Field::LLM,
+    Field::DHLM,
+    Field::DLLM,
+    Field::VELO,
+    Field::RDBD,
+    Field::ACCL,
+    Field::VBAS,
+    Field::ACCU,
+    Field::ACCS,
+];
 
 /// A running ROS 2 face; dropping it takes the node out of the ROS graph.
 pub struct Ros2Node {
