@@ -251,6 +251,18 @@ def main():
                                    lambda s: statuses.append(bytes(s.payload.to_bytes()))),
     ]
 
+    def dmov_settled():
+        """Once every DMOV 0 counted has had its DMOV 1 (the last may come after the readbacks
+        settle), the counts start again."""
+        deadline = time.time() + 5
+        while time.time() < deadline:
+            with lock:
+                if all(n % 2 == 0 for n in dmov_posts.values()):
+                    dmov_posts.update({"m1": 0, "m2": 0})
+                    return
+            time.sleep(0.05)
+        raise AssertionError("a move without its end: %s" % dmov_posts)
+
     def dmov_posts_reaching(expected):
         """The DMOV posts counted, once they are `expected` (the last DMOV 1 may come after the
         result) or 2 s have passed."""
@@ -333,7 +345,7 @@ def main():
     # (The DMOV subscribers, declared at the start, have heard the moves before: they reach the node.)
     with lock:
         assert dmov_posts["m1"] > 0 and dmov_posts["m2"] > 0, dmov_posts
-        dmov_posts.update({"m1": 0, "m2": 0})
+    dmov_settled()
     ease = [(1 - math.cos(math.pi * i / 30)) / 2 for i in range(31)]
     slope = [math.pi / 2 * math.sin(math.pi * i / 30) / 3.0 for i in range(31)]
     # The first point is where the joints are, as MoveIt starts its plans from the joint states.
@@ -354,8 +366,7 @@ def main():
 
     # Two lines of ten waypoints with a corner between them where neither joint turns back: the
     # corner is kept (a joint moves twice), not cut by one move a joint.
-    with lock:
-        dmov_posts.update({"m1": 0, "m2": 0})
+    dmov_settled()
     corner = [(0.1 * i, [0.015 + 0.001 * i, 0.3 + 0.005 * i]) for i in range(1, 11)]
     corner += [(1.0 + 0.1 * i, [0.025 + 0.0005 * i, 0.35 + 0.025 * i]) for i in range(1, 11)]
     goal = os.urandom(16)

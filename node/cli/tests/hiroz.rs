@@ -315,23 +315,28 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
 
     // The graph: the node, its topics with their types, its action.
     let deadline = Instant::now() + Duration::from_secs(20);
+    let wanted_topics = [
+        ("/arm/joint_states", "sensor_msgs::msg::dds_::JointState_"),
+        ("/arm/joint_commands", "sensor_msgs::msg::dds_::JointState_"),
+        ("/arm/joint_trajectory", "trajectory_msgs::msg::dds_::JointTrajectory_"),
+    ];
     let (mut nodes, mut topics, mut actions) = (Vec::new(), Vec::new(), Vec::new());
+    let listed = |topics: &[(String, String)], (topic, type_name): (&str, &str)| {
+        topics.iter().any(|(t, ty)| t == topic && ty == type_name)
+    };
     while Instant::now() < deadline {
         nodes = node.graph().get_node_names();
         topics = node.graph().get_topic_names_and_types();
         actions = node.graph().get_action_names_and_types();
-        if nodes.iter().any(|(n, _)| n == "zmotor") && topics.len() >= 4 && !actions.is_empty() {
+        let all_topics = wanted_topics.iter().all(|wanted| listed(&topics, *wanted));
+        if nodes.iter().any(|(n, _)| n == "zmotor") && all_topics && !actions.is_empty() {
             break;
         }
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
     assert!(nodes.contains(&("zmotor".to_string(), "/arm".to_string())), "{nodes:?}");
-    for (topic, type_name) in [
-        ("/arm/joint_states", "sensor_msgs::msg::dds_::JointState_"),
-        ("/arm/joint_commands", "sensor_msgs::msg::dds_::JointState_"),
-        ("/arm/joint_trajectory", "trajectory_msgs::msg::dds_::JointTrajectory_"),
-    ] {
-        assert!(topics.iter().any(|(t, ty)| t == topic && ty == type_name), "{topic} in {topics:?}");
+    for wanted in wanted_topics {
+        assert!(listed(&topics, wanted), "{wanted:?} in {topics:?}");
     }
     // hiroz names an action's type by its feedback message's.
     let action =

@@ -348,10 +348,16 @@ struct Waiting {
     accepted: Duration,
 }
 
-/// The end of a goal a new one replaced, as joint_trajectory_controller (Jazzy) ends it.
-fn preempted() -> TrajectoryResult {
-    let error_string = "Current goal preempted by new incoming action.".to_string();
-    TrajectoryResult { error_code: error_code::INVALID_GOAL, error_string }
+/// The end of a goal a new goal replaced, as joint_trajectory_controller (Jazzy) ends it, or a
+/// trajectory from the topic (which that controller follows beside the goal, no longer
+/// judging it by its own points).
+fn preempted(by_topic: bool) -> TrajectoryResult {
+    let error_string = if by_topic {
+        "Current goal preempted by a trajectory on joint_trajectory."
+    } else {
+        "Current goal preempted by new incoming action."
+    };
+    TrajectoryResult { error_code: error_code::INVALID_GOAL, error_string: error_string.to_string() }
 }
 
 /// How many ended goals keep their results.
@@ -363,6 +369,9 @@ pub struct FollowJointTrajectory {
     goals: VecDeque<Goal>,
     plan: Option<Plan>,
     waiting: Option<Waiting>,
+    /// Trajectories from the topic that could not start once the one they replaced had
+    /// stopped (a goal says so in its result), for the gateway to log.
+    refusals: Vec<GoalRejection>,
     status_changed: bool,
     /// Speeds ended goals restore, by axis (VELO before them), until the restore's write has
     /// ended (`restored`): a goal accepted meanwhile restores that speed, not the last stretch's.
@@ -447,9 +456,9 @@ impl FollowJointTrajectory {
             self.start(plan);
             return Ok(Vec::new());
         };
-        let commands = running.end_with(status::ABORTED, preempted());
+        let commands = running.end_with(status::ABORTED, preempted(id.is_none()));
         if let Some(earlier) = self.waiting.take() {
-            self.finish(earlier.id, status::ABORTED, preempted());
+            self.finish(earlier.id, status::ABORTED, preempted(id.is_none()));
         }
         // Planned again when it starts, from where the joints stopped.
         self.waiting = Some(Waiting { id, goal: goal.clone(), accepted: now });
@@ -508,6 +517,7 @@ impl FollowJointTrajectory {
             let Some(next) = self.waiting.take() else { break };
             match plan(next.id, &next.goal, joints, next.accepted) {
                 Ok(plan) => self.start(plan),
+                Err(why) if next.id.is_none() => self.refusals.push(why),
                 Err(why) => {
                     let result =
                         TrajectoryResult { error_code: error_code::INVALID_GOAL, error_string: why.to_string() };
@@ -516,6 +526,13 @@ impl FollowJointTrajectory {
             }
         }
         commands
+    }
+
+    /// A trajectory from the topic accepted while another ran that could not start once it had
+    /// stopped (the joints' limits changed meanwhile), and why.
+    #[must_use]
+    pub fn poll_refusal(&mut self) -> Option<GoalRejection> {
+        (!self.refusals.is_empty()).then(|| self.refusals.remove(0))
     }
 
     /// When `poll` is next due without another event.
@@ -583,7 +600,8 @@ impl FollowJointTrajectory {
                 self.status_changed = true;
                 canceling.push(goal.info);
                 commands = plan.end_with(status::CANCELED, canceled());
-                if replacement_canceled && plan.ending.as_ref().is_some_and(|(_, why)| *why == preempted()) {
+                let preempted = [preempted(false), preempted(true)];
+                if replacement_canceled && plan.ending.as_ref().is_some_and(|(_, why)| preempted.contains(why)) {
                     // Stopping for a goal no longer coming: it ends as cancelled, not replaced.
                     plan.ending = Some((status::CANCELED, canceled()));
                 }
@@ -1426,8 +1444,27 @@ mod tests {
         let _ = server.poll(&states, at(1000));
         let replaced = server.result(&[1; 16]).expect("ended");
         assert_eq!((replaced.status, replaced.result.error_code), (status::ABORTED, -1));
+        assert_eq!(replaced.result.error_string, "Current goal preempted by a trajectory on joint_trajectory.");
         assert!(server.executing(), "the topic's trajectory runs (its joint already there: it ends at its time)");
         let _ = server.poll(&states, at(2000));
+        assert!(!server.executing());
+
+        // A goal waiting for the joint to stop is replaced by a trajectory at once; one from the
+        // topic that cannot run once the joint has stopped (its limits changed) is said.
+        let mut third = goal(&["lift"], &[(1000, &[0.020])]);
+        third.goal_id = [3; 16];
+        let _ = server.send_goal(&third, &states, at(3000)).unwrap();
+        let _ = server.poll(&states, at(3000));
+        let mut fourth = goal(&["lift"], &[(1000, &[0.0])]);
+        fourth.goal_id = [4; 16];
+        assert_eq!(server.send_goal(&fourth, &states, at(3100)).unwrap(), [JointCommand::Stop { axis: "m1".into() }]);
+        let _ = server.follow_trajectory(&topic(1000, 0.030), &states, at(3200)).unwrap();
+        assert_eq!(server.result(&[4; 16]).map(|r| r.status), Some(status::ABORTED), "replaced while waiting");
+        states.update("m1", Field::HLM, 25.0, at(3300));
+        assert_eq!(server.move_ended("m1", MoveEnd::Failed("stopped".into())), []);
+        let _ = server.poll(&states, at(3400));
+        assert!(matches!(server.poll_refusal(), Some(GoalRejection::BeyondLimits { .. })));
+        assert_eq!(server.poll_refusal(), None);
         assert!(!server.executing());
     }
 

@@ -443,6 +443,9 @@ impl Driver {
             let now = wall();
             let commands = self.follow.poll(&self.states, now);
             self.execute(commands);
+            while let Some(why) = self.follow.poll_refusal() {
+                tracing::warn!("joint_trajectory: rejected once the trajectory it replaced had stopped: {why}");
+            }
             if let Some(status) = self.follow.poll_status() {
                 self.status.publish(encode(&status), now).await;
                 self.answer_results().await;

@@ -190,7 +190,7 @@ pub fn ros2_requests(data: &[u8]) {
     let payload = [&[0, 1, 0, 0][..], body].concat();
     let mut states = fuzz_joints();
     let mut server = FollowJointTrajectory::new();
-    let mut now = Duration::from_secs(1_700_000_000);
+    let now = Duration::from_secs(1_700_000_000);
     match kind % 5 {
         0 => {
             if let Ok(command) = decode::<JointState>(&payload, "JointState") {
@@ -212,76 +212,86 @@ pub fn ros2_requests(data: &[u8]) {
         }
         4 => {
             if let Ok(trajectory) = decode::<JointTrajectory>(&payload, "JointTrajectory") {
-                if let Ok(commands) = server.follow_trajectory(&trajectory, &states, now) {
-                    assert!(commands.is_empty(), "nothing ran before it");
-                    assert!(server.poll_status().is_none(), "a trajectory from the topic is no goal");
+                if server.follow_trajectory(&trajectory, &states, now).is_ok() {
+                    run_to_end(&mut server, &mut states, &mut Bytes(&[]), vec![], now, data.len());
+                    assert!(server.poll_status().is_none(), "a trajectory from the topic is no goal: no status");
                 }
             }
         }
         _ => {
             let mut bytes = Bytes(body);
             let request = fuzz_goal(&mut bytes, now);
-            if server.send_goal(&request, &states, now).is_err() {
-                return;
+            if server.send_goal(&request, &states, now).is_ok() {
+                run_to_end(&mut server, &mut states, &mut bytes, vec![request.goal_id], now, data.len());
             }
-            let mut moving: Vec<(String, f64)> = Vec::new();
-            let mut sent = vec![request.goal_id];
-            // Each round takes a byte at least; once they run out, every goal ends in a round a stretch.
-            for _ in 0..data.len() + 200 {
-                for command in server.poll(&states, now) {
-                    if let JointCommand::Move { axis, target, speed, .. } = command {
-                        assert!(
-                            target.is_finite() && speed.is_none_or(|s| s.is_finite() && s > 0.0),
-                            "{target} {speed:?}"
-                        );
-                        moving.push((axis, target));
-                    }
-                }
-                assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
-                let _ = server.feedback(&states, now);
-                match bytes.byte() % 16 {
-                    // A cancel of one goal sent, or of every goal.
-                    15 => {
-                        let which = usize::from(bytes.byte());
-                        let goal_id = sent.get(which % (sent.len() + 1)).copied().unwrap_or_default();
-                        let info = GoalInfo { goal_id, stamp: Time::default() };
-                        let _ = server.cancel(&CancelGoalRequest { goal_info: info });
-                    }
-                    // Another goal, replacing this one (its joints' stops need no answer here:
-                    // every move in flight ends below, sooner or later).
-                    14 => {
-                        let next = fuzz_goal(&mut bytes, now);
-                        sent.push(next.goal_id);
-                        let _ = server.send_goal(&next, &states, now);
-                    }
-                    // A trajectory on the topic, replacing it too.
-                    13 => {
-                        let next = fuzz_goal(&mut bytes, now);
-                        let _ = server.follow_trajectory(&next.goal.trajectory, &states, now);
-                    }
-                    _ => {}
-                }
-                // Each move ends now (reached or failed) or is held for a later round.
-                let mut held = Vec::new();
-                for (axis, target) in std::mem::take(&mut moving) {
-                    let end = match bytes.byte() % 8 {
-                        7 => MoveEnd::Failed("fuzzed".into()),
-                        6 => {
-                            held.push((axis, target));
-                            continue;
-                        }
-                        _ => MoveEnd::Reached,
-                    };
-                    states.update(&axis, Field::RBV, target, now);
-                    let _ = server.move_ended(&axis, end);
-                }
-                moving = held;
-                if !server.executing() {
-                    return;
-                }
-                now = server.poll_timeout().unwrap_or(now + Duration::from_millis(10));
-            }
-            panic!("goals of at most 40 points did not end in {} rounds", data.len() + 200);
         }
     }
+}
+
+/// What is executing, run to its end in virtual time: its moves ending as `bytes` say (reached,
+/// failed, later), a cancel (of a goal `sent` or of all) or another goal or topic trajectory
+/// replacing it when they say. Each round takes a byte at least; once they run out, moves end
+/// at once and the goal in a round a stretch: it must end within `input` + 200 rounds.
+fn run_to_end(
+    server: &mut FollowJointTrajectory,
+    states: &mut JointStates,
+    bytes: &mut Bytes<'_>,
+    mut sent: Vec<[u8; 16]>,
+    mut now: Duration,
+    input: usize,
+) {
+    let mut moving: Vec<(String, f64)> = Vec::new();
+    for _ in 0..input + 200 {
+        for command in server.poll(states, now) {
+            if let JointCommand::Move { axis, target, speed, .. } = command {
+                assert!(target.is_finite() && speed.is_none_or(|s| s.is_finite() && s > 0.0), "{target} {speed:?}");
+                moving.push((axis, target));
+            }
+        }
+        assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
+        let _ = server.feedback(states, now);
+        match bytes.byte() % 16 {
+            // A cancel of one goal sent, or of every goal.
+            15 => {
+                let which = usize::from(bytes.byte());
+                let goal_id = sent.get(which % (sent.len() + 1)).copied().unwrap_or_default();
+                let info = GoalInfo { goal_id, stamp: Time::default() };
+                let _ = server.cancel(&CancelGoalRequest { goal_info: info });
+            }
+            // Another goal, replacing this one (its joints' stops need no answer here: every
+            // move in flight ends below, sooner or later).
+            14 => {
+                let next = fuzz_goal(bytes, now);
+                sent.push(next.goal_id);
+                let _ = server.send_goal(&next, states, now);
+            }
+            // A trajectory on the topic, replacing it too.
+            13 => {
+                let next = fuzz_goal(bytes, now);
+                let _ = server.follow_trajectory(&next.goal.trajectory, states, now);
+            }
+            _ => {}
+        }
+        // Each move ends now (reached or failed) or is held for a later round.
+        let mut held = Vec::new();
+        for (axis, target) in std::mem::take(&mut moving) {
+            let end = match bytes.byte() % 8 {
+                7 => MoveEnd::Failed("fuzzed".into()),
+                6 => {
+                    held.push((axis, target));
+                    continue;
+                }
+                _ => MoveEnd::Reached,
+            };
+            states.update(&axis, Field::RBV, target, now);
+            let _ = server.move_ended(&axis, end);
+        }
+        moving = held;
+        while server.poll_refusal().is_some() {}
+        if !server.executing() {
+            return;
+        }
+        now = server.poll_timeout().unwrap_or(now + Duration::from_millis(10));
+    }
+    panic!("what executed did not end in {} rounds", input + 200);
 }
