@@ -106,8 +106,6 @@ struct Seen {
 pub struct JointReading {
     /// The last readback.
     pub position: f64,
-    /// Whether it moves.
-    pub moving: bool,
     /// Where it may be sent.
     pub travel: Travel,
     /// VELO.
@@ -253,7 +251,6 @@ impl JointStates {
         };
         Some(JointReading {
             position: rbv,
-            moving: seen.moving,
             travel,
             speed: seen.speed?,
             deadband: seen.deadband.unwrap_or(0.0),

@@ -8,9 +8,10 @@
 //! planner's many close waypoints (MoveIt's, on lines between its via-states) must not each
 //! become a stop, nor may a merge cut the corners the planner checked. A stretch starts when its
 //! time has come and every joint has ended the one before, each joint moving at the speed that
-//! ends it in its time, its record's ramps included (`Ramp`; VELO, restored when the goal ends;
-//! a point due at once goes at the speed from before the goal). A joint with no way to go in a stretch is not sent one. The
-//! result comes when every joint has arrived (the motion's end, as a waiting write reports it),
+//! ends it in its time, its record's ramps included (`Ramp`), never faster for the ramps' sake
+//! than its VELO from before the goal (VELO, restored when the goal ends; a point due at once
+//! goes at the speed from before the goal). A joint with no way to go in a stretch is not sent
+//! one. The result comes when every joint has arrived (the motion's end, as a waiting write reports it),
 //! not before the last point's time; a cancel stops the joints. A trajectory from the topic
 //! (`follow_trajectory`) runs as a goal no one follows. Time is given (since the Unix epoch: it
 //! stamps goals and feedback).
@@ -295,8 +296,12 @@ impl Plan {
             let speed = if time.is_zero() {
                 joint.speed_changed.then_some(joint.speed)
             } else {
-                let way = target - from;
-                Some(joint.ramp.map_or(way.abs() / time.as_secs_f64(), |ramp| ramp.speed_for(way, time.as_secs_f64())))
+                let (way, seconds) = (target - from, time.as_secs_f64());
+                let plain = way.abs() / seconds;
+                let ramped = joint.ramp.map_or(plain, |ramp| ramp.speed_for(way, seconds));
+                // For the ramps' sake never faster than the axis's own VELO (with ACCL, faster is
+                // also a harder acceleration than the one set up): only as fast as the plan asks.
+                Some(ramped.min(plain.max(joint.speed)))
             };
             joint.speed_changed |= speed.is_some();
             joint.in_flight = true;
@@ -535,7 +540,8 @@ impl FollowJointTrajectory {
         (!self.refusals.is_empty()).then(|| self.refusals.remove(0))
     }
 
-    /// When `poll` is next due without another event.
+    /// When `poll` is next due without another event (it is due after every event and call too:
+    /// an end decided by one, a cancel or a failure, is carried out there).
     #[must_use]
     pub fn poll_timeout(&self) -> Option<Duration> {
         let plan = self.plan.as_ref()?;
@@ -1471,8 +1477,9 @@ mod tests {
     #[test]
     fn a_stretch_is_sent_at_the_speed_that_ends_it_on_time_ramps_included() {
         let mut states = joints();
-        // The lift's record takes 0.5 s from VBAS 0 to VELO; the turn's ramps are not known.
-        for (field, value) in [(Field::ACCL, 0.5), (Field::VBAS, 0.0), (Field::ACCU, 0.0)] {
+        // The lift's record takes 0.5 s from VBAS 0 to VELO (10 mm/s); the turn's ramps are not
+        // known.
+        for (field, value) in [(Field::ACCL, 0.5), (Field::VBAS, 0.0), (Field::ACCU, 0.0), (Field::VELO, 10.0)] {
             states.update("m1", field, value, T0);
         }
         let mut server = FollowJointTrajectory::new();
@@ -1482,5 +1489,19 @@ mod tests {
         // 10 mm in 2 s lasting 10 / VELO + 0.5 s: VELO 10 / 1.5, not 5.
         assert_eq!((sent[0].0, sent[0].2), ("m1", Some((10.0_f64 / 1.5 * 1e9).round() / 1e9)));
         assert!((sent[1].2.unwrap() - 0.1_f64.to_degrees() / 2.0).abs() < 1e-6, "the plain quotient: {sent:?}");
+
+        // 1 mm in 0.2 s with 0.5 s ramps would need VELO 50, an acceleration of 100 mm/s² where
+        // the axis's own VELO, 6, makes 12: for the ramps' sake no faster than that VELO.
+        states.update("m1", Field::VELO, 6.0, at(5000));
+        let mut short = goal(&["lift"], &[(200, &[0.011])]);
+        short.goal_id = [2; 16];
+        states.update("m1", Field::RBV, 10.0, at(5000));
+        let _ = server.move_ended("m1", MoveEnd::Reached);
+        let _ = server.move_ended("m2", MoveEnd::Reached);
+        let _ = server.poll(&states, at(5000));
+        server.restored("m1");
+        server.restored("m2");
+        server.send_goal(&short, &states, at(5000)).unwrap();
+        assert_eq!(moves(&server.poll(&states, at(5000))), [("m1", 11.0, Some(6.0))]);
     }
 }

@@ -181,10 +181,11 @@ fn fuzz_goal(bytes: &mut Bytes<'_>, now: Duration) -> SendGoalRequest {
 
 /// What a ROS 2 peer sends the ROS face: byte 0 picks a joint command, a cancel, a result
 /// request or a trajectory on the topic (its CDR body the rest of the bytes), or a trajectory
-/// goal made of the bytes, which runs in virtual time with its moves ending as the bytes say
-/// (reached, failed, later), a cancel (of a goal sent or of all) or another goal or topic
-/// trajectory replacing it when they say. Whatever comes, every move is to a finite target at a finite speed, the
-/// server never asks to be woken at a time already past, and a goal ends.
+/// goal made of the bytes (and the axes' ramps), which runs in virtual time with its moves
+/// ending as the bytes say (reached, failed, later), a cancel (of a goal sent or of all) or
+/// another goal or topic trajectory replacing it when they say. Whatever comes, every move is to
+/// a finite target at a finite speed, the server never asks to be woken at a time already past,
+/// and a goal ends.
 pub fn ros2_requests(data: &[u8]) {
     let [kind, body @ ..] = data else { return };
     let payload = [&[0, 1, 0, 0][..], body].concat();
@@ -221,6 +222,12 @@ pub fn ros2_requests(data: &[u8]) {
         _ => {
             let mut bytes = Bytes(body);
             let request = fuzz_goal(&mut bytes, now);
+            // The axes' ramps (ACCL, VBAS, ACCU, ACCS) as the next bytes say.
+            for axis in ["m1", "m2"] {
+                for field in [Field::ACCL, Field::VBAS, Field::ACCU, Field::ACCS] {
+                    states.update(axis, field, bytes.number().abs() * 10.0, now);
+                }
+            }
             if server.send_goal(&request, &states, now).is_ok() {
                 run_to_end(&mut server, &mut states, &mut bytes, vec![request.goal_id], now, data.len());
             }
