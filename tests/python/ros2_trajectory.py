@@ -311,15 +311,21 @@ def main():
     assert not client.send_goal(os.urandom(16), ["lift"], [(1.0, [0.5])]), "0.5 m is beyond the 100 mm soft limit"
     ok("goals naming an unknown joint or beyond the soft limits are rejected")
 
+    def run_to_success(names, points, targets):
+        """A goal of `points`, sent and waited for to SUCCEEDED, the joints settled at `targets`:
+        its id and how long it took."""
+        goal = os.urandom(16)
+        started = time.time()
+        assert client.send_goal(goal, names, points)
+        status, code, text = client.get_result(goal, timeout=60)
+        took = time.time() - started
+        assert (status, code) == (SUCCEEDED, 0), (status, code, text)
+        settle(targets, 5)
+        return goal, took
+
     # Three points in time order, to the result.
-    goal = os.urandom(16)
     points = [(1.0, [0.004, 0.3]), (2.0, [0.008, 0.6]), (3.0, [0.005, 0.9])]
-    started = time.time()
-    assert client.send_goal(goal, ["lift", "turn"], points)
-    status, code, text = client.get_result(goal, timeout=60)
-    took = time.time() - started
-    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
-    settle({"lift": 0.005, "turn": 0.9}, 5)
+    goal, took = run_to_success(["lift", "turn"], points, {"lift": 0.005, "turn": 0.9})
     assert 2.5 < took < 20, took
     assert goal in feedback, "feedback for the goal while it moved"
     with lock:
@@ -353,13 +359,7 @@ def main():
     lift, turn = start["lift"], start["turn"]
     planned = [(0.1 * i, [lift + (0.015 - lift) * e, turn + (0.3 - turn) * e], [(0.015 - lift) * v, (0.3 - turn) * v])
                for i, (e, v) in enumerate(zip(ease, slope))]
-    goal = os.urandom(16)
-    started = time.time()
-    assert client.send_goal(goal, ["lift", "turn"], planned)
-    status, code, text = client.get_result(goal, timeout=60)
-    took = time.time() - started
-    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
-    settle({"lift": 0.015, "turn": 0.3}, 5)
+    _, took = run_to_success(["lift", "turn"], planned, {"lift": 0.015, "turn": 0.3})
     posts = dmov_posts_reaching({"m1": 2, "m2": 2})
     assert posts == {"m1": 2, "m2": 2}, "one move a joint (DMOV 0, then 1), not one a waypoint: %s" % posts
     ok("a 31-waypoint trajectory ran as one move a joint in %.1f s (planned 3.0 s)" % took)
@@ -369,11 +369,7 @@ def main():
     dmov_settled()
     corner = [(0.1 * i, [0.015 + 0.001 * i, 0.3 + 0.005 * i]) for i in range(1, 11)]
     corner += [(1.0 + 0.1 * i, [0.025 + 0.0005 * i, 0.35 + 0.025 * i]) for i in range(1, 11)]
-    goal = os.urandom(16)
-    assert client.send_goal(goal, ["lift", "turn"], corner)
-    status, code, text = client.get_result(goal, timeout=60)
-    assert (status, code) == (SUCCEEDED, 0), (status, code, text)
-    settle({"lift": 0.030, "turn": 0.6}, 5)
+    run_to_success(["lift", "turn"], corner, {"lift": 0.030, "turn": 0.6})
     posts = dmov_posts_reaching({"m1": 4, "m2": 4})
     assert posts == {"m1": 4, "m2": 4}, "two moves a joint, one a line: %s" % posts
     ok("a path with a corner ran as two moves a joint, the corner kept")
