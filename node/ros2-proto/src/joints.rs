@@ -78,8 +78,8 @@ pub enum JointCommandError {
         /// Positions given.
         positions: usize,
     },
-    /// A position that is not a number.
-    #[error("joint '{0}': the position is not a number")]
+    /// A position that is not a number, or none in its axis's units (1e308 rad in degrees).
+    #[error("joint '{0}': the position is not a finite number in its axis's units")]
     NotFinite(String),
 }
 
@@ -349,10 +349,11 @@ impl JointStates {
                     .iter()
                     .find(|j| &j.name == name)
                     .ok_or_else(|| JointCommandError::UnknownJoint(name.clone()))?;
-                if !position.is_finite() {
+                let target = position / joint.si_per_egu;
+                if !target.is_finite() {
                     return Err(JointCommandError::NotFinite(name.clone()));
                 }
-                Ok((joint.axis.clone(), position / joint.si_per_egu))
+                Ok((joint.axis.clone(), target))
             })
             .collect()
     }
@@ -436,6 +437,11 @@ mod tests {
             Err(JointCommandError::Positions { names: 2, positions: 1 })
         );
         assert_eq!(states.command(&command(&["lift"], &[f64::NAN])), Err(JointCommandError::NotFinite("lift".into())));
+        // 1e308 rad is a number but no number of degrees: nothing moves, not even the lift.
+        assert_eq!(
+            states.command(&command(&["lift", "turn"], &[0.001, 1e308])),
+            Err(JointCommandError::NotFinite("turn".into()))
+        );
     }
 
     /// How long the record's move of `way` at VELO `speed` lasts with `ramp` (its acceleration

@@ -91,8 +91,8 @@ pub enum GoalRejection {
         /// Positions given.
         got: usize,
     },
-    /// A position that is not a number.
-    #[error("point {point}: joint '{joint}': the position is not a number")]
+    /// A position that is not a number, or none in its axis's units (1e308 rad in degrees).
+    #[error("point {point}: joint '{joint}': the position is not a finite number in its axis's units")]
     NotFinite {
         /// The point's index.
         point: usize,
@@ -760,10 +760,10 @@ fn plan(id: Option<GoalId>, goal: &TrajectoryGoal, joints: &JointStates, now: Du
         let mut targets = Vec::new();
         for (k, position) in point.positions.iter().enumerate() {
             let joint = trajectory.joint_names[k].clone();
-            if !position.is_finite() {
+            let target = position / planned[k].si_per_egu;
+            if !target.is_finite() {
                 return Err(GoalRejection::NotFinite { point: i, joint });
             }
-            let target = position / planned[k].si_per_egu;
             if let crate::joints::Travel::Within { low, high } = travels[k] {
                 if !travels[k].allows(target) {
                     return Err(GoalRejection::BeyondLimits { point: i, joint, target, low, high });
@@ -1019,6 +1019,11 @@ mod tests {
         assert_eq!(
             reject(&mut server, goal(&["lift"], &[(1000, &[f64::NAN])])),
             GoalRejection::NotFinite { point: 0, joint: "lift".into() }
+        );
+        // 1e308 rad is a number, but no number of degrees (the turn has no soft limits).
+        assert_eq!(
+            reject(&mut server, goal(&["turn"], &[(1000, &[1e308])])),
+            GoalRejection::NotFinite { point: 0, joint: "turn".into() }
         );
         assert_eq!(
             reject(&mut server, goal(&["lift"], &[(2000, &[0.0]), (1000, &[0.001])])),
