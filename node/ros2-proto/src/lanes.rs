@@ -59,9 +59,18 @@ pub enum WriteAnswer {
     Failed(String),
 }
 
-/// What the lanes report to the action server.
+/// What the lanes report to the action server (and the joints' state).
 #[derive(Clone, Debug, PartialEq)]
 pub enum LaneEvent {
+    /// Where a trajectory move's axis stopped, as its end's answer says, before `MoveEnded`:
+    /// the joints' state takes it (`JointStates::update` of RBV), so that the goal's arrival is
+    /// judged on it, not on a readback posted before the end that may come later.
+    Readback {
+        /// The axis.
+        axis: String,
+        /// RBV, EGU.
+        position: f64,
+    },
     /// A trajectory move ended (`FollowJointTrajectory::move_ended`).
     MoveEnded {
         /// The axis.
@@ -222,6 +231,9 @@ impl WriteLanes {
                 self.advance(&axis);
             }
             (Awaited::Motion { target }, answer) => {
+                if let WriteAnswer::MotionEnded { readback, .. } = answer {
+                    self.events.push_back(LaneEvent::Readback { axis: axis.clone(), position: readback });
+                }
                 let end = match answer {
                     WriteAnswer::MotionEnded { reached: true, .. } => MoveEnd::Reached,
                     WriteAnswer::MotionEnded { reached: false, readback } => {
@@ -374,7 +386,8 @@ mod tests {
         lanes.handed_over(val.id);
         assert!(events(&mut lanes).is_empty());
         lanes.answered(val.id, WriteAnswer::MotionEnded { reached: true, readback: 2.0 });
-        assert_eq!(events(&mut lanes), [ended("a", MoveEnd::Reached)]);
+        let readback = LaneEvent::Readback { axis: "a".into(), position: 2.0 };
+        assert_eq!(events(&mut lanes), [readback, ended("a", MoveEnd::Reached)]);
     }
 
     #[test]
@@ -389,6 +402,7 @@ mod tests {
         assert_eq!(
             events(&mut lanes),
             [
+                LaneEvent::Readback { axis: "a".into(), position: 1.25 },
                 ended("a", MoveEnd::Failed("stopped at 1.25 short of 2".into())),
                 ended("a", MoveEnd::Failed("VAL 3: refused: HLM".into())),
             ]

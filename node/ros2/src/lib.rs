@@ -606,6 +606,7 @@ impl Driver {
                         self.lanes.command(command);
                     }
                 }
+                LaneEvent::Readback { axis, position } => self.states.update(&axis, Field::RBV, position, wall()),
                 LaneEvent::Restored { axis } => self.follow.restored(&axis),
                 LaneEvent::Failed { axis, field, why } => tracing::warn!(axis, "{field}: {why}"),
             }
