@@ -311,6 +311,16 @@ def main():
     assert not client.send_goal(os.urandom(16), ["lift"], [(1.0, [0.5])]), "0.5 m is beyond the 100 mm soft limit"
     ok("goals naming an unknown joint or beyond the soft limits are rejected")
 
+    def moving_away(joint, by):
+        """Once `joint` has moved `by` (m) from where it is now: its move is under way."""
+        start = last()[joint]
+        deadline = time.time() + 10
+        while time.time() < deadline:
+            if abs(last()[joint] - start) >= by:
+                return
+            time.sleep(0.05)
+        raise AssertionError("%s did not move from %s" % (joint, start))
+
     def run_to_success(names, points, targets):
         """A goal of `points`, sent and waited for to SUCCEEDED, the joints settled at `targets`:
         its id and how long it took."""
@@ -380,7 +390,7 @@ def main():
     with lock:
         states.clear()
     assert client.send_goal(first, ["lift"], [(20.0, [0.050])])
-    time.sleep(1.0)
+    moving_away("lift", 0.0005)
     replaced = time.time()
     assert client.send_goal(second, ["lift"], [(1.0, [0.020])])
     status, code, text = client.get_result(first, timeout=30)
@@ -398,7 +408,7 @@ def main():
     # A long goal, cancelled on the way: the joints stop short.
     goal = os.urandom(16)
     assert client.send_goal(goal, ["lift"], [(20.0, [0.050])])
-    time.sleep(1.5)
+    moving_away("lift", 0.0005)
     code, canceling = client.cancel(goal)
     assert code == 0 and canceling == [goal], (code, canceling)
     status, code, text = client.get_result(goal, timeout=30)
