@@ -15,6 +15,9 @@ import zenoh
 import zenoh.ext
 
 JOINT_STATE = "sensor_msgs::msg::dds_::JointState_/RIHS01_a13ee3a330e346c9d87b5aa18d24e11690752bd33a0350f11c5882bc9179260e"
+JOINT_TRAJECTORY = "trajectory_msgs::msg::dds_::JointTrajectory_/RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e"
+# As `ros2 topic info -v` shows joint_trajectory_controller's ~/controller_state in Jazzy.
+CONTROLLER_STATE = "control_msgs::msg::dds_::JointTrajectoryControllerState_/RIHS01_51d8dd89cc624cbe9daaeeb4d80d6de9b86168ffdc3be41fefc0953e3c26e480"
 
 
 def ok(check):
@@ -89,7 +92,7 @@ def main():
     tokens = []
     while time.time() < deadline:
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**") if r.ok]
-        if any("/NN/%/%/zmotor" in t for t in tokens) and any("/MP/" in t and "/%joint_states/" in t for t in tokens) and any("/MS/" in t for t in tokens):
+        if any("/NN/%/%/zmotor" in t for t in tokens) and any("/MP/" in t and "/%joint_states/" in t for t in tokens) and any("/MS/" in t for t in tokens) and any("/%controller_state/" in t for t in tokens):
             break
         time.sleep(0.2)
     node = [t for t in tokens if "/NN/%/%/zmotor" in t]
@@ -97,7 +100,10 @@ def main():
     publisher = [t for t in tokens if "/MP/" in t and "/%joint_states/" in t]
     assert len(publisher) == 1 and publisher[0].endswith("/%joint_states/" + JOINT_STATE + "/:1:,1:,:,:,,"), tokens
     assert any(t.endswith("/%joint_commands/" + JOINT_STATE + "/::,10:,:,:,,") for t in tokens if "/MS/" in t), tokens
-    ok("the graph shows the node zmotor, its joint_states publisher and joint_commands subscription")
+    # joint_trajectory_controller's topics, with its SystemDefaultsQoS (rmw_zenoh's default depth, 42, left out).
+    assert any(t.endswith("/%joint_trajectory/" + JOINT_TRAJECTORY + "/::,:,:,:,,") for t in tokens if "/MS/" in t), tokens
+    assert any(t.endswith("/%controller_state/" + CONTROLLER_STATE + "/::,:,:,:,,") for t in tokens if "/MP/" in t), tokens
+    ok("the graph shows the node zmotor, its joint_states and controller_state publishers, its joint_commands and joint_trajectory subscriptions")
 
     # A transient-local subscription, as rmw_zenoh declares one: the node publishes its state
     # only every 30 s at rest here, so a state within 5 s comes from the publisher's cache.

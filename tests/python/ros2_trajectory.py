@@ -28,6 +28,7 @@ JAZZY = {
     "Feedback": "control_msgs::action::dds_::FollowJointTrajectory_FeedbackMessage_/RIHS01_80398fcb9674a79081a9906e2ccf0c804dd7cb15e22e362e606ee87186beab71",
     "Status": "action_msgs::msg::dds_::GoalStatusArray_/RIHS01_6c1684b00f177d37438febe6e709fc4e2b0d4248dca4854946f9ed8b30cda83e",
     "JointTrajectory": "trajectory_msgs::msg::dds_::JointTrajectory_/RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e",
+    "ControllerState": "control_msgs::msg::dds_::JointTrajectoryControllerState_/RIHS01_51d8dd89cc624cbe9daaeeb4d80d6de9b86168ffdc3be41fefc0953e3c26e480",
 }
 SUCCEEDED, CANCELED, ABORTED = 4, 5, 6
 # Within a step and a half of each axis (MRES 0.001 mm and 0.001°), in SI.
@@ -216,7 +217,9 @@ def main():
         "/MP/%%/%s/zmotor/%s%%follow_joint_trajectory%%_action%%feedback/%s/::,10:,:,:,," % (ns, ns, JAZZY["Feedback"]),
         "/MP/%%/%s/zmotor/%s%%follow_joint_trajectory%%_action%%status/%s/:1:,1:,:,:,," % (ns, ns, JAZZY["Status"]),
         "/MP/%%/%s/zmotor/%s%%joint_states/%s/:1:,1:,:,:,," % (ns, ns, JAZZY["JointState"]),
-        "/MS/%%/%s/zmotor/%s%%joint_trajectory/%s/::,10:,:,:,," % (ns, ns, JAZZY["JointTrajectory"]),
+        # joint_trajectory_controller's topics, SystemDefaultsQoS: rmw_zenoh's default depth (42), left out.
+        "/MS/%%/%s/zmotor/%s%%joint_trajectory/%s/::,:,:,:,," % (ns, ns, JAZZY["JointTrajectory"]),
+        "/MP/%%/%s/zmotor/%s%%controller_state/%s/::,:,:,:,," % (ns, ns, JAZZY["ControllerState"]),
     ]
     deadline, tokens = time.time() + 20, []
     while time.time() < deadline:
@@ -226,7 +229,7 @@ def main():
         time.sleep(0.2)
     missing = [w for w in wanted if not any(t.endswith(w) for t in tokens)]
     assert not missing, (missing, tokens)
-    ok("the graph shows the node, its joint_states (transient local), joint_trajectory and the action's services and topics")
+    ok("the graph shows the node, its joint_states (transient local), joint_trajectory, controller_state and the action's services and topics")
 
     states, feedback, statuses = [], [], []
     lock = threading.Lock()

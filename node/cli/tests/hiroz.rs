@@ -169,6 +169,23 @@ struct GoalStatusArray {
     status_list: Vec<GoalStatusEntry>,
 }
 
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize, MessageTypeInfo)]
+#[ros_msg(type_name = "control_msgs/msg/JointTrajectoryControllerState")]
+struct ControllerState {
+    header: Header,
+    joint_names: Vec<String>,
+    reference: JointTrajectoryPoint,
+    feedback: JointTrajectoryPoint,
+    error: JointTrajectoryPoint,
+    output: JointTrajectoryPoint,
+    multi_dof_joint_names: Vec<String>,
+    multi_dof_reference: MultiDofPoint,
+    multi_dof_feedback: MultiDofPoint,
+    multi_dof_error: MultiDofPoint,
+    multi_dof_output: MultiDofPoint,
+    speed_scaling_factor: f64,
+}
+
 // The action's own types (hiroz derives no hash for `action` types; their hashes are in the
 // services' and the feedback topic's type information below).
 /// `control_msgs/action/FollowJointTrajectory_Goal`.
@@ -204,7 +221,7 @@ struct Feedback {
     multi_dof_error: MultiDofPoint,
 }
 
-cdr_by_serde!(JointState JointTrajectory Goal TrajectoryResult Feedback);
+cdr_by_serde!(JointState JointTrajectory ControllerState Goal TrajectoryResult Feedback);
 
 /// `control_msgs/action/FollowJointTrajectory`, its services and topics typed as in Jazzy.
 struct FollowJointTrajectory;
@@ -295,6 +312,10 @@ fn the_messages_declared_here_hash_as_jazzys() {
         rihs(JointTrajectory::type_hash()),
         "RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e"
     );
+    assert_eq!(
+        rihs(ControllerState::type_hash()),
+        "RIHS01_51d8dd89cc624cbe9daaeeb4d80d6de9b86168ffdc3be41fefc0953e3c26e480"
+    );
 }
 
 #[test]
@@ -319,6 +340,7 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
         ("/arm/joint_states", "sensor_msgs::msg::dds_::JointState_"),
         ("/arm/joint_commands", "sensor_msgs::msg::dds_::JointState_"),
         ("/arm/joint_trajectory", "trajectory_msgs::msg::dds_::JointTrajectory_"),
+        ("/arm/controller_state", "control_msgs::msg::dds_::JointTrajectoryControllerState_"),
     ];
     let (mut nodes, mut topics, mut actions) = (Vec::new(), Vec::new(), Vec::new());
     let listed = |topics: &[(String, String)], (topic, type_name): (&str, &str)| {
@@ -385,6 +407,8 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     let client = node.create_action_client::<FollowJointTrajectory>("/arm/follow_joint_trajectory").build()?;
     assert!(client.wait_for_server(Duration::from_secs(10)).await, "the action server is found");
     let goal = trajectory(&["lift", "turn"], &[(1.0, &[0.006, 0.4]), (2.0, &[0.009, 0.3]), (3.0, &[0.004, 0.6])]);
+    let controller = node.create_sub::<ControllerState>("/arm/controller_state").build()?;
+    while controller.recv_timeout(Duration::from_millis(100)).is_ok() {}
     let started = Instant::now();
     let mut handle = client.send_goal(goal).await?;
     let mut feedback = handle.feedback().expect("a feedback stream");
@@ -393,6 +417,23 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     assert!(started.elapsed() > Duration::from_millis(2500), "the points took their time: {:?}", started.elapsed());
     let seen = feedback.try_recv().expect("feedback while it ran");
     assert_eq!(seen.joint_names, ["lift", "turn"]);
+    // The controller's state while it ran: the trajectory's reference ahead of the joints at some
+    // time (the lift went 3 mm out in its first second), each message's error its reference −
+    // feedback; at its end the reference is the last point.
+    let (mut states_seen, mut ahead, mut last_state) = (0, false, ControllerState::default());
+    while let Ok(state) = controller.recv_timeout(Duration::from_millis(100)) {
+        assert_eq!(state.joint_names, ["lift", "turn"]);
+        for k in 0..2 {
+            let error = state.reference.positions[k] - state.feedback.positions[k];
+            assert!((state.error.positions[k] - error).abs() < 1e-12, "{state:?}");
+        }
+        ahead |= state.error.positions[0].abs() > 1e-4;
+        states_seen += 1;
+        last_state = state;
+    }
+    assert!(states_seen > 10 && ahead, "{states_seen} controller states, the reference ahead of the lift: {ahead}");
+    let ended = &last_state.reference.positions;
+    assert!((ended[0] - 0.004).abs() < 1e-9 && (ended[1] - 0.6).abs() < 1e-6, "{last_state:?}");
 
     // A long one, cancelled on the way: the lift stops short.
     let mut handle = client.send_goal(trajectory(&["lift"], &[(20.0, &[0.050])])).await?;

@@ -4,7 +4,8 @@
 //! MoveIt and ros2_control send. An action on rmw_zenoh is three services and two topics under
 //! `<action>/_action/`; the request and response of each service are these structs.
 
-use crate::messages::{Header, Time};
+use crate::messages::{encode, Header, Time};
+use crate::names::Distribution;
 use serde::{Deserialize, Serialize};
 
 /// `builtin_interfaces/msg/Duration`.
@@ -241,6 +242,85 @@ pub struct FeedbackMessage {
     pub goal_id: GoalId,
     /// Its feedback.
     pub feedback: TrajectoryFeedback,
+}
+
+/// `control_msgs/msg/JointTrajectoryControllerState` (Jazzy, control_msgs 5.3 and later), what
+/// joint_trajectory_controller publishes on `~/controller_state`: where the joints should be, where
+/// they are, and the difference. `ControllerState::encode` lays it out for a distribution.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ControllerState {
+    /// When.
+    pub header: Header,
+    /// Every joint of the controller.
+    pub joint_names: Vec<String>,
+    /// Where they should be (the trajectory's sample, or the position held).
+    pub reference: JointTrajectoryPoint,
+    /// Where they are.
+    pub feedback: JointTrajectoryPoint,
+    /// reference − feedback.
+    pub error: JointTrajectoryPoint,
+    /// What was commanded of the hardware's interfaces (none here: zmotor commands records).
+    pub output: JointTrajectoryPoint,
+    /// Multi-DOF joints (none).
+    pub multi_dof_joint_names: Vec<String>,
+    /// Their reference.
+    pub multi_dof_reference: MultiDofJointTrajectoryPoint,
+    /// Their feedback.
+    pub multi_dof_feedback: MultiDofJointTrajectoryPoint,
+    /// Their error.
+    pub multi_dof_error: MultiDofJointTrajectoryPoint,
+    /// Their output.
+    pub multi_dof_output: MultiDofJointTrajectoryPoint,
+    /// The speed scaling in force (1: none).
+    pub speed_scaling_factor: f64,
+}
+
+/// Humble's `JointTrajectoryControllerState` (control_msgs 4): `desired` and `actual` beside
+/// `reference` and `feedback` (its controller fills both pairs alike), no speed scaling.
+#[derive(Serialize)]
+struct HumbleControllerState<'a> {
+    header: &'a Header,
+    joint_names: &'a [String],
+    reference: &'a JointTrajectoryPoint,
+    feedback: &'a JointTrajectoryPoint,
+    error: &'a JointTrajectoryPoint,
+    output: &'a JointTrajectoryPoint,
+    desired: &'a JointTrajectoryPoint,
+    actual: &'a JointTrajectoryPoint,
+    multi_dof_joint_names: &'a [String],
+    multi_dof_reference: &'a MultiDofJointTrajectoryPoint,
+    multi_dof_feedback: &'a MultiDofJointTrajectoryPoint,
+    multi_dof_error: &'a MultiDofJointTrajectoryPoint,
+    multi_dof_output: &'a MultiDofJointTrajectoryPoint,
+    multi_dof_desired: &'a MultiDofJointTrajectoryPoint,
+    multi_dof_actual: &'a MultiDofJointTrajectoryPoint,
+}
+
+impl ControllerState {
+    /// The message as a ROS payload of `distribution`'s layout.
+    #[must_use]
+    pub fn encode(&self, distribution: Distribution) -> Vec<u8> {
+        match distribution {
+            Distribution::Jazzy => encode(self),
+            Distribution::Humble => encode(&HumbleControllerState {
+                header: &self.header,
+                joint_names: &self.joint_names,
+                reference: &self.reference,
+                feedback: &self.feedback,
+                error: &self.error,
+                output: &self.output,
+                desired: &self.reference,
+                actual: &self.feedback,
+                multi_dof_joint_names: &self.multi_dof_joint_names,
+                multi_dof_reference: &self.multi_dof_reference,
+                multi_dof_feedback: &self.multi_dof_feedback,
+                multi_dof_error: &self.multi_dof_error,
+                multi_dof_output: &self.multi_dof_output,
+                multi_dof_desired: &self.multi_dof_reference,
+                multi_dof_actual: &self.multi_dof_feedback,
+            }),
+        }
+    }
 }
 
 /// `action_msgs/msg/GoalInfo`.

@@ -99,6 +99,8 @@ struct Seen {
     deadband: Option<f64>,
     /// ACCL, VBAS, ACCU and ACCS.
     ramp: [Option<f64>; 4],
+    /// VAL, EGU: where the record is sent (or holds, after a stop).
+    target: Option<f64>,
 }
 
 /// What a trajectory needs of a joint's axis (`JointStates::joint_state`), in its EGU.
@@ -217,8 +219,8 @@ impl JointStates {
     }
 
     /// A posted value of `axis`'s `field` at `at`: RBV and DMOV make the state; HLM, LLM,
-    /// DHLM, DLLM, VELO, RDBD and the ramps' ACCL, VBAS, ACCU, ACCS are kept for trajectories.
-    /// Other fields are ignored.
+    /// DHLM, DLLM, VELO, RDBD and the ramps' ACCL, VBAS, ACCU, ACCS are kept for trajectories,
+    /// VAL for the controller state's reference. Other fields are ignored.
     pub fn update(&mut self, axis: &str, field: Field, value: f64, at: Duration) {
         let Some(i) = self.index(axis).filter(|_| value.is_finite()) else { return };
         let seen = &mut self.seen[i];
@@ -235,6 +237,7 @@ impl JointStates {
             Field::VBAS => seen.ramp[1] = Some(value),
             Field::ACCU => seen.ramp[2] = Some(value),
             Field::ACCS => seen.ramp[3] = Some(value),
+            Field::VAL => seen.target = Some(value),
             _ => {}
         }
     }
@@ -263,6 +266,12 @@ impl JointStates {
                 _ => None,
             },
         })
+    }
+
+    /// Where joint `index`'s axis is sent (VAL, EGU), once posted.
+    #[must_use]
+    pub fn target(&self, index: usize) -> Option<f64> {
+        self.seen.get(index)?.target
     }
 
     /// The index of the joint named `name`.

@@ -11,7 +11,8 @@
 //! - `messages`: the ROS messages as CDR (little-endian, with the encapsulation header);
 //! - `joints`: axes as joints: their readbacks as `JointState` in SI units, at the readback
 //!   rate while any moves and at a slow rate at rest, and joint commands as axis targets;
-//! - `follow`: the messages of `control_msgs/action/FollowJointTrajectory` and `action_msgs`;
+//! - `follow`: the messages of `control_msgs/action/FollowJointTrajectory` and `action_msgs`, and
+//!   joint_trajectory_controller's `JointTrajectoryControllerState` (Jazzy's and Humble's layouts);
 //! - `trajectory`: that action's server: goals checked, executed as timed moves, cancelled;
 //! - `lanes`: the writes of both, ordered per axis (a stop never overtaken by a move asked before it).
 //!
@@ -28,17 +29,17 @@ mod trajectory;
 
 pub use attachment::{Attachment, AttachmentError};
 pub use follow::{
-    CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultRequest, GetResultResponse, GoalId, GoalInfo,
-    GoalStatusArray, GoalStatusEntry, JointComponentTolerance, JointTolerance, JointTrajectory, JointTrajectoryPoint,
-    MultiDofJointTrajectory, MultiDofJointTrajectoryPoint, Quaternion, RosDuration, SendGoalRequest, SendGoalResponse,
-    TrajectoryFeedback, TrajectoryGoal, TrajectoryResult, Transform, Twist, Vector3,
+    CancelGoalRequest, CancelGoalResponse, ControllerState, FeedbackMessage, GetResultRequest, GetResultResponse,
+    GoalId, GoalInfo, GoalStatusArray, GoalStatusEntry, JointComponentTolerance, JointTolerance, JointTrajectory,
+    JointTrajectoryPoint, MultiDofJointTrajectory, MultiDofJointTrajectoryPoint, Quaternion, RosDuration,
+    SendGoalRequest, SendGoalResponse, TrajectoryFeedback, TrajectoryGoal, TrajectoryResult, Transform, Twist, Vector3,
 };
 pub use graph::{Durability, EntityKind, Gid, GraphEntity, Qos, Reliability};
 pub use joints::{Joint, JointCommandError, JointError, JointReading, JointStates, Ramp, Travel};
 pub use lanes::{Answered, LaneEvent, LaneWrite, WriteAnswer, WriteId, WriteLanes};
 pub use messages::{decode, encode, CdrError, Header, JointState, Time};
 pub use names::{
-    topic_key, Distribution, TypeInfo, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE,
-    JOINT_TRAJECTORY, SEND_GOAL,
+    topic_key, Distribution, TypeInfo, CANCEL_GOAL, CONTROLLER_STATE, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY,
+    JOINT_STATE, JOINT_TRAJECTORY, SEND_GOAL,
 };
 pub use trajectory::{status, FollowJointTrajectory, GoalRejection, JointCommand, MoveEnd};

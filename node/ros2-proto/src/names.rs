@@ -55,6 +55,13 @@ pub const JOINT_TRAJECTORY: TypeInfo = TypeInfo {
     hash: "RIHS01_179b33eba59d676f6d967ac71fe35e7ca2f64b2f3928f4a018cec115e213796e",
 };
 
+/// `control_msgs/msg/JointTrajectoryControllerState` in Jazzy (joint_trajectory_controller's
+/// `~/controller_state`; control_msgs 5.3 and later, with `speed_scaling_factor`).
+pub const CONTROLLER_STATE: TypeInfo = TypeInfo {
+    dds_name: "control_msgs::msg::dds_::JointTrajectoryControllerState_",
+    hash: "RIHS01_51d8dd89cc624cbe9daaeeb4d80d6de9b86168ffdc3be41fefc0953e3c26e480",
+};
+
 /// `control_msgs/action/FollowJointTrajectory`'s `send_goal` service.
 pub const SEND_GOAL: TypeInfo = TypeInfo {
     dds_name: "control_msgs::action::dds_::FollowJointTrajectory_SendGoal_",

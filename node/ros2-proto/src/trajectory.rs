@@ -13,7 +13,8 @@
 //! goes at the speed from before the goal). A joint with no way to go in a stretch is not sent
 //! one. The result comes when every joint has arrived (the motion's end, as a waiting write reports it),
 //! not before the last point's time; a cancel stops the joints. A trajectory from the topic
-//! (`follow_trajectory`) runs as a goal no one follows. Time is given (since the Unix epoch: it
+//! (`follow_trajectory`) runs as a goal no one follows. The controller's state
+//! (`controller_state`) is the trajectory's sample beside the joints' readbacks. Time is given (since the Unix epoch: it
 //! stamps goals and feedback).
 //!
 //! The goal's life follows `action_msgs/msg/GoalStatus`: accepted goals execute at once (one at
@@ -24,12 +25,12 @@
 //! retries decide arrival); goal position tolerances are.
 
 use crate::follow::{
-    CancelGoalRequest, CancelGoalResponse, FeedbackMessage, GetResultResponse, GoalId, GoalInfo, GoalStatusArray,
-    GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, SendGoalRequest, TrajectoryFeedback,
-    TrajectoryGoal, TrajectoryResult,
+    CancelGoalRequest, CancelGoalResponse, ControllerState, FeedbackMessage, GetResultResponse, GoalId, GoalInfo,
+    GoalStatusArray, GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, SendGoalRequest,
+    TrajectoryFeedback, TrajectoryGoal, TrajectoryResult,
 };
 use crate::joints::{JointStates, Ramp};
-use crate::messages::{Header, Time};
+use crate::messages::{Header, JointState, Time};
 use std::collections::VecDeque;
 use std::time::Duration;
 
@@ -310,20 +311,22 @@ impl Plan {
         commands
     }
 
-    /// Where joint `k` should be at `now` on the trajectory as planned, between the points
-    /// about it (as joint_trajectory_controller interpolates positions alone).
-    fn desired(&self, k: usize, now: Duration) -> f64 {
+    /// Where joint `k` should be at `now` on the trajectory as planned, and how fast it should
+    /// go there (EGU, EGU/s): on the line between the points about it, as
+    /// joint_trajectory_controller interpolates positions alone; at rest past the last.
+    fn desired(&self, k: usize, now: Duration) -> (f64, f64) {
         let t = now.saturating_sub(self.start);
         let mut before = (Duration::ZERO, self.joints[k].from);
         for point in &self.points {
             let to = point.targets[k];
             if t < point.at {
-                let share = (t - before.0).as_secs_f64() / (point.at - before.0).as_secs_f64();
-                return before.1 + (to - before.1) * share;
+                let span = (point.at - before.0).as_secs_f64();
+                let share = (t - before.0).as_secs_f64() / span;
+                return (before.1 + (to - before.1) * share, (to - before.1) / span);
             }
             before = (point.at, to);
         }
-        before.1
+        (before.1, 0.0)
     }
 
     /// Stop every joint still moving, ending the goal with `status` and `result` once stopped
@@ -650,7 +653,7 @@ impl FollowJointTrajectory {
         let (mut desired, mut actual) = (Vec::new(), Vec::new());
         for (k, joint) in plan.joints.iter().enumerate() {
             let position = joints.joint_state(joint.index)?.position;
-            desired.push(plan.desired(k, now) * joint.si_per_egu);
+            desired.push(plan.desired(k, now).0 * joint.si_per_egu);
             actual.push(position * joint.si_per_egu);
         }
         // As joint_trajectory_controller computes it (and control_msgs defines it): reference −
@@ -668,6 +671,45 @@ impl FollowJointTrajectory {
                 ..TrajectoryFeedback::default()
             },
         })
+    }
+
+    /// The controller's state as `state` (a `joint_states` message of every joint) shows it,
+    /// as joint_trajectory_controller publishes it on `~/controller_state`: the reference is the
+    /// executing trajectory's sample at the state's stamp for its joints, and where each other
+    /// joint's axis is sent (VAL: it holds there) for the rest; feedback is the state; error is
+    /// reference − feedback. SI units.
+    #[must_use]
+    pub fn controller_state(&self, joints: &JointStates, state: &JointState) -> ControllerState {
+        let stamp = &state.header.stamp;
+        let at = Duration::new(u64::try_from(stamp.sec).unwrap_or(0), stamp.nanosec);
+        let plan = self.plan.as_ref().filter(|_| self.waiting.is_none());
+        let (mut reference, mut error) = (JointTrajectoryPoint::default(), JointTrajectoryPoint::default());
+        let readings = state.position.iter().zip(&state.velocity);
+        for (i, (joint, (&position, &velocity))) in joints.joints().iter().zip(readings).enumerate() {
+            let planned = plan.and_then(|p| p.joints.iter().position(|j| j.index == i).map(|k| p.desired(k, at)));
+            let (want, speed) = match planned {
+                Some((want, speed)) => (want * joint.si_per_egu, speed * joint.si_per_egu),
+                None => (joints.target(i).map_or(position, |target| target * joint.si_per_egu), 0.0),
+            };
+            reference.positions.push(want);
+            reference.velocities.push(speed);
+            error.positions.push(want - position);
+            error.velocities.push(speed - velocity);
+        }
+        let feedback = JointTrajectoryPoint {
+            positions: state.position.clone(),
+            velocities: state.velocity.clone(),
+            ..JointTrajectoryPoint::default()
+        };
+        ControllerState {
+            header: state.header.clone(),
+            joint_names: state.name.clone(),
+            reference,
+            feedback,
+            error,
+            speed_scaling_factor: 1.0,
+            ..ControllerState::default()
+        }
     }
 
     /// Goal `id` has ended so (nothing for a trajectory from the topic).
@@ -1508,5 +1550,79 @@ mod tests {
         server.restored("m2");
         server.send_goal(&short, &states, at(5000)).unwrap();
         assert_eq!(moves(&server.poll(&states, at(5000))), [("m1", 11.0, Some(6.0))]);
+    }
+
+    #[test]
+    fn the_controller_state_holds_each_joint_at_its_target_at_rest_and_samples_the_trajectory_while_one_runs() {
+        let mut states = joints();
+        let mut server = FollowJointTrajectory::new();
+        // At rest: lift sent to 2 mm and still at 0 (a joint command under way), turn at rest.
+        states.update("m1", Field::VAL, 2.0, T0);
+        states.update("m2", Field::VAL, 0.0, T0);
+        let state = states.poll_publish(at(0)).expect("every joint has a readback");
+        let rest = server.controller_state(&states, &state);
+        assert_eq!(rest.joint_names, ["lift", "turn"]);
+        assert_eq!(rest.header, state.header);
+        assert_eq!(rest.feedback.positions, [0.0, 0.0]);
+        assert_eq!(rest.reference.positions, [0.002, 0.0], "where each axis is sent (VAL), in SI");
+        assert_eq!(rest.reference.velocities, [0.0, 0.0]);
+        assert_eq!(rest.error.positions, [0.002, 0.0], "reference − feedback");
+        assert_eq!(rest.speed_scaling_factor, 1.0);
+        assert_eq!(rest.output, JointTrajectoryPoint::default(), "no command interfaces");
+
+        // A goal for lift alone: 10 mm in 2 s. Half-way in time, lift read back at 4 mm.
+        server.send_goal(&goal(&["lift"], &[(2000, &[0.010])]), &states, at(0)).unwrap();
+        let _ = server.poll(&states, at(0));
+        states.update("m1", Field::VAL, 10.0, at(0));
+        states.update("m1", Field::DMOV, 0.0, at(0));
+        states.update("m1", Field::RBV, 4.0, at(1000));
+        let state = states.poll_publish(at(1000)).expect("a fresh readback");
+        let running = server.controller_state(&states, &state);
+        let near = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12);
+        assert!(near(&running.reference.positions, &[0.005, 0.0]), "the trajectory at the state's stamp: {running:?}");
+        assert!(near(&running.reference.velocities, &[0.005, 0.0]), "its slope, m/s: {running:?}");
+        assert!(near(&running.feedback.positions, &[0.004, 0.0]), "{running:?}");
+        assert!(near(&running.error.positions, &[0.001, 0.0]), "{running:?}");
+        assert!(near(&running.error.velocities, &[0.005 - state.velocity[0], 0.0]), "{running:?}");
+    }
+
+    #[test]
+    fn the_controller_state_is_laid_out_as_each_distribution_declares_it() {
+        use crate::messages::{decode, encode};
+        use crate::names::Distribution;
+        let state = ControllerState {
+            joint_names: vec!["lift".into()],
+            reference: JointTrajectoryPoint { positions: vec![0.5], velocities: vec![0.1], ..Default::default() },
+            feedback: JointTrajectoryPoint { positions: vec![0.4], velocities: vec![0.2], ..Default::default() },
+            error: JointTrajectoryPoint { positions: vec![0.1], velocities: vec![-0.1], ..Default::default() },
+            speed_scaling_factor: 1.0,
+            ..ControllerState::default()
+        };
+        let jazzy = state.encode(Distribution::Jazzy);
+        assert_eq!(jazzy, encode(&state));
+        assert_eq!(decode::<ControllerState>(&jazzy, "jazzy").unwrap(), state);
+        // Humble's (control_msgs 4): desired and actual after output, the multi-DOF desired and
+        // actual after the multi-DOF output, no speed scaling; its controller fills desired as
+        // reference and actual as feedback.
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct Humble {
+            header: Header,
+            joint_names: Vec<String>,
+            reference: JointTrajectoryPoint,
+            feedback: JointTrajectoryPoint,
+            error: JointTrajectoryPoint,
+            output: JointTrajectoryPoint,
+            desired: JointTrajectoryPoint,
+            actual: JointTrajectoryPoint,
+            multi_dof_joint_names: Vec<String>,
+            multi_dof_points: [crate::follow::MultiDofJointTrajectoryPoint; 6],
+        }
+        let humble = state.encode(Distribution::Humble);
+        let read = decode::<Humble>(&humble, "humble").unwrap();
+        assert_eq!((&read.header, &read.joint_names), (&state.header, &state.joint_names));
+        assert_eq!((&read.reference, &read.feedback, &read.error), (&state.reference, &state.feedback, &state.error));
+        assert_eq!((&read.desired, &read.actual, &read.output), (&state.reference, &state.feedback, &state.output));
+        assert!(read.multi_dof_joint_names.is_empty() && read.multi_dof_points.iter().all(|p| p.transforms.is_empty()));
+        assert_eq!(encode(&read), humble, "every byte read, none left over");
     }
 }

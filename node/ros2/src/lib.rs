@@ -3,7 +3,8 @@
 //! (zmotor-ros2-proto), as a client of that network (zmotor-client). It declares the node's
 //! liveliness tokens and those of its endpoints: the `joint_states` publisher (transient local:
 //! a late subscriber gets the last state), the `joint_commands` and `joint_trajectory`
-//! subscriptions, and the `follow_joint_trajectory` action (three services, two topics). Joint commands and
+//! subscriptions, the `follow_joint_trajectory` action (three services, two topics) and the
+//! `controller_state` publisher (joint_trajectory_controller's, sent with each joint state). Joint commands and
 //! trajectory moves are confirmed writes, so refusals and access rules are the node's (which
 //! posts a refusal on the axis's ERR). One task drives the sans-IO state; the rest only moves
 //! bytes. The joints' values come from monitors over the network (`start`), or, in the process
@@ -21,11 +22,11 @@ use zmotor_client::{AxisReading, Client, Selection, WriteOptions, WriteOutcome};
 use zmotor_deploy::{JointConfig, Ros2Config};
 use zmotor_msgs::{Field, Value};
 use zmotor_ros2_proto::{
-    decode, encode, topic_key, Answered, Attachment, CancelGoalRequest, CancelGoalResponse, Durability, EntityKind,
-    FollowJointTrajectory, GetResultRequest, GetResultResponse, GoalId, GraphEntity, Joint, JointCommand, JointState,
-    JointStates, JointTrajectory, LaneEvent, LaneWrite, Qos, Reliability, SendGoalRequest, SendGoalResponse, Time,
-    TypeInfo, WriteAnswer, WriteId, WriteLanes, CANCEL_GOAL, FEEDBACK, GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE,
-    JOINT_TRAJECTORY, SEND_GOAL,
+    decode, encode, topic_key, Answered, Attachment, CancelGoalRequest, CancelGoalResponse, Distribution, Durability,
+    EntityKind, FollowJointTrajectory, GetResultRequest, GetResultResponse, GoalId, GraphEntity, Joint, JointCommand,
+    JointState, JointStates, JointTrajectory, LaneEvent, LaneWrite, Qos, Reliability, SendGoalRequest,
+    SendGoalResponse, Time, TypeInfo, WriteAnswer, WriteId, WriteLanes, CANCEL_GOAL, CONTROLLER_STATE, FEEDBACK,
+    GET_RESULT, GOAL_STATUS_ARRAY, JOINT_STATE, JOINT_TRAJECTORY, SEND_GOAL,
 };
 
 /// The gateway could not start.
@@ -42,14 +43,18 @@ pub enum Ros2Error {
 
 /// rclcpp's `QoS(10)`: the commands topic, the feedback topic and the services.
 const DEFAULT_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::Volatile, depth: 10 };
+/// rclcpp's `SystemDefaultsQoS()`, as rmw_zenoh fills it in (reliable, volatile, depth 42):
+/// joint_trajectory_controller's `~/joint_trajectory` and `~/controller_state`.
+const SYSTEM_DEFAULT_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::Volatile, depth: 42 };
 /// The state: its last sample kept for late subscribers.
 const STATE_QOS: Qos = Qos { reliability: Reliability::Reliable, durability: Durability::TransientLocal, depth: 1 };
 /// An action's status topic (`rcl_action_qos_profile_status_default`).
 const STATUS_QOS: Qos = STATE_QOS;
 
 /// The fields each joint's axis is followed by.
-const FOLLOWED: [Field; 12] = [
+const FOLLOWED: [Field; 13] = [
     Field::RBV,
+    Field::VAL,
     Field::DMOV,
     Field::HLM,
     Field::LLM,
@@ -315,7 +320,8 @@ impl Ros2Node {
             entity(EntityKind::ServiceServer, Some((&get_result, GET_RESULT, DEFAULT_QOS))),
             entity(EntityKind::Publisher, Some((&feedback_topic, FEEDBACK, DEFAULT_QOS))),
             entity(EntityKind::Publisher, Some((&status_topic, GOAL_STATUS_ARRAY, STATUS_QOS))),
-            entity(EntityKind::Subscription, Some(("joint_trajectory", JOINT_TRAJECTORY, DEFAULT_QOS))),
+            entity(EntityKind::Subscription, Some(("joint_trajectory", JOINT_TRAJECTORY, SYSTEM_DEFAULT_QOS))),
+            entity(EntityKind::Publisher, Some(("controller_state", CONTROLLER_STATE, SYSTEM_DEFAULT_QOS))),
         ];
         let key = |entity: &GraphEntity| {
             let (name, type_info, _) = entity.endpoint.as_ref().expect("an endpoint");
@@ -370,6 +376,9 @@ impl Ros2Node {
             joint_states: RosPublisher::declare(&session, key(&graph[1]), STATE_QOS, graph[1].gid()).await?,
             feedback: RosPublisher::declare(&session, key(&graph[6]), DEFAULT_QOS, graph[6].gid()).await?,
             status: RosPublisher::declare(&session, key(&graph[7]), STATUS_QOS, graph[7].gid()).await?,
+            controller_state: RosPublisher::declare(&session, key(&graph[9]), SYSTEM_DEFAULT_QOS, graph[9].gid())
+                .await?,
+            distribution: config.distribution,
             pending_results: Vec::new(),
             posted: HashSet::new(),
             lanes: WriteLanes::new(),
@@ -402,6 +411,9 @@ struct Driver {
     joint_states: RosPublisher,
     feedback: RosPublisher,
     status: RosPublisher,
+    controller_state: RosPublisher,
+    /// The controller state's layout.
+    distribution: Distribution,
     /// get_result requests waiting for their goal's end.
     pending_results: Vec<(GoalId, Query, Attachment)>,
     /// The fields of which a post came: a value read at start does not undo it.
@@ -452,6 +464,8 @@ impl Driver {
             }
             if let Some(state) = self.states.poll_publish(now) {
                 self.joint_states.publish(encode(&state), now).await;
+                let controller = self.follow.controller_state(&self.states, &state);
+                self.controller_state.publish(controller.encode(self.distribution), now).await;
                 if let Some(feedback) = self.follow.feedback(&self.states, now) {
                     self.feedback.publish(encode(&feedback), now).await;
                 }

@@ -257,6 +257,10 @@ fn run_to_end(
         }
         assert!(server.poll_timeout().is_none_or(|at| at > now), "woken in the past");
         let _ = server.feedback(states, now);
+        if let Some(state) = states.poll_publish(now) {
+            let controller = server.controller_state(states, &state);
+            assert_eq!(controller.reference.positions.len(), state.position.len(), "a reference for every joint");
+        }
         match bytes.byte() % 16 {
             // A cancel of one goal sent, or of every goal.
             15 => {
