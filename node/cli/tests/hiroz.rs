@@ -14,6 +14,7 @@ use common::{serve_shipped, Host};
 use hiroz::action::{GoalStatus, ZAction};
 use hiroz::context::ZContextBuilder;
 use hiroz::entity::{TypeHash, TypeInfo};
+use hiroz::qos::{QosHistory, QosProfile};
 use hiroz::{Builder, MessageTypeInfo};
 use serde::{Deserialize, Serialize};
 use std::time::{Duration, Instant};
@@ -407,7 +408,9 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     let client = node.create_action_client::<FollowJointTrajectory>("/arm/follow_joint_trajectory").build()?;
     assert!(client.wait_for_server(Duration::from_secs(10)).await, "the action server is found");
     let goal = trajectory(&["lift", "turn"], &[(1.0, &[0.006, 0.4]), (2.0, &[0.009, 0.3]), (3.0, &[0.004, 0.6])]);
-    let controller = node.create_sub::<ControllerState>("/arm/controller_state").build()?;
+    // Every state kept (hiroz's default keeps the last 10), read once the goal has ended.
+    let every = QosProfile { history: QosHistory::KeepAll, ..QosProfile::default() };
+    let controller = node.create_sub::<ControllerState>("/arm/controller_state").with_qos(every).build()?;
     while controller.recv_timeout(Duration::from_millis(100)).is_ok() {}
     let started = Instant::now();
     let mut handle = client.send_goal(goal).await?;
@@ -417,21 +420,37 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
     assert!(started.elapsed() > Duration::from_millis(2500), "the points took their time: {:?}", started.elapsed());
     let seen = feedback.try_recv().expect("feedback while it ran");
     assert_eq!(seen.joint_names, ["lift", "turn"]);
-    // The controller's state while it ran: the trajectory's reference ahead of the joints at some
-    // time (the lift went 3 mm out in its first second), each message's error its reference −
-    // feedback; at its end the reference is the last point.
-    let (mut states_seen, mut ahead, mut last_state) = (0, false, ControllerState::default());
+    // The controller's state while it ran: the lift's reference on the trajectory's lines (from
+    // 2 mm: 4, 3 and -5 mm/s), moving with its stamp at its line's velocity, and ahead of the
+    // lift at some time (the record ramps up); each error its reference − feedback; at the end
+    // the last point held.
+    let slopes = [0.004, 0.003, -0.005];
+    let (mut states_seen, mut ahead, mut lines, mut last_state) = (0, false, Vec::new(), ControllerState::default());
+    let stamp = |s: &ControllerState| f64::from(s.header.stamp.sec) + f64::from(s.header.stamp.nanosec) * 1e-9;
     while let Ok(state) = controller.recv_timeout(Duration::from_millis(100)) {
         assert_eq!(state.joint_names, ["lift", "turn"]);
         for k in 0..2 {
             let error = state.reference.positions[k] - state.feedback.positions[k];
             assert!((state.error.positions[k] - error).abs() < 1e-12, "{state:?}");
         }
+        let speed = state.reference.velocities[0];
+        if let Some(line) = slopes.iter().position(|slope| (speed - slope).abs() < 1e-5) {
+            let before = (last_state.reference.velocities.first() == Some(&speed)).then(|| &last_state);
+            if let Some(before) = before {
+                let moved = state.reference.positions[0] - before.reference.positions[0];
+                let expected = speed * (stamp(&state) - stamp(before));
+                assert!((moved - expected).abs() < 1e-7, "along its line: {moved} for {expected}: {state:?}");
+            }
+            if !lines.contains(&line) {
+                lines.push(line);
+            }
+        }
         ahead |= state.error.positions[0].abs() > 1e-4;
         states_seen += 1;
         last_state = state;
     }
     assert!(states_seen > 10 && ahead, "{states_seen} controller states, the reference ahead of the lift: {ahead}");
+    assert!(lines.len() >= 2, "the reference followed the trajectory's lines: {lines:?}");
     let ended = &last_state.reference.positions;
     assert!((ended[0] - 0.004).abs() < 1e-9 && (ended[1] - 0.6).abs() < 1e-6, "{last_state:?}");
 

@@ -26,8 +26,8 @@
 
 use crate::follow::{
     CancelGoalRequest, CancelGoalResponse, ControllerState, FeedbackMessage, GetResultResponse, GoalId, GoalInfo,
-    GoalStatusArray, GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, SendGoalRequest,
-    TrajectoryFeedback, TrajectoryGoal, TrajectoryResult,
+    GoalStatusArray, GoalStatusEntry, JointTolerance, JointTrajectory, JointTrajectoryPoint, RosDuration,
+    SendGoalRequest, TrajectoryFeedback, TrajectoryGoal, TrajectoryResult,
 };
 use crate::joints::{JointStates, Ramp};
 use crate::messages::{Header, JointState, Time};
@@ -313,10 +313,15 @@ impl Plan {
 
     /// Where joint `k` should be at `now` on the trajectory as planned, and how fast it should
     /// go there (EGU, EGU/s): on the line between the points about it, as
-    /// joint_trajectory_controller interpolates positions alone; at rest past the last.
+    /// joint_trajectory_controller interpolates positions alone; at rest before the start and
+    /// past the last point.
     fn desired(&self, k: usize, now: Duration) -> (f64, f64) {
-        let t = now.saturating_sub(self.start);
         let mut before = (Duration::ZERO, self.joints[k].from);
+        if now < self.start {
+            // A goal stamped ahead: where the joint stands until then.
+            return (before.1, 0.0);
+        }
+        let t = now - self.start;
         for point in &self.points {
             let to = point.targets[k];
             if t < point.at {
@@ -674,27 +679,42 @@ impl FollowJointTrajectory {
     }
 
     /// The controller's state as `state` (a `joint_states` message of every joint) shows it,
-    /// as joint_trajectory_controller publishes it on `~/controller_state`: the reference is the
-    /// executing trajectory's sample at the state's stamp for its joints, and where each other
-    /// joint's axis is sent (VAL: it holds there) for the rest; feedback is the state; error is
-    /// reference − feedback. SI units.
+    /// as joint_trajectory_controller publishes it on `~/controller_state`, in SI units. The
+    /// reference of a joint of the running trajectory is that trajectory's sample at the state's
+    /// stamp (position, velocity, time from its start); of a joint being stopped (a goal
+    /// cancelled, failed or replaced), where it is, at rest, as that controller holds a joint it
+    /// stops; of any other, where its axis is sent (VAL), at rest. Feedback is the state; error is
+    /// reference − feedback (velocities too); output is where each axis is sent (VAL: what
+    /// the hardware was commanded).
     #[must_use]
     pub fn controller_state(&self, joints: &JointStates, state: &JointState) -> ControllerState {
         let stamp = &state.header.stamp;
         let at = Duration::new(u64::try_from(stamp.sec).unwrap_or(0), stamp.nanosec);
-        let plan = self.plan.as_ref().filter(|_| self.waiting.is_none());
-        let (mut reference, mut error) = (JointTrajectoryPoint::default(), JointTrajectoryPoint::default());
+        let running = self.plan.as_ref().filter(|plan| plan.ending.is_none() && self.waiting.is_none());
+        let stopping = self.plan.as_ref().filter(|_| running.is_none());
+        let mut reference = JointTrajectoryPoint::default();
+        let mut error = JointTrajectoryPoint::default();
+        let mut output = JointTrajectoryPoint::default();
         let readings = state.position.iter().zip(&state.velocity);
         for (i, (joint, (&position, &velocity))) in joints.joints().iter().zip(readings).enumerate() {
-            let planned = plan.and_then(|p| p.joints.iter().position(|j| j.index == i).map(|k| p.desired(k, at)));
-            let (want, speed) = match planned {
-                Some((want, speed)) => (want * joint.si_per_egu, speed * joint.si_per_egu),
-                None => (joints.target(i).map_or(position, |target| target * joint.si_per_egu), 0.0),
+            let sent = joints.target(i).map_or(position, |target| target * joint.si_per_egu);
+            let of = |plan: &Plan| plan.joints.iter().position(|j| j.index == i);
+            let (want, speed) = match (running.and_then(|p| of(p).map(|k| p.desired(k, at))), stopping.and_then(of)) {
+                (Some((want, speed)), _) => (want * joint.si_per_egu, speed * joint.si_per_egu),
+                (None, Some(_)) => (position, 0.0),
+                (None, None) => (sent, 0.0),
             };
             reference.positions.push(want);
             reference.velocities.push(speed);
+            reference.accelerations.push(0.0);
             error.positions.push(want - position);
             error.velocities.push(speed - velocity);
+            output.positions.push(sent);
+        }
+        if let Some(plan) = running {
+            let since = at.saturating_sub(plan.start);
+            reference.time_from_start =
+                RosDuration { sec: i32::try_from(since.as_secs()).unwrap_or(i32::MAX), nanosec: since.subsec_nanos() };
         }
         let feedback = JointTrajectoryPoint {
             positions: state.position.clone(),
@@ -707,6 +727,7 @@ impl FollowJointTrajectory {
             reference,
             feedback,
             error,
+            output,
             speed_scaling_factor: 1.0,
             ..ControllerState::default()
         }
@@ -1566,24 +1587,46 @@ mod tests {
         assert_eq!(rest.feedback.positions, [0.0, 0.0]);
         assert_eq!(rest.reference.positions, [0.002, 0.0], "where each axis is sent (VAL), in SI");
         assert_eq!(rest.reference.velocities, [0.0, 0.0]);
+        assert_eq!(rest.reference.accelerations, [0.0, 0.0]);
         assert_eq!(rest.error.positions, [0.002, 0.0], "reference − feedback");
+        assert_eq!(rest.output.positions, [0.002, 0.0], "what the axes were sent");
         assert_eq!(rest.speed_scaling_factor, 1.0);
-        assert_eq!(rest.output, JointTrajectoryPoint::default(), "no command interfaces");
 
-        // A goal for lift alone: 10 mm in 2 s. Half-way in time, lift read back at 4 mm.
+        // A goal for lift alone: 10 mm in 2 s; turn sent to 1° meanwhile (not by the goal). Half-way
+        // in time, lift read back at 4 mm.
         server.send_goal(&goal(&["lift"], &[(2000, &[0.010])]), &states, at(0)).unwrap();
         let _ = server.poll(&states, at(0));
         states.update("m1", Field::VAL, 10.0, at(0));
         states.update("m1", Field::DMOV, 0.0, at(0));
+        states.update("m2", Field::VAL, 1.0, at(0));
         states.update("m1", Field::RBV, 4.0, at(1000));
         let state = states.poll_publish(at(1000)).expect("a fresh readback");
         let running = server.controller_state(&states, &state);
+        let one_degree = 1f64.to_radians();
         let near = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12);
-        assert!(near(&running.reference.positions, &[0.005, 0.0]), "the trajectory at the state's stamp: {running:?}");
+        assert!(
+            near(&running.reference.positions, &[0.005, one_degree]),
+            "the trajectory at the state's stamp: {running:?}"
+        );
         assert!(near(&running.reference.velocities, &[0.005, 0.0]), "its slope, m/s: {running:?}");
+        assert_eq!(running.reference.time_from_start, RosDuration { sec: 1, nanosec: 0 });
         assert!(near(&running.feedback.positions, &[0.004, 0.0]), "{running:?}");
-        assert!(near(&running.error.positions, &[0.001, 0.0]), "{running:?}");
+        assert!(near(&running.error.positions, &[0.001, one_degree]), "{running:?}");
         assert!(near(&running.error.velocities, &[0.005 - state.velocity[0], 0.0]), "{running:?}");
+        assert!(near(&running.output.positions, &[0.010, one_degree]), "{running:?}");
+
+        // Cancelled: while the lift stops, it is held where it is, at rest, as the controller holds
+        // a joint it stops (not on the trajectory given up, nor at the target it was sent to).
+        let info = GoalInfo { goal_id: [1; 16], stamp: Time::default() };
+        let (_, stops) = server.cancel(&CancelGoalRequest { goal_info: info });
+        assert_eq!(stops, [JointCommand::Stop { axis: "m1".into() }]);
+        states.update("m1", Field::RBV, 5.0, at(1200));
+        let state = states.poll_publish(at(1200)).expect("a fresh readback");
+        let stopping = server.controller_state(&states, &state);
+        assert!(near(&stopping.reference.positions, &[0.005, one_degree]), "{stopping:?}");
+        assert_eq!(stopping.reference.velocities, [0.0, 0.0]);
+        assert_eq!(stopping.reference.time_from_start, RosDuration::default());
+        assert!(near(&stopping.error.positions, &[0.0, one_degree]), "{stopping:?}");
     }
 
     #[test]
@@ -1599,8 +1642,8 @@ mod tests {
             ..ControllerState::default()
         };
         let jazzy = state.encode(Distribution::Jazzy);
-        assert_eq!(jazzy, encode(&state));
         assert_eq!(decode::<ControllerState>(&jazzy, "jazzy").unwrap(), state);
+        assert_eq!(jazzy[jazzy.len() - 8..], 1f64.to_le_bytes(), "the speed scaling last");
         // Humble's (control_msgs 4): desired and actual after output, the multi-DOF desired and
         // actual after the multi-DOF output, no speed scaling; its controller fills desired as
         // reference and actual as feedback.

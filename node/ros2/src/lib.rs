@@ -245,8 +245,8 @@ impl std::fmt::Debug for Feed {
 }
 
 impl Feed {
-    /// The keys whose values the ROS face needs, by index: each joint's axis's RBV, DMOV, soft
-    /// limits and VELO.
+    /// The keys whose values the ROS face needs, by index: each joint's axis's fields it
+    /// follows (RBV, DMOV, VAL, soft limits, VELO, RDBD and the ramps').
     #[must_use]
     pub fn keys(&self) -> Vec<String> {
         self.keys.iter().map(|(axis, field)| self.layout.field(axis, *field)).collect()
