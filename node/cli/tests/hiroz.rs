@@ -435,7 +435,7 @@ async fn ros_peer(endpoint: &str) -> hiroz::Result<()> {
         }
         let speed = state.reference.velocities[0];
         if let Some(line) = slopes.iter().position(|slope| (speed - slope).abs() < 1e-5) {
-            let before = (last_state.reference.velocities.first() == Some(&speed)).then(|| &last_state);
+            let before = (last_state.reference.velocities.first() == Some(&speed)).then_some(&last_state);
             if let Some(before) = before {
                 let moved = state.reference.positions[0] - before.reference.positions[0];
                 let expected = speed * (stamp(&state) - stamp(before));
