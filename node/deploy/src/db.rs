@@ -126,15 +126,21 @@ pub(super) fn import_text(
     let mut launch = LaunchFile::default();
     // Writes into calc inputs from other records' output links: (calc, letter) → mode.
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
+    // Forward links of motors and value holders.
+    let mut forward_links = Vec::new();
     for record in &records {
         // A motor's disabling is modelled; the records that become calc links and values are not.
         if RUN_KINDS.contains(&record.kind.as_str()) && record.kind != "motor" {
             warnings.extend(processing_disabled(record));
         }
         match record.kind.as_str() {
-            "motor" => launch.axes.push(motor(record, &linker, &mut warnings, &mut written_inputs)?),
+            "motor" => {
+                launch.axes.push(motor(record, &linker, &mut warnings, &mut written_inputs, &mut forward_links)?)
+            }
             "calcout" | "calc" => launch.calcs.push(calc(record, &linker, &mut warnings, &mut written_inputs)?),
-            "ao" | "ai" | "longout" | "longin" => launch.values.push(value_holder(record, &mut warnings)?),
+            "ao" | "ai" | "longout" | "longin" => {
+                launch.values.push(value_holder(record, &mut warnings, &mut forward_links)?)
+            }
             other => warnings.push(format!(
                 "line {}: record '{}' of type {other} is not supported and was skipped",
                 record.line, record.name
@@ -147,7 +153,74 @@ pub(super) fn import_text(
             calc.inputs.entry(letter).or_insert(CalcInput::Linked { key, mode });
         }
     }
+    for link in forward_links {
+        warnings.extend(forward_link(&mut launch.calcs, &kinds, link));
+    }
     Ok((launch, warnings))
+}
+
+/// A record's FLNK: the record it names is processed after this one.
+struct ForwardLink {
+    /// The record whose FLNK it is.
+    from: String,
+    /// The record it processes.
+    target: String,
+    line: usize,
+    /// What tells the node that `from` processed: a motor writes 1 to the target's PROC key at
+    /// each processing that ends a motion; a value holder is processed by each write of its key.
+    signal: String,
+}
+
+/// A forward link into a calc: the calc is processed at each update of the link's signal (its
+/// input reading that key becomes CP, or, if none does, an input its CALC does not read follows
+/// the key, CP, for that alone), as the node processes a calc link on a CP input; said in the
+/// warnings. Into a motor (a write of 1 to its PROC), nothing to say; into anything else it is
+/// not modelled, and said so.
+fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: ForwardLink) -> Option<String> {
+    let ForwardLink { from, target, line, signal: key } = link;
+    let whose = format!("line {line}: record '{from}': FLNK '{target}'");
+    let Some(calc) = calcs.iter_mut().find(|c| c.name == target) else {
+        // A motor's write of its target's PROC processes a motor, here or elsewhere.
+        let from_motor = kinds.get(from.as_str()) == Some(&"motor");
+        return match kinds.get(target.as_str()) {
+            Some(&"motor") | None if from_motor => None,
+            Some(kind) => {
+                Some(format!("{whose}: processing {kind} '{target}' by a forward link is not modelled; ignored"))
+            }
+            None => Some(format!("{whose}: no such record in this database; ignored")),
+        };
+    };
+    let mut reading = Vec::new();
+    for (letter, input) in &mut calc.inputs {
+        match input {
+            CalcInput::Key(read) if *read == key => reading.push(letter.clone()),
+            CalcInput::Linked { key: read, mode } if *read == key => {
+                *mode = InputLinkMode::Cp;
+                reading.push(letter.clone());
+            }
+            _ => {}
+        }
+    }
+    if !reading.is_empty() {
+        let letters = reading.join(", ");
+        return Some(format!("{whose}: processes '{target}' on each write: its input {letters} follows {key} CP"));
+    }
+    let read = zmotor_bridge::Expression::parse(&calc.expression).map_or(u16::MAX, |e| e.inputs_used());
+    let free = (0..zmotor_bridge::INPUTS).map(zmotor_bridge::input_name).find(|letter| {
+        let letter = letter.to_string();
+        let index = zmotor_bridge::input_index(&letter).unwrap_or_default();
+        read & (1 << index) == 0 && !calc.inputs.contains_key(&letter) && !calc.constants.contains_key(&letter)
+    });
+    Some(match free {
+        Some(letter) => {
+            calc.inputs.insert(letter.to_string(), CalcInput::Linked { key: key.clone(), mode: InputLinkMode::Cp });
+            format!(
+                "{whose}: processes '{target}' on each update of {key}: its input {letter}, which its CALC does not \
+                 read, follows it CP"
+            )
+        }
+        None => format!("{whose}: '{target}' has no input free to follow {key} by; the forward link is ignored"),
+    })
 }
 
 /// The fields that disable a record's processing: a motor's are modelled, other records'
@@ -263,6 +336,7 @@ fn motor(
     linker: &Linker,
     warnings: &mut Vec<String>,
     written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
+    forward_links: &mut Vec<ForwardLink>,
 ) -> Result<AxisSection, Failure> {
     let dtyp = record.field("DTYP").map(|(_, v, _)| v.as_str()).unwrap_or("");
     let soft = dtyp == "Soft Channel";
@@ -313,6 +387,14 @@ fn motor(
                 Link::None | Link::Constant(_) => continue,
                 Link::Hardware if !soft => continue,
                 Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
+                // A forward link processes the record it names, whatever field it says: the
+                // motor writes 1 to that record's PROC (to its VAL, it would move a motor to 1).
+                Link::Key { key, record: target, .. } if field == Field::FLNK => {
+                    let signal = format!("{}/PROC", key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record));
+                    let link = ForwardLink { from: record.name.clone(), target, line: *line, signal: signal.clone() };
+                    forward_links.push(link);
+                    toml::Value::String(signal)
+                }
                 Link::Key { key, record: target, field: target_field, process, .. } => {
                     if field.is_output_link() {
                         note_calc_write(linker, &target, &target_field, process, written_inputs);
@@ -463,11 +545,22 @@ fn calc(
     Ok(section)
 }
 
-fn value_holder(record: &Record, warnings: &mut Vec<String>) -> Result<ValueSection, Failure> {
+fn value_holder(
+    record: &Record,
+    warnings: &mut Vec<String>,
+    forward_links: &mut Vec<ForwardLink>,
+) -> Result<ValueSection, Failure> {
     let mut value = 0.0;
     for (name, text, line) in &record.fields {
         let number = text.trim().parse::<f64>();
         match name.as_str() {
+            // `record`, `record.PROC` or `record PP`: the record processed.
+            "FLNK" if !text.trim().is_empty() => {
+                let target = text.split_whitespace().next().unwrap_or_default();
+                let target = target.split_once('.').map_or(target, |(record, _)| record).to_string();
+                let signal = format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name);
+                forward_links.push(ForwardLink { from: record.name.clone(), target, line: *line, signal });
+            }
             "VAL" => {
                 value = number.map_err(|_| {
                     Failure::at(*line, format!("{} '{}': VAL '{text}' is not a number", record.kind, record.name))
@@ -913,6 +1006,85 @@ mod tests {
         assert!(warnings.iter().any(|w| w.contains("DOL 'other.VAL' is ignored")), "{warnings:?}");
         assert!(warnings.iter().any(|w| w.contains("type stringin is not supported")), "{warnings:?}");
         assert!(warnings.iter().any(|w| w.contains("DTYP 'OMS VME58'")), "{warnings:?}");
+        Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn a_value_holders_forward_link_processes_the_calc_it_names_on_each_write() {
+        let text = r#"
+            record(ao, "x") { field(FLNK, "double") }
+            record(calcout, "double") { field(INPA, "x NPP") field(CALC, "A*2") field(OUT, "m1.VAL PP") }
+            record(ao, "go") { field(FLNK, "sum.PROC") }
+            record(ao, "b") {}
+            record(calcout, "sum") { field(INPA, "b NPP") field(CALC, "A+C") field(C, "1") field(OUT, "m1.VAL PP") }
+            record(ao, "full") { field(FLNK, "all") }
+            record(calc, "all") { field(CALC, "A+B+C+D+E+F+G+H+I+J+K+L") }
+            record(ao, "lost") { field(FLNK, "m1.VAL") }
+            record(ao, "gone") { field(FLNK, "nowhere") }
+            record(motor, "m1") { field(DTYP, "Soft Channel") }
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        let calc = |name: &str| file.calcs.iter().find(|c| c.name == name).unwrap();
+        // The calc reads the holder: that input is now CP, as the forward link processes it.
+        let cp = |key: &str| CalcInput::Linked { key: key.into(), mode: InputLinkMode::Cp };
+        assert_eq!(calc("double").inputs["A"], cp("bridge/x/VAL"));
+        // It does not: the first input its CALC does not read follows the holder, CP.
+        assert_eq!(calc("sum").inputs["B"], cp("bridge/go/VAL"));
+        assert_eq!(calc("sum").inputs["A"], CalcInput::Linked { key: "bridge/b/VAL".into(), mode: InputLinkMode::Npp });
+        assert_eq!(calc("all").inputs.len(), 0, "no input free");
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        assert!(
+            said("record 'x': FLNK 'double': processes 'double' on each write: its input A follows bridge/x/VAL CP"),
+            "{warnings:?}"
+        );
+        assert!(said("record 'go': FLNK 'sum': processes 'sum' on each update of bridge/go/VAL: its input B, which its CALC does not read, follows it CP"), "{warnings:?}");
+        assert!(said("record 'full': FLNK 'all': 'all' has no input free to follow bridge/full/VAL by; the forward link is ignored"));
+        assert!(
+            said("record 'lost': FLNK 'm1': processing motor 'm1' by a forward link is not modelled; ignored"),
+            "{warnings:?}"
+        );
+        assert!(said("record 'gone': FLNK 'nowhere': no such record in this database; ignored"));
+        // As the node runs it: a write to `go` recomputes `sum` (B takes the write, unused).
+        let deployment = Launch::from_file("db", file).unwrap().deployment(None).unwrap();
+        let sum = deployment.contents.calcs.iter().find(|c| c.name == "sum").unwrap();
+        let mut link = zmotor_bridge::CalcLink::new(sum.clone()).unwrap();
+        assert_eq!(link.update("bridge/b/VAL", 4.0), None, "b is NPP");
+        assert_eq!(link.update("bridge/go/VAL", 1.0), Some(5.0), "the forward link's write processes it");
+    }
+
+    #[test]
+    fn a_motors_forward_link_processes_the_record_it_names_and_never_writes_its_value() {
+        let text = r#"
+            record(motor, "m1") { field(DTYP, "Soft Channel") field(FLNK, "m2") }
+            record(motor, "m2") { field(DTYP, "Soft Channel") field(FLNK, "after.VAL") }
+            record(calcout, "after") { field(CALC, "A+1") field(INPA, "count NPP") field(OUT, "count PP") }
+            record(ao, "count") {}
+            record(motor, "m3") { field(DTYP, "Soft Channel") field(FLNK, "count") }
+            record(motor, "m4") { field(DTYP, "Soft Channel") field(FLNK, "elsewhere") }
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        let flnk = |axis: &str| {
+            let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
+            axis.fields["FLNK"].as_str().unwrap().to_string()
+        };
+        // Processing a motor is a write of its PROC; its VAL would move it to 1.
+        assert_eq!(flnk("m1"), "motor/m2/PROC");
+        assert_eq!(flnk("m4"), "motor/elsewhere/PROC");
+        // Into a calc: the calc follows its PROC key, CP, on an input its CALC does not read.
+        assert_eq!(flnk("m2"), "bridge/after/PROC");
+        let after = file.calcs.iter().find(|c| c.name == "after").unwrap();
+        assert_eq!(after.inputs["B"], CalcInput::Linked { key: "bridge/after/PROC".into(), mode: InputLinkMode::Cp });
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        assert!(
+            said("record 'm2': FLNK 'after': processes 'after' on each update of bridge/after/PROC"),
+            "{warnings:?}"
+        );
+        assert_eq!(flnk("m3"), "bridge/count/PROC", "the value holder's value is not written");
+        assert!(
+            said("record 'm3': FLNK 'count': processing ao 'count' by a forward link is not modelled; ignored"),
+            "{warnings:?}"
+        );
+        assert!(!said("FLNK 'm2'") && !said("FLNK 'elsewhere': "), "{warnings:?}");
         Launch::from_file("db", file).unwrap();
     }
 
