@@ -5,7 +5,10 @@
 //!   calcout/calc `R`   → calc link `R`; its fields are `bridge/R/<FIELD>` (`A`…`L`, `VAL`)
 //!   ao/ai `R`          → value holder on `bridge/R/VAL`
 //! A link `R.FIELD PP MS` becomes the key of R's field; PP/NPP/CP decide whether an update
-//! recomputes a calc link. Motors with a hardware DTYP become simulated axes, with a warning.
+//! recomputes a calc link. A forward link (FLNK) processes the record it names: a motor's
+//! writes that record's PROC; into a calc, the calc follows the signal CP; one that would close a
+//! loop of processing is not followed. Motors with a hardware DTYP become simulated axes, with a
+//! warning.
 
 use crate::file::{
     default_readback_rate, read_text, AxisSection, CalcInput, CalcOption, CalcSection, DriverKind, InputLinkMode,
@@ -153,10 +156,94 @@ pub(super) fn import_text(
             calc.inputs.entry(letter).or_insert(CalcInput::Linked { key, mode });
         }
     }
+    let mut processing = Processing::of(&launch.calcs);
     for link in forward_links {
-        warnings.extend(forward_link(&mut launch.calcs, &kinds, link));
+        let forwarded = match processing.loop_through(&link.target, &link.from) {
+            Some(records) => Forwarded::Ignored(format!(
+                "line {}: record '{}': FLNK '{}' would close a loop of processing ({} → {}); EPICS ends one at \
+                 the record already processing, zmotor would not: this forward link is not followed",
+                link.line,
+                link.from,
+                link.target,
+                link.from,
+                records.join(" → ")
+            )),
+            None => forward_link(&mut launch.calcs, &kinds, &link),
+        };
+        match forwarded {
+            Forwarded::Followed(said) => {
+                processing.add(&link.from, &link.target);
+                warnings.extend(said);
+            }
+            Forwarded::Ignored(why) => {
+                if let Some(axis) = launch.axes.iter_mut().find(|a| a.name == link.from) {
+                    axis.fields.remove("FLNK");
+                }
+                warnings.push(why);
+            }
+        }
     }
     Ok((launch, warnings))
+}
+
+/// The record a record's FLNK names (its last FLNK; the field a link names does not matter to
+/// a forward link), and the line; none for an empty or constant one.
+fn forward_target(record: &Record) -> Option<(String, usize)> {
+    let (_, text, line) = record.field("FLNK")?;
+    let target = text.split_whitespace().next()?;
+    let target = target.split_once('.').map_or(target, |(record, _)| record);
+    (target.parse::<f64>().is_err()).then(|| (target.to_string(), *line))
+}
+
+/// Which record's processing makes which other's: the forward links followed so far, each calc
+/// into the record its output writes, and each record a calc follows CP into the calc.
+struct Processing {
+    next: BTreeMap<String, Vec<String>>,
+}
+
+impl Processing {
+    fn of(calcs: &[CalcSection]) -> Self {
+        let mut processing = Self { next: BTreeMap::new() };
+        let record = |key: &str| key.rsplit('/').nth(1).map(str::to_string);
+        for calc in calcs {
+            if let Some(written) = record(&calc.output) {
+                processing.add(&calc.name, &written);
+            }
+            for input in calc.inputs.values() {
+                let followed = match input {
+                    CalcInput::Key(key) | CalcInput::Linked { key, mode: InputLinkMode::Cp } => record(key),
+                    CalcInput::Linked { mode: InputLinkMode::Npp, .. } => None,
+                };
+                if let Some(followed) = followed {
+                    processing.add(&followed, &calc.name);
+                }
+            }
+        }
+        processing
+    }
+
+    fn add(&mut self, from: &str, to: &str) {
+        self.next.entry(from.to_string()).or_default().push(to.to_string());
+    }
+
+    /// The records from `start` on whose processing leads to `end`'s, if any does.
+    fn loop_through(&self, start: &str, end: &str) -> Option<Vec<String>> {
+        let mut paths = vec![vec![start.to_string()]];
+        let mut seen = std::collections::BTreeSet::new();
+        while let Some(path) = paths.pop() {
+            let at = path.last().expect("a path has a record");
+            if at == end {
+                return Some(path);
+            }
+            if !seen.insert(at.clone()) {
+                continue;
+            }
+            for next in self.next.get(at).into_iter().flatten() {
+                paths.push([path.clone(), vec![next.clone()]].concat());
+            }
+        }
+        None
+    }
 }
 
 /// A record's FLNK: the record it names is processed after this one.
@@ -167,8 +254,17 @@ struct ForwardLink {
     target: String,
     line: usize,
     /// What tells the node that `from` processed: a motor writes 1 to the target's PROC key at
-    /// each processing that ends a motion; a value holder is processed by each write of its key.
+    /// each processing that ends with DMOV = 1; a value holder is processed by each write of
+    /// its key.
     signal: String,
+}
+
+/// What became of a forward link.
+enum Forwarded {
+    /// Followed; what was made of it, where that needs saying.
+    Followed(Option<String>),
+    /// Not followed, and why.
+    Ignored(String),
 }
 
 /// A forward link into a calc: the calc is processed at each update of the link's signal (its
@@ -176,25 +272,25 @@ struct ForwardLink {
 /// the key, CP, for that alone), as the node processes a calc link on a CP input; said in the
 /// warnings. Into a motor (a write of 1 to its PROC), nothing to say; into anything else it is
 /// not modelled, and said so.
-fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: ForwardLink) -> Option<String> {
+fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &ForwardLink) -> Forwarded {
     let ForwardLink { from, target, line, signal: key } = link;
     let whose = format!("line {line}: record '{from}': FLNK '{target}'");
-    let Some(calc) = calcs.iter_mut().find(|c| c.name == target) else {
+    let Some(calc) = calcs.iter_mut().find(|c| c.name == *target) else {
         // A motor's write of its target's PROC processes a motor, here or elsewhere.
         let from_motor = kinds.get(from.as_str()) == Some(&"motor");
         return match kinds.get(target.as_str()) {
-            Some(&"motor") | None if from_motor => None,
-            Some(kind) => {
-                Some(format!("{whose}: processing {kind} '{target}' by a forward link is not modelled; ignored"))
-            }
-            None => Some(format!("{whose}: no such record in this database; ignored")),
+            Some(&"motor") | None if from_motor => Forwarded::Followed(None),
+            Some(kind) => Forwarded::Ignored(format!(
+                "{whose}: processing {kind} '{target}' by a forward link is not modelled; ignored"
+            )),
+            None => Forwarded::Ignored(format!("{whose}: no such record in this database; ignored")),
         };
     };
     let mut reading = Vec::new();
     for (letter, input) in &mut calc.inputs {
         match input {
-            CalcInput::Key(read) if *read == key => reading.push(letter.clone()),
-            CalcInput::Linked { key: read, mode } if *read == key => {
+            CalcInput::Key(read) if read == key => reading.push(letter.clone()),
+            CalcInput::Linked { key: read, mode } if read == key => {
                 *mode = InputLinkMode::Cp;
                 reading.push(letter.clone());
             }
@@ -203,24 +299,32 @@ fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: F
     }
     if !reading.is_empty() {
         let letters = reading.join(", ");
-        return Some(format!("{whose}: processes '{target}' on each write: its input {letters} follows {key} CP"));
+        return Forwarded::Followed(Some(format!(
+            "{whose}: processes '{target}' on each write: its input {letters} follows {key} CP"
+        )));
     }
-    let read = zmotor_bridge::Expression::parse(&calc.expression).map_or(u16::MAX, |e| e.inputs_used());
+    let Ok(expression) = zmotor_bridge::Expression::parse(&calc.expression) else {
+        // Refused at load, saying why.
+        return Forwarded::Followed(None);
+    };
+    let read = expression.inputs_used();
     let free = (0..zmotor_bridge::INPUTS).map(zmotor_bridge::input_name).find(|letter| {
         let letter = letter.to_string();
         let index = zmotor_bridge::input_index(&letter).unwrap_or_default();
         read & (1 << index) == 0 && !calc.inputs.contains_key(&letter) && !calc.constants.contains_key(&letter)
     });
-    Some(match free {
+    match free {
         Some(letter) => {
             calc.inputs.insert(letter.to_string(), CalcInput::Linked { key: key.clone(), mode: InputLinkMode::Cp });
-            format!(
+            Forwarded::Followed(Some(format!(
                 "{whose}: processes '{target}' on each update of {key}: its input {letter}, which its CALC does not \
                  read, follows it CP"
-            )
+            )))
         }
-        None => format!("{whose}: '{target}' has no input free to follow {key} by; the forward link is ignored"),
-    })
+        None => Forwarded::Ignored(format!(
+            "{whose}: '{target}' has no input free to follow {key} by; the forward link is ignored"
+        )),
+    }
 }
 
 /// The fields that disable a record's processing: a motor's are modelled, other records'
@@ -363,6 +467,9 @@ fn motor(
         let field = Field::from_name(name)
             .filter(|f| f.name() == name)
             .ok_or_else(|| at("not a field of the motor record".into()))?;
+        if field == Field::FLNK {
+            continue;
+        }
         // A launch file refuses them: a database's are dropped, with a word.
         if field.is_command() || field.starts_at_readback() {
             warnings.push(format!(
@@ -387,14 +494,6 @@ fn motor(
                 Link::None | Link::Constant(_) => continue,
                 Link::Hardware if !soft => continue,
                 Link::Hardware => return Err(at(format!("'{text}' is a hardware address, not a link"))),
-                // A forward link processes the record it names, whatever field it says: the
-                // motor writes 1 to that record's PROC (to its VAL, it would move a motor to 1).
-                Link::Key { key, record: target, .. } if field == Field::FLNK => {
-                    let signal = format!("{}/PROC", key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record));
-                    let link = ForwardLink { from: record.name.clone(), target, line: *line, signal: signal.clone() };
-                    forward_links.push(link);
-                    toml::Value::String(signal)
-                }
                 Link::Key { key, record: target, field: target_field, process, .. } => {
                     if field.is_output_link() {
                         note_calc_write(linker, &target, &target_field, process, written_inputs);
@@ -417,6 +516,16 @@ fn motor(
     for (field, (value, line)) in &last {
         if let Some(why) = zmotor_core::Unusable::of(*field, value) {
             return Err(Failure::at(*line, format!("motor '{}': field {}: {why}", record.name, field.name())));
+        }
+    }
+    // A forward link processes the record it names, whatever field it says: the motor writes 1
+    // to that record's PROC (to its VAL, it would move a motor to 1). Kept or not once every
+    // record is known (`forward_links`).
+    if let Some((target, line)) = forward_target(record) {
+        if let Link::Key { key, .. } = linker.link(&target, line, warnings)? {
+            let signal = format!("{}/PROC", key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record));
+            fields.insert("FLNK".to_string(), toml::Value::String(signal.clone()));
+            forward_links.push(ForwardLink { from: record.name.clone(), target, line, signal });
         }
     }
     let driver = match (&on_controller, soft) {
@@ -554,13 +663,6 @@ fn value_holder(
     for (name, text, line) in &record.fields {
         let number = text.trim().parse::<f64>();
         match name.as_str() {
-            // `record`, `record.PROC` or `record PP`: the record processed.
-            "FLNK" if !text.trim().is_empty() => {
-                let target = text.split_whitespace().next().unwrap_or_default();
-                let target = target.split_once('.').map_or(target, |(record, _)| record).to_string();
-                let signal = format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name);
-                forward_links.push(ForwardLink { from: record.name.clone(), target, line: *line, signal });
-            }
             "VAL" => {
                 value = number.map_err(|_| {
                     Failure::at(*line, format!("{} '{}': VAL '{text}' is not a number", record.kind, record.name))
@@ -575,7 +677,12 @@ fn value_holder(
             _ => {}
         }
     }
-    Ok(ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() })
+    let section = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
+    if let Some((target, line)) = forward_target(record) {
+        // Processed at each write of its value.
+        forward_links.push(ForwardLink { from: record.name.clone(), target, line, signal: section.key() });
+    }
+    Ok(section)
 }
 
 // ---- the file itself ----
@@ -1065,13 +1172,13 @@ mod tests {
         let (file, warnings) = import(text).unwrap();
         let flnk = |axis: &str| {
             let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
-            axis.fields["FLNK"].as_str().unwrap().to_string()
+            axis.fields.get("FLNK").map(|f| f.as_str().unwrap().to_string())
         };
         // Processing a motor is a write of its PROC; its VAL would move it to 1.
-        assert_eq!(flnk("m1"), "motor/m2/PROC");
-        assert_eq!(flnk("m4"), "motor/elsewhere/PROC");
+        assert_eq!(flnk("m1").unwrap(), "motor/m2/PROC");
+        assert_eq!(flnk("m4").unwrap(), "motor/elsewhere/PROC");
         // Into a calc: the calc follows its PROC key, CP, on an input its CALC does not read.
-        assert_eq!(flnk("m2"), "bridge/after/PROC");
+        assert_eq!(flnk("m2").unwrap(), "bridge/after/PROC");
         let after = file.calcs.iter().find(|c| c.name == "after").unwrap();
         assert_eq!(after.inputs["B"], CalcInput::Linked { key: "bridge/after/PROC".into(), mode: InputLinkMode::Cp });
         let said = |part: &str| warnings.iter().any(|w| w.contains(part));
@@ -1079,12 +1186,52 @@ mod tests {
             said("record 'm2': FLNK 'after': processes 'after' on each update of bridge/after/PROC"),
             "{warnings:?}"
         );
-        assert_eq!(flnk("m3"), "bridge/count/PROC", "the value holder's value is not written");
+        assert_eq!(flnk("m3"), None, "into a value: nothing written");
         assert!(
             said("record 'm3': FLNK 'count': processing ao 'count' by a forward link is not modelled; ignored"),
             "{warnings:?}"
         );
         assert!(!said("FLNK 'm2'") && !said("FLNK 'elsewhere': "), "{warnings:?}");
+        Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn forward_links_that_would_loop_are_cut_and_only_a_records_last_flnk_counts() {
+        let text = r#"
+            record(motor, "m1") { field(DTYP, "Soft Channel") field(FLNK, "m2") }
+            record(motor, "m2") { field(DTYP, "Soft Channel") field(FLNK, "m1.VAL") }
+            record(motor, "self") { field(DTYP, "Soft Channel") field(FLNK, "self") }
+            record(ao, "x") { field(FLNK, "bump") }
+            record(calcout, "bump") { field(INPA, "x NPP") field(CALC, "A+1") field(OUT, "x PP") }
+            record(motor, "m3") { field(DTYP, "Soft Channel") field(FLNK, "again") }
+            record(calcout, "again") { field(INPA, "m3.RBV NPP") field(CALC, "A+1") field(OUT, "m3.VAL PP") }
+            record(motor, "m4") { field(DTYP, "Soft Channel") field(FLNK, "m1") }
+            record(motor, "m4") { field(FLNK, "m2") }
+            record(motor, "m5") { field(DTYP, "Soft Channel") field(FLNK, "m1") }
+            record(motor, "m5") { field(FLNK, "") }
+            record(ao, "zero") { field(FLNK, "0") }
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        let flnk = |axis: &str| {
+            let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
+            axis.fields.get("FLNK").map(|f| f.as_str().unwrap().to_string())
+        };
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        // m1 → m2 is followed; m2 → m1 would close the loop: EPICS stops at m1, still active.
+        assert_eq!((flnk("m1").as_deref(), flnk("m2")), (Some("motor/m2/PROC"), None));
+        assert!(said("record 'm2': FLNK 'm1' would close a loop of processing (m2 → m1 → m2)"), "{warnings:?}");
+        assert_eq!(flnk("self"), None);
+        assert!(said("record 'self': FLNK 'self' would close a loop of processing (self → self)"), "{warnings:?}");
+        // Through a calc's output: the value it writes processes it again, and so would a move.
+        let bump = file.calcs.iter().find(|c| c.name == "bump").unwrap();
+        assert_eq!(bump.inputs["A"], CalcInput::Linked { key: "bridge/x/VAL".into(), mode: InputLinkMode::Npp });
+        assert!(said("record 'x': FLNK 'bump' would close a loop of processing (x → bump → x)"), "{warnings:?}");
+        assert_eq!(flnk("m3"), None);
+        assert!(said("record 'm3': FLNK 'again' would close a loop of processing (m3 → again → m3)"), "{warnings:?}");
+        // A record's last FLNK is its forward link; an empty one is none, a constant one too.
+        assert_eq!(flnk("m4").as_deref(), Some("motor/m2/PROC"));
+        assert_eq!(flnk("m5"), None);
+        assert!(!said("'zero'"), "{warnings:?}");
         Launch::from_file("db", file).unwrap();
     }
 
