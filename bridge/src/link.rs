@@ -1,5 +1,7 @@
 //! Calc links: calcout records over keys. Inputs A–L are bound to keys; a CP input recomputes
-//! and may write the output on each update, an NPP input only holds the latest value. The
+//! and may write the output on each update, an NPP input only holds the latest value. A key the
+//! link is processed by (an EPICS forward link into it: a record that writes there processes it)
+//! recomputes on each update after the link has started, not on the value it finds then. The
 //! output is written to a key every time, or only when the result changes (OOPT).
 
 use crate::calc::{CalcError, Expression, INPUTS};
@@ -48,6 +50,11 @@ pub struct CalcLinkSpec {
     pub output: String,
     /// When the result is written (OOPT).
     pub option: OutputOption,
+    /// Keys whose every update processes the link, as a forward link into a record processes it
+    /// (a motor's FLNK writes its target's PROC, a value is processed by each write): not
+    /// inputs, and not read when the link starts (EPICS processes no record at start for a
+    /// forward link). An input on the same key takes the update's value first.
+    pub processed_by: Vec<String>,
 }
 
 /// Why a calc link's configuration was refused.
@@ -120,6 +127,20 @@ impl CalcLink {
         if !process {
             return None;
         }
+        self.process()
+    }
+
+    /// An update of `key`, one of the keys the link is processed by (`processed_by`): the inputs
+    /// on that key take `value`, and the link processes; the result to write, if one is due.
+    pub fn processed_by(&mut self, key: &str, value: f64) -> Option<f64> {
+        for input in self.spec.inputs.iter().filter(|i| i.key == key) {
+            self.values[input.index] = value;
+        }
+        self.process()
+    }
+
+    /// Recompute; the result to write to the output key, if one is due (OOPT).
+    fn process(&mut self) -> Option<f64> {
         let mut values = self.values;
         let result = self.expression.eval(&mut values);
         self.values = values;
@@ -128,9 +149,14 @@ impl CalcLink {
         (self.spec.option == OutputOption::EveryTime || changed).then_some(result)
     }
 
-    /// The keys this link listens to.
+    /// The keys of its inputs, in order.
     pub fn input_keys(&self) -> impl Iterator<Item = &str> {
         self.spec.inputs.iter().map(|i| i.key.as_str())
+    }
+
+    /// The keys it is processed by, in order.
+    pub fn processing_keys(&self) -> impl Iterator<Item = &str> {
+        self.spec.processed_by.iter().map(String::as_str)
     }
 }
 
@@ -149,11 +175,12 @@ pub fn input_index(letter: &str) -> Option<usize> {
     }
 }
 
-/// Calc links in which a CP input is fed, directly or through other calc links, by the
-/// link's own output: such a loop would recompute forever.
+/// Calc links in which a CP input, or a key the link is processed by, is fed, directly or
+/// through other calc links, by the link's own output: such a loop would recompute forever.
 pub fn find_cycle(links: &[CalcLinkSpec]) -> Option<Vec<String>> {
     let feeds = |from: &CalcLinkSpec, to: &CalcLinkSpec| {
         to.inputs.iter().any(|i| i.mode == InputMode::Process && i.key == from.output)
+            || to.processed_by.contains(&from.output)
     };
     fn visit(
         at: usize,
@@ -207,6 +234,7 @@ mod tests {
             constants: Vec::new(),
             output: output.into(),
             option,
+            processed_by: Vec::new(),
         }
     }
 
@@ -260,6 +288,23 @@ mod tests {
     }
 
     #[test]
+    fn a_key_it_is_processed_by_recomputes_it_with_its_inputs_on_that_key_updated_first() {
+        // A dfanout's output: its value held (NPP) and written out at each write of it.
+        let mut fan = spec("fan", "A", &[(0, "d", InputMode::NoProcess)], "m1/STOP", OutputOption::EveryTime);
+        fan.processed_by = vec!["d".into()];
+        let mut link = CalcLink::new(fan).unwrap();
+        assert_eq!(link.update("d", 1.0), None, "the value found at start is held, not written");
+        assert_eq!(link.processed_by("d", 2.0), Some(2.0), "a write is written out, its own value");
+        // A forward link from elsewhere: processes with the inputs as they are.
+        let mut count = spec("count", "A+1", &[(0, "n", InputMode::NoProcess)], "n", OutputOption::EveryTime);
+        count.processed_by = vec!["count/PROC".into()];
+        let mut link = CalcLink::new(count).unwrap();
+        let _ = link.update("n", 4.0);
+        assert_eq!(link.processed_by("count/PROC", 1.0), Some(5.0));
+        assert_eq!(link.processing_keys().collect::<Vec<_>>(), ["count/PROC"]);
+    }
+
+    #[test]
     fn cycles_through_cp_inputs_are_found() {
         let a = spec("a", "A", &[(0, "kb", InputMode::Process)], "ka", OutputOption::EveryTime);
         let b = spec("b", "A", &[(0, "ka", InputMode::Process)], "kb", OutputOption::EveryTime);
@@ -269,6 +314,9 @@ mod tests {
         let own = spec("self", "A+1", &[(0, "k", InputMode::Process)], "k", OutputOption::EveryTime);
         assert_eq!(find_cycle(&[own]), Some(vec!["self".into(), "self".into()]));
         let chain = spec("c", "A", &[(0, "ka", InputMode::Process)], "kc", OutputOption::EveryTime);
-        assert_eq!(find_cycle(&[a, chain]), None);
+        assert_eq!(find_cycle(&[a.clone(), chain]), None);
+        let mut processed = spec("p", "1", &[], "kb", OutputOption::EveryTime);
+        processed.processed_by = vec!["ka".into()];
+        assert_eq!(find_cycle(&[a, processed]), Some(vec!["a".into(), "p".into(), "a".into()]), "through processed_by");
     }
 }

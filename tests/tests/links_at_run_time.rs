@@ -1,7 +1,8 @@
 //! Input links written at run time are followed at once, as the record follows them: a DOL and
 //! OMSL closed_loop written over Zenoh drive the axis from the linked key; RDBL switched at run
 //! time changes where the readback comes from; a link change that cannot be wired is refused and
-//! changes nothing.
+//! changes nothing. A calc link processed by a key (a forward link into it) writes at each write
+//! of that key, not at start.
 
 use std::time::Duration;
 use zmotor_msgs::{Field, Value};
@@ -153,4 +154,38 @@ async fn an_sdis_link_disables_the_record_while_its_key_reads_disv() {
     confirmed_write(&client, &node.key("m1", Field::VAL), "2", PATIENCE).await.unwrap();
     rec.wait_for("RBV", |v| *v == Value::Float(2.0)).await;
     rec.wait_for("DMOV", |v| *v == int(1)).await;
+}
+
+/// A calc link processed by a value's key (an EPICS forward link into it, as a `.db`'s ao FLNK
+/// imports): nothing is written when it starts, though the value is there; each write of the
+/// value is, computed with the written value.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calc_processed_by_a_value_writes_at_each_write_of_it_and_not_at_start() {
+    let text = r#"
+[[axis]]
+name = "m1"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+[[value]]
+name = "goal"
+value = 3.0
+[[calc]]
+name = "drive"
+expression = "A*2"
+inputs = { A = { key = "bridge/goal/VAL", mode = "npp" } }
+output = "motor/m1/VAL"
+processed_by = ["bridge/goal/VAL"]
+"#;
+    let node = TestNode::launch(text).await;
+    let client = node.client().await;
+    let mut m1 = Recorder::new(&node, &client, "motor/m1/VAL").await;
+    // The calc follows its keys once the node serves; it reads its input's value meanwhile.
+    assert_eq!(get_value(&client, "bridge/goal/VAL").await, Value::Float(3.0));
+    m1.drain_for(Duration::from_millis(500)).await;
+    assert!(m1.values("VAL").is_empty(), "written at start: {:?}", m1.values("VAL"));
+    assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, 0.0);
+    put_text(&client, "bridge/goal/VAL", "1.25").await;
+    let val = m1.wait_for("VAL", |v| v.as_f64().is_some()).await;
+    assert_eq!(val.as_f64(), Some(2.5), "A*2 of the value written");
 }

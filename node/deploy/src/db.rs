@@ -1,13 +1,14 @@
-//! EPICS database import: `record`/`grecord` of type motor, calcout (and calc), and ao/ai (and
-//! longout/longin) that only hold values, with `$(macro)` substitution and link modifiers.
-//! Records become launch items on the key layout:
+//! EPICS database import: `record`/`grecord` of type motor, calcout (and calc), ao/ai (and
+//! longout/longin) that only hold values, and dfanout, with `$(macro)` substitution and link
+//! modifiers. Records become launch items on the key layout:
 //!   motor `R`          → axis `R`, fields on `<prefix>/R/<FIELD>`
 //!   calcout/calc `R`   → calc link `R`; its fields are `bridge/R/<FIELD>` (`A`…`L`, `VAL`)
 //!   ao/ai `R`          → value holder on `bridge/R/VAL`
+//!   dfanout `R`        → value holder on `bridge/R/VAL`, a calc link `R.OUTx` per output
 //! A link `R.FIELD PP MS` becomes the key of R's field; PP/NPP/CP decide whether an update
 //! recomputes a calc link. A forward link (FLNK) processes the record it names: a motor's
-//! writes that record's PROC; into a calc, the calc follows the signal CP; one that would close a
-//! loop of processing is not followed. Motors with a hardware DTYP become simulated axes, with a
+//! writes that record's PROC; into a calc, the calc is processed by the signal (`processed_by`);
+//! one that would close a loop of processing is not followed. Motors with a hardware DTYP become simulated axes, with a
 //! warning.
 
 use crate::file::{
@@ -144,6 +145,12 @@ pub(super) fn import_text(
             "ao" | "ai" | "longout" | "longin" => {
                 launch.values.push(value_holder(record, &mut warnings, &mut forward_links)?)
             }
+            "dfanout" => {
+                if let Some((value, outputs)) = dfanout(record, &linker, &mut warnings)? {
+                    launch.values.push(value);
+                    launch.calcs.extend(outputs);
+                }
+            }
             other => warnings.push(format!(
                 "line {}: record '{}' of type {other} is not supported and was skipped",
                 record.line, record.name
@@ -196,7 +203,8 @@ fn forward_target(record: &Record) -> Option<(String, usize)> {
 }
 
 /// Which record's processing makes which other's: the forward links followed so far, each calc
-/// into the record its output writes, and each record a calc follows CP into the calc.
+/// into the record its output writes, and each record a calc follows CP or is processed by
+/// into the calc.
 struct Processing {
     next: BTreeMap<String, Vec<String>>,
 }
@@ -216,6 +224,11 @@ impl Processing {
                 };
                 if let Some(followed) = followed {
                     processing.add(&followed, &calc.name);
+                }
+            }
+            for key in &calc.processed_by {
+                if let Some(writer) = record(key) {
+                    processing.add(&writer, &calc.name);
                 }
             }
         }
@@ -267,13 +280,11 @@ enum Forwarded {
     Ignored(String),
 }
 
-/// A forward link into a calc: the calc is processed at each update of the link's signal (its
-/// input reading that key becomes CP, or, if none does, an input its CALC does not read follows
-/// the key, CP, for that alone), as the node processes a calc link on a CP input; said in the
-/// warnings. Into a motor (a write of 1 to its PROC), nothing to say; into anything else it is
-/// not modelled, and said so.
+/// A forward link into a calc: the calc is processed at each update of the link's signal, not
+/// on the value it finds at start (`processed_by`), said in the warnings. Into a motor (a write
+/// of 1 to its PROC), nothing to say; into anything else it is not modelled, and said so.
 fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &ForwardLink) -> Forwarded {
-    let ForwardLink { from, target, line, signal: key } = link;
+    let ForwardLink { from, target, line, signal } = link;
     let whose = format!("line {line}: record '{from}': FLNK '{target}'");
     let Some(calc) = calcs.iter_mut().find(|c| c.name == *target) else {
         // A motor's write of its target's PROC processes a motor, here or elsewhere.
@@ -286,45 +297,10 @@ fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &
             None => Forwarded::Ignored(format!("{whose}: no such record in this database; ignored")),
         };
     };
-    let mut reading = Vec::new();
-    for (letter, input) in &mut calc.inputs {
-        match input {
-            CalcInput::Key(read) if read == key => reading.push(letter.clone()),
-            CalcInput::Linked { key: read, mode } if read == key => {
-                *mode = InputLinkMode::Cp;
-                reading.push(letter.clone());
-            }
-            _ => {}
-        }
+    if !calc.processed_by.contains(signal) {
+        calc.processed_by.push(signal.clone());
     }
-    if !reading.is_empty() {
-        let letters = reading.join(", ");
-        return Forwarded::Followed(Some(format!(
-            "{whose}: processes '{target}' on each write: its input {letters} follows {key} CP"
-        )));
-    }
-    let Ok(expression) = zmotor_bridge::Expression::parse(&calc.expression) else {
-        // Refused at load, saying why.
-        return Forwarded::Followed(None);
-    };
-    let read = expression.inputs_used();
-    let free = (0..zmotor_bridge::INPUTS).map(zmotor_bridge::input_name).find(|letter| {
-        let letter = letter.to_string();
-        let index = zmotor_bridge::input_index(&letter).unwrap_or_default();
-        read & (1 << index) == 0 && !calc.inputs.contains_key(&letter) && !calc.constants.contains_key(&letter)
-    });
-    match free {
-        Some(letter) => {
-            calc.inputs.insert(letter.to_string(), CalcInput::Linked { key: key.clone(), mode: InputLinkMode::Cp });
-            Forwarded::Followed(Some(format!(
-                "{whose}: processes '{target}' on each update of {key}: its input {letter}, which its CALC does not \
-                 read, follows it CP"
-            )))
-        }
-        None => Forwarded::Ignored(format!(
-            "{whose}: '{target}' has no input free to follow {key} by; the forward link is ignored"
-        )),
-    }
+    Forwarded::Followed(Some(format!("{whose}: '{target}' is processed at each write of {signal} (processed_by)")))
 }
 
 /// The fields that disable a record's processing: a motor's are modelled, other records'
@@ -357,8 +333,9 @@ fn processing_disabled(record: &Record) -> Option<String> {
     }
 }
 
-/// The record types an import runs: motors as axes, calcs as calc links, the rest as values.
-const RUN_KINDS: &[&str] = &["motor", "calcout", "calc", "ao", "ai", "longout", "longin"];
+/// The record types an import runs: motors as axes, calcs as calc links, a dfanout as a value
+/// and a calc link per output, the rest as values.
+const RUN_KINDS: &[&str] = &["motor", "calcout", "calc", "ao", "ai", "longout", "longin", "dfanout"];
 
 /// Link modifiers of EPICS database links.
 const MODIFIERS: &[&str] = &["PP", "NPP", "CP", "CPP", "MS", "NMS", "MSS", "MSI", "CA"];
@@ -589,6 +566,7 @@ fn calc(
         constants: BTreeMap::new(),
         output: format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name),
         option: CalcOption::default(),
+        processed_by: Vec::new(),
         origin: Default::default(),
     };
     for (name, text, line) in &record.fields {
@@ -683,6 +661,65 @@ fn value_holder(
         forward_links.push(ForwardLink { from: record.name.clone(), target, line, signal: section.key() });
     }
     Ok(section)
+}
+
+/// A dfanout `R`: its value on `bridge/R/VAL`, and for each output link OUTA–OUTH a calc link
+/// `R.OUTx` that writes each write of that value there, as the record writes VAL to every output
+/// link each time it is processed (SELM All; a write of its VAL processes it; nothing is written
+/// at start). Another selection (Specified, Mask: the outputs SELN picks) is not modelled: the
+/// record is skipped, said in the warnings, rather than write where it would not.
+fn dfanout(
+    record: &Record,
+    linker: &Linker,
+    warnings: &mut Vec<String>,
+) -> Result<Option<(ValueSection, Vec<CalcSection>)>, Failure> {
+    let whose = format!("dfanout '{}'", record.name);
+    if let Some((_, selm, line)) = record.field("SELM").filter(|(_, selm, _)| !matches!(selm.trim(), "" | "All" | "0"))
+    {
+        warnings.push(format!(
+            "line {line}: {whose}: SELM '{selm}' (the outputs SELN picks) is not modelled; the record was skipped"
+        ));
+        return Ok(None);
+    }
+    let mut value = 0.0;
+    for (name, text, line) in &record.fields {
+        match name.as_str() {
+            "VAL" => {
+                value = text
+                    .trim()
+                    .parse::<f64>()
+                    .map_err(|_| Failure::at(*line, format!("{whose}: VAL '{text}' is not a number")))?;
+            }
+            "DOL" | "OMSL" | "FLNK" if !matches!(text.trim(), "" | "supervisory" | "0") => warnings.push(format!(
+                "line {line}: {whose}: {name} '{text}' is not modelled and was ignored; a write of its VAL fans it out"
+            )),
+            _ => {}
+        }
+    }
+    let held = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
+    let key = held.key();
+    let mut outputs = Vec::new();
+    for letter in ['A', 'B', 'C', 'D', 'E', 'F', 'G', 'H'] {
+        let field = format!("OUT{letter}");
+        let Some((_, text, line)) = record.field(&field) else { continue };
+        let output = match linker.link(text, *line, warnings)? {
+            Link::None => continue,
+            Link::Key { key, .. } => key,
+            _ => return Err(Failure::at(*line, format!("{whose}: field {field}: '{text}' is not a link to a record"))),
+        };
+        outputs.push(CalcSection {
+            name: format!("{}.{field}", record.name),
+            host: None,
+            expression: "A".into(),
+            inputs: BTreeMap::from([("A".into(), CalcInput::Linked { key: key.clone(), mode: InputLinkMode::Npp })]),
+            constants: BTreeMap::new(),
+            output,
+            option: CalcOption::Every,
+            processed_by: vec![key.clone()],
+            origin: Default::default(),
+        });
+    }
+    Ok(Some((held, outputs)))
 }
 
 // ---- the file itself ----
@@ -1124,39 +1161,36 @@ mod tests {
             record(ao, "go") { field(FLNK, "sum.PROC") }
             record(ao, "b") {}
             record(calcout, "sum") { field(INPA, "b NPP") field(CALC, "A+C") field(C, "1") field(OUT, "m1.VAL PP") }
-            record(ao, "full") { field(FLNK, "all") }
-            record(calc, "all") { field(CALC, "A+B+C+D+E+F+G+H+I+J+K+L") }
             record(ao, "lost") { field(FLNK, "m1.VAL") }
             record(ao, "gone") { field(FLNK, "nowhere") }
             record(motor, "m1") { field(DTYP, "Soft Channel") }
         "#;
         let (file, warnings) = import(text).unwrap();
         let calc = |name: &str| file.calcs.iter().find(|c| c.name == name).unwrap();
-        // The calc reads the holder: that input is now CP, as the forward link processes it.
-        let cp = |key: &str| CalcInput::Linked { key: key.into(), mode: InputLinkMode::Cp };
-        assert_eq!(calc("double").inputs["A"], cp("bridge/x/VAL"));
-        // It does not: the first input its CALC does not read follows the holder, CP.
-        assert_eq!(calc("sum").inputs["B"], cp("bridge/go/VAL"));
-        assert_eq!(calc("sum").inputs["A"], CalcInput::Linked { key: "bridge/b/VAL".into(), mode: InputLinkMode::Npp });
-        assert_eq!(calc("all").inputs.len(), 0, "no input free");
-        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
-        assert!(
-            said("record 'x': FLNK 'double': processes 'double' on each write: its input A follows bridge/x/VAL CP"),
-            "{warnings:?}"
+        // Processed by each write of the value; its inputs stay as they are.
+        assert_eq!(calc("double").processed_by, ["bridge/x/VAL"]);
+        assert_eq!(
+            calc("double").inputs["A"],
+            CalcInput::Linked { key: "bridge/x/VAL".into(), mode: InputLinkMode::Npp }
         );
-        assert!(said("record 'go': FLNK 'sum': processes 'sum' on each update of bridge/go/VAL: its input B, which its CALC does not read, follows it CP"), "{warnings:?}");
-        assert!(said("record 'full': FLNK 'all': 'all' has no input free to follow bridge/full/VAL by; the forward link is ignored"));
+        assert_eq!(calc("sum").processed_by, ["bridge/go/VAL"]);
+        assert_eq!(calc("sum").inputs.len(), 1);
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        assert!(said("record 'x': FLNK 'double': 'double' is processed at each write of bridge/x/VAL"), "{warnings:?}");
         assert!(
             said("record 'lost': FLNK 'm1': processing motor 'm1' by a forward link is not modelled; ignored"),
             "{warnings:?}"
         );
         assert!(said("record 'gone': FLNK 'nowhere': no such record in this database; ignored"));
-        // As the node runs it: a write to `go` recomputes `sum` (B takes the write, unused).
+        // As the node runs it: the value found at start is held; a write to `go` recomputes `sum`.
         let deployment = Launch::from_file("db", file).unwrap().deployment(None).unwrap();
-        let sum = deployment.contents.calcs.iter().find(|c| c.name == "sum").unwrap();
-        let mut link = zmotor_bridge::CalcLink::new(sum.clone()).unwrap();
-        assert_eq!(link.update("bridge/b/VAL", 4.0), None, "b is NPP");
-        assert_eq!(link.update("bridge/go/VAL", 1.0), Some(5.0), "the forward link's write processes it");
+        let spec = |name: &str| deployment.contents.calcs.iter().find(|c| c.name == name).unwrap().clone();
+        let mut sum = zmotor_bridge::CalcLink::new(spec("sum")).unwrap();
+        assert_eq!(sum.update("bridge/b/VAL", 4.0), None, "b is NPP");
+        assert_eq!(sum.processed_by("bridge/go/VAL", 1.0), Some(5.0), "the forward link's write processes it");
+        let mut double = zmotor_bridge::CalcLink::new(spec("double")).unwrap();
+        assert_eq!(double.update("bridge/x/VAL", 3.0), None, "x as found at start: nothing written");
+        assert_eq!(double.processed_by("bridge/x/VAL", 4.0), Some(8.0), "a write of x, with its own value");
     }
 
     #[test]
@@ -1177,13 +1211,14 @@ mod tests {
         // Processing a motor is a write of its PROC; its VAL would move it to 1.
         assert_eq!(flnk("m1").unwrap(), "motor/m2/PROC");
         assert_eq!(flnk("m4").unwrap(), "motor/elsewhere/PROC");
-        // Into a calc: the calc follows its PROC key, CP, on an input its CALC does not read.
+        // Into a calc: the calc is processed by each write of its PROC key.
         assert_eq!(flnk("m2").unwrap(), "bridge/after/PROC");
         let after = file.calcs.iter().find(|c| c.name == "after").unwrap();
-        assert_eq!(after.inputs["B"], CalcInput::Linked { key: "bridge/after/PROC".into(), mode: InputLinkMode::Cp });
+        assert_eq!(after.processed_by, ["bridge/after/PROC"]);
+        assert_eq!(after.inputs.len(), 1);
         let said = |part: &str| warnings.iter().any(|w| w.contains(part));
         assert!(
-            said("record 'm2': FLNK 'after': processes 'after' on each update of bridge/after/PROC"),
+            said("record 'm2': FLNK 'after': 'after' is processed at each write of bridge/after/PROC"),
             "{warnings:?}"
         );
         assert_eq!(flnk("m3"), None, "into a value: nothing written");
@@ -1224,7 +1259,7 @@ mod tests {
         assert!(said("record 'self': FLNK 'self' would close a loop of processing (self → self)"), "{warnings:?}");
         // Through a calc's output: the value it writes processes it again, and so would a move.
         let bump = file.calcs.iter().find(|c| c.name == "bump").unwrap();
-        assert_eq!(bump.inputs["A"], CalcInput::Linked { key: "bridge/x/VAL".into(), mode: InputLinkMode::Npp });
+        assert!(bump.processed_by.is_empty());
         assert!(said("record 'x': FLNK 'bump' would close a loop of processing (x → bump → x)"), "{warnings:?}");
         assert_eq!(flnk("m3"), None);
         assert!(said("record 'm3': FLNK 'again' would close a loop of processing (m3 → again → m3)"), "{warnings:?}");
@@ -1233,6 +1268,38 @@ mod tests {
         assert_eq!(flnk("m5"), None);
         assert!(!said("'zero'"), "{warnings:?}");
         Launch::from_file("db", file).unwrap();
+    }
+
+    #[test]
+    fn a_dfanout_writes_each_write_of_its_value_to_every_output_link() {
+        let text = r#"
+            record(motor, "soft") { field(DTYP, "Soft Channel") field(STOO, "stopall PP MS") }
+            record(dfanout, "stopall") { field(VAL, "1") field(OUTA, "m1.STOP PP") field(OUTB, "m2.STOP PP") field(OUTC, "") }
+            record(dfanout, "picky") { field(SELM, "Specified") field(SELN, "1") field(OUTA, "m1.VAL PP") }
+            record(motor, "m1") { field(DTYP, "OMS VME58") }
+            record(motor, "m2") { field(DTYP, "OMS VME58") }
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        let soft = file.axes.iter().find(|a| a.name == "soft").unwrap();
+        assert_eq!(soft.fields["STOO"].as_str(), Some("bridge/stopall/VAL"));
+        let value = file.values.iter().find(|v| v.name == "stopall").unwrap();
+        assert_eq!((value.key(), value.value), ("bridge/stopall/VAL".to_string(), 1.0));
+        let outputs: Vec<(&str, &str)> = file.calcs.iter().map(|c| (c.name.as_str(), c.output.as_str())).collect();
+        assert_eq!(outputs, [("stopall.OUTA", "motor/m1/STOP"), ("stopall.OUTB", "motor/m2/STOP")]);
+        assert!(
+            warnings.iter().any(|w| w.contains(
+                "dfanout 'picky': SELM 'Specified' (the outputs SELN picks) is not modelled; the record was skipped"
+            )),
+            "{warnings:?}"
+        );
+        assert!(file.values.iter().all(|v| v.name != "picky"));
+        // As the node runs it: the value found at start is not written out; each write is.
+        let launch = Launch::from_file("db", file).unwrap();
+        let deployment = launch.deployment(None).unwrap();
+        assert_eq!(Launch::parse(&launch.to_toml()).unwrap().deployment(None).unwrap(), deployment, "converted");
+        let mut out = zmotor_bridge::CalcLink::new(deployment.contents.calcs[0].clone()).unwrap();
+        assert_eq!(out.update("bridge/stopall/VAL", 1.0), None);
+        assert_eq!(out.processed_by("bridge/stopall/VAL", 1.0), Some(1.0));
     }
 
     #[test]

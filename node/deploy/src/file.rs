@@ -653,6 +653,10 @@ pub struct CalcSection {
     /// `every` (write every time, the default) or `on_change`.
     #[serde(default)]
     pub option: CalcOption,
+    /// Keys whose every write processes it, as EPICS forward links into it do (not read when it
+    /// starts): `bridge/<name>/PROC` for a motor's FLNK, a value's key for the value's FLNK.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub processed_by: Vec<String>,
     #[serde(skip)]
     /// Where it was written.
     pub origin: Origin,

@@ -306,6 +306,9 @@ impl CalcSection {
             constants.push((index, *value));
         }
         keys::validate_plain_key(&self.output).map_err(|e| at(&["output"], e.to_string()))?;
+        for key in &self.processed_by {
+            keys::validate_plain_key(key).map_err(|e| at(&["processed_by"], e.to_string()))?;
+        }
         let spec = CalcLinkSpec {
             name: self.name.clone(),
             expression: self.expression.clone(),
@@ -313,6 +316,7 @@ impl CalcSection {
             constants,
             output: self.output.clone(),
             option,
+            processed_by: self.processed_by.clone(),
         };
         zmotor_bridge::CalcLink::new(spec.clone())
             .map_err(|e| Problem::in_item("calc", self.origin, &["expression"], e.to_string()))?;

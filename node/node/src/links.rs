@@ -161,6 +161,16 @@ impl Follows {
 
     /// Follow `key` at `index` instead of what was followed there; "" follows nothing.
     pub(crate) fn follow(&mut self, index: usize, key: &str) -> Result<(), zenoh::Error> {
+        self.follow_with(index, key, true)
+    }
+
+    /// Follow the updates of `key` at `index`, from now on: its value now is not read (a
+    /// forward link processes a record at each write, not when it connects).
+    pub(crate) fn follow_updates(&mut self, index: usize, key: &str) -> Result<(), zenoh::Error> {
+        self.follow_with(index, key, false)
+    }
+
+    fn follow_with(&mut self, index: usize, key: &str, read_now: bool) -> Result<(), zenoh::Error> {
         if self.subscribers.len() <= index {
             self.subscribers.resize_with(index + 1, || None);
             self.sources.resize_with(index + 1, || None);
@@ -184,6 +194,9 @@ impl Follows {
             })
             .wait()?;
         self.subscribers[index] = Some(subscriber);
+        if !read_now {
+            return Ok(());
+        }
         if let Some((layout, lost)) = &self.loss {
             if let Some(axis) = layout.axis_chunk(key) {
                 let (session, runtime, key) = (self.session.clone(), self.runtime.clone(), key.to_string());
@@ -226,20 +239,45 @@ fn sample_number(sample: &Sample) -> Option<f64> {
     decode_scalar(&sample.payload().to_bytes(), encoding).ok()?.as_f64()
 }
 
-/// A calc link: recompute on its inputs, write the result to its output key.
+/// A calc link: recompute on its inputs and the keys it is processed by, write the result to
+/// its output key.
 pub(crate) struct CalcTask {
-    pub(crate) writer: Writer,
-    pub(crate) link: CalcLink,
-    /// Its input keys, followed for as long as the task lives.
-    pub(crate) _follows: Follows,
-    pub(crate) inputs: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
+    writer: Writer,
+    link: CalcLink,
+    /// Its input keys, then the keys it is processed by, followed for as long as the task lives.
+    _follows: Follows,
+    updates: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
 }
 
 impl CalcTask {
+    /// Follow `link`'s inputs (their values now, then their updates) and the keys it is
+    /// processed by (their updates).
+    pub(crate) fn start(
+        session: &Session,
+        local: Arc<LocalFollowers>,
+        writer: Writer,
+        link: CalcLink,
+    ) -> Result<Self, zenoh::Error> {
+        let (mut follows, updates) = Follows::to_channel(session, local);
+        let inputs = link.input_keys().count();
+        for (index, key) in link.input_keys().enumerate() {
+            follows.follow(index, key)?;
+        }
+        for (index, key) in link.processing_keys().enumerate() {
+            follows.follow_updates(inputs + index, key)?;
+        }
+        Ok(Self { writer, link, _follows: follows, updates })
+    }
+
     pub(crate) async fn run(&mut self) {
-        let keys: Vec<String> = self.link.input_keys().map(str::to_string).collect();
-        while let Some((index, value)) = self.inputs.recv().await {
-            if let Some(result) = self.link.update(&keys[index], value) {
+        let inputs: Vec<String> = self.link.input_keys().map(str::to_string).collect();
+        let processing: Vec<String> = self.link.processing_keys().map(str::to_string).collect();
+        while let Some((index, value)) = self.updates.recv().await {
+            let result = match index.checked_sub(inputs.len()) {
+                None => self.link.update(&inputs[index], value),
+                Some(index) => self.link.processed_by(&processing[index], value),
+            };
+            if let Some(result) = result {
                 // A write to the output key, like a calcout's OUT: plain, no state marker.
                 self.writer.put(&self.link.spec().output, result.to_string());
             }

@@ -228,11 +228,7 @@ impl Node {
         let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
-            let (mut follows, inputs) = Follows::to_channel(&session, side.followers.clone());
-            for (index, key) in link.input_keys().enumerate() {
-                follows.follow(index, key)?;
-            }
-            let mut task = CalcTask { writer: side.writer.clone(), link, _follows: follows, inputs };
+            let mut task = CalcTask::start(&session, side.followers.clone(), side.writer.clone(), link)?;
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
         Ok(Self {
