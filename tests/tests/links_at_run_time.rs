@@ -189,3 +189,34 @@ processed_by = ["bridge/goal/VAL"]
     let val = m1.wait_for("VAL", |v| v.as_f64().is_some()).await;
     assert_eq!(val.as_f64(), Some(2.5), "A*2 of the value written");
 }
+
+/// A motor's forward link into a calc (FLNK on the calc's PROC, which the calc is processed by):
+/// at the end of a move, one write, computed from the readback the move ended at.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_motors_forward_link_processes_a_calc_once_with_the_readback_it_ended_at() {
+    let text = r#"
+[[axis]]
+name = "m1"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+FLNK = "bridge/after/PROC"
+[[calc]]
+name = "after"
+expression = "A*10"
+inputs = { A = { key = "motor/m1/RBV", mode = "npp" } }
+output = "lab/after"
+processed_by = ["bridge/after/PROC"]
+"#;
+    let node = TestNode::launch(text).await;
+    let client = node.client().await;
+    // The calc's output is a plain write (no state marker), as a calcout's OUT.
+    let after = client.declare_subscriber("lab/after").await.unwrap();
+    node.until_subscribed("lab/after").await;
+    let _ = confirmed_write(&client, "motor/m1/VAL?wait", "2.5", PATIENCE).await.unwrap();
+    let first = tokio::time::timeout(PATIENCE, after.recv_async()).await.expect("a write").unwrap();
+    assert_eq!(first.payload().try_to_string().unwrap(), "25", "A*10 of the readback the move ended at");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let more: Vec<_> = after.drain().map(|s| s.payload().try_to_string().unwrap().into_owned()).collect();
+    assert!(more.is_empty(), "one write a move's end, then: {more:?}");
+}

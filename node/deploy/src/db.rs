@@ -146,7 +146,7 @@ pub(super) fn import_text(
                 launch.values.push(value_holder(record, &mut warnings, &mut forward_links)?)
             }
             "dfanout" => {
-                if let Some((value, outputs)) = dfanout(record, &linker, &mut warnings)? {
+                if let Some((value, outputs)) = dfanout(record, &linker, &mut warnings, &mut written_inputs)? {
                     launch.values.push(value);
                     launch.calcs.extend(outputs);
                 }
@@ -286,6 +286,20 @@ enum Forwarded {
 fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &ForwardLink) -> Forwarded {
     let ForwardLink { from, target, line, signal } = link;
     let whose = format!("line {line}: record '{from}': FLNK '{target}'");
+    if kinds.get(target.as_str()) == Some(&"dfanout") {
+        // Its calc links, one per output link, are processed together.
+        let outputs = format!("{target}.OUT");
+        let mut fanned = calcs.iter_mut().filter(|c| c.name.starts_with(&outputs)).peekable();
+        if fanned.peek().is_none() {
+            return Forwarded::Ignored(format!("{whose}: '{target}' writes nothing here; ignored"));
+        }
+        for calc in fanned.filter(|c| !c.processed_by.contains(signal)) {
+            calc.processed_by.push(signal.clone());
+        }
+        return Forwarded::Followed(Some(format!(
+            "{whose}: '{target}' writes its value out at each write of {signal} (processed_by)"
+        )));
+    }
     let Some(calc) = calcs.iter_mut().find(|c| c.name == *target) else {
         // A motor's write of its target's PROC processes a motor, here or elsewhere.
         let from_motor = kinds.get(from.as_str()) == Some(&"motor");
@@ -672,6 +686,7 @@ fn dfanout(
     record: &Record,
     linker: &Linker,
     warnings: &mut Vec<String>,
+    written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
 ) -> Result<Option<(ValueSection, Vec<CalcSection>)>, Failure> {
     let whose = format!("dfanout '{}'", record.name);
     if let Some((_, selm, line)) = record.field("SELM").filter(|(_, selm, _)| !matches!(selm.trim(), "" | "All" | "0"))
@@ -681,31 +696,39 @@ fn dfanout(
         ));
         return Ok(None);
     }
-    let mut value = 0.0;
-    for (name, text, line) in &record.fields {
-        match name.as_str() {
-            "VAL" => {
-                value = text
-                    .trim()
-                    .parse::<f64>()
-                    .map_err(|_| Failure::at(*line, format!("{whose}: VAL '{text}' is not a number")))?;
-            }
-            "DOL" | "OMSL" | "FLNK" if !matches!(text.trim(), "" | "supervisory" | "0") => warnings.push(format!(
-                "line {line}: {whose}: {name} '{text}' is not modelled and was ignored; a write of its VAL fans it out"
-            )),
-            _ => {}
-        }
+    let number = |(_, text, line): &(String, String, usize)| {
+        text.trim().parse::<f64>().map_err(|_| Failure::at(*line, format!("{whose}: '{text}' is not a number")))
+    };
+    // VAL, or a constant DOL, as EPICS loads one at initialisation.
+    let mut value = record.field("VAL").map(number).transpose()?.unwrap_or(0.0);
+    match record.field("DOL") {
+        Some(dol) if number(dol).is_ok() => value = number(dol)?,
+        Some((_, dol, line)) if !dol.trim().is_empty() => warnings.push(format!(
+            "line {line}: {whose}: DOL '{dol}' is not modelled and was ignored; a write of its VAL fans it out"
+        )),
+        _ => {}
+    }
+    if let Some((target, line)) = forward_target(record) {
+        warnings.push(format!("line {line}: {whose}: FLNK '{target}' is not followed; ignored"));
     }
     let held = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
     let key = held.key();
+    // Processed by a write of its VAL or its PROC (a motor's forward link into it writes there).
+    let processed_by = vec![key.clone(), format!("{}/{}/PROC", keys::BRIDGE_PREFIX, record.name)];
     let mut outputs = Vec::new();
     for letter in ['A', 'B', 'C', 'D', 'E', 'F', 'G', 'H'] {
         let field = format!("OUT{letter}");
         let Some((_, text, line)) = record.field(&field) else { continue };
         let output = match linker.link(text, *line, warnings)? {
-            Link::None => continue,
-            Link::Key { key, .. } => key,
-            _ => return Err(Failure::at(*line, format!("{whose}: field {field}: '{text}' is not a link to a record"))),
+            // A constant output link writes nothing, as in EPICS.
+            Link::None | Link::Constant(_) => continue,
+            Link::Key { key, record: target, field: target_field, process, .. } => {
+                note_calc_write(linker, &target, &target_field, process, written_inputs);
+                key
+            }
+            Link::Hardware => {
+                return Err(Failure::at(*line, format!("{whose}: field {field}: '{text}' is not a link to a record")))
+            }
         };
         outputs.push(CalcSection {
             name: format!("{}.{field}", record.name),
@@ -715,7 +738,7 @@ fn dfanout(
             constants: BTreeMap::new(),
             output,
             option: CalcOption::Every,
-            processed_by: vec![key.clone()],
+            processed_by: processed_by.clone(),
             origin: Default::default(),
         });
     }
@@ -1276,30 +1299,55 @@ mod tests {
             record(motor, "soft") { field(DTYP, "Soft Channel") field(STOO, "stopall PP MS") }
             record(dfanout, "stopall") { field(VAL, "1") field(OUTA, "m1.STOP PP") field(OUTB, "m2.STOP PP") field(OUTC, "") }
             record(dfanout, "picky") { field(SELM, "Specified") field(SELN, "1") field(OUTA, "m1.VAL PP") }
+            record(dfanout, "spread") { field(DOL, "0.5") field(OUTA, "sum.B PP") field(OUTB, "3") field(FLNK, "sum") }
+            record(ao, "go") { field(FLNK, "spread") }
+            record(calcout, "sum") { field(CALC, "A+B") field(OUT, "m1.VAL PP") }
             record(motor, "m1") { field(DTYP, "OMS VME58") }
             record(motor, "m2") { field(DTYP, "OMS VME58") }
         "#;
         let (file, warnings) = import(text).unwrap();
         let soft = file.axes.iter().find(|a| a.name == "soft").unwrap();
         assert_eq!(soft.fields["STOO"].as_str(), Some("bridge/stopall/VAL"));
-        let value = file.values.iter().find(|v| v.name == "stopall").unwrap();
-        assert_eq!((value.key(), value.value), ("bridge/stopall/VAL".to_string(), 1.0));
+        let value = |name: &str| file.values.iter().find(|v| v.name == name).map(|v| (v.key(), v.value));
+        assert_eq!(value("stopall"), Some(("bridge/stopall/VAL".to_string(), 1.0)));
+        assert_eq!(value("spread"), Some(("bridge/spread/VAL".to_string(), 0.5)), "a constant DOL is its value");
         let outputs: Vec<(&str, &str)> = file.calcs.iter().map(|c| (c.name.as_str(), c.output.as_str())).collect();
-        assert_eq!(outputs, [("stopall.OUTA", "motor/m1/STOP"), ("stopall.OUTB", "motor/m2/STOP")]);
+        assert_eq!(
+            outputs,
+            [
+                ("stopall.OUTA", "motor/m1/STOP"),
+                ("stopall.OUTB", "motor/m2/STOP"),
+                ("spread.OUTA", "bridge/sum/B"),
+                ("sum", "motor/m1/VAL")
+            ],
+            "a constant output link writes nothing"
+        );
+        let calc = |name: &str| file.calcs.iter().find(|c| c.name == name).unwrap();
+        // Processed by writes of its value and PROC, and by a value's forward link into it.
+        let processed = ["bridge/spread/VAL", "bridge/spread/PROC", "bridge/go/VAL"];
+        assert_eq!(calc("spread.OUTA").processed_by, processed);
+        // Its output into a calc's input, PP, is that input, CP.
+        assert_eq!(calc("sum").inputs["B"], CalcInput::Linked { key: "bridge/sum/B".into(), mode: InputLinkMode::Cp });
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
         assert!(
-            warnings.iter().any(|w| w.contains(
-                "dfanout 'picky': SELM 'Specified' (the outputs SELN picks) is not modelled; the record was skipped"
-            )),
+            said("record 'go': FLNK 'spread': 'spread' writes its value out at each write of bridge/go/VAL"),
             "{warnings:?}"
         );
+        assert!(
+            said("dfanout 'picky': SELM 'Specified' (the outputs SELN picks) is not modelled; the record was skipped"),
+            "{warnings:?}"
+        );
+        assert!(said("dfanout 'spread': FLNK 'sum' is not followed; ignored"), "{warnings:?}");
         assert!(file.values.iter().all(|v| v.name != "picky"));
-        // As the node runs it: the value found at start is not written out; each write is.
+        // As the node runs it: the value found at start is not written out; each write is, and
+        // a PROC writes the value held.
         let launch = Launch::from_file("db", file).unwrap();
         let deployment = launch.deployment(None).unwrap();
         assert_eq!(Launch::parse(&launch.to_toml()).unwrap().deployment(None).unwrap(), deployment, "converted");
         let mut out = zmotor_bridge::CalcLink::new(deployment.contents.calcs[0].clone()).unwrap();
         assert_eq!(out.update("bridge/stopall/VAL", 1.0), None);
-        assert_eq!(out.processed_by("bridge/stopall/VAL", 1.0), Some(1.0));
+        assert_eq!(out.processed_by("bridge/stopall/VAL", 2.0), Some(2.0));
+        assert_eq!(out.processed_by("bridge/stopall/PROC", 1.0), Some(2.0));
     }
 
     #[test]

@@ -306,8 +306,13 @@ impl CalcSection {
             constants.push((index, *value));
         }
         keys::validate_plain_key(&self.output).map_err(|e| at(&["output"], e.to_string()))?;
+        let mut processed_by: Vec<String> = Vec::new();
         for key in &self.processed_by {
             keys::validate_plain_key(key).map_err(|e| at(&["processed_by"], e.to_string()))?;
+            // Named twice, it would process twice a write.
+            if !processed_by.contains(key) {
+                processed_by.push(key.clone());
+            }
         }
         let spec = CalcLinkSpec {
             name: self.name.clone(),
@@ -316,7 +321,7 @@ impl CalcSection {
             constants,
             output: self.output.clone(),
             option,
-            processed_by: self.processed_by.clone(),
+            processed_by,
         };
         zmotor_bridge::CalcLink::new(spec.clone())
             .map_err(|e| Problem::in_item("calc", self.origin, &["expression"], e.to_string()))?;
@@ -349,6 +354,10 @@ pub(crate) fn check_wiring(
         }
         let who = format!("calc '{}' output", calc.name);
         layout.check_link(&calc.output, true, None).map_err(|e| problem(who, e))?;
+        for key in &calc.processed_by {
+            let who = format!("calc '{}' processed_by", calc.name);
+            layout.check_link(key, false, None).map_err(|e| problem(who, e))?;
+        }
     }
     for (axis, origin) in axes.iter().zip(axis_origins) {
         for field in Field::all().filter(|f| f.def().kind == Kind::Link) {
