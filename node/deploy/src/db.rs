@@ -1216,6 +1216,12 @@ mod tests {
         assert_eq!(double.processed_by("bridge/x/VAL", 4.0), Some(8.0), "a write of x, with its own value");
     }
 
+    /// The FLNK key an imported motor was given, if any.
+    fn forward_link_of(file: &LaunchFile, axis: &str) -> Option<String> {
+        let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
+        axis.fields.get("FLNK").map(|f| f.as_str().unwrap().to_string())
+    }
+
     #[test]
     fn a_motors_forward_link_processes_the_record_it_names_and_never_writes_its_value() {
         let text = r#"
@@ -1227,10 +1233,7 @@ mod tests {
             record(motor, "m4") { field(DTYP, "Soft Channel") field(FLNK, "elsewhere") }
         "#;
         let (file, warnings) = import(text).unwrap();
-        let flnk = |axis: &str| {
-            let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
-            axis.fields.get("FLNK").map(|f| f.as_str().unwrap().to_string())
-        };
+        let flnk = |axis: &str| forward_link_of(&file, axis);
         // Processing a motor is a write of its PROC; its VAL would move it to 1.
         assert_eq!(flnk("m1").unwrap(), "motor/m2/PROC");
         assert_eq!(flnk("m4").unwrap(), "motor/elsewhere/PROC");
@@ -1270,10 +1273,7 @@ mod tests {
             record(ao, "zero") { field(FLNK, "0") }
         "#;
         let (file, warnings) = import(text).unwrap();
-        let flnk = |axis: &str| {
-            let axis = file.axes.iter().find(|a| a.name == axis).unwrap();
-            axis.fields.get("FLNK").map(|f| f.as_str().unwrap().to_string())
-        };
+        let flnk = |axis: &str| forward_link_of(&file, axis);
         let said = |part: &str| warnings.iter().any(|w| w.contains(part));
         // m1 → m2 is followed; m2 → m1 would close the loop: EPICS stops at m1, still active.
         assert_eq!((flnk("m1").as_deref(), flnk("m2")), (Some("motor/m2/PROC"), None));
