@@ -191,7 +191,7 @@ processed_by = ["bridge/goal/VAL"]
 }
 
 /// A motor's forward link into a calc (FLNK on the calc's PROC, which the calc is processed by):
-/// at the end of a move, one write, computed from the readback the move ended at.
+/// nothing at start; at the end of a move, one write, computed from the readback it ended at.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_motors_forward_link_processes_a_calc_once_with_the_readback_it_ended_at() {
     let text = r#"
@@ -205,14 +205,20 @@ FLNK = "bridge/after/PROC"
 name = "after"
 expression = "A*10"
 inputs = { A = { key = "motor/m1/RBV", mode = "npp" } }
-output = "lab/after"
+output = "bridge/tally/VAL"
 processed_by = ["bridge/after/PROC"]
+[[value]]
+name = "tally"
+value = 7.0
 "#;
     let node = TestNode::launch(text).await;
     let client = node.client().await;
     // The calc's output is a plain write (no state marker), as a calcout's OUT.
-    let after = client.declare_subscriber("lab/after").await.unwrap();
-    node.until_subscribed("lab/after").await;
+    let after = client.declare_subscriber("bridge/tally/VAL").await.unwrap();
+    node.until_subscribed("bridge/tally/VAL").await;
+    // Nothing at start: the value holds what it started with (A*10 of the readback would be 0).
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(get_value(&client, "bridge/tally/VAL").await, Value::Float(7.0));
     let _ = confirmed_write(&client, "motor/m1/VAL?wait", "2.5", PATIENCE).await.unwrap();
     let first = tokio::time::timeout(PATIENCE, after.recv_async()).await.expect("a write").unwrap();
     assert_eq!(first.payload().try_to_string().unwrap(), "25", "A*10 of the readback the move ended at");

@@ -132,6 +132,8 @@ pub(super) fn import_text(
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
     // Forward links of motors and value holders.
     let mut forward_links = Vec::new();
+    // Each dfanout's calc links, one per output link.
+    let mut fanouts: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for record in &records {
         // A motor's disabling is modelled; the records that become calc links and values are not.
         if RUN_KINDS.contains(&record.kind.as_str()) && record.kind != "motor" {
@@ -148,6 +150,7 @@ pub(super) fn import_text(
             "dfanout" => {
                 if let Some((value, outputs)) = dfanout(record, &linker, &mut warnings, &mut written_inputs)? {
                     launch.values.push(value);
+                    fanouts.insert(record.name.clone(), outputs.iter().map(|c| c.name.clone()).collect());
                     launch.calcs.extend(outputs);
                 }
             }
@@ -163,7 +166,7 @@ pub(super) fn import_text(
             calc.inputs.entry(letter).or_insert(CalcInput::Linked { key, mode });
         }
     }
-    let mut processing = Processing::of(&launch.calcs);
+    let mut processing = Processing::of(&launch.axes, &launch.calcs);
     for link in forward_links {
         let forwarded = match processing.loop_through(&link.target, &link.from) {
             Some(records) => Forwarded::Ignored(format!(
@@ -175,7 +178,7 @@ pub(super) fn import_text(
                 link.from,
                 records.join(" → ")
             )),
-            None => forward_link(&mut launch.calcs, &kinds, &link),
+            None => forward_link(&mut launch.calcs, &kinds, &fanouts, &link),
         };
         match forwarded {
             Forwarded::Followed(said) => {
@@ -202,17 +205,26 @@ fn forward_target(record: &Record) -> Option<(String, usize)> {
     (target.parse::<f64>().is_err()).then(|| (target.to_string(), *line))
 }
 
-/// Which record's processing makes which other's: the forward links followed so far, each calc
-/// into the record its output writes, and each record a calc follows CP or is processed by
-/// into the calc.
+/// Which record's processing makes which other's: the forward links followed so far, each
+/// motor into the records its output links write (OUT, STOO, RLNK: RLNK at every processing),
+/// each calc into the record its output writes, and each record a calc follows CP or is
+/// processed by into the calc. (A motor's input links are left out: it posts a value only when
+/// it changes, so a loop through one settles.)
 struct Processing {
     next: BTreeMap<String, Vec<String>>,
 }
 
 impl Processing {
-    fn of(calcs: &[CalcSection]) -> Self {
+    fn of(axes: &[AxisSection], calcs: &[CalcSection]) -> Self {
         let mut processing = Self { next: BTreeMap::new() };
         let record = |key: &str| key.rsplit('/').nth(1).map(str::to_string);
+        for axis in axes {
+            for field in [Field::OUT, Field::STOO, Field::RLNK] {
+                if let Some(written) = axis.fields.get(field.name()).and_then(|k| k.as_str()).and_then(record) {
+                    processing.add(&axis.name, &written);
+                }
+            }
+        }
         for calc in calcs {
             if let Some(written) = record(&calc.output) {
                 processing.add(&calc.name, &written);
@@ -263,6 +275,8 @@ impl Processing {
 struct ForwardLink {
     /// The record whose FLNK it is.
     from: String,
+    /// What kind of record that is.
+    source: Source,
     /// The record it processes.
     target: String,
     line: usize,
@@ -270,6 +284,15 @@ struct ForwardLink {
     /// each processing that ends with DMOV = 1; a value holder is processed by each write of
     /// its key.
     signal: String,
+}
+
+/// Whose forward link it is.
+#[derive(Clone, Copy, PartialEq)]
+enum Source {
+    /// A motor's: it writes 1 to the target's PROC, which processes a motor too.
+    Motor,
+    /// A value holder's: processed by each write of its value, it writes nothing itself.
+    Value,
 }
 
 /// What became of a forward link.
@@ -283,17 +306,20 @@ enum Forwarded {
 /// A forward link into a calc: the calc is processed at each update of the link's signal, not
 /// on the value it finds at start (`processed_by`), said in the warnings. Into a motor (a write
 /// of 1 to its PROC), nothing to say; into anything else it is not modelled, and said so.
-fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &ForwardLink) -> Forwarded {
-    let ForwardLink { from, target, line, signal } = link;
+fn forward_link(
+    calcs: &mut [CalcSection],
+    kinds: &BTreeMap<&str, &str>,
+    fanouts: &BTreeMap<String, Vec<String>>,
+    link: &ForwardLink,
+) -> Forwarded {
+    let ForwardLink { from, source, target, line, signal } = link;
     let whose = format!("line {line}: record '{from}': FLNK '{target}'");
-    if kinds.get(target.as_str()) == Some(&"dfanout") {
-        // Its calc links, one per output link, are processed together.
-        let outputs = format!("{target}.OUT");
-        let mut fanned = calcs.iter_mut().filter(|c| c.name.starts_with(&outputs)).peekable();
-        if fanned.peek().is_none() {
+    if let Some(outputs) = fanouts.get(target) {
+        // A dfanout: its calc links, one per output link, are processed together.
+        if outputs.is_empty() {
             return Forwarded::Ignored(format!("{whose}: '{target}' writes nothing here; ignored"));
         }
-        for calc in fanned.filter(|c| !c.processed_by.contains(signal)) {
+        for calc in calcs.iter_mut().filter(|c| outputs.contains(&c.name) && !c.processed_by.contains(signal)) {
             calc.processed_by.push(signal.clone());
         }
         return Forwarded::Followed(Some(format!(
@@ -302,9 +328,8 @@ fn forward_link(calcs: &mut [CalcSection], kinds: &BTreeMap<&str, &str>, link: &
     }
     let Some(calc) = calcs.iter_mut().find(|c| c.name == *target) else {
         // A motor's write of its target's PROC processes a motor, here or elsewhere.
-        let from_motor = kinds.get(from.as_str()) == Some(&"motor");
         return match kinds.get(target.as_str()) {
-            Some(&"motor") | None if from_motor => Forwarded::Followed(None),
+            Some(&"motor") | None if *source == Source::Motor => Forwarded::Followed(None),
             Some(kind) => Forwarded::Ignored(format!(
                 "{whose}: processing {kind} '{target}' by a forward link is not modelled; ignored"
             )),
@@ -516,7 +541,7 @@ fn motor(
         if let Link::Key { key, .. } = linker.link(&target, line, warnings)? {
             let signal = format!("{}/PROC", key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record));
             fields.insert("FLNK".to_string(), toml::Value::String(signal.clone()));
-            forward_links.push(ForwardLink { from: record.name.clone(), target, line, signal });
+            forward_links.push(ForwardLink { from: record.name.clone(), source: Source::Motor, target, line, signal });
         }
     }
     let driver = match (&on_controller, soft) {
@@ -672,7 +697,8 @@ fn value_holder(
     let section = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
     if let Some((target, line)) = forward_target(record) {
         // Processed at each write of its value.
-        forward_links.push(ForwardLink { from: record.name.clone(), target, line, signal: section.key() });
+        let source = Source::Value;
+        forward_links.push(ForwardLink { from: record.name.clone(), source, target, line, signal: section.key() });
     }
     Ok(section)
 }
@@ -689,16 +715,32 @@ fn dfanout(
     written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
 ) -> Result<Option<(ValueSection, Vec<CalcSection>)>, Failure> {
     let whose = format!("dfanout '{}'", record.name);
-    if let Some((_, selm, line)) = record.field("SELM").filter(|(_, selm, _)| !matches!(selm.trim(), "" | "All" | "0"))
-    {
-        warnings.push(format!(
-            "line {line}: {whose}: SELM '{selm}' (the outputs SELN picks) is not modelled; the record was skipped"
-        ));
-        return Ok(None);
+    if let Some((_, selm, line)) = record.field("SELM") {
+        match selm.trim() {
+            "" | "All" | "0" => {}
+            "Specified" | "Mask" | "1" | "2" => {
+                warnings.push(format!(
+                    "line {line}: {whose}: SELM '{selm}' (the outputs SELN picks) is not modelled; the record was \
+                     skipped"
+                ));
+                return Ok(None);
+            }
+            _ => return Err(Failure::at(*line, format!("{whose}: SELM '{selm}' is not one of All, Specified, Mask"))),
+        }
     }
-    let number = |(_, text, line): &(String, String, usize)| {
-        text.trim().parse::<f64>().map_err(|_| Failure::at(*line, format!("{whose}: '{text}' is not a number")))
+    let number = |(name, text, line): &(String, String, usize)| {
+        text.trim().parse::<f64>().map_err(|_| Failure::at(*line, format!("{whose}: {name} '{text}' is not a number")))
     };
+    for (name, _, line) in &record.fields {
+        let read = matches!(name.as_str(), "VAL" | "DOL" | "SELM" | "FLNK")
+            || matches!(name.as_bytes(), [b'O', b'U', b'T', b'A'..=b'H'])
+            || matches!(name.as_str(), "OMSL" | "SELN" | "SELL" | "DESC" | "PREC" | "EGU" | "HOPR" | "LOPR")
+            || unmodelled_common_field(name).is_some()
+            || DISABLING_FIELDS.contains(&name.as_str());
+        if !read {
+            warnings.push(format!("line {line}: {whose}: field {name} is not used by zmotor and was ignored"));
+        }
+    }
     // VAL, or a constant DOL, as EPICS loads one at initialisation.
     let mut value = record.field("VAL").map(number).transpose()?.unwrap_or(0.0);
     match record.field("DOL") {
@@ -1271,6 +1313,9 @@ mod tests {
             record(motor, "m5") { field(DTYP, "Soft Channel") field(FLNK, "m1") }
             record(motor, "m5") { field(FLNK, "") }
             record(ao, "zero") { field(FLNK, "0") }
+            record(motor, "m6") { field(DTYP, "Soft Channel") field(RLNK, "seen PP") }
+            record(ao, "seen") { field(FLNK, "track") }
+            record(calcout, "track") { field(INPA, "seen NPP") field(CALC, "A") field(OUT, "m6.VAL PP") }
         "#;
         let (file, warnings) = import(text).unwrap();
         let flnk = |axis: &str| forward_link_of(&file, axis);
@@ -1290,6 +1335,12 @@ mod tests {
         assert_eq!(flnk("m4").as_deref(), Some("motor/m2/PROC"));
         assert_eq!(flnk("m5"), None);
         assert!(!said("'zero'"), "{warnings:?}");
+        // Through a motor's output link: RLNK writes at every processing, the calc moves it.
+        assert!(
+            said("record 'seen': FLNK 'track' would close a loop of processing (seen → track → m6 → seen)"),
+            "{warnings:?}"
+        );
+        assert!(file.calcs.iter().find(|c| c.name == "track").unwrap().processed_by.is_empty());
         Launch::from_file("db", file).unwrap();
     }
 
@@ -1299,6 +1350,7 @@ mod tests {
             record(motor, "soft") { field(DTYP, "Soft Channel") field(STOO, "stopall PP MS") }
             record(dfanout, "stopall") { field(VAL, "1") field(OUTA, "m1.STOP PP") field(OUTB, "m2.STOP PP") field(OUTC, "") }
             record(dfanout, "picky") { field(SELM, "Specified") field(SELN, "1") field(OUTA, "m1.VAL PP") }
+            record(dfanout, "typo") { field(OUTI, "m1.VAL PP") }
             record(dfanout, "spread") { field(DOL, "0.5") field(OUTA, "sum.B PP") field(OUTB, "3") field(FLNK, "sum") }
             record(ao, "go") { field(FLNK, "spread") }
             record(calcout, "sum") { field(CALC, "A+B") field(OUT, "m1.VAL PP") }
@@ -1338,6 +1390,11 @@ mod tests {
             "{warnings:?}"
         );
         assert!(said("dfanout 'spread': FLNK 'sum' is not followed; ignored"), "{warnings:?}");
+        assert!(said("dfanout 'typo': field OUTI is not used by zmotor and was ignored"), "{warnings:?}");
+        let bad = import(r#"record(dfanout, "d") { field(SELM, "Some") }"#).unwrap_err();
+        assert_eq!(bad, Failure::at(1, "dfanout 'd': SELM 'Some' is not one of All, Specified, Mask"));
+        let bad = import(r#"record(dfanout, "d") { field(VAL, "x") }"#).unwrap_err();
+        assert_eq!(bad, Failure::at(1, "dfanout 'd': VAL 'x' is not a number"));
         assert!(file.values.iter().all(|v| v.name != "picky"));
         // As the node runs it: the value found at start is not written out; each write is, and
         // a PROC writes the value held.

@@ -630,6 +630,7 @@ fn every_shipped_launch_file_loads() {
     assert_eq!(names, ["m1", "slit_top", "slit_bottom"], "the included slits run on the optics host");
     let user = reference.deployment(Some("user")).unwrap();
     assert_eq!((user.contents.calcs.len(), user.contents.values.len(), user.zenoh.mode.name()), (1, 1, "client"));
+    assert_eq!(user.contents.calcs[0].processed_by, ["bridge/x_with_offset/PROC"]);
 }
 
 #[test]

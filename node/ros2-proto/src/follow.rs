@@ -259,7 +259,7 @@ pub struct ControllerState {
     pub feedback: JointTrajectoryPoint,
     /// reference − feedback.
     pub error: JointTrajectoryPoint,
-    /// What was commanded of the hardware's interfaces (none here: zmotor commands records).
+    /// What the hardware was commanded: where each joint's axis is sent (its VAL).
     pub output: JointTrajectoryPoint,
     /// Multi-DOF joints (none).
     pub multi_dof_joint_names: Vec<String>,
