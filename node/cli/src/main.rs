@@ -363,6 +363,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
                 tls: security.tls,
                 login: security.login,
                 access: security.access,
+                holds_nothing: false,
             };
             let session = zmotor_client::open_waiting(&section).await?;
             tracing::info!(listen = ?section.listen, connect = ?section.connect, "zmotor router serving; Ctrl-C to stop");
@@ -372,7 +373,7 @@ async fn run(command: Command) -> Result<ExitCode, Error> {
         }
         Command::Get { axis, field, client } => get(&client, &axis, field.as_deref()).await,
         Command::Put { axis, field, value, plain: true, client, .. } => {
-            let zmotor = connect(&client).await?;
+            let zmotor = connect_command(&client).await?;
             zmotor.put(&axis, field_named(&field)?, value).await?;
             zmotor.session().close().await?;
             Ok(ExitCode::SUCCESS)
@@ -593,9 +594,20 @@ async fn front_end_client(section: &ZenohConfig) -> Result<Client, Error> {
     Ok(Client::connect(&client).await?)
 }
 
-/// A client connected where `client` says.
+/// A client connected where `client` says, which may hold a motion (a jog, a gateway's): it
+/// announces a client's short lease, so that its holds end soon after it is cut off.
 async fn connect(client: &ClientArgs) -> Result<Client, Error> {
-    Client::connect(&client.zenoh()?).await.map_err(|e| match e {
+    open_client(&client.zenoh()?).await
+}
+
+/// A client connected where `client` says, for a command that holds no motion (get, put, list,
+/// monitor): with Zenoh's lease, a command starved on a busy host keeps its link.
+async fn connect_command(client: &ClientArgs) -> Result<Client, Error> {
+    open_client(&ZenohConfig { holds_nothing: true, ..client.zenoh()? }).await
+}
+
+async fn open_client(section: &ZenohConfig) -> Result<Client, Error> {
+    Client::connect(section).await.map_err(|e| match e {
         SessionError::Unreachable { .. } => {
             format!("{e}: start a node there (zmotor launch launch/sim-axis.toml) or point --connect at one").into()
         }
@@ -660,7 +672,7 @@ fn seconds(text: &str) -> Result<f64, String> {
 const UNANSWERED_UNDER_ACCESS_CONTROL: &str = " Under access control, a request the rules deny gets no answer either.";
 
 async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<ExitCode, Error> {
-    let zmotor = connect(client).await?;
+    let zmotor = connect_command(client).await?;
     let axes: Vec<&str> = axes.split(',').filter(|a| !a.is_empty()).collect();
     // Lines name their axis when there may be several.
     let several = axes.len() > 1 || axes.iter().any(|a| a.contains('*'));
@@ -703,7 +715,7 @@ async fn get(client: &ClientArgs, axes: &str, field: Option<&str>) -> Result<Exi
 
 /// The live axes (their liveliness tokens), with DESC, EGU, RBV and whether they move.
 async fn list(client: &ClientArgs) -> Result<ExitCode, Error> {
-    let zmotor = connect(client).await?;
+    let zmotor = connect_command(client).await?;
     let axes = zmotor.live_axes().await?;
     let text = |t: &Option<String>| t.clone().unwrap_or_else(|| "?".into());
     let rows: Vec<[String; 5]> = axes
@@ -742,7 +754,7 @@ async fn put(
     wait: bool,
     timeout: f64,
 ) -> Result<ExitCode, Error> {
-    let zmotor = connect(client).await?;
+    let zmotor = connect_command(client).await?;
     let field = field_named(field)?;
     let patience = Duration::from_secs_f64(timeout);
     let options = if wait { WriteOptions::waiting(patience) } else { WriteOptions::confirmed(patience) };
@@ -881,7 +893,7 @@ async fn jog(client: &ClientArgs, axis: &str, forward: bool) -> Result<ExitCode,
 
 /// A monitor that starts with the current values, then every change, as camonitor does.
 async fn monitor(client: &ClientArgs, axis: &str, fields: &[String], json: bool) -> Result<ExitCode, Error> {
-    let zmotor = connect(client).await?;
+    let zmotor = connect_command(client).await?;
     // ERR is no field but the axis's messages: refused writes, its controller's errors.
     let is_err = |name: &String| name.eq_ignore_ascii_case(zmotor_msgs::keys::ERR_KEY);
     let wanted: Vec<Field> = fields.iter().filter(|f| !is_err(f)).map(|f| field_named(f)).collect::<Result<_, _>>()?;

@@ -29,6 +29,7 @@ pub use file::{
 pub use front_ends::{CaConfig, JointConfig, Ros2Config, Ros2ConfigError, WebConfig};
 pub use launch::Launch;
 pub use network::{
-    AccessRule, LoginConfig, Mode, Permission, TlsConfig, UnknownMode, ZenohConfig, CLIENT_LEASE, NODE_LEASE,
+    AccessRule, LoginConfig, Mode, Permission, TlsConfig, UnknownMode, ZenohConfig, CLIENT_LEASE, COMMAND_LEASE,
+    NODE_LEASE,
 };
 pub use zmotor_ros2_proto::Distribution;

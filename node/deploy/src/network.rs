@@ -87,6 +87,11 @@ pub struct ZenohConfig {
     /// anything.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub access: Vec<AccessRule>,
+    /// A client that holds no motion (a command line's get, put, list or monitor): it announces
+    /// Zenoh's own lease (`COMMAND_LEASE`), not a client's half second, which only a hold needs
+    /// (a starved command line then lost its link and reported its write's outcome unknown).
+    #[serde(skip)]
+    pub holds_nothing: bool,
 }
 
 /// TLS on `tls/...` and `quic/...` endpoints: the authority this process trusts and the certificate it shows.
@@ -170,6 +175,7 @@ impl Default for ZenohConfig {
             tls: None,
             login: None,
             access: Vec::new(),
+            holds_nothing: false,
         }
     }
 }
@@ -181,10 +187,12 @@ impl ZenohConfig {
     }
 
     /// How long this process may be silent before its peers take it for gone: half a second
-    /// for a client (a jog it holds ends within a second of its being cut off), a second for a
-    /// node or router (a busy one must not be dropped). Zenoh's default is ten seconds.
+    /// for a client (a jog it holds ends within a second of its being cut off), Zenoh's ten
+    /// seconds for one that holds nothing, a second for a node or router (a busy one must not be
+    /// dropped).
     pub fn lease(&self) -> std::time::Duration {
         match self.mode {
+            Mode::Client if self.holds_nothing => COMMAND_LEASE,
             Mode::Client => CLIENT_LEASE,
             Mode::Peer | Mode::Router => NODE_LEASE,
         }
@@ -374,6 +382,9 @@ pub const CLIENT_LEASE: std::time::Duration = std::time::Duration::from_millis(5
 /// The lease of a node's or router's session (see `ZenohConfig::lease`).
 pub const NODE_LEASE: std::time::Duration = std::time::Duration::from_millis(1000);
 
+/// The lease of a client that holds nothing, Zenoh's own (see `ZenohConfig::lease`).
+pub const COMMAND_LEASE: std::time::Duration = std::time::Duration::from_secs(10);
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -384,6 +395,9 @@ mod tests {
         assert_eq!("Peer".parse::<Mode>(), Err(UnknownMode("Peer".into())));
         assert_eq!(Mode::Client.to_string(), "client");
         assert_eq!(ZenohConfig::client("tcp/127.0.0.1:1").lease(), CLIENT_LEASE);
+        let command = ZenohConfig { holds_nothing: true, ..ZenohConfig::client("tcp/127.0.0.1:1") };
+        assert_eq!(command.lease(), COMMAND_LEASE);
+        assert_eq!(ZenohConfig { holds_nothing: true, ..ZenohConfig::default() }.lease(), NODE_LEASE, "a peer");
     }
 
     /// A process under TLS, user/password and three access rules.
