@@ -539,7 +539,8 @@ fn motor(
     // record is known (`forward_links`).
     if let Some((target, line)) = forward_target(record) {
         if let Link::Key { key, .. } = linker.link(&target, line, warnings)? {
-            let signal = format!("{}/PROC", key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record));
+            let record_key = key.rsplit_once('/').map_or(key.as_str(), |(record, _)| record);
+            let signal = format!("{record_key}/{}", Field::PROC.name());
             fields.insert("FLNK".to_string(), toml::Value::String(signal.clone()));
             forward_links.push(ForwardLink { from: record.name.clone(), source: Source::Motor, target, line, signal });
         }
@@ -756,7 +757,7 @@ fn dfanout(
     let held = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
     let key = held.key();
     // Processed by a write of its VAL or its PROC (a motor's forward link into it writes there).
-    let processed_by = vec![key.clone(), format!("{}/{}/PROC", keys::BRIDGE_PREFIX, record.name)];
+    let processed_by = vec![key.clone(), format!("{}/{}/{}", keys::BRIDGE_PREFIX, record.name, Field::PROC.name())];
     let mut outputs = Vec::new();
     for letter in ['A', 'B', 'C', 'D', 'E', 'F', 'G', 'H'] {
         let field = format!("OUT{letter}");
