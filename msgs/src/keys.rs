@@ -11,6 +11,62 @@ pub const SIM_STATE_KEY: &str = "state";
 /// Prefix of the keys of calc links and value holders imported from EPICS databases
 /// (`bridge/<record>/<FIELD>`), a convention launch files may follow.
 pub const BRIDGE_PREFIX: &str = "bridge";
+/// A record the bridge serves beside the axes, as an IOC's record of that type: a value holder
+/// is an `ao` (clients write it), a calc link whose result has no output but its own
+/// `bridge/<record>/VAL` a `calc` (read). Each is announced by a liveliness token
+/// (`BridgeRecord::token`), so that a front-end (Channel Access) knows which records are live.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum BridgeRecord {
+    /// A value holder: an ao record.
+    Value,
+    /// A calc link's result: a calc record's VAL.
+    Calc,
+}
+
+impl BridgeRecord {
+    /// The record type an IOC would give it (`RTYP`).
+    #[must_use]
+    pub fn record_type(self) -> &'static str {
+        match self {
+            BridgeRecord::Value => "ao",
+            BridgeRecord::Calc => "calc",
+        }
+    }
+
+    /// `bridge/<record>/<type>`: the liveliness token of a live record `name` of this kind.
+    #[must_use]
+    pub fn token(self, name: &str) -> String {
+        format!("{BRIDGE_PREFIX}/{name}/{}", self.record_type())
+    }
+
+    /// `bridge/*/*`: every bridge record's token.
+    #[must_use]
+    pub fn every_token() -> String {
+        format!("{BRIDGE_PREFIX}/*/*")
+    }
+
+    /// The record a token names, and its kind, if `key` is one.
+    #[must_use]
+    pub fn of_token(key: &str) -> Option<(&str, BridgeRecord)> {
+        let (name, kind) = key.strip_prefix(BRIDGE_PREFIX)?.strip_prefix('/')?.split_once('/')?;
+        let kind = [BridgeRecord::Value, BridgeRecord::Calc].into_iter().find(|k| k.record_type() == kind)?;
+        validate_axis_name(name).ok().map(|()| (name, kind))
+    }
+
+    /// `bridge/<record>/VAL`: the key of a record's value.
+    #[must_use]
+    pub fn value_key(name: &str) -> String {
+        format!("{BRIDGE_PREFIX}/{name}/VAL")
+    }
+
+    /// The record whose value `key` is, if it is one (`BridgeRecord::value_key`).
+    #[must_use]
+    pub fn of_value_key(key: &str) -> Option<&str> {
+        let name = key.strip_prefix(BRIDGE_PREFIX)?.strip_prefix('/')?.strip_suffix("/VAL")?;
+        validate_axis_name(name).ok().map(|()| name)
+    }
+}
+
 /// Field-like key on which refused writes are reported as text.
 pub const ERR_KEY: &str = "ERR";
 /// Key suffix of the driver-command trace.
@@ -454,5 +510,21 @@ mod tests {
         for (typed, chunk) in [("*", "*"), ("**", "**"), ("m*", "m$*"), ("*1", "$*1"), ("m**2", "m$*2"), ("m1", "m1")] {
             assert_eq!(chunk_pattern(typed), chunk, "{typed}");
         }
+    }
+
+    #[test]
+    fn bridge_records_are_told_by_their_tokens_and_value_keys() {
+        assert_eq!(BridgeRecord::Value.token("armLength"), "bridge/armLength/ao");
+        assert_eq!(BridgeRecord::Calc.token("readback"), "bridge/readback/calc");
+        assert_eq!(BridgeRecord::of_token("bridge/armLength/ao"), Some(("armLength", BridgeRecord::Value)));
+        assert_eq!(BridgeRecord::of_token("bridge/readback/calc"), Some(("readback", BridgeRecord::Calc)));
+        assert_eq!(BridgeRecord::of_token("bridge/readback/bo"), None);
+        assert_eq!(BridgeRecord::of_token("motor/m1/ao"), None);
+        assert_eq!(BridgeRecord::of_token("bridge/a/b/ao"), None);
+        assert_eq!(BridgeRecord::value_key("armLength"), "bridge/armLength/VAL");
+        assert_eq!(BridgeRecord::of_value_key("bridge/armLength/VAL"), Some("armLength"));
+        assert_eq!(BridgeRecord::of_value_key("bridge/armLength/A"), None);
+        assert_eq!(BridgeRecord::of_value_key("bridge/a/b/VAL"), None);
+        assert_eq!(BridgeRecord::of_value_key("lab/offset"), None);
     }
 }

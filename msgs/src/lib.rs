@@ -27,7 +27,7 @@ pub use codec::{
     decode_cbor_value, decode_scalar, decode_write, encode_cbor, excerpt, validate, CodecError, MalformedPayload,
     PayloadEncoding,
 };
-pub use keys::{KeyLayout, LinkKeyError};
+pub use keys::{BridgeRecord, KeyLayout, LinkKeyError};
 pub use refusal::{Refusal, RefusalKind};
 pub use schema::{catalogue_json, message_schemas};
 pub use toml_value::{field_value, to_toml};

@@ -3,7 +3,7 @@ caput with wait, monitors), ophyd's EpicsMotor in a bluesky RunEngine scan, and 
 command-line tools and its client) as a second CA implementation. Each check asserts; a line
 `ok <check>` is printed for each that passed.
 
-Usage: python3 ca_clients.py clients | ophyd | jog | gone
+Usage: python3 ca_clients.py clients | ophyd | bridge | jog | gone
 The environment names the server (EPICS_CA_ADDR_LIST=127.0.0.1:PORT, EPICS_CA_AUTO_ADDR_LIST=NO).
 The axis m1 is launch/sim-axis.toml's: mm, PREC 3, dial limits ±100, 10 mm/s.
 """
@@ -409,6 +409,49 @@ def ophyd_scan():
     ok("ophyd EpicsMotor moves, moves nowhere, reads limits and precision, and scans three points under bluesky")
 
 
+def until(condition, what, seconds=10.0):
+    """Wait for a condition, polling every 50 ms, at most `seconds`."""
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.05)
+
+
+def bridge_records():
+    """The database of channel_access.rs's bridge test: ao `length` (VAL 1000), calc `half`
+    (A/2 of length, CP, no OUT), calc `waiting` (an input no one writes)."""
+    assert epics.caget("length", timeout=10) == 1000.0
+    until(lambda: epics.caget("half", timeout=10) == 500.0, "the calc's first result")
+    assert (epics.caget("length.RTYP"), epics.caget("half.RTYP")) == ("ao", "calc")
+    assert epics.PV("length").write_access is True and epics.PV("half").write_access is False
+    changes = []
+    half = epics.PV("half", callback=lambda value=None, **_: changes.append(value))
+    assert half.wait_for_connection(timeout=10)
+    until(lambda: changes == [500.0], f"the monitor's first event: {changes}")
+    assert epics.caput("length", 300, wait=True, timeout=10) == 1
+    assert epics.caget("length") == 300.0, "read after the write"
+    until(lambda: changes[-1:] == [150.0], f"the calc's result monitored: {changes}")
+    assert epics.caget("half") == 150.0
+    # A calc's result is read-only; a NaN is no value; neither changes anything.
+    try:
+        epics.caput("half", 7, wait=True, timeout=10)
+        raise AssertionError("a calc's result was written")
+    except epics.ca.CASeverityException as refused:
+        assert "Write access denied" in str(refused), refused
+    from caproto.sync.client import write
+
+    reply = write("length", math.nan, notify=True, repeater=False, timeout=10)
+    assert reply.status.name == "ECA_PUTFAIL", reply
+    time.sleep(0.3)
+    assert (epics.caget("length"), epics.caget("half")) == (300.0, 150.0)
+    # A calc never processed reads 0, undefined, as an IOC's.
+    waiting = epics.PV("waiting", form="time")
+    assert waiting.wait_for_connection(timeout=10) and waiting.get(timeout=10) == 0.0
+    assert (waiting.status, waiting.severity) == (17, 3), (waiting.status, waiting.severity)
+    assert not epics.PV("length.EGU").wait_for_connection(timeout=2), "only VAL and RTYP are served"
+    ok("bridge records: an ao read, written and monitored through its calc, a calc read-only, one never processed undefined")
+
+
 def gone():
     pv = epics.PV("m1.RBV")
     assert not pv.wait_for_connection(timeout=3), "m1 is still served"
@@ -438,6 +481,7 @@ STAGES = {
         archive_deadband,
     ],
     "ophyd": [ophyd_scan],
+    "bridge": [bridge_records],
     "gone": [gone],
     "jog": [jog],
 }

@@ -404,7 +404,7 @@ impl Circuit {
     fn create_channel(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
         let cid = header.p1;
         let name = codec::text(payload);
-        let Some(pv) = Pv::parse(&self.prefix, &name).filter(|pv| directory.is_live(&pv.axis)) else {
+        let Some(pv) = Pv::resolve(&self.prefix, &name, directory) else {
             self.send(Header::new(command::CREATE_CH_FAIL, 0, 0, cid, 0), &[]);
             return;
         };
@@ -515,11 +515,16 @@ impl Circuit {
     }
 
     /// What `pv` shows now: the directory's snapshot, NAME being the record's name as this
-    /// circuit's clients know it (the prefix and the axis, as an IOC's record name).
+    /// circuit's clients know it (the prefix and the axis, as an IOC's record name), RTYP its
+    /// record's type.
     fn snapshot(&self, pv: &Pv, directory: &dyn Directory) -> Option<Snapshot> {
         let mut snapshot = directory.snapshot(pv)?;
-        if matches!(pv.target, Target::Field(Field::NAME) | Target::FieldChars(Field::NAME)) {
-            snapshot.value = Value::Text(format!("{}{}", self.prefix, pv.axis));
+        match pv.target {
+            Target::Field(Field::NAME) | Target::FieldChars(Field::NAME) => {
+                snapshot.value = Value::Text(format!("{}{}", self.prefix, pv.axis));
+            }
+            Target::RecordType | Target::BridgeType(_) => snapshot.value = Value::Text(pv.record_type().into()),
+            _ => {}
         }
         Some(snapshot)
     }
@@ -568,8 +573,8 @@ impl Circuit {
         } else {
             WriteAnswer::OnFailure { request: header, cid, number }
         };
-        if channel_pv.target == Target::Able && acknowledges.is_some() {
-            // `_able` is a record of its own, a bo with no alarm to acknowledge.
+        if !channel_pv.has_motor_alarm() && acknowledges.is_some() {
+            // `_able` and bridge records are records of their own, with no alarm to acknowledge.
             return self.answer_write(answer, WriteEnd::Done);
         }
         if !channel_pv.writable() {

@@ -22,9 +22,10 @@ pub use search::answer as answer_search;
 mod tests {
     use super::codec::{self, command, Header, MINOR_VERSION};
     use super::*;
-    use zmotor_msgs::{Field, Value};
+    use zmotor_msgs::{BridgeRecord, Field, Value};
 
-    /// One live axis, m1, whose VAL is 2.5 once fetched.
+    /// One live axis, m1, whose VAL is 2.5 once fetched; and two bridge records, the value
+    /// holder `arm` and the calc `angle`.
     struct OneAxis {
         fetched: bool,
     }
@@ -32,6 +33,14 @@ mod tests {
     impl Directory for OneAxis {
         fn is_live(&self, axis: &str) -> bool {
             axis == "m1"
+        }
+
+        fn bridge_record(&self, name: &str) -> Option<BridgeRecord> {
+            match name {
+                "arm" => Some(BridgeRecord::Value),
+                "angle" => Some(BridgeRecord::Calc),
+                _ => None,
+            }
         }
 
         fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
@@ -113,6 +122,54 @@ mod tests {
         circuit.axis_gone("m1");
         let gone = messages(&circuit.poll_transmit().unwrap());
         assert_eq!((gone[0].0.command, gone[0].0.p1), (command::SERVER_DISCONN, 7));
+    }
+
+    #[test]
+    fn a_bridge_record_is_found_read_and_written_as_an_ao_or_read_as_a_calc() {
+        let mut circuit = Circuit::new("bl:");
+        let directory = OneAxis { fetched: true };
+        let search = |name: &str| {
+            let datagram = codec::encode(Header::new(command::SEARCH, 0, 13, 1, 1), &codec::name_payload(name));
+            search::answer("bl:", &datagram, 5064, &directory).is_some()
+        };
+        assert!(search("bl:arm") && search("bl:arm.VAL") && search("bl:angle.RTYP"));
+        assert!(!search("bl:arm.EGU") && !search("bl:nothing") && !search("bl:arm.RBV"), "a value and its type only");
+        let mut create = |cid, name: &[u8]| {
+            let created = request(&mut circuit, &directory, Header::new(command::CREATE_CHAN, 0, 0, cid, 13), name);
+            (created[0].0.p2, created.get(1).map(|(reply, _)| (reply.command, reply.data_type, reply.p2)))
+        };
+        let (arm_rights, arm) = create(1, b"bl:arm\0");
+        let (angle_rights, angle) = create(2, b"bl:angle.VAL\0");
+        let (_, angle_type) = create(3, b"bl:angle.RTYP\0");
+        assert_eq!((arm_rights, angle_rights), (3, 1), "an ao is written, a calc's result read");
+        let [Some((command::CREATE_CHAN, 6, arm)), Some((command::CREATE_CHAN, 6, angle)), Some((_, 0, angle_type))] =
+            [arm, angle, angle_type]
+        else {
+            panic!("channels: {arm:?} {angle:?} {angle_type:?}");
+        };
+        let read = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 0, 1, angle_type, 9), &[]);
+        assert_eq!(read[0].1[..5], *b"calc\0");
+        let class = request(&mut circuit, &directory, Header::new(command::READ_NOTIFY, 38, 1, arm, 10), &[]);
+        assert_eq!(class[0].1[..3], *b"ao\0", "DBR_CLASS_NAME");
+
+        request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 6, 1, arm, 42), &1.5f64.to_be_bytes());
+        let Some(Request::Write { pv, text, wait, hold, answer }) = circuit.poll_request() else { panic!("no write") };
+        assert_eq!(pv, Pv { axis: "arm".into(), target: Target::BridgeValue(BridgeRecord::Value) });
+        assert_eq!((pv.name("bl:"), text.as_str(), wait, hold), ("bl:arm.VAL".into(), "1.5", false, false));
+        assert_eq!(pv.written(text), None, "no field of a motor");
+        circuit.write_done(answer, WriteEnd::Done, &directory);
+        let done = messages(&circuit.poll_transmit().unwrap());
+        assert_eq!((done[0].0.command, done[0].0.p1, done[0].0.p2), (command::WRITE_NOTIFY, 1, 42));
+        // A calc's result is not written; an acknowledgement has no alarm of a motor to reach.
+        let refused = request(&mut circuit, &directory, Header::new(command::WRITE, 6, 1, angle, 3), &[0; 8]);
+        assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
+        let acks = request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 36, 1, arm, 4), &[0, 3]);
+        assert_eq!((acks[0].0.command, acks[0].0.p1), (command::WRITE_NOTIFY, 1));
+        assert_eq!(circuit.poll_request(), None, "nothing sent for either");
+
+        // A live axis of the name is the axis.
+        let pv = Pv::resolve("", "m1", &directory).unwrap();
+        assert_eq!(pv.target, Target::Field(Field::VAL));
     }
 
     #[test]
@@ -321,6 +378,10 @@ mod tests {
     impl Directory for Moving {
         fn is_live(&self, axis: &str) -> bool {
             OneAxis { fetched: true }.is_live(axis)
+        }
+
+        fn bridge_record(&self, _: &str) -> Option<BridgeRecord> {
+            None
         }
 
         fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {

@@ -6,11 +6,14 @@
 //! motor's databases put beside each motor (a bo whose OUT writes the motor's DISP, which
 //! motor screens and pyepics's `Motor.disabled` use): the axis's DISP as a menu of two choices.
 //! The dbCommon fields zmotor does not model (SCAN, PINI, PRIO, ...) read as an IOC's motor
-//! record holds them by default, and take no write.
+//! record holds them by default, and take no write. A name that is no live axis's may be a
+//! bridge record's (`BridgeRecord`: a value holder as an ao, a calc link's result as a calc):
+//! `<P><record>` and `.VAL` its value, `.RTYP` its type (`Pv::resolve`).
 
 use crate::dbr::Base;
+use crate::directory::Directory;
 use zmotor_msgs::menus::Menu;
-use zmotor_msgs::{keys, unmodelled_common_field, Access, CommonField, Field, Kind};
+use zmotor_msgs::{keys, unmodelled_common_field, Access, BridgeRecord, CommonField, Field, Kind};
 
 /// The choices of `<P><axis>_able` (its bo's ZNAM and ONAM in motor's asyn_motor.db).
 pub const ABLE: Menu = Menu { name: "able", choices: &["Enable", "Disable"] };
@@ -36,6 +39,10 @@ pub enum Target {
     /// `.<FIELD>$` of a string or link field: its text in full, as a character array (an IOC's
     /// long-string channel; a link's key may be longer than a DBR_STRING's 39 characters).
     FieldChars(Field),
+    /// A bridge record's value (its VAL), the record being of this kind.
+    BridgeValue(BridgeRecord),
+    /// A bridge record's `.RTYP`.
+    BridgeType(BridgeRecord),
 }
 
 impl Target {
@@ -90,6 +97,28 @@ impl Pv {
         Some(Pv { axis: axis.to_string(), target })
     }
 
+    /// The channel `name` asks for under `prefix` as `directory` has the records now: a live
+    /// axis's, else a live bridge record's value or type.
+    pub fn resolve(prefix: &str, name: &str, directory: &dyn Directory) -> Option<Pv> {
+        let pv = Pv::parse(prefix, name)?;
+        if directory.is_live(&pv.axis) {
+            return Some(pv);
+        }
+        let kind = directory.bridge_record(&pv.axis)?;
+        let target = match pv.target {
+            Target::Field(Field::VAL) => Target::BridgeValue(kind),
+            Target::RecordType => Target::BridgeType(kind),
+            _ => return None,
+        };
+        Some(Pv { axis: pv.axis, target })
+    }
+
+    /// Whether it has the motor record's alarm (an `_able` or a bridge record has none to
+    /// acknowledge here).
+    pub fn has_motor_alarm(&self) -> bool {
+        !matches!(self.target, Target::Able | Target::BridgeValue(_) | Target::BridgeType(_))
+    }
+
     /// Its full name under `prefix`.
     pub fn name(&self, prefix: &str) -> String {
         match self.target {
@@ -100,16 +129,19 @@ impl Pv {
             Target::Able => format!("{prefix}{}{ABLE_SUFFIX}", self.axis),
             Target::Common(name) => format!("{prefix}{}.{name}", self.axis),
             Target::FieldChars(field) => format!("{prefix}{}.{}$", self.axis, field.name()),
+            Target::BridgeValue(_) => format!("{prefix}{}.VAL", self.axis),
+            Target::BridgeType(_) => format!("{prefix}{}.RTYP", self.axis),
         }
     }
 
     /// The type of the record it belongs to (DBR_CLASS_NAME): `_able` is a bo record of the
-    /// motor's databases; every other channel is of the motor record.
+    /// motor's databases, a bridge record is of its own type; every other channel is of the
+    /// motor record.
     pub fn record_type(&self) -> &'static str {
-        if self.target == Target::Able {
-            "bo"
-        } else {
-            "motor"
+        match self.target {
+            Target::Able => "bo",
+            Target::BridgeValue(kind) | Target::BridgeType(kind) => kind.record_type(),
+            _ => "motor",
         }
     }
 
@@ -131,8 +163,13 @@ impl Pv {
         match self.target {
             Target::Field(field) if field.acknowledges_alarms() => false,
             Target::Field(field) | Target::FieldChars(field) => field.def().access != Access::RO,
-            Target::Able => true,
-            Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => false,
+            Target::Able | Target::BridgeValue(BridgeRecord::Value) => true,
+            Target::RecordType
+            | Target::Message
+            | Target::MessageChars
+            | Target::Common(_)
+            | Target::BridgeValue(BridgeRecord::Calc)
+            | Target::BridgeType(_) => false,
         }
     }
 
@@ -146,7 +183,12 @@ impl Pv {
                 _ => Some((field, text)),
             },
             Target::Able => Some((Field::DISP, ABLE.index_of(&text).map_or(text, |index| index.to_string()))),
-            Target::RecordType | Target::Message | Target::MessageChars | Target::Common(_) => None,
+            Target::RecordType
+            | Target::Message
+            | Target::MessageChars
+            | Target::Common(_)
+            | Target::BridgeValue(_)
+            | Target::BridgeType(_) => None,
         }
     }
 
@@ -165,7 +207,8 @@ impl Pv {
     pub fn native(&self) -> Base {
         match self.target {
             Target::Field(field) => Base::native(field.def().kind),
-            Target::RecordType | Target::Message => Base::String,
+            Target::RecordType | Target::Message | Target::BridgeType(_) => Base::String,
+            Target::BridgeValue(_) => Base::Double,
             Target::MessageChars | Target::FieldChars(_) => Base::Char,
             Target::Able => Base::Enum,
             Target::Common(_) => self.target.common().map_or(Base::String, |common| Base::native(common.kind)),
@@ -184,9 +227,13 @@ impl Pv {
             Target::Field(field) => Limits::Range(field.def().kind.default_range()),
             Target::Able => Limits::Range((1.0, 0.0)),
             Target::Common(_) => Limits::Range(self.target.common().map_or((0.0, 0.0), |c| c.kind.default_range())),
-            Target::RecordType | Target::Message | Target::MessageChars | Target::FieldChars(_) => {
-                Limits::Range((0.0, 0.0))
-            }
+            // An ao's HOPR and LOPR, a calc's, by default.
+            Target::RecordType
+            | Target::Message
+            | Target::MessageChars
+            | Target::FieldChars(_)
+            | Target::BridgeValue(_)
+            | Target::BridgeType(_) => Limits::Range((0.0, 0.0)),
         }
     }
 
@@ -220,7 +267,9 @@ impl Pv {
             | Target::MessageChars
             | Target::Able
             | Target::Common(_)
-            | Target::FieldChars(_) => String::new(),
+            | Target::FieldChars(_)
+            | Target::BridgeValue(_)
+            | Target::BridgeType(_) => String::new(),
         }
     }
 }

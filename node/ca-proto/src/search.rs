@@ -14,10 +14,7 @@ pub(crate) fn reply(
     tcp_port: u16,
     directory: &dyn Directory,
 ) -> Option<Vec<u8>> {
-    let pv = Pv::parse(prefix, &codec::text(payload))?;
-    if !directory.is_live(&pv.axis) {
-        return None;
-    }
+    Pv::resolve(prefix, &codec::text(payload), directory)?;
     // The server's address: ~0 tells the client to use the address the reply came from.
     let header = Header::new(command::SEARCH, tcp_port, 0, u32::MAX, request.p2);
     Some(codec::encode(header, &MINOR_VERSION.to_be_bytes()))

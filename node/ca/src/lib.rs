@@ -5,7 +5,9 @@
 //! say which are live; when a client first asks for an axis, a subscription to its fields keeps
 //! their values and a read of the whole axis fetches them. Writes are confirmed Zenoh writes to write keys
 //! (so that they work under access control); a put-callback of a drive field waits for the end
-//! of the motion (`?wait`).
+//! of the motion (`?wait`). Bridge records (value holders as ao records, calc links' results as
+//! calc records) are served likewise by their tokens and their value keys; an ao's write is a
+//! plain put of its value, as the bridge's links write.
 
 mod circuit;
 mod values;
@@ -17,11 +19,15 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 use tokio::sync::{broadcast, mpsc};
 use values::{Change, Entry, Values};
+use zenoh::bytes::Encoding;
 use zenoh::sample::{Sample, SampleKind};
 use zmotor_ca_proto::{answer_search, Pv, Stamp, Target, WriteAnswer, WriteEnd};
 use zmotor_client::{Client, NoAnswer, SentWrite, WriteOptions, WriteOutcome};
 use zmotor_deploy::CaConfig;
-use zmotor_msgs::{decode_cbor_value, keys, Field, Value};
+use zmotor_msgs::{
+    decode_cbor_value, decode_scalar, encode_cbor, keys, BridgeRecord, Field, PayloadEncoding, Refusal, RefusalKind,
+    Value,
+};
 
 /// The gateway could not start.
 #[derive(Debug, thiserror::Error)]
@@ -72,6 +78,9 @@ impl Shared {
     /// circuits.
     fn store(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
+        if let Some(record) = BridgeRecord::of_value_key(key) {
+            return self.store_record(record, sample);
+        }
         let Some(axis) = self.client.layout().axis_chunk(key) else { return };
         let Some(name) = self.client.layout().field_name(axis, key) else { return };
         let payload = sample.payload().to_bytes();
@@ -82,32 +91,55 @@ impl Shared {
             let Ok(value) = decode_cbor_value(&payload) else { return };
             (Target::Field(field), value)
         };
-        // The node's time of the value (when the axis read the status it comes from), as an
-        // IOC's record time stamp; its arrival where the sample has none.
-        let time = sample.timestamp().map_or_else(SystemTime::now, |t| t.get_time().to_system_time());
-        let since = time.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
-        let stamp = Stamp::from_posix(since.as_secs(), since.subsec_nanos());
-        let axis = axis.to_string();
+        self.keep(axis.to_string(), target, Entry { value, stamp: stamp_of(sample) });
+    }
+
+    /// Store a bridge record's value, if the sample carries a number.
+    fn store_record(&self, record: &str, sample: &Sample) {
+        let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+        let Some(x) = decode_scalar(&sample.payload().to_bytes(), encoding).ok().and_then(|v| v.as_f64()) else {
+            return;
+        };
+        let Some(kind) = self.values().records.get(record).copied() else { return };
+        self.keep(
+            record.to_string(),
+            Target::BridgeValue(kind),
+            Entry { value: Value::Float(x), stamp: stamp_of(sample) },
+        );
+    }
+
+    /// Keep a value of an axis or a record followed now (a late sample of one that went must not
+    /// revive its values), and tell the circuits.
+    fn keep(&self, axis: String, target: Target, entry: Entry) {
         let mut values = self.values();
-        // Only axes followed now: a late sample of an axis that went must not revive its values.
         if !values.followed.contains_key(&axis) {
             return;
         }
         // Told under the lock, so that the circuits get the changes in the order of the values.
-        let change = values.store(axis, target, Entry { value, stamp });
+        let change = values.store(axis, target, entry);
         let _ = self.changes.send(change);
     }
 
-    /// Follow an axis's fields and read them all, once while it stays live.
+    /// Follow an axis's fields, or a bridge record's value, and read them all, once while it stays
+    /// live.
     pub(crate) fn fetch(&self, axis: String) {
-        match self.values().followed.entry(axis.clone()) {
-            std::collections::hash_map::Entry::Occupied(_) => return,
-            std::collections::hash_map::Entry::Vacant(slot) => slot.insert(None),
+        let (followed, read, record) = {
+            let mut values = self.values();
+            let layout = self.client.layout();
+            let keys = match values.records.contains_key(&axis) && !values.live.contains(&axis) {
+                true => (BridgeRecord::value_key(&axis), BridgeRecord::value_key(&axis), true),
+                false => (layout.axis_fields(&axis), layout.axis_all(&axis), false),
+            };
+            match values.followed.entry(axis.clone()) {
+                std::collections::hash_map::Entry::Occupied(_) => return,
+                std::collections::hash_map::Entry::Vacant(slot) => slot.insert(None),
+            };
+            keys
         };
         let shared = self.clone();
         tokio::spawn(async move {
             let storing = shared.clone();
-            let follow = shared.client.session().declare_subscriber(shared.client.layout().axis_fields(&axis));
+            let follow = shared.client.session().declare_subscriber(followed);
             let Ok(subscriber) = follow.callback(move |sample| storing.store(&sample)).await else {
                 shared.values().followed.remove(&axis);
                 return;
@@ -115,9 +147,7 @@ impl Shared {
             if let Some(slot) = shared.values().followed.get_mut(&axis) {
                 *slot = Some(subscriber);
             }
-            let Ok(replies) =
-                shared.client.session().get(shared.client.layout().axis_all(&axis)).timeout(ANSWER_PATIENCE).await
-            else {
+            let Ok(replies) = shared.client.session().get(read).timeout(ANSWER_PATIENCE).await else {
                 return;
             };
             while let Ok(reply) = replies.recv_async().await {
@@ -127,7 +157,9 @@ impl Shared {
             }
             let answered = {
                 let mut values = shared.values();
-                if values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
+                // A record that answered nothing has no value yet (a calc not processed): shown
+                // undefined, as an IOC's.
+                if record || values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
                     let _ = shared.changes.send(values.show_whole(axis.clone()));
                     true
                 } else {
@@ -141,7 +173,9 @@ impl Shared {
             // live, so that a read or monitor waiting for its values is answered.
             if !answered {
                 tokio::time::sleep(FETCH_AGAIN).await;
-                if shared.values().live.contains(&axis) {
+                let values = shared.values();
+                if values.live.contains(&axis) || values.records.contains_key(&axis) {
+                    drop(values);
                     shared.fetch(axis);
                 }
             }
@@ -173,8 +207,9 @@ impl Shared {
             loop {
                 let (answer, sending) = sent;
                 let end = match sending {
-                    Ok(sending) => write_end(sending.outcome().await),
-                    Err(e) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+                    Sending::Confirmed(Ok(sending)) => write_end(sending.outcome().await),
+                    Sending::Confirmed(Err(e)) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+                    Sending::Ended(end) => end,
                 };
                 let _ = done.send((answer, end));
                 if !moves {
@@ -186,15 +221,33 @@ impl Shared {
         });
     }
 
-    async fn send(&self, write: Write) -> (WriteAnswer, Result<SentWrite, zenoh::Error>) {
+    async fn send(&self, write: Write) -> (WriteAnswer, Sending) {
         let Write { pv, text, wait, hold, answer } = write;
+        if let Target::BridgeValue(BridgeRecord::Value) = pv.target {
+            return (answer, Sending::Ended(self.put_record(&pv.axis, &text).await));
+        }
         // The circuit writes only channels that write a field.
         let Some((field, text)) = pv.written(text) else {
-            return (answer, Err(format!("{}: not a field", pv.axis).into()));
+            return (answer, Sending::Confirmed(Err(format!("{}: not a field", pv.axis).into())));
         };
         let options =
             if wait { WriteOptions::waiting(MOTION_PATIENCE) } else { WriteOptions::confirmed(ANSWER_PATIENCE) };
-        (answer, self.client.write(&pv.axis, field, text, options.held_by(hold)).await)
+        (answer, Sending::Confirmed(self.client.write(&pv.axis, field, text, options.held_by(hold)).await))
+    }
+
+    /// A value holder's new value, put on its key as the bridge's links write (a value holder
+    /// answers no write): done once sent. Only a finite number is put.
+    async fn put_record(&self, record: &str, text: &str) -> WriteEnd {
+        let number = text.trim().parse::<f64>().ok().filter(|x| x.is_finite());
+        let Some(x) = number else {
+            let message = format!("{}{record}.VAL: '{text}' is not a finite number", self.prefix);
+            return WriteEnd::Refused(Refusal { kind: RefusalKind::BadValue, message });
+        };
+        let put = self.client.session().put(BridgeRecord::value_key(record), encode_cbor(&Value::Float(x)));
+        match put.encoding(Encoding::APPLICATION_CBOR).await {
+            Ok(()) => WriteEnd::Done,
+            Err(e) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+        }
     }
 
     /// The next put-callback of a motion waiting for `axis`, if any (the axis is then free): one
@@ -212,6 +265,14 @@ impl Shared {
     }
 }
 
+/// The node's time of a value (when the axis read the status it comes from), as an IOC's record
+/// time stamp; its arrival where the sample has none.
+fn stamp_of(sample: &Sample) -> Stamp {
+    let time = sample.timestamp().map_or_else(SystemTime::now, |t| t.get_time().to_system_time());
+    let since = time.duration_since(SystemTime::UNIX_EPOCH).unwrap_or_default();
+    Stamp::from_posix(since.as_secs(), since.subsec_nanos())
+}
+
 /// How a write's outcome is told to a CA client.
 fn write_end(outcome: WriteOutcome) -> WriteEnd {
     match outcome {
@@ -222,6 +283,13 @@ fn write_end(outcome: WriteOutcome) -> WriteEnd {
         }
         other => WriteEnd::Unanswered { denied: false, why: other.to_string() },
     }
+}
+
+/// How a write was sent: confirmed by the node serving the axis, or a bridge record's plain put,
+/// ended once sent.
+enum Sending {
+    Confirmed(Result<SentWrite, zenoh::Error>),
+    Ended(WriteEnd),
 }
 
 /// A write's end, for its circuit.
@@ -243,6 +311,8 @@ pub struct ChannelAccess {
     /// Dropped with the front-end: every circuit ends (and its holds with it).
     _running: tokio::sync::watch::Sender<()>,
     _tokens: zenoh::pubsub::Subscriber<()>,
+    /// The bridge records' tokens.
+    _records: zenoh::pubsub::Subscriber<()>,
     /// The TCP port circuits connect to.
     pub tcp_port: u16,
 }
@@ -294,6 +364,28 @@ impl ChannelAccess {
                 })
                 .await?
         };
+        let records = {
+            let shared = shared.clone();
+            let runtime = tokio::runtime::Handle::current();
+            client
+                .session()
+                .liveliness()
+                .declare_subscriber(BridgeRecord::every_token())
+                .history(true)
+                .callback(move |sample| {
+                    let Some((record, kind)) = BridgeRecord::of_token(sample.key_expr().as_str()) else { return };
+                    let record = record.to_string();
+                    let mut values = shared.values();
+                    if sample.kind() == SampleKind::Put {
+                        values.records.insert(record, kind);
+                    } else if values.records.remove(&record).is_some() && !values.live.contains(&record) {
+                        let followed = values.followed.remove(&record);
+                        runtime.spawn(async move { drop(followed) });
+                        let _ = shared.changes.send(values.forget(record));
+                    }
+                })
+                .await?
+        };
         let searches = {
             let shared = shared.clone();
             tokio::spawn(async move {
@@ -341,7 +433,7 @@ impl ChannelAccess {
             })
         };
         tracing::info!(%address, tcp_port, pv_prefix = config.pv_prefix, "Channel Access serving the live axes");
-        Ok(Self { tasks: vec![searches, circuits], _running: running, _tokens: tokens, tcp_port })
+        Ok(Self { tasks: vec![searches, circuits], _running: running, _tokens: tokens, _records: records, tcp_port })
     }
 }
 

@@ -5,7 +5,8 @@
 use std::cell::RefCell;
 use std::collections::{HashMap, HashSet};
 use zmotor_ca_proto::{Directory, Limits, Pv, Snapshot, Stamp, Target, ABLE};
-use zmotor_msgs::{Field, Kind, Value};
+use zmotor_msgs::menus::{severity, status};
+use zmotor_msgs::{BridgeRecord, Field, Kind, Value};
 
 /// A field's last value, and when it arrived.
 #[derive(Clone, Debug)]
@@ -14,11 +15,14 @@ pub(crate) struct Entry {
     pub(crate) stamp: Stamp,
 }
 
-/// One axis's values: its fields, and its last message (its ERR key).
+/// One axis's values: its fields, and its last message (its ERR key); or a bridge record's
+/// value.
 #[derive(Clone, Default)]
 pub(crate) struct AxisValues {
     fields: HashMap<Field, Entry>,
     message: Option<Entry>,
+    /// A bridge record's value, once it has one.
+    record: Option<Entry>,
     /// Whether the read of the whole axis has ended: until then nothing is shown (a client
     /// connecting would read VAL's limits as 0 or EGU as empty, their values not there yet).
     whole: bool,
@@ -44,6 +48,8 @@ impl AxisValues {
             Target::FieldChars(field) => {
                 self.fields.insert(field, entry);
             }
+            Target::BridgeValue(_) => self.record = Some(entry),
+            Target::BridgeType(_) => {}
         }
     }
 
@@ -55,6 +61,14 @@ impl AxisValues {
         if !self.whole {
             return None;
         }
+        match pv.target {
+            Target::BridgeValue(_) | Target::BridgeType(_) => Some(self.record_snapshot(pv)),
+            _ => self.motor_snapshot(pv),
+        }
+    }
+
+    /// A motor's channel.
+    fn motor_snapshot(&self, pv: &Pv) -> Option<Snapshot> {
         let alarm = self.fields.get(&Field::STAT)?;
         let (value, stamp, choices) = match pv.target {
             Target::FieldChars(field) => {
@@ -86,6 +100,7 @@ impl AxisValues {
                 Some(message) => (message.value.clone(), message.stamp, &[][..]),
                 None => (Value::Text(String::new()), alarm.stamp, &[][..]),
             },
+            Target::BridgeValue(_) | Target::BridgeType(_) => return None,
         };
         let egu = match self.fields.get(&Field::EGU).map(|e| &e.value) {
             Some(Value::Text(egu)) => egu.clone(),
@@ -128,6 +143,7 @@ impl AxisValues {
                 Target::Field(field) => field.precision(prec),
                 Target::RecordType | Target::Message | Target::MessageChars => prec,
                 Target::Able | Target::Common(_) | Target::FieldChars(_) => 0,
+                Target::BridgeValue(_) | Target::BridgeType(_) => 0,
             },
             upper,
             lower,
@@ -137,10 +153,41 @@ impl AxisValues {
     }
 }
 
+impl AxisValues {
+    /// A bridge record's channel: its value, or, before it has one (a calc not yet processed),
+    /// 0 undefined (UDF, INVALID), as an IOC's record reads before its first processing.
+    fn record_snapshot(&self, pv: &Pv) -> Snapshot {
+        let (value, stamp, alarm) = match &self.record {
+            Some(entry) => (entry.value.clone(), entry.stamp, (status::NO_ALARM, severity::NO_ALARM)),
+            None => (Value::Float(0.0), Stamp::default(), (status::UDF, severity::INVALID)),
+        };
+        let (upper, lower) = match pv.limits() {
+            Limits::Range(range) => range,
+            Limits::Fields(..) | Limits::RawDial => (0.0, 0.0),
+        };
+        Snapshot {
+            value,
+            native: pv.native(),
+            status: alarm.0,
+            severity: alarm.1,
+            acknowledgement: (1, 0),
+            stamp,
+            units: String::new(),
+            precision: 0,
+            upper,
+            lower,
+            alarm: [f64::NAN; 4],
+            choices: &[],
+        }
+    }
+}
+
 /// The values the front-end holds.
 #[derive(Default)]
 pub(crate) struct Values {
     pub(crate) live: HashSet<String>,
+    /// The bridge records live now, by name (their tokens).
+    pub(crate) records: HashMap<String, BridgeRecord>,
     /// The axes a client asked for since they became live, each with the subscriber to its
     /// fields (`None` while it is declared): the nodes publish only what someone follows.
     pub(crate) followed: HashMap<String, Option<zenoh::pubsub::Subscriber<()>>>,
@@ -165,7 +212,7 @@ impl Values {
         Change::Whole { axis, number: self.told }
     }
 
-    /// Forget an axis that went, and number the change that tells it.
+    /// Forget an axis or a bridge record that went, and number the change that tells it.
     pub(crate) fn forget(&mut self, axis: String) -> Change {
         self.live.remove(&axis);
         self.axes.remove(&axis);
@@ -177,6 +224,10 @@ impl Values {
 impl Directory for Values {
     fn is_live(&self, axis: &str) -> bool {
         self.live.contains(axis)
+    }
+
+    fn bridge_record(&self, name: &str) -> Option<BridgeRecord> {
+        self.records.get(name).copied()
     }
 
     fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {
@@ -259,6 +310,10 @@ pub(crate) struct SeenDirectory<'a> {
 impl Directory for SeenDirectory<'_> {
     fn is_live(&self, axis: &str) -> bool {
         self.values.is_live(axis)
+    }
+
+    fn bridge_record(&self, name: &str) -> Option<BridgeRecord> {
+        self.values.bridge_record(name)
     }
 
     fn snapshot(&self, pv: &Pv) -> Option<Snapshot> {

@@ -74,6 +74,27 @@ fn stock_channel_access_clients_read_move_monitor_and_scan_an_axis() {
 }
 
 #[test]
+fn an_imported_databases_ao_and_calc_records_are_served_to_stock_clients() {
+    let dir = tempfile::tempdir().unwrap();
+    // The motor only tells when the node serves.
+    let database = r#"
+record(motor, "m1") { field(DTYP, "Soft Channel") }
+record(ao, "length") { field(VAL, "1000") }
+record(calc, "half") { field(CALC, "A/2") field(INPA, "length CP") }
+record(calc, "waiting") { field(CALC, "A") field(INPA, "nobody CP") }
+"#;
+    let file = dir.path().join("records.db");
+    std::fs::write(&file, database).unwrap();
+    let endpoint = free_local_endpoint().unwrap();
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let here = Host::default();
+    let _node = here.spawn(&["launch", file.to_str().unwrap(), "--listen", &endpoint], dir.path());
+    here.wait_for(&endpoint, "m1", "DMOV", |v| v == 1.0);
+    let _ca = here.spawn(&["ca", "--port", &port.to_string(), "--connect", &endpoint], dir.path());
+    assert!(clients(port, "bridge").lines().any(|l| l.starts_with("ok bridge records")));
+}
+
+#[test]
 fn a_jog_from_a_channel_access_client_that_is_killed_ends_within_a_second() {
     let dir = tempfile::tempdir().unwrap();
     // The front-end of a launch file's [channel_access], in the node's process.

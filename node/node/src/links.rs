@@ -11,7 +11,7 @@ use zenoh::sample::{Sample, SampleKind};
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
-use zmotor_msgs::{decode_scalar, encode_cbor, Field, KeyLayout, PayloadEncoding, Value};
+use zmotor_msgs::{decode_scalar, encode_cbor, BridgeRecord, Field, KeyLayout, PayloadEncoding, Value};
 
 /// Where a follower's values go, as (the key's index, its value): a calc link's channel, or an
 /// axis's inbox (so that a link's value and a write reach the axis in the order they came).
@@ -247,17 +247,27 @@ pub(crate) struct CalcTask {
     /// Its input keys, then the keys it is processed by, followed for as long as the task lives.
     _follows: Follows,
     updates: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
+    /// The calc record it serves, when its result goes to its own `bridge/<record>/VAL`.
+    record: Option<AnsweredValue>,
 }
 
 impl CalcTask {
     /// Follow `link`'s inputs (their values now, then their updates) and the keys it is
-    /// processed by (their updates).
+    /// processed by (their updates). With `serves_record`, its result is its own record's value
+    /// (`bridge/<record>/VAL`, which no value holder holds): it answers reads of it, and announces
+    /// the calc record (`BridgeRecord::Calc`).
     pub(crate) fn start(
         session: &Session,
         local: Arc<LocalFollowers>,
         writer: Writer,
         link: CalcLink,
+        serves_record: bool,
     ) -> Result<Self, zenoh::Error> {
+        let output = &link.spec().output;
+        let record = match serves_record && BridgeRecord::of_value_key(output).is_some() {
+            true => Some(AnsweredValue::declare(session, output, None, Some(BridgeRecord::Calc))?),
+            false => None,
+        };
         let (mut follows, updates) = Follows::to_channel(session, local);
         let inputs = link.input_keys().count();
         for (index, key) in link.input_keys().enumerate() {
@@ -266,7 +276,7 @@ impl CalcTask {
         for (index, key) in link.processing_keys().enumerate() {
             follows.follow_updates(inputs + index, key)?;
         }
-        Ok(Self { writer, link, _follows: follows, updates })
+        Ok(Self { writer, link, _follows: follows, updates, record })
     }
 
     pub(crate) async fn run(&mut self) {
@@ -278,6 +288,10 @@ impl CalcTask {
                 Some(index) => self.link.processed_by(&processing[index], value),
             };
             if let Some(result) = result {
+                // Kept before it is written: a read answered meanwhile has it, not the one before.
+                if let Some(record) = &self.record {
+                    record.set(result);
+                }
                 // A write to the output key, like a calcout's OUT: plain, no state marker.
                 self.writer.put(&self.link.spec().output, result.to_string());
             }
@@ -286,32 +300,67 @@ impl CalcTask {
 }
 
 /// A value holder (an ao/ai record that only holds a value): keeps the latest number put on
-/// its key and answers reads of it.
+/// its key and answers reads of it; on a bridge record's key (`bridge/<record>/VAL`) it is that
+/// ao record, announced by its token.
 pub(crate) struct ValueHolder {
     _updates: zenoh::pubsub::Subscriber<()>,
-    _reads: zenoh::query::Queryable<()>,
+    _value: AnsweredValue,
 }
 
 impl ValueHolder {
     pub(crate) async fn declare(session: &Session, spec: ValueSpec) -> Result<Self, zenoh::Error> {
-        let value = std::sync::Arc::new(std::sync::Mutex::new(spec.initial));
-        let latest = value.clone();
+        let value = AnsweredValue::declare(session, &spec.key, Some(spec.initial), Some(BridgeRecord::Value))?;
+        let latest = value.latest.clone();
         let updates = session
             .declare_subscriber(spec.key.clone())
             .callback(move |sample| match sample_number(&sample) {
-                Some(x) => *latest.lock().unwrap_or_else(|e| e.into_inner()) = x,
+                Some(x) => *lock(&latest) = Some(x),
                 None => tracing::warn!(key = %sample.key_expr(), "value holder: not a number; ignored"),
             })
             .await?;
+        Ok(Self { _updates: updates, _value: value })
+    }
+}
+
+/// A value answered to reads of its key (none before it has one: a calc not yet processed),
+/// and the token of the bridge record it is, when its key is one's (`BridgeRecord`).
+struct AnsweredValue {
+    latest: Arc<std::sync::Mutex<Option<f64>>>,
+    _reads: zenoh::query::Queryable<()>,
+    _token: Option<zenoh::liveliness::LivelinessToken>,
+}
+
+impl AnsweredValue {
+    fn declare(
+        session: &Session,
+        key: &str,
+        initial: Option<f64>,
+        record: Option<BridgeRecord>,
+    ) -> Result<Self, zenoh::Error> {
+        let latest = Arc::new(std::sync::Mutex::new(initial));
+        let value = latest.clone();
         let reads = session
-            .declare_queryable(spec.key.clone())
+            .declare_queryable(key.to_string())
             .callback(move |query| {
-                let x = *value.lock().unwrap_or_else(|e| e.into_inner());
+                let Some(x) = *lock(&value) else { return };
                 let reply = query.reply(query.key_expr().clone(), encode_cbor(&Value::Float(x)));
                 // Replies of a callback are sent without waiting: callbacks must not block.
                 let _ = reply.encoding(Encoding::APPLICATION_CBOR).wait();
             })
-            .await?;
-        Ok(Self { _updates: updates, _reads: reads })
+            .wait()?;
+        // Declared once reads are answered: a front-end that sees the token reads the value.
+        let token = match record.zip(BridgeRecord::of_value_key(key)) {
+            Some((kind, name)) => Some(session.liveliness().declare_token(kind.token(name)).wait()?),
+            None => None,
+        };
+        Ok(Self { latest, _reads: reads, _token: token })
     }
+
+    fn set(&self, x: f64) {
+        *lock(&self.latest) = Some(x);
+    }
+}
+
+fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }

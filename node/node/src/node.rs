@@ -220,6 +220,7 @@ impl Node {
         let router = Router::declare(&session, &layout, routes, &side.writer, key_work).await?;
         // The axes answer as soon as the router exists; their liveliness tokens follow.
         tokens.declare_in_background(&session, &layout, stopped.clone());
+        let held: std::collections::HashSet<String> = values.iter().map(|spec| spec.key.clone()).collect();
         let mut holders = Vec::new();
         for spec in values {
             holders.push(ValueHolder::declare(&session, spec).await?);
@@ -228,7 +229,9 @@ impl Node {
         let mut calc_tasks = Vec::new();
         for spec in calcs {
             let link = CalcLink::new(spec)?;
-            let mut task = CalcTask::start(&session, side.followers.clone(), side.writer.clone(), link)?;
+            // A calc whose result a value holder holds is no record of its own: the holder answers.
+            let serves_record = !held.contains(&link.spec().output);
+            let mut task = CalcTask::start(&session, side.followers.clone(), side.writer.clone(), link, serves_record)?;
             calc_tasks.push(tokio::spawn(async move { task.run().await }));
         }
         Ok(Self {
