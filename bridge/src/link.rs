@@ -139,6 +139,17 @@ impl CalcLink {
         self.process()
     }
 
+    /// Its result, computed now, when nothing could ever process it: no input on a key and no key
+    /// processing it, only constants (a calc record of `CALC "1000"`, read by others' links that
+    /// process it first, as EPICS's PP input links do: its value is the same whenever processed).
+    /// `None` for a link that has keys to wait for.
+    pub fn constant_result(&mut self) -> Option<f64> {
+        match self.spec.inputs.is_empty() && self.spec.processed_by.is_empty() {
+            true => self.process(),
+            false => None,
+        }
+    }
+
     /// Recompute; the result to write to the output key, if one is due (OOPT).
     fn process(&mut self) -> Option<f64> {
         let mut values = self.values;
@@ -252,6 +263,18 @@ mod tests {
         assert_eq!(link.update("x", 1.0), Some(11.0));
         assert_eq!(link.update("x", 1.0), Some(11.0), "every time");
         assert_eq!(link.update("other", 5.0), None);
+    }
+
+    #[test]
+    fn a_link_of_constants_only_has_its_result_at_once_and_one_with_keys_waits_for_them() {
+        let mut constant = spec("height", "A*2", &[], "bridge/height/VAL", OutputOption::EveryTime);
+        constant.constants = vec![(0, 500.0)];
+        assert_eq!(CalcLink::new(constant.clone()).unwrap().constant_result(), Some(1000.0));
+        let mut processed = constant.clone();
+        processed.processed_by = vec!["bridge/height/PROC".into()];
+        assert_eq!(CalcLink::new(processed).unwrap().constant_result(), None, "processed when that key says");
+        let linked = spec("x", "A", &[(0, "y", InputMode::NoProcess)], "out", OutputOption::EveryTime);
+        assert_eq!(CalcLink::new(linked).unwrap().constant_result(), None, "waits for its input");
     }
 
     #[test]

@@ -226,3 +226,40 @@ value = 7.0
     let more: Vec<_> = after.drain().map(|s| s.payload().try_to_string().unwrap().into_owned()).collect();
     assert!(more.is_empty(), "one write a move's end, then: {more:?}");
 }
+
+/// A calc of constants only (the motor record manual's SoftMotorEx.db: `height`, CALC "1000",
+/// read by another calc's PP input, which processes it first on an IOC) serves its result from
+/// the start, and another calc reads it; one whose result goes to a motor writes nothing unasked.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calc_of_constants_only_serves_its_value_from_the_start_and_moves_nothing() {
+    let text = r#"
+[[axis]]
+name = "m1"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+[[calc]]
+name = "height"
+expression = "1000"
+output = "bridge/height/VAL"
+[[calc]]
+name = "pushes"
+expression = "5"
+output = "motor/m1/VAL"
+[[calc]]
+name = "drive"
+expression = "A+B"
+inputs = { A = "lab/angle", B = { key = "bridge/height/VAL", mode = "npp" } }
+output = "bridge/sum/VAL"
+"#;
+    let node = TestNode::launch(text).await;
+    let client = node.client().await;
+    let sum = client.declare_subscriber("bridge/sum/VAL").await.unwrap();
+    node.until_subscribed("bridge/sum/VAL").await;
+    assert_eq!(get_value(&client, "bridge/height/VAL").await, Value::Float(1000.0));
+    put_text(&client, "lab/angle", "1").await;
+    let first = tokio::time::timeout(PATIENCE, sum.recv_async()).await.expect("a result").unwrap();
+    assert_eq!(first.payload().try_to_string().unwrap(), "1001", "A + the constant calc's result");
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, 0.0, "a constant calc moved the motor");
+}

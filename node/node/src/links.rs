@@ -276,7 +276,26 @@ impl CalcTask {
         for (index, key) in link.processing_keys().enumerate() {
             follows.follow_updates(inputs + index, key)?;
         }
-        Ok(Self { writer, link, _follows: follows, updates, record })
+        let mut task = Self { writer, link, _follows: follows, updates, record };
+        // A calc record of constants only is processed by nothing here, where EPICS's readers
+        // process it through their PP links: its value is served from the start. (Only as a
+        // record's value: a write elsewhere, to a motor, is never made unasked.)
+        if task.record.is_some() {
+            if let Some(result) = task.link.constant_result() {
+                task.write(result);
+            }
+        }
+        Ok(task)
+    }
+
+    /// Keep a result for reads of the record, then write it to the output key.
+    fn write(&self, result: f64) {
+        // Kept before it is written: a read answered meanwhile has it, not the one before.
+        if let Some(record) = &self.record {
+            record.set(result);
+        }
+        // A write to the output key, like a calcout's OUT: plain, no state marker.
+        self.writer.put(&self.link.spec().output, result.to_string());
     }
 
     pub(crate) async fn run(&mut self) {
@@ -288,12 +307,7 @@ impl CalcTask {
                 Some(index) => self.link.processed_by(&processing[index], value),
             };
             if let Some(result) = result {
-                // Kept before it is written: a read answered meanwhile has it, not the one before.
-                if let Some(record) = &self.record {
-                    record.set(result);
-                }
-                // A write to the output key, like a calcout's OUT: plain, no state marker.
-                self.writer.put(&self.link.spec().output, result.to_string());
+                self.write(result);
             }
         }
     }
