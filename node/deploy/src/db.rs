@@ -1,9 +1,9 @@
 //! EPICS database import: `record`/`grecord` of type motor, calcout (and calc), ao/ai (and
-//! longout/longin) that only hold values, and dfanout, with `$(macro)` substitution and link
-//! modifiers. Records become launch items on the key layout:
+//! longout/longin, bo/bi, mbbo/mbbi) that only hold values, and dfanout, with `$(macro)`
+//! substitution and link modifiers. Records become launch items on the key layout:
 //!   motor `R`          → axis `R`, fields on `<prefix>/R/<FIELD>`
 //!   calcout/calc `R`   → calc link `R`; its fields are `bridge/R/<FIELD>` (`A`…`L`, `VAL`)
-//!   ao/ai `R`          → value holder on `bridge/R/VAL`
+//!   ao/ai/bo/... `R`   → value holder on `bridge/R/VAL` (a motor's own `_able` bo: none)
 //!   dfanout `R`        → value holder on `bridge/R/VAL`, a calc link `R.OUTx` per output
 //! A link `R.FIELD PP MS` becomes the key of R's field; PP/NPP/CP decide whether an update
 //! recomputes a calc link. A forward link (FLNK) processes the record it names: a motor's
@@ -144,7 +144,9 @@ pub(super) fn import_text(
                 launch.axes.push(motor(record, &linker, &mut warnings, &mut written_inputs, &mut forward_links)?)
             }
             "calcout" | "calc" => launch.calcs.push(calc(record, &linker, &mut warnings, &mut written_inputs)?),
-            "ao" | "ai" | "longout" | "longin" => {
+            // motor.db's Enable/Disable record beside a motor of this database: served as its DISP.
+            "bo" if is_motors_able(record, &kinds) => {}
+            "ao" | "ai" | "longout" | "longin" | "bo" | "bi" | "mbbo" | "mbbi" => {
                 launch.values.push(value_holder(record, &mut warnings, &mut forward_links)?)
             }
             "dfanout" => {
@@ -373,8 +375,20 @@ fn processing_disabled(record: &Record) -> Option<String> {
 }
 
 /// The record types an import runs: motors as axes, calcs as calc links, a dfanout as a value
-/// and a calc link per output, the rest as values.
-const RUN_KINDS: &[&str] = &["motor", "calcout", "calc", "ao", "ai", "longout", "longin", "dfanout"];
+/// and a calc link per output, the rest as values (a binary or multi-bit record's value is its
+/// state's number).
+const RUN_KINDS: &[&str] =
+    &["motor", "calcout", "calc", "ao", "ai", "longout", "longin", "bo", "bi", "mbbo", "mbbi", "dfanout"];
+
+/// Whether a bo is motor.db's Enable/Disable record of a motor of the database (`<motor>_able`,
+/// its OUT writing the motor's DISP), which zmotor serves as that DISP.
+fn is_motors_able(record: &Record, kinds: &BTreeMap<&str, &str>) -> bool {
+    let Some(motor) = record.name.strip_suffix("_able") else { return false };
+    let writes_disp = record.fields.iter().any(|(name, text, _)| {
+        name == "OUT" && text.split_whitespace().next() == Some(format!("{motor}.DISP").as_str())
+    });
+    writes_disp && kinds.get(motor) == Some(&"motor")
+}
 
 /// Link modifiers of EPICS database links.
 const MODIFIERS: &[&str] = &["PP", "NPP", "CP", "CPP", "MS", "NMS", "MSS", "MSI", "CA"];
@@ -1178,18 +1192,28 @@ mod tests {
         let stock =
             "record(motor, m1) { field(SDIS, \"m1_able.VAL\") }\nrecord(bo, m1_able) { field(OUT, \"m1.DISP\") }";
         let (file, warnings) = import(stock).unwrap();
+        assert!(file.values.is_empty(), "the _able bo is no value holder: {:?}", file.values);
         assert!(
             !file.axes[0].fields.contains_key("SDIS")
                 && !warnings.iter().any(|w| w.contains("SDIS") || w.contains("m1_able.VAL")),
             "{warnings:?}"
         );
         // An interlock of a record type zmotor does not run: nothing serves it, said.
-        let (file, warnings) = import("record(bi, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
+        let (file, warnings) =
+            import("record(stringin, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
         assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("bridge/lock/VAL".into()));
         assert!(
-            warnings.iter().any(|w| w.contains("record 'lock' is a bi, which zmotor does not run")),
+            warnings.iter().any(|w| w.contains("record 'lock' is a stringin, which zmotor does not run")),
             "{warnings:?}"
         );
+        // A bi's is its value, held (0 or 1, written by anyone).
+        let (file, warnings) = import("record(bi, lock) {}\nrecord(motor, m1) { field(SDIS, \"lock CP\") }").unwrap();
+        assert_eq!(file.axes[0].fields["SDIS"], toml::Value::String("bridge/lock/VAL".into()));
+        assert_eq!((file.values[0].name.as_str(), file.values[0].value), ("lock", 0.0));
+        assert!(!warnings.iter().any(|w| w.contains("lock")), "{warnings:?}");
+        // A bo's initial state is its constant DOL, as PINI sets it (softMotorTest.db's Done).
+        let (file, _) = import("record(bo, done) { field(PINI, \"YES\") field(DOL, \"1\") }").unwrap();
+        assert_eq!((file.values[0].name.as_str(), file.values[0].value), ("done", 1.0));
     }
 
     #[test]

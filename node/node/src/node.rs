@@ -95,8 +95,9 @@ pub struct Node {
 }
 
 impl Node {
-    /// Start one task per controller, then one per axis (an axis on a controller boots on the
-    /// controller's first full poll), then one per calc link, on `session`. With autosave,
+    /// Start one task per controller, the value holders, then one task per axis (an axis on a
+    /// controller boots on the controller's first full poll), then one per calc link, on
+    /// `session`. With autosave,
     /// each axis boots from its saved state (RSTM deciding about the position) and saves its
     /// changes.
     pub async fn start(
@@ -141,6 +142,13 @@ impl Node {
             guarded,
             clock,
         };
+        // Value holders answer reads before the axes' links ask for their values at connect (a
+        // soft motor's RDBL or DINP on an ao of the same database: found unreadable otherwise).
+        let held: std::collections::HashSet<String> = values.iter().map(|spec| spec.key.clone()).collect();
+        let mut holders = Vec::new();
+        for spec in values {
+            holders.push(ValueHolder::declare(&session, spec).await?);
+        }
         let mut tokens = Tokens::default();
         let mut routes = Routes::new();
         let mut axis_tasks = Vec::new();
@@ -220,11 +228,6 @@ impl Node {
         let router = Router::declare(&session, &layout, routes, &side.writer, key_work).await?;
         // The axes answer as soon as the router exists; their liveliness tokens follow.
         tokens.declare_in_background(&session, &layout, stopped.clone());
-        let held: std::collections::HashSet<String> = values.iter().map(|spec| spec.key.clone()).collect();
-        let mut holders = Vec::new();
-        for spec in values {
-            holders.push(ValueHolder::declare(&session, spec).await?);
-        }
         let axis_tasks = axis_tasks.into_iter().map(|task| tokio::spawn(task.run(stopped.clone()))).collect();
         let mut calc_tasks = Vec::new();
         for spec in calcs {
