@@ -263,3 +263,31 @@ output = "bridge/sum/VAL"
     tokio::time::sleep(Duration::from_millis(300)).await;
     assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, 0.0, "a constant calc moved the motor");
 }
+
+/// A soft motor whose readback link reads a value holder of the same launch (softMotorTest.db's
+/// FeedBack ao) finds it at once: the holder answers before the axis's links ask.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_soft_motor_reads_a_value_holder_of_its_own_launch_from_the_start() {
+    let text = r#"
+[[axis]]
+name = "theta"
+driver = "soft"
+[axis.fields]
+URIP = "Yes"
+MRES = 0.001
+RRES = 1.0
+RDBL = "bridge/feedback/VAL"
+OUT = "bridge/position/VAL"
+[[value]]
+name = "feedback"
+value = 2.5
+[[value]]
+name = "position"
+"#;
+    let node = TestNode::launch(text).await;
+    let client = node.client().await;
+    wait_until(&client, &node.key("theta", Field::RBV), 2.5).await;
+    let written = confirmed_write(&client, &node.key("theta", Field::VAL), "4", PATIENCE).await;
+    assert!(written.is_ok(), "the move was refused: {written:?}");
+    wait_until(&client, "bridge/position/VAL", 4.0).await;
+}
