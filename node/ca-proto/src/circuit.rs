@@ -573,13 +573,13 @@ impl Circuit {
         } else {
             WriteAnswer::OnFailure { request: header, cid, number }
         };
-        if !channel_pv.has_motor_alarm() && acknowledges.is_some() {
-            // `_able` and bridge records are records of their own, with no alarm to acknowledge.
-            return self.answer_write(answer, WriteEnd::Done);
-        }
         if !channel_pv.writable() {
             let message = format!("{}: read-only", channel_pv.name(&self.prefix));
             return self.answer_write(answer, WriteEnd::Refused(Refusal { kind: RefusalKind::ReadOnly, message }));
+        }
+        if !channel_pv.has_motor_alarm() && acknowledges.is_some() {
+            // `_able` and bridge records are records of their own, with no alarm to acknowledge.
+            return self.answer_write(answer, WriteEnd::Done);
         }
         let written = match acknowledges {
             // putAcks acknowledges whatever severity is at least ACKS: above INVALID too.

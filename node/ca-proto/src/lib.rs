@@ -37,7 +37,7 @@ mod tests {
 
         fn bridge_record(&self, name: &str) -> Option<BridgeRecord> {
             match name {
-                "arm" => Some(BridgeRecord::Value),
+                "arm" | "gate_able" => Some(BridgeRecord::Value),
                 "angle" => Some(BridgeRecord::Calc),
                 _ => None,
             }
@@ -165,11 +165,16 @@ mod tests {
         assert_eq!((refused[0].0.command, refused[0].0.p2), (command::ERROR, 376), "ECA_NOWTACCESS");
         let acks = request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 36, 1, arm, 4), &[0, 3]);
         assert_eq!((acks[0].0.command, acks[0].0.p1), (command::WRITE_NOTIFY, 1));
-        assert_eq!(circuit.poll_request(), None, "nothing sent for either");
+        let acks = request(&mut circuit, &directory, Header::new(command::WRITE_NOTIFY, 36, 1, angle, 5), &[0, 3]);
+        assert_eq!((acks[0].0.command, acks[0].0.p1), (command::WRITE_NOTIFY, 376), "not on a read-only channel");
+        assert_eq!(circuit.poll_request(), None, "nothing sent for any");
 
-        // A live axis of the name is the axis.
+        // A live axis of the name is the axis; a record's name may end in `_able`.
         let pv = Pv::resolve("", "m1", &directory).unwrap();
         assert_eq!(pv.target, Target::Field(Field::VAL));
+        let gate = Pv::resolve("", "gate_able", &directory).unwrap();
+        assert_eq!((gate.axis.as_str(), gate.target), ("gate_able", Target::BridgeValue(BridgeRecord::Value)));
+        assert_eq!(Pv::resolve("", "m1_able", &directory).map(|p| p.target), Some(Target::Able));
     }
 
     #[test]

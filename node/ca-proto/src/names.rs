@@ -104,13 +104,18 @@ impl Pv {
         if directory.is_live(&pv.axis) {
             return Some(pv);
         }
-        let kind = directory.bridge_record(&pv.axis)?;
-        let target = match pv.target {
+        // `<R>_able` of no live axis R may be a record of that name.
+        let (record, target) = match pv.target {
+            Target::Able => (format!("{}{ABLE_SUFFIX}", pv.axis), Target::Field(Field::VAL)),
+            target => (pv.axis, target),
+        };
+        let kind = directory.bridge_record(&record)?;
+        let target = match target {
             Target::Field(Field::VAL) => Target::BridgeValue(kind),
             Target::RecordType => Target::BridgeType(kind),
             _ => return None,
         };
-        Some(Pv { axis: pv.axis, target })
+        Some(Pv { axis: record, target })
     }
 
     /// Whether it has the motor record's alarm (an `_able` or a bridge record has none to
@@ -201,6 +206,7 @@ impl Pv {
                 (Target::Message, Target::MessageChars) | (Target::Field(Field::DISP), Target::Able)
             )
             || matches!((changed, self.target), (Target::Field(a), Target::FieldChars(b)) if a == b)
+            || matches!((changed, self.target), (Target::BridgeValue(_), Target::BridgeValue(_)))
     }
 
     /// Its native DBR type.

@@ -79,7 +79,7 @@ impl Shared {
     fn store(&self, sample: &Sample) {
         let key = sample.key_expr().as_str();
         if let Some(record) = BridgeRecord::of_value_key(key) {
-            return self.store_record(record, sample);
+            return self.store_record(record, sample, false);
         }
         let Some(axis) = self.client.layout().axis_chunk(key) else { return };
         let Some(name) = self.client.layout().field_name(axis, key) else { return };
@@ -94,18 +94,20 @@ impl Shared {
         self.keep(axis.to_string(), target, Entry { value, stamp: stamp_of(sample) });
     }
 
-    /// Store a bridge record's value, if the sample carries a number.
-    fn store_record(&self, record: &str, sample: &Sample) {
-        let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
-        let Some(x) = decode_scalar(&sample.payload().to_bytes(), encoding).ok().and_then(|v| v.as_f64()) else {
-            return;
+    /// Store a bridge record's value, if the sample carries a number; with `fill_only`, only
+    /// when it has none yet (a read's answer may come after a newer value, which anyone may put).
+    fn store_record(&self, record: &str, sample: &Sample, fill_only: bool) {
+        let Some(x) = sample_number(sample) else { return };
+        let (kind, filled) = {
+            let values = self.values();
+            let Some(kind) = values.records.get(record).copied() else { return };
+            (kind, values.axes.get(record).is_some_and(values::AxisValues::answered))
         };
-        let Some(kind) = self.values().records.get(record).copied() else { return };
-        self.keep(
-            record.to_string(),
-            Target::BridgeValue(kind),
-            Entry { value: Value::Float(x), stamp: stamp_of(sample) },
-        );
+        if fill_only && filled {
+            return;
+        }
+        let entry = Entry { value: Value::Float(x), stamp: stamp_of(sample) };
+        self.keep(record.to_string(), Target::BridgeValue(kind), entry);
     }
 
     /// Keep a value of an axis or a record followed now (a late sample of one that went must not
@@ -126,15 +128,17 @@ impl Shared {
         let (followed, read, record) = {
             let mut values = self.values();
             let layout = self.client.layout();
-            let keys = match values.records.contains_key(&axis) && !values.live.contains(&axis) {
-                true => (BridgeRecord::value_key(&axis), BridgeRecord::value_key(&axis), true),
-                false => (layout.axis_fields(&axis), layout.axis_all(&axis), false),
+            // A live axis of the name is the axis.
+            let record = values.records.get(&axis).copied().filter(|_| !values.live.contains(&axis));
+            let (followed, read) = match record {
+                Some(_) => (BridgeRecord::value_key(&axis), BridgeRecord::value_key(&axis)),
+                None => (layout.axis_fields(&axis), layout.axis_all(&axis)),
             };
             match values.followed.entry(axis.clone()) {
                 std::collections::hash_map::Entry::Occupied(_) => return,
                 std::collections::hash_map::Entry::Vacant(slot) => slot.insert(None),
             };
-            keys
+            (followed, read, record)
         };
         let shared = self.clone();
         tokio::spawn(async move {
@@ -151,15 +155,22 @@ impl Shared {
                 return;
             };
             while let Ok(reply) = replies.recv_async().await {
-                if let Ok(sample) = reply.result() {
-                    shared.store(sample);
+                match (reply.result(), record) {
+                    (Ok(sample), Some(_)) => shared.store_record(&axis, sample, true),
+                    (Ok(sample), None) => shared.store(sample),
+                    (Err(_), _) => {}
                 }
             }
             let answered = {
                 let mut values = shared.values();
-                // A record that answered nothing has no value yet (a calc not processed): shown
-                // undefined, as an IOC's.
-                if record || values.axes.get(&axis).is_some_and(values::AxisValues::answered) {
+                let has_values = values.axes.get(&axis).is_some_and(values::AxisValues::answered);
+                if !values.followed.contains_key(&axis) {
+                    // It went meanwhile: nothing to show, nothing to ask again.
+                    return;
+                }
+                // A calc that answered nothing has no value yet (not processed): shown undefined,
+                // as an IOC's. An axis or an ao always has one: asked again.
+                if has_values || record == Some(BridgeRecord::Calc) {
                     let _ = shared.changes.send(values.show_whole(axis.clone()));
                     true
                 } else {
@@ -236,17 +247,39 @@ impl Shared {
     }
 
     /// A value holder's new value, put on its key as the bridge's links write (a value holder
-    /// answers no write): done once sent. Only a finite number is put.
+    /// answers no write), then read back: access control drops a put it denies without a word,
+    /// and the value read says whether it was taken (a denied one: ECA_NOWTACCESS, the holder's
+    /// value shown again). Only a finite number is put.
     async fn put_record(&self, record: &str, text: &str) -> WriteEnd {
         let number = text.trim().parse::<f64>().ok().filter(|x| x.is_finite());
         let Some(x) = number else {
             let message = format!("{}{record}.VAL: '{text}' is not a finite number", self.prefix);
             return WriteEnd::Refused(Refusal { kind: RefusalKind::BadValue, message });
         };
-        let put = self.client.session().put(BridgeRecord::value_key(record), encode_cbor(&Value::Float(x)));
-        match put.encoding(Encoding::APPLICATION_CBOR).await {
-            Ok(()) => WriteEnd::Done,
-            Err(e) => WriteEnd::Unanswered { denied: false, why: e.to_string() },
+        let key = BridgeRecord::value_key(record);
+        let put = self.client.session().put(&key, encode_cbor(&Value::Float(x)));
+        if let Err(e) = put.encoding(Encoding::APPLICATION_CBOR).await {
+            return WriteEnd::Unanswered { denied: false, why: e.to_string() };
+        }
+        // Sent after the put on the same session, so answered after the holder took it.
+        let replies = match self.client.session().get(&key).timeout(ANSWER_PATIENCE).await {
+            Ok(replies) => replies,
+            Err(e) => return WriteEnd::Unanswered { denied: false, why: e.to_string() },
+        };
+        let mut held = None;
+        while let Ok(reply) = replies.recv_async().await {
+            if let Ok(sample) = reply.result() {
+                held = sample_number(sample).map(|value| (value, sample.clone()));
+            }
+        }
+        match held {
+            Some((value, _)) if value == x => WriteEnd::Done,
+            Some((value, sample)) => {
+                self.store_record(record, &sample, false);
+                let why = format!("{}{record} kept {value}: the put was not taken (access control)", self.prefix);
+                WriteEnd::Unanswered { denied: true, why }
+            }
+            None => WriteEnd::Unanswered { denied: false, why: format!("{}{record}: nothing answered", self.prefix) },
         }
     }
 
@@ -263,6 +296,12 @@ impl Shared {
         moved.remove(axis);
         None
     }
+}
+
+/// The number a sample carries, whatever its encoding.
+fn sample_number(sample: &Sample) -> Option<f64> {
+    let encoding = PayloadEncoding::from_mime(&sample.encoding().to_string());
+    decode_scalar(&sample.payload().to_bytes(), encoding).ok()?.as_f64()
 }
 
 /// The node's time of a value (when the axis read the status it comes from), as an IOC's record
@@ -354,6 +393,12 @@ impl ChannelAccess {
                     };
                     let mut values = shared.values();
                     if sample.kind() == SampleKind::Put {
+                        if values.records.contains_key(&axis) && !values.live.contains(&axis) {
+                            // Followed as a bridge record of the name until now: the axis wins.
+                            let followed = values.followed.remove(&axis);
+                            runtime.spawn(async move { drop(followed) });
+                            let _ = shared.changes.send(values.forget(axis.clone()));
+                        }
                         values.live.insert(axis);
                     } else {
                         // Undeclared on a task of ours, not inside Zenoh's callback.

@@ -29,9 +29,10 @@ pub(crate) struct AxisValues {
 }
 
 impl AxisValues {
-    /// Whether the node answered with the axis's values (its alarm state is among them).
+    /// Whether the node answered with the axis's values (its alarm state is among them), or a
+    /// bridge record has its value.
     pub(crate) fn answered(&self) -> bool {
-        self.fields.contains_key(&Field::STAT)
+        self.fields.contains_key(&Field::STAT) || self.record.is_some()
     }
 
     fn take(&mut self, target: Target, entry: Entry) {

@@ -253,9 +253,9 @@ pub(crate) struct CalcTask {
 
 impl CalcTask {
     /// Follow `link`'s inputs (their values now, then their updates) and the keys it is
-    /// processed by (their updates). With `serves_record`, its result is its own record's value
-    /// (`bridge/<record>/VAL`, which no value holder holds): it answers reads of it, and announces
-    /// the calc record (`BridgeRecord::Calc`).
+    /// processed by (their updates). With `serves_record` (no value holder of the node holds its
+    /// output), a link whose result is its own record's value (`bridge/<its name>/VAL`: a calc
+    /// without OUT) answers reads of it and announces the calc record (`BridgeRecord::Calc`).
     pub(crate) fn start(
         session: &Session,
         local: Arc<LocalFollowers>,
@@ -264,8 +264,8 @@ impl CalcTask {
         serves_record: bool,
     ) -> Result<Self, zenoh::Error> {
         let output = &link.spec().output;
-        let record = match serves_record && BridgeRecord::of_value_key(output).is_some() {
-            true => Some(AnsweredValue::declare(session, output, None, Some(BridgeRecord::Calc))?),
+        let record = match serves_record && BridgeRecord::of_value_key(output) == Some(link.spec().name.as_str()) {
+            true => Some(AnsweredValue::declare(session, output, Arc::default(), Some(BridgeRecord::Calc))?),
             false => None,
         };
         let (mut follows, updates) = Follows::to_channel(session, local);
@@ -323,15 +323,17 @@ pub(crate) struct ValueHolder {
 
 impl ValueHolder {
     pub(crate) async fn declare(session: &Session, spec: ValueSpec) -> Result<Self, zenoh::Error> {
-        let value = AnsweredValue::declare(session, &spec.key, Some(spec.initial), Some(BridgeRecord::Value))?;
-        let latest = value.latest.clone();
+        let latest = Arc::new(std::sync::Mutex::new(Some(spec.initial)));
+        let held = latest.clone();
+        // Following writes before the record is announced: none is missed once it is seen.
         let updates = session
             .declare_subscriber(spec.key.clone())
             .callback(move |sample| match sample_number(&sample) {
-                Some(x) => *lock(&latest) = Some(x),
+                Some(x) => *lock(&held) = Some(x),
                 None => tracing::warn!(key = %sample.key_expr(), "value holder: not a number; ignored"),
             })
             .await?;
+        let value = AnsweredValue::declare(session, &spec.key, latest, Some(BridgeRecord::Value))?;
         Ok(Self { _updates: updates, _value: value })
     }
 }
@@ -348,10 +350,9 @@ impl AnsweredValue {
     fn declare(
         session: &Session,
         key: &str,
-        initial: Option<f64>,
+        latest: Arc<std::sync::Mutex<Option<f64>>>,
         record: Option<BridgeRecord>,
     ) -> Result<Self, zenoh::Error> {
-        let latest = Arc::new(std::sync::Mutex::new(initial));
         let value = latest.clone();
         let reads = session
             .declare_queryable(key.to_string())
