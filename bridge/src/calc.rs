@@ -3,13 +3,16 @@
 //! and functions; `^ **`; `* / %`; `+ -`; comparisons; `& && << >> >>> AND`; `| || OR XOR`;
 //! `?:`), left associativity (`2^3^2` is 64, `-2^2` is 4), integer `%` (NaN on a zero divisor),
 //! 32-bit bitwise operators, `ATAN2(a, b)` = atan2(b, a), statements separated by `;` with
-//! `X := expr` assignments to the inputs A–L, and names case-insensitive.
+//! `X := expr` assignments to the inputs A–L, and names case-insensitive. A transform record's
+//! expressions have the same language over its sixteen fields, A–P (`Expression::parse_over`).
 //! Errors name the 1-based column of the offending text.
 
 use std::f64::consts::PI;
 
 /// Number of inputs, A to L.
 pub const INPUTS: usize = 12;
+/// Number of a transform record's fields, A to P, its expressions' variables.
+pub const TRANSFORM_FIELDS: usize = 16;
 
 /// Why an expression does not parse, and where.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -250,6 +253,8 @@ pub struct Expression {
 
 struct Parser {
     tokens: Vec<(Token, usize)>,
+    /// How many variables there are (A and on).
+    variables: usize,
     pos: usize,
     end_column: usize,
     /// Parentheses, calls, conditionals and prefix operators open now.
@@ -294,8 +299,9 @@ impl Parser {
             (self.tokens.get(self.pos), self.tokens.get(self.pos + 1))
         {
             let column = *column;
-            let target =
-                input_index(w).ok_or(CalcError { column, message: format!("cannot assign to '{w}'; only A to L") })?;
+            let last = input_name(self.variables - 1);
+            let target = input_index(w, self.variables)
+                .ok_or(CalcError { column, message: format!("cannot assign to '{w}'; only A to {last}") })?;
             self.pos += 2;
             return Ok(Statement::Assign(target, self.conditional()?));
         }
@@ -371,7 +377,7 @@ impl Parser {
                 Ok(inner)
             }
             Some((Token::Word(w), _)) => {
-                if let Some(index) = input_index(&w) {
+                if let Some(index) = input_index(&w, self.variables) {
                     return Ok(Expr::Input(index));
                 }
                 let constant = match w.as_str() {
@@ -415,16 +421,29 @@ impl Parser {
     }
 }
 
-fn input_index(word: &str) -> Option<usize> {
+/// The index of a variable's letter among `variables` (A = 0).
+fn input_index(word: &str, variables: usize) -> Option<usize> {
     match word.as_bytes() {
-        [c @ b'A'..=b'L'] => Some(usize::from(c - b'A')),
+        [c @ b'A'..=b'Z'] => Some(usize::from(c - b'A')).filter(|&index| index < variables),
         _ => None,
     }
 }
 
+/// The letter of variable `index` (A = 0).
+fn input_name(index: usize) -> char {
+    char::from(b'A' + u8::try_from(index).unwrap_or(25).min(25))
+}
+
 impl Expression {
-    /// Parse an expression's text.
+    /// Parse a calc record's expression, over the inputs A–L.
     pub fn parse(source: &str) -> Result<Self, CalcError> {
+        Self::parse_over(source, INPUTS)
+    }
+
+    /// Parse an expression over `variables` variables from A (`TRANSFORM_FIELDS` for a transform
+    /// record's, at most 26).
+    pub fn parse_over(source: &str, variables: usize) -> Result<Self, CalcError> {
+        let variables = variables.clamp(1, 26);
         if source.chars().count() > MAX_LENGTH {
             return error(MAX_LENGTH + 1, format!("the expression is longer than {MAX_LENGTH} characters"));
         }
@@ -432,7 +451,7 @@ impl Expression {
         if tokens.is_empty() {
             return error(1, "the expression is empty");
         }
-        let mut parser = Parser { tokens, pos: 0, end_column: source.len() + 1, depth: 0 };
+        let mut parser = Parser { tokens, variables, pos: 0, end_column: source.len() + 1, depth: 0 };
         let mut statements = Vec::new();
         loop {
             statements.push(parser.statement()?);
@@ -493,12 +512,18 @@ impl Expression {
         used
     }
 
-    /// Evaluate with the inputs A–L (assignments write back into them).
-    pub fn eval(&self, inputs: &mut [f64; INPUTS]) -> f64 {
+    /// Evaluate with the inputs from A (assignments write back into them); a variable beyond the
+    /// array reads NaN and takes no assignment.
+    pub fn eval<const N: usize>(&self, inputs: &mut [f64; N]) -> f64 {
         let mut result = f64::NAN;
         for statement in &self.statements {
             match statement {
-                Statement::Assign(target, e) => inputs[*target] = eval(e, inputs),
+                Statement::Assign(target, e) => {
+                    let value = eval(e, inputs);
+                    if let Some(slot) = inputs.get_mut(*target) {
+                        *slot = value;
+                    }
+                }
                 Statement::Value(e) => result = eval(e, inputs),
             }
         }
@@ -531,10 +556,10 @@ fn truth(b: bool) -> f64 {
     }
 }
 
-fn eval(e: &Expr, inputs: &mut [f64; INPUTS]) -> f64 {
+fn eval<const N: usize>(e: &Expr, inputs: &mut [f64; N]) -> f64 {
     match e {
         Expr::Literal(x) => *x,
-        Expr::Input(i) => inputs[*i],
+        Expr::Input(i) => inputs.get(*i).copied().unwrap_or(f64::NAN),
         Expr::Random => random(),
         Expr::Unary(op, a) => {
             let a = eval(a, inputs);

@@ -1,10 +1,15 @@
-//! Calc links: calcout records over keys. Inputs A–L are bound to keys; a CP input recomputes
-//! and may write the output on each update, an NPP input only holds the latest value. A key the
-//! link is processed by (an EPICS forward link into it: a record that writes there processes it)
-//! recomputes on each update after the link has started, not on the value it finds then. The
-//! output is written to a key every time, or only when the result changes (OOPT).
+//! Calc links: calcout records over keys. Inputs A–L (A–P: a transform record's fields) are
+//! bound to keys; a CP input recomputes and may write the output on each update, an NPP input
+//! holds the latest value and is read afresh when the link processes, as EPICS reads a link's
+//! source then. A key the link is processed by (an EPICS forward link into it: a record that
+//! writes there processes it) recomputes on each update after the link has started, not on the
+//! value it finds then. The output is written to a key every time, or only when the result
+//! changes (OOPT).
 
-use crate::calc::{CalcError, Expression, INPUTS};
+use crate::calc::{CalcError, Expression, TRANSFORM_FIELDS};
+
+/// How many inputs a calc link has: a calcout's A–L, and a transform record's M–P beside them.
+const VARIABLES: usize = TRANSFORM_FIELDS;
 
 /// How an input reacts to an update of its key.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -27,7 +32,7 @@ pub enum OutputOption {
 /// One input of a calc link: which letter, bound to which key, and how it reacts.
 #[derive(Clone, Debug, PartialEq)]
 pub struct InputSpec {
-    /// 0 for A … 11 for L.
+    /// 0 for A … 15 for P.
     pub index: usize,
     /// The key whose values feed the input.
     pub key: String,
@@ -44,7 +49,7 @@ pub struct CalcLinkSpec {
     pub expression: String,
     /// The inputs bound to keys.
     pub inputs: Vec<InputSpec>,
-    /// Values of inputs before any update (EPICS fields A–L given in the database), by index.
+    /// Values of inputs before any update (EPICS fields A–P given in the database), by index.
     pub constants: Vec<(usize, f64)>,
     /// Where the result is written.
     pub output: String,
@@ -76,7 +81,7 @@ pub enum LinkError {
     DuplicateInput {
         /// The link's name.
         name: String,
-        /// The input's letter (A–L).
+        /// The input's letter (A–P).
         input: char,
     },
 }
@@ -86,17 +91,15 @@ pub enum LinkError {
 pub struct CalcLink {
     spec: CalcLinkSpec,
     expression: Expression,
-    values: [f64; INPUTS],
+    values: [f64; VARIABLES],
     last_output: Option<f64>,
 }
 
 impl CalcLink {
     /// A link from its configuration: the expression parsed, the constants loaded.
     pub fn new(spec: CalcLinkSpec) -> Result<Self, LinkError> {
-        let expression = Expression::parse(&spec.expression).map_err(|error| LinkError::Expression {
-            name: spec.name.clone(),
-            expression: spec.expression.clone(),
-            error,
+        let expression = Expression::parse_over(&spec.expression, VARIABLES).map_err(|error| {
+            LinkError::Expression { name: spec.name.clone(), expression: spec.expression.clone(), error }
         })?;
         let mut seen = 0u16;
         for input in &spec.inputs {
@@ -105,7 +108,7 @@ impl CalcLink {
             }
             seen |= 1 << input.index;
         }
-        let mut values = [0.0; INPUTS];
+        let mut values = [0.0; VARIABLES];
         for &(index, value) in &spec.constants {
             values[index] = value;
         }
@@ -117,24 +120,41 @@ impl CalcLink {
         &self.spec
     }
 
-    /// A new value on `key`; the result to write to the output key, if one is due.
-    pub fn update(&mut self, key: &str, value: f64) -> Option<f64> {
+    /// A new value on `key`: the inputs there take it. Whether the link processes now (a CP
+    /// input's update): then `process`, with its NPP inputs read afresh.
+    #[must_use = "a CP input's update processes the link"]
+    pub fn update(&mut self, key: &str, value: f64) -> bool {
         let mut process = false;
         for input in self.spec.inputs.iter().filter(|i| i.key == key) {
             self.values[input.index] = value;
             process |= input.mode == InputMode::Process;
         }
-        if !process {
-            return None;
-        }
-        self.process()
+        process
     }
 
     /// An update of `key`, one of the keys the link is processed by (`processed_by`): the inputs
-    /// on that key take `value`, and the link processes; the result to write, if one is due.
-    pub fn processed_by(&mut self, key: &str, value: f64) -> Option<f64> {
+    /// on that key take `value`; the link processes now (`process`).
+    pub fn processed_by(&mut self, key: &str, value: f64) {
         for input in self.spec.inputs.iter().filter(|i| i.key == key) {
             self.values[input.index] = value;
+        }
+    }
+
+    /// The NPP inputs (index, key), to read when the link processes: EPICS reads a link's source
+    /// then, and the value last followed may be older than a write that processes the link (a
+    /// motor's output link is written before its DVAL is posted).
+    pub fn read_at_processing(&self) -> impl Iterator<Item = (usize, &str)> {
+        self.spec.inputs.iter().filter(|i| i.mode == InputMode::NoProcess).map(|i| (i.index, i.key.as_str()))
+    }
+
+    /// Process: the inputs read now (`read_at_processing`: index, value; one unanswered keeps
+    /// the value last followed) are taken, the expression computed; the result to write to
+    /// the output key, if one is due (OOPT).
+    pub fn process_with(&mut self, read: &[(usize, f64)]) -> Option<f64> {
+        for &(index, value) in read {
+            if let Some(slot) = self.values.get_mut(index) {
+                *slot = value;
+            }
         }
         self.process()
     }
@@ -176,12 +196,10 @@ pub fn input_name(index: usize) -> char {
     (b'A' + index as u8) as char
 }
 
-/// Input index of a letter A–L (case-insensitive).
+/// Input index of a letter A–P (case-insensitive).
 pub fn input_index(letter: &str) -> Option<usize> {
     match letter.as_bytes() {
-        [c] if c.to_ascii_uppercase() >= b'A' && c.to_ascii_uppercase() <= b'L' => {
-            Some(usize::from(c.to_ascii_uppercase() - b'A'))
-        }
+        [c] if (b'A'..=b'P').contains(&c.to_ascii_uppercase()) => Some(usize::from(c.to_ascii_uppercase() - b'A')),
         _ => None,
     }
 }
@@ -249,6 +267,11 @@ mod tests {
         }
     }
 
+    /// The result due after an update of `key`, processing when it says so (nothing read).
+    fn after(link: &mut CalcLink, key: &str, value: f64) -> Option<f64> {
+        link.update(key, value).then(|| link.process_with(&[])).flatten()
+    }
+
     #[test]
     fn cp_inputs_recompute_and_npp_inputs_only_hold() {
         let mut link = CalcLink::new(spec(
@@ -259,10 +282,15 @@ mod tests {
             OutputOption::EveryTime,
         ))
         .unwrap();
-        assert_eq!(link.update("y", 10.0), None, "NPP: no recompute");
-        assert_eq!(link.update("x", 1.0), Some(11.0));
-        assert_eq!(link.update("x", 1.0), Some(11.0), "every time");
-        assert_eq!(link.update("other", 5.0), None);
+        assert_eq!(after(&mut link, "y", 10.0), None, "NPP: no recompute");
+        assert_eq!(after(&mut link, "x", 1.0), Some(11.0));
+        assert_eq!(after(&mut link, "x", 1.0), Some(11.0), "every time");
+        assert_eq!(after(&mut link, "other", 5.0), None);
+        // The NPP input read when the link processes is taken before the computation.
+        assert_eq!(link.read_at_processing().collect::<Vec<_>>(), [(1, "y")]);
+        assert!(link.update("x", 2.0));
+        assert_eq!(link.process_with(&[(1, 20.0)]), Some(22.0));
+        assert_eq!(after(&mut link, "x", 2.0), Some(22.0), "what was read is held");
     }
 
     #[test]
@@ -282,16 +310,16 @@ mod tests {
         let mut spec = spec("scale", "A*B", &[(0, "x", InputMode::Process)], "out", OutputOption::EveryTime);
         spec.constants = vec![(1, 1000.0)];
         let mut link = CalcLink::new(spec).unwrap();
-        assert_eq!(link.update("x", 0.5), Some(500.0));
+        assert_eq!(after(&mut link, "x", 0.5), Some(500.0));
     }
 
     #[test]
     fn on_change_writes_only_new_results() {
         let mut link =
             CalcLink::new(spec("c", "A>0", &[(0, "x", InputMode::Process)], "out", OutputOption::OnChange)).unwrap();
-        assert_eq!(link.update("x", 1.0), Some(1.0));
-        assert_eq!(link.update("x", 2.0), None);
-        assert_eq!(link.update("x", -1.0), Some(0.0));
+        assert_eq!(after(&mut link, "x", 1.0), Some(1.0));
+        assert_eq!(after(&mut link, "x", 2.0), None);
+        assert_eq!(after(&mut link, "x", -1.0), Some(0.0));
     }
 
     #[test]
@@ -307,7 +335,7 @@ mod tests {
         ));
         assert_eq!(e.unwrap_err().to_string(), "calc 'c': input A is bound twice");
         assert_eq!(input_index("c"), Some(2));
-        assert_eq!(input_index("M"), None);
+        assert_eq!((input_index("P"), input_index("Q")), (Some(15), None), "a transform's A–P");
     }
 
     #[test]
@@ -316,14 +344,16 @@ mod tests {
         let mut fan = spec("fan", "A", &[(0, "d", InputMode::NoProcess)], "m1/STOP", OutputOption::EveryTime);
         fan.processed_by = vec!["d".into()];
         let mut link = CalcLink::new(fan).unwrap();
-        assert_eq!(link.update("d", 1.0), None, "the value found at start is held, not written");
-        assert_eq!(link.processed_by("d", 2.0), Some(2.0), "a write is written out, its own value");
+        assert_eq!(after(&mut link, "d", 1.0), None, "the value found at start is held, not written");
+        link.processed_by("d", 2.0);
+        assert_eq!(link.process_with(&[]), Some(2.0), "a write is written out, its own value");
         // A forward link from elsewhere: processes with the inputs as they are.
         let mut count = spec("count", "A+1", &[(0, "n", InputMode::NoProcess)], "n", OutputOption::EveryTime);
         count.processed_by = vec!["count/PROC".into()];
         let mut link = CalcLink::new(count).unwrap();
-        let _ = link.update("n", 4.0);
-        assert_eq!(link.processed_by("count/PROC", 1.0), Some(5.0));
+        assert!(!link.update("n", 4.0));
+        link.processed_by("count/PROC", 1.0);
+        assert_eq!(link.process_with(&[]), Some(5.0));
         assert_eq!(link.processing_keys().collect::<Vec<_>>(), ["count/PROC"]);
     }
 

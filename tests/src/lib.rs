@@ -13,7 +13,7 @@ use zenoh::Session;
 use zmotor_client::free_local_endpoint;
 use zmotor_core::SimConfig;
 use zmotor_core::{AxisPlan, DriverPlan, PollRates};
-use zmotor_deploy::{Launch, NodeContents, ZenohConfig};
+use zmotor_deploy::{import_db_text, Launch, Macros, NodeContents, ZenohConfig};
 use zmotor_msgs::decode_cbor_value;
 use zmotor_msgs::{Field, Fields, KeyLayout, StateMarker, Value};
 use zmotor_node::Node;
@@ -74,8 +74,18 @@ impl TestNode {
 
     /// Start the axes and calc links of a launch file's text, on a free port.
     pub async fn launch(text: &str) -> Self {
+        Self::deploy(Launch::parse(text).unwrap()).await
+    }
+
+    /// Start what an EPICS database's text imports to (no macros), on a free port.
+    pub async fn launch_database(text: &str) -> Self {
+        let (file, _) = import_db_text("test.db", text, &Macros::default(), zmotor_msgs::keys::DEFAULT_PREFIX).unwrap();
+        Self::deploy(Launch::from_file("test.db", file).unwrap()).await
+    }
+
+    async fn deploy(launch: Launch) -> Self {
         let endpoint = free_local_endpoint().unwrap();
-        let deployment = Launch::parse(text).unwrap().deployment(None).unwrap();
+        let deployment = launch.deployment(None).unwrap();
         let config = ZenohConfig { listen: vec![endpoint.clone()], ..deployment.zenoh.clone() };
         let session = zmotor_client::open(&config).await.unwrap();
         let layout = KeyLayout::new(&deployment.zenoh.prefix);

@@ -291,3 +291,53 @@ name = "position"
     assert!(written.is_ok(), "the move was refused: {written:?}");
     wait_until(&client, "bridge/position/VAL", 4.0).await;
 }
+
+/// motorApp's sumDiff2D.db (two transforms, a dfanout and a calcout) with its two soft motors:
+/// moving SUM and DIFF moves the real motors where the drive transform puts them, computed from
+/// the soft motors' dial values read when it processes (their output links' writes process it
+/// before their DVAL is posted); their readbacks come back through the readback transform.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sum_and_diff_soft_motors_move_two_real_motors_through_transform_records() {
+    let database = r#"
+        record(motor, "m1") { field(DTYP, "sim") field(MRES, "0.001") field(VELO, "100") field(ACCL, "0.05") }
+        record(motor, "m2") { field(DTYP, "sim") field(MRES, "0.001") field(VELO, "100") field(ACCL, "0.05") }
+        record(motor, "sum") { field(DTYP, "Soft Channel") field(OUT, "sumDVAL PP MS")
+            field(RDBL, "tReadback.G NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
+            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
+        record(motor, "diff") { field(DTYP, "Soft Channel") field(OUT, "diffDVAL PP MS")
+            field(RDBL, "tReadback.H NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
+            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
+        grecord(ao, "sumDVAL") { field(FLNK, "tDrive") }
+        grecord(ao, "diffDVAL") { field(FLNK, "tDrive") }
+        record(ao, "sumC1") { field(VAL, "1") }
+        record(ao, "sumC2") { field(VAL, "3") }
+        record(ao, "diffC1") { field(VAL, "2") }
+        grecord(transform, "tDrive") {
+            field(INPA, "sum.DVAL NPP NMS") field(INPB, "diff.DVAL NPP NMS") field(INPC, "sumC1.VAL NPP NMS")
+            field(INPD, "sumC2.VAL NPP NMS") field(INPE, "diffC1.VAL NPP NMS")
+            field(CLCF, "C+D") field(CLCG, "A+(B*D)/(E*F)") field(OUTG, "m1 PP MS")
+            field(CLCH, "A-(B*C)/(E*F)") field(OUTH, "m2 PP MS") }
+        grecord(transform, "tReadback") {
+            field(INPA, "m1.RBV CP MS") field(INPB, "m2.RBV CP MS") field(INPC, "sumC1.VAL CP MS")
+            field(INPD, "sumC2.VAL CP MS") field(INPE, "diffC1.VAL CP MS")
+            field(CLCF, "C+D") field(CLCG, "((A*C) + (B*D))/F") field(CLCH, "(A-B)*E") }
+        grecord(dfanout, "tStop") { field(VAL, "1") field(OUTA, "m1.STOP PP MS") field(OUTB, "m2.STOP PP MS") }
+        grecord(calcout, "tDone") { field(INPA, "m1.DMOV CP MS") field(INPB, "m2.DMOV CP MS") field(CALC, "A & B") }
+    "#;
+    let node = TestNode::launch_database(database).await;
+    let client = node.client().await;
+    let rbv = |axis: &str| node.key(axis, Field::RBV);
+    // SUM = (m1 C1 + m2 C2) / (C1 + C2), DIFF = (m1 - m2) E: with C1 1, C2 3, E 2, SUM 2 and
+    // DIFF 0.8 put m1 at 2 + 0.8 * 3 / 8 = 2.3 and m2 at 2 - 0.8 / 8 = 1.9.
+    confirmed_write(&client, &node.key("sum", Field::VAL), "2", PATIENCE).await.unwrap();
+    wait_until(&client, &rbv("m1"), 2.0).await;
+    wait_until(&client, &rbv("m2"), 2.0).await;
+    confirmed_write(&client, &node.key("diff", Field::VAL), "0.8", PATIENCE).await.unwrap();
+    wait_until(&client, &rbv("m1"), 2.3).await;
+    wait_until(&client, &rbv("m2"), 1.9).await;
+    // The soft motors read back through the readback transform, and end their moves.
+    wait_until(&client, &rbv("sum"), 2.0).await;
+    wait_until(&client, &rbv("diff"), 0.8).await;
+    wait_until(&client, &node.key("sum", Field::DMOV), 1.0).await;
+    wait_until(&client, &node.key("diff", Field::DMOV), 1.0).await;
+}

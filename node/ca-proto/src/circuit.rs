@@ -404,7 +404,7 @@ impl Circuit {
     fn create_channel(&mut self, header: Header, payload: &[u8], directory: &dyn Directory) {
         let cid = header.p1;
         let name = codec::text(payload);
-        let Some(pv) = Pv::resolve(&self.prefix, &name, directory) else {
+        let Some(pv) = crate::directory::resolve(&self.prefix, &name, directory) else {
             self.send(Header::new(command::CREATE_CH_FAIL, 0, 0, cid, 0), &[]);
             return;
         };

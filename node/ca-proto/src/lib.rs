@@ -170,11 +170,11 @@ mod tests {
         assert_eq!(circuit.poll_request(), None, "nothing sent for any");
 
         // A live axis of the name is the axis; a record's name may end in `_able`.
-        let pv = Pv::resolve("", "m1", &directory).unwrap();
+        let pv = crate::directory::resolve("", "m1", &directory).unwrap();
         assert_eq!(pv.target, Target::Field(Field::VAL));
-        let gate = Pv::resolve("", "gate_able", &directory).unwrap();
+        let gate = crate::directory::resolve("", "gate_able", &directory).unwrap();
         assert_eq!((gate.axis.as_str(), gate.target), ("gate_able", Target::BridgeValue(BridgeRecord::Value)));
-        assert_eq!(Pv::resolve("", "m1_able", &directory).map(|p| p.target), Some(Target::Able));
+        assert_eq!(crate::directory::resolve("", "m1_able", &directory).map(|p| p.target), Some(Target::Able));
     }
 
     #[test]

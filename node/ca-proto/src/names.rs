@@ -8,10 +8,9 @@
 //! The dbCommon fields zmotor does not model (SCAN, PINI, PRIO, ...) read as an IOC's motor
 //! record holds them by default, and take no write. A name that is no live axis's may be a
 //! bridge record's (`BridgeRecord`: a value holder as an ao, a calc link's result as a calc):
-//! `<P><record>` and `.VAL` its value, `.RTYP` its type (`Pv::resolve`).
+//! `<P><record>` and `.VAL` its value, `.RTYP` its type (`directory::resolve`).
 
 use crate::dbr::Base;
-use crate::directory::Directory;
 use zmotor_msgs::menus::Menu;
 use zmotor_msgs::{keys, unmodelled_common_field, Access, BridgeRecord, CommonField, Field, Kind};
 
@@ -19,7 +18,7 @@ use zmotor_msgs::{keys, unmodelled_common_field, Access, BridgeRecord, CommonFie
 pub const ABLE: Menu = Menu { name: "able", choices: &["Enable", "Disable"] };
 
 /// What a motor's Enable/Disable record's name adds to the motor's.
-const ABLE_SUFFIX: &str = "_able";
+pub(crate) const ABLE_SUFFIX: &str = "_able";
 
 /// What a channel shows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -95,27 +94,6 @@ impl Pv {
             },
         };
         Some(Pv { axis: axis.to_string(), target })
-    }
-
-    /// The channel `name` asks for under `prefix` as `directory` has the records now: a live
-    /// axis's, else a live bridge record's value or type.
-    pub fn resolve(prefix: &str, name: &str, directory: &dyn Directory) -> Option<Pv> {
-        let pv = Pv::parse(prefix, name)?;
-        if directory.is_live(&pv.axis) {
-            return Some(pv);
-        }
-        // `<R>_able` of no live axis R may be a record of that name.
-        let (record, target) = match pv.target {
-            Target::Able => (format!("{}{ABLE_SUFFIX}", pv.axis), Target::Field(Field::VAL)),
-            target => (pv.axis, target),
-        };
-        let kind = directory.bridge_record(&record)?;
-        let target = match target {
-            Target::Field(Field::VAL) => Target::BridgeValue(kind),
-            Target::RecordType => Target::BridgeType(kind),
-            _ => return None,
-        };
-        Some(Pv { axis: record, target })
     }
 
     /// Whether it has the motor record's alarm (an `_able` or a bridge record has none to

@@ -4,7 +4,6 @@
 
 use crate::codec::{self, command, Header, MINOR_VERSION};
 use crate::directory::Directory;
-use crate::names::Pv;
 
 /// The reply to one SEARCH message, if the name is ours and live.
 pub(crate) fn reply(
@@ -14,7 +13,7 @@ pub(crate) fn reply(
     tcp_port: u16,
     directory: &dyn Directory,
 ) -> Option<Vec<u8>> {
-    Pv::resolve(prefix, &codec::text(payload), directory)?;
+    crate::directory::resolve(prefix, &codec::text(payload), directory)?;
     // The server's address: ~0 tells the client to use the address the reply came from.
     let header = Header::new(command::SEARCH, tcp_port, 0, u32::MAX, request.p2);
     Some(codec::encode(header, &MINOR_VERSION.to_be_bytes()))

@@ -17,6 +17,7 @@ use crate::file::{
 };
 use std::collections::BTreeMap;
 use std::path::Path;
+use zmotor_bridge::TRANSFORM_FIELDS;
 use zmotor_msgs::{decode_scalar, keys, unmodelled_common_field, Field, Kind, PayloadEncoding};
 use zmotor_msgs::{field_value, to_toml};
 
@@ -132,8 +133,11 @@ pub(super) fn import_text(
     let mut written_inputs: BTreeMap<(String, String), InputLinkMode> = BTreeMap::new();
     // Forward links of motors and value holders.
     let mut forward_links = Vec::new();
-    // Each dfanout's calc links, one per output link.
+    // Each dfanout's calc links, one per output link, and each transform's, one per field it
+    // computes or writes out: a record processed as one.
     let mut fanouts: BTreeMap<String, Vec<String>> = BTreeMap::new();
+    // The fields each transform computes.
+    let mut computed_fields: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for record in &records {
         // A motor's disabling is modelled; the records that become calc links and values are not.
         if RUN_KINDS.contains(&record.kind.as_str()) && record.kind != "motor" {
@@ -149,6 +153,13 @@ pub(super) fn import_text(
             "ao" | "ai" | "longout" | "longin" | "bo" | "bi" | "mbbo" | "mbbi" => {
                 launch.values.push(value_holder(record, &mut warnings, &mut forward_links)?)
             }
+            "transform" => {
+                if let Some((fields, computed)) = transform(record, &linker, &mut warnings, &mut written_inputs)? {
+                    fanouts.insert(record.name.clone(), fields.iter().map(|c| c.name.clone()).collect());
+                    computed_fields.insert(record.name.clone(), computed);
+                    launch.calcs.extend(fields);
+                }
+            }
             "dfanout" => {
                 if let Some((value, outputs)) = dfanout(record, &linker, &mut warnings, &mut written_inputs)? {
                     launch.values.push(value);
@@ -163,9 +174,20 @@ pub(super) fn import_text(
         }
     }
     for ((calc_name, letter), mode) in written_inputs {
-        if let Some(calc) = launch.calcs.iter_mut().find(|c| c.name == calc_name) {
+        if computed_fields.get(&calc_name).is_some_and(|computed| computed.contains(&letter)) {
+            warnings.push(format!(
+                "transform '{calc_name}': a value written into {letter}, which it computes, is not kept (EPICS keeps it \
+                 for the next processing, COPT Conditional): the next processing computes it"
+            ));
+            continue;
+        }
+        // A calc's input, or a field of every calc link of a transform.
+        let fields = fanouts.get(&calc_name).filter(|_| kinds.get(calc_name.as_str()) == Some(&"transform"));
+        for calc in
+            launch.calcs.iter_mut().filter(|c| c.name == calc_name || fields.is_some_and(|f| f.contains(&c.name)))
+        {
             let key = format!("{}/{calc_name}/{letter}", keys::BRIDGE_PREFIX);
-            calc.inputs.entry(letter).or_insert(CalcInput::Linked { key, mode });
+            calc.inputs.entry(letter.clone()).or_insert(CalcInput::Linked { key, mode });
         }
     }
     let mut processing = Processing::of(&launch.axes, &launch.calcs);
@@ -317,15 +339,19 @@ fn forward_link(
     let ForwardLink { from, source, target, line, signal } = link;
     let whose = format!("line {line}: record '{from}': FLNK '{target}'");
     if let Some(outputs) = fanouts.get(target) {
-        // A dfanout: its calc links, one per output link, are processed together.
+        // A dfanout or a transform: its calc links are processed together.
         if outputs.is_empty() {
             return Forwarded::Ignored(format!("{whose}: '{target}' writes nothing here; ignored"));
         }
         for calc in calcs.iter_mut().filter(|c| outputs.contains(&c.name) && !c.processed_by.contains(signal)) {
             calc.processed_by.push(signal.clone());
         }
+        let what = match kinds.get(target.as_str()) {
+            Some(&"transform") => "computes its fields",
+            _ => "writes its value out",
+        };
         return Forwarded::Followed(Some(format!(
-            "{whose}: '{target}' writes its value out at each write of {signal} (processed_by)"
+            "{whose}: '{target}' {what} at each write of {signal} (processed_by)"
         )));
     }
     let Some(calc) = calcs.iter_mut().find(|c| c.name == *target) else {
@@ -375,10 +401,10 @@ fn processing_disabled(record: &Record) -> Option<String> {
 }
 
 /// The record types an import runs: motors as axes, calcs as calc links, a dfanout as a value
-/// and a calc link per output, the rest as values (a binary or multi-bit record's value is its
-/// state's number).
+/// and a calc link per output, a transform as a calc link per field it computes or writes out,
+/// the rest as values (a binary or multi-bit record's value is its state's number).
 const RUN_KINDS: &[&str] =
-    &["motor", "calcout", "calc", "ao", "ai", "longout", "longin", "bo", "bi", "mbbo", "mbbi", "dfanout"];
+    &["motor", "calcout", "calc", "ao", "ai", "longout", "longin", "bo", "bi", "mbbo", "mbbi", "dfanout", "transform"];
 
 /// Whether a bo is motor.db's Enable/Disable record of a motor of the database (`<motor>_able`,
 /// its OUT writing the motor's DISP), which zmotor serves as that DISP.
@@ -589,7 +615,8 @@ fn asyn_address(out: &str) -> Option<(String, usize)> {
     Some((port.to_string(), axis))
 }
 
-/// An output link into a calc record's input A–L feeds that input (PP: and recomputes it).
+/// An output link into a calc record's input A–L, or a transform's field A–P, feeds that input
+/// (PP: and processes the record).
 fn note_calc_write(
     linker: &Linker,
     record: &str,
@@ -597,8 +624,12 @@ fn note_calc_write(
     process: bool,
     written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
 ) {
-    let is_calc = matches!(linker.kinds.get(record), Some(&"calcout") | Some(&"calc"));
-    if is_calc && zmotor_bridge::input_index(field).is_some() {
+    let letters = match linker.kinds.get(record) {
+        Some(&"calcout") | Some(&"calc") => 12,
+        Some(&"transform") => TRANSFORM_FIELDS,
+        _ => 0,
+    };
+    if zmotor_bridge::input_index(field).is_some_and(|index| index < letters) {
         written_inputs.insert(
             (record.to_string(), field.to_string()),
             if process { InputLinkMode::Cp } else { InputLinkMode::Npp },
@@ -800,6 +831,156 @@ fn dfanout(
         });
     }
     Ok(Some((held, outputs)))
+}
+
+/// A transform's calc links, and the letters of the fields it computes.
+type TransformLinks = (Vec<CalcSection>, Vec<String>);
+
+/// The letter of a transform's field `index` (A = 0).
+fn field_letter(index: usize) -> char {
+    char::from(b'A' + u8::try_from(index).unwrap_or(0))
+}
+
+/// A transform record (synApps calc): sixteen fields A–P, each with an input link (INPx), an
+/// expression (CLCx) and an output link (OUTx). At each processing its input links are read,
+/// the fields with an expression and no input link are computed in order, A to P, each from the
+/// fields as they stand (those computed before it already new), and every output link is
+/// written. Here a calc link per field it computes or writes out, `R.X`, each the chain of the
+/// fields computed before it (`F:=C+D;A+(B*D)/(E*F)`) over the record's input links and values,
+/// writing to OUTX or else to the field's own key `bridge/R/X` (which a soft motor's RDBL reads);
+/// all processed together, by its PROC, its CP inputs and the forward links into it. Not
+/// modelled, and the record skipped with a word: an expression that reads a field computed
+/// after it, or itself (the value of the last processing), and COPT Always on a field with an
+/// input link and an expression. A value written into a field it computes is not kept as
+/// EPICS's Conditional option keeps it: the next processing computes it.
+fn transform(
+    record: &Record,
+    linker: &Linker,
+    warnings: &mut Vec<String>,
+    written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
+) -> Result<Option<TransformLinks>, Failure> {
+    let whose = format!("transform '{}'", record.name);
+    let mut inputs: [Option<CalcInput>; TRANSFORM_FIELDS] = Default::default();
+    let mut expressions: [String; TRANSFORM_FIELDS] = Default::default();
+    let mut outputs: [Option<String>; TRANSFORM_FIELDS] = Default::default();
+    let mut values = [0.0; TRANSFORM_FIELDS];
+    let mut always = false;
+    let letter_of = |name: &str, prefix: &str| {
+        name.strip_prefix(prefix).and_then(zmotor_bridge::input_index).filter(|&i| i < TRANSFORM_FIELDS)
+    };
+    for (name, text, line) in &record.fields {
+        let at = |message: String| Failure::at(*line, format!("{whose}: field {name}: {message}"));
+        if let Some(index) = letter_of(name, "INP") {
+            match linker.link(text, *line, warnings)? {
+                Link::None => {}
+                Link::Constant(x) => values[index] = x,
+                Link::Key { key, continuous, .. } => {
+                    let mode = if continuous { InputLinkMode::Cp } else { InputLinkMode::Npp };
+                    inputs[index] = Some(CalcInput::Linked { key, mode });
+                }
+                Link::Hardware => return Err(at(format!("'{text}' is not a link to a record"))),
+            }
+        } else if let Some(index) = letter_of(name, "CLC") {
+            expressions[index] = text.trim().to_string();
+        } else if let Some(index) = letter_of(name, "OUT") {
+            match linker.link(text, *line, warnings)? {
+                Link::None | Link::Constant(_) => {}
+                Link::Key { key, record: target, field, process, .. } => {
+                    note_calc_write(linker, &target, &field, process, written_inputs);
+                    outputs[index] = Some(key);
+                }
+                Link::Hardware => return Err(at(format!("'{text}' is not a link to a record"))),
+            }
+        } else if let Some(index) = letter_of(name, "") {
+            values[index] = text.trim().parse::<f64>().map_err(|_| at(format!("'{text}' is not a number")))?;
+        } else {
+            match name.as_str() {
+                "COPT" => {
+                    always = match text.trim() {
+                        "" | "Conditional" | "0" => false,
+                        "Always" | "1" => true,
+                        other => return Err(at(format!("'{other}' is not one of Conditional, Always"))),
+                    }
+                }
+                "FLNK" if forward_target(record).is_some() => {
+                    warnings.push(format!("line {line}: {whose}: FLNK '{text}' is not followed; ignored"));
+                }
+                "IVLA" | "DESC" | "PREC" | "EGU" | "FLNK" => {}
+                _ if letter_of(name, "CMT").is_some() => {}
+                _ if unmodelled_common_field(name).is_some() || DISABLING_FIELDS.contains(&name.as_str()) => {}
+                _ => warnings.push(format!("line {line}: {whose}: field {name} is not used by zmotor and was ignored")),
+            }
+        }
+    }
+    let skipped = |why: String| format!("line {}: {whose}: {why}; not modelled, the record was skipped", record.line);
+    let mut computed = [false; TRANSFORM_FIELDS];
+    for index in 0..TRANSFORM_FIELDS {
+        if expressions[index].is_empty() {
+            continue;
+        }
+        let letter = field_letter(index);
+        if inputs[index].is_some() {
+            if always {
+                warnings.push(skipped(format!("field {letter} has an input link and an expression under COPT Always")));
+                return Ok(None);
+            }
+            // Conditional: a field with an input link takes the link's value; its expression is not used.
+            continue;
+        }
+        let expression = zmotor_bridge::Expression::parse_over(&expressions[index], TRANSFORM_FIELDS)
+            .map_err(|e| Failure::at(record.line, format!("{whose}: CLC{letter} '{}': {e}", expressions[index])))?;
+        if expressions[index].contains(';') {
+            warnings.push(skipped(format!("CLC{letter} has statements of its own")));
+            return Ok(None);
+        }
+        let later = (index..TRANSFORM_FIELDS)
+            .find(|&j| (expression.inputs_used() & (1 << j)) != 0 && !expressions[j].is_empty() && inputs[j].is_none());
+        if let Some(later) = later {
+            let what = if later == index { "itself".to_string() } else { format!("field {}", field_letter(later)) };
+            warnings.push(skipped(format!(
+                "CLC{letter} reads {what}, computed after it (its value of the last processing)"
+            )));
+            return Ok(None);
+        }
+        computed[index] = true;
+    }
+    let mut fields = Vec::new();
+    for index in 0..TRANSFORM_FIELDS {
+        if !computed[index] && outputs[index].is_none() {
+            continue;
+        }
+        let letter = field_letter(index);
+        let mut chain: Vec<String> = (0..index)
+            .filter(|&before| computed[before])
+            .map(|before| format!("{}:=({})", field_letter(before), expressions[before]))
+            .collect();
+        chain.push(if computed[index] { expressions[index].clone() } else { letter.to_string() });
+        let letters = || (0..TRANSFORM_FIELDS).map(|i| (i, field_letter(i).to_string()));
+        fields.push(CalcSection {
+            name: format!("{}.{letter}", record.name),
+            host: None,
+            expression: chain.join(";"),
+            inputs: letters().filter_map(|(i, l)| inputs[i].clone().map(|input| (l, input))).collect(),
+            constants: letters()
+                .filter(|&(i, _)| inputs[i].is_none() && values[i] != 0.0)
+                .map(|(i, l)| (l, values[i]))
+                .collect(),
+            output: outputs[index]
+                .clone()
+                .unwrap_or_else(|| format!("{}/{}/{letter}", keys::BRIDGE_PREFIX, record.name)),
+            option: CalcOption::Every,
+            // Processed as one: by its PROC (a client's, a motor's forward link), and by the
+            // forward links into it.
+            processed_by: vec![format!("{}/{}/{}", keys::BRIDGE_PREFIX, record.name, Field::PROC.name())],
+            origin: Default::default(),
+        });
+    }
+    if fields.is_empty() {
+        warnings.push(format!("line {}: {whose}: computes and writes nothing; skipped", record.line));
+        return Ok(None);
+    }
+    let computed = (0..TRANSFORM_FIELDS).filter(|&i| computed[i]).map(|i| field_letter(i).to_string()).collect();
+    Ok(Some((fields, computed)))
 }
 
 // ---- the file itself ----
@@ -1276,11 +1457,116 @@ mod tests {
         let deployment = Launch::from_file("db", file).unwrap().deployment(None).unwrap();
         let spec = |name: &str| deployment.contents.calcs.iter().find(|c| c.name == name).unwrap().clone();
         let mut sum = zmotor_bridge::CalcLink::new(spec("sum")).unwrap();
-        assert_eq!(sum.update("bridge/b/VAL", 4.0), None, "b is NPP");
-        assert_eq!(sum.processed_by("bridge/go/VAL", 1.0), Some(5.0), "the forward link's write processes it");
+        assert!(!sum.update("bridge/b/VAL", 4.0), "b is NPP");
+        sum.processed_by("bridge/go/VAL", 1.0);
+        assert_eq!(sum.process_with(&[]), Some(5.0), "the forward link's write processes it");
         let mut double = zmotor_bridge::CalcLink::new(spec("double")).unwrap();
-        assert_eq!(double.update("bridge/x/VAL", 3.0), None, "x as found at start: nothing written");
-        assert_eq!(double.processed_by("bridge/x/VAL", 4.0), Some(8.0), "a write of x, with its own value");
+        assert!(!double.update("bridge/x/VAL", 3.0), "x as found at start: nothing written");
+        double.processed_by("bridge/x/VAL", 4.0);
+        assert_eq!(double.process_with(&[]), Some(8.0), "a write of x, with its own value");
+    }
+
+    /// motorApp's sumDiff2D.db (its transforms, dfanout and calcout as there), with its soft
+    /// motors as motorApp's pseudoMotor.db makes them.
+    const SUM_DIFF: &str = r#"
+        record(motor, "m1") { field(MRES, "0.001") }
+        record(motor, "m2") { field(MRES, "0.001") }
+        record(motor, "sum") { field(DTYP, "Soft Channel") field(OUT, "sumDVAL PP MS")
+            field(RDBL, "tReadback.G NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
+            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
+        record(motor, "diff") { field(DTYP, "Soft Channel") field(OUT, "diffDVAL PP MS")
+            field(RDBL, "tReadback.H NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
+            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
+        grecord(ao, "sumDVAL") { field(FLNK, "tDrive") }
+        grecord(ao, "diffDVAL") { field(FLNK, "tDrive") }
+        record(ao, "sumC1") { field(VAL, "1") field(PINI, "1") }
+        record(ao, "sumC2") { field(VAL, "1") field(PINI, "1") }
+        record(ao, "diffC1") { field(VAL, "1") field(PINI, "1") }
+        grecord(transform, "tDrive") {
+            field(INPA, "sum.DVAL NPP NMS") field(INPB, "diff.DVAL NPP NMS") field(INPC, "sumC1.VAL NPP NMS")
+            field(INPD, "sumC2.VAL NPP NMS") field(INPE, "diffC1.VAL NPP NMS")
+            field(CLCF, "C+D") field(CLCG, "A+(B*D)/(E*F)") field(OUTG, "m1 PP MS")
+            field(CLCH, "A-(B*C)/(E*F)") field(OUTH, "m2 PP MS") field(PREC, "3") }
+        grecord(transform, "tReadback") {
+            field(INPA, "m1.RBV CP MS") field(INPB, "m2.RBV CP MS") field(INPC, "sumC1.VAL CP MS")
+            field(INPD, "sumC2.VAL CP MS") field(INPE, "diffC1.VAL CP MS")
+            field(CLCF, "C+D") field(CLCG, "((A*C) + (B*D))/F") field(CLCH, "(A-B)*E")
+            field(IVLA, "Do Nothing") field(PREC, "3") }
+        grecord(dfanout, "tStop") { field(VAL, "1") field(OUTA, "m1.STOP PP MS") field(OUTB, "m2.STOP PP MS") }
+        grecord(calcout, "tDone") { field(INPA, "m1.DMOV CP MS") field(INPB, "m2.DMOV CP MS") field(CALC, "A & B") }
+    "#;
+
+    #[test]
+    fn a_transform_becomes_a_calc_link_per_field_it_computes_or_writes_out_processed_as_one() {
+        let (file, warnings) = import(SUM_DIFF).unwrap();
+        let refused = |w: &&String| w.contains("skipped") || w.contains("ignored") || w.contains("not modelled");
+        assert!(!warnings.iter().any(|w| refused(&w)), "{warnings:?}");
+        assert!(warnings
+            .iter()
+            .any(|w| w.contains("'tDrive' computes its fields at each write of bridge/sumDVAL/VAL")));
+        let calc = |name: &str| file.calcs.iter().find(|c| c.name == name).unwrap_or_else(|| panic!("{name}"));
+        let npp = |key: &str| CalcInput::Linked { key: key.into(), mode: InputLinkMode::Npp };
+        let g = calc("tDrive.G");
+        assert_eq!(g.expression, "F:=(C+D);A+(B*D)/(E*F)", "the fields computed before it, in order");
+        assert_eq!((g.output.as_str(), g.inputs["A"].clone()), ("motor/m1/VAL", npp("motor/sum/DVAL")));
+        assert_eq!(g.inputs["C"], npp("bridge/sumC1/VAL"));
+        // Processed as one: by its PROC and by the forward links of the soft motors' DVAL records.
+        for field in ["tDrive.F", "tDrive.G", "tDrive.H"] {
+            assert_eq!(
+                calc(field).processed_by,
+                ["bridge/tDrive/PROC", "bridge/sumDVAL/VAL", "bridge/diffDVAL/VAL"],
+                "{field}"
+            );
+        }
+        assert_eq!(calc("tDrive.H").output, "motor/m2/VAL");
+        // The readback: computed on the real motors' readbacks, each field on its own key, which
+        // the soft motors' RDBL read.
+        let readback = calc("tReadback.G");
+        assert_eq!(readback.expression, "F:=(C+D);((A*C) + (B*D))/F");
+        assert_eq!(readback.output, "bridge/tReadback/G");
+        assert_eq!(readback.inputs["A"], CalcInput::Linked { key: "motor/m1/RBV".into(), mode: InputLinkMode::Cp });
+        let sum = file.axes.iter().find(|a| a.name == "sum").unwrap();
+        assert_eq!(sum.fields["RDBL"], toml::Value::String("bridge/tReadback/G".into()));
+        // As the node runs them: the drive's G from the soft motors' dial values and the constants.
+        let deployment = Launch::from_file("db", file.clone()).unwrap().deployment(None).unwrap();
+        let spec = |name: &str| deployment.contents.calcs.iter().find(|c| c.name == name).unwrap().clone();
+        let mut g = zmotor_bridge::CalcLink::new(spec("tDrive.G")).unwrap();
+        g.processed_by("bridge/sumDVAL/VAL", 2.0);
+        let read: Vec<(usize, f64)> = vec![(0, 2.0), (1, 1.0), (2, 1.0), (3, 1.0), (4, 1.0)];
+        assert_eq!(g.process_with(&read), Some(2.5), "sum + diff * C2 / (E * (C1 + C2))");
+        let mut h = zmotor_bridge::CalcLink::new(spec("tDrive.H")).unwrap();
+        h.processed_by("bridge/tDrive/PROC", 1.0);
+        assert_eq!(h.process_with(&read), Some(1.5));
+    }
+
+    #[test]
+    fn transforms_that_read_a_later_field_or_compute_an_input_under_always_are_skipped_with_a_word() {
+        let (file, warnings) = import(
+            r#"
+            record(transform, "later") { field(CLCA, "B+1") field(CLCB, "2") }
+            record(transform, "itself") { field(CLCA, "A+1") field(OUTA, "x.VAL PP") }
+            record(transform, "always") { field(COPT, "Always") field(INPA, "x.VAL") field(CLCA, "A*2") }
+            record(transform, "fine") { field(COPT, "Always") field(CLCA, "2") field(INPB, "x.VAL") field(OUTB, "y") }
+            record(ao, "x") {}
+            record(ao, "y") {}
+            record(motor, "m1") { field(DTYP, "Soft Channel") field(OUT, "fine.C PP") }
+        "#,
+        )
+        .unwrap();
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        assert!(said("transform 'later': CLCA reads field B, computed after it"), "{warnings:?}");
+        assert!(said("transform 'itself': CLCA reads itself"), "{warnings:?}");
+        assert!(said("transform 'always': field A has an input link and an expression under COPT Always"));
+        let names: Vec<&str> = file.calcs.iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(names, ["fine.A", "fine.B"]);
+        // A field with an input link and an output link passes its value on; a motor's output
+        // link into a field processes the record.
+        assert_eq!((file.calcs[1].expression.as_str(), file.calcs[1].output.as_str()), ("A:=(2);B", "bridge/y/VAL"));
+        for calc in &file.calcs {
+            assert_eq!(calc.inputs["C"], CalcInput::Linked { key: "bridge/fine/C".into(), mode: InputLinkMode::Cp });
+        }
+        let bad = import(r#"record(transform, "t") { field(CLCA, "1+") }"#).unwrap_err().message;
+        assert!(bad.contains("transform 't': CLCA '1+': column 3"), "{bad}");
     }
 
     /// The FLNK key an imported motor was given, if any.
@@ -1427,9 +1713,11 @@ mod tests {
         let deployment = launch.deployment(None).unwrap();
         assert_eq!(Launch::parse(&launch.to_toml()).unwrap().deployment(None).unwrap(), deployment, "converted");
         let mut out = zmotor_bridge::CalcLink::new(deployment.contents.calcs[0].clone()).unwrap();
-        assert_eq!(out.update("bridge/stopall/VAL", 1.0), None);
-        assert_eq!(out.processed_by("bridge/stopall/VAL", 2.0), Some(2.0));
-        assert_eq!(out.processed_by("bridge/stopall/PROC", 1.0), Some(2.0));
+        assert!(!out.update("bridge/stopall/VAL", 1.0));
+        out.processed_by("bridge/stopall/VAL", 2.0);
+        assert_eq!(out.process_with(&[]), Some(2.0));
+        out.processed_by("bridge/stopall/PROC", 1.0);
+        assert_eq!(out.process_with(&[]), Some(2.0));
     }
 
     #[test]

@@ -642,10 +642,10 @@ pub struct CalcSection {
     pub host: Option<String>,
     /// The CALC expression.
     pub expression: String,
-    /// Inputs A–L: a key (CP: recompute on each update) or `{ key = "...", mode = "npp" }`.
+    /// Inputs A–P (a calcout's A–L, a transform's fields to P): a key (CP: recompute on each update) or `{ key = "...", mode = "npp" }`.
     #[serde(default)]
     pub inputs: BTreeMap<String, CalcInput>,
-    /// Values of inputs before any update, e.g. `{ B = 1000 }` (the record's fields A–L).
+    /// Values of inputs before any update, e.g. `{ B = 1000 }` (the record's fields A–P).
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub constants: BTreeMap<String, f64>,
     /// Key the result is written to.

@@ -287,7 +287,7 @@ impl CalcSection {
         let mut inputs = Vec::new();
         for (letter, input) in &self.inputs {
             let inner = ["inputs", letter.as_str()];
-            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to L".into()))?;
+            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to P".into()))?;
             let (key, mode) = match input {
                 CalcInput::Key(key) => (key.clone(), InputMode::Process),
                 CalcInput::Linked { key, mode: InputLinkMode::Cp } => (key.clone(), InputMode::Process),
@@ -299,7 +299,7 @@ impl CalcSection {
         let mut constants = Vec::new();
         for (letter, value) in &self.constants {
             let inner = ["constants", letter.as_str()];
-            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to L".into()))?;
+            let index = input_index(letter).ok_or_else(|| at(&inner, "inputs are A to P".into()))?;
             if !value.is_finite() {
                 return Err(at(&inner, "must be a finite number".into()));
             }

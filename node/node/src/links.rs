@@ -242,6 +242,7 @@ fn sample_number(sample: &Sample) -> Option<f64> {
 /// A calc link: recompute on its inputs and the keys it is processed by, write the result to
 /// its output key.
 pub(crate) struct CalcTask {
+    session: Session,
     writer: Writer,
     link: CalcLink,
     /// Its input keys, then the keys it is processed by, followed for as long as the task lives.
@@ -276,7 +277,7 @@ impl CalcTask {
         for (index, key) in link.processing_keys().enumerate() {
             follows.follow_updates(inputs + index, key)?;
         }
-        let mut task = Self { writer, link, _follows: follows, updates, record };
+        let mut task = Self { session: session.clone(), writer, link, _follows: follows, updates, record };
         // A calc record of constants only is processed by nothing here, where EPICS's readers
         // process it through their PP links: its value is served from the start. (Only as a
         // record's value: a write elsewhere, to a motor, is never made unasked.)
@@ -298,19 +299,58 @@ impl CalcTask {
         self.writer.put(&self.link.spec().output, result.to_string());
     }
 
+    /// Process on each CP input's update and each update of a key it is processed by, its NPP
+    /// inputs read then; the updates that come meanwhile wait, in order.
     pub(crate) async fn run(&mut self) {
         let inputs: Vec<String> = self.link.input_keys().map(str::to_string).collect();
         let processing: Vec<String> = self.link.processing_keys().map(str::to_string).collect();
         while let Some((index, value)) = self.updates.recv().await {
-            let result = match index.checked_sub(inputs.len()) {
+            let process = match index.checked_sub(inputs.len()) {
                 None => self.link.update(&inputs[index], value),
-                Some(index) => self.link.processed_by(&processing[index], value),
+                Some(index) => {
+                    self.link.processed_by(&processing[index], value);
+                    true
+                }
             };
-            if let Some(result) = result {
+            if !process {
+                continue;
+            }
+            let read = self.read_npp_inputs().await;
+            if let Some(result) = self.link.process_with(&read) {
                 self.write(result);
             }
         }
     }
+
+    /// The NPP inputs' values now, read together (an unanswered one left out: the link keeps
+    /// the value it last followed).
+    async fn read_npp_inputs(&self) -> Vec<(usize, f64)> {
+        let mut reads = tokio::task::JoinSet::new();
+        for (index, key) in self.link.read_at_processing() {
+            let (session, key) = (self.session.clone(), key.to_string());
+            reads.spawn(async move { (index, read_number(&session, &key).await) });
+        }
+        let mut read = Vec::new();
+        while let Some(done) = reads.join_next().await {
+            if let Ok((index, Some(value))) = done {
+                read.push((index, value));
+            }
+        }
+        read
+    }
+}
+
+/// How long a calc link waits for an input read at processing.
+const READ_PATIENCE: Duration = Duration::from_secs(2);
+
+/// A key's value now, if anything answers.
+async fn read_number(session: &Session, key: &str) -> Option<f64> {
+    let replies = session.get(key).timeout(READ_PATIENCE).await.ok()?;
+    let mut value = None;
+    while let Ok(reply) = replies.recv_async().await {
+        value = value.or_else(|| reply.result().ok().and_then(sample_number));
+    }
+    value
 }
 
 /// A value holder (an ao/ai record that only holds a value): keeps the latest number put on
