@@ -175,9 +175,11 @@ pub(super) fn import_text(
     }
     for ((calc_name, letter), mode) in written_inputs {
         if computed_fields.get(&calc_name).is_some_and(|computed| computed.contains(&letter)) {
+            // Its own key carries what the record computes: a write there (EPICS keeps it for
+            // one processing, COPT Conditional, and a PP one processes the record) is neither.
             warnings.push(format!(
-                "transform '{calc_name}': a value written into {letter}, which it computes, is not kept (EPICS keeps it \
-                 for the next processing, COPT Conditional): the next processing computes it"
+                "transform '{calc_name}': a write into {letter}, which it computes, is neither kept nor processes it \
+                 (EPICS keeps it for the next processing, COPT Conditional); not modelled"
             ));
             continue;
         }
@@ -927,10 +929,17 @@ fn transform(
             // Conditional: a field with an input link takes the link's value; its expression is not used.
             continue;
         }
-        let expression = zmotor_bridge::Expression::parse_over(&expressions[index], TRANSFORM_FIELDS)
-            .map_err(|e| Failure::at(record.line, format!("{whose}: CLC{letter} '{}': {e}", expressions[index])))?;
-        if expressions[index].contains(';') {
-            warnings.push(skipped(format!("CLC{letter} has statements of its own")));
+        // An expression that does not parse (sCalc's strings, a comment field's macros) leaves
+        // the record uncomputed, as an IOC flags its CLC invalid.
+        let expression = match zmotor_bridge::Expression::parse_over(&expressions[index], TRANSFORM_FIELDS) {
+            Ok(expression) => expression,
+            Err(e) => {
+                warnings.push(skipped(format!("CLC{letter} '{}': {e}", expressions[index])));
+                return Ok(None);
+            }
+        };
+        if expressions[index].contains(';') || expressions[index].contains(":=") {
+            warnings.push(skipped(format!("CLC{letter} has statements or assignments of its own")));
             return Ok(None);
         }
         let later = (index..TRANSFORM_FIELDS)
@@ -955,11 +964,16 @@ fn transform(
             .map(|before| format!("{}:=({})", field_letter(before), expressions[before]))
             .collect();
         chain.push(if computed[index] { expressions[index].clone() } else { letter.to_string() });
+        let chain = chain.join(";");
+        if let Err(e) = zmotor_bridge::Expression::parse_over(&chain, TRANSFORM_FIELDS) {
+            warnings.push(skipped(format!("field {letter} chained with the fields before it: {e}")));
+            return Ok(None);
+        }
         let letters = || (0..TRANSFORM_FIELDS).map(|i| (i, field_letter(i).to_string()));
         fields.push(CalcSection {
             name: format!("{}.{letter}", record.name),
             host: None,
-            expression: chain.join(";"),
+            expression: chain,
             inputs: letters().filter_map(|(i, l)| inputs[i].clone().map(|input| (l, input))).collect(),
             constants: letters()
                 .filter(|&(i, _)| inputs[i].is_none() && values[i] != 0.0)
@@ -1540,6 +1554,30 @@ mod tests {
     }
 
     #[test]
+    fn coord_trans_2d_transforms_import_whole() {
+        // The transforms of motorApp's coordTrans2D.db, as it writes them.
+        let text = r#"
+            record(transform, "tDrive") {
+                field(INPA, "mx.DVAL NPP NMS") field(INPB, "my.DVAL NPP NMS") field(INPC, "mxC1.VAL NPP NMS")
+                field(INPD, "myC1.VAL NPP NMS") field(INPE, "myC2.VAL NPP NMS")
+                field(CLCF, "0.0174533 * E") field(CLCG, "C+A*COS(F)-B*SIN(F)") field(OUTG, "m1 PP MS")
+                field(CLCH, "D+A*SIN(F)+B*COS(F)") field(OUTH, "m2 PP MS") }
+            record(transform, "tsynch") {
+                field(INPA, "m1 NPP NMS") field(INPB, "m2 NPP NMS") field(CLCC, "A") field(OUTC, "mxC1.VAL PP MS")
+                field(CLCD, "B") field(OUTD, "myC1.VAL PP MS") }
+            record(ao, "mxC1") {}
+            record(ao, "myC1") {}
+        "#;
+        let (file, warnings) = import(text).unwrap();
+        assert!(!warnings.iter().any(|w| w.contains("skipped") || w.contains("not modelled")), "{warnings:?}");
+        let names: Vec<&str> = file.calcs.iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(names, ["tDrive.F", "tDrive.G", "tDrive.H", "tsynch.C", "tsynch.D"]);
+        assert_eq!(file.calcs[2].expression, "F:=(0.0174533 * E);G:=(C+A*COS(F)-B*SIN(F));D+A*SIN(F)+B*COS(F)");
+        assert_eq!((file.calcs[3].expression.as_str(), file.calcs[3].output.as_str()), ("A", "bridge/mxC1/VAL"));
+        Launch::from_file("db", file).unwrap().deployment(None).expect("the links parse and wire");
+    }
+
+    #[test]
     fn transforms_that_read_a_later_field_or_compute_an_input_under_always_are_skipped_with_a_word() {
         let (file, warnings) = import(
             r#"
@@ -1550,6 +1588,7 @@ mod tests {
             record(ao, "x") {}
             record(ao, "y") {}
             record(motor, "m1") { field(DTYP, "Soft Channel") field(OUT, "fine.C PP") }
+            record(motor, "m2") { field(DTYP, "Soft Channel") field(OUT, "fine.A PP") }
         "#,
         )
         .unwrap();
@@ -1564,9 +1603,18 @@ mod tests {
         assert_eq!((file.calcs[1].expression.as_str(), file.calcs[1].output.as_str()), ("A:=(2);B", "bridge/y/VAL"));
         for calc in &file.calcs {
             assert_eq!(calc.inputs["C"], CalcInput::Linked { key: "bridge/fine/C".into(), mode: InputLinkMode::Cp });
+            assert!(!calc.inputs.contains_key("A") && !calc.processed_by.contains(&"bridge/fine/A".to_string()));
         }
-        let bad = import(r#"record(transform, "t") { field(CLCA, "1+") }"#).unwrap_err().message;
-        assert!(bad.contains("transform 't': CLCA '1+': column 3"), "{bad}");
+        assert!(said("transform 'fine': a write into A, which it computes, is neither kept nor processes it"));
+        let (file, warnings) = import(
+            r#"record(transform, "t") { field(CLCA, "1+") }
+            record(transform, "u") { field(CLCA, "B:=2;B+1") field(CLCC, "B") }"#,
+        )
+        .unwrap();
+        assert!(file.calcs.is_empty(), "{:?}", file.calcs);
+        let said = |part: &str| warnings.iter().any(|w| w.contains(part));
+        assert!(said("transform 't': CLCA '1+': column 3"), "{warnings:?}");
+        assert!(said("transform 'u': CLCA has statements or assignments of its own"), "{warnings:?}");
     }
 
     /// The FLNK key an imported motor was given, if any.

@@ -256,7 +256,8 @@ impl CalcTask {
     /// Follow `link`'s inputs (their values now, then their updates) and the keys it is
     /// processed by (their updates). With `serves_record` (no value holder of the node holds its
     /// output), a link whose result is its own record's value (`bridge/<its name>/VAL`: a calc
-    /// without OUT) answers reads of it and announces the calc record (`BridgeRecord::Calc`).
+    /// without OUT) answers reads of it and announces the calc record (`BridgeRecord::Calc`); a
+    /// transform's field written to its own key (`bridge/R/X` of `R.X`) answers reads of it.
     pub(crate) fn start(
         session: &Session,
         local: Arc<LocalFollowers>,
@@ -264,9 +265,15 @@ impl CalcTask {
         link: CalcLink,
         serves_record: bool,
     ) -> Result<Self, zenoh::Error> {
-        let output = &link.spec().output;
-        let record = match serves_record && BridgeRecord::of_value_key(output) == Some(link.spec().name.as_str()) {
+        let (output, name) = (&link.spec().output, link.spec().name.as_str());
+        // A transform's field `R.X` written to its own key `bridge/R/X` answers reads there too
+        // (a soft motor's RDBL on it), as a calc's own VAL does; only the calc is announced.
+        let own_field = name
+            .split_once('.')
+            .is_some_and(|(record, field)| *output == format!("{}/{record}/{field}", zmotor_msgs::keys::BRIDGE_PREFIX));
+        let record = match serves_record && BridgeRecord::of_value_key(output) == Some(name) {
             true => Some(AnsweredValue::declare(session, output, Arc::default(), Some(BridgeRecord::Calc))?),
+            false if serves_record && own_field => Some(AnsweredValue::declare(session, output, Arc::default(), None)?),
             false => None,
         };
         let (mut follows, updates) = Follows::to_channel(session, local);
@@ -305,28 +312,31 @@ impl CalcTask {
         let inputs: Vec<String> = self.link.input_keys().map(str::to_string).collect();
         let processing: Vec<String> = self.link.processing_keys().map(str::to_string).collect();
         while let Some((index, value)) = self.updates.recv().await {
-            let process = match index.checked_sub(inputs.len()) {
-                None => self.link.update(&inputs[index], value),
+            // The key whose update processes the link: its inputs there have the update's value,
+            // newer than any read of it could be.
+            let (process, fresh) = match index.checked_sub(inputs.len()) {
+                None => (self.link.update(&inputs[index], value), Some(inputs[index].as_str())),
                 Some(index) => {
                     self.link.processed_by(&processing[index], value);
-                    true
+                    (true, Some(processing[index].as_str()))
                 }
             };
             if !process {
                 continue;
             }
-            let read = self.read_npp_inputs().await;
+            let read = self.read_npp_inputs(fresh).await;
             if let Some(result) = self.link.process_with(&read) {
                 self.write(result);
             }
         }
     }
 
-    /// The NPP inputs' values now, read together (an unanswered one left out: the link keeps
-    /// the value it last followed).
-    async fn read_npp_inputs(&self) -> Vec<(usize, f64)> {
+    /// The NPP inputs' values now, read together, but those on the key `fresh` whose update
+    /// processes the link (an unanswered one left out: the link keeps the value it last
+    /// followed).
+    async fn read_npp_inputs(&self, fresh: Option<&str>) -> Vec<(usize, f64)> {
         let mut reads = tokio::task::JoinSet::new();
-        for (index, key) in self.link.read_at_processing() {
+        for (index, key) in self.link.read_at_processing().filter(|(_, key)| Some(*key) != fresh) {
             let (session, key) = (self.session.clone(), key.to_string());
             reads.spawn(async move { (index, read_number(&session, &key).await) });
         }

@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 use zmotor_bridge::Expression;
-use zmotor_bridge::INPUTS;
+use zmotor_bridge::{INPUTS, TRANSFORM_FIELDS};
 use zmotor_controllers::{ControllerConfig, ProtocolKind, ProtocolOptions};
 use zmotor_core::Instant;
 use zmotor_msgs::{decode_write, Attached, Field, Hold, PayloadEncoding, StateMarker, FIELDS};
@@ -47,15 +47,20 @@ pub fn write_decoders(data: &[u8]) {
     }
 }
 
-/// A CALC expression as a launch file or a database gives it, evaluated on inputs made of the
-/// same bytes.
+/// A CALC expression as a launch file or a database gives it (a calc record's, over A–L, and a
+/// transform record's, over A–P), evaluated on inputs made of the same bytes.
 pub fn calc(data: &[u8]) {
     let Ok(source) = std::str::from_utf8(data) else { return };
+    let mut inputs = [0.0; TRANSFORM_FIELDS];
+    for (input, byte) in inputs.iter_mut().zip(data) {
+        *input = f64::from(*byte) - 128.0;
+    }
     if let Ok(expression) = Expression::parse(source) {
-        let mut inputs = [0.0; INPUTS];
-        for (input, byte) in inputs.iter_mut().zip(data) {
-            *input = f64::from(*byte) - 128.0;
-        }
+        let mut calc_inputs = [0.0; INPUTS];
+        calc_inputs.copy_from_slice(&inputs[..INPUTS]);
+        let _ = expression.eval(&mut calc_inputs);
+    }
+    if let Ok(expression) = Expression::parse_over(source, TRANSFORM_FIELDS) {
         let _ = expression.eval(&mut inputs);
     }
 }
@@ -73,7 +78,15 @@ pub fn launch_toml(data: &[u8]) {
 pub fn epics_db(data: &[u8]) {
     let Ok(text) = std::str::from_utf8(data) else { return };
     let macros = zmotor_deploy::Macros::parse(&["P=fz:".to_string()]).expect("a macro definition");
-    let _ = zmotor_deploy::import_db_text("fuzz.db", text, &macros, zmotor_msgs::keys::DEFAULT_PREFIX);
+    let Ok((file, _)) = zmotor_deploy::import_db_text("fuzz.db", text, &macros, zmotor_msgs::keys::DEFAULT_PREFIX)
+    else {
+        return;
+    };
+    // What it imports to is checked as a launch file is (its calc links' chained expressions
+    // parsed, the wiring checked).
+    if let Ok(launch) = zmotor_deploy::Launch::from_file("fuzz.db", file) {
+        let _ = launch.deployment(None);
+    }
 }
 
 /// Bytes from a controller: byte 0 picks the protocol, byte 1 how many bytes arrive at a time;
