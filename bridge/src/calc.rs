@@ -429,9 +429,9 @@ fn input_index(word: &str, variables: usize) -> Option<usize> {
     }
 }
 
-/// The letter of variable `index` (A = 0).
-fn input_name(index: usize) -> char {
-    char::from(b'A' + u8::try_from(index).unwrap_or(25).min(25))
+/// The letter of variable `index` (A = 0; past P, P).
+pub fn input_name(index: usize) -> char {
+    char::from(b'A' + u8::try_from(index.min(TRANSFORM_FIELDS - 1)).unwrap_or(15))
 }
 
 impl Expression {
@@ -441,9 +441,9 @@ impl Expression {
     }
 
     /// Parse an expression over `variables` variables from A (`TRANSFORM_FIELDS` for a transform
-    /// record's, at most 26).
+    /// record's, and at most that many).
     pub fn parse_over(source: &str, variables: usize) -> Result<Self, CalcError> {
-        let variables = variables.clamp(1, 26);
+        let variables = variables.clamp(1, TRANSFORM_FIELDS);
         if source.chars().count() > MAX_LENGTH {
             return error(MAX_LENGTH + 1, format!("the expression is longer than {MAX_LENGTH} characters"));
         }

@@ -5,7 +5,5 @@
 mod calc;
 mod link;
 
-pub use calc::{CalcError, Expression, INPUTS, MAX_LENGTH, MAX_NESTING, TRANSFORM_FIELDS};
-pub use link::{
-    find_cycle, input_index, input_name, CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption,
-};
+pub use calc::{input_name, CalcError, Expression, INPUTS, MAX_LENGTH, MAX_NESTING, TRANSFORM_FIELDS};
+pub use link::{find_cycle, input_index, CalcLink, CalcLinkSpec, InputMode, InputSpec, LinkError, OutputOption};

@@ -6,7 +6,7 @@
 //! value it finds then. The output is written to a key every time, or only when the result
 //! changes (OOPT).
 
-use crate::calc::{CalcError, Expression, TRANSFORM_FIELDS};
+use crate::calc::{input_name, CalcError, Expression, TRANSFORM_FIELDS};
 
 /// How many inputs a calc link has: a calcout's A–L, and a transform record's M–P beside them.
 const VARIABLES: usize = TRANSFORM_FIELDS;
@@ -150,6 +150,7 @@ impl CalcLink {
     /// Process: the inputs read now (`read_at_processing`: index, value; one unanswered keeps
     /// the value last followed) are taken, the expression computed; the result to write to
     /// the output key, if one is due (OOPT).
+    #[must_use = "the result is the link's write"]
     pub fn process_with(&mut self, read: &[(usize, f64)]) -> Option<f64> {
         for &(index, value) in read {
             if let Some(slot) = self.values.get_mut(index) {
@@ -163,6 +164,7 @@ impl CalcLink {
     /// processing it, only constants (a calc record of `CALC "1000"`, read by others' links that
     /// process it first, as EPICS's PP input links do: its value is the same whenever processed).
     /// `None` for a link that has keys to wait for.
+    #[must_use = "the result is the link's write"]
     pub fn constant_result(&mut self) -> Option<f64> {
         match self.spec.inputs.is_empty() && self.spec.processed_by.is_empty() {
             true => self.process(),
@@ -189,11 +191,6 @@ impl CalcLink {
     pub fn processing_keys(&self) -> impl Iterator<Item = &str> {
         self.spec.processed_by.iter().map(String::as_str)
     }
-}
-
-/// Letter of an input index (0 is A).
-pub fn input_name(index: usize) -> char {
-    (b'A' + index as u8) as char
 }
 
 /// Input index of a letter A–P (case-insensitive).

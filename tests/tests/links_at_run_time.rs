@@ -344,3 +344,29 @@ async fn sum_and_diff_soft_motors_move_two_real_motors_through_transform_records
     assert_eq!(get_f64(&client, "bridge/tReadback/G").await, 2.0);
     assert!((get_f64(&client, "bridge/tReadback/H").await - 0.8).abs() < 1e-9);
 }
+
+/// A motor in closed loop on a value holder of its own launch: the value found when the link
+/// connects moves nothing (no motion from a connection); the next value put there drives it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_loop_dol_moves_nothing_at_start_and_follows_the_next_update() {
+    let text = r#"
+[[axis]]
+name = "m1"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+OMSL = "closed_loop"
+DOL = "bridge/setpoint/VAL"
+[[value]]
+name = "setpoint"
+value = 3.0
+"#;
+    let node = TestNode::launch(text).await;
+    let client = node.client().await;
+    assert_eq!(get_value(&client, "bridge/setpoint/VAL").await, Value::Float(3.0));
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    assert_eq!(get_f64(&client, &node.key("m1", Field::VAL)).await, 0.0, "moved at start");
+    assert_eq!(get_f64(&client, &node.key("m1", Field::DMOV)).await, 1.0);
+    put_text(&client, "bridge/setpoint/VAL", "1.5").await;
+    wait_until(&client, &node.key("m1", Field::RBV), 1.5).await;
+}

@@ -325,7 +325,7 @@ fn write_end(outcome: WriteOutcome) -> WriteEnd {
 }
 
 /// How a write was sent: confirmed by the node serving the axis, or a bridge record's plain put,
-/// ended once sent.
+/// ended once read back (`put_record`).
 enum Sending {
     Confirmed(Result<SentWrite, zenoh::Error>),
     Ended(WriteEnd),

@@ -377,6 +377,16 @@ impl Axis {
         self.apply_link(link, value);
     }
 
+    /// A link's value read when the link connected, or when its source came back, at `now`: as
+    /// an update, but DOL's, which is not acted upon: in closed loop it would start a motion, and
+    /// a motion never comes from a (re)connection (the next update of DOL drives the axis, as an
+    /// NPP DOL is read only when the record processes).
+    pub fn link_read(&mut self, now: Instant, link: InputLink, value: f64) {
+        if link != InputLink::Desired {
+            self.link_update(now, link, value);
+        }
+    }
+
     /// The source of an input link is gone (the node serving it stopped): RDBL cannot be read,
     /// as a link whose PV disconnected (spec §5.10): a soft motor's motion under way is stopped
     /// now, a driven one's at its next poll, and no move starts until RDBL is read again. The

@@ -437,6 +437,13 @@ impl<R: Clone> AxisService<R> {
         self.collect();
     }
 
+    /// A link's value read when the link connected or its source came back (`Axis::link_read`:
+    /// DOL's is not acted upon).
+    pub fn link_read(&mut self, now: Instant, link: InputLink, value: f64) {
+        self.axis.link_read(now, link, value);
+        self.collect();
+    }
+
     /// The source of one of the record's input links is gone.
     pub fn link_lost(&mut self, now: Instant, link: InputLink) {
         self.axis.link_lost(now, link);

@@ -207,6 +207,22 @@ fn dol_drives_the_target_in_closed_loop() {
 }
 
 #[test]
+fn a_dol_read_when_its_link_connects_moves_nothing_and_its_next_update_drives() {
+    let fields = Fields { mres: 0.01, velo: 100.0, omsl: 1, dol: "lab/setpoint".into(), ..Fields::default() };
+    let mut axis = sim_axis(fields);
+    // At connect, or when the source comes back: no motion from a (re)connection.
+    axis.link_read(at(0.0), InputLink::Desired, 0.5);
+    let f = axis.fields();
+    assert_eq!((f.val, f.dmov, f.udf), (0.0, 1, 1), "nothing moved, still undefined");
+    axis.link_update(at(1.0), InputLink::Desired, 0.7);
+    assert_eq!((axis.fields().val, axis.fields().dmov, axis.fields().udf), (0.7, 0, 0));
+    // Other links are read at connect as updates.
+    let mut soft = booted_soft();
+    soft.link_read(at(1.0), InputLink::Readback, 0.25);
+    assert_eq!(soft.fields().rbv, 0.25);
+}
+
+#[test]
 fn a_move_commanded_while_the_driven_motor_settles_waits_for_its_own_motion() {
     let mut axis = booted_soft();
     // The driven motor moved on its own and has just reported done; that "done" is settling.

@@ -627,7 +627,7 @@ fn note_calc_write(
     written_inputs: &mut BTreeMap<(String, String), InputLinkMode>,
 ) {
     let letters = match linker.kinds.get(record) {
-        Some(&"calcout") | Some(&"calc") => 12,
+        Some(&"calcout") | Some(&"calc") => zmotor_bridge::INPUTS,
         Some(&"transform") => TRANSFORM_FIELDS,
         _ => 0,
     };
@@ -659,7 +659,9 @@ fn calc(
     for (name, text, line) in &record.fields {
         let at =
             |message: String| Failure::at(*line, format!("{} '{}': field {name}: {message}", record.kind, record.name));
-        let input = name.strip_prefix("INP").filter(|l| zmotor_bridge::input_index(l).is_some());
+        // A calc record's inputs are A–L (a transform's go on to P).
+        let calc_letter = |letter: &str| zmotor_bridge::input_index(letter).filter(|&i| i < zmotor_bridge::INPUTS);
+        let input = name.strip_prefix("INP").filter(|l| calc_letter(l).is_some());
         match name.as_str() {
             "CALC" => section.expression = text.clone(),
             "OUT" => match linker.link(text, *line, warnings)? {
@@ -701,7 +703,7 @@ fn calc(
                     Link::Hardware => return Err(at(format!("'{text}' is not a link to a record"))),
                 }
             }
-            _ if zmotor_bridge::input_index(name).is_some() => {
+            _ if calc_letter(name).is_some() => {
                 let x = text.trim().parse::<f64>().map_err(|_| at(format!("'{text}' is not a number")))?;
                 section.constants.insert(name.clone(), x);
             }
@@ -838,11 +840,6 @@ fn dfanout(
 /// A transform's calc links, and the letters of the fields it computes.
 type TransformLinks = (Vec<CalcSection>, Vec<String>);
 
-/// The letter of a transform's field `index` (A = 0).
-fn field_letter(index: usize) -> char {
-    char::from(b'A' + u8::try_from(index).unwrap_or(0))
-}
-
 /// A transform record (synApps calc): sixteen fields A–P, each with an input link (INPx), an
 /// expression (CLCx) and an output link (OUTx). At each processing its input links are read,
 /// the fields with an expression and no input link are computed in order, A to P, each from the
@@ -920,7 +917,7 @@ fn transform(
         if expressions[index].is_empty() {
             continue;
         }
-        let letter = field_letter(index);
+        let letter = zmotor_bridge::input_name(index);
         if inputs[index].is_some() {
             if always {
                 warnings.push(skipped(format!("field {letter} has an input link and an expression under COPT Always")));
@@ -945,7 +942,11 @@ fn transform(
         let later = (index..TRANSFORM_FIELDS)
             .find(|&j| (expression.inputs_used() & (1 << j)) != 0 && !expressions[j].is_empty() && inputs[j].is_none());
         if let Some(later) = later {
-            let what = if later == index { "itself".to_string() } else { format!("field {}", field_letter(later)) };
+            let what = if later == index {
+                "itself".to_string()
+            } else {
+                format!("field {}", zmotor_bridge::input_name(later))
+            };
             warnings.push(skipped(format!(
                 "CLC{letter} reads {what}, computed after it (its value of the last processing)"
             )));
@@ -958,10 +959,10 @@ fn transform(
         if !computed[index] && outputs[index].is_none() {
             continue;
         }
-        let letter = field_letter(index);
+        let letter = zmotor_bridge::input_name(index);
         let mut chain: Vec<String> = (0..index)
             .filter(|&before| computed[before])
-            .map(|before| format!("{}:=({})", field_letter(before), expressions[before]))
+            .map(|before| format!("{}:=({})", zmotor_bridge::input_name(before), expressions[before]))
             .collect();
         chain.push(if computed[index] { expressions[index].clone() } else { letter.to_string() });
         let chain = chain.join(";");
@@ -969,7 +970,7 @@ fn transform(
             warnings.push(skipped(format!("field {letter} chained with the fields before it: {e}")));
             return Ok(None);
         }
-        let letters = || (0..TRANSFORM_FIELDS).map(|i| (i, field_letter(i).to_string()));
+        let letters = || (0..TRANSFORM_FIELDS).map(|i| (i, zmotor_bridge::input_name(i).to_string()));
         fields.push(CalcSection {
             name: format!("{}.{letter}", record.name),
             host: None,
@@ -993,7 +994,8 @@ fn transform(
         warnings.push(format!("line {}: {whose}: computes and writes nothing; skipped", record.line));
         return Ok(None);
     }
-    let computed = (0..TRANSFORM_FIELDS).filter(|&i| computed[i]).map(|i| field_letter(i).to_string()).collect();
+    let computed =
+        (0..TRANSFORM_FIELDS).filter(|&i| computed[i]).map(|i| zmotor_bridge::input_name(i).to_string()).collect();
     Ok(Some((fields, computed)))
 }
 

@@ -115,6 +115,11 @@ impl LinkInbox {
         self.pass(AxisInput::LinkUpdate(zmotor_core::InputLink::ALL[index], value));
     }
 
+    /// The value of link number `index` read when it connected or its source came back.
+    pub(crate) fn read(&self, index: usize, value: f64) {
+        self.pass(AxisInput::LinkRead(zmotor_core::InputLink::ALL[index], value));
+    }
+
     /// The source of link number `index` is gone.
     pub(crate) fn lost(&self, index: usize) {
         self.pass(AxisInput::LinkLost(zmotor_core::InputLink::ALL[index]));
@@ -150,7 +155,7 @@ impl LinkInbox {
     }
 }
 
-fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+pub(crate) fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
@@ -808,6 +813,7 @@ impl Handler<AxisInput> for AxisCore {
             AxisInput::ControllerMessage(message) => self.service.controller_message(message),
             AxisInput::Tick => self.service.handle_timeout(now),
             AxisInput::LinkUpdate(link, value) => self.service.link_update(now, link, value),
+            AxisInput::LinkRead(link, value) => self.service.link_read(now, link, value),
             AxisInput::LinkLost(link) => self.service.link_lost(now, link),
             AxisInput::HoldReleased(token) => self.service.hold_released(now, &token),
             AxisInput::StopMotion => self.service.stop_motion(now),

@@ -27,6 +27,8 @@ pub(crate) enum AxisInput {
     Tick,
     /// An input link's key took a value.
     LinkUpdate(InputLink, f64),
+    /// An input link's key's value, read when the link connected or its source came back.
+    LinkRead(InputLink, f64),
     /// An input link's source is gone (the node serving its axis stopped).
     LinkLost(InputLink),
     /// The liveliness token a held motion depends on went.

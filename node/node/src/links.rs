@@ -1,6 +1,7 @@
 //! What follows keys besides the axes: input links (as EPICS links follow PVs), calc links and
 //! value holders.
 
+use crate::axis_core::lock;
 use crate::writer::Writer;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -117,6 +118,9 @@ pub(crate) struct Follows {
     local: Arc<LocalFollowers>,
     sink: LinkSink,
     subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
+    /// Where a key's value read when it is followed, or when its source comes back, goes, if
+    /// not with its updates (`on_read`).
+    reads: Option<LinkSink>,
     /// Told when the node serving a followed axis key goes (`on_loss`).
     loss: Option<(KeyLayout, LossSink)>,
     /// The liveliness subscribers that tell it, by index.
@@ -135,6 +139,7 @@ impl Follows {
             local,
             sink,
             subscribers: Vec::new(),
+            reads: None,
             loss: None,
             sources: Vec::new(),
         }
@@ -145,6 +150,12 @@ impl Follows {
     /// key's value is read again.
     pub(crate) fn on_loss(self, layout: KeyLayout, lost: LossSink) -> Self {
         Self { loss: Some((layout, lost)), ..self }
+    }
+
+    /// Hand the values read when a key is followed, or when its source comes back, to `reads`
+    /// rather than with the updates: an axis does not act on its DOL's then.
+    pub(crate) fn on_read(self, reads: LinkSink) -> Self {
+        Self { reads: Some(reads), ..self }
     }
 
     /// Nothing followed yet; the values will arrive on the receiver, as (index, value).
@@ -200,7 +211,7 @@ impl Follows {
         if let Some((layout, lost)) = &self.loss {
             if let Some(axis) = layout.axis_chunk(key) {
                 let (session, runtime, key) = (self.session.clone(), self.runtime.clone(), key.to_string());
-                let (lost, updates) = (lost.clone(), self.sink.clone());
+                let (lost, updates) = (lost.clone(), self.reads.clone().unwrap_or_else(|| self.sink.clone()));
                 let source = self
                     .session
                     .liveliness()
@@ -217,7 +228,8 @@ impl Follows {
                 self.sources[index] = Some(source);
             }
         }
-        let (session, key, first) = (self.session.clone(), key.to_string(), self.sink.clone());
+        let first = self.reads.clone().unwrap_or_else(|| self.sink.clone());
+        let (session, key) = (self.session.clone(), key.to_string());
         self.runtime.spawn(async move { read_once(&session, &key, index, &first).await });
         Ok(())
     }
@@ -424,8 +436,4 @@ impl AnsweredValue {
     fn set(&self, x: f64) {
         *lock(&self.latest) = Some(x);
     }
-}
-
-fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }

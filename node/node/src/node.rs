@@ -159,8 +159,9 @@ impl Node {
                 None => None,
             };
             let links = Arc::new(LinkInbox::default());
-            let (sink, loss) = (links.clone(), links.clone());
+            let (sink, reads, loss) = (links.clone(), links.clone(), links.clone());
             let mut follows = Follows::new(&session, side.followers.clone(), Arc::new(move |i, v| sink.deliver(i, v)))
+                .on_read(Arc::new(move |i, v| reads.read(i, v)))
                 .on_loss(layout.clone(), Arc::new(move |i| loss.lost(i)));
             for (link, key) in plan.input_links() {
                 follows.follow(link as usize, &key)?;
