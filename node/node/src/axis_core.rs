@@ -10,6 +10,7 @@ use crate::event_posts::{Destination, EventOutbox, EventPost};
 use crate::holds::Holds;
 use crate::input::{AxisInput, Deliver};
 use crate::links::{Follows, LocalFollowers};
+use crate::lock;
 use crate::refusal::{self, refuse};
 use crate::streamed::{Congestion, KeyWork, Micros, StreamLog, Streamed};
 use crate::ticker::AxisClock;
@@ -153,10 +154,6 @@ impl LinkInbox {
             }
         }
     }
-}
-
-pub(crate) fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
 /// What every axis of a node shares.

@@ -27,3 +27,8 @@ mod writer;
 pub use autosave::{state_dir, AutosaveConfig, AutosaveError, RestoreError, SavedAxis, StateStore, STATE_DIR_ENV};
 pub use links::PostsFollowed;
 pub use node::{Node, NodeError};
+
+/// A mutex's guard, even after a thread panicked holding it: what it guards stays usable.
+fn lock<T>(mutex: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    mutex.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}

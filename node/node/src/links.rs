@@ -1,7 +1,7 @@
 //! What follows keys besides the axes: input links (as EPICS links follow PVs), calc links and
 //! value holders.
 
-use crate::axis_core::lock;
+use crate::lock;
 use crate::writer::Writer;
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -11,10 +11,11 @@
 //! reported when they happen.
 
 use crate::input::{AxisInput, Deliver};
+use crate::lock;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, Condvar, Mutex, MutexGuard, OnceLock, PoisonError, Weak};
+use std::sync::{Arc, Condvar, Mutex, OnceLock, PoisonError, Weak};
 use std::time::{Duration, Instant};
 
 /// No deadline.
@@ -193,10 +194,6 @@ fn keep(shard: &Shard) {
             None => shard.wakeup.wait(queue).unwrap_or_else(PoisonError::into_inner),
         };
     }
-}
-
-fn lock<T>(mutex: &Mutex<T>) -> MutexGuard<'_, T> {
-    mutex.lock().unwrap_or_else(PoisonError::into_inner)
 }
 
 #[cfg(test)]
