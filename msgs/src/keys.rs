@@ -11,6 +11,13 @@ pub const SIM_STATE_KEY: &str = "state";
 /// Prefix of the keys of calc links and value holders imported from EPICS databases
 /// (`bridge/<record>/<FIELD>`), a convention launch files may follow.
 pub const BRIDGE_PREFIX: &str = "bridge";
+/// `bridge/<record>/<field>`: the key of a field of a record the bridge runs (an imported calc's
+/// input, a transform's field, a record's PROC).
+#[must_use]
+pub fn bridge_key(record: &str, field: &str) -> String {
+    format!("{BRIDGE_PREFIX}/{record}/{field}")
+}
+
 /// A record the bridge serves beside the axes, as an IOC's record of that type: a value holder
 /// is an `ao` (clients write it), a calc link whose result has no output but its own
 /// `bridge/<record>/VAL` a `calc` (read). Each is announced by a liveliness token
@@ -56,7 +63,7 @@ impl BridgeRecord {
     /// `bridge/<record>/VAL`: the key of a record's value.
     #[must_use]
     pub fn value_key(name: &str) -> String {
-        format!("{BRIDGE_PREFIX}/{name}/VAL")
+        bridge_key(name, "VAL")
     }
 
     /// The record whose value `key` is, if it is one (`BridgeRecord::value_key`).

@@ -73,6 +73,11 @@ async fn a_link_change_that_cannot_be_wired_is_refused_and_changes_nothing() {
     wait_until(&client, &node.key("m1", Field::RBV), 3.0).await;
 }
 
+/// A launch text of axis m1, fast (MRES 0.001, VELO 100), its fields table open, and `rest`.
+fn with_fast_m1(rest: &str) -> String {
+    format!("[[axis]]\nname = \"m1\"\n[axis.fields]\nMRES = 0.001\nVELO = 100.0{rest}")
+}
+
 /// Poll a field until it reads `expected` (bounded by PATIENCE).
 async fn wait_until(client: &zenoh::Session, key: &str, expected: f64) {
     let deadline = tokio::time::Instant::now() + PATIENCE;
@@ -161,12 +166,8 @@ async fn an_sdis_link_disables_the_record_while_its_key_reads_disv() {
 /// value is, computed with the written value.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_calc_processed_by_a_value_writes_at_each_write_of_it_and_not_at_start() {
-    let text = r#"
-[[axis]]
-name = "m1"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
+    let text = with_fast_m1(
+        r#"
 [[value]]
 name = "goal"
 value = 3.0
@@ -176,8 +177,9 @@ expression = "A*2"
 inputs = { A = { key = "bridge/goal/VAL", mode = "npp" } }
 output = "motor/m1/VAL"
 processed_by = ["bridge/goal/VAL"]
-"#;
-    let node = TestNode::launch(text).await;
+"#,
+    );
+    let node = TestNode::launch(&text).await;
     let client = node.client().await;
     let mut m1 = Recorder::new(&node, &client, "motor/m1/VAL").await;
     // The calc follows its keys once the node serves; it reads its input's value meanwhile.
@@ -194,12 +196,8 @@ processed_by = ["bridge/goal/VAL"]
 /// nothing at start; at the end of a move, one write, computed from the readback it ended at.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_motors_forward_link_processes_a_calc_once_with_the_readback_it_ended_at() {
-    let text = r#"
-[[axis]]
-name = "m1"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
+    let text = with_fast_m1(
+        r#"
 FLNK = "bridge/after/PROC"
 [[calc]]
 name = "after"
@@ -210,8 +208,9 @@ processed_by = ["bridge/after/PROC"]
 [[value]]
 name = "tally"
 value = 7.0
-"#;
-    let node = TestNode::launch(text).await;
+"#,
+    );
+    let node = TestNode::launch(&text).await;
     let client = node.client().await;
     // The calc's output is a plain write (no state marker), as a calcout's OUT.
     let after = client.declare_subscriber("bridge/tally/VAL").await.unwrap();
@@ -232,12 +231,8 @@ value = 7.0
 /// the start, and another calc reads it; one whose result goes to a motor writes nothing unasked.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_calc_of_constants_only_serves_its_value_from_the_start_and_moves_nothing() {
-    let text = r#"
-[[axis]]
-name = "m1"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
+    let text = with_fast_m1(
+        r#"
 [[calc]]
 name = "height"
 expression = "1000"
@@ -251,8 +246,9 @@ name = "drive"
 expression = "A+B"
 inputs = { A = "lab/angle", B = { key = "bridge/height/VAL", mode = "npp" } }
 output = "bridge/sum/VAL"
-"#;
-    let node = TestNode::launch(text).await;
+"#,
+    );
+    let node = TestNode::launch(&text).await;
     let client = node.client().await;
     let sum = client.declare_subscriber("bridge/sum/VAL").await.unwrap();
     node.until_subscribed("bridge/sum/VAL").await;
@@ -298,32 +294,7 @@ name = "position"
 /// before their DVAL is posted); their readbacks come back through the readback transform.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sum_and_diff_soft_motors_move_two_real_motors_through_transform_records() {
-    let database = r#"
-        record(motor, "m1") { field(DTYP, "sim") field(MRES, "0.001") field(VELO, "100") field(ACCL, "0.05") }
-        record(motor, "m2") { field(DTYP, "sim") field(MRES, "0.001") field(VELO, "100") field(ACCL, "0.05") }
-        record(motor, "sum") { field(DTYP, "Soft Channel") field(OUT, "sumDVAL PP MS")
-            field(RDBL, "tReadback.G NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
-            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
-        record(motor, "diff") { field(DTYP, "Soft Channel") field(OUT, "diffDVAL PP MS")
-            field(RDBL, "tReadback.H NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
-            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
-        grecord(ao, "sumDVAL") { field(FLNK, "tDrive") }
-        grecord(ao, "diffDVAL") { field(FLNK, "tDrive") }
-        record(ao, "sumC1") { field(VAL, "1") }
-        record(ao, "sumC2") { field(VAL, "3") }
-        record(ao, "diffC1") { field(VAL, "2") }
-        grecord(transform, "tDrive") {
-            field(INPA, "sum.DVAL NPP NMS") field(INPB, "diff.DVAL NPP NMS") field(INPC, "sumC1.VAL NPP NMS")
-            field(INPD, "sumC2.VAL NPP NMS") field(INPE, "diffC1.VAL NPP NMS")
-            field(CLCF, "C+D") field(CLCG, "A+(B*D)/(E*F)") field(OUTG, "m1 PP MS")
-            field(CLCH, "A-(B*C)/(E*F)") field(OUTH, "m2 PP MS") }
-        grecord(transform, "tReadback") {
-            field(INPA, "m1.RBV CP MS") field(INPB, "m2.RBV CP MS") field(INPC, "sumC1.VAL CP MS")
-            field(INPD, "sumC2.VAL CP MS") field(INPE, "diffC1.VAL CP MS")
-            field(CLCF, "C+D") field(CLCG, "((A*C) + (B*D))/F") field(CLCH, "(A-B)*E") }
-        grecord(dfanout, "tStop") { field(VAL, "1") field(OUTA, "m1.STOP PP MS") field(OUTB, "m2.STOP PP MS") }
-        grecord(calcout, "tDone") { field(INPA, "m1.DMOV CP MS") field(INPB, "m2.DMOV CP MS") field(CALC, "A & B") }
-    "#;
+    let database = include_str!("../../launch/sum-diff.db");
     let node = TestNode::launch_database(database).await;
     let client = node.client().await;
     let rbv = |axis: &str| node.key(axis, Field::RBV);
@@ -349,19 +320,16 @@ async fn sum_and_diff_soft_motors_move_two_real_motors_through_transform_records
 /// connects moves nothing (no motion from a connection); the next value put there drives it.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_closed_loop_dol_moves_nothing_at_start_and_follows_the_next_update() {
-    let text = r#"
-[[axis]]
-name = "m1"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
+    let text = with_fast_m1(
+        r#"
 OMSL = "closed_loop"
 DOL = "bridge/setpoint/VAL"
 [[value]]
 name = "setpoint"
 value = 3.0
-"#;
-    let node = TestNode::launch(text).await;
+"#,
+    );
+    let node = TestNode::launch(&text).await;
     let client = node.client().await;
     assert_eq!(get_value(&client, "bridge/setpoint/VAL").await, Value::Float(3.0));
     tokio::time::sleep(Duration::from_millis(300)).await;

@@ -188,7 +188,7 @@ pub(super) fn import_text(
         for calc in
             launch.calcs.iter_mut().filter(|c| c.name == calc_name || fields.is_some_and(|f| f.contains(&c.name)))
         {
-            let key = format!("{}/{calc_name}/{letter}", keys::BRIDGE_PREFIX);
+            let key = keys::bridge_key(&calc_name, &letter);
             calc.inputs.entry(letter.clone()).or_insert(CalcInput::Linked { key, mode });
         }
     }
@@ -651,7 +651,7 @@ fn calc(
         expression: String::new(),
         inputs: BTreeMap::new(),
         constants: BTreeMap::new(),
-        output: format!("{}/{}/VAL", keys::BRIDGE_PREFIX, record.name),
+        output: keys::bridge_key(&record.name, "VAL"),
         option: CalcOption::default(),
         processed_by: Vec::new(),
         origin: Default::default(),
@@ -806,7 +806,7 @@ fn dfanout(
     let held = ValueSection { name: record.name.clone(), host: None, key: None, value, origin: Default::default() };
     let key = held.key();
     // Processed by a write of its VAL or its PROC (a motor's forward link into it writes there).
-    let processed_by = vec![key.clone(), format!("{}/{}/{}", keys::BRIDGE_PREFIX, record.name, Field::PROC.name())];
+    let processed_by = vec![key.clone(), keys::bridge_key(&record.name, Field::PROC.name())];
     let mut outputs = Vec::new();
     for letter in ['A', 'B', 'C', 'D', 'E', 'F', 'G', 'H'] {
         let field = format!("OUT{letter}");
@@ -980,13 +980,11 @@ fn transform(
                 .filter(|&(i, _)| inputs[i].is_none() && values[i] != 0.0)
                 .map(|(i, l)| (l, values[i]))
                 .collect(),
-            output: outputs[index]
-                .clone()
-                .unwrap_or_else(|| format!("{}/{}/{letter}", keys::BRIDGE_PREFIX, record.name)),
+            output: outputs[index].clone().unwrap_or_else(|| keys::bridge_key(&record.name, &letter.to_string())),
             option: CalcOption::Every,
             // Processed as one: by its PROC (a client's, a motor's forward link), and by the
             // forward links into it.
-            processed_by: vec![format!("{}/{}/{}", keys::BRIDGE_PREFIX, record.name, Field::PROC.name())],
+            processed_by: vec![keys::bridge_key(&record.name, Field::PROC.name())],
             origin: Default::default(),
         });
     }
@@ -1482,35 +1480,8 @@ mod tests {
         assert_eq!(double.process_with(&[]), Some(8.0), "a write of x, with its own value");
     }
 
-    /// motorApp's sumDiff2D.db (its transforms, dfanout and calcout as there), with its soft
-    /// motors as motorApp's pseudoMotor.db makes them.
-    const SUM_DIFF: &str = r#"
-        record(motor, "m1") { field(MRES, "0.001") }
-        record(motor, "m2") { field(MRES, "0.001") }
-        record(motor, "sum") { field(DTYP, "Soft Channel") field(OUT, "sumDVAL PP MS")
-            field(RDBL, "tReadback.G NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
-            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
-        record(motor, "diff") { field(DTYP, "Soft Channel") field(OUT, "diffDVAL PP MS")
-            field(RDBL, "tReadback.H NPP MS") field(URIP, "Yes") field(MRES, "0.001") field(RRES, "1")
-            field(DINP, "tDone NPP MS") field(STOO, "tStop PP MS") field(RTRY, "0") }
-        grecord(ao, "sumDVAL") { field(FLNK, "tDrive") }
-        grecord(ao, "diffDVAL") { field(FLNK, "tDrive") }
-        record(ao, "sumC1") { field(VAL, "1") field(PINI, "1") }
-        record(ao, "sumC2") { field(VAL, "1") field(PINI, "1") }
-        record(ao, "diffC1") { field(VAL, "1") field(PINI, "1") }
-        grecord(transform, "tDrive") {
-            field(INPA, "sum.DVAL NPP NMS") field(INPB, "diff.DVAL NPP NMS") field(INPC, "sumC1.VAL NPP NMS")
-            field(INPD, "sumC2.VAL NPP NMS") field(INPE, "diffC1.VAL NPP NMS")
-            field(CLCF, "C+D") field(CLCG, "A+(B*D)/(E*F)") field(OUTG, "m1 PP MS")
-            field(CLCH, "A-(B*C)/(E*F)") field(OUTH, "m2 PP MS") field(PREC, "3") }
-        grecord(transform, "tReadback") {
-            field(INPA, "m1.RBV CP MS") field(INPB, "m2.RBV CP MS") field(INPC, "sumC1.VAL CP MS")
-            field(INPD, "sumC2.VAL CP MS") field(INPE, "diffC1.VAL CP MS")
-            field(CLCF, "C+D") field(CLCG, "((A*C) + (B*D))/F") field(CLCH, "(A-B)*E")
-            field(IVLA, "Do Nothing") field(PREC, "3") }
-        grecord(dfanout, "tStop") { field(VAL, "1") field(OUTA, "m1.STOP PP MS") field(OUTB, "m2.STOP PP MS") }
-        grecord(calcout, "tDone") { field(INPA, "m1.DMOV CP MS") field(INPB, "m2.DMOV CP MS") field(CALC, "A & B") }
-    "#;
+    /// launch/sum-diff.db: motorApp's sumDiff2D.db records with two soft motors.
+    const SUM_DIFF: &str = include_str!("../../../launch/sum-diff.db");
 
     #[test]
     fn a_transform_becomes_a_calc_link_per_field_it_computes_or_writes_out_processed_as_one() {

@@ -280,9 +280,8 @@ impl CalcTask {
         let (output, name) = (&link.spec().output, link.spec().name.as_str());
         // A transform's field `R.X` written to its own key `bridge/R/X` answers reads there too
         // (a soft motor's RDBL on it), as a calc's own VAL does; only the calc is announced.
-        let own_field = name
-            .split_once('.')
-            .is_some_and(|(record, field)| *output == format!("{}/{record}/{field}", zmotor_msgs::keys::BRIDGE_PREFIX));
+        let own_field =
+            name.split_once('.').is_some_and(|(record, field)| *output == zmotor_msgs::keys::bridge_key(record, field));
         let record = match serves_record && BridgeRecord::of_value_key(output) == Some(name) {
             true => Some(AnsweredValue::declare(session, output, Arc::default(), Some(BridgeRecord::Calc))?),
             false if serves_record && own_field => Some(AnsweredValue::declare(session, output, Arc::default(), None)?),
