@@ -2,7 +2,8 @@
 //! OMSL closed_loop written over Zenoh drive the axis from the linked key; RDBL switched at run
 //! time changes where the readback comes from; a link change that cannot be wired is refused and
 //! changes nothing. A calc link processed by a key (a forward link into it) writes at each write
-//! of that key, not at start.
+//! of that key, not at start. Nothing moves from a connection: what a link finds when it
+//! connects or its source comes back drives no motor.
 
 use std::time::Duration;
 use zmotor_msgs::{Field, Value};
@@ -337,4 +338,137 @@ value = 3.0
     assert_eq!(get_f64(&client, &node.key("m1", Field::DMOV)).await, 1.0);
     put_text(&client, "bridge/setpoint/VAL", "1.5").await;
     wait_until(&client, &node.key("m1", Field::RBV), 1.5).await;
+}
+
+/// An axis served by the test's own session, as a node would serve it: its liveliness token
+/// and its readback, answered to reads and posted.
+struct PlayedAxis {
+    session: zenoh::Session,
+    name: String,
+    readback: std::sync::Arc<std::sync::Mutex<f64>>,
+    _reads: zenoh::query::Queryable<()>,
+    token: Option<zenoh::liveliness::LivelinessToken>,
+}
+
+impl PlayedAxis {
+    async fn serve(session: zenoh::Session, name: &str, readback: f64) -> Self {
+        let readback = std::sync::Arc::new(std::sync::Mutex::new(readback));
+        let answered = readback.clone();
+        let reads = session
+            .declare_queryable(format!("motor/{name}/RBV"))
+            .callback(move |query| {
+                let value = zmotor_msgs::encode_cbor(&Value::Float(*answered.lock().unwrap()));
+                let _ = zenoh::Wait::wait(query.reply(query.key_expr().clone(), value));
+            })
+            .await
+            .unwrap();
+        let mut played = Self { session, name: name.to_string(), readback, _reads: reads, token: None };
+        played.come().await;
+        played
+    }
+
+    async fn come(&mut self) {
+        self.token = Some(self.session.liveliness().declare_token(format!("motor/{}", self.name)).await.unwrap());
+    }
+
+    /// Its token goes, and `node`'s session has seen it go.
+    async fn go(&mut self, node: &TestNode) {
+        self.token = None;
+        let deadline = tokio::time::Instant::now() + PATIENCE;
+        let token = format!("motor/{}", self.name);
+        while node.session.liveliness().get(&token).await.unwrap().recv_async().await.is_ok() {
+            assert!(tokio::time::Instant::now() < deadline, "{token} still seen by the node");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
+    /// Its readback changes: posted, as a node posts it.
+    async fn post(&self, readback: f64) {
+        *self.readback.lock().unwrap() = readback;
+        put_text(&self.session, &format!("motor/{}/RBV", self.name), &readback.to_string()).await;
+    }
+}
+
+/// No move from a connection: a calc link writing into a motor (CP inputs on other axes'
+/// readbacks) writes nothing on the values it finds when it connects, when an input's source
+/// comes, or on what a source coming back posts first (the state it found); nor does a motor in
+/// closed loop on such a readback move then. Each next update writes, and moves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn links_into_motors_move_nothing_on_values_found_at_connect_or_at_a_sources_return() {
+    let lead = TestNode::start(vec![fast_axis("lead")]).await;
+    let lead_client = lead.client().await;
+    confirmed_write(&lead_client, &lead.key("lead", Field::VAL), "2", PATIENCE).await.unwrap();
+    wait_until(&lead_client, &lead.key("lead", Field::RBV), 2.0).await;
+    let text = format!(
+        "[zenoh]\nconnect = [\"{}\"]\n{}",
+        lead.endpoint,
+        with_fast_m1(
+            r#"
+[[axis]]
+name = "m2"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+OMSL = "closed_loop"
+DOL = "motor/played/RBV"
+[[calc]]
+name = "follow"
+expression = "A+B"
+inputs = { A = "motor/lead/RBV", B = "motor/played/RBV" }
+output = "motor/m1/VAL"
+"#
+        )
+    );
+    let node = TestNode::launch(&text).await;
+    let client = node.client().await;
+    let mut written = Recorder::new(&node, &client, "motor/*/VAL").await;
+    written.drain_for(Duration::from_millis(500)).await;
+    assert!(written.values("VAL").is_empty(), "written at connect: {:?}", written.values("VAL"));
+    // The lead moves: its updates are events, and m1 follows.
+    confirmed_write(&lead_client, &lead.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
+    // A source comes: its value is found.
+    let mut played = PlayedAxis::serve(node.client().await, "played", 0.5).await;
+    let stays = |axis: &'static str, at: f64| {
+        let (client, key) = (&client, node.key(axis, Field::VAL));
+        async move {
+            let val = get_f64(client, &key).await;
+            assert!((val - at).abs() < 1e-9, "{axis} moved on a value found: VAL {val}");
+        }
+    };
+    written.drain_for(Duration::from_millis(500)).await;
+    stays("m1", 1.0).await;
+    stays("m2", 0.0).await;
+    // It goes, and comes back with another value, posted before its token (a node's first poll).
+    played.go(&node).await;
+    played.post(0.7).await;
+    played.come().await;
+    written.drain_for(Duration::from_millis(500)).await;
+    stays("m1", 1.0).await;
+    stays("m2", 0.0).await;
+    // Its next update is an event: both move.
+    played.post(0.9).await;
+    wait_until(&client, &node.key("m1", Field::RBV), 1.9).await;
+    wait_until(&client, &node.key("m2", Field::RBV), 0.9).await;
+}
+
+/// A motor in closed loop on another axis of its own node (its DOL on that axis's VAL) follows
+/// that axis's first move: the node's own axes do not come and go, their posts are updates.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_closed_loop_dol_on_an_axis_of_its_node_follows_its_first_move() {
+    let text = with_fast_m1(
+        r#"
+[[axis]]
+name = "m2"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+OMSL = "closed_loop"
+DOL = "motor/m1/VAL"
+"#,
+    );
+    let node = TestNode::launch(&text).await;
+    let client = node.client().await;
+    confirmed_write(&client, &node.key("m1", Field::VAL), "1.5", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("m2", Field::RBV), 1.5).await;
 }

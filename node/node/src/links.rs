@@ -112,62 +112,67 @@ impl Drop for PostsFollowed {
 /// The keys one task follows, by index, as EPICS links follow PVs: every update, and the
 /// current value asked for once when a key is followed (as a link does when it connects). Any
 /// sample is a reading, state or write. What a key follows can change at run time.
+///
+/// A value is either an update (an event: a move, a write) or found (read when the key is
+/// followed, or when its source comes back, or the first value after its source went: what a
+/// node coming back posts first is the state it found): found values go to the `reads` sink,
+/// and nothing a lab runs moves on them.
 pub(crate) struct Follows {
     session: Session,
     runtime: tokio::runtime::Handle,
     local: Arc<LocalFollowers>,
-    sink: LinkSink,
-    subscribers: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
-    /// Where a key's value read when it is followed, or when its source comes back, goes, if
-    /// not with its updates (`on_read`).
-    reads: Option<LinkSink>,
-    /// Told when the node serving a followed axis key goes (`on_loss`).
-    loss: Option<(KeyLayout, LossSink)>,
-    /// The liveliness subscribers that tell it, by index.
-    sources: Vec<Option<zenoh::pubsub::Subscriber<()>>>,
+    updates: LinkSink,
+    reads: LinkSink,
+    /// Told when the source of a followed key goes (`on_loss`).
+    lost: Option<LossSink>,
+    followed: Vec<Option<Followed>>,
 }
 
 /// Told the index of a followed key whose source is gone.
 pub(crate) type LossSink = Arc<dyn Fn(usize) + Send + Sync>;
 
+/// One followed key: its subscriber, the watch on its source, and its gate as registered with
+/// the node's in-process followers.
+struct Followed {
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+    _source: Option<zenoh::pubsub::Subscriber<()>>,
+    local: LinkSink,
+}
+
 impl Follows {
-    /// Nothing followed yet; the values will go to `sink`.
-    pub(crate) fn new(session: &Session, local: Arc<LocalFollowers>, sink: LinkSink) -> Self {
+    /// Nothing followed yet; updates will go to `updates`, values found to `reads`.
+    pub(crate) fn new(session: &Session, local: Arc<LocalFollowers>, updates: LinkSink, reads: LinkSink) -> Self {
         Self {
             session: session.clone(),
             runtime: tokio::runtime::Handle::current(),
             local,
-            sink,
-            subscribers: Vec::new(),
-            reads: None,
-            loss: None,
-            sources: Vec::new(),
+            updates,
+            reads,
+            lost: None,
+            followed: Vec::new(),
         }
     }
 
-    /// Also say when a followed key of an axis (`<prefix>/<axis>/<field>`) loses its source:
-    /// the axis's liveliness token goes, as a link's PV disconnects. When it comes back, the
-    /// key's value is read again.
-    pub(crate) fn on_loss(self, layout: KeyLayout, lost: LossSink) -> Self {
-        Self { loss: Some((layout, lost)), ..self }
+    /// Also say when the source of a followed key goes (the liveliness token of the axis or
+    /// bridge record serving it), as a link's PV disconnects.
+    pub(crate) fn on_loss(mut self, lost: LossSink) -> Self {
+        self.lost = Some(lost);
+        self
     }
 
-    /// Hand the values read when a key is followed, or when its source comes back, to `reads`
-    /// rather than with the updates: an axis does not act on its DOL's then.
-    pub(crate) fn on_read(self, reads: LinkSink) -> Self {
-        Self { reads: Some(reads), ..self }
-    }
-
-    /// Nothing followed yet; the values will arrive on the receiver, as (index, value).
+    /// Nothing followed yet; the values will arrive on the receiver, as (index, value, how).
     pub(crate) fn to_channel(
         session: &Session,
         local: Arc<LocalFollowers>,
-    ) -> (Self, tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>) {
+    ) -> (Self, tokio::sync::mpsc::UnboundedReceiver<(usize, f64, Arrival)>) {
         let (tx, values) = tokio::sync::mpsc::unbounded_channel();
-        let sink: LinkSink = Arc::new(move |index, value| {
-            let _ = tx.send((index, value));
-        });
-        (Self::new(session, local, sink), values)
+        let sink = |how: Arrival| -> LinkSink {
+            let tx = tx.clone();
+            Arc::new(move |index, value| {
+                let _ = tx.send((index, value, how));
+            })
+        };
+        (Self::new(session, local, sink(Arrival::Update), sink(Arrival::Found)), values)
     }
 
     /// Follow `key` at `index` instead of what was followed there; "" follows nothing.
@@ -182,65 +187,180 @@ impl Follows {
     }
 
     fn follow_with(&mut self, index: usize, key: &str, read_now: bool) -> Result<(), zenoh::Error> {
-        if self.subscribers.len() <= index {
-            self.subscribers.resize_with(index + 1, || None);
-            self.sources.resize_with(index + 1, || None);
+        if self.followed.len() <= index {
+            self.followed.resize_with(index + 1, || None);
         }
-        self.subscribers[index] = None;
-        self.sources[index] = None;
-        let follower = (self.sink.clone(), index);
-        self.local.unregister(&follower);
+        if let Some(before) = self.followed[index].take() {
+            self.local.unregister(&(before.local, index));
+        }
         if key.is_empty() {
             return Ok(());
         }
-        self.local.register(key, follower);
-        let updates = self.sink.clone();
+        let source = read_now.then(|| Source::of(&self.local.layout, key)).flatten();
+        // An axis always has values: its first one is found. A bridge record may have none yet
+        // (a calc never processed), and its first result is then an event.
+        let found_first = source.as_ref().is_some_and(|s| s.axis);
+        let gate = Arc::new(Gate::new(index, self.updates.clone(), self.reads.clone(), found_first));
+        let through = gate.clone();
+        let local: LinkSink = Arc::new(move |_, value| through.own_post(value));
+        self.local.register(key, (local.clone(), index));
+        let through = gate.clone();
         let subscriber = self
             .session
             .declare_subscriber(key.to_string())
             .callback(move |sample| {
                 if let Some(value) = sample_number(&sample) {
-                    updates(index, value);
+                    through.sample(value);
                 }
             })
             .wait()?;
-        self.subscribers[index] = Some(subscriber);
-        if !read_now {
-            return Ok(());
+        let watch = match source {
+            Some(source) => Some(self.watch(index, key, &source.token, gate.clone())?),
+            None => None,
+        };
+        if read_now {
+            let (session, key) = (self.session.clone(), key.to_string());
+            self.runtime.spawn(async move { gate.read(&session, &key).await });
         }
-        if let Some((layout, lost)) = &self.loss {
-            if let Some(axis) = layout.axis_chunk(key) {
-                let (session, runtime, key) = (self.session.clone(), self.runtime.clone(), key.to_string());
-                let (lost, updates) = (lost.clone(), self.reads.clone().unwrap_or_else(|| self.sink.clone()));
-                let source = self
-                    .session
-                    .liveliness()
-                    .declare_subscriber(layout.axis(axis))
-                    .callback(move |token| match token.kind() {
-                        SampleKind::Delete => lost(index),
-                        // Back: its value now, as when the link connected.
-                        SampleKind::Put => {
-                            let (session, key, updates) = (session.clone(), key.clone(), updates.clone());
-                            runtime.spawn(async move { read_once(&session, &key, index, &updates).await });
-                        }
-                    })
-                    .wait()?;
-                self.sources[index] = Some(source);
-            }
-        }
-        let first = self.reads.clone().unwrap_or_else(|| self.sink.clone());
-        let (session, key) = (self.session.clone(), key.to_string());
-        self.runtime.spawn(async move { read_once(&session, &key, index, &first).await });
+        let followed = Followed { _subscriber: subscriber, _source: watch, local };
+        self.followed[index] = Some(followed);
         Ok(())
     }
 }
 
-/// Read `key`'s value once, to `sink` at `index`.
-async fn read_once(session: &Session, key: &str, index: usize, sink: &LinkSink) {
-    let Ok(replies) = session.get(key).timeout(Duration::from_secs(5)).await else { return };
-    while let Ok(reply) = replies.recv_async().await {
-        if let Some(value) = reply.result().ok().and_then(sample_number) {
-            sink(index, value);
+impl Follows {
+    /// Watch the source of `key` (its liveliness `token`): when it goes, say so and take its
+    /// next value as found; when it comes back, read the value.
+    fn watch(
+        &self,
+        index: usize,
+        key: &str,
+        token: &str,
+        gate: Arc<Gate>,
+    ) -> Result<zenoh::pubsub::Subscriber<()>, zenoh::Error> {
+        let (session, runtime, key, lost) =
+            (self.session.clone(), self.runtime.clone(), key.to_string(), self.lost.clone());
+        self.session
+            .liveliness()
+            .declare_subscriber(token.to_string())
+            .callback(move |token| match token.kind() {
+                SampleKind::Delete => {
+                    gate.source_gone();
+                    if let Some(lost) = &lost {
+                        lost(index);
+                    }
+                }
+                // Back: its value now, as when the link connected.
+                SampleKind::Put => {
+                    let (session, key, gate) = (session.clone(), key.clone(), gate.clone());
+                    runtime.spawn(async move { gate.read(&session, &key).await });
+                }
+            })
+            .wait()
+    }
+}
+
+impl Drop for Follows {
+    fn drop(&mut self) {
+        for (index, followed) in self.followed.drain(..).enumerate() {
+            if let Some(followed) = followed {
+                self.local.unregister(&(followed.local, index));
+            }
+        }
+    }
+}
+
+/// How a followed value came.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Arrival {
+    /// An update: an event at its source.
+    Update,
+    /// Found: read, or the first value after its source came (back).
+    Found,
+}
+
+/// What serves a followed key, known by its liveliness token: the axis of an axis's field
+/// (`<prefix>/<axis>/<FIELD>`), the bridge record of a record's value (`bridge/<record>/VAL`).
+struct Source {
+    /// The liveliness key of its token(s).
+    token: String,
+    /// Whether it is an axis.
+    axis: bool,
+}
+
+impl Source {
+    fn of(layout: &KeyLayout, key: &str) -> Option<Self> {
+        if let Some(axis) = layout.axis_chunk(key) {
+            return Some(Source { token: layout.axis(axis), axis: true });
+        }
+        let record = BridgeRecord::of_value_key(key)?;
+        Some(Source { token: zmotor_msgs::keys::bridge_key(record, "*"), axis: false })
+    }
+}
+
+/// Where one followed key's values go: updates, or found (`Arrival`). A value is found from
+/// when the key is followed (for an axis's key) or its source goes, until one comes; a read's
+/// answer is dropped when a sample came while it was asked (the sample is newer).
+struct Gate {
+    index: usize,
+    updates: LinkSink,
+    reads: LinkSink,
+    state: std::sync::Mutex<GateState>,
+}
+
+struct GateState {
+    /// The next value is found, not an update.
+    awaiting: bool,
+    /// Samples so far, to tell a read's answer from a newer sample.
+    samples: u64,
+}
+
+impl Gate {
+    fn new(index: usize, updates: LinkSink, reads: LinkSink, awaiting: bool) -> Self {
+        Self { index, updates, reads, state: std::sync::Mutex::new(GateState { awaiting, samples: 0 }) }
+    }
+
+    /// A sample of the key from the network.
+    fn sample(&self, value: f64) {
+        let found = {
+            let mut state = lock(&self.state);
+            state.samples += 1;
+            std::mem::take(&mut state.awaiting)
+        };
+        let sink = if found { &self.reads } else { &self.updates };
+        sink(self.index, value);
+    }
+
+    /// A post of an axis of this very node, handed over in-process: an update always (the
+    /// node's own axes do not come and go; their values reach it no other way).
+    fn own_post(&self, value: f64) {
+        {
+            let mut state = lock(&self.state);
+            state.samples += 1;
+            state.awaiting = false;
+        }
+        (self.updates)(self.index, value);
+    }
+
+    /// The source went: its next value, when it comes back, is found.
+    fn source_gone(&self) {
+        lock(&self.state).awaiting = true;
+    }
+
+    /// Read `key`'s value now, found, unless a sample comes first.
+    async fn read(&self, session: &Session, key: &str) {
+        let asked = lock(&self.state).samples;
+        let Ok(replies) = session.get(key).timeout(Duration::from_secs(5)).await else { return };
+        while let Ok(reply) = replies.recv_async().await {
+            let Some(value) = reply.result().ok().and_then(sample_number) else { continue };
+            {
+                let mut state = lock(&self.state);
+                if state.samples != asked {
+                    return;
+                }
+                state.awaiting = false;
+            }
+            (self.reads)(self.index, value);
         }
     }
 }
@@ -259,7 +379,7 @@ pub(crate) struct CalcTask {
     link: CalcLink,
     /// Its input keys, then the keys it is processed by, followed for as long as the task lives.
     _follows: Follows,
-    updates: tokio::sync::mpsc::UnboundedReceiver<(usize, f64)>,
+    updates: tokio::sync::mpsc::UnboundedReceiver<(usize, f64, Arrival)>,
     /// The calc record it serves, when its result goes to its own `bridge/<record>/VAL`.
     record: Option<AnsweredValue>,
 }
@@ -322,11 +442,16 @@ impl CalcTask {
     pub(crate) async fn run(&mut self) {
         let inputs: Vec<String> = self.link.input_keys().map(str::to_string).collect();
         let processing: Vec<String> = self.link.processing_keys().map(str::to_string).collect();
-        while let Some((index, value)) = self.updates.recv().await {
+        while let Some((index, value, arrival)) = self.updates.recv().await {
             // The key whose update processes the link: its inputs there have the update's value,
-            // newer than any read of it could be.
+            // newer than any read of it could be. A value found (read at connect, or at a
+            // source's return) processes only a link whose result is its own record's value:
+            // a write elsewhere (into a motor) waits for an event.
             let (process, fresh) = match index.checked_sub(inputs.len()) {
-                None => (self.link.update(&inputs[index], value), Some(inputs[index].as_str())),
+                None => {
+                    let cp = self.link.update(&inputs[index], value);
+                    (cp && (arrival == Arrival::Update || self.record.is_some()), Some(inputs[index].as_str()))
+                }
                 Some(index) => {
                     self.link.processed_by(&processing[index], value);
                     (true, Some(processing[index].as_str()))

@@ -160,9 +160,13 @@ impl Node {
             };
             let links = Arc::new(LinkInbox::default());
             let (sink, reads, loss) = (links.clone(), links.clone(), links.clone());
-            let mut follows = Follows::new(&session, side.followers.clone(), Arc::new(move |i, v| sink.deliver(i, v)))
-                .on_read(Arc::new(move |i, v| reads.read(i, v)))
-                .on_loss(layout.clone(), Arc::new(move |i| loss.lost(i)));
+            let mut follows = Follows::new(
+                &session,
+                side.followers.clone(),
+                Arc::new(move |i, v| sink.deliver(i, v)),
+                Arc::new(move |i, v| reads.read(i, v)),
+            )
+            .on_loss(Arc::new(move |i| loss.lost(i)));
             for (link, key) in plan.input_links() {
                 follows.follow(link as usize, &key)?;
             }
