@@ -362,9 +362,7 @@ impl PlayedAxis {
             })
             .await
             .unwrap();
-        let mut played = Self { session, name: name.to_string(), readback, _reads: reads, token: None };
-        played.come().await;
-        played
+        Self { session, name: name.to_string(), readback, _reads: reads, token: None }
     }
 
     async fn come(&mut self) {
@@ -382,17 +380,21 @@ impl PlayedAxis {
         }
     }
 
-    /// Its readback changes: posted, as a node posts it.
+    /// Its readback changes: posted as a node posts it (its session's timestamp, a state marker).
     async fn post(&self, readback: f64) {
         *self.readback.lock().unwrap() = readback;
-        put_text(&self.session, &format!("motor/{}/RBV", self.name), &readback.to_string()).await;
+        let marker = zmotor_msgs::StateMarker::new(0, 0, 0).encode();
+        let value = zmotor_msgs::encode_cbor(&Value::Float(readback));
+        let put = self.session.put(format!("motor/{}/RBV", self.name), value).attachment(marker);
+        put.encoding(zenoh::bytes::Encoding::APPLICATION_CBOR).timestamp(self.session.new_timestamp()).await.unwrap();
     }
 }
 
 /// No move from a connection: a calc link writing into a motor (CP inputs on other axes'
 /// readbacks) writes nothing on the values it finds when it connects, when an input's source
-/// comes, or on what a source coming back posts first (the state it found); nor does a motor in
-/// closed loop on such a readback move then. Each next update writes, and moves.
+/// comes, or on what a source coming back posts first (the state it found), also when it came
+/// back before the one gone was known gone; nor does a motor in closed loop on such a readback
+/// move then. Each next update writes, and moves.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn links_into_motors_move_nothing_on_values_found_at_connect_or_at_a_sources_return() {
     let lead = TestNode::start(vec![fast_axis("lead")]).await;
@@ -421,14 +423,6 @@ output = "motor/m1/VAL"
     );
     let node = TestNode::launch(&text).await;
     let client = node.client().await;
-    let mut written = Recorder::new(&node, &client, "motor/*/VAL").await;
-    written.drain_for(Duration::from_millis(500)).await;
-    assert!(written.values("VAL").is_empty(), "written at connect: {:?}", written.values("VAL"));
-    // The lead moves: its updates are events, and m1 follows.
-    confirmed_write(&lead_client, &lead.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
-    wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
-    // A source comes: its value is found.
-    let mut played = PlayedAxis::serve(node.client().await, "played", 0.5).await;
     let stays = |axis: &'static str, at: f64| {
         let (client, key) = (&client, node.key(axis, Field::VAL));
         async move {
@@ -436,6 +430,16 @@ output = "motor/m1/VAL"
             assert!((val - at).abs() < 1e-9, "{axis} moved on a value found: VAL {val}");
         }
     };
+    let mut written = Recorder::new(&node, &client, "motor/*/VAL").await;
+    written.drain_for(Duration::from_millis(500)).await;
+    assert!(written.values("VAL").is_empty(), "written at connect: {:?}", written.values("VAL"));
+    stays("m1", 0.0).await;
+    // The lead moves: its updates are events, and m1 follows.
+    confirmed_write(&lead_client, &lead.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
+    // A source comes: its value is found.
+    let mut played = PlayedAxis::serve(node.client().await, "played", 0.5).await;
+    played.come().await;
     written.drain_for(Duration::from_millis(500)).await;
     stays("m1", 1.0).await;
     stays("m2", 0.0).await;
@@ -450,6 +454,19 @@ output = "motor/m1/VAL"
     played.post(0.9).await;
     wait_until(&client, &node.key("m1", Field::RBV), 1.9).await;
     wait_until(&client, &node.key("m2", Field::RBV), 0.9).await;
+    // It comes back on another session before its old token goes (a node restarted within its
+    // lease; Zenoh tells neither the new token nor the old one's going): its first post is found
+    // by its session.
+    let mut restarted = PlayedAxis::serve(node.client().await, "played", 1.1).await;
+    restarted.post(1.1).await;
+    restarted.come().await;
+    drop(played);
+    written.drain_for(Duration::from_millis(500)).await;
+    stays("m1", 1.9).await;
+    stays("m2", 0.9).await;
+    restarted.post(1.3).await;
+    wait_until(&client, &node.key("m1", Field::RBV), 2.3).await;
+    wait_until(&client, &node.key("m2", Field::RBV), 1.3).await;
 }
 
 /// A motor in closed loop on another axis of its own node (its DOL on that axis's VAL) follows

@@ -9,10 +9,11 @@ use std::sync::Arc;
 use std::time::Duration;
 use zenoh::bytes::Encoding;
 use zenoh::sample::{Sample, SampleKind};
+use zenoh::time::TimestampId;
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
-use zmotor_msgs::{decode_scalar, encode_cbor, BridgeRecord, Field, KeyLayout, PayloadEncoding, Value};
+use zmotor_msgs::{decode_scalar, encode_cbor, Attached, BridgeRecord, Field, KeyLayout, PayloadEncoding, Value};
 
 /// Where a follower's values go, as (the key's index, its value): a calc link's channel, or an
 /// axis's inbox (so that a link's value and a write reach the axis in the order they came).
@@ -134,9 +135,17 @@ pub(crate) type LossSink = Arc<dyn Fn(usize) + Send + Sync>;
 /// One followed key: its subscriber, the watch on its source, and its gate as registered with
 /// the node's in-process followers.
 struct Followed {
+    gate: Arc<Gate>,
     _subscriber: zenoh::pubsub::Subscriber<()>,
     _source: Option<zenoh::pubsub::Subscriber<()>>,
     local: LinkSink,
+}
+
+impl Drop for Followed {
+    fn drop(&mut self) {
+        // A read of it still under way delivers nothing (a link switched to another key).
+        self.gate.retire();
+    }
 }
 
 impl Follows {
@@ -191,70 +200,74 @@ impl Follows {
             self.followed.resize_with(index + 1, || None);
         }
         if let Some(before) = self.followed[index].take() {
-            self.local.unregister(&(before.local, index));
+            self.local.unregister(&(before.local.clone(), index));
         }
         if key.is_empty() {
             return Ok(());
         }
-        let source = read_now.then(|| Source::of(&self.local.layout, key)).flatten();
+        let source = Source::of(&self.local.layout, key);
         // An axis always has values: its first one is found. A bridge record may have none yet
-        // (a calc never processed), and its first result is then an event.
-        let found_first = source.as_ref().is_some_and(|s| s.axis);
+        // (a calc never processed), and its first result is then an event; so is the first
+        // update of a key followed for its updates only (a forward link's write).
+        let found_first = read_now && matches!(source, Some(Source::Axis { .. }));
         let gate = Arc::new(Gate::new(index, self.updates.clone(), self.reads.clone(), found_first));
-        let through = gate.clone();
-        let local: LinkSink = Arc::new(move |_, value| through.own_post(value));
-        self.local.register(key, (local.clone(), index));
         let through = gate.clone();
         let subscriber = self
             .session
             .declare_subscriber(key.to_string())
             .callback(move |sample| {
                 if let Some(value) = sample_number(&sample) {
-                    through.sample(value);
+                    through.sample(value, state_poster(&sample));
                 }
             })
             .wait()?;
-        let watch = match source {
-            Some(source) => Some(self.watch(index, key, &source.token, gate.clone())?),
+        let watch = match &source {
+            Some(source) => Some(self.watch(index, key, source, gate.clone(), read_now)?),
             None => None,
         };
+        let through = gate.clone();
+        let local: LinkSink = Arc::new(move |_, value| through.own_post(value));
+        self.local.register(key, (local.clone(), index));
         if read_now {
-            let (session, key) = (self.session.clone(), key.to_string());
+            let (session, key, gate) = (self.session.clone(), key.to_string(), gate.clone());
             self.runtime.spawn(async move { gate.read(&session, &key).await });
         }
-        let followed = Followed { _subscriber: subscriber, _source: watch, local };
-        self.followed[index] = Some(followed);
+        self.followed[index] = Some(Followed { gate, _subscriber: subscriber, _source: watch, local });
         Ok(())
     }
-}
 
-impl Follows {
-    /// Watch the source of `key` (its liveliness `token`): when it goes, say so and take its
-    /// next value as found; when it comes back, read the value.
+    /// Watch the source of `key`: when it goes, say so and, for a source that posts its own
+    /// state, take its next value as found; when it comes back, read the value (`read_now`).
+    /// Zenoh tells a token's key gone only when no token of it remains, and come only when the
+    /// first comes: a node restarted before its old token was dropped is told by neither, and is
+    /// known by its posts (`state_poster`).
     fn watch(
         &self,
         index: usize,
         key: &str,
-        token: &str,
+        source: &Source,
         gate: Arc<Gate>,
+        read_now: bool,
     ) -> Result<zenoh::pubsub::Subscriber<()>, zenoh::Error> {
         let (session, runtime, key, lost) =
             (self.session.clone(), self.runtime.clone(), key.to_string(), self.lost.clone());
+        let states = source.states();
         self.session
             .liveliness()
-            .declare_subscriber(token.to_string())
+            .declare_subscriber(source.tokens())
             .callback(move |token| match token.kind() {
                 SampleKind::Delete => {
-                    gate.source_gone();
+                    gate.source_gone(states(token.key_expr().as_str()));
                     if let Some(lost) = &lost {
                         lost(index);
                     }
                 }
                 // Back: its value now, as when the link connected.
-                SampleKind::Put => {
+                SampleKind::Put if read_now => {
                     let (session, key, gate) = (session.clone(), key.clone(), gate.clone());
                     runtime.spawn(async move { gate.read(&session, &key).await });
                 }
+                SampleKind::Put => {}
             })
             .wait()
     }
@@ -264,7 +277,7 @@ impl Drop for Follows {
     fn drop(&mut self) {
         for (index, followed) in self.followed.drain(..).enumerate() {
             if let Some(followed) = followed {
-                self.local.unregister(&(followed.local, index));
+                self.local.unregister(&(followed.local.clone(), index));
             }
         }
     }
@@ -279,28 +292,54 @@ pub(crate) enum Arrival {
     Found,
 }
 
-/// What serves a followed key, known by its liveliness token: the axis of an axis's field
-/// (`<prefix>/<axis>/<FIELD>`), the bridge record of a record's value (`bridge/<record>/VAL`).
-struct Source {
-    /// The liveliness key of its token(s).
-    token: String,
-    /// Whether it is an axis.
-    axis: bool,
+/// What serves a followed key, known by its liveliness token.
+enum Source {
+    /// The axis of an axis's field (`<prefix>/<axis>/<FIELD>`).
+    Axis { token: String },
+    /// The bridge record of a record's value (`bridge/<record>/VAL`): an ao or a calc.
+    Record { name: String },
 }
 
 impl Source {
     fn of(layout: &KeyLayout, key: &str) -> Option<Self> {
         if let Some(axis) = layout.axis_chunk(key) {
-            return Some(Source { token: layout.axis(axis), axis: true });
+            return Some(Source::Axis { token: layout.axis(axis) });
         }
-        let record = BridgeRecord::of_value_key(key)?;
-        Some(Source { token: zmotor_msgs::keys::bridge_key(record, "*"), axis: false })
+        BridgeRecord::of_value_key(key).map(|name| Source::Record { name: name.to_string() })
+    }
+
+    /// The liveliness key expression of its tokens.
+    fn tokens(&self) -> String {
+        match self {
+            Source::Axis { token } => token.clone(),
+            Source::Record { name } => zmotor_msgs::keys::bridge_key(name, "*"),
+        }
+    }
+
+    /// Whether the source whose token is this one posts its own state (an axis, a calc), so
+    /// that its first value after it comes back is the state it found; an ao's values are
+    /// others' writes.
+    fn states(&self) -> impl Fn(&str) -> bool + Send + Sync + 'static {
+        let calc = match self {
+            Source::Axis { .. } => None,
+            Source::Record { name } => Some(BridgeRecord::Calc.token(name)),
+        };
+        move |token| calc.as_deref().is_none_or(|calc| token == calc)
     }
 }
 
+/// The session that posted a sample as a node's state (a state marker; its timestamp's id):
+/// another one than before is a node that came back.
+fn state_poster(sample: &Sample) -> Option<TimestampId> {
+    let marked = sample.attachment().is_some_and(|a| Attached::read(&a.to_bytes()) == Attached::State);
+    marked.then(|| sample.timestamp().map(|t| *t.get_id())).flatten()
+}
+
 /// Where one followed key's values go: updates, or found (`Arrival`). A value is found from
-/// when the key is followed (for an axis's key) or its source goes, until one comes; a read's
-/// answer is dropped when a sample came while it was asked (the sample is newer).
+/// when the key is followed (for an axis's key) or a source that posts its state goes, until
+/// one comes, and when a node other than the one before posts it (one that came back before
+/// the one gone was known gone); a read's answer is dropped when a sample came or the source
+/// went while it was asked, or the key is followed no more.
 struct Gate {
     index: usize,
     updates: LinkSink,
@@ -311,21 +350,40 @@ struct Gate {
 struct GateState {
     /// The next value is found, not an update.
     awaiting: bool,
-    /// Samples so far, to tell a read's answer from a newer sample.
+    /// Samples so far: a read's answer older than one is dropped.
     samples: u64,
+    /// Times the source went: a read's answer asked before is dropped.
+    losses: u64,
+    /// The session whose state posts came last.
+    poster: Option<TimestampId>,
+    /// Followed no more: nothing more is delivered.
+    retired: bool,
+}
+
+/// When a read was asked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Asked {
+    samples: u64,
+    losses: u64,
 }
 
 impl Gate {
     fn new(index: usize, updates: LinkSink, reads: LinkSink, awaiting: bool) -> Self {
-        Self { index, updates, reads, state: std::sync::Mutex::new(GateState { awaiting, samples: 0 }) }
+        let state = GateState { awaiting, samples: 0, losses: 0, poster: None, retired: false };
+        Self { index, updates, reads, state: std::sync::Mutex::new(state) }
     }
 
-    /// A sample of the key from the network.
-    fn sample(&self, value: f64) {
+    /// A sample of the key from the network, posted as a node's state by `poster` if known.
+    fn sample(&self, value: f64, poster: Option<TimestampId>) {
         let found = {
             let mut state = lock(&self.state);
+            if state.retired {
+                return;
+            }
             state.samples += 1;
-            std::mem::take(&mut state.awaiting)
+            let returned = poster.is_some() && state.poster.is_some() && poster != state.poster;
+            state.poster = poster.or(state.poster);
+            std::mem::take(&mut state.awaiting) || returned
         };
         let sink = if found { &self.reads } else { &self.updates };
         sink(self.index, value);
@@ -336,31 +394,52 @@ impl Gate {
     fn own_post(&self, value: f64) {
         {
             let mut state = lock(&self.state);
+            if state.retired {
+                return;
+            }
             state.samples += 1;
             state.awaiting = false;
         }
         (self.updates)(self.index, value);
     }
 
-    /// The source went: its next value, when it comes back, is found.
-    fn source_gone(&self) {
-        lock(&self.state).awaiting = true;
+    /// The source went; when it posts its own state (`states`), its next value is found.
+    fn source_gone(&self, states: bool) {
+        let mut state = lock(&self.state);
+        state.losses += 1;
+        state.awaiting |= states;
     }
 
-    /// Read `key`'s value now, found, unless a sample comes first.
+    /// Followed no more.
+    fn retire(&self) {
+        lock(&self.state).retired = true;
+    }
+
+    fn ask(&self) -> Asked {
+        let state = lock(&self.state);
+        Asked { samples: state.samples, losses: state.losses }
+    }
+
+    /// A read's answer: found, unless something newer came since it was asked.
+    fn answer(&self, asked: Asked, value: f64) {
+        {
+            let mut state = lock(&self.state);
+            if state.retired || asked != (Asked { samples: state.samples, losses: state.losses }) {
+                return;
+            }
+            state.awaiting = false;
+        }
+        (self.reads)(self.index, value);
+    }
+
+    /// Read `key`'s value now.
     async fn read(&self, session: &Session, key: &str) {
-        let asked = lock(&self.state).samples;
+        let asked = self.ask();
         let Ok(replies) = session.get(key).timeout(Duration::from_secs(5)).await else { return };
         while let Ok(reply) = replies.recv_async().await {
-            let Some(value) = reply.result().ok().and_then(sample_number) else { continue };
-            {
-                let mut state = lock(&self.state);
-                if state.samples != asked {
-                    return;
-                }
-                state.awaiting = false;
+            if let Some(value) = reply.result().ok().and_then(sample_number) {
+                self.answer(asked, value);
             }
-            (self.reads)(self.index, value);
         }
     }
 }
@@ -447,14 +526,12 @@ impl CalcTask {
             // newer than any read of it could be. A value found (read at connect, or at a
             // source's return) processes only a link whose result is its own record's value:
             // a write elsewhere (into a motor) waits for an event.
+            let may_write = arrival == Arrival::Update || self.record.is_some();
             let (process, fresh) = match index.checked_sub(inputs.len()) {
-                None => {
-                    let cp = self.link.update(&inputs[index], value);
-                    (cp && (arrival == Arrival::Update || self.record.is_some()), Some(inputs[index].as_str()))
-                }
+                None => (self.link.update(&inputs[index], value) && may_write, Some(inputs[index].as_str())),
                 Some(index) => {
                     self.link.processed_by(&processing[index], value);
-                    (true, Some(processing[index].as_str()))
+                    (may_write, Some(processing[index].as_str()))
                 }
             };
             if !process {
@@ -559,5 +636,95 @@ impl AnsweredValue {
 
     fn set(&self, x: f64) {
         *lock(&self.latest) = Some(x);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What a gate delivered, as (how, value).
+    type Seen = Arc<std::sync::Mutex<Vec<(Arrival, f64)>>>;
+
+    /// A gate whose deliveries are recorded.
+    fn recorded(found_first: bool) -> (Gate, Seen) {
+        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let sink = |how: Arrival| -> LinkSink {
+            let seen = seen.clone();
+            Arc::new(move |_, value| seen.lock().unwrap().push((how, value)))
+        };
+        (Gate::new(0, sink(Arrival::Update), sink(Arrival::Found), found_first), seen)
+    }
+
+    fn taken(seen: &std::sync::Mutex<Vec<(Arrival, f64)>>) -> Vec<(Arrival, f64)> {
+        std::mem::take(&mut *seen.lock().unwrap())
+    }
+
+    use Arrival::{Found, Update};
+
+    #[test]
+    fn an_axis_keys_first_sample_is_found_then_each_is_an_update() {
+        let (gate, seen) = recorded(true);
+        gate.sample(1.0, None);
+        gate.sample(2.0, None);
+        assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)]);
+        let (gate, seen) = recorded(false);
+        gate.sample(1.0, None);
+        assert_eq!(taken(&seen), [(Update, 1.0)], "a record's first result is an event");
+    }
+
+    #[test]
+    fn a_read_answers_found_unless_a_sample_or_a_loss_came_while_it_was_asked() {
+        let (gate, seen) = recorded(true);
+        let asked = gate.ask();
+        gate.answer(asked, 1.0);
+        gate.sample(2.0, None);
+        assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)], "the answer ends the wait");
+        let asked = gate.ask();
+        gate.sample(3.0, None);
+        gate.answer(asked, 2.0);
+        assert_eq!(taken(&seen), [(Update, 3.0)], "an answer older than a sample is dropped");
+        let asked = gate.ask();
+        gate.source_gone(true);
+        gate.answer(asked, 3.0);
+        gate.sample(4.0, None);
+        assert_eq!(taken(&seen), [(Found, 4.0)], "an answer from before the loss neither counts nor ends the wait");
+    }
+
+    #[test]
+    fn after_a_source_that_posts_its_state_goes_its_first_value_is_found() {
+        let (gate, seen) = recorded(false);
+        gate.source_gone(true);
+        gate.sample(1.0, None);
+        gate.sample(2.0, None);
+        gate.source_gone(false);
+        gate.sample(3.0, None);
+        assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0), (Update, 3.0)], "an ao's values are writes");
+    }
+
+    #[test]
+    fn a_state_post_from_another_session_than_before_is_found() {
+        let (gate, seen) = recorded(false);
+        let (first, second) = (TimestampId::rand(), TimestampId::rand());
+        gate.sample(1.0, Some(first));
+        gate.sample(2.0, None);
+        gate.sample(3.0, Some(first));
+        gate.sample(4.0, Some(second));
+        gate.sample(5.0, Some(second));
+        assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0), (Update, 3.0), (Found, 4.0), (Update, 5.0)]);
+    }
+
+    #[test]
+    fn the_nodes_own_posts_are_updates_and_a_retired_gate_delivers_nothing() {
+        let (gate, seen) = recorded(true);
+        gate.own_post(1.0);
+        gate.sample(2.0, None);
+        assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0)]);
+        let asked = gate.ask();
+        gate.retire();
+        gate.answer(asked, 3.0);
+        gate.sample(4.0, None);
+        gate.own_post(5.0);
+        assert!(taken(&seen).is_empty());
     }
 }
