@@ -18,6 +18,15 @@ pub struct StateMarker {
     pub stat: u16,
     /// Alarm severity (menuAlarmSevr index) when the value was published.
     pub sevr: u16,
+    /// True on a bridge record's value computed from values found (read when its links
+    /// connected, or when a source came back) rather than from an event: a link following it
+    /// takes it as found, and moves no motor on it. Absent (false) on every axis's post.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub found: bool,
+}
+
+fn is_false(value: &bool) -> bool {
+    !*value
 }
 
 impl StateMarker {
@@ -26,7 +35,13 @@ impl StateMarker {
 
     /// The marker of publication `seq`, with the axis's alarm status and severity at that moment.
     pub fn new(seq: u64, stat: u16, sevr: u16) -> Self {
-        Self { kind: Cow::Borrowed(Self::KIND), seq, stat, sevr }
+        Self { kind: Cow::Borrowed(Self::KIND), seq, stat, sevr, found: false }
+    }
+
+    /// The same marker, for a value computed from values found or not (`found`).
+    #[must_use]
+    pub fn with_found(self, found: bool) -> Self {
+        Self { found, ..self }
     }
 
     /// The marker as CBOR, the bytes of the attachment.

@@ -489,3 +489,76 @@ DOL = "motor/m1/VAL"
     confirmed_write(&client, &node.key("m1", Field::VAL), "1.5", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("m2", Field::RBV), 1.5).await;
 }
+
+/// Poll a key until it reads `expected`, whether or not anything answers meanwhile.
+async fn wait_for_answer(client: &zenoh::Session, key: &str, expected: f64) {
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    loop {
+        let replies = client.get(key).timeout(Duration::from_millis(500)).await.unwrap();
+        let value = match replies.recv_async().await {
+            Ok(reply) => reply.result().ok().map(|s| zmotor_msgs::decode_cbor_value(&s.payload().to_bytes())),
+            Err(_) => None,
+        };
+        if let Some(Ok(value)) = value {
+            if value.as_f64().is_some_and(|v| (v - expected).abs() < 1e-9) {
+                return;
+            }
+        }
+        assert!(tokio::time::Instant::now() < deadline, "{key} never read {expected}");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// A calc record's value computed from what its links found (its node starting, or starting
+/// again) is published as found: a calcout following it into a motor writes nothing then; an
+/// update of the record's inputs writes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_calc_records_value_found_at_its_nodes_start_moves_no_motor_through_a_calcout() {
+    let text = with_fast_m1(
+        r#"
+[[axis]]
+name = "lead"
+[axis.fields]
+MRES = 0.001
+VELO = 100.0
+[[calc]]
+name = "drive"
+expression = "A"
+inputs = { A = "bridge/scaled/VAL" }
+output = "motor/m1/VAL"
+"#,
+    );
+    let node = TestNode::launch(&text).await;
+    let client = node.client().await;
+    confirmed_write(&client, &node.key("lead", Field::VAL), "2", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("lead", Field::RBV), 2.0).await;
+    let bridge_text = format!(
+        "[zenoh]\nmode = \"peer\"\nlisten = []\nconnect = [\"{}\"]\n[[calc]]\nname = \"scaled\"\nexpression = \"A*2\"\n\
+         inputs = {{ A = \"motor/lead/RBV\" }}\noutput = \"bridge/scaled/VAL\"\n",
+        node.endpoint
+    );
+    let m1_stays_at = |at: f64| {
+        let (client, key) = (&client, node.key("m1", Field::VAL));
+        async move {
+            let val = get_f64(client, &key).await;
+            assert!((val - at).abs() < 1e-9, "m1 moved on a value found: VAL {val}");
+        }
+    };
+    let bridge = TestNode::launch(&bridge_text).await;
+    wait_for_answer(&client, "bridge/scaled/VAL", 4.0).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    m1_stays_at(0.0).await;
+    // An update of the record's input: the calcout writes.
+    confirmed_write(&client, &node.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("m1", Field::RBV), 2.0).await;
+    // The record's node starts again after the lead moved: its first value is found.
+    drop(bridge);
+    confirmed_write(&client, &node.key("lead", Field::VAL), "1.5", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("lead", Field::RBV), 1.5).await;
+    let _bridge = TestNode::launch(&bridge_text).await;
+    wait_for_answer(&client, "bridge/scaled/VAL", 3.0).await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    m1_stays_at(2.0).await;
+    confirmed_write(&client, &node.key("lead", Field::VAL), "0.5", PATIENCE).await.unwrap();
+    wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
+}

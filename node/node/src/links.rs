@@ -13,7 +13,7 @@ use zenoh::time::TimestampId;
 use zenoh::{Session, Wait};
 use zmotor_bridge::CalcLink;
 use zmotor_deploy::ValueSpec;
-use zmotor_msgs::{decode_scalar, encode_cbor, Attached, BridgeRecord, Field, KeyLayout, PayloadEncoding, Value};
+use zmotor_msgs::{decode_scalar, encode_cbor, BridgeRecord, Field, KeyLayout, PayloadEncoding, StateMarker, Value};
 
 /// Where a follower's values go, as (the key's index, its value): a calc link's channel, or an
 /// axis's inbox (so that a link's value and a write reach the axis in the order they came).
@@ -217,7 +217,7 @@ impl Follows {
             .declare_subscriber(key.to_string())
             .callback(move |sample| {
                 if let Some(value) = sample_number(&sample) {
-                    through.sample(value, state_poster(&sample));
+                    through.sample(value, Posted::of(&sample));
                 }
             })
             .wait()?;
@@ -328,11 +328,22 @@ impl Source {
     }
 }
 
-/// The session that posted a sample as a node's state (a state marker; its timestamp's id):
-/// another one than before is a node that came back.
-fn state_poster(sample: &Sample) -> Option<TimestampId> {
-    let marked = sample.attachment().is_some_and(|a| Attached::read(&a.to_bytes()) == Attached::State);
-    marked.then(|| sample.timestamp().map(|t| *t.get_id())).flatten()
+/// What a sample's state marker says of it: which session posted it as a node's state (its
+/// timestamp's id; another one than before is a node that came back), and whether it is a
+/// record's value computed from values found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Posted {
+    poster: Option<TimestampId>,
+    found: bool,
+}
+
+impl Posted {
+    fn of(sample: &Sample) -> Self {
+        let Some(marker) = sample.attachment().and_then(|a| StateMarker::decode(&a.to_bytes())) else {
+            return Self::default();
+        };
+        Self { poster: sample.timestamp().map(|t| *t.get_id()), found: marker.found }
+    }
 }
 
 /// Where one followed key's values go: updates, or found (`Arrival`). A value is found from
@@ -373,17 +384,18 @@ impl Gate {
         Self { index, updates, reads, state: std::sync::Mutex::new(state) }
     }
 
-    /// A sample of the key from the network, posted as a node's state by `poster` if known.
-    fn sample(&self, value: f64, poster: Option<TimestampId>) {
+    /// A sample of the key from the network, and what its marker says (`Posted`).
+    fn sample(&self, value: f64, posted: Posted) {
         let found = {
             let mut state = lock(&self.state);
             if state.retired {
                 return;
             }
             state.samples += 1;
+            let poster = posted.poster;
             let returned = poster.is_some() && state.poster.is_some() && poster != state.poster;
             state.poster = poster.or(state.poster);
-            std::mem::take(&mut state.awaiting) || returned
+            std::mem::take(&mut state.awaiting) || returned || posted.found
         };
         let sink = if found { &self.reads } else { &self.updates };
         sink(self.index, value);
@@ -461,6 +473,8 @@ pub(crate) struct CalcTask {
     updates: tokio::sync::mpsc::UnboundedReceiver<(usize, f64, Arrival)>,
     /// The calc record it serves, when its result goes to its own `bridge/<record>/VAL`.
     record: Option<AnsweredValue>,
+    /// The record's publications so far (its state markers' `seq`).
+    posts: u64,
 }
 
 impl CalcTask {
@@ -494,26 +508,29 @@ impl CalcTask {
         for (index, key) in link.processing_keys().enumerate() {
             follows.follow_updates(inputs + index, key)?;
         }
-        let mut task = Self { session: session.clone(), writer, link, _follows: follows, updates, record };
+        let mut task = Self { session: session.clone(), writer, link, _follows: follows, updates, record, posts: 0 };
         // A calc record of constants only is processed by nothing here, where EPICS's readers
         // process it through their PP links: its value is served from the start. (Only as a
         // record's value: a write elsewhere, to a motor, is never made unasked.)
         if task.record.is_some() {
             if let Some(result) = task.link.constant_result() {
-                task.write(result);
+                task.write(result, Arrival::Found);
             }
         }
         Ok(task)
     }
 
-    /// Keep a result for reads of the record, then write it to the output key.
-    fn write(&self, result: f64) {
-        // Kept before it is written: a read answered meanwhile has it, not the one before.
-        if let Some(record) = &self.record {
-            record.set(result);
-        }
-        // A write to the output key, like a calcout's OUT: plain, no state marker.
-        self.writer.put(&self.link.spec().output, result.to_string());
+    /// Write a result to the output key: a plain write, like a calcout's OUT; or, as the
+    /// record's own value, kept for reads and published as its state, marked found when it was
+    /// computed from a value found (its followers then move nothing on it either).
+    fn write(&mut self, result: f64, from: Arrival) {
+        let output = &self.link.spec().output;
+        let Some(record) = &self.record else { return self.writer.put(output, result.to_string()) };
+        // Kept before it is published: a read answered meanwhile has it, not the one before.
+        record.set(result);
+        self.posts += 1;
+        let marker = StateMarker::new(self.posts, 0, 0).with_found(from == Arrival::Found);
+        self.writer.put_state(output, result.to_string(), &marker);
     }
 
     /// Process on each CP input's update and each update of a key it is processed by, its NPP
@@ -539,7 +556,7 @@ impl CalcTask {
             }
             let read = self.read_npp_inputs(fresh).await;
             if let Some(result) = self.link.process_with(&read) {
-                self.write(result);
+                self.write(result, arrival);
             }
         }
     }
@@ -662,14 +679,18 @@ mod tests {
 
     use Arrival::{Found, Update};
 
+    fn posted(poster: Option<TimestampId>) -> Posted {
+        Posted { poster, found: false }
+    }
+
     #[test]
     fn an_axis_keys_first_sample_is_found_then_each_is_an_update() {
         let (gate, seen) = recorded(true);
-        gate.sample(1.0, None);
-        gate.sample(2.0, None);
+        gate.sample(1.0, Posted::default());
+        gate.sample(2.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)]);
         let (gate, seen) = recorded(false);
-        gate.sample(1.0, None);
+        gate.sample(1.0, Posted::default());
         assert_eq!(taken(&seen), [(Update, 1.0)], "a record's first result is an event");
     }
 
@@ -678,16 +699,16 @@ mod tests {
         let (gate, seen) = recorded(true);
         let asked = gate.ask();
         gate.answer(asked, 1.0);
-        gate.sample(2.0, None);
+        gate.sample(2.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)], "the answer ends the wait");
         let asked = gate.ask();
-        gate.sample(3.0, None);
+        gate.sample(3.0, Posted::default());
         gate.answer(asked, 2.0);
         assert_eq!(taken(&seen), [(Update, 3.0)], "an answer older than a sample is dropped");
         let asked = gate.ask();
         gate.source_gone(true);
         gate.answer(asked, 3.0);
-        gate.sample(4.0, None);
+        gate.sample(4.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 4.0)], "an answer from before the loss neither counts nor ends the wait");
     }
 
@@ -695,10 +716,10 @@ mod tests {
     fn after_a_source_that_posts_its_state_goes_its_first_value_is_found() {
         let (gate, seen) = recorded(false);
         gate.source_gone(true);
-        gate.sample(1.0, None);
-        gate.sample(2.0, None);
+        gate.sample(1.0, Posted::default());
+        gate.sample(2.0, Posted::default());
         gate.source_gone(false);
-        gate.sample(3.0, None);
+        gate.sample(3.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0), (Update, 3.0)], "an ao's values are writes");
     }
 
@@ -706,24 +727,32 @@ mod tests {
     fn a_state_post_from_another_session_than_before_is_found() {
         let (gate, seen) = recorded(false);
         let (first, second) = (TimestampId::rand(), TimestampId::rand());
-        gate.sample(1.0, Some(first));
-        gate.sample(2.0, None);
-        gate.sample(3.0, Some(first));
-        gate.sample(4.0, Some(second));
-        gate.sample(5.0, Some(second));
+        gate.sample(1.0, posted(Some(first)));
+        gate.sample(2.0, Posted::default());
+        gate.sample(3.0, posted(Some(first)));
+        gate.sample(4.0, posted(Some(second)));
+        gate.sample(5.0, posted(Some(second)));
         assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0), (Update, 3.0), (Found, 4.0), (Update, 5.0)]);
+    }
+
+    #[test]
+    fn a_records_value_computed_from_values_found_is_found() {
+        let (gate, seen) = recorded(false);
+        gate.sample(1.0, Posted { poster: None, found: true });
+        gate.sample(2.0, Posted::default());
+        assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)]);
     }
 
     #[test]
     fn the_nodes_own_posts_are_updates_and_a_retired_gate_delivers_nothing() {
         let (gate, seen) = recorded(true);
         gate.own_post(1.0);
-        gate.sample(2.0, None);
+        gate.sample(2.0, Posted::default());
         assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0)]);
         let asked = gate.ask();
         gate.retire();
         gate.answer(asked, 3.0);
-        gate.sample(4.0, None);
+        gate.sample(4.0, Posted::default());
         gate.own_post(5.0);
         assert!(taken(&seen).is_empty());
     }

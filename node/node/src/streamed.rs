@@ -351,7 +351,7 @@ mod tests {
     use zenoh::time::{TimestampId, NTP64};
 
     fn marker(seq: u64) -> StateMarker {
-        StateMarker { kind: "state".into(), seq, stat: 0, sevr: 0 }
+        StateMarker::new(seq, 0, 0)
     }
 
     fn keys(sent: &[(Streamed, StateMarker, Timestamp)]) -> Vec<(String, u64)> {

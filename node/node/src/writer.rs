@@ -1,4 +1,5 @@
-//! Plain writes this node makes to keys: link outputs, directives, calc results. The node's own
+//! Plain writes this node makes to keys: link outputs, directives, calc results (and the values
+//! of its bridge records, published as its state). The node's own
 //! subscribers do not hear its session (so publishing costs it no delivery to itself), so a
 //! write to one of its own axes is handed to that axis here, and put on the network for
 //! everyone else, as a post that must arrive (`event_posts.rs`): a write is a command, never
@@ -12,7 +13,7 @@ use std::sync::{Arc, OnceLock, Weak};
 use zenoh::bytes::Encoding;
 use zenoh::key_expr::KeyExpr;
 use zenoh::sample::Locality;
-use zmotor_msgs::{KeyLayout, PayloadEncoding};
+use zmotor_msgs::{KeyLayout, PayloadEncoding, StateMarker};
 
 /// The node's plain writes.
 #[derive(Clone)]
@@ -48,6 +49,16 @@ impl Writer {
                 }
             }
         }
+        self.send(key, value, None);
+    }
+
+    /// Publish `value` (text) on `key` as this node's state (a bridge record's value: `marker`),
+    /// not a write: nothing of this node takes it as one.
+    pub(crate) fn put_state(&self, key: &str, value: String, marker: &StateMarker) {
+        self.send(key, value, Some(marker.encode()));
+    }
+
+    fn send(&self, key: &str, value: String, attachment: Option<Vec<u8>>) {
         let key = match KeyExpr::try_from(key.to_string()) {
             Ok(key) => key,
             Err(e) => return tracing::warn!(key, "put failed: {e}"),
@@ -56,7 +67,7 @@ impl Writer {
             key,
             payload: value.into_bytes(),
             encoding: Encoding::TEXT_PLAIN,
-            attachment: None,
+            attachment,
             stamp: None,
             // The node's own value holders and links follow keys on its session too.
             destination: Destination::Network(Locality::Any),
