@@ -8,11 +8,13 @@ use std::borrow::Cow;
 /// Attachment of every publication a node makes. Its presence marks a sample as state, never a
 /// command, so nodes, bridges and UIs can share one key space without echo loops.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[non_exhaustive]
 pub struct StateMarker {
     /// Always "state".
     // Borrowed when made here: a node makes one for every post.
     pub kind: Cow<'static, str>,
-    /// Per-axis publication sequence number.
+    /// Per-axis publication sequence number (per record, from its node's start, for a bridge
+    /// record's value).
     pub seq: u64,
     /// Alarm status (menuAlarmStat index) when the value was published.
     pub stat: u16,

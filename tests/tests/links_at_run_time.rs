@@ -346,6 +346,8 @@ struct PlayedAxis {
     session: zenoh::Session,
     name: String,
     readback: std::sync::Arc<std::sync::Mutex<f64>>,
+    /// Reads of its readback answered so far.
+    answered: std::sync::Arc<std::sync::atomic::AtomicUsize>,
     _reads: zenoh::query::Queryable<()>,
     token: Option<zenoh::liveliness::LivelinessToken>,
 }
@@ -353,18 +355,25 @@ struct PlayedAxis {
 impl PlayedAxis {
     async fn serve(session: zenoh::Session, name: &str, readback: f64) -> Self {
         let readback = std::sync::Arc::new(std::sync::Mutex::new(readback));
-        let answered = readback.clone();
+        let answered = std::sync::Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let (value, count, stamps) = (readback.clone(), answered.clone(), session.clone());
         let reads = session
             .declare_queryable(format!("motor/{name}/RBV"))
             .callback(move |query| {
-                let value = zmotor_msgs::encode_cbor(&Value::Float(*answered.lock().unwrap()));
-                let _ = zenoh::Wait::wait(query.reply(query.key_expr().clone(), value));
+                // Answered as a node answers: its state marker and its session's timestamp.
+                let value = zmotor_msgs::encode_cbor(&Value::Float(*value.lock().unwrap()));
+                let reply =
+                    query.reply(query.key_expr().clone(), value).encoding(zenoh::bytes::Encoding::APPLICATION_CBOR);
+                let reply = reply.attachment(zmotor_msgs::StateMarker::new(0, 0, 0).encode());
+                let _ = zenoh::Wait::wait(reply.timestamp(stamps.new_timestamp()));
+                count.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
             })
             .await
             .unwrap();
-        Self { session, name: name.to_string(), readback, _reads: reads, token: None }
+        Self { session, name: name.to_string(), readback, answered, _reads: reads, token: None }
     }
 
+    /// Its token comes.
     async fn come(&mut self) {
         self.token = Some(self.session.liveliness().declare_token(format!("motor/{}", self.name)).await.unwrap());
     }
@@ -388,6 +397,12 @@ impl PlayedAxis {
         let put = self.session.put(format!("motor/{}/RBV", self.name), value).attachment(marker);
         put.encoding(zenoh::bytes::Encoding::APPLICATION_CBOR).timestamp(self.session.new_timestamp()).await.unwrap();
     }
+}
+
+/// Assert `axis`'s VAL is still `at`: nothing moved it on a value found.
+async fn val_stays(client: &zenoh::Session, node: &TestNode, axis: &str, at: f64) {
+    let val = get_f64(client, &node.key(axis, Field::VAL)).await;
+    assert!((val - at).abs() < 1e-9, "{axis} moved on a value found: VAL {val}");
 }
 
 /// No move from a connection: a calc link writing into a motor (CP inputs on other axes'
@@ -423,17 +438,10 @@ output = "motor/m1/VAL"
     );
     let node = TestNode::launch(&text).await;
     let client = node.client().await;
-    let stays = |axis: &'static str, at: f64| {
-        let (client, key) = (&client, node.key(axis, Field::VAL));
-        async move {
-            let val = get_f64(client, &key).await;
-            assert!((val - at).abs() < 1e-9, "{axis} moved on a value found: VAL {val}");
-        }
-    };
     let mut written = Recorder::new(&node, &client, "motor/*/VAL").await;
     written.drain_for(Duration::from_millis(500)).await;
     assert!(written.values("VAL").is_empty(), "written at connect: {:?}", written.values("VAL"));
-    stays("m1", 0.0).await;
+    val_stays(&client, &node, "m1", 0.0).await;
     // The lead moves: its updates are events, and m1 follows.
     confirmed_write(&lead_client, &lead.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
@@ -441,15 +449,15 @@ output = "motor/m1/VAL"
     let mut played = PlayedAxis::serve(node.client().await, "played", 0.5).await;
     played.come().await;
     written.drain_for(Duration::from_millis(500)).await;
-    stays("m1", 1.0).await;
-    stays("m2", 0.0).await;
+    val_stays(&client, &node, "m1", 1.0).await;
+    val_stays(&client, &node, "m2", 0.0).await;
     // It goes, and comes back with another value, posted before its token (a node's first poll).
     played.go(&node).await;
     played.post(0.7).await;
     played.come().await;
     written.drain_for(Duration::from_millis(500)).await;
-    stays("m1", 1.0).await;
-    stays("m2", 0.0).await;
+    val_stays(&client, &node, "m1", 1.0).await;
+    val_stays(&client, &node, "m2", 0.0).await;
     // Its next update is an event: both move.
     played.post(0.9).await;
     wait_until(&client, &node.key("m1", Field::RBV), 1.9).await;
@@ -462,8 +470,8 @@ output = "motor/m1/VAL"
     restarted.come().await;
     drop(played);
     written.drain_for(Duration::from_millis(500)).await;
-    stays("m1", 1.9).await;
-    stays("m2", 0.9).await;
+    val_stays(&client, &node, "m1", 1.9).await;
+    val_stays(&client, &node, "m2", 0.9).await;
     restarted.post(1.3).await;
     wait_until(&client, &node.key("m1", Field::RBV), 2.3).await;
     wait_until(&client, &node.key("m2", Field::RBV), 1.3).await;
@@ -537,17 +545,10 @@ output = "motor/m1/VAL"
          inputs = {{ A = \"motor/lead/RBV\" }}\noutput = \"bridge/scaled/VAL\"\n",
         node.endpoint
     );
-    let m1_stays_at = |at: f64| {
-        let (client, key) = (&client, node.key("m1", Field::VAL));
-        async move {
-            let val = get_f64(client, &key).await;
-            assert!((val - at).abs() < 1e-9, "m1 moved on a value found: VAL {val}");
-        }
-    };
     let bridge = TestNode::launch(&bridge_text).await;
     wait_for_answer(&client, "bridge/scaled/VAL", 4.0).await;
     tokio::time::sleep(Duration::from_millis(500)).await;
-    m1_stays_at(0.0).await;
+    val_stays(&client, &node, "m1", 0.0).await;
     // An update of the record's input: the calcout writes.
     confirmed_write(&client, &node.key("lead", Field::VAL), "1", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("m1", Field::RBV), 2.0).await;
@@ -558,7 +559,34 @@ output = "motor/m1/VAL"
     let _bridge = TestNode::launch(&bridge_text).await;
     wait_for_answer(&client, "bridge/scaled/VAL", 3.0).await;
     tokio::time::sleep(Duration::from_millis(500)).await;
-    m1_stays_at(2.0).await;
+    val_stays(&client, &node, "m1", 2.0).await;
     confirmed_write(&client, &node.key("lead", Field::VAL), "0.5", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("m1", Field::RBV), 1.0).await;
+}
+
+/// A source whose node restarts before its old token goes, when all a closed-loop DOL had of it
+/// was its value read at connect (no post seen): the read told the session it came from, so the
+/// new node's first post is found; the next one moves.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dol_knows_a_restarted_source_by_the_session_its_read_came_from() {
+    let text = with_fast_m1("\nOMSL = \"closed_loop\"\nDOL = \"motor/idle/RBV\"\n");
+    let node = TestNode::launch(&text).await;
+    let client = node.client().await;
+    let mut idle = PlayedAxis::serve(node.client().await, "idle", 0.2).await;
+    idle.come().await;
+    // The node reads it when its token comes (then its answer travels back).
+    let deadline = tokio::time::Instant::now() + PATIENCE;
+    while idle.answered.load(std::sync::atomic::Ordering::SeqCst) == 0 {
+        assert!(tokio::time::Instant::now() < deadline, "the node never read motor/idle/RBV");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let mut restarted = PlayedAxis::serve(node.client().await, "idle", 0.4).await;
+    restarted.post(0.4).await;
+    restarted.come().await;
+    drop(idle);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    val_stays(&client, &node, "m1", 0.0).await;
+    restarted.post(0.6).await;
+    wait_until(&client, &node.key("m1", Field::RBV), 0.6).await;
 }

@@ -132,18 +132,20 @@ pub(crate) struct Follows {
 /// Told the index of a followed key whose source is gone.
 pub(crate) type LossSink = Arc<dyn Fn(usize) + Send + Sync>;
 
-/// One followed key: its subscriber, the watch on its source, and its gate as registered with
-/// the node's in-process followers.
+/// One followed key: its subscriber, the watch on its source, and its gate, also registered
+/// with the node's in-process followers (as `follower`) until it is dropped.
 struct Followed {
     gate: Arc<Gate>,
     _subscriber: zenoh::pubsub::Subscriber<()>,
     _source: Option<zenoh::pubsub::Subscriber<()>>,
-    local: LinkSink,
+    local: Arc<LocalFollowers>,
+    follower: Follower,
 }
 
 impl Drop for Followed {
     fn drop(&mut self) {
-        // A read of it still under way delivers nothing (a link switched to another key).
+        self.local.unregister(&self.follower);
+        // A read of it still under way delivers nothing: the link follows another key now.
         self.gate.retire();
     }
 }
@@ -199,18 +201,14 @@ impl Follows {
         if self.followed.len() <= index {
             self.followed.resize_with(index + 1, || None);
         }
-        if let Some(before) = self.followed[index].take() {
-            self.local.unregister(&(before.local.clone(), index));
-        }
+        self.followed[index] = None;
         if key.is_empty() {
             return Ok(());
         }
-        let source = Source::of(&self.local.layout, key);
-        // An axis always has values: its first one is found. A bridge record may have none yet
-        // (a calc never processed), and its first result is then an event; so is the first
-        // update of a key followed for its updates only (a forward link's write).
-        let found_first = read_now && matches!(source, Some(Source::Axis { .. }));
-        let gate = Arc::new(Gate::new(index, self.updates.clone(), self.reads.clone(), found_first));
+        // A key followed for its updates only (a forward link's writes) has no state to find.
+        let source = read_now.then(|| Source::of(&self.local.layout, key)).flatten();
+        let axis = matches!(source, Some(Source::Axis { .. }));
+        let gate = Arc::new(Gate::new(index, self.updates.clone(), self.reads.clone(), axis));
         let through = gate.clone();
         let subscriber = self
             .session
@@ -222,64 +220,51 @@ impl Follows {
             })
             .wait()?;
         let watch = match &source {
-            Some(source) => Some(self.watch(index, key, source, gate.clone(), read_now)?),
+            Some(source) => Some(self.watch(index, key, source, gate.clone())?),
             None => None,
         };
         let through = gate.clone();
-        let local: LinkSink = Arc::new(move |_, value| through.own_post(value));
-        self.local.register(key, (local.clone(), index));
+        let follower: Follower = (Arc::new(move |_, value| through.own_post(value)), index);
+        self.local.register(key, follower.clone());
         if read_now {
             let (session, key, gate) = (self.session.clone(), key.to_string(), gate.clone());
             self.runtime.spawn(async move { gate.read(&session, &key).await });
         }
-        self.followed[index] = Some(Followed { gate, _subscriber: subscriber, _source: watch, local });
+        let local = self.local.clone();
+        self.followed[index] = Some(Followed { gate, _subscriber: subscriber, _source: watch, local, follower });
         Ok(())
     }
 
-    /// Watch the source of `key`: when it goes, say so and, for a source that posts its own
-    /// state, take its next value as found; when it comes back, read the value (`read_now`).
-    /// Zenoh tells a token's key gone only when no token of it remains, and come only when the
-    /// first comes: a node restarted before its old token was dropped is told by neither, and is
-    /// known by its posts (`state_poster`).
+    /// Watch the source of `key`: when it goes, say so (the gate takes an axis's next value as
+    /// found); when it comes back, read the value, as when the link connected. Zenoh tells a
+    /// token's key gone only when no token of it remains, and come only when the first comes: a
+    /// node restarted before its old token was dropped is told by neither, and is known by its
+    /// posts (`Posted`).
     fn watch(
         &self,
         index: usize,
         key: &str,
         source: &Source,
         gate: Arc<Gate>,
-        read_now: bool,
     ) -> Result<zenoh::pubsub::Subscriber<()>, zenoh::Error> {
         let (session, runtime, key, lost) =
             (self.session.clone(), self.runtime.clone(), key.to_string(), self.lost.clone());
-        let states = source.states();
         self.session
             .liveliness()
             .declare_subscriber(source.tokens())
             .callback(move |token| match token.kind() {
                 SampleKind::Delete => {
-                    gate.source_gone(states(token.key_expr().as_str()));
+                    gate.source_gone();
                     if let Some(lost) = &lost {
                         lost(index);
                     }
                 }
-                // Back: its value now, as when the link connected.
-                SampleKind::Put if read_now => {
+                SampleKind::Put => {
                     let (session, key, gate) = (session.clone(), key.clone(), gate.clone());
                     runtime.spawn(async move { gate.read(&session, &key).await });
                 }
-                SampleKind::Put => {}
             })
             .wait()
-    }
-}
-
-impl Drop for Follows {
-    fn drop(&mut self) {
-        for (index, followed) in self.followed.drain(..).enumerate() {
-            if let Some(followed) = followed {
-                self.local.unregister(&(followed.local.clone(), index));
-            }
-        }
     }
 }
 
@@ -315,17 +300,6 @@ impl Source {
             Source::Record { name } => zmotor_msgs::keys::bridge_key(name, "*"),
         }
     }
-
-    /// Whether the source whose token is this one posts its own state (an axis, a calc), so
-    /// that its first value after it comes back is the state it found; an ao's values are
-    /// others' writes.
-    fn states(&self) -> impl Fn(&str) -> bool + Send + Sync + 'static {
-        let calc = match self {
-            Source::Axis { .. } => None,
-            Source::Record { name } => Some(BridgeRecord::Calc.token(name)),
-        };
-        move |token| calc.as_deref().is_none_or(|calc| token == calc)
-    }
 }
 
 /// What a sample's state marker says of it: which session posted it as a node's state (its
@@ -346,32 +320,35 @@ impl Posted {
     }
 }
 
-/// Where one followed key's values go: updates, or found (`Arrival`). A value is found from
-/// when the key is followed (for an axis's key) or a source that posts its state goes, until
-/// one comes, and when a node other than the one before posts it (one that came back before
-/// the one gone was known gone); a read's answer is dropped when a sample came or the source
-/// went while it was asked, or the key is followed no more.
+/// Where one followed key's values go: updates, or found (`Arrival`). A value a record marks
+/// found is found. For an axis's key, also the first value (when the link connects or after the
+/// axis's token went) and a post from another session than the axis's before (a node restarted
+/// before its old token went, of which Zenoh tells nothing). A read's answer is found, and
+/// dropped when a sample came or the source went while it was asked, or the key is followed no
+/// more: it would be older than what the link has.
 struct Gate {
     index: usize,
     updates: LinkSink,
     reads: LinkSink,
+    /// The key is an axis's: its node posts its state, the session it posts from its own.
+    axis: bool,
     state: std::sync::Mutex<GateState>,
 }
 
 struct GateState {
     /// The next value is found, not an update.
     awaiting: bool,
-    /// Samples so far: a read's answer older than one is dropped.
+    /// Samples so far.
     samples: u64,
-    /// Times the source went: a read's answer asked before is dropped.
+    /// Times the source went.
     losses: u64,
-    /// The session whose state posts came last.
+    /// The session the axis's state came from last (a post's or a read's).
     poster: Option<TimestampId>,
-    /// Followed no more: nothing more is delivered.
+    /// Followed no more.
     retired: bool,
 }
 
-/// When a read was asked.
+/// When a read was asked: its answer is news only if nothing came or went since.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Asked {
     samples: u64,
@@ -379,9 +356,9 @@ struct Asked {
 }
 
 impl Gate {
-    fn new(index: usize, updates: LinkSink, reads: LinkSink, awaiting: bool) -> Self {
-        let state = GateState { awaiting, samples: 0, losses: 0, poster: None, retired: false };
-        Self { index, updates, reads, state: std::sync::Mutex::new(state) }
+    fn new(index: usize, updates: LinkSink, reads: LinkSink, axis: bool) -> Self {
+        let state = GateState { awaiting: axis, samples: 0, losses: 0, poster: None, retired: false };
+        Self { index, updates, reads, axis, state: std::sync::Mutex::new(state) }
     }
 
     /// A sample of the key from the network, and what its marker says (`Posted`).
@@ -392,13 +369,19 @@ impl Gate {
                 return;
             }
             state.samples += 1;
-            let poster = posted.poster;
-            let returned = poster.is_some() && state.poster.is_some() && poster != state.poster;
-            state.poster = poster.or(state.poster);
+            let returned =
+                self.axis && state.poster.is_some() && posted.poster.is_some_and(|p| Some(p) != state.poster);
+            self.note_poster(&mut state, posted);
             std::mem::take(&mut state.awaiting) || returned || posted.found
         };
         let sink = if found { &self.reads } else { &self.updates };
         sink(self.index, value);
+    }
+
+    fn note_poster(&self, state: &mut GateState, posted: Posted) {
+        if self.axis && posted.poster.is_some() {
+            state.poster = posted.poster;
+        }
     }
 
     /// A post of an axis of this very node, handed over in-process: an update always (the
@@ -415,14 +398,15 @@ impl Gate {
         (self.updates)(self.index, value);
     }
 
-    /// The source went; when it posts its own state (`states`), its next value is found.
-    fn source_gone(&self, states: bool) {
+    /// The source's token went: a read under way is stale, and an axis's next value is found
+    /// (what its node posts when it comes back is the state it found).
+    fn source_gone(&self) {
         let mut state = lock(&self.state);
         state.losses += 1;
-        state.awaiting |= states;
+        state.awaiting |= self.axis;
     }
 
-    /// Followed no more.
+    /// The link follows another key now: a read of this one still under way delivers nothing.
     fn retire(&self) {
         lock(&self.state).retired = true;
     }
@@ -432,25 +416,27 @@ impl Gate {
         Asked { samples: state.samples, losses: state.losses }
     }
 
-    /// A read's answer: found, unless something newer came since it was asked.
-    fn answer(&self, asked: Asked, value: f64) {
+    /// A read's answer, asked at `asked`.
+    fn answer(&self, asked: Asked, value: f64, posted: Posted) {
         {
             let mut state = lock(&self.state);
             if state.retired || asked != (Asked { samples: state.samples, losses: state.losses }) {
                 return;
             }
             state.awaiting = false;
+            self.note_poster(&mut state, posted);
         }
         (self.reads)(self.index, value);
     }
 
-    /// Read `key`'s value now.
+    /// Read `key`'s value now, as a link does when it connects.
     async fn read(&self, session: &Session, key: &str) {
         let asked = self.ask();
         let Ok(replies) = session.get(key).timeout(Duration::from_secs(5)).await else { return };
         while let Ok(reply) = replies.recv_async().await {
-            if let Some(value) = reply.result().ok().and_then(sample_number) {
-                self.answer(asked, value);
+            let Ok(sample) = reply.result() else { continue };
+            if let Some(value) = sample_number(sample) {
+                self.answer(asked, value, Posted::of(sample));
             }
         }
     }
@@ -659,28 +645,27 @@ impl AnsweredValue {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use Arrival::{Found, Update};
 
     /// What a gate delivered, as (how, value).
     type Seen = Arc<std::sync::Mutex<Vec<(Arrival, f64)>>>;
 
-    /// A gate whose deliveries are recorded.
-    fn recorded(found_first: bool) -> (Gate, Seen) {
-        let seen = Arc::new(std::sync::Mutex::new(Vec::new()));
+    /// A gate (of an axis's key or not) whose deliveries are recorded.
+    fn recorded(axis: bool) -> (Gate, Seen) {
+        let seen = Seen::default();
         let sink = |how: Arrival| -> LinkSink {
             let seen = seen.clone();
             Arc::new(move |_, value| seen.lock().unwrap().push((how, value)))
         };
-        (Gate::new(0, sink(Arrival::Update), sink(Arrival::Found), found_first), seen)
+        (Gate::new(0, sink(Update), sink(Found), axis), seen)
     }
 
-    fn taken(seen: &std::sync::Mutex<Vec<(Arrival, f64)>>) -> Vec<(Arrival, f64)> {
+    fn taken(seen: &Seen) -> Vec<(Arrival, f64)> {
         std::mem::take(&mut *seen.lock().unwrap())
     }
 
-    use Arrival::{Found, Update};
-
-    fn posted(poster: Option<TimestampId>) -> Posted {
-        Posted { poster, found: false }
+    fn by(poster: TimestampId) -> Posted {
+        Posted { poster: Some(poster), found: false }
     }
 
     #[test]
@@ -691,56 +676,58 @@ mod tests {
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)]);
         let (gate, seen) = recorded(false);
         gate.sample(1.0, Posted::default());
-        assert_eq!(taken(&seen), [(Update, 1.0)], "a record's first result is an event");
+        assert_eq!(taken(&seen), [(Update, 1.0)], "a record's first result may be an event");
     }
 
     #[test]
     fn a_read_answers_found_unless_a_sample_or_a_loss_came_while_it_was_asked() {
         let (gate, seen) = recorded(true);
         let asked = gate.ask();
-        gate.answer(asked, 1.0);
+        gate.answer(asked, 1.0, Posted::default());
         gate.sample(2.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)], "the answer ends the wait");
         let asked = gate.ask();
         gate.sample(3.0, Posted::default());
-        gate.answer(asked, 2.0);
+        gate.answer(asked, 2.0, Posted::default());
         assert_eq!(taken(&seen), [(Update, 3.0)], "an answer older than a sample is dropped");
         let asked = gate.ask();
-        gate.source_gone(true);
-        gate.answer(asked, 3.0);
+        gate.source_gone();
+        gate.answer(asked, 3.0, Posted::default());
         gate.sample(4.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 4.0)], "an answer from before the loss neither counts nor ends the wait");
     }
 
     #[test]
-    fn after_a_source_that_posts_its_state_goes_its_first_value_is_found() {
-        let (gate, seen) = recorded(false);
-        gate.source_gone(true);
+    fn after_an_axis_goes_its_first_value_is_found_and_a_records_is_as_it_is_marked() {
+        let (gate, seen) = recorded(true);
+        gate.source_gone();
         gate.sample(1.0, Posted::default());
         gate.sample(2.0, Posted::default());
-        gate.source_gone(false);
-        gate.sample(3.0, Posted::default());
-        assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0), (Update, 3.0)], "an ao's values are writes");
-    }
-
-    #[test]
-    fn a_state_post_from_another_session_than_before_is_found() {
-        let (gate, seen) = recorded(false);
-        let (first, second) = (TimestampId::rand(), TimestampId::rand());
-        gate.sample(1.0, posted(Some(first)));
-        gate.sample(2.0, Posted::default());
-        gate.sample(3.0, posted(Some(first)));
-        gate.sample(4.0, posted(Some(second)));
-        gate.sample(5.0, posted(Some(second)));
-        assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0), (Update, 3.0), (Found, 4.0), (Update, 5.0)]);
-    }
-
-    #[test]
-    fn a_records_value_computed_from_values_found_is_found() {
-        let (gate, seen) = recorded(false);
-        gate.sample(1.0, Posted { poster: None, found: true });
-        gate.sample(2.0, Posted::default());
         assert_eq!(taken(&seen), [(Found, 1.0), (Update, 2.0)]);
+        let (gate, seen) = recorded(false);
+        gate.source_gone();
+        gate.sample(1.0, Posted::default());
+        gate.sample(2.0, Posted { poster: None, found: true });
+        assert_eq!(taken(&seen), [(Update, 1.0), (Found, 2.0)], "an ao's writes, a calc's marked values");
+    }
+
+    #[test]
+    fn an_axis_post_from_another_session_than_its_state_before_is_found() {
+        let (gate, seen) = recorded(true);
+        let (first, second, third) = (TimestampId::rand(), TimestampId::rand(), TimestampId::rand());
+        gate.answer(gate.ask(), 0.0, by(first));
+        gate.sample(1.0, by(first));
+        gate.sample(2.0, Posted::default());
+        gate.sample(3.0, by(second));
+        gate.sample(4.0, by(second));
+        assert_eq!(taken(&seen), [(Found, 0.0), (Update, 1.0), (Update, 2.0), (Found, 3.0), (Update, 4.0)]);
+        gate.answer(gate.ask(), 5.0, by(third));
+        gate.sample(6.0, by(third));
+        assert_eq!(taken(&seen), [(Found, 5.0), (Update, 6.0)], "a read tells the session too");
+        let (gate, seen) = recorded(false);
+        gate.sample(1.0, by(first));
+        gate.sample(2.0, by(second));
+        assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0)], "a record marks what it found itself");
     }
 
     #[test]
@@ -751,7 +738,7 @@ mod tests {
         assert_eq!(taken(&seen), [(Update, 1.0), (Update, 2.0)]);
         let asked = gate.ask();
         gate.retire();
-        gate.answer(asked, 3.0);
+        gate.answer(asked, 3.0, Posted::default());
         gate.sample(4.0, Posted::default());
         gate.own_post(5.0);
         assert!(taken(&seen).is_empty());
