@@ -76,7 +76,12 @@ async fn a_link_change_that_cannot_be_wired_is_refused_and_changes_nothing() {
 
 /// A launch text of axis m1, fast (MRES 0.001, VELO 100), its fields table open, and `rest`.
 fn with_fast_m1(rest: &str) -> String {
-    format!("[[axis]]\nname = \"m1\"\n[axis.fields]\nMRES = 0.001\nVELO = 100.0{rest}")
+    fast_axis_text("m1", rest)
+}
+
+/// A launch file's fast simulated axis `name`, its fields followed by `rest`.
+fn fast_axis_text(name: &str, rest: &str) -> String {
+    format!("[[axis]]\nname = \"{name}\"\n[axis.fields]\nMRES = 0.001\nVELO = 100.0{rest}")
 }
 
 /// Poll a field until it reads `expected` (bounded by PATIENCE).
@@ -419,13 +424,11 @@ async fn links_into_motors_move_nothing_on_values_found_at_connect_or_at_a_sourc
     let text = format!(
         "[zenoh]\nconnect = [\"{}\"]\n{}",
         lead.endpoint,
-        with_fast_m1(
-            r#"
-[[axis]]
-name = "m2"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
+        with_fast_m1(&format!(
+            "\n{}",
+            fast_axis_text(
+                "m2",
+                r#"
 OMSL = "closed_loop"
 DOL = "motor/played/RBV"
 [[calc]]
@@ -434,7 +437,8 @@ expression = "A+B"
 inputs = { A = "motor/lead/RBV", B = "motor/played/RBV" }
 output = "motor/m1/VAL"
 "#
-        )
+            )
+        ))
     );
     let node = TestNode::launch(&text).await;
     let client = node.client().await;
@@ -481,17 +485,8 @@ output = "motor/m1/VAL"
 /// that axis's first move: the node's own axes do not come and go, their posts are updates.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_closed_loop_dol_on_an_axis_of_its_node_follows_its_first_move() {
-    let text = with_fast_m1(
-        r#"
-[[axis]]
-name = "m2"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
-OMSL = "closed_loop"
-DOL = "motor/m1/VAL"
-"#,
-    );
+    let m2 = fast_axis_text("m2", "\nOMSL = \"closed_loop\"\nDOL = \"motor/m1/VAL\"\n");
+    let text = with_fast_m1(&format!("\n{m2}"));
     let node = TestNode::launch(&text).await;
     let client = node.client().await;
     confirmed_write(&client, &node.key("m1", Field::VAL), "1.5", PATIENCE).await.unwrap();
@@ -522,20 +517,8 @@ async fn wait_for_answer(client: &zenoh::Session, key: &str, expected: f64) {
 /// update of the record's inputs writes.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_calc_records_value_found_at_its_nodes_start_moves_no_motor_through_a_calcout() {
-    let text = with_fast_m1(
-        r#"
-[[axis]]
-name = "lead"
-[axis.fields]
-MRES = 0.001
-VELO = 100.0
-[[calc]]
-name = "drive"
-expression = "A"
-inputs = { A = "bridge/scaled/VAL" }
-output = "motor/m1/VAL"
-"#,
-    );
+    let drive = "\n[[calc]]\nname = \"drive\"\nexpression = \"A\"\ninputs = { A = \"bridge/scaled/VAL\" }\noutput = \"motor/m1/VAL\"\n";
+    let text = with_fast_m1(&format!("\n{}", fast_axis_text("lead", drive)));
     let node = TestNode::launch(&text).await;
     let client = node.client().await;
     confirmed_write(&client, &node.key("lead", Field::VAL), "2", PATIENCE).await.unwrap();
