@@ -114,10 +114,9 @@ impl Drop for PostsFollowed {
 /// current value asked for once when a key is followed (as a link does when it connects). Any
 /// sample is a reading, state or write. What a key follows can change at run time.
 ///
-/// A value is either an update (an event: a move, a write) or found (read when the key is
-/// followed, or when its source comes back, or the first value after its source went: what a
-/// node coming back posts first is the state it found): found values go to the `reads` sink,
-/// and nothing a lab runs moves on them.
+/// A value is either an update (an event: a move, a write) or found (the state a link finds
+/// when it connects or its source comes back, as its `Gate` tells): found values go to the
+/// `reads` sink, and nothing a lab runs moves on them.
 pub(crate) struct Follows {
     session: Session,
     runtime: tokio::runtime::Handle,
