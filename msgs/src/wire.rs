@@ -20,9 +20,10 @@ pub struct StateMarker {
     pub stat: u16,
     /// Alarm severity (menuAlarmSevr index) when the value was published.
     pub sevr: u16,
-    /// True on a bridge record's value computed from values found (read when its links
-    /// connected, or when a source came back) rather than from an event: a link following it
-    /// takes it as found, and moves no motor on it. Absent (false) on every axis's post.
+    /// True on a bridge record's value (a calc's, a transform field's on its own key) computed
+    /// from values found (read when its links connected, or when a source came back) rather
+    /// than from an event: a link following it takes it as found, and moves no motor on it.
+    /// Absent (false) on every axis's post.
     #[serde(default, skip_serializing_if = "is_false")]
     pub found: bool,
 }
@@ -435,7 +436,7 @@ mod tests {
         assert_eq!(StateMarker::decode(&m.encode()), Some(m));
         assert_eq!(StateMarker::decode(b"hello"), None);
         assert_eq!(StateMarker::decode(&crate::codec::encode_cbor(&1.0)), None);
-        let longest = StateMarker::new(u64::MAX, u16::MAX, u16::MAX);
+        let longest = StateMarker::new(u64::MAX, u16::MAX, u16::MAX).with_found(true);
         let bytes = longest.encode();
         assert!(bytes.len() <= bytes.capacity() && bytes.capacity() == 48, "written in the room made for it");
         assert_eq!(StateMarker::decode(&bytes), Some(longest));

@@ -84,15 +84,21 @@ fn fast_axis_text(name: &str, rest: &str) -> String {
     format!("[[axis]]\nname = \"{name}\"\n[axis.fields]\nMRES = 0.001\nVELO = 100.0{rest}")
 }
 
-/// Poll a field until it reads `expected` (bounded by PATIENCE).
+/// Poll a key until it reads `expected` (bounded by PATIENCE), whether or not anything answers
+/// meanwhile (a node starting).
 async fn wait_until(client: &zenoh::Session, key: &str, expected: f64) {
     let deadline = tokio::time::Instant::now() + PATIENCE;
     loop {
-        let value = get_f64(client, key).await;
-        if (value - expected).abs() < 1e-9 {
+        let replies = client.get(key).timeout(Duration::from_millis(500)).await.unwrap();
+        let value = match replies.recv_async().await {
+            Ok(reply) => reply.result().ok().and_then(|s| zmotor_msgs::decode_cbor_value(&s.payload().to_bytes()).ok()),
+            Err(_) => None,
+        };
+        let value = value.and_then(|v| v.as_f64());
+        if value.is_some_and(|v| (v - expected).abs() < 1e-9) {
             return;
         }
-        assert!(tokio::time::Instant::now() < deadline, "{key} is {value}, expected {expected}");
+        assert!(tokio::time::Instant::now() < deadline, "{key} is {value:?}, expected {expected}");
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
 }
@@ -493,25 +499,6 @@ async fn a_closed_loop_dol_on_an_axis_of_its_node_follows_its_first_move() {
     wait_until(&client, &node.key("m2", Field::RBV), 1.5).await;
 }
 
-/// Poll a key until it reads `expected`, whether or not anything answers meanwhile.
-async fn wait_for_answer(client: &zenoh::Session, key: &str, expected: f64) {
-    let deadline = tokio::time::Instant::now() + PATIENCE;
-    loop {
-        let replies = client.get(key).timeout(Duration::from_millis(500)).await.unwrap();
-        let value = match replies.recv_async().await {
-            Ok(reply) => reply.result().ok().map(|s| zmotor_msgs::decode_cbor_value(&s.payload().to_bytes())),
-            Err(_) => None,
-        };
-        if let Some(Ok(value)) = value {
-            if value.as_f64().is_some_and(|v| (v - expected).abs() < 1e-9) {
-                return;
-            }
-        }
-        assert!(tokio::time::Instant::now() < deadline, "{key} never read {expected}");
-        tokio::time::sleep(Duration::from_millis(20)).await;
-    }
-}
-
 /// A calc record's value computed from what its links found (its node starting, or starting
 /// again) is published as found: a calcout following it into a motor writes nothing then; an
 /// update of the record's inputs writes.
@@ -529,7 +516,7 @@ async fn a_calc_records_value_found_at_its_nodes_start_moves_no_motor_through_a_
         node.endpoint
     );
     let bridge = TestNode::launch(&bridge_text).await;
-    wait_for_answer(&client, "bridge/scaled/VAL", 4.0).await;
+    wait_until(&client, "bridge/scaled/VAL", 4.0).await;
     tokio::time::sleep(Duration::from_millis(500)).await;
     val_stays(&client, &node, "m1", 0.0).await;
     // An update of the record's input: the calcout writes.
@@ -539,8 +526,13 @@ async fn a_calc_records_value_found_at_its_nodes_start_moves_no_motor_through_a_
     drop(bridge);
     confirmed_write(&client, &node.key("lead", Field::VAL), "1.5", PATIENCE).await.unwrap();
     wait_until(&client, &node.key("lead", Field::RBV), 1.5).await;
+    let scaled = client.declare_subscriber("bridge/scaled/VAL").await.unwrap();
     let _bridge = TestNode::launch(&bridge_text).await;
-    wait_for_answer(&client, "bridge/scaled/VAL", 3.0).await;
+    wait_until(&client, "bridge/scaled/VAL", 3.0).await;
+    // Published as the node's state, marked found (the wire contract's `found`).
+    let first = tokio::time::timeout(PATIENCE, scaled.recv_async()).await.expect("the record's value").unwrap();
+    let marker = first.attachment().and_then(|a| zmotor_msgs::StateMarker::decode(&a.to_bytes()));
+    assert!(marker.as_ref().is_some_and(|m| m.found), "not marked found: {marker:?}");
     tokio::time::sleep(Duration::from_millis(500)).await;
     val_stays(&client, &node, "m1", 2.0).await;
     confirmed_write(&client, &node.key("lead", Field::VAL), "0.5", PATIENCE).await.unwrap();

@@ -377,7 +377,7 @@ impl Axis {
         self.apply_link(link, value);
     }
 
-    /// A link's value read when the link connected, or when its source came back, at `now`: as
+    /// A link's value found when the link connected, or when its source came back, at `now`: as
     /// an update, but DOL's, which is not acted upon: in closed loop it would start a motion, and
     /// a motion never comes from a (re)connection (the next update of DOL drives the axis, as an
     /// NPP DOL is read only when the record processes).

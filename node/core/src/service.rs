@@ -437,7 +437,7 @@ impl<R: Clone> AxisService<R> {
         self.collect();
     }
 
-    /// A link's value read when the link connected or its source came back (`Axis::link_read`:
+    /// A link's value found when the link connected or its source came back (`Axis::link_read`:
     /// DOL's is not acted upon).
     pub fn link_read(&mut self, now: Instant, link: InputLink, value: f64) {
         self.axis.link_read(now, link, value);

@@ -116,7 +116,8 @@ impl LinkInbox {
         self.pass(AxisInput::LinkUpdate(zmotor_core::InputLink::ALL[index], value));
     }
 
-    /// The value of link number `index` read when it connected or its source came back.
+    /// The value of link number `index` found (read when it connected or its source came back,
+    /// or what the `Gate` in links.rs takes as found).
     pub(crate) fn read(&self, index: usize, value: f64) {
         self.pass(AxisInput::LinkRead(zmotor_core::InputLink::ALL[index], value));
     }

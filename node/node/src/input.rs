@@ -27,7 +27,8 @@ pub(crate) enum AxisInput {
     Tick,
     /// An input link's key took a value.
     LinkUpdate(InputLink, f64),
-    /// An input link's key's value, read when the link connected or its source came back.
+    /// An input link's key's value found: read when the link connected or its source came back,
+    /// or the state a source that came back posted.
     LinkRead(InputLink, f64),
     /// An input link's source is gone (the node serving its axis stopped).
     LinkLost(InputLink),

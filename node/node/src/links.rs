@@ -272,7 +272,7 @@ impl Follows {
 pub(crate) enum Arrival {
     /// An update: an event at its source.
     Update,
-    /// Found: read, or the first value after its source came (back).
+    /// Found: the state a link finds when it connects or its source comes back (see `Gate`).
     Found,
 }
 
