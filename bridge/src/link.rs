@@ -93,6 +93,8 @@ pub struct CalcLink {
     expression: Expression,
     values: [f64; VARIABLES],
     last_output: Option<f64>,
+    /// Its result is its own record's value (read by others), not a write elsewhere.
+    own_record: bool,
 }
 
 impl CalcLink {
@@ -112,7 +114,14 @@ impl CalcLink {
         for &(index, value) in &spec.constants {
             values[index] = value;
         }
-        Ok(Self { spec, expression, values, last_output: None })
+        Ok(Self { spec, expression, values, last_output: None, own_record: false })
+    }
+
+    /// The same link, its result its own record's value (a calc record answering reads), not a
+    /// write elsewhere: it processes on values found too (`found`).
+    #[must_use]
+    pub fn serving_its_record(self) -> Self {
+        Self { own_record: true, ..self }
     }
 
     /// The configuration the link was built from.
@@ -138,6 +147,18 @@ impl CalcLink {
         for input in self.spec.inputs.iter().filter(|i| i.key == key) {
             self.values[input.index] = value;
         }
+    }
+
+    /// A value found on `key` (the state a link finds when it connects or its source comes back,
+    /// not a change): the inputs there take it. Whether the link processes now, as on an update
+    /// of a CP input or a key it is processed by, only when its result is its own record's value
+    /// (`serving_its_record`): a write elsewhere, into a motor, is never made on what a
+    /// connection found, only on the next update.
+    #[must_use = "a found value may process a record's link"]
+    pub fn found(&mut self, key: &str, value: f64) -> bool {
+        let processing = self.spec.processed_by.iter().any(|k| k == key);
+        let cp = self.update(key, value);
+        self.own_record && (cp || processing)
     }
 
     /// The NPP inputs (index, key), to read when the link processes: EPICS reads a link's source
@@ -368,5 +389,29 @@ mod tests {
         let mut processed = spec("p", "1", &[], "kb", OutputOption::EveryTime);
         processed.processed_by = vec!["ka".into()];
         assert_eq!(find_cycle(&[a, processed]), Some(vec!["a".into(), "p".into(), "a".into()]), "through processed_by");
+    }
+
+    #[test]
+    fn a_value_found_processes_only_a_link_whose_result_is_its_own_records_value() {
+        let spec = CalcLinkSpec {
+            name: "c".into(),
+            expression: "A+B".into(),
+            inputs: vec![
+                InputSpec { index: 0, key: "a".into(), mode: InputMode::Process },
+                InputSpec { index: 1, key: "b".into(), mode: InputMode::NoProcess },
+            ],
+            constants: vec![],
+            output: "motor/m1/VAL".into(),
+            option: OutputOption::EveryTime,
+            processed_by: vec!["p".into()],
+        };
+        let mut writes_a_motor = CalcLink::new(spec.clone()).unwrap();
+        assert!(!writes_a_motor.found("a", 1.0), "a CP input's value found writes no motor");
+        assert!(!writes_a_motor.found("p", 1.0), "nor does a processing key's");
+        assert!(writes_a_motor.update("a", 2.0), "its next update does");
+        let mut record = CalcLink::new(spec).unwrap().serving_its_record();
+        assert!(record.found("a", 1.0) && record.found("p", 1.0), "a record's value is computed from it");
+        assert!(!record.found("b", 5.0), "an NPP input's is only held");
+        assert_eq!(record.process_with(&[]), Some(6.0));
     }
 }

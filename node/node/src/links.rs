@@ -493,6 +493,7 @@ impl CalcTask {
         for (index, key) in link.processing_keys().enumerate() {
             follows.follow_updates(inputs + index, key)?;
         }
+        let link = if record.is_some() { link.serving_its_record() } else { link };
         let mut task = Self { session: session.clone(), writer, link, _follows: follows, updates, record, posts: 0 };
         // A calc record of constants only is processed by nothing here, where EPICS's readers
         // process it through their PP links: its value is served from the start. (Only as a
@@ -524,18 +525,21 @@ impl CalcTask {
         let inputs: Vec<String> = self.link.input_keys().map(str::to_string).collect();
         let processing: Vec<String> = self.link.processing_keys().map(str::to_string).collect();
         while let Some((index, value, arrival)) = self.updates.recv().await {
-            // The key whose update processes the link: its inputs there have the update's value,
-            // newer than any read of it could be. A value found (read at connect, or at a
-            // source's return) processes only a link whose result is its own record's value:
-            // a write elsewhere (into a motor) waits for an event.
-            let may_write = arrival == Arrival::Update || self.record.is_some();
-            let (process, fresh) = match index.checked_sub(inputs.len()) {
-                None => (self.link.update(&inputs[index], value) && may_write, Some(inputs[index].as_str())),
-                Some(index) => {
-                    self.link.processed_by(&processing[index], value);
-                    (may_write, Some(processing[index].as_str()))
+            // The key whose value processes the link: its inputs there have that value, newer
+            // than any read of it could be.
+            let fresh = match index.checked_sub(inputs.len()) {
+                None => inputs[index].as_str(),
+                Some(index) => processing[index].as_str(),
+            };
+            let process = match (arrival, index < inputs.len()) {
+                (Arrival::Found, _) => self.link.found(fresh, value),
+                (Arrival::Update, true) => self.link.update(fresh, value),
+                (Arrival::Update, false) => {
+                    self.link.processed_by(fresh, value);
+                    true
                 }
             };
+            let fresh = Some(fresh);
             if !process {
                 continue;
             }
